@@ -1,0 +1,140 @@
+"""SlaveHandle: register reads and writes to one slave address through its bus."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from drivebus import pdu as P
+from drivebus.errors import ConfigError, ModbusException
+from drivebus.settings import LineSettings
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from drivebus.bus.scheduler import Bus
+
+from drivebus.bus.scheduler import Priority
+
+__all__ = ["SlaveHandle"]
+
+
+class SlaveHandle:
+    """One slave on a bus: its address, line settings, timeout, retries and exception texts."""
+
+    def __init__(
+        self,
+        bus: Bus,
+        address: int,
+        *,
+        settings: LineSettings | None,
+        timeout: float,
+        retries: int,
+        exception_texts: dict[int, str] | None = None,
+    ) -> None:
+        if timeout <= 0:
+            raise ConfigError(f"slave {address}: response timeout must be > 0 s")
+        if retries < 0:
+            raise ConfigError(f"slave {address}: retries must be >= 0")
+        self.bus = bus
+        self.address = address
+        self.settings = settings
+        self.timeout = timeout
+        self.retries = retries
+        self.exception_texts = dict(exception_texts or {})
+
+    @property
+    def is_broadcast(self) -> bool:
+        """True for address 0: writes reach every slave and nobody answers."""
+        return self.address == 0
+
+    def raise_exception(self, reply: bytes) -> None:
+        """Raise the typed error for an exception reply, with the vendor's text."""
+        P.check_exception(reply, slave=self.address, texts=self.exception_texts)
+        raise ModbusException(0, function=reply[0] & 0x7F, slave=self.address)  # unreachable
+
+    def _no_broadcast_read(self) -> None:
+        if self.is_broadcast:
+            raise ConfigError("cannot read from the broadcast address 0: nobody answers")
+
+    async def read_holding_registers(
+        self, address: int, count: int, *, priority: Priority = Priority.CONFIG
+    ) -> list[int]:
+        """Read ``count`` holding registers (FC03); retried on timeout or bad frame."""
+        self._no_broadcast_read()
+        req = P.read_request(P.READ_HOLDING, address, count)
+        reply = await self.bus.execute(
+            self, req, expect=P.response_length, priority=priority, idempotent=True
+        )
+        return P.decode_read_reply(reply, P.READ_HOLDING, count, slave=self.address)
+
+    async def read_input_registers(
+        self, address: int, count: int, *, priority: Priority = Priority.CONFIG
+    ) -> list[int]:
+        """Read ``count`` input registers (FC04); retried on timeout or bad frame."""
+        self._no_broadcast_read()
+        req = P.read_request(P.READ_INPUT, address, count)
+        reply = await self.bus.execute(
+            self, req, expect=P.response_length, priority=priority, idempotent=True
+        )
+        return P.decode_read_reply(reply, P.READ_INPUT, count, slave=self.address)
+
+    async def write_register(
+        self,
+        address: int,
+        value: int,
+        *,
+        priority: Priority = Priority.CONFIG,
+        idempotent: bool = True,
+    ) -> None:
+        """Write one register (FC06). Mark commands ``idempotent=False``: never retried."""
+        req = P.write_single_request(address, value)
+        reply = await self.bus.execute(
+            self,
+            req,
+            expect=None if self.is_broadcast else P.response_length,
+            priority=priority,
+            idempotent=idempotent,
+        )
+        if not self.is_broadcast:
+            P.decode_write_single_reply(reply, req, slave=self.address)
+
+    async def write_registers(
+        self,
+        address: int,
+        values: Sequence[int],
+        *,
+        priority: Priority = Priority.CONFIG,
+        idempotent: bool = True,
+    ) -> None:
+        """Write consecutive registers (FC16). Mark commands ``idempotent=False``."""
+        req = P.write_multiple_request(address, values)
+        reply = await self.bus.execute(
+            self,
+            req,
+            expect=None if self.is_broadcast else P.response_length,
+            priority=priority,
+            idempotent=idempotent,
+        )
+        if not self.is_broadcast:
+            P.decode_write_multiple_reply(reply, req, slave=self.address)
+
+    async def transact(
+        self,
+        pdu: bytes,
+        *,
+        expect: P.LengthPredictor | None = P.response_length,
+        priority: Priority = Priority.CONFIG,
+        idempotent: bool = False,
+    ) -> bytes:
+        """Raw path: send any PDU and return the reply PDU, its length told by ``expect``.
+
+        For drives with non-standard frames; exception replies still raise.
+        """
+        if not pdu:
+            raise ConfigError("empty PDU")
+        return await self.bus.execute(
+            self, bytes(pdu), expect=expect, priority=priority, idempotent=idempotent
+        )
+
+    def __repr__(self) -> str:
+        return f"SlaveHandle({self.address}, settings={self.settings})"

@@ -1,0 +1,112 @@
+"""Typed errors: every failure a caller can see is a ``DrivebusError`` subclass."""
+
+from __future__ import annotations
+
+__all__ = [
+    "BusClosed",
+    "ConfigError",
+    "DriveAlarm",
+    "DriveOffline",
+    "DrivebusError",
+    "FrameError",
+    "LimitViolation",
+    "LineClosed",
+    "ModbusException",
+    "NotSupported",
+    "ResponseTimeout",
+    "StateError",
+    "TransactionError",
+    "WrongResponder",
+]
+
+
+class DrivebusError(Exception):
+    """Base of every error drivebus raises on purpose."""
+
+
+class ConfigError(DrivebusError, ValueError):
+    """A setting, argument or config file is invalid; the message names it."""
+
+
+class TransactionError(DrivebusError):
+    """A Modbus transaction failed; ``slave`` is the address it was sent to."""
+
+    def __init__(self, message: str, *, slave: int | None = None) -> None:
+        super().__init__(message)
+        self.slave = slave
+
+
+class ResponseTimeout(TransactionError):
+    """No complete reply arrived within the slave's response timeout."""
+
+
+class FrameError(TransactionError):
+    """A reply arrived but is unusable: bad CRC, short or malformed frame."""
+
+
+class WrongResponder(TransactionError):
+    """A valid frame arrived from another address than the one asked."""
+
+    def __init__(self, message: str, *, slave: int | None = None, responder: int) -> None:
+        super().__init__(message, slave=slave)
+        self.responder = responder
+
+
+class ModbusException(TransactionError):
+    """The slave answered with a Modbus exception; ``text`` is the vendor's meaning."""
+
+    STANDARD = {
+        1: "illegal function",
+        2: "illegal data address",
+        3: "illegal data value",
+        4: "server device failure",
+        5: "acknowledge",
+        6: "server device busy",
+        8: "memory parity error",
+        10: "gateway path unavailable",
+        11: "gateway target device failed to respond",
+    }
+
+    def __init__(
+        self, code: int, *, function: int, slave: int | None = None, text: str | None = None
+    ) -> None:
+        self.code = code
+        self.function = function
+        self.text = text or self.STANDARD.get(code, "unknown exception")
+        super().__init__(
+            f"slave {slave} answered function 0x{function:02X} with exception "
+            f"0x{code:02X}: {self.text}",
+            slave=slave,
+        )
+
+
+class LineClosed(DrivebusError):
+    """The line or bus is closed (or closing); the request was not sent."""
+
+
+BusClosed = LineClosed
+
+
+class NotSupported(DrivebusError):
+    """The drive cannot do this over its bus; the message names drive and function."""
+
+
+class DriveAlarm(DrivebusError):
+    """The drive reports an alarm; ``code`` and ``text`` are the drive's own."""
+
+    def __init__(self, message: str, *, code: int | None = None, text: str = "") -> None:
+        super().__init__(message)
+        self.code = code
+        self.text = text
+
+
+class DriveOffline(DrivebusError):
+    """The drive stopped answering."""
+
+
+class LimitViolation(DrivebusError):
+    """A target or value lies outside a soft limit or a register's range."""
+
+
+class StateError(DrivebusError):
+    """The command is not allowed in the axis's current state."""

@@ -1,0 +1,6 @@
+"""Lines: the media that carry Modbus frames (serial RTU; TCP in ``drivebus.line.tcp``)."""
+
+from drivebus.line.base import Exchange, Line
+from drivebus.line.serial import SerialLine
+
+__all__ = ["Exchange", "Line", "SerialLine"]

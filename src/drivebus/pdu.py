@@ -1,0 +1,156 @@
+"""Modbus PDUs: encoding requests, predicting frame lengths, decoding replies.
+
+A PDU here is ``bytes`` starting with the function code. Every transport (RTU, TCP, the
+simulator) uses these functions, so there is one codec for the protocol's data unit.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Sequence
+
+from drivebus.errors import ConfigError, FrameError, ModbusException
+
+__all__ = [
+    "READ_HOLDING",
+    "READ_INPUT",
+    "WRITE_MULTIPLE",
+    "WRITE_SINGLE",
+    "LengthPredictor",
+    "check_exception",
+    "decode_read_reply",
+    "decode_write_multiple_reply",
+    "decode_write_single_reply",
+    "read_request",
+    "request_length",
+    "response_length",
+    "write_multiple_request",
+    "write_single_request",
+]
+
+READ_HOLDING = 0x03
+READ_INPUT = 0x04
+WRITE_SINGLE = 0x06
+WRITE_MULTIPLE = 0x10
+
+MAX_READ = 125
+MAX_WRITE = 123
+
+LengthPredictor = Callable[[bytes], "int | None"]
+"""Given the PDU bytes received so far, the PDU's full length, or None if more are needed."""
+
+_HDR = struct.Struct(">BHH")
+
+
+def _check_address(address: int) -> None:
+    if not 0 <= address <= 0xFFFF:
+        raise ConfigError(f"register address {address} is outside 0..65535")
+
+
+def _check_word(value: int) -> None:
+    if not 0 <= value <= 0xFFFF:
+        raise ConfigError(f"register value {value} is outside 0..65535 (one 16-bit word)")
+
+
+def read_request(function: int, address: int, count: int) -> bytes:
+    """FC03/FC04 request for ``count`` registers from ``address``."""
+    _check_address(address)
+    if not 1 <= count <= MAX_READ:
+        raise ConfigError(f"register count {count} is outside 1..{MAX_READ}")
+    if address + count > 0x10000:
+        raise ConfigError(f"registers {address}..{address + count - 1} run past 65535")
+    return _HDR.pack(function, address, count)
+
+
+def write_single_request(address: int, value: int) -> bytes:
+    """FC06 request writing one register."""
+    _check_address(address)
+    _check_word(value)
+    return _HDR.pack(WRITE_SINGLE, address, value)
+
+
+def write_multiple_request(address: int, values: Sequence[int]) -> bytes:
+    """FC16 request writing consecutive registers."""
+    _check_address(address)
+    count = len(values)
+    if not 1 <= count <= MAX_WRITE:
+        raise ConfigError(f"register count {count} is outside 1..{MAX_WRITE}")
+    if address + count > 0x10000:
+        raise ConfigError(f"registers {address}..{address + count - 1} run past 65535")
+    for v in values:
+        _check_word(v)
+    return _HDR.pack(WRITE_MULTIPLE, address, count) + bytes([2 * count]) + struct.pack(
+        f">{count}H", *values
+    )
+
+
+def response_length(pdu: bytes) -> int | None:
+    """Length of a standard reply PDU, as soon as its first bytes tell it."""
+    if not pdu:
+        return None
+    fc = pdu[0]
+    if fc & 0x80:
+        return 2
+    if fc in (0x01, 0x02, 0x03, 0x04, 0x17):
+        return 2 + pdu[1] if len(pdu) >= 2 else None
+    if fc in (0x05, 0x06, 0x0F, 0x10):
+        return 5
+    if fc == 0x08:
+        return 5
+    return None
+
+
+def request_length(pdu: bytes) -> int | None:
+    """Length of a standard request PDU (the slave's side), as soon as it is known."""
+    if not pdu:
+        return None
+    fc = pdu[0]
+    if fc in (0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x08):
+        return 5
+    if fc in (0x0F, 0x10):
+        return 6 + pdu[5] if len(pdu) >= 6 else None
+    if fc == 0x17:
+        return 10 + pdu[9] if len(pdu) >= 10 else None
+    return 1  # unknown function: the slave answers "illegal function" after the code
+
+
+def check_exception(
+    pdu: bytes, *, slave: int | None, texts: dict[int, str] | None = None
+) -> None:
+    """Raise ``ModbusException`` (with the vendor's text if known) for an exception reply."""
+    if pdu and pdu[0] & 0x80:
+        if len(pdu) < 2:
+            raise FrameError(f"slave {slave}: exception reply without a code", slave=slave)
+        code = pdu[1]
+        raise ModbusException(
+            code, function=pdu[0] & 0x7F, slave=slave, text=(texts or {}).get(code)
+        )
+
+
+def decode_read_reply(pdu: bytes, function: int, count: int, *, slave: int | None) -> list[int]:
+    """Register values of an FC03/FC04 reply, checked against the request."""
+    if len(pdu) < 2 or pdu[0] != function:
+        raise FrameError(
+            f"slave {slave}: reply function 0x{pdu[0] if pdu else 0:02X} to request "
+            f"0x{function:02X}",
+            slave=slave,
+        )
+    if pdu[1] != 2 * count or len(pdu) != 2 + 2 * count:
+        raise FrameError(
+            f"slave {slave}: reply carries {pdu[1]} bytes, {2 * count} expected", slave=slave
+        )
+    return list(struct.unpack_from(f">{count}H", pdu, 2))
+
+
+def decode_write_single_reply(pdu: bytes, request: bytes, *, slave: int | None) -> None:
+    """Check that an FC06 reply echoes the request."""
+    if pdu != request:
+        raise FrameError(f"slave {slave}: write reply does not echo the request", slave=slave)
+
+
+def decode_write_multiple_reply(pdu: bytes, request: bytes, *, slave: int | None) -> None:
+    """Check that an FC16 reply repeats the request's address and count."""
+    if pdu != request[:5]:
+        raise FrameError(
+            f"slave {slave}: write-multiple reply does not match the request", slave=slave
+        )

@@ -1,0 +1,38 @@
+"""pyserial URL handler for ``sim://NAME``: opens a running VirtualWire's pty.
+
+pyserial finds this module through ``serial.protocol_handler_packages`` (drivebus adds
+``drivebus.sim``). The port class is the ordinary POSIX serial port on the pty; it only
+adds the side channel that tells the wire the byte size and parity, which a pty drops.
+"""
+
+from __future__ import annotations
+
+import serial
+from serial.serialposix import Serial as PosixSerial
+
+__all__ = ["serial_class_for_url"]
+
+
+class _SimPort(PosixSerial):
+    """A POSIX serial port on a virtual wire's pty."""
+
+    wire = None  # set per wire by serial_class_for_url
+
+    def _reconfigure_port(self, force_update: bool = False) -> None:
+        super()._reconfigure_port(force_update)
+        if self.wire is not None:
+            self.wire.note_format(self._bytesize, self._parity)
+
+
+def serial_class_for_url(url: str) -> tuple[str, type[PosixSerial]]:
+    """Resolve ``sim://NAME`` to the wire's pty path and a port class bound to the wire."""
+    from drivebus.sim.wire import lookup_wire
+
+    name = url.split("://", 1)[1].strip("/")
+    try:
+        wire = lookup_wire(name)
+    except KeyError:
+        raise serial.SerialException(
+            f"no simulated line named {name!r} is running (start it with drivebus.sim)"
+        ) from None
+    return wire.slave_path, type("SimPort", (_SimPort,), {"wire": wire})
