@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 __all__ = [
     "BusClosed",
     "ConfigError",
@@ -55,7 +57,7 @@ class WrongResponder(TransactionError):
 class ModbusException(TransactionError):
     """The slave answered with a Modbus exception; ``text`` is the vendor's meaning."""
 
-    STANDARD = {
+    STANDARD: ClassVar[dict[int, str]] = {
         1: "illegal function",
         2: "illegal data address",
         3: "illegal data value",

@@ -218,11 +218,10 @@ class Bus:
                 heapq.heappop(self._queue)
                 await self._run_one(req)
         except BaseException as exc:
-            with anyio.CancelScope(shield=True):
-                self._open = False
-                self._fail_queued(
-                    exc if isinstance(exc, LineClosed) else LineClosed(f"bus owner stopped: {exc!r}")
-                )
+            self._open = False
+            if not isinstance(exc, LineClosed):
+                exc = LineClosed(f"bus owner on {self.line.name} stopped: {exc!r}")
+            self._fail_queued(exc)
             raise
 
     async def _run_one(self, req: _Request) -> None:

@@ -1,5 +1,7 @@
 """The built-in simulator: virtual RS-485 wires with simulated slaves and drives."""
 
+from drivebus.sim.drive import SimDrive
+from drivebus.sim.harness import sim_bus
 from drivebus.sim.slave import Fault, FaultPlan, RegisterSlave, SimSlave, SlaveException
 from drivebus.sim.wire import VirtualWire, WireFrame, lookup_wire
 
@@ -7,9 +9,11 @@ __all__ = [
     "Fault",
     "FaultPlan",
     "RegisterSlave",
+    "SimDrive",
     "SimSlave",
     "SlaveException",
     "VirtualWire",
     "WireFrame",
     "lookup_wire",
+    "sim_bus",
 ]

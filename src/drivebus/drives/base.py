@@ -1,0 +1,169 @@
+"""DriveProfile: the shared base every drive family's profile implements.
+
+A profile turns the common procedures (enable, move, speed run, stop, home, ...) into
+its drive's register writes through a ``SlaveHandle``, and decodes the drive's status
+registers into ``DriveStatus``. Quantities at this level are in drive units: positions
+in pulses, speeds in rev/min, accelerations in rev/s². Each profile converts these into
+its own register units (r/s², ramp time in ms, ...) with range checks that name the
+register. What a drive cannot do raises ``NotSupported`` naming drive and function.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import ClassVar
+
+from drivebus.bus import Priority, SlaveHandle
+from drivebus.drives.registers import Register, WordOrder
+from drivebus.drives.status import DriveIdentity, DriveStatus
+from drivebus.errors import NotSupported
+
+__all__ = ["DriveProfile", "MoveParams"]
+
+
+@dataclass(frozen=True)
+class MoveParams:
+    """Speed and ramps of one move or speed run, in drive units."""
+
+    speed_rpm: float
+    accel_rps2: float
+    decel_rps2: float
+
+
+class DriveProfile:
+    """Base of the drive-family profiles; unsupported procedures raise ``NotSupported``."""
+
+    family: ClassVar[str] = "generic"
+    word_order: ClassVar[WordOrder] = WordOrder.HIGH_FIRST
+    exception_texts: ClassVar[dict[int, str]] = {}
+    homing_methods: ClassVar[tuple[str, ...]] = ()
+    """Names of the homing methods ``home()`` accepts, the first is the default."""
+
+    def __init__(self, slave: SlaveHandle, *, pulses_per_rev: int = 10000) -> None:
+        self.slave = slave
+        self.pulses_per_rev = pulses_per_rev
+        slave.exception_texts.update(self.exception_texts)
+
+    def unsupported(self, what: str, why: str = "") -> NotSupported:
+        """The error for a procedure this drive lacks."""
+        tail = f": {why}" if why else ""
+        return NotSupported(f"the {self.family} drive cannot {what} over Modbus{tail}")
+
+    # -- register helpers (one register codec) -----------------------------------------------
+
+    async def read(self, reg: Register, *, priority: Priority = Priority.CONFIG) -> int:
+        """Read one register (both words of a 32-bit one)."""
+        if reg.contiguous:
+            words = await self.slave.read_holding_registers(
+                reg.address, reg.words, priority=priority
+            )
+            return reg.decode(words)
+        assert reg.low_address is not None
+        hi = await self.slave.read_holding_registers(reg.address, 1, priority=priority)
+        lo = await self.slave.read_holding_registers(reg.low_address, 1, priority=priority)
+        return reg.decode([hi[0], lo[0]])
+
+    async def write(
+        self,
+        reg: Register,
+        value: int,
+        *,
+        priority: Priority = Priority.CONFIG,
+        idempotent: bool = True,
+    ) -> None:
+        """Write one register, range-checked (a 32-bit one in one transaction if contiguous)."""
+        words = reg.encode(value)
+        if len(words) == 1:
+            await self.slave.write_register(
+                reg.address, words[0], priority=priority, idempotent=idempotent
+            )
+        elif reg.contiguous:
+            await self.slave.write_registers(
+                reg.address, words, priority=priority, idempotent=idempotent
+            )
+        else:
+            assert reg.low_address is not None
+            await self.slave.write_register(reg.address, words[0], priority=priority)
+            await self.slave.write_register(reg.low_address, words[1], priority=priority)
+
+    async def write_block(
+        self,
+        regs: Sequence[tuple[Register, int]],
+        *,
+        priority: Priority = Priority.CONFIG,
+        idempotent: bool = True,
+    ) -> None:
+        """Write registers at consecutive addresses in one FC16 transaction."""
+        values: list[int] = []
+        start = regs[0][0].address
+        for reg, v in regs:
+            if reg.address != start + len(values) or not reg.contiguous:
+                raise ValueError(f"register {reg.name} does not follow on at {start + len(values)}")
+            values.extend(reg.encode(v))
+        await self.slave.write_registers(start, values, priority=priority, idempotent=idempotent)
+
+    # -- procedures ---------------------------------------------------------------------------
+
+    async def setup(self) -> None:
+        """One-time configuration when an axis takes the drive over (no motion)."""
+
+    async def read_status(self, *, priority: Priority = Priority.POLL) -> DriveStatus:
+        """Poll the drive's status into a ``DriveStatus``."""
+        raise self.unsupported("report its status")
+
+    async def read_identity(self) -> DriveIdentity:
+        """Model and firmware, where the drive tells them."""
+        return DriveIdentity(self.family)
+
+    async def enable(self) -> None:
+        """Energise the motor."""
+        raise self.unsupported("enable the motor")
+
+    async def disable(self) -> None:
+        """De-energise the motor."""
+        raise self.unsupported("disable the motor")
+
+    async def move_absolute(self, position: int, params: MoveParams) -> None:
+        """Start a move to ``position`` pulses; returns once the drive accepted it."""
+        raise self.unsupported("make an absolute move")
+
+    async def move_relative(self, distance: int, params: MoveParams) -> None:
+        """Start a move by ``distance`` pulses; returns once the drive accepted it."""
+        raise self.unsupported("make a relative move")
+
+    async def speed_run(self, speed_rpm: float, accel_rps2: float, decel_rps2: float) -> None:
+        """Run at ``speed_rpm`` (sign = direction); called again it changes the speed."""
+        raise self.unsupported("run at a set speed")
+
+    async def stop(self, decel_rps2: float | None = None) -> None:
+        """Decelerating stop."""
+        raise self.unsupported("stop with deceleration")
+
+    async def emergency_stop(self) -> None:
+        """Stop as fast as the drive can."""
+        raise self.unsupported("make an emergency stop")
+
+    async def home(
+        self,
+        method: str | None = None,
+        *,
+        speed_rpm: float = 60.0,
+        creep_rpm: float = 10.0,
+        accel_rps2: float = 10.0,
+        offset: int = 0,
+    ) -> None:
+        """Start homing with ``method`` (one of ``homing_methods``)."""
+        raise self.unsupported("home")
+
+    async def clear_alarm(self) -> None:
+        """Clear a latched alarm."""
+        raise self.unsupported("clear an alarm")
+
+    async def zero_position(self) -> None:
+        """Make the present position zero."""
+        raise self.unsupported("set its position to zero")
+
+    async def save_parameters(self) -> None:
+        """Store the parameters in the drive's non-volatile memory."""
+        raise self.unsupported("save parameters")

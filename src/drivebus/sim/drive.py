@@ -1,0 +1,81 @@
+"""SimDrive: what every simulated drive shares — motion in real time, switches, alarms.
+
+Each drive family's twin (``drivebus.sim.drives.<family>``) subclasses this and maps its
+own registers, status bits and procedures onto these mechanics.
+"""
+
+from __future__ import annotations
+
+from drivebus.clock import monotonic
+from drivebus.settings import LineSettings
+from drivebus.sim.kinematics import Kinematics
+from drivebus.sim.slave import Fault, SimSlave
+
+__all__ = ["SimDrive"]
+
+
+class SimDrive(SimSlave):
+    """A simulated drive: an axis in pulses with optional home and limit switches."""
+
+    family = "generic"
+
+    def __init__(
+        self,
+        address: int,
+        settings: LineSettings | None = None,
+        *,
+        turnaround: float = 0.001,
+        position: int = 0,
+        home_switch: float | None = None,
+        limit_negative: float | None = None,
+        limit_positive: float | None = None,
+    ) -> None:
+        super().__init__(address, settings, turnaround=turnaround)
+        self.kin = Kinematics(position)
+        self.home_switch = home_switch
+        self.limit_negative = limit_negative
+        self.limit_positive = limit_positive
+        self.enabled = True
+        self.alarm_code = 0
+        """Latched alarm (0: none); the family's twin decides how it clears."""
+
+    # -- what tests and the demo look at ------------------------------------------------------
+
+    def position(self, now: float | None = None) -> int:
+        """The simulated motor position in whole pulses."""
+        return round(self.kin.position(monotonic() if now is None else now))
+
+    def velocity(self, now: float | None = None) -> float:
+        """The simulated velocity in pulses/s."""
+        return self.kin.velocity(monotonic() if now is None else now)
+
+    def is_moving(self, now: float | None = None) -> bool:
+        """True while the simulated motor turns."""
+        return self.kin.moving(monotonic() if now is None else now)
+
+    def raise_alarm(self, code: int, now: float | None = None) -> None:
+        """Latch alarm ``code``: the motor stops at once (as a drive's fault reaction)."""
+        t = monotonic() if now is None else now
+        self.alarm_code = code
+        self.kin.stop(t, None)
+
+    def power_loss(self) -> None:
+        """Cut the power: no replies until ``power_restore``; motion is lost."""
+        self.faults.inject(Fault.POWER_LOSS, times=None)
+        self.kin.stop(monotonic(), None)
+
+    def power_restore(self) -> None:
+        """Power comes back (the drive answers again)."""
+        self.faults.clear(Fault.POWER_LOSS)
+
+    def switch_states(self, now: float) -> tuple[bool, bool, bool]:
+        """(home, limit negative, limit positive) inputs at ``now``.
+
+        The home switch is active on the positive side of ``home_switch`` (a cam that
+        covers the axis from there on); limits are active beyond their positions.
+        """
+        p = self.kin.position(now)
+        home = self.home_switch is not None and p >= self.home_switch
+        neg = self.limit_negative is not None and p <= self.limit_negative
+        pos = self.limit_positive is not None and p >= self.limit_positive
+        return home, neg, pos
