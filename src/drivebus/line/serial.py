@@ -11,13 +11,11 @@ import serial_asyncio
 from drivebus.clock import PreciseTimer, monotonic
 from drivebus.errors import (
     ConfigError,
-    FrameError,
     LineClosed,
-    ResponseTimeout,
-    WrongResponder,
 )
 from drivebus.line.base import Exchange, Line
-from drivebus.line.rtu import crc_ok, frame
+from drivebus.line.receiver import RtuReceiver
+from drivebus.line.rtu import frame
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import switch_silence, timing
@@ -28,62 +26,6 @@ if "drivebus.sim" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("drivebus.sim")  # sim://NAME virtual lines
 
 _PARITY = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
-
-
-class _Receiver(asyncio.Protocol):
-    """Collects received bytes with the arrival time of the last one."""
-
-    def __init__(self) -> None:
-        self.buf = bytearray()
-        self.last_rx = 0.0
-        self.need = 0
-        self.waiter: asyncio.Future[None] | None = None
-        self.lost: BaseException | None = None
-        self.transport: serial_asyncio.SerialTransport | None = None
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport  # type: ignore[assignment]
-
-    def data_received(self, data: bytes) -> None:
-        self.last_rx = monotonic()
-        self.buf += data
-        w = self.waiter
-        if w is not None and len(self.buf) >= self.need and not w.done():
-            w.set_result(None)
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        self.lost = exc or LineClosed("serial port closed")
-        w = self.waiter
-        if w is not None and not w.done():
-            w.set_exception(LineClosed(f"serial port lost: {self.lost}"))
-
-    async def wait_for(self, n: int, deadline: float) -> bool:
-        """Wait until ``n`` bytes are buffered; False if ``deadline`` passed first."""
-        if len(self.buf) >= n:
-            return True
-        if self.lost is not None:
-            raise LineClosed(f"serial port lost: {self.lost}")
-        loop = asyncio.get_running_loop()
-        w = self.waiter = loop.create_future()
-        self.need = n
-        handle = loop.call_at(_loop_time(loop, deadline), _expire, w)
-        try:
-            await w
-        finally:
-            handle.cancel()
-            self.waiter = None
-        return len(self.buf) >= n
-
-
-def _expire(w: asyncio.Future[None]) -> None:
-    if not w.done():
-        w.set_result(None)
-
-
-def _loop_time(loop: asyncio.AbstractEventLoop, t: float) -> float:
-    # asyncio's loop clock is time.monotonic on every platform we support; keep the
-    # conversion in one place in case a loop uses another clock.
-    return t - monotonic() + loop.time()
 
 
 class SerialLine(Line):
@@ -110,14 +52,17 @@ class SerialLine(Line):
         if broadcast_delay < 0:
             raise ConfigError("broadcast_delay must be >= 0 seconds")
         self.broadcast_delay = broadcast_delay
-        self._rx: _Receiver | None = None
+        self._rx: RtuReceiver | None = None
         self._serial: serial.Serial | None = None
         self._current: LineSettings | None = None
         self._quiet_since = 0.0
         self._timer = PreciseTimer()
         self._closed = True
-        self.garbage_bytes = 0
+
+    @property
+    def garbage_bytes(self) -> int:
         """Bytes received outside any reply (late answers, noise), discarded."""
+        return self._rx.garbage_bytes if self._rx is not None else 0
 
     @property
     def current_settings(self) -> LineSettings | None:
@@ -128,7 +73,7 @@ class SerialLine(Line):
         """Open the port at the default settings."""
         s = self.settings
         loop = asyncio.get_running_loop()
-        rx = _Receiver()
+        rx = RtuReceiver(f"serial port {self.port}")
         try:
             transport, _ = await serial_asyncio.create_serial_connection(
                 loop,
@@ -192,9 +137,7 @@ class SerialLine(Line):
             await self._timer.sleep_until(quiet + silence)
             if rx.last_rx <= quiet:
                 break  # nothing arrived while we waited
-        if rx.buf:
-            self.garbage_bytes += len(rx.buf)
-            rx.buf.clear()
+        rx.discard()
 
     async def transact(
         self,
@@ -223,11 +166,11 @@ class SerialLine(Line):
             tx_end = tx_start + tm.frame_time(len(adu))
             self._quiet_since = tx_end
             if self.local_echo:
-                await self._take_echo(adu, tx_end + tm.t35 + 0.05)
+                await rx.take_echo(adu, tx_end + tm.t35 + 0.05)
             if expect is None:
                 self._quiet_since = tx_end + self.broadcast_delay
                 return Exchange(b"", tx_start, tx_end, tx_end, len(adu), 0, tm.frame_time(len(adu)))
-            reply = await self._read_reply(unit, expect, tx_end + timeout, tm.char_time, tm.t35)
+            reply = await rx.read_reply(unit, expect, tx_end + timeout, tm.char_time, tm.t35)
         except BaseException:
             # Whatever happened, the line must be silent before the next frame.
             self._quiet_since = max(self._quiet_since, monotonic())
@@ -237,86 +180,6 @@ class SerialLine(Line):
         n = len(reply) + 3
         return Exchange(
             reply, tx_start, tx_end, rx_end, len(adu), n, tm.frame_time(len(adu) + n)
-        )
-
-    async def _take_echo(self, adu: bytes, deadline: float) -> None:
-        rx = self._rx
-        assert rx is not None
-        if not await rx.wait_for(len(adu), deadline) or bytes(rx.buf[: len(adu)]) != adu:
-            got = bytes(rx.buf[: len(adu)])
-            rx.buf.clear()
-            raise FrameError(
-                f"local echo {got.hex(' ')} differs from the frame sent {adu.hex(' ')}: "
-                "bus collision, or the adapter does not echo (set local_echo = false)"
-            )
-        del rx.buf[: len(adu)]
-
-    async def _read_reply(
-        self, unit: int, expect: LengthPredictor, deadline: float, char: float, t35: float
-    ) -> bytes:
-        rx = self._rx
-        assert rx is not None
-        buf = rx.buf
-        need = 2
-        extended = False
-        while True:
-            if not await rx.wait_for(need, deadline):
-                if buf:
-                    return await self._resync(unit, expect, t35, deadline)
-                raise ResponseTimeout(f"slave {unit}: no reply", slave=unit)
-            if buf[0] != unit:
-                return await self._resync(unit, expect, t35, deadline)
-            length = expect(bytes(buf[1:need]))
-            if length is None:
-                need += 1
-                continue
-            total = 1 + length + 2
-            if not extended:
-                deadline += total * char  # allow the reply's own wire time
-                extended = True
-            if len(buf) < total:
-                need = total
-                continue
-            adu = bytes(buf[:total])
-            if not crc_ok(adu):
-                return await self._resync(unit, expect, t35, deadline)
-            del buf[:total]  # anything after it is garbage, dropped before the next frame
-            return adu[1:-2]
-
-    async def _resync(
-        self, unit: int, expect: LengthPredictor, t35: float, deadline: float
-    ) -> bytes:
-        """Error path: wait for t3.5 of silence, then look for a valid frame in the bytes."""
-        rx = self._rx
-        assert rx is not None
-        limit = deadline + 0.5  # a babbling line must not hold us forever
-        while monotonic() < limit:
-            quiet_at = rx.last_rx + t35
-            if monotonic() >= quiet_at:
-                break
-            await rx.wait_for(len(rx.buf) + 1, min(quiet_at, limit))
-        data = bytes(rx.buf)
-        rx.buf.clear()
-        other: int | None = None
-        for i in range(len(data) - 3):
-            length = expect(data[i + 1 :])
-            if length is None or i + length + 3 > len(data):
-                continue
-            adu = data[i : i + length + 3]
-            if crc_ok(adu):
-                if adu[0] == unit:
-                    self.garbage_bytes += len(data) - len(adu)
-                    return adu[1:-2]
-                other = adu[0] if other is None else other
-        self.garbage_bytes += len(data)
-        if other is not None:
-            raise WrongResponder(
-                f"slave {unit}: reply came from address {other}", slave=unit, responder=other
-            )
-        kind = "bad CRC" if len(data) >= 4 else "short frame"
-        raise FrameError(
-            f"slave {unit}: unusable reply ({kind}, {len(data)} bytes: {data[:32].hex(' ')})",
-            slave=unit,
         )
 
     def __repr__(self) -> str:
