@@ -2,7 +2,7 @@
 
 from drivebus import errors
 from drivebus.bus import Bus, BusStats, Priority, SlaveHandle, SlaveStats
-from drivebus.line import Exchange, Line, SerialLine
+from drivebus.line import Exchange, Line, RtuOverTcpLine, SerialLine, TcpLine
 from drivebus.settings import LineSettings
 
 __all__ = [
@@ -12,9 +12,11 @@ __all__ = [
     "Line",
     "LineSettings",
     "Priority",
+    "RtuOverTcpLine",
     "SerialLine",
     "SlaveHandle",
     "SlaveStats",
+    "TcpLine",
     "errors",
 ]
 

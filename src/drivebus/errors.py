@@ -7,12 +7,14 @@ from typing import ClassVar
 __all__ = [
     "BusClosed",
     "ConfigError",
+    "ConnectionLost",
     "DriveAlarm",
     "DriveOffline",
     "DrivebusError",
     "FrameError",
     "LimitViolation",
     "LineClosed",
+    "LineConfigError",
     "ModbusException",
     "NotSupported",
     "ResponseTimeout",
@@ -80,6 +82,20 @@ class ModbusException(TransactionError):
             f"0x{code:02X}: {self.text}",
             slave=slave,
         )
+
+
+class ConnectionLost(TransactionError):
+    """The connection of a networked line dropped, or could not be re-established yet.
+
+    The line reconnects by itself (at once after a drop, then with backoff); a request
+    that was in flight may or may not have reached the device.
+    """
+
+
+class LineConfigError(TransactionError, ConfigError):
+    """The line cannot carry this request as asked (e.g. per-slave serial settings on a
+    serial server whose port has one setting). A ``ConfigError`` for callers, and a
+    ``TransactionError`` so that the bus fails only this request, not the whole line."""
 
 
 class LineClosed(DrivebusError):

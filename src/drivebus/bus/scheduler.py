@@ -16,8 +16,10 @@ import anyio.abc
 from drivebus.clock import PreciseTimer, monotonic
 from drivebus.errors import (
     ConfigError,
+    ConnectionLost,
     FrameError,
     LineClosed,
+    LineConfigError,
     ResponseTimeout,
     TransactionError,
     WrongResponder,
@@ -84,6 +86,7 @@ class Bus:
         self._work: asyncio.Future[None] | None = None
         self._timer = PreciseTimer()
         self._waiting_for: _Request | None = None
+        self._in_flight: _Request | None = None
         self._tg: anyio.abc.TaskGroup | None = None
         self._open = False
         self._handles: dict[int, SlaveHandle] = {}
@@ -135,8 +138,16 @@ class Bus:
 
         if not 0 <= address <= 247:
             raise ConfigError(f"slave address {address} is outside 0..247 (0 = broadcast)")
-        if settings is not None and self.line.settings is None:
-            raise ConfigError(f"line {self.line.name} is not a serial line: no per-slave settings")
+        if settings is not None and settings != self.line.settings:
+            if self.line.settings is None:
+                raise ConfigError(
+                    f"line {self.line.name} is not a serial line: no per-slave settings"
+                )
+            if not getattr(self.line, "per_slave_settings", True):
+                raise ConfigError(
+                    f"slave {address}: line {self.line.name} has one setting for all slaves "
+                    f"({self.line.settings}); {settings} cannot be used on it"
+                )
         h = SlaveHandle(
             self,
             address,
@@ -188,6 +199,8 @@ class Bus:
 
     def _fail_queued(self, exc: Exception) -> None:
         queue, self._queue = self._queue, []
+        if self._in_flight is not None:
+            queue.append(self._in_flight)  # cut off mid-transaction: its caller must hear it
         for req in queue:
             if not req.future.done():
                 req.future.set_exception(exc)
@@ -216,7 +229,9 @@ class Bus:
                         self._waiting_for = None
                     continue  # the queue's head may have changed meanwhile
                 heapq.heappop(self._queue)
+                self._in_flight = req
                 await self._run_one(req)
+                self._in_flight = None
         except BaseException as exc:
             self._open = False
             if not isinstance(exc, LineClosed):
@@ -242,9 +257,14 @@ class Bus:
                 st.timeouts += 1
             elif isinstance(exc, WrongResponder):
                 st.wrong_responder += 1
+            elif isinstance(exc, ConnectionLost):
+                st.connection_errors += 1
+            elif isinstance(exc, LineConfigError):
+                pass  # refused before it reached the wire; not a wire error
             else:
                 st.crc_errors += 1
-            if req.retries_left > 0 and not req.future.done():
+            retry = not isinstance(exc, LineConfigError) and not req.future.done()
+            if retry and req.retries_left > 0:
                 req.retries_left -= 1
                 st.retries += 1
                 heapq.heappush(self._queue, req)  # same seq: keeps its place in line

@@ -21,13 +21,15 @@ class SlaveStats:
     """Unusable replies: bad CRC, short or malformed frames."""
     exceptions: int = 0
     wrong_responder: int = 0
+    connection_errors: int = 0
+    """Requests lost to a dropped network connection (TCP lines)."""
     broadcasts: int = 0
     last_error: str = ""
 
     @property
     def errors(self) -> int:
         """All failed attempts."""
-        return self.timeouts + self.crc_errors + self.wrong_responder
+        return self.timeouts + self.crc_errors + self.wrong_responder + self.connection_errors
 
 
 @dataclass
@@ -59,6 +61,6 @@ class BusStats:
         t = SlaveStats()
         for s in self.slaves.values():
             for name in ("transactions", "retries", "timeouts", "crc_errors", "exceptions",
-                         "wrong_responder", "broadcasts"):
+                         "wrong_responder", "connection_errors", "broadcasts"):
                 setattr(t, name, getattr(t, name) + getattr(s, name))
         return t

@@ -84,8 +84,10 @@ class DriveProfile:
             )
         else:
             assert reg.low_address is not None
-            await self.slave.write_register(reg.address, words[0], priority=priority)
-            await self.slave.write_register(reg.low_address, words[1], priority=priority)
+            for address, word in ((reg.address, words[0]), (reg.low_address, words[1])):
+                await self.slave.write_register(
+                    address, word, priority=priority, idempotent=idempotent
+                )
 
     async def write_block(
         self,

@@ -2,5 +2,6 @@
 
 from drivebus.line.base import Exchange, Line
 from drivebus.line.serial import SerialLine
+from drivebus.line.tcp import RtuOverTcpLine, TcpLine
 
-__all__ = ["Exchange", "Line", "SerialLine"]
+__all__ = ["Exchange", "Line", "RtuOverTcpLine", "SerialLine", "TcpLine"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import termios
 
 import serial
 import serial.rs485
@@ -92,7 +93,8 @@ class SerialLine(Line):
         if self.rs485:
             try:
                 self._serial.rs485_mode = serial.rs485.RS485Settings()
-            except (ValueError, OSError, serial.SerialException) as exc:
+            except (ValueError, OSError, termios.error, serial.SerialException) as exc:
+                self._serial.rs485_mode = None
                 transport.close()
                 raise ConfigError(
                     f"serial port {self.port!r} does not support RS-485 mode (RTS direction "

@@ -3,6 +3,7 @@
 from drivebus.sim.drive import SimDrive
 from drivebus.sim.harness import sim_bus
 from drivebus.sim.slave import Fault, FaultPlan, RegisterSlave, SimSlave, SlaveException
+from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from drivebus.sim.wire import VirtualWire, WireFrame, lookup_wire
 
 __all__ = [
@@ -10,7 +11,9 @@ __all__ = [
     "FaultPlan",
     "RegisterSlave",
     "SimDrive",
+    "SimSerialServer",
     "SimSlave",
+    "SimTcpServer",
     "SlaveException",
     "VirtualWire",
     "WireFrame",

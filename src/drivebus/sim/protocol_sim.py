@@ -2,7 +2,9 @@
 
 pyserial finds this module through ``serial.protocol_handler_packages`` (drivebus adds
 ``drivebus.sim``). The port class is the ordinary POSIX serial port on the pty; it only
-adds the side channel that tells the wire the byte size and parity, which a pty drops.
+adds the side channel that tells the wire the byte size and parity. A pty carries baud
+rate and stop bits to the other side but not parity or byte size (some kernels refuse
+PARENB on a pty with EINVAL), so those two go to the pty as 8N and to the wire directly.
 """
 
 from __future__ import annotations
@@ -19,9 +21,14 @@ class _SimPort(PosixSerial):
     wire = None  # set per wire by serial_class_for_url
 
     def _reconfigure_port(self, force_update: bool = False) -> None:
-        super()._reconfigure_port(force_update)
+        bytesize, parity = self._bytesize, self._parity
+        self._bytesize, self._parity = serial.EIGHTBITS, serial.PARITY_NONE
+        try:
+            super()._reconfigure_port(force_update)
+        finally:
+            self._bytesize, self._parity = bytesize, parity
         if self.wire is not None:
-            self.wire.note_format(self._bytesize, self._parity)
+            self.wire.note_format(bytesize, parity)
 
 
 def serial_class_for_url(url: str) -> tuple[str, type[PosixSerial]]:

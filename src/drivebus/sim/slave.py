@@ -27,8 +27,11 @@ class Fault(enum.Enum):
     NO_REPLY = "no_reply"
     CRC_DAMAGE = "crc_damage"
     GARBAGE = "garbage"
+    """Junk bytes (the value, or ff 00 55) go out right before the reply."""
     SLOW_REPLY = "slow_reply"
+    """The reply comes ``value`` seconds later than the turnaround."""
     WRONG_ADDRESS = "wrong_address"
+    """The reply carries address ``value`` (default: the next address)."""
     POWER_LOSS = "power_loss"
 
 

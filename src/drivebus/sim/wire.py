@@ -71,8 +71,10 @@ class WireFrame:
 class VirtualWire:
     """A simulated RS-485 line; use as ``async with VirtualWire("name") as wire``."""
 
-    def __init__(self, name: str, *, log_size: int = 200_000) -> None:
+    def __init__(self, name: str, *, echo: bool = False, log_size: int = 200_000) -> None:
         self.name = name
+        self.echo = echo
+        """Send every master byte back, as adapters that hear their own transmitter do."""
         self.slaves: dict[int, SimSlave] = {}
         self.log: deque[WireFrame] = deque(maxlen=log_size)
         self.violations = 0
@@ -88,12 +90,15 @@ class VirtualWire:
         self._rx_end = 0.0
         self._rx_settings: LineSettings | None = None
         self._rx_gap = (0.0, 0.0)
-        self._replying_until = 0.0
-        self._pending: deque[tuple[float, bytes, SimSlave, bool]] = deque()
+        self._rx_collision = False
+        self._pending: deque[_Reply] = deque()
         self._wake: asyncio.Future[None] | None = None
         self._timer = PreciseTimer()
         self._tg: anyio.abc.TaskGroup | None = None
         self._rng = random.Random(0)
+        self._log_waiters: list[tuple[int, asyncio.Future[None]]] = []
+        self.request_count = 0
+        """Master frames seen since the wire started (not reset by ``clear_log``)."""
 
     # -- set-up -------------------------------------------------------------------------
 
@@ -166,15 +171,20 @@ class VirtualWire:
             return  # EIO: nobody has the pty open right now
         if not data:
             return
+        if self.echo:
+            os.write(self._master_fd, data)
         s = self.observed_settings()
         tm = timing(s)
         if self._rx and (now > self._rx_end + tm.t15 or s != self._rx_settings):
             self._finish_request("incomplete")
         if not self._rx:
             required = switch_silence(self._last_settings, s)
-            gap = now - max(self._busy_until, self._replying_until)
-            if now < self._replying_until:
-                gap = -(self._replying_until - now)  # collision with a reply in progress
+            gap = now - self._busy_until
+            # A slave still due to reply (slower than the master's timeout) collides with
+            # this frame: both are lost. That is the slave's fault, not a gap violation.
+            self._rx_collision = bool(self._pending)
+            for r in self._pending:
+                r.collided = True
             self._rx_start = now
             self._rx_settings = s
             self._rx_gap = (gap, required)
@@ -215,8 +225,9 @@ class VirtualWire:
         heard = [sl for sl in targets if _understands(sl.settings, s)]
         if targets and not heard and not note:
             note = "settings mismatch"
-        violated = gap < required
-        if violated and not note:
+        if self._rx_collision and not note:
+            note = "collision"
+        if gap < required and not note:
             note = "gap violation"
         good_crc = crc_ok(data)
         if heard and not good_crc and not note:
@@ -234,6 +245,28 @@ class VirtualWire:
         if f.violation:
             self.violations += 1
         self.log.append(f)
+        if f.direction == "request":
+            self.request_count += 1
+            if self._log_waiters:
+                self._wake_waiters()
+
+    def _wake_waiters(self) -> None:
+        keep = []
+        for n, fut in self._log_waiters:
+            if self.request_count >= n:
+                if not fut.done():
+                    fut.set_result(None)
+            else:
+                keep.append((n, fut))
+        self._log_waiters = keep
+
+    async def wait_requests(self, n: int) -> None:
+        """Return once ``n`` master frames in all have been seen (tests synchronise on it)."""
+        if self.request_count >= n:
+            return
+        fut = asyncio.get_running_loop().create_future()
+        self._log_waiters.append((n, fut))
+        await fut
 
     # -- replying ----------------------------------------------------------------------------
 
@@ -254,8 +287,7 @@ class VirtualWire:
         delay = slave.turnaround + float(faults.get(Fault.SLOW_REPLY) or 0.0)  # type: ignore[arg-type]
         tm = timing(slave.settings)
         due = request_end + delay + tm.frame_time(len(adu))
-        self._replying_until = max(self._replying_until, due)
-        self._pending.append((due, adu, slave, False))
+        self._pending.append(_Reply(due, adu, slave))
         if self._wake is not None and not self._wake.done():
             self._wake.set_result(None)
 
@@ -266,27 +298,27 @@ class VirtualWire:
                 self._wake = loop.create_future()
                 await self._wake
                 continue
-            due, adu, slave, _ = self._pending[0]
-            await self._timer.sleep_until(due)
-            self._pending.popleft()
-            self._send_reply(adu, slave)
+            await self._timer.sleep_until(self._pending[0].due)
+            self._send_reply(self._pending.popleft())
 
-    def _send_reply(self, adu: bytes, slave: SimSlave) -> None:
+    def _send_reply(self, reply: _Reply) -> None:
         now = monotonic()
+        adu, slave = reply.adu, reply.slave
         tm = timing(slave.settings)
         master = self.observed_settings()
         data = adu
-        if not _understands(master, slave.settings):
-            # The master's UART runs at other settings: it receives noise, not our frame.
+        note = ""
+        if reply.collided:
+            note = "collision"
+        elif not _understands(master, slave.settings):
+            note = "master at other settings"  # its UART decodes noise, not our frame
+        if note:
             data = bytes(self._rng.randrange(256) for _ in adu)
         start = now - tm.frame_time(len(adu))
         gap = start - self._busy_until
         self._busy_until = now
         self._last_settings = slave.settings
-        self._log(
-            WireFrame("reply", adu[0], adu, start, now, slave.settings, gap, 0.0,
-                      "" if data is adu else "master at other settings")
-        )
+        self._log(WireFrame("reply", adu[0], adu, start, now, slave.settings, gap, 0.0, note))
         try:
             os.write(self._master_fd, data)
         except OSError:
@@ -303,6 +335,14 @@ class VirtualWire:
         self.log.clear()
         self.violations = 0
         self.frames = 0
+
+
+@dataclass(slots=True)
+class _Reply:
+    due: float
+    adu: bytes
+    slave: SimSlave
+    collided: bool = False
 
 
 def _understands(slave: LineSettings, heard: LineSettings) -> bool:

@@ -1,0 +1,631 @@
+"""Networked lines: Modbus TCP (``TcpLine``) and RTU over TCP (``RtuOverTcpLine``).
+
+Both keep one persistent connection, reconnect with backoff after the peer closes or the
+network drops, and report every failure as a typed error:
+
+* ``open()`` fails with ``LineClosed`` naming host:port and the cause;
+* once open, a dropped connection fails the transactions it carried (and those issued
+  while reconnecting is backing off) with ``ConnectionLost``. It is a ``TransactionError``
+  on purpose: the bus scheduler treats ``LineClosed`` as "this line is gone for good"
+  and stops, while a network line recovers: reads are retried and reconnect at once,
+  non-idempotent writes fail to their caller, who must read back state;
+* after ``close()`` every call fails with ``LineClosed``.
+"""
+
+from __future__ import annotations
+
+import abc
+import asyncio
+import socket
+import struct
+from collections import deque
+from dataclasses import dataclass
+from typing import Protocol
+
+from drivebus.clock import PreciseTimer, monotonic
+from drivebus.errors import (
+    ConfigError,
+    ConnectionLost,
+    FrameError,
+    LineClosed,
+    LineConfigError,
+    ResponseTimeout,
+    WrongResponder,
+)
+from drivebus.line.base import Exchange, Line
+from drivebus.line.receiver import RtuReceiver
+from drivebus.line.rtu import frame
+from drivebus.pdu import LengthPredictor
+from drivebus.settings import LineSettings
+from drivebus.timing import timing
+
+__all__ = [
+    "ConnectionLost",
+    "LineConfigError",
+    "RtuOverTcpLine",
+    "TcpLine",
+    "TcpLineStats",
+    "mbap_frame",
+]
+
+_MBAP = struct.Struct(">HHHB")  # transaction id, protocol id (0), length (unit + PDU), unit id
+MAX_PDU = 253
+
+
+def mbap_frame(tid: int, unit: int, pdu: bytes) -> bytes:
+    """A Modbus TCP ADU: the 7-byte MBAP header followed by ``pdu``."""
+    return _MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu
+
+
+@dataclass
+class TcpLineStats:
+    """What happened to a networked line's connection."""
+
+    connects: int = 0
+    """Successful connects (the first one included)."""
+    disconnects: int = 0
+    """Connections lost while the line was open (peer closed, reset, stream corrupt)."""
+    failed_connects: int = 0
+    late_replies: int = 0
+    """Replies that came after their request had timed out (or needed none), discarded."""
+    rejected_replies: int = 0
+    """Replies whose transaction id matched no request sent on the connection."""
+    last_error: str = ""
+
+
+def _cause(exc: BaseException | None) -> str:
+    if exc is None:
+        return "the peer closed the connection"
+    text = str(exc) or "no details"
+    return f"{type(exc).__name__}: {text}"
+
+
+class _Connection(Protocol):
+    transport: asyncio.BaseTransport | None
+    lost: BaseException | None
+
+    def connection_lost(self, exc: Exception | None) -> None: ...
+
+
+class _NetworkLine(Line, abc.ABC):
+    """Connection handling shared by the TCP lines: connect, keepalive, reconnect backoff."""
+
+    scheme = "tcp"
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        *,
+        connect_timeout: float,
+        reconnect_delay: float,
+        reconnect_delay_max: float,
+        connect_on_open: bool,
+    ) -> None:
+        if not 0 < port < 65536:
+            raise ConfigError(f"TCP port {port} is outside 1..65535")
+        if connect_timeout <= 0:
+            raise ConfigError(f"connect_timeout must be > 0 s, not {connect_timeout}")
+        if reconnect_delay < 0 or reconnect_delay_max < reconnect_delay:
+            raise ConfigError(
+                "reconnect delays must satisfy 0 <= reconnect_delay <= reconnect_delay_max"
+            )
+        self.host = host
+        self.port = port
+        self.name = f"{self.scheme}://{host}:{port}"
+        self.connect_timeout = connect_timeout
+        self.reconnect_delay = reconnect_delay
+        self.reconnect_delay_max = reconnect_delay_max
+        self.connect_on_open = connect_on_open
+        self.stats = TcpLineStats()
+        self._conn: _Connection | None = None
+        self._connect_lock = asyncio.Lock()
+        self._closed = True
+        self._failures = 0
+        self._next_attempt = 0.0
+
+    # -- state --------------------------------------------------------------------------------
+
+    @property
+    def address(self) -> str:
+        """``host:port`` as used in error messages."""
+        return f"{self.host}:{self.port}"
+
+    @property
+    def connected(self) -> bool:
+        """True while a connection is up."""
+        return self._usable(self._conn)
+
+    @property
+    def reconnect_at(self) -> float:
+        """Monotonic time of the next connect attempt (when down; the past means "now")."""
+        return self._next_attempt
+
+    @staticmethod
+    def _usable(conn: _Connection | None) -> bool:
+        return (
+            conn is not None
+            and conn.lost is None
+            and conn.transport is not None
+            and not conn.transport.is_closing()
+        )
+
+    # -- life cycle ---------------------------------------------------------------------------
+
+    async def open(self) -> None:
+        """Connect (unless ``connect_on_open=False``); ``LineClosed`` names the cause."""
+        self._closed = False
+        self._failures = 0
+        self._next_attempt = 0.0
+        if self.connect_on_open:
+            async with self._connect_lock:
+                await self._connect()
+
+    async def close(self) -> None:
+        """Close the connection; transactions waiting on it fail with ``LineClosed``."""
+        self._closed = True
+        conn, self._conn = self._conn, None
+        if conn is not None and conn.transport is not None:
+            conn.transport.close()
+            conn.connection_lost(None)  # wake waiters now; asyncio repeats it harmlessly
+
+    @abc.abstractmethod
+    def _make_protocol(self) -> asyncio.Protocol:
+        """A fresh protocol object for one connection."""
+
+    async def _connect(self) -> _Connection:
+        """Connect now; ``LineClosed`` naming host:port and the cause if that fails."""
+        loop = asyncio.get_running_loop()
+        try:
+            async with asyncio.timeout(self.connect_timeout):
+                _, proto = await loop.create_connection(self._make_protocol, self.host, self.port)
+        except TimeoutError as exc:
+            raise self._connect_failed(
+                f"no answer within the connect timeout of {self.connect_timeout:g} s"
+            ) from exc
+        except OSError as exc:
+            raise self._connect_failed(_cause(exc)) from exc
+        conn: _Connection = proto  # type: ignore[assignment]
+        assert conn.transport is not None
+        sock = conn.transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._conn = conn
+        self._failures = 0
+        self.stats.connects += 1
+        return conn
+
+    def _connect_failed(self, cause: str) -> LineClosed:
+        self._failures += 1
+        self.stats.failed_connects += 1
+        delay = min(self.reconnect_delay_max, self.reconnect_delay * 2 ** (self._failures - 1))
+        self._next_attempt = monotonic() + delay
+        self.stats.last_error = f"cannot connect to {self.address}: {cause}"
+        return LineClosed(f"{self.name}: cannot connect to {self.address}: {cause}")
+
+    async def _connection(self) -> _Connection:
+        """The live connection, reconnecting if one is due; ``ConnectionLost`` otherwise."""
+        if self._closed:
+            raise LineClosed(f"{self.name} is closed")
+        conn = self._conn
+        if self._usable(conn):
+            return conn  # type: ignore[return-value]
+        async with self._connect_lock:
+            if self._closed:
+                raise LineClosed(f"{self.name} is closed")
+            if self._usable(self._conn):
+                return self._conn  # type: ignore[return-value]
+            wait = self._next_attempt - monotonic()
+            if wait > 0:
+                raise ConnectionLost(
+                    f"{self.name}: not connected ({self.stats.last_error or 'down'}); "
+                    f"next reconnect attempt in {wait:.3f} s"
+                )
+            try:
+                return await self._connect()
+            except LineClosed as exc:
+                raise ConnectionLost(str(exc)) from exc
+
+    def _connection_lost(self, conn: _Connection, exc: BaseException | None) -> None:
+        """Called by the protocols: forget the connection; the next attempt is immediate."""
+        if conn.lost is None:
+            conn.lost = exc or ConnectionResetError("connection closed")
+        if self._conn is not conn:
+            return  # already forgotten (closed by us, or a repeated notification)
+        self._conn = None
+        if not self._closed:
+            self.stats.disconnects += 1
+            self.stats.last_error = f"connection to {self.address} lost: {_cause(exc)}"
+            self._next_attempt = monotonic()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.host!r}, {self.port})"
+
+
+# -- Modbus TCP ---------------------------------------------------------------------------
+
+
+@dataclass(slots=True)
+class _Pending:
+    unit: int
+    future: asyncio.Future[bytes]
+
+
+class _MbapProtocol(asyncio.Protocol):
+    """One Modbus TCP connection: splits the byte stream into MBAP frames."""
+
+    def __init__(self, line: TcpLine) -> None:
+        self.line = line
+        self.transport: asyncio.BaseTransport | None = None
+        self.lost: BaseException | None = None
+        self.buf = bytearray()
+        self.pending: dict[int, _Pending] = {}
+        self.abandoned: deque[int] = deque(maxlen=64)
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport
+
+    def data_received(self, data: bytes) -> None:
+        buf = self.buf
+        buf += data
+        while len(buf) >= _MBAP.size:
+            tid, pid, length, unit = _MBAP.unpack_from(buf)
+            if pid != 0 or not 2 <= length <= MAX_PDU + 1:
+                self.line._corrupt_stream(self, bytes(buf[: _MBAP.size]))
+                return
+            if len(buf) < 6 + length:
+                return
+            pdu = bytes(buf[_MBAP.size : 6 + length])
+            del buf[: 6 + length]
+            self.line._on_reply(self, tid, unit, pdu)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.line._connection_lost(self, exc)
+
+
+class TcpLine(_NetworkLine):
+    """A Modbus TCP connection to one device or gateway (MBAP framing, transaction ids).
+
+    One request is in flight at a time by default; ``max_in_flight`` allows more on
+    devices that pipeline (replies are matched by transaction id, in any order).
+    ``drop_after_timeouts`` consecutive timeouts close the connection (a half-open TCP
+    connection never reports itself) so that the next request reconnects; 0 disables it.
+    An ``Exchange``'s ``wire_time`` is the round trip: the time the connection was busy.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        port: int = 502,
+        *,
+        connect_timeout: float = 3.0,
+        max_in_flight: int = 1,
+        reconnect_delay: float = 0.1,
+        reconnect_delay_max: float = 5.0,
+        drop_after_timeouts: int = 3,
+        connect_on_open: bool = True,
+    ) -> None:
+        super().__init__(
+            host,
+            port,
+            connect_timeout=connect_timeout,
+            reconnect_delay=reconnect_delay,
+            reconnect_delay_max=reconnect_delay_max,
+            connect_on_open=connect_on_open,
+        )
+        if max_in_flight < 1:
+            raise ConfigError(f"max_in_flight must be >= 1, not {max_in_flight}")
+        if drop_after_timeouts < 0:
+            raise ConfigError("drop_after_timeouts must be >= 0")
+        self.settings = None
+        self.max_in_flight = max_in_flight
+        self.drop_after_timeouts = drop_after_timeouts
+        self._slots = asyncio.Semaphore(max_in_flight)
+        self._tid = 0
+        self._timeouts_in_row = 0
+
+    def _make_protocol(self) -> asyncio.Protocol:
+        return _MbapProtocol(self)
+
+    def _next_tid(self, conn: _MbapProtocol) -> int:
+        for _ in range(0x10000):
+            self._tid = (self._tid + 1) & 0xFFFF
+            if self._tid not in conn.pending:
+                return self._tid
+        raise AssertionError("no free transaction id")  # at most max_in_flight are in use
+
+    async def transact(
+        self,
+        unit: int,
+        pdu: bytes,
+        *,
+        expect: LengthPredictor | None,
+        settings: LineSettings | None = None,
+        timeout: float = 0.1,
+    ) -> Exchange:
+        """Send ``pdu`` to ``unit`` and await the reply with the same transaction id."""
+        if settings is not None:
+            raise LineConfigError(
+                f"{self.name} is Modbus TCP: slave {unit} cannot have serial settings",
+                slave=unit,
+            )
+        if not 0 <= unit <= 255 or not 1 <= len(pdu) <= MAX_PDU:
+            raise LineConfigError(
+                f"{self.name}: unit {unit} / PDU of {len(pdu)} bytes cannot be sent "
+                f"(unit 0..255, PDU 1..{MAX_PDU} bytes)",
+                slave=unit,
+            )
+        async with self._slots:
+            conn: _MbapProtocol = await self._connection()  # type: ignore[assignment]
+            return await self._exchange(conn, unit, pdu, expect, timeout)
+
+    async def _exchange(
+        self,
+        conn: _MbapProtocol,
+        unit: int,
+        pdu: bytes,
+        expect: LengthPredictor | None,
+        timeout: float,
+    ) -> Exchange:
+        loop = asyncio.get_running_loop()
+        tid = self._next_tid(conn)
+        adu = mbap_frame(tid, unit, pdu)
+        tx = monotonic()
+        if expect is None:
+            conn.abandoned.append(tid)  # whatever comes back is not awaited
+            conn.transport.write(adu)  # type: ignore[union-attr]
+            return Exchange(b"", tx, tx, tx, len(adu), 0, 0.0)
+        fut: asyncio.Future[bytes] = loop.create_future()
+        conn.pending[tid] = _Pending(unit, fut)
+        handle = loop.call_later(timeout, self._expire, conn, tid, unit, timeout)
+        try:
+            conn.transport.write(adu)  # type: ignore[union-attr]
+            reply = await fut
+        finally:
+            handle.cancel()
+            conn.pending.pop(tid, None)
+            if not fut.done() or fut.cancelled() or fut.exception() is not None:
+                conn.abandoned.append(tid)
+        self._timeouts_in_row = 0
+        rx = monotonic()
+        self._check_length(unit, reply, expect)
+        n = _MBAP.size + len(reply)
+        return Exchange(reply, tx, tx, rx, len(adu), n, rx - tx)
+
+    def _check_length(self, unit: int, reply: bytes, expect: LengthPredictor) -> None:
+        if expect(reply) != len(reply):
+            raise FrameError(
+                f"slave {unit} on {self.name}: malformed reply PDU {reply[:32].hex(' ')}",
+                slave=unit,
+            )
+
+    def _expire(self, conn: _MbapProtocol, tid: int, unit: int, timeout: float) -> None:
+        p = conn.pending.get(tid)
+        if p is None or p.future.done():
+            return
+        p.future.set_exception(
+            ResponseTimeout(
+                f"slave {unit} on {self.name}: no reply within {timeout * 1000:.0f} ms "
+                f"(transaction id {tid})",
+                slave=unit,
+            )
+        )
+        self._timeouts_in_row += 1
+        if self.drop_after_timeouts and self._timeouts_in_row >= self.drop_after_timeouts:
+            self._timeouts_in_row = 0
+            if conn.transport is not None:
+                conn.transport.close()  # half-open? reconnect on the next request
+
+    # -- called by the protocol -----------------------------------------------------------------
+
+    def _on_reply(self, conn: _MbapProtocol, tid: int, unit: int, pdu: bytes) -> None:
+        p = conn.pending.get(tid)
+        if p is not None and not p.future.done():
+            if unit != p.unit:
+                p.future.set_exception(
+                    WrongResponder(
+                        f"slave {p.unit} on {self.name}: reply (transaction id {tid}) "
+                        f"came from unit {unit}",
+                        slave=p.unit,
+                        responder=unit,
+                    )
+                )
+            else:
+                p.future.set_result(pdu)
+            return
+        if tid in conn.abandoned:
+            self.stats.late_replies += 1
+            return
+        self.stats.rejected_replies += 1
+        waiting = [q for q in conn.pending.values() if not q.future.done()]
+        msg = f"{self.name}: reply with transaction id {tid} matches no request"
+        self.stats.last_error = msg
+        if len(waiting) == 1:
+            # One request in flight: the peer answered it with a wrong id. Reject the reply.
+            q = waiting[0]
+            wanted = next(t for t, v in conn.pending.items() if v is q)
+            q.future.set_exception(
+                FrameError(f"{msg} (expected {wanted}): reply rejected", slave=q.unit)
+            )
+        # With several in flight the reply cannot be attributed: they time out instead.
+
+    def _corrupt_stream(self, conn: _MbapProtocol, header: bytes) -> None:
+        """A header that is not MBAP: the stream is out of step; drop the connection."""
+        msg = f"{self.name}: not a Modbus TCP header: {header.hex(' ')}; reconnecting"
+        self.stats.last_error = msg
+        for p in conn.pending.values():
+            if not p.future.done():
+                p.future.set_exception(FrameError(msg, slave=p.unit))
+        conn.buf.clear()
+        if conn.transport is not None:
+            conn.transport.close()
+
+    def _connection_lost(self, conn: _Connection, exc: BaseException | None) -> None:
+        super()._connection_lost(conn, exc)
+        assert isinstance(conn, _MbapProtocol)
+        for p in conn.pending.values():
+            if p.future.done():
+                continue
+            if self._closed:
+                err: Exception = LineClosed(f"{self.name} closed")
+            else:
+                err = ConnectionLost(
+                    f"slave {p.unit} on {self.name}: connection to {self.address} lost "
+                    f"while waiting for the reply ({_cause(exc)})",
+                    slave=p.unit,
+                )
+            p.future.set_exception(err)
+
+
+# -- RTU over TCP -------------------------------------------------------------------------
+
+
+class _RtuTcpReceiver(RtuReceiver):
+    """RtuReceiver on a TCP socket that tells its line when the connection drops."""
+
+    def __init__(self, line: RtuOverTcpLine) -> None:
+        super().__init__(line.name)
+        self.line = line
+        self.cause = ""
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.cause:
+            self.cause = _cause(exc)
+        super().connection_lost(exc)
+        self.line._connection_lost(self, exc)
+
+
+class RtuOverTcpLine(_NetworkLine):
+    """RTU frames through a transparent serial device server (an RS-485 line over TCP).
+
+    ``settings`` are those of the server's serial port: the silences (t3.5) are computed
+    from them. The port has one setting, so per-slave settings are refused. When no reply
+    marks the end of the traffic (broadcast, timeout, dropped connection) the silence is
+    counted from the estimated end of the request plus ``latency``, an allowance for the
+    network delay before the server's UART started sending it.
+    """
+
+    scheme = "rtu+tcp"
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        settings: LineSettings | None = None,
+        *,
+        connect_timeout: float = 3.0,
+        reconnect_delay: float = 0.1,
+        reconnect_delay_max: float = 5.0,
+        broadcast_delay: float = 0.1,
+        latency: float = 0.001,
+        connect_on_open: bool = True,
+    ) -> None:
+        super().__init__(
+            host,
+            port,
+            connect_timeout=connect_timeout,
+            reconnect_delay=reconnect_delay,
+            reconnect_delay_max=reconnect_delay_max,
+            connect_on_open=connect_on_open,
+        )
+        if broadcast_delay < 0 or latency < 0:
+            raise ConfigError("broadcast_delay and latency must be >= 0 seconds")
+        self.settings = settings or LineSettings()
+        self.latency = latency
+        self.broadcast_delay = broadcast_delay
+        self.per_slave_settings = False
+        self._lock = asyncio.Lock()
+        self._timer = PreciseTimer()
+        self._quiet_since = 0.0
+
+    def _make_protocol(self) -> asyncio.Protocol:
+        return _RtuTcpReceiver(self)
+
+    @property
+    def garbage_bytes(self) -> int:
+        """Bytes received outside any reply on the current connection, discarded."""
+        rx = self._conn
+        return rx.garbage_bytes if isinstance(rx, RtuReceiver) else 0
+
+    def ready_at(self, settings: LineSettings | None) -> float:
+        """When t3.5 at the serial port's settings will have passed since the last traffic."""
+        rx = self._conn
+        last = self._quiet_since
+        if isinstance(rx, RtuReceiver):
+            last = max(last, rx.last_rx)
+        return last + timing(self.settings).t35
+
+    async def close(self) -> None:
+        """Close the connection and release the silence timer."""
+        await super().close()
+        self._timer.close()
+
+    async def _wait_quiet(self, rx: RtuReceiver, silence: float) -> None:
+        while True:
+            quiet = max(self._quiet_since, rx.last_rx)
+            await self._timer.sleep_until(quiet + silence)
+            if rx.last_rx <= quiet:
+                break  # nothing arrived while we waited
+        rx.discard()
+
+    async def transact(
+        self,
+        unit: int,
+        pdu: bytes,
+        *,
+        expect: LengthPredictor | None,
+        settings: LineSettings | None = None,
+        timeout: float = 0.1,
+    ) -> Exchange:
+        """Send one RTU frame after t3.5 of silence and read its reply by length."""
+        if settings is not None and settings != self.settings:
+            raise LineConfigError(
+                f"slave {unit} on {self.name}: settings {settings} differ from the serial "
+                f"server's port ({self.settings}); its port has one setting for all slaves",
+                slave=unit,
+            )
+        async with self._lock:
+            rx: _RtuTcpReceiver = await self._connection()  # type: ignore[assignment]
+            try:
+                return await self._exchange(rx, unit, pdu, expect, timeout)
+            except LineClosed as exc:
+                if self._closed:
+                    raise
+                raise ConnectionLost(
+                    f"slave {unit} on {self.name}: connection to {self.address} lost "
+                    f"while waiting for the reply ({rx.cause or 'connection closed'})",
+                    slave=unit,
+                ) from exc
+
+    async def _exchange(
+        self,
+        rx: _RtuTcpReceiver,
+        unit: int,
+        pdu: bytes,
+        expect: LengthPredictor | None,
+        timeout: float,
+    ) -> Exchange:
+        tm = timing(self.settings)
+        await self._wait_quiet(rx, tm.t35)
+        adu = frame(unit, pdu)
+        try:
+            tx_start = monotonic()
+            rx.transport.write(adu)  # type: ignore[union-attr]
+            tx_end = tx_start + tm.frame_time(len(adu))  # the server's UART needs this long
+            self._quiet_since = tx_end
+            if expect is None:
+                self._quiet_since = tx_end + self.latency + self.broadcast_delay
+                return Exchange(b"", tx_start, tx_end, tx_end, len(adu), 0, tm.frame_time(len(adu)))
+            reply = await rx.read_reply(unit, expect, tx_end + timeout, tm.char_time, tm.t35)
+        except BaseException:
+            # No reply to time the silence from: the request may still be on the wire.
+            self._quiet_since = max(self._quiet_since + self.latency, monotonic())
+            raise
+        rx_end = rx.last_rx
+        self._quiet_since = rx_end
+        n = len(reply) + 3
+        return Exchange(reply, tx_start, tx_end, rx_end, len(adu), n, tm.frame_time(len(adu) + n))
+
+    def __repr__(self) -> str:
+        return f"RtuOverTcpLine({self.host!r}, {self.port}, {self.settings})"

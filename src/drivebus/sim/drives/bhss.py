@@ -1,0 +1,630 @@
+"""SimBHSS: simulated twin of the Bholanath BHSS-100-MBUS step-servo drive.
+
+It answers with the manual's register map (0x0000..0x0136, gaps included), its own
+exception codes (01 CRC .. 07 value out of range), its status bits and word order, and
+runs motion in real time from the written speed and ramp *times*. State is computed
+lazily from the ``now`` of each request. Modelled beyond plain registers:
+
+- EEPROM: while 0x0016 = 0 (factory default) every register write is also an EEPROM
+  write (``eeprom_writes`` counts them) and configuration values persist; a power cycle
+  (``power_loss``/``power_restore``) reloads the registers from EEPROM, resets position,
+  alarms and the homed bit, and applies the stored line settings (0x0014/0x0015).
+- Inputs: the home switch is wired to X0, the positive limit to X1, the negative limit
+  to X2; what the drive does with them follows the input function registers (by
+  default X0 = origin, X1 = forward limit, X2 = backward limit for the switches given)
+  and the active-level register 0x0040. Switch positions are physical: they stay put
+  when the position counter is zeroed or homed (``position()`` is the counter,
+  ``physical_position()`` the motor).
+- Homing modes 0-3 as in manual §4.4; limit stops during moves (0x0017).
+- Alarms: ``raise_alarm(code)`` latches Err1..Err5; only Err4 clears with 0x002A,
+  Err2/Err3 clear with ``supply_recovered()``, Err1/Err5 only by a power cycle.
+
+Not modelled: the multi-position (PT) sequencer (its registers store values only),
+external pulse input, the tuning registers' effect.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from drivebus import pdu as P
+from drivebus.clock import monotonic
+from drivebus.settings import LineSettings
+from drivebus.sim.drive import SimDrive
+from drivebus.sim.slave import SlaveException
+
+__all__ = ["FACTORY_SETTINGS", "SimBHSS"]
+
+FACTORY_SETTINGS = LineSettings(baudrate=9600, bytesize=8, parity="N", stopbits=1)
+"""SW6/SW7 ON with 0x0014 = 0 gives 9600; 0x0015 = 0 is 8N1 (manual §2.3.2, §2.4)."""
+
+_SWITCH_BAUDS = (19200, 38400, 115200)  # SW7/SW6 = ON/OFF, OFF/ON, OFF/OFF
+_CUSTOM_BAUDS = (9600, 14400, 128000, 256000)  # 0x0014 with SW6 = SW7 = ON
+_FORMATS = ("8N1", "8N2", "8E1", "8O1")  # 0x0015
+_PPR = (400, 800, 1600, 3200, 6400, 12800, 25600, 51200,
+        1000, 2000, 4000, 5000, 8000, 10000, 20000, 40000)
+_MAX_RATE = 200_000.0  # pulses/s output cap
+_MAP_END = 0x0136
+
+# Exception codes (manual Table 11).
+CRC_ERROR, COMMAND_ERROR, UNASSIGNED, OUT_OF_MAP, READ_OVERFLOW, ACCESS_ERROR, VALUE_ERROR = (
+    1, 2, 3, 4, 5, 6, 7,
+)
+# Input function codes the twin acts on.
+F_ORIGIN, F_FWD_LIMIT, F_BWD_LIMIT = 1, 2, 3
+
+
+@dataclass(frozen=True)
+class _Spec:
+    lo: int
+    hi: int
+    default: int = 0
+    access: str = "RW"  # "R", "W", "RW"
+    signed: bool = False
+    command: bool = False  # a trigger, not a stored parameter
+
+
+def _build_map() -> dict[int, _Spec]:
+    m: dict[int, _Spec] = {a: _Spec(0, 0xFFFF, access="R") for a in range(0x0000, 0x000C)}
+    rows = {
+        0x0010: (0, 3, 0), 0x0011: (0, 15, 8), 0x0012: (0, 1, 0), 0x0013: (0, 127, 0),
+        0x0014: (0, 3, 0), 0x0015: (0, 3, 0), 0x0016: (0, 1, 0), 0x0017: (0, 1, 0),
+        0x0018: (0, 2, 0),
+        0x0020: (2, 300, 5), 0x0021: (0, 2000, 100), 0x0022: (0, 2000, 100),
+        0x0024: (0, 0xFFFF, 0), 0x0025: (0, 0xFFFF, 5000), 0x0026: (0, 1, 0),
+        0x0031: (0, 3, 0), 0x0032: (5, 3000, 120), 0x0033: (5, 300, 60),
+        0x0034: (30, 2000, 100), 0x0035: (0, 0xFFFF, 0), 0x0036: (0, 0xFFFF, 0),
+        0x0040: (0, 0xFFFF, 0), 0x004B: (0, 0xFFFF, 0),
+        0x0071: (0, 1, 0), 0x0072: (0, 1, 0),
+    }
+    for a, (lo, hi, d) in rows.items():
+        m[a] = _Spec(lo, hi, d)
+    m[0x0023] = _Spec(-3000, 3000, 60, signed=True)
+    m[0x0027] = _Spec(0, 6, access="W", command=True)
+    for a in (0x0028, 0x0029, 0x002A, 0x002B, 0x002C, 0x0030):
+        m[a] = _Spec(0, 1, command=True)
+    m[0x0070] = _Spec(0, 0xFFFF, command=True)
+    for a in range(0x0041, 0x0048):
+        m[a] = _Spec(0, 20)
+    for a in range(0x004C, 0x004F):
+        m[a] = _Spec(0, 8)
+    for base, lo, hi in ((0x80, 0, 16), (0x90, 0, 0xFFFF), (0xA0, 0, 0xFFFF), (0xB0, 10, 3000),
+                         (0xC0, 30, 2000), (0xD0, 0, 0xFFFF), (0xE0, 0, 15), (0xF0, 0, 15)):
+        for a in range(base, base + 16):
+            m[a] = _Spec(lo, hi, 0)
+    tuning = {
+        0x0110: (0, 1, 0), 0x0111: (0, 0xFFFF, 5), 0x0112: (0, 150, 100), 0x0113: (0, 100, 50),
+        0x0114: (0, 100, 40), 0x0115: (100, 500, 100), 0x0116: (0, 20000, 4000),
+        0x0117: (1, 4000, 10), 0x0118: (0, 1024, 5), 0x0119: (1, 256, 16),
+        0x011A: (1, 256, 16), 0x011B: (0, 200, 162), 0x011C: (0, 30000, 8000),
+        0x011D: (0, 1000, 48), 0x011E: (0, 0xFFFF, 358), 0x011F: (1, 200, 10),
+        0x0120: (0, 1, 0), 0x0121: (0, 0xFFFF, 15360), 0x0122: (1, 50, 16),
+    }
+    gains = (10, 32, 320, 15, 33, 320, 20, 35, 320, 30, 38, 384, 40, 39, 512, 45, 40, 640)
+    for i, d in enumerate(gains):
+        tuning[0x0123 + i] = (1, 50, d) if i % 3 == 0 else (0, 0xFFFF, d)
+    tuning[0x0135] = (0, 0xFFFF, 32)
+    tuning[0x0136] = (0, 0xFFFF, 320)
+    for a, (lo, hi, d) in tuning.items():
+        m[a] = _Spec(lo, hi, d)
+    return m
+
+
+_MAP = _build_map()
+_Handler = Callable[[float], None]
+
+
+def _factory_registers() -> dict[int, int]:
+    """Factory values of the stored parameters (not the status or command registers)."""
+    return {a: s.default for a, s in _MAP.items() if not s.command and s.access == "RW"}
+
+
+class _Home(enum.Enum):
+    """Phases of the homing sequence (manual §4.4)."""
+
+    IDLE = 0
+    SEARCH = 1  # search speed until the reference input's rising edge
+    BRAKE1 = 2  # ramp down after the rising edge
+    BACKOFF = 3  # reverse until the falling edge
+    BRAKE2 = 4  # ramp down after the falling edge
+    CREEP = 5  # query speed until the rising edge: that is the origin
+    OFFSET = 6  # compensation move
+
+
+class SimBHSS(SimDrive):
+    """Simulated BHSS-100-MBUS: map, exceptions, EEPROM, ramps in ms, homing, alarms."""
+
+    family = "BHSS"
+
+    def __init__(
+        self,
+        address: int,
+        settings: LineSettings | None = None,
+        *,
+        turnaround: float = 0.001,
+        position: int = 0,
+        home_switch: float | None = None,
+        limit_negative: float | None = None,
+        limit_positive: float | None = None,
+        crc_error_reply: bool = True,
+    ) -> None:
+        settings = settings or FACTORY_SETTINGS
+        super().__init__(address, settings, turnaround=turnaround, position=position,
+                         home_switch=home_switch, limit_negative=limit_negative,
+                         limit_positive=limit_positive)
+        self.crc_error_reply = crc_error_reply
+        """Answer a bad-CRC frame with exception 01 (the manual's example) or stay silent."""
+        self.regs: dict[int, int] = _factory_registers()
+        self.regs[0x0043] = F_ORIGIN if home_switch is not None else 0
+        self.regs[0x0044] = F_FWD_LIMIT if limit_positive is not None else 0
+        self.regs[0x0045] = F_BWD_LIMIT if limit_negative is not None else 0
+        self._switch_baud = self._apply_line_settings(settings)
+        self.eeprom: dict[int, int] = dict(self.regs)
+        self.eeprom_writes = 0
+        """EEPROM write cycles caused by Modbus writes (one per register written)."""
+        self.homed = False
+        self.reached = True  # status bit0
+        self._move_active = False
+        self._home = _Home.IDLE
+        self._home_dir = 1.0
+        self._home_accel = 1.0
+        self._latched_decel = math.inf
+        self._last_dir = 0
+        self._t = 0.0  # events processed up to here
+        self._t_event = -math.inf
+        self._shift = 0.0
+        """Position counter minus physical position (zeroing, homing, power-up)."""
+
+    # -- line settings -------------------------------------------------------------------------
+
+    def _apply_line_settings(self, settings: LineSettings) -> int | None:
+        if settings.format not in _FORMATS:
+            raise ValueError(f"the BHSS cannot talk {settings.format}: only {_FORMATS}")
+        self.regs[0x0015] = _FORMATS.index(settings.format)
+        if settings.baudrate in _SWITCH_BAUDS:
+            return settings.baudrate
+        if settings.baudrate in _CUSTOM_BAUDS:
+            self.regs[0x0014] = _CUSTOM_BAUDS.index(settings.baudrate)
+            return None
+        raise ValueError(f"the BHSS cannot run at {settings.baudrate} baud")
+
+    def _settings_from_registers(self) -> LineSettings:
+        baud = self._switch_baud or _CUSTOM_BAUDS[self.regs[0x0014]]
+        return LineSettings.parse(_FORMATS[self.regs[0x0015]], baudrate=baud)
+
+    # -- what tests and the demo use -----------------------------------------------------------
+
+    def position(self, now: float | None = None) -> int:
+        """The drive's position counter (0x000A/0x000B) in whole pulses."""
+        t = monotonic() if now is None else now
+        return round(self.kin.position(t) + self._shift)
+
+    def physical_position(self, now: float | None = None) -> float:
+        """Where the motor physically is (the frame of the switch positions), in pulses."""
+        return self.kin.position(monotonic() if now is None else now)
+
+    def raise_alarm(self, code: int, now: float | None = None) -> None:
+        """Latch alarm Err``code`` (1..5): the drive locks and the motor stops at once."""
+        if not 1 <= code <= 5:
+            raise ValueError(f"BHSS alarm codes are 1..5, not {code}")
+        t = monotonic() if now is None else now
+        self._advance(t)
+        super().raise_alarm(code, t)
+        self._end_motion()
+
+    def supply_recovered(self) -> None:
+        """The supply voltage is back in range: Err2/Err3 clear by themselves."""
+        if self.alarm_code in (2, 3):
+            self.alarm_code = 0
+
+    def power_loss(self) -> None:
+        """Power off: motion and RAM values are lost."""
+        self._advance(monotonic())
+        super().power_loss()
+        self._end_motion()
+
+    def power_restore(self) -> None:
+        """Power on: registers from EEPROM, position 0, alarms cleared, settings applied."""
+        super().power_restore()
+        self.regs = dict(self.eeprom)
+        self.settings = self._settings_from_registers()
+        now = monotonic()
+        self.kin.hold(now)
+        self._shift = -self.kin.position(now)  # the counter starts at 0
+        self.alarm_code = 0
+        self.enabled = True
+        self.homed = False
+        self.reached = True
+        self._end_motion()
+
+    # -- protocol --------------------------------------------------------------------------------
+
+    def on_bad_crc(self, adu: bytes) -> bytes | None:
+        """The manual's example answers a bad CRC with exception 01 (its text says silence)."""
+        super().on_bad_crc(adu)
+        if not self.crc_error_reply or len(adu) < 2:
+            return None
+        return bytes((adu[1] | 0x80, CRC_ERROR))
+
+    def handle_pdu(self, pdu: bytes, now: float) -> bytes | None:
+        """FC03/06/16 with the BHSS's own exception codes."""
+        self.requests += 1
+        fc = pdu[0]
+        try:
+            self._advance(now)
+            if fc == P.READ_HOLDING:
+                address, count = struct.unpack_from(">HH", pdu, 1)
+                values = self.read_registers(fc, address, count, now)
+                return bytes((fc, 2 * count)) + struct.pack(f">{count}H", *values)
+            if fc == P.WRITE_SINGLE:
+                address, value = struct.unpack_from(">HH", pdu, 1)
+                self.write_registers(address, [value], now)
+                return pdu[:5]
+            if fc == P.WRITE_MULTIPLE:
+                address, count = struct.unpack_from(">HH", pdu, 1)
+                if not 1 <= count <= P.MAX_WRITE or pdu[5] != 2 * count:
+                    raise SlaveException(VALUE_ERROR)
+                values = list(struct.unpack_from(f">{count}H", pdu, 6))
+                self.write_registers(address, values, now)
+                return pdu[:5]
+            raise SlaveException(COMMAND_ERROR)
+        except SlaveException as exc:
+            return bytes((fc | 0x80, exc.code))
+
+    @staticmethod
+    def _spec(address: int) -> _Spec:
+        if address > _MAP_END:
+            raise SlaveException(OUT_OF_MAP)
+        spec = _MAP.get(address)
+        if spec is None:
+            raise SlaveException(UNASSIGNED)
+        return spec
+
+    def read_registers(self, function: int, address: int, count: int, now: float) -> list[int]:
+        """Block read: at most 16 registers, every one assigned and readable."""
+        if count > 16:
+            raise SlaveException(READ_OVERFLOW)
+        if count < 1:
+            raise SlaveException(UNASSIGNED)
+        out = []
+        for a in range(address, address + count):
+            spec = self._spec(a)
+            if spec.access == "W":
+                raise SlaveException(ACCESS_ERROR)
+            out.append(self._value(a, now))
+        return out
+
+    def write_registers(self, address: int, values: list[int], now: float) -> None:
+        """Check every register first (access, range), then apply them in order."""
+        for i, raw in enumerate(values):
+            spec = self._spec(address + i)
+            if spec.access == "R":
+                raise SlaveException(ACCESS_ERROR)
+            v = raw - 0x10000 if spec.signed and raw & 0x8000 else raw
+            if not spec.lo <= v <= spec.hi:
+                raise SlaveException(VALUE_ERROR)
+            if address + i == 0x0027 and v & 3 == 3:
+                raise SlaveException(VALUE_ERROR)
+        for i, raw in enumerate(values):
+            self._store(address + i, raw, now)
+
+    def _store(self, a: int, raw: int, now: float) -> None:
+        spec = _MAP[a]
+        if self.regs[0x0016] == 0:  # write-through on before this write
+            self.eeprom_writes += 1
+            if not spec.command:
+                self.eeprom[a] = raw
+        if spec.command:
+            self._command(a, raw, now)
+        else:
+            self.regs[a] = raw
+
+    # -- register values ---------------------------------------------------------------------------
+
+    def _value(self, a: int, now: float) -> int:
+        if a in self.regs:
+            return self.regs[a]
+        if a == 0x0029:
+            return int(self.enabled)
+        if a in _MAP and _MAP[a].command:
+            return 0
+        return self._status_value(a, now)
+
+    def _status_value(self, a: int, now: float) -> int:
+        moving = self.is_moving(now)
+        if a == 0x0000:
+            return 0x0305
+        if a == 0x0001:
+            return 0x0101
+        if a == 0x0002:
+            return self.address
+        if a == 0x0003:
+            return 1 if self._home is not _Home.IDLE else 0
+        if a == 0x0004:
+            return int(moving)
+        if a == 0x0005:
+            return 1 if self._last_dir < 0 else 0
+        if a == 0x0006:
+            return self.alarm_code
+        if a == 0x0007:
+            return self.status_bits(now)
+        if a == 0x0008:
+            return sum(1 << i for i in range(7) if self._input(i, self.kin.position(now)))
+        if a == 0x0009:
+            return self._outputs(now)
+        pos = self.position(now) & 0xFFFFFFFF
+        return pos >> 16 if a == 0x000A else pos & 0xFFFF
+
+    def status_bits(self, now: float) -> int:
+        """Register 0x0007 at ``now``."""
+        moving = self.is_moving(now)
+        bits = 0
+        if self.reached and not moving:
+            bits |= 1 << 0
+        if self.homed:
+            bits |= 1 << 1
+        if moving:
+            bits |= 1 << 2
+        if self.alarm_code:
+            bits |= 1 << 3
+        if not self.enabled:
+            bits |= 1 << 4
+        if not moving:
+            bits |= 1 << 5
+        return bits
+
+    def _outputs(self, now: float) -> int:
+        bits = self.status_bits(now)
+        signal = {1: bool(bits & 8), 2: bool(bits & 4), 3: self.homed, 4: bool(bits & 1)}
+        return sum(1 << i for i in range(3) if signal.get(self.regs[0x004C + i], False))
+
+    # -- inputs ------------------------------------------------------------------------------------
+
+    def _physical(self, index: int, p: float) -> bool:
+        """Switch state of input ``index`` (PU, DR, X0..X4) at position ``p``."""
+        if index == 2 and self.home_switch is not None:
+            return p >= self.home_switch
+        if index == 3 and self.limit_positive is not None:
+            return p >= self.limit_positive
+        if index == 4 and self.limit_negative is not None:
+            return p <= self.limit_negative
+        return False
+
+    def _threshold(self, index: int) -> float | None:
+        return {2: self.home_switch, 3: self.limit_positive, 4: self.limit_negative}.get(index)
+
+    def _input(self, index: int, p: float) -> bool:
+        """Valid level of input ``index`` at position ``p`` (after 0x0040's inversion)."""
+        return self._physical(index, p) != bool(self.regs[0x0040] >> index & 1)
+
+    def _inputs_with(self, function: int) -> list[int]:
+        return [i for i in range(7) if self.regs[0x0041 + i] == function]
+
+    def _function_active(self, function: int, p: float) -> bool:
+        return any(self._input(i, p) for i in self._inputs_with(function))
+
+    def _edge(self, function: int, rising: bool, t0: float, t1: float) -> float | None:
+        """First time in [t0, t1] an input with ``function`` turns valid (or invalid)."""
+        best: float | None = None
+        for i in self._inputs_with(function):
+            x = self._threshold(i)
+            t = t0
+            while x is not None and t <= t1:
+                tc = self.kin.crossing(x, t, t1)
+                if tc is None:
+                    break
+                step = math.copysign(0.5, self.kin.velocity(tc))
+                before, after = self._input(i, x - step), self._input(i, x + step)
+                if before != after and after == rising:
+                    best = tc if best is None else min(best, tc)
+                    break
+                t = tc + 1e-6
+        return best
+
+    # -- motion ------------------------------------------------------------------------------------
+
+    def _pps(self, rpm: float) -> float:
+        """Pulses/s for ``rpm`` at the resolution in 0x0011, capped at 200 kHz."""
+        return min(abs(rpm) * _PPR[self.regs[0x0011]] / 60.0, _MAX_RATE)
+
+    def _rate(self, pps: float, ms: int) -> float:
+        """Acceleration (pulses/s²) that ramps to ``pps`` in ``ms`` milliseconds."""
+        return pps / max(ms / 1000.0, 0.001)
+
+    def _can_move(self) -> bool:
+        return self.enabled and not self.alarm_code and self.regs[0x0018] == 0
+
+    def _end_motion(self) -> None:
+        self._move_active = False
+        self._home = _Home.IDLE
+
+    def _max_speed(self) -> int:
+        v = self.regs[0x0023]
+        return v - 0x10000 if v & 0x8000 else v
+
+    def _command(self, a: int, v: int, now: float) -> None:
+        if a == 0x0027:
+            self._start(v, now)
+        elif a == 0x0028:
+            self._stop(now, emergency=bool(v))
+        elif a == 0x0029:
+            self.enabled = bool(v)
+            if not v:
+                self.kin.stop(now, None)
+                self._end_motion()
+        elif a == 0x002A and v and self.alarm_code == 4:
+            self.alarm_code = 0
+        elif a == 0x002B and v:
+            self.regs = _factory_registers()
+            self.eeprom = dict(self.regs)
+        elif a == 0x002C and v:
+            self._shift = -self.kin.position(now)
+        elif a == 0x0030 and v:
+            self._start_homing(now)
+
+    def _start(self, v: int, now: float) -> None:
+        if not self._can_move() or self._home is not _Home.IDLE:
+            return
+        speed = self._max_speed()
+        pps = self._pps(speed)
+        acc = self._rate(pps, self.regs[0x0021])
+        dec = self._rate(pps, self.regs[0x0022])
+        if v & 3 == 2:  # speed mode: the sign of 0x0023 is the direction
+            if pps == 0:
+                self._stop(now, emergency=False)
+                return
+            signed = math.copysign(pps, speed)
+            if self._function_active(F_FWD_LIMIT if signed > 0 else F_BWD_LIMIT,
+                                     self.kin.position(now)):
+                return
+            self._latched_decel = dec
+            self.kin.run(now, signed, acc, dec)
+            self._move_active = False
+            self.reached = False
+            self._last_dir = 1 if signed > 0 else -1
+        elif v & 3 == 1 and pps > 0:
+            d = self.regs[0x0024] << 16 | self.regs[0x0025]
+            d = d - (1 << 32) if d & 0x80000000 else d
+            here = self.kin.target if self.kin.target is not None else self.kin.position(now)
+            target = d - self._shift if v & 4 else here + d
+            direction = 1 if target > self.kin.position(now) else -1
+            if self._function_active(F_FWD_LIMIT if direction > 0 else F_BWD_LIMIT,
+                                     self.kin.position(now)):
+                return
+            self._latched_decel = dec
+            self.kin.move_to(now, target, pps, acc, dec)
+            self._move_active = True
+            self.reached = False
+            self._last_dir = direction
+
+    def _stop(self, now: float, *, emergency: bool) -> None:
+        if self.is_moving(now):
+            self.kin.stop(now, None if emergency else self._latched_decel)
+        self._end_motion()
+
+    def _start_homing(self, now: float) -> None:
+        if not self._can_move() or self.is_moving(now):
+            return
+        mode = self.regs[0x0031]
+        pps = self._pps(self.regs[0x0032])
+        self._home_accel = self._rate(pps, self.regs[0x0034])
+        self._home_dir = 1.0 if mode in (0, 2) else -1.0
+        self.homed = False
+        self.reached = False
+        self._move_active = False
+        self._home = _Home.SEARCH
+        self.kin.run(now, self._home_dir * pps, self._home_accel, self._home_accel)
+        self._last_dir = int(self._home_dir)
+
+    def _reference(self) -> int:
+        """Input function whose edges define the origin in the present homing mode."""
+        return {0: F_ORIGIN, 1: F_ORIGIN, 2: F_FWD_LIMIT, 3: F_BWD_LIMIT}[self.regs[0x0031]]
+
+    # -- lazy event processing ---------------------------------------------------------------------
+
+    def _advance(self, now: float) -> None:
+        """Run the drive's reactions (edges, limits, ends of ramps) up to ``now``."""
+        for _ in range(64):
+            t_from = max(self._t, self._t_event + 1e-6)
+            event = self._next_event(t_from, now)
+            if event is None:
+                break
+            t, handler = event
+            self._t_event = t
+            handler(t)
+        self._t = max(self._t, now)
+
+    def _next_event(self, t0: float, t1: float) -> tuple[float, _Handler] | None:
+        if t1 < t0:
+            return None
+        end = self.kin.end_time()
+        h = self._home
+        if h is _Home.SEARCH:
+            return self._first(
+                (self._edge(self._reference(), True, t0, t1), self._on_reference_found),
+                (self._edge(F_FWD_LIMIT, True, t0, t1)
+                 if self._reference() != F_FWD_LIMIT else None, self._on_limit_reverse),
+                (self._edge(F_BWD_LIMIT, True, t0, t1)
+                 if self._reference() != F_BWD_LIMIT else None, self._on_limit_reverse),
+            )
+        if h is _Home.BACKOFF:
+            return self._first((self._edge(self._reference(), False, t0, t1), self._on_falling))
+        if h is _Home.CREEP:
+            return self._first((self._edge(self._reference(), True, t0, t1), self._on_origin))
+        if h in (_Home.BRAKE1, _Home.BRAKE2, _Home.OFFSET):
+            return (end, self._on_home_ramp_end) if end <= t1 else None
+        if self.is_moving(t0):
+            return self._first(
+                (self._edge(F_FWD_LIMIT, True, t0, t1), self._on_limit_stop),
+                (self._edge(F_BWD_LIMIT, True, t0, t1), self._on_limit_stop),
+                (end if self._move_active and end <= t1 else None, self._on_move_done),
+            )
+        if self._move_active:
+            return (max(end, t0), self._on_move_done)
+        return None
+
+    @staticmethod
+    def _first(*candidates: tuple[float | None, _Handler]) -> tuple[float, _Handler] | None:
+        found = [(t, h) for t, h in candidates if t is not None]
+        return min(found, key=lambda c: c[0]) if found else None
+
+    def _on_move_done(self, t: float) -> None:
+        self._move_active = False
+        self.reached = True
+
+    def _on_limit_stop(self, t: float) -> None:
+        emergency = self.regs[0x0017] == 1
+        self.kin.stop(t, None if emergency else self._latched_decel)
+        self._move_active = False
+
+    def _on_limit_reverse(self, t: float) -> None:
+        self._home_dir = -self._home_dir
+        pps = self._pps(self.regs[0x0032])
+        self.kin.run(t, self._home_dir * pps, self._home_accel, self._home_accel)
+        self._last_dir = int(self._home_dir)
+
+    def _on_reference_found(self, t: float) -> None:
+        self.kin.stop(t, self._home_accel)
+        self._home = _Home.BRAKE1
+
+    def _on_falling(self, t: float) -> None:
+        self.kin.stop(t, self._home_accel)
+        self._home = _Home.BRAKE2
+
+    def _on_home_ramp_end(self, t: float) -> None:
+        if self._home is _Home.BRAKE1:
+            self._home = _Home.BACKOFF
+            pps = -self._home_dir * self._pps(self.regs[0x0032])
+        elif self._home is _Home.BRAKE2:
+            self._home = _Home.CREEP
+            pps = self._home_dir * self._pps(self.regs[0x0033])
+        else:
+            self._finish_homing()
+            return
+        self.kin.run(t, pps, self._home_accel, self._home_accel)
+        self._last_dir = 1 if pps > 0 else -1
+
+    def _on_origin(self, t: float) -> None:
+        # The manual does not say whether the counter is zeroed at the origin; the twin
+        # zeroes it at the edge (absolute moves count from the origin, L452) and then runs
+        # the compensation move, so the position after homing reads the offset.
+        self.kin.hold(t)
+        self._shift = -self.kin.position(t)
+        offset = self.regs[0x0035] - self.regs[0x0036]
+        if offset:
+            self._home = _Home.OFFSET
+            creep = self._pps(self.regs[0x0033])
+            target = self.kin.position(t) + offset
+            self.kin.move_to(t, target, creep, self._home_accel, self._home_accel)
+            self._last_dir = 1 if offset > 0 else -1
+        else:
+            self._finish_homing()
+
+    def _finish_homing(self) -> None:
+        self._home = _Home.IDLE
+        self.homed = True
+        self.reached = True

@@ -1,0 +1,593 @@
+"""SimCL86R: a simulated CL86R closed-loop stepper drive (register map and behaviour per manual).
+
+The register table here is written from the manual independently of the profile, so a
+wrong address or word order in the profile shows up in tests. Where the manual is silent
+the twin makes a documented choice:
+
+* the control word acts on every write (not only on a rising edge); it keeps the value;
+* accel/decel times are the time from standstill to the maximum speed (0x0033; 0x0041
+  when homing); the start speed (0x0030) is stored but not modelled as a speed step;
+* a speed-mode start while speed mode runs changes the speed on the fly;
+* a new positioning, speed or homing start while the motor moves is ignored unless
+  control bit 2 (interrupt) is set; a speed change in speed mode is always taken;
+* motion starts are ignored while the motor is released or an alarm is latched; an alarm
+  stops the motor at once and clears only with 0x0037 = 0x0004;
+* a limit input stops a position or speed move (0x0025: 0 = decelerate, 1 = at once) and
+  a start towards an active limit is ignored; a limit not used by the homing method in
+  progress aborts homing;
+* homing ends on the origin edge with a decelerating stop; the position at the edge
+  becomes the origin offset (0x0044/0x0045, CiA-402 reading); mode 35 just sets it;
+* the position counter is 32-bit: it wraps from 2^31-1 to -2^31;
+* a frame with a bad CRC is answered with exception 04 (the manual's "CRC check error").
+
+The home switch is a cam on the positive side of ``home_switch`` (as in ``SimDrive``) or,
+with ``home_switch_width``, a dog covering ``[home_switch, home_switch + width]``; modes 29
+and 24(b) need a dog. Baud rate is the DIP-switch setting (``settings``; factory default
+taken as all switches ON = 9600, fixed 8N1); at 19200 and up the format is 0x0021, which
+takes effect at the next power-up.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from drivebus.clock import monotonic
+from drivebus.errors import ConfigError
+from drivebus.settings import LineSettings
+from drivebus.sim.drive import SimDrive
+from drivebus.sim.slave import SlaveException
+
+__all__ = ["SimCL86R"]
+
+_BAUDS = (9600, 19200, 38400, 115200)
+_FORMATS = ("8N1", "8N2", "8E1", "8O1")  # index = value of 0x0021
+
+# Control word 0x0036 / auxiliary 0x0037 / status 0x0003 bits, written out from the manual.
+_START, _ABS, _INTERRUPT, _SPEED, _HOME, _STOP, _ESTOP = 1, 2, 4, 8, 16, 32, 64
+_AUX_RESET, _AUX_SAVE, _AUX_CLEAR, _AUX_ZERO = 1, 2, 4, 8
+_MODE_NONE, _MODE_POSITION, _MODE_SPEED, _MODE_HOMING = 0, 1, 2, 3
+
+
+@dataclass(frozen=True)
+class _Reg:
+    """One parameter register of the twin: factory value, range, RW/S, signed."""
+
+    default: int
+    lo: int
+    hi: int
+    saved: bool = False  # RW/S: stored to EEPROM on write when 0x0024 = 1
+    signed: bool = False
+    writable: bool = True
+
+
+def _table() -> dict[int, _Reg]:
+    t: dict[int, _Reg] = {
+        0x0010: _Reg(0, 0, 127, saved=True),  # manual prints 0~7 for a 7-bit mask
+        0x0011: _Reg(2, 0, 1000),
+        0x0012: _Reg(0, 0, 7, saved=True),
+        0x0020: _Reg(1, 1, 31, saved=True),
+        0x0021: _Reg(0, 0, 3, saved=True),
+        0x0022: _Reg(0, 0, 1, saved=True),
+        0x0023: _Reg(1000, 400, 51200, saved=True),
+        0x0024: _Reg(0, 0, 1, saved=True),
+        0x0025: _Reg(0, 0, 1, saved=True),
+        0x0030: _Reg(5, 2, 300),
+        0x0031: _Reg(100, 1, 2000),
+        0x0032: _Reg(100, 1, 2000),
+        0x0033: _Reg(60, -3000, 3000, signed=True),
+        0x0034: _Reg(0, 0, 0xFFFF),
+        0x0035: _Reg(5000, 0, 0xFFFF),
+        0x0036: _Reg(0, 0, 127),
+        0x0037: _Reg(0, 0, 8),
+        0x0038: _Reg(1, 0, 1),
+        0x0039: _Reg(0, 0, 1),
+        0x003A: _Reg(0, 0, 1),
+        0x0040: _Reg(0, 0, 35, saved=True),
+        0x0041: _Reg(120, 5, 3000, saved=True),
+        0x0042: _Reg(60, 5, 300, saved=True),
+        0x0043: _Reg(200, 1, 2000, saved=True),
+        0x0044: _Reg(0, 0, 0xFFFF, saved=True),
+        0x0045: _Reg(0, 0, 0xFFFF, saved=True),
+        0x0046: _Reg(60, 0, 3000),
+        0x0047: _Reg(100, 1, 2000),
+        0x0048: _Reg(100, 1, 2000),
+        0x0050: _Reg(1, 0, 1, saved=True),
+        0x0051: _Reg(0, 0, 1),
+        0x0052: _Reg(4000, 400, 65535, saved=True),
+        0x0053: _Reg(42, 0, 80, saved=True),
+        0x0054: _Reg(75, 0, 80, saved=True),
+        0x0055: _Reg(56, 0, 80, saved=True),
+        0x0056: _Reg(60, 0, 1024, saved=True),
+        0x0057: _Reg(1000, 1000, 1000, saved=True),  # "cannot be modified"
+        0x0058: _Reg(200, 200, 200, saved=True),  # "cannot be modified"
+        0x0059: _Reg(300, 0, 1000, saved=True),
+        0x005A: _Reg(400, 0, 1000, saved=True),
+        0x005B: _Reg(80, 0, 300, saved=True),
+        0x005C: _Reg(10, 1, 200, saved=True),
+        0x005D: _Reg(5, 1, 1000, saved=True),
+    }
+    for i, fn in enumerate((1, 2, 3, 0, 0, 0, 0)):
+        t[0x0013 + i] = _Reg(fn, 0, 16)
+    for i, fn in enumerate((1, 2, 4)):
+        t[0x001A + i] = _Reg(fn, 0, 5)
+    for n in range(16):
+        t[0x0060 + n] = _Reg(0, 0, 0xFFFF)
+        t[0x0070 + n] = _Reg(5000, 0, 0xFFFF)
+        t[0x0080 + n] = _Reg(120, 0, 3000)
+        t[0x0090 + n] = _Reg(100, 1, 2000)
+        t[0x00A0 + n] = _Reg(100, 1, 2000)
+        t[0x00B0 + n] = _Reg(120, -3000, 3000, signed=True)
+        t[0x00C0 + n] = _Reg(100, 1, 2000)
+        t[0x00D0 + n] = _Reg(100, 1, 2000)
+    return t
+
+
+_TABLE = _table()
+_MONITOR = range(0x0000, 0x000A)  # read-only, computed at read time
+
+
+def _s16(word: int) -> int:
+    return word - 0x10000 if word & 0x8000 else word
+
+
+def _s32(value: int) -> int:
+    value &= 0xFFFFFFFF
+    return value - (1 << 32) if value & 0x80000000 else value
+
+
+@dataclass(frozen=True)
+class _Phase:
+    """One leg of a homing method: run in ``direction`` at high or creep speed until an
+    edge at one of ``events``' positions, then go to the named phase (or "done")."""
+
+    direction: int
+    fast: bool
+    events: tuple[tuple[str, str], ...]  # (switch edge name, next leg)
+
+
+@dataclass
+class _Homing:
+    phases: dict[str, _Phase]
+    phase: str
+    t_dir: float  # from when the motor runs in the phase's direction
+
+
+class SimCL86R(SimDrive):
+    """Simulated CL86R: registers 0x0000-0x00DF, control word 0x0036, homing 17/18/24/29/35."""
+
+    family = "CL86R"
+
+    def __init__(
+        self,
+        address: int,
+        settings: LineSettings | None = None,
+        *,
+        turnaround: float = 0.001,
+        position: int = 0,
+        home_switch: float | None = None,
+        limit_negative: float | None = None,
+        limit_positive: float | None = None,
+        home_switch_width: float | None = None,
+        crc_error_reply: bool = True,
+        model: int = 862,
+        software: int = 100,
+    ) -> None:
+        settings = settings or LineSettings.parse("9600 8N1")
+        _check_line(settings)
+        super().__init__(
+            address, settings, turnaround=turnaround, position=position,
+            home_switch=home_switch, limit_negative=limit_negative,
+            limit_positive=limit_positive,
+        )
+        self.home_switch_width = home_switch_width
+        self.crc_error_reply = crc_error_reply
+        self.model = model
+        self.software = software
+        self.regs = {a: r.default & 0xFFFF for a, r in _TABLE.items()}
+        self.regs[0x0021] = _FORMATS.index(settings.format) if settings.baudrate != 9600 else 0
+        self.eeprom = dict(self.regs)
+        """Parameter values that survive a power cycle."""
+        self.enabled = self.regs[0x0038] == 1
+        self.mode = _MODE_NONE
+        self.homed = False
+        self._homing: _Homing | None = None
+        self._watch_from = 0.0
+        self._shift = 0.0
+        """Counter minus physical position: zeroing and homing move the counter, not the
+        switches (whose positions are physical, in the initial counter's pulses)."""
+
+    # -- switches and units ---------------------------------------------------------------------
+
+    def position(self, now: float | None = None) -> int:
+        """The drive's 32-bit position counter (it wraps at ±2^31)."""
+        return _s32(super().position(now))
+
+    def physical_position(self, now: float | None = None) -> float:
+        """Where the axis physically is (the frame of the switch positions)."""
+        return self.kin.position(monotonic() if now is None else now) - self._shift
+
+    def _set_counter(self, t: float, value: float) -> None:
+        """Redefine the position counter at ``t`` as ``value`` (the axis does not move)."""
+        old = self.kin.position(t)
+        self.kin.set_position(t, value)
+        self._shift += value - old
+
+    def switch_states(self, now: float) -> tuple[bool, bool, bool]:
+        """(home, limit negative, limit positive) at the physical position.
+
+        The home switch is a cam from ``home_switch`` on, or a dog of ``home_switch_width``.
+        """
+        p = self.physical_position(now)
+        h, w = self.home_switch, self.home_switch_width
+        home = h is not None and p >= h and (w is None or p <= h + w)
+        neg = self.limit_negative is not None and p <= self.limit_negative
+        pos = self.limit_positive is not None and p >= self.limit_positive
+        return home, neg, pos
+
+    def _wired(self, function: int) -> bool:
+        """True if some input X0..X6 is assigned DI ``function`` (1 home, 2 +limit, 3 -limit)."""
+        return any(self.regs[0x0013 + i] == function for i in range(7))
+
+    def _pps(self, rpm: float) -> float:
+        """rpm -> pulses/s at the microstep setting 0x0023."""
+        return rpm * self.regs[0x0023] / 60.0
+
+    def _rate(self, speed_rpm: float, ms: int) -> float:
+        """pulses/s² of a ramp reaching ``speed_rpm`` in ``ms``."""
+        return self._pps(abs(speed_rpm)) / (ms / 1000.0)
+
+    def _home_rate(self) -> float:
+        return self._rate(self.regs[0x0041], self.regs[0x0043])
+
+    def _boundary(self, which: str | None) -> float | None:
+        """Counter position of a switch edge the drive can see, or None."""
+        h, w = self.home_switch, self.home_switch_width
+        edge: float | None = None
+        if which == "home_low" and self._wired(1):
+            edge = h
+        elif which == "home_high" and self._wired(1):
+            edge = h + w if h is not None and w is not None else None
+        elif which == "limit_positive" and self._wired(2):
+            edge = self.limit_positive
+        elif which == "limit_negative" and self._wired(3):
+            edge = self.limit_negative
+        return None if edge is None else edge + self._shift
+
+    # -- registers ------------------------------------------------------------------------------
+
+    def _monitor(self, now: float) -> list[int]:
+        home, neg, pos = self.switch_states(now)
+        moving = self.kin.moving(now)
+        status = (
+            (0x01 if not moving and not self.alarm_code else 0)
+            | (0x02 if self.homed else 0)
+            | (0x04 if moving else 0)
+            | (0x08 if self.alarm_code else 0)
+            | (0x10 if self.enabled else 0)
+        )
+        active = {1: home, 2: pos, 3: neg}
+        inputs = 0
+        for i in range(7):
+            if active.get(self.regs[0x0013 + i], False):
+                inputs |= 1 << i
+        inputs ^= self.regs[0x0010] & 0x7F  # terminal state = logical level ^ inversion
+        signals = {1: bool(self.alarm_code), 2: moving, 3: self.homed,
+                   4: bool(status & 0x01), 5: self.enabled}
+        outputs = 0
+        for i in range(3):
+            if signals.get(self.regs[0x001A + i], False):
+                outputs |= 1 << i
+        outputs ^= self.regs[0x0012] & 0x07
+        p = round(self.kin.position(now)) & 0xFFFFFFFF
+        rpm = round(self.kin.velocity(now) * 60.0 / self.regs[0x0023])
+        return [self.model, self.software, self.mode, status, self.alarm_code, inputs, outputs,
+                p >> 16, p & 0xFFFF, rpm & 0xFFFF]
+
+    def read_registers(self, function: int, address: int, count: int, now: float) -> list[int]:
+        """FC03 only; undefined addresses are exception 02."""
+        if function != 0x03:
+            raise SlaveException(1)
+        self._advance(now)
+        monitor: list[int] | None = None
+        out = []
+        for a in range(address, address + count):
+            if a in _MONITOR:
+                monitor = monitor or self._monitor(now)
+                out.append(monitor[a])
+            elif a in _TABLE:
+                out.append(self.regs[a])
+            else:
+                raise SlaveException(2)
+        return out
+
+    def write_registers(self, address: int, values: list[int], now: float) -> None:
+        """Check every value first (02 undefined/read-only, 03 out of range), then apply."""
+        self._advance(now)
+        for a, v in zip(range(address, address + len(values)), values, strict=True):
+            reg = _TABLE.get(a)
+            if reg is None or not reg.writable:
+                raise SlaveException(2)
+            value = _s16(v) if reg.signed else v
+            if not reg.lo <= value <= reg.hi:
+                raise SlaveException(3)
+        for a, v in zip(range(address, address + len(values)), values, strict=True):
+            self.regs[a] = v
+            if _TABLE[a].saved and self.regs[0x0024] == 1:
+                self.eeprom[a] = v
+            self._effect(a, v, now)
+
+    def _effect(self, address: int, value: int, now: float) -> None:
+        if address == 0x0036:
+            self._control(value, now)
+        elif address == 0x0037:
+            self._aux(value, now)
+        elif address == 0x0038:
+            self.enabled = value == 1
+            if not self.enabled:
+                self._homing = None
+                self.kin.stop(now, None)  # released: the shaft is free, motion ends
+
+    def on_bad_crc(self, adu: bytes) -> bytes | None:
+        """The manual's exception 04 "CRC check error" (or silence if switched off)."""
+        super().on_bad_crc(adu)
+        if not self.crc_error_reply or len(adu) < 2:
+            return None
+        return bytes((adu[1] | 0x80, 0x04))
+
+    # -- commands -------------------------------------------------------------------------------
+
+    def _aux(self, value: int, now: float) -> None:
+        if value & _AUX_RESET:
+            self.regs.update({a: r.default & 0xFFFF for a, r in _TABLE.items()})
+            self.eeprom.update(self.regs)
+        if value & _AUX_SAVE:
+            self.eeprom.update(self.regs)
+        if value & _AUX_CLEAR:
+            self.alarm_code = 0
+        if value & _AUX_ZERO:
+            self._set_counter(now, 0)
+
+    def _control(self, word: int, now: float) -> None:
+        if word & _ESTOP:
+            self._homing = None
+            self.kin.stop(now, None)
+        elif word & _STOP:
+            self._homing = None
+            self.kin.stop(now, self._stop_rate(now))
+        elif not self.enabled or self.alarm_code:
+            return  # the drive does not start anything
+        elif word & _HOME:
+            self._start_homing(word, now)
+        elif word & _SPEED:
+            self._start_speed(word, now)
+        elif word & _START:
+            self._start_position(word, now)
+
+    def _stop_rate(self, now: float) -> float:
+        if self.mode == _MODE_HOMING:
+            return self._home_rate()
+        ref = abs(_s16(self.regs[0x0033])) or abs(self.kin.velocity(now)) * 60 / self.regs[0x0023]
+        return self._rate(ref, self.regs[0x0032]) if ref else math.inf
+
+    def _busy(self, word: int, now: float) -> bool:
+        """True if a start must be ignored: moving, and no interrupt bit."""
+        return self.kin.moving(now) and not word & _INTERRUPT
+
+    def _wrap(self, now: float) -> float:
+        """Keep the 32-bit position counter in range; the present position."""
+        p = self.kin.position(now)
+        wrapped = _s32(round(p))
+        if wrapped != round(p):
+            self._set_counter(now, p + (wrapped - round(p)))
+        return self.kin.position(now)
+
+    def _blocked(self, direction: float, now: float) -> bool:
+        """True if a limit input in ``direction`` is active (the drive will not go on)."""
+        _, neg, pos = self.switch_states(now)
+        return (direction > 0 and pos and self._wired(2)) or (
+            direction < 0 and neg and self._wired(3)
+        )
+
+    def _start_position(self, word: int, now: float) -> None:
+        speed = abs(_s16(self.regs[0x0033]))
+        if speed == 0 or self._busy(word, now):
+            return
+        p = self._wrap(now)
+        target = _s32((self.regs[0x0034] << 16) | self.regs[0x0035])
+        if not word & _ABS:
+            target += round(p)
+        if self._blocked(target - p, now):
+            return
+        self.kin.move_to(
+            now, target, self._pps(speed),
+            self._rate(speed, self.regs[0x0031]), self._rate(speed, self.regs[0x0032]),
+        )
+        self.mode = _MODE_POSITION
+        self._watch_from = now
+
+    def _start_speed(self, word: int, now: float) -> None:
+        speed = _s16(self.regs[0x0033])
+        changing = self.mode == _MODE_SPEED and self.kin.moving(now)
+        if not changing and self._busy(word, now):
+            return
+        if self._blocked(speed, now):
+            return
+        self._wrap(now)
+        if speed == 0:
+            self.kin.stop(now, self._stop_rate(now))
+        else:
+            self.kin.run(
+                now, self._pps(speed),
+                self._rate(speed, self.regs[0x0031]), self._rate(speed, self.regs[0x0032]),
+            )
+        self.mode = _MODE_SPEED
+        self._watch_from = now
+
+    # -- homing ---------------------------------------------------------------------------------
+
+    def _offset(self) -> int:
+        return (self.regs[0x0044] << 16) | self.regs[0x0045]
+
+    def _phases(self, mode: int, now: float) -> tuple[dict[str, _Phase], str] | None:
+        """The homing method's legs and the first one, from the switch state at ``now``."""
+        home, neg, pos = self.switch_states(now)
+        lo, hi, lp, ln = "home_low", "home_high", "limit_positive", "limit_negative"
+        if mode == 18:  # origin: falling edge of the positive limit
+            p = {"fast": _Phase(+1, True, ((lp, "creep"),)),
+                 "creep": _Phase(-1, False, ((lp, "done"),))}
+            return p, "creep" if pos and self._wired(2) else "fast"
+        if mode == 17:  # origin: falling edge of the negative limit
+            p = {"fast": _Phase(-1, True, ((ln, "creep"),)),
+                 "creep": _Phase(+1, False, ((ln, "done"),))}
+            return p, "creep" if neg and self._wired(3) else "fast"
+        if mode == 24:  # origin: HW rising edge approached forward (lower edge)
+            p = {"fast": _Phase(+1, True, ((lo, "back"), (lp, "reverse"))),
+                 "back": _Phase(-1, False, ((lo, "final"),)),
+                 "reverse": _Phase(-1, True, ((hi, "back"),)),
+                 "final": _Phase(+1, False, ((lo, "done"),))}
+            return p, "back" if home and self._wired(1) else "fast"
+        if mode == 29:  # origin: HW rising edge approached in reverse (upper edge)
+            p = {"fast": _Phase(-1, True, ((hi, "back"), (ln, "reverse"))),
+                 "back": _Phase(+1, False, ((hi, "final"),)),
+                 "reverse": _Phase(+1, True, ((lo, "back"),)),
+                 "final": _Phase(-1, False, ((hi, "done"),))}
+            return p, "back" if home and self._wired(1) else "fast"
+        return None
+
+    def _start_homing(self, word: int, now: float) -> None:
+        mode = self.regs[0x0040]
+        if mode not in (17, 18, 24, 29, 35) or self._busy(word, now):
+            return  # 0 (the factory value) and other numbers are not documented methods
+        self._wrap(now)
+        self.mode = _MODE_HOMING
+        self.homed = False
+        if mode == 35:
+            self._set_counter(now, self._offset())
+            self.homed = True
+            return
+        plan = self._phases(mode, now)
+        assert plan is not None
+        phases, first = plan
+        self._homing = _Homing(phases, first, now)
+        self._enter(first, now)
+
+    def _enter(self, name: str, t: float) -> None:
+        """Start homing leg ``name`` at ``t`` (braking first if moving the other way)."""
+        assert self._homing is not None
+        phase = self._homing.phases[name]
+        rate = self._home_rate()
+        speed = self.regs[0x0041] if phase.fast else self.regs[0x0042]
+        v = self.kin.velocity(t)
+        self.kin.run(t, phase.direction * self._pps(speed), rate, rate)
+        t_dir = t + abs(v) / rate if v * phase.direction < 0 else t
+        self._homing.phase, self._homing.t_dir = name, t_dir
+
+    def _next_edge(self, now: float) -> tuple[float, str] | None:
+        """The first edge the current leg waits for (or a limit that aborts it) up to ``now``."""
+        assert self._homing is not None
+        phase = self._homing.phases[self._homing.phase]
+        events = list(phase.events)
+        ahead = "limit_positive" if phase.direction > 0 else "limit_negative"
+        if all(name != ahead for name, _ in events):
+            events.append((ahead, "abort"))
+        t_from = self._homing.t_dir + 1e-9
+        best: tuple[float, str] | None = None
+        for name, nxt in events:
+            boundary = self._boundary(name)
+            if boundary is None:
+                continue
+            tc = self.kin.crossing(boundary, t_from, now)
+            if tc is not None and (best is None or tc < best[0]):
+                best = (tc, nxt)
+        return best
+
+    def _advance_homing(self, now: float) -> None:
+        for _ in range(16):
+            if self._homing is None:
+                return
+            edge = self._next_edge(now)
+            if edge is None:
+                return
+            tc, nxt = edge
+            if nxt == "done":
+                self.kin.stop(tc, self._home_rate())
+                self._set_counter(tc, self._offset())
+                self.homed = True
+                self._homing = None
+            elif nxt == "abort":
+                self.kin.stop(tc, self._stop_rate(tc) if self.regs[0x0025] == 0 else None)
+                self._homing = None
+            else:
+                self._enter(nxt, tc)
+
+    def _limit_hit(self, now: float) -> float | None:
+        """When a position/speed move first ran into an active limit since its start."""
+        hits = []
+        for boundary, direction in ((self._boundary("limit_positive"), 1),
+                                    (self._boundary("limit_negative"), -1)):
+            if boundary is None:
+                continue
+            t0 = self._watch_from
+            for _ in range(4):
+                tc = self.kin.crossing(boundary, t0, now)
+                if tc is None:
+                    break
+                if self.kin.velocity(tc) * direction > 0:
+                    hits.append(tc)
+                    break
+                t0 = tc + 1e-6
+        return min(hits) if hits else None
+
+    def _advance(self, now: float) -> None:
+        """Bring homing legs and limit stops up to ``now`` (state is computed lazily)."""
+        if self._homing is not None:
+            self._advance_homing(now)
+            return
+        if self.mode in (_MODE_POSITION, _MODE_SPEED) and self.kin.moving(now):
+            tc = self._limit_hit(now)
+            if tc is not None:
+                at_once = self.regs[0x0025] == 1
+                self.kin.stop(tc, None if at_once else self._stop_rate(tc))
+                self._watch_from = now
+
+    # -- faults ---------------------------------------------------------------------------------
+
+    def raise_alarm(self, code: int, now: float | None = None) -> None:
+        """Latch error ``code`` (1 overcurrent, 2 overvoltage, 4 position error)."""
+        t = monotonic() if now is None else now
+        self._advance(t)
+        self._homing = None
+        super().raise_alarm(code, t)
+
+    def power_restore(self) -> None:
+        """Power-up: EEPROM values come back, the position counter starts at 0.
+
+        A format written to 0x0021 (and saved) takes effect now, at 19200 baud and up.
+        """
+        super().power_restore()
+        now = monotonic()
+        self.regs = dict(self.eeprom)
+        for a in (0x0036, 0x0037, 0x0038):
+            self.regs[a] = _TABLE[a].default
+        if self.settings.baudrate != 9600:
+            self.settings = LineSettings.parse(
+                _FORMATS[self.regs[0x0021]], baudrate=self.settings.baudrate
+            )
+        self.kin.hold(now)
+        self._set_counter(now, 0)  # the counter starts at 0; the axis has not moved
+        self.enabled = True
+        self.alarm_code = 0
+        self.mode = _MODE_NONE
+        self.homed = False
+        self._homing = None
+
+
+def _check_line(settings: LineSettings) -> None:
+    """The CL86R's DIP switches give 9600 (8N1 only), 19200, 38400 or 115200 baud."""
+    if settings.baudrate not in _BAUDS:
+        raise ConfigError(f"CL86R baud rate {settings.baudrate} is not one of {_BAUDS}")
+    if settings.format not in _FORMATS:
+        raise ConfigError(f"CL86R line format {settings.format} is not one of {_FORMATS}")
+    if settings.baudrate == 9600 and settings.format != "8N1":
+        raise ConfigError("the CL86R runs 8N1 at 9600 baud (0x0021 applies from 19200 up)")

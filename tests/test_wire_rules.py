@@ -1,0 +1,146 @@
+"""The wire rules, checked from the simulator's wire log over the real serial stack on a pty."""
+
+from __future__ import annotations
+
+import itertools
+
+import anyio
+import pytest
+
+from drivebus import Bus, LineSettings, SerialLine, SlaveHandle
+from drivebus.errors import LineClosed, ResponseTimeout
+from drivebus.sim import RegisterSlave, VirtualWire, sim_bus
+from drivebus.timing import switch_silence, timing
+
+MIXED = {
+    1: LineSettings.parse("9600 8N1"),
+    2: LineSettings.parse("19200 8E1"),
+    3: LineSettings.parse("38400 8N2"),
+    4: LineSettings.parse("115200 8N1"),
+}
+
+
+async def test_mixed_settings_line_keeps_every_silence() -> None:
+    slaves = [RegisterSlave(a, s, initial=[(0, a * 100)]) for a, s in MIXED.items()]
+    async with sim_bus(slaves, LineSettings.parse("115200 8N1")) as (wire, bus):
+        handles = {a: bus.slave(a, settings=s) for a, s in MIXED.items()}
+        # A deterministic but irregular order: runs of one slave and switches between all.
+        order = [a for a in itertools.islice(itertools.cycle([1, 2, 2, 3, 4, 4, 4, 1, 3]), 2000)]
+        for i, a in enumerate(order):
+            if i % 7 == 0:
+                await handles[a].write_register(1, i)
+            else:
+                assert await handles[a].read_holding_registers(0, 1) == [a * 100]
+        requests = wire.requests()
+        assert len(requests) == len(order)
+        assert wire.violations == 0
+        previous = None
+        for f in wire.log:
+            if f.direction == "request":
+                # every frame went out at its slave's settings, after the required silence
+                assert f.settings == MIXED[f.address], f
+                assert f.required == pytest.approx(switch_silence(previous, f.settings))
+                assert f.gap >= f.required, f
+                assert f.note == "", f
+            previous = f.settings
+        assert bus.stats.total().errors == 0
+        assert bus.stats.slave(1).transactions == order.count(1)
+
+
+async def test_slave_only_understands_its_own_settings() -> None:
+    # Same baud rate, other parity: only the side channel can tell them apart on a pty.
+    slave = RegisterSlave(5, LineSettings.parse("9600 8E1"))
+    async with sim_bus([slave], LineSettings.parse("9600 8N1"), retries=0) as (wire, bus):
+        with pytest.raises(ResponseTimeout):
+            await bus.slave(5).read_holding_registers(0, 1)
+        assert wire.log[-1].note == "settings mismatch"
+        with pytest.raises(ResponseTimeout):
+            fast = bus.slave(5, settings=LineSettings.parse("19200 8E1"))
+            await fast.read_holding_registers(0, 1)
+        assert await bus.slave(5, settings=LineSettings.parse("9600 8E1")).read_holding_registers(
+            0, 2
+        ) == [0, 0]
+        assert wire.requests()[-1].settings == LineSettings.parse("9600 8E1")
+
+
+async def test_frames_take_wire_time() -> None:
+    s = LineSettings.parse("9600 8N1")
+    async with sim_bus([RegisterSlave(1, s, turnaround=0.002)], s) as (wire, bus):
+        await bus.slave(1).read_holding_registers(0, 10)
+        req, rep = wire.log[-2], wire.log[-1]
+        tm = timing(s)
+        assert req.end - req.start == pytest.approx(8 * tm.char_time)
+        assert rep.end - rep.start == pytest.approx(25 * tm.char_time)
+        assert rep.start - req.end >= 0.002  # the slave's turnaround
+
+
+async def test_broadcast_reaches_all_and_waits_the_turnaround_delay() -> None:
+    s = LineSettings.parse("115200 8N1")
+    slaves = [RegisterSlave(a, s) for a in (1, 2, 3)]
+    async with VirtualWire("bcast") as wire:
+        for sl in slaves:
+            wire.attach(sl)
+        line = SerialLine(wire.url, s, broadcast_delay=0.02)
+        async with Bus(line) as bus:
+            await bus.slave(0).write_registers(10, [7, 8])
+            assert await bus.slave(2).read_holding_registers(10, 2) == [7, 8]
+            assert [sl.registers[10:12] for sl in slaves] == [[7, 8]] * 3
+            bc, nxt = wire.requests()[-2:]
+            assert bc.address == 0 and nxt.address == 2
+            assert nxt.start - bc.end >= 0.02
+            assert not [f for f in wire.log if f.direction == "reply" and f.address == 0]
+            assert bus.stats.slave(0).broadcasts == 1
+
+
+async def test_local_echo_is_consumed() -> None:
+    s = LineSettings.parse("115200 8N1")
+    async with VirtualWire("echoing", echo=True) as wire:
+        wire.attach(RegisterSlave(1, s, initial=[(3, 33)]))
+        async with Bus(SerialLine(wire.url, s, local_echo=True)) as bus:
+            assert await bus.slave(1).read_holding_registers(3, 1) == [33]
+            await bus.slave(1).write_register(3, 44)
+            assert await bus.slave(1).read_holding_registers(3, 1) == [44]
+
+
+async def test_missing_port_is_a_clear_error() -> None:
+    with pytest.raises(LineClosed, match="/dev/ttyNOPE"):
+        async with Bus(SerialLine("/dev/ttyNOPE")):
+            pass
+    with pytest.raises(LineClosed, match="no simulated line named 'nothing'"):
+        async with Bus(SerialLine("sim://nothing")):
+            pass
+
+
+async def test_rs485_mode_on_a_pty_is_refused_clearly() -> None:
+    async with VirtualWire("rs485") as wire:
+        with pytest.raises(Exception, match="RS-485 mode"):
+            async with Bus(SerialLine(wire.url, rs485=True)):
+                pass
+
+
+async def test_closing_fails_queued_requests_and_never_hangs() -> None:
+    s = LineSettings.parse("9600 8N1")
+    results: list[BaseException | list[int]] = []
+
+    async def reader(h: SlaveHandle) -> None:
+        try:
+            results.append(await h.read_holding_registers(0, 1))
+        except LineClosed as exc:
+            results.append(exc)
+
+    async with anyio.create_task_group() as tg, sim_bus([RegisterSlave(1, s)], s) as (wire, bus):
+            h = bus.slave(1)
+            for _ in range(20):
+                tg.start_soon(reader, h)
+            with anyio.fail_after(5):
+                await wire.wait_requests(1)  # the first request is on the wire
+        # leaving the bus fails what is still queued, and the one in flight
+    closed = [r for r in results if isinstance(r, LineClosed)]
+    done = [r for r in results if not isinstance(r, LineClosed)]
+    assert len(results) == 20
+    sent = len(wire.requests())
+    assert sent <= 2
+    assert len(done) <= sent  # nothing queued was sent after the close
+    assert len(closed) == 20 - len(done) >= 18
+    with pytest.raises(LineClosed):
+        await h.read_holding_registers(0, 1)
