@@ -134,9 +134,16 @@ class SerialLine(Line):
         """Wait until the line has been silent for ``silence`` since its last activity."""
         rx = self._rx
         assert rx is not None
+        port = self._serial
+        assert port is not None
         while True:
             quiet = max(self._quiet_since, rx.last_rx)
             await self._timer.sleep_until(quiet + silence)
+            # Bytes may sit in the kernel's buffer that the event loop has not handed us
+            # yet (a slave answering late, noise): they are line activity too.
+            waiting = port.in_waiting
+            if waiting:
+                rx.data_received(port.read(waiting))
             if rx.last_rx <= quiet:
                 break  # nothing arrived while we waited
         rx.discard()

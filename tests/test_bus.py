@@ -1,0 +1,182 @@
+"""Bus scheduler: priorities, faults, retries, cancellation, statistics."""
+
+from __future__ import annotations
+
+import anyio
+import pytest
+
+from drivebus import LineSettings, Priority
+from drivebus.errors import (
+    ConfigError,
+    FrameError,
+    ModbusException,
+    ResponseTimeout,
+    WrongResponder,
+)
+from drivebus.sim import Fault, RegisterSlave, sim_bus
+
+FAST = LineSettings.parse("115200 8N1")
+
+
+async def test_emergency_overtakes_every_queued_poll() -> None:
+    slaves = [RegisterSlave(a, FAST) for a in range(1, 9)]
+    async with sim_bus(slaves, FAST) as (wire, bus):
+        handles = [bus.slave(a) for a in range(1, 9)]
+        stop = anyio.Event()
+
+        async def poller(h) -> None:  # type: ignore[no-untyped-def]
+            while not stop.is_set():
+                await h.read_holding_registers(0, 4, priority=Priority.POLL)
+
+        async with anyio.create_task_group() as tg:
+            for h in handles:
+                for _ in range(3):  # 24 polls queued at any time
+                    tg.start_soon(poller, h)
+            for i in range(40):
+                await wire.wait_requests(wire.request_count + 3 + i % 5)
+                before = wire.request_count
+                await handles[i % 8].write_register(100, i, priority=Priority.EMERGENCY)
+                frames = wire.requests()
+                mine = next(
+                    k for k in range(len(frames) - 1, -1, -1)
+                    if frames[k].data[1] == 0x06 and frames[k].data[4:6] == i.to_bytes(2, "big")
+                )
+                started_after = wire.request_count - (len(frames) - mine)  # frames before it
+                # at most the one transaction already in flight went out before the stop
+                assert started_after - before <= 1, (i, started_after - before)
+            stop.set()
+        assert wire.violations == 0
+
+
+async def test_fifo_within_a_priority() -> None:
+    s = LineSettings.parse("9600 8N1")
+    async with sim_bus([RegisterSlave(1, s)], s) as (wire, bus):
+        h = bus.slave(1)
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(h.read_holding_registers, 0, 1)  # occupies the line
+            await wire.wait_requests(0)
+            await anyio.wait_all_tasks_blocked()
+            for v in range(10):
+                tg.start_soon(h.write_register, 5, v)
+                await anyio.wait_all_tasks_blocked()
+        writes = [f.data[4:6] for f in wire.requests() if f.data[1] == 0x06]
+        assert writes == [v.to_bytes(2, "big") for v in range(10)]
+
+
+@pytest.mark.parametrize(
+    ("fault", "value", "error", "counter"),
+    [
+        (Fault.NO_REPLY, None, ResponseTimeout, "timeouts"),
+        (Fault.CRC_DAMAGE, None, FrameError, "crc_errors"),
+        (Fault.WRONG_ADDRESS, 9, WrongResponder, "wrong_responder"),
+        (Fault.SLOW_REPLY, 0.08, ResponseTimeout, "timeouts"),
+    ],
+)
+async def test_each_fault_gives_its_typed_error_and_the_next_transaction_succeeds(
+    fault: Fault, value: float | None, error: type[Exception], counter: str
+) -> None:
+    slave = RegisterSlave(3, FAST, initial=[(0, 42)])
+    async with sim_bus([slave], FAST, timeout=0.05, retries=0) as (wire, bus):
+        h = bus.slave(3)
+        slave.faults.inject(fault, value=value)
+        with pytest.raises(error) as exc:
+            await h.read_holding_registers(0, 1)
+        assert exc.value.slave == 3  # type: ignore[attr-defined]
+        if fault is Fault.SLOW_REPLY:
+            # the late reply still comes; it must not be taken for the next answer
+            await wire.wait_requests(1)
+            with anyio.fail_after(1):
+                while not [f for f in wire.log if f.direction == "reply"]:
+                    await anyio.sleep(0.005)
+        assert await h.read_holding_registers(0, 1) == [42]
+        st = bus.stats.slave(3)
+        assert getattr(st, counter) == 1
+        assert st.transactions == 1 and st.errors == 1
+        assert wire.violations == 0
+
+
+async def test_garbage_before_a_reply_is_skipped_and_counted() -> None:
+    slave = RegisterSlave(3, FAST, initial=[(0, 42)])
+    async with sim_bus([slave], FAST, retries=0) as (wire, bus):
+        slave.faults.inject(Fault.GARBAGE, value=b"\x00\xff\x13")
+        assert await bus.slave(3).read_holding_registers(0, 1) == [42]
+        assert bus.line.garbage_bytes == 3  # type: ignore[attr-defined]
+        assert await bus.slave(3).read_holding_registers(0, 1) == [42]
+
+
+async def test_reads_are_retried_commands_never_blindly() -> None:
+    slave = RegisterSlave(2, FAST, initial=[(0, 7)])
+    async with sim_bus([slave], FAST, timeout=0.03, retries=2) as (wire, bus):
+        h = bus.slave(2)
+        slave.faults.inject(Fault.NO_REPLY, times=2)
+        assert await h.read_holding_registers(0, 1) == [7]
+        assert bus.stats.slave(2).retries == 2
+        slave.faults.inject(Fault.NO_REPLY, times=1)
+        with pytest.raises(ResponseTimeout):
+            await h.write_register(18, 1, priority=Priority.COMMAND, idempotent=False)
+        starts = [f for f in wire.requests() if f.data[1] == 0x06]
+        assert len(starts) == 1  # the drive may have started: never sent twice
+        assert slave.registers[18] == 1
+        slave.faults.inject(Fault.NO_REPLY, times=1)
+        await h.write_register(19, 5)  # an idempotent write may be retried
+        assert len([f for f in wire.requests() if f.data[1] == 0x06]) == 3
+
+
+async def test_modbus_exception_carries_code_and_vendor_text() -> None:
+    async with sim_bus([RegisterSlave(4, FAST, size=10)], FAST) as (wire, bus):
+        h = bus.slave(4, exception_texts={2: "vendor: no such parameter"})
+        with pytest.raises(ModbusException) as exc:
+            await h.read_holding_registers(8, 5)
+        assert exc.value.code == 2 and exc.value.function == 3
+        assert "vendor: no such parameter" in str(exc.value)
+        assert bus.stats.slave(4).exceptions == 1
+        assert bus.stats.slave(4).retries == 0  # an exception is an answer, not a failure
+        assert await h.read_holding_registers(0, 2) == [0, 0]
+
+
+async def test_cancelled_request_never_reaches_the_wire() -> None:
+    s = LineSettings.parse("9600 8N1")
+    slave = RegisterSlave(1, s)
+    async with sim_bus([slave], s) as (wire, bus):
+        h = bus.slave(1)
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(h.read_holding_registers, 0, 10)  # occupies the line
+            await anyio.wait_all_tasks_blocked()
+            with anyio.move_on_after(0):
+                await h.write_register(50, 1, idempotent=False)
+        await h.read_holding_registers(0, 1)
+        assert slave.registers[50] == 0
+        assert not [f for f in wire.requests() if f.data[1] == 0x06]
+
+
+async def test_raw_pdu_path() -> None:
+    slave = RegisterSlave(6, FAST, initial=[(1, 0xBEEF)])
+    async with sim_bus([slave], FAST) as (wire, bus):
+        reply = await bus.slave(6).transact(bytes.fromhex("03 00 01 00 01"))
+        assert reply == bytes.fromhex("03 02 BE EF")
+        assert wire.requests()[-1].data[:6] == bytes.fromhex("06 03 00 01 00 01")
+
+
+async def test_bad_arguments_are_refused_before_the_wire() -> None:
+    async with sim_bus([RegisterSlave(1, FAST)], FAST) as (wire, bus):
+        with pytest.raises(ConfigError, match="outside 0..247"):
+            bus.slave(300)
+        with pytest.raises(ConfigError, match="broadcast"):
+            await bus.slave(0).read_holding_registers(0, 1)
+        with pytest.raises(ConfigError, match="count 0"):
+            await bus.slave(1).read_holding_registers(0, 0)
+        with pytest.raises(ConfigError, match="65536"):
+            await bus.slave(1).write_register(0, 65536)
+        assert wire.request_count == 0
+
+
+async def test_stats_and_utilisation() -> None:
+    s = LineSettings.parse("19200 8E1")
+    async with sim_bus([RegisterSlave(1, s)], s) as (wire, bus):
+        for _ in range(50):
+            await bus.slave(1).read_holding_registers(0, 2)
+        st = bus.stats
+        assert st.slave(1).transactions == 50 and st.transactions == 50
+        per = (8 + 9) * 11 / 19200
+        assert st.wire_time == pytest.approx(50 * per)
+        assert 0.2 < st.utilisation < 1.0
