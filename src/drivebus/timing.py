@@ -33,9 +33,23 @@ class Timing:
         return (request + response) * self.char_time + turnaround + self.t35
 
 
-@lru_cache(maxsize=256)
+_by_id: dict[int, Timing] = {}
+
+
 def timing(settings: LineSettings) -> Timing:
-    """Timing for ``settings`` (cached: settings are frozen)."""
+    """Timing for ``settings`` (cached per settings object; they are frozen)."""
+    t = _by_id.get(id(settings))
+    if t is not None and t.settings is settings:
+        return t
+    t = _compute(settings)
+    if len(_by_id) > 4096:
+        _by_id.clear()
+    _by_id[id(settings)] = t  # t.settings keeps the object, so its id stays unique
+    return t
+
+
+@lru_cache(maxsize=256)
+def _compute(settings: LineSettings) -> Timing:
     bits = 1 + settings.bytesize + (0 if settings.parity == "N" else 1) + settings.stopbits
     char = bits / settings.baudrate
     if settings.baudrate > _FIXED_ABOVE:
@@ -52,6 +66,6 @@ def switch_silence(previous: LineSettings | None, following: LineSettings) -> fl
     at its own rate to resynchronise, so the longer of the two silences applies.
     """
     after = timing(following).t35
-    if previous is None or previous == following:
+    if previous is None or previous is following or previous == following:
         return after
     return max(after, timing(previous).t35)

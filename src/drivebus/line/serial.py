@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import termios
 
 import serial
@@ -27,6 +28,25 @@ if "drivebus.sim" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("drivebus.sim")  # sim://NAME virtual lines
 
 _PARITY = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
+
+
+class _Transport(serial_asyncio.SerialTransport):
+    """pyserial-asyncio's transport, reading the non-blocking descriptor directly.
+
+    pyserial's ``read`` runs a ``select`` and builds timeout objects on every call; on
+    the hot path one ``os.read`` per readable event is all that is needed.
+    """
+
+    def _read_ready(self) -> None:
+        try:
+            data = os.read(self._serial.fd, self._max_read_size)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:
+            self._close(exc=serial.SerialException(f"read failed: {exc}"))
+            return
+        if data:
+            self._protocol.data_received(data)
 
 
 class SerialLine(Line):
@@ -59,6 +79,7 @@ class SerialLine(Line):
         self._quiet_since = 0.0
         self._timer = PreciseTimer()
         self._closed = True
+        self._fd = -1
 
     @property
     def garbage_bytes(self) -> int:
@@ -76,10 +97,8 @@ class SerialLine(Line):
         loop = asyncio.get_running_loop()
         rx = RtuReceiver(f"serial port {self.port}")
         try:
-            transport, _ = await serial_asyncio.create_serial_connection(
-                loop,
-                lambda: rx,
-                url=self.port,
+            port = serial.serial_for_url(
+                self.port,
                 baudrate=s.baudrate,
                 bytesize=s.bytesize,
                 parity=_PARITY[s.parity],
@@ -87,7 +106,9 @@ class SerialLine(Line):
             )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise LineClosed(f"cannot open serial port {self.port!r}: {exc}") from exc
-        self._serial = transport.serial
+        transport = _Transport(loop, rx, port)
+        self._serial = port
+        self._fd = port.fileno()
         self._rx = rx
         self._current = s
         if self.rs485:
@@ -134,16 +155,17 @@ class SerialLine(Line):
         """Wait until the line has been silent for ``silence`` since its last activity."""
         rx = self._rx
         assert rx is not None
-        port = self._serial
-        assert port is not None
         while True:
             quiet = max(self._quiet_since, rx.last_rx)
             await self._timer.sleep_until(quiet + silence)
             # Bytes may sit in the kernel's buffer that the event loop has not handed us
             # yet (a slave answering late, noise): they are line activity too.
-            waiting = port.in_waiting
-            if waiting:
-                rx.data_received(port.read(waiting))
+            try:
+                late = os.read(self._fd, 4096)
+            except (BlockingIOError, InterruptedError):
+                late = b""
+            if late:
+                rx.data_received(late)
             if rx.last_rx <= quiet:
                 break  # nothing arrived while we waited
         rx.discard()
@@ -163,13 +185,16 @@ class SerialLine(Line):
         target = settings or self.settings
         tm = timing(target)
         await self._wait_quiet(switch_silence(self._current, target))
-        if target != self._current:
+        if target is not self._current and target != self._current:
             self._reconfigure(target)
         rx = self._rx
         adu = frame(unit, pdu)
         try:
             tx_start = monotonic()
-            written = self._serial.write(adu)  # type: ignore[union-attr]
+            try:
+                written = os.write(self._fd, adu)
+            except BlockingIOError:
+                written = 0
             if written < len(adu):
                 rx.transport.write(adu[written:])  # type: ignore[union-attr]
             tx_end = tx_start + tm.frame_time(len(adu))

@@ -36,10 +36,9 @@ __all__ = ["VirtualWire", "WireFrame", "lookup_wire"]
 _REGISTRY: dict[str, VirtualWire] = {}
 
 _SPEEDS = {
-    getattr(termios, f"B{b}"): b
-    for b in (300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400,
-              460800, 500000, 576000, 921600, 1000000, 1152000, 1500000, 2000000)
-    if hasattr(termios, f"B{b}")
+    getattr(termios, name): int(name[1:])
+    for name in dir(termios)
+    if name[:1] == "B" and name[1:].isdigit() and int(name[1:]) >= 50
 }
 
 
