@@ -2,15 +2,22 @@
 
 from drivebus import errors
 from drivebus.bus import Bus, BusStats, Priority, SlaveHandle, SlaveStats
+from drivebus.drives import DriveStatus
 from drivebus.line import Exchange, Line, RtuOverTcpLine, SerialLine, TcpLine
+from drivebus.motion import Axis, AxisGroup, AxisState, Machine, open_machine
 from drivebus.settings import LineSettings
 
 __all__ = [
+    "Axis",
+    "AxisGroup",
+    "AxisState",
     "Bus",
     "BusStats",
+    "DriveStatus",
     "Exchange",
     "Line",
     "LineSettings",
+    "Machine",
     "Priority",
     "RtuOverTcpLine",
     "SerialLine",
@@ -18,6 +25,7 @@ __all__ = [
     "SlaveStats",
     "TcpLine",
     "errors",
+    "open_machine",
 ]
 
 __version__ = "0.1.0"

@@ -16,6 +16,9 @@ __all__ = [
     "LineClosed",
     "LineConfigError",
     "ModbusException",
+    "MotionAborted",
+    "MotionError",
+    "MotionTimeout",
     "NotSupported",
     "ResponseTimeout",
     "StateError",
@@ -128,3 +131,15 @@ class LimitViolation(DrivebusError):
 
 class StateError(DrivebusError):
     """The command is not allowed in the axis's current state."""
+
+
+class MotionTimeout(DrivebusError):
+    """A motion did not complete within the time its distance, speed and ramps allow."""
+
+
+class MotionAborted(DrivebusError):
+    """Another command (a stop, an emergency stop, a new motion) ended this motion."""
+
+
+class MotionError(DrivebusError):
+    """The drive stopped or refused a motion without an alarm (e.g. stopped short)."""

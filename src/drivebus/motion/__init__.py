@@ -1,0 +1,19 @@
+"""The motion layer: axis actors, groups, the machine."""
+
+from drivebus.motion.axis import Axis, MotionPlan
+from drivebus.motion.group import AxisGroup, GroupMotionError, GroupMoveReport
+from drivebus.motion.machine import Machine, open_machine
+from drivebus.motion.state import AxisState
+from drivebus.motion.units import Units
+
+__all__ = [
+    "Axis",
+    "AxisGroup",
+    "AxisState",
+    "GroupMotionError",
+    "GroupMoveReport",
+    "Machine",
+    "MotionPlan",
+    "Units",
+    "open_machine",
+]

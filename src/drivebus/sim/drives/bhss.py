@@ -409,21 +409,53 @@ class SimBHSS(SimDrive):
 
     def _edge(self, function: int, rising: bool, t0: float, t1: float) -> float | None:
         """First time in [t0, t1] an input with ``function`` turns valid (or invalid)."""
-        best: float | None = None
-        for i in self._inputs_with(function):
-            x = self._threshold(i)
-            t = t0
-            while x is not None and t <= t1:
-                tc = self.kin.crossing(x, t, t1)
-                if tc is None:
-                    break
-                step = math.copysign(0.5, self.kin.velocity(tc))
-                before, after = self._input(i, x - step), self._input(i, x + step)
-                if before != after and after == rising:
-                    best = tc if best is None else min(best, tc)
-                    break
-                t = tc + 1e-6
-        return best
+        times = [self._input_edge(i, rising, t0, t1) for i in self._inputs_with(function)]
+        found = [t for t in times if t is not None]
+        return min(found) if found else None
+
+    def _input_edge(self, index: int, rising: bool, t0: float, t1: float) -> float | None:
+        """First time in [t0, t1] input ``index`` turns valid (``rising``) or invalid."""
+        x = self._threshold(index)
+        t = t0
+        while x is not None and t <= t1:
+            tc = self.kin.crossing(x, t, t1)
+            if tc is None:
+                return self._boundary_edge(index, rising, t, t1)
+            step = math.copysign(0.5, self.kin.velocity(tc))
+            before, after = self._input(index, x - step), self._input(index, x + step)
+            if before != after and after == rising:
+                return tc
+            t = tc + 1e-6
+        return None
+
+    def _level(self, index: int, t: float) -> bool:
+        """Valid level of input ``index`` where the motor is at time ``t``."""
+        return self._input(index, self.kin.position(t))
+
+    def _boundary_edge(self, index: int, rising: bool, t0: float, t1: float) -> float | None:
+        """An edge in [t0, t1] that ``Kinematics.crossing`` did not report, else None.
+
+        ``crossing`` looks for a sign change inside each motion segment. When the switch
+        sits exactly where one segment hands over to the next, rounding can leave the
+        first segment's end a hair on one side of it and the next segment's start on the
+        other, so neither segment sees the crossing. That is the normal case in homing:
+        the back-off accelerates over exactly the distance the search braked over, so it
+        reaches search speed right at the reference edge. Comparing the input level at
+        both ends catches it; bisection finds the time of the edge.
+        """
+        start = self._level(index, t0)
+        if start == self._level(index, t1) or self._level(index, t1) != rising:
+            return None
+        lo, hi = t0, t1
+        for _ in range(64):
+            mid = 0.5 * (lo + hi)
+            if mid in (lo, hi):
+                break
+            if self._level(index, mid) == start:
+                lo = mid
+            else:
+                hi = mid
+        return hi
 
     # -- motion ------------------------------------------------------------------------------------
 

@@ -1,0 +1,153 @@
+"""AxisGroup: several axes moved together so that they start and arrive together."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Awaitable, Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import anyio
+
+from drivebus.errors import DrivebusError
+from drivebus.motion.axis import Axis, MotionPlan
+
+__all__ = ["AxisGroup", "GroupMotionError", "GroupMoveReport", "synchronise"]
+
+
+class GroupMotionError(DrivebusError):
+    """One axis of a group failed; the others were stopped. ``axis`` names the culprit."""
+
+    def __init__(self, message: str, *, axis: str) -> None:
+        super().__init__(message)
+        self.axis = axis
+
+
+@dataclass(frozen=True)
+class GroupMoveReport:
+    """What a synchronised move planned and how tightly the axes started."""
+
+    duration: float
+    """Planned time from start to arrival, seconds."""
+    start_skew: float
+    """Time between the first and the last axis's start command being accepted, seconds."""
+    plans: dict[str, MotionPlan]
+
+
+def synchronise(
+    distances: Mapping[str, float], limits: Mapping[str, MotionPlan]
+) -> tuple[float, dict[str, MotionPlan]]:
+    """Per-axis plans so every axis covers its distance in the same time, same ramp fractions.
+
+    The slowest axis at its own limits sets the duration and the ramp times; the others
+    scale speed and ramps down to match, and the duration grows if any would exceed its
+    own limits.
+    """
+    moving = {n: abs(d) for n, d in distances.items() if d != 0}
+    if not moving:
+        return 0.0, {n: limits[n] for n in distances}
+    lead = max(moving, key=lambda n: limits[n].duration(moving[n]))
+    lp, ld = limits[lead], moving[lead]
+    total = lp.duration(ld)
+    peak = min(lp.speed, math.sqrt(2 * ld * lp.accel * lp.decel / (lp.accel + lp.decel)))
+    t_acc, t_dec = peak / lp.accel, peak / lp.decel
+    for _ in range(200):
+        cruise = total - (t_acc + t_dec) / 2
+        plans = {}
+        fits = True
+        for n, d in moving.items():
+            v = d / cruise
+            plan = MotionPlan(v, v / t_acc, v / t_dec)
+            lim = limits[n]
+            if (plan.speed > lim.speed * 1.000001 or plan.accel > lim.accel * 1.000001
+                    or plan.decel > lim.decel * 1.000001):
+                fits = False
+            plans[n] = plan
+        if fits:
+            break
+        total *= 1.05
+        t_acc *= 1.05
+        t_dec *= 1.05
+    for n in distances:
+        plans.setdefault(n, limits[n])
+    return total, plans
+
+
+class AxisGroup:
+    """Axes of one machine commanded together: ``machine.group("x", "y")``."""
+
+    def __init__(self, axes: Sequence[Axis]) -> None:
+        if not axes:
+            raise ValueError("a group needs at least one axis")
+        self.axes = {a.name: a for a in axes}
+        self.last_report: GroupMoveReport | None = None
+
+    def _check_names(self, targets: Mapping[str, float]) -> None:
+        unknown = set(targets) - set(self.axes)
+        if unknown:
+            raise DrivebusError(
+                f"axes {', '.join(sorted(unknown))} are not in this group "
+                f"({', '.join(self.axes)})"
+            )
+
+    async def move_to(self, targets: Mapping[str, float]) -> GroupMoveReport:
+        """Move the named axes to their targets, starting and arriving together."""
+        self._check_names(targets)
+        for name, t in targets.items():
+            self.axes[name].check_limits(t)
+        starts: dict[str, float] = {}
+
+        async def read(axis: Axis) -> None:
+            st = await axis._fresh_status()
+            starts[axis.name] = axis.units.from_pulses(st.position or 0)
+
+        await self._each([self.axes[n] for n in targets], read)
+        distances = {n: targets[n] - starts[n] for n in targets}
+        limits = {n: self.axes[n].plan() for n in targets}
+        duration, plans = synchronise(distances, limits)
+
+        async def move(axis: Axis) -> None:
+            p = plans[axis.name]
+            await axis.move_to(targets[axis.name], speed=p.speed, accel=p.accel, decel=p.decel)
+
+        await self._each([self.axes[n] for n in targets], move)
+        times = [self.axes[n].command_started_at for n in targets]
+        report = GroupMoveReport(duration, max(times) - min(times), plans)
+        self.last_report = report
+        return report
+
+    async def move_by(self, distances: Mapping[str, float]) -> GroupMoveReport:
+        """Move the named axes by their distances, together."""
+        self._check_names(distances)
+        targets = {}
+        for name, d in distances.items():
+            st = await self.axes[name]._fresh_status()
+            targets[name] = self.axes[name].units.from_pulses(st.position or 0) + d
+        return await self.move_to(targets)
+
+    async def home(self) -> None:
+        """Home every axis of the group in parallel."""
+        await self._each(list(self.axes.values()), lambda a: a.home())
+
+    async def stop(self) -> None:
+        """Stop every axis of the group in parallel."""
+        await self._each(list(self.axes.values()), lambda a: a.stop())
+
+    async def _each(self, axes: Sequence[Axis], fn: Callable[[Axis], Awaitable[None]]) -> None:
+        """Run ``fn`` on every axis at once; the first failure stops the rest and is raised."""
+        failure: list[tuple[str, BaseException]] = []
+
+        async def one(axis: Axis, scope: anyio.CancelScope) -> None:
+            try:
+                await fn(axis)
+            except DrivebusError as exc:
+                if not failure:
+                    failure.append((axis.name, exc))
+                scope.cancel()  # the others' motions are cancelled: each stops its axis
+
+        async with anyio.create_task_group() as tg:
+            for a in axes:
+                tg.start_soon(one, a, tg.cancel_scope)
+        if failure:
+            name, exc = failure[0]
+            raise GroupMotionError(f"axis {name} failed, the group was stopped: {exc}",
+                                   axis=name) from exc

@@ -1,0 +1,166 @@
+"""Machine and open_machine: lines, buses, drives and axis actors from one config."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+import anyio
+
+from drivebus.bus import Bus
+from drivebus.config import AxisConfig, LineConfig, MachineConfig, load_config
+from drivebus.drives.base import DriveProfile
+from drivebus.drives.registry import family
+from drivebus.errors import ConfigError, DrivebusError, DriveOffline, TransactionError
+from drivebus.line.base import Line
+from drivebus.line.serial import SerialLine
+from drivebus.line.tcp import RtuOverTcpLine, TcpLine
+from drivebus.motion.axis import Axis
+from drivebus.motion.group import AxisGroup
+from drivebus.motion.state import MOVING_STATES
+from drivebus.sim.drive import SimDrive
+from drivebus.sim.tcp import SimSerialServer, SimTcpServer
+from drivebus.sim.wire import VirtualWire
+
+__all__ = ["Machine", "open_machine"]
+
+log = logging.getLogger(__name__)
+
+
+class Machine:
+    """The running machine: ``axes`` by name, ``buses`` by line name, and sim twins."""
+
+    def __init__(self, config: MachineConfig) -> None:
+        self.config = config
+        self.buses: dict[str, Bus] = {}
+        self.axes: dict[str, Axis] = {}
+        self.sim_drives: dict[str, SimDrive] = {}
+        """The simulated twin behind each axis on a sim:// line (tests, demo)."""
+        self.wires: dict[str, VirtualWire | SimSerialServer | SimTcpServer] = {}
+
+    def group(self, *names: str) -> AxisGroup:
+        """The named axes as a group (all axes if none are named)."""
+        missing = [n for n in names if n not in self.axes]
+        if missing:
+            raise ConfigError(f"no axis {', '.join(missing)} (axes: {', '.join(self.axes)})")
+        return AxisGroup([self.axes[n] for n in (names or tuple(self.axes))])
+
+    async def stop_all(self) -> None:
+        """Stop every moving axis, in parallel; errors are logged, never raised."""
+
+        async def stop(axis: Axis) -> None:
+            try:
+                await axis.stop()
+            except DrivebusError as exc:
+                log.error("axis %s: stop on exit failed: %s", axis.name, exc)
+
+        async with anyio.create_task_group() as tg:
+            for a in self.axes.values():
+                moving = a.status is not None and a.status.moving
+                if a.state in MOVING_STATES or moving:
+                    tg.start_soon(stop, a)
+
+
+def _twin(axis: AxisConfig, line: LineConfig) -> SimDrive:
+    cls = family(axis.drive).sim
+    u = axis.units_per_rev / axis.pulses_per_rev
+
+    def pulses(v: float | None) -> float | None:
+        return None if v is None else v / u
+
+    s = axis.sim
+    kwargs = dict(
+        turnaround=s.turnaround,
+        position=round(s.position / u),
+        home_switch=pulses(s.home_switch),
+        limit_negative=pulses(s.limit_negative),
+        limit_positive=pulses(s.limit_positive),
+        **s.options,
+    )
+    settings = axis.settings or (line.settings if line.kind != "tcp" else None)
+    return cls(axis.address, settings, **kwargs)  # type: ignore[arg-type]
+
+
+async def _start_sim(
+    stack: contextlib.AsyncExitStack, machine: Machine, name: str, line: LineConfig
+) -> Line:
+    axes = {n: a for n, a in machine.config.axes.items() if a.line == name}
+    twins = {n: _twin(a, line) for n, a in axes.items()}
+    machine.sim_drives.update(twins)
+    if line.kind == "serial":
+        wire = await stack.enter_async_context(VirtualWire(line.sim_name))
+        for t in twins.values():
+            wire.attach(t)
+        machine.wires[name] = wire
+        return SerialLine(wire.url, line.settings, local_echo=line.local_echo)
+    if line.kind == "tcp":
+        srv = await stack.enter_async_context(SimTcpServer(twins.values()))
+        machine.wires[name] = srv
+        return TcpLine("127.0.0.1", srv.port)
+    ser = await stack.enter_async_context(SimSerialServer(twins.values(), line.settings))
+    machine.wires[name] = ser
+    return RtuOverTcpLine("127.0.0.1", ser.port, line.settings)
+
+
+def _real_line(line: LineConfig) -> Line:
+    if line.kind == "serial":
+        assert line.port is not None
+        return SerialLine(line.port, line.settings, local_echo=line.local_echo, rs485=line.rs485)
+    assert line.host is not None
+    if line.kind == "tcp":
+        return TcpLine(line.host, line.tcp_port)
+    return RtuOverTcpLine(line.host, line.tcp_port, line.settings)
+
+
+async def _make_axis(machine: Machine, name: str, cfg: AxisConfig) -> Axis:
+    bus = machine.buses[cfg.line]
+    fam = family(cfg.drive)
+    slave = bus.slave(cfg.address, settings=cfg.settings)
+    try:
+        profile: DriveProfile = fam.profile(
+            slave, pulses_per_rev=cfg.pulses_per_rev, **cfg.drive_options
+        )
+    except TypeError as exc:
+        raise ConfigError(f"axes.{name}.drive_options: {exc}") from None
+    try:
+        await profile.read_status()
+        await profile.setup()
+    except TransactionError as exc:
+        raise DriveOffline(
+            f"axis {name}: the {fam.name} drive at address {cfg.address} on line "
+            f"{cfg.line} does not answer: {exc}"
+        ) from exc
+    return Axis(name, cfg, profile)
+
+
+@asynccontextmanager
+async def open_machine(config: str | Path | MachineConfig) -> AsyncIterator[Machine]:
+    """Open every line, check every drive answers, start the axis actors.
+
+    On exit (normal, error or cancellation) every moving axis is stopped before the
+    lines close. ``sim://NAME`` lines start the built-in simulator with a twin per axis.
+    """
+    cfg = config if isinstance(config, MachineConfig) else load_config(config)
+    machine = Machine(cfg)
+    async with contextlib.AsyncExitStack() as stack:
+        for name, line in cfg.lines.items():
+            ln = await _start_sim(stack, machine, name, line) if line.simulated else _real_line(
+                line
+            )
+            machine.buses[name] = await stack.enter_async_context(
+                Bus(ln, timeout=line.timeout, retries=line.retries)
+            )
+        for name, axis_cfg in cfg.axes.items():
+            machine.axes[name] = await _make_axis(machine, name, axis_cfg)
+        tg = await stack.enter_async_context(anyio.create_task_group())
+        for axis in machine.axes.values():
+            tg.start_soon(axis.run, name=f"drivebus axis {axis.name}")
+        try:
+            yield machine
+        finally:
+            with anyio.CancelScope(shield=True), anyio.move_on_after(30):
+                await machine.stop_all()
+            tg.cancel_scope.cancel()
