@@ -487,9 +487,11 @@ async def test_rtu_over_tcp_refuses_per_slave_settings() -> None:
     async with SimSerialServer([RegisterSlave(1, s)], s) as srv, Bus(
         RtuOverTcpLine(HOST, srv.port, s), retries=0
     ) as bus:
-        d = bus.slave(1, settings=LineSettings.parse("9600 8N1"))
         with pytest.raises(ConfigError, match="one setting"):
-            await d.read_holding_registers(0, 1)
+            bus.slave(1, settings=LineSettings.parse("9600 8N1"))  # refused when configured
+        with pytest.raises(ConfigError, match="one setting"):  # and by the line itself
+            await bus.line.transact(1, read_pdu(0, 1), expect=P.response_length,
+                                    settings=LineSettings.parse("9600 8N1"))
         assert await bus.slave(1, settings=s).read_holding_registers(0, 1) == [0]
         assert bus.is_open
 

@@ -88,6 +88,8 @@ class SimAxisConfig(_Model):
     limit_negative: float | None = None
     limit_positive: float | None = None
     turnaround: float = Field(0.001, ge=0, le=1)
+    absent: bool = False
+    """No twin on the wire: the drive is configured but unplugged."""
     options: dict[str, Any] = Field(default_factory=dict)
 
 

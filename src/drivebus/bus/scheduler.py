@@ -27,6 +27,7 @@ from drivebus.errors import (
 from drivebus.line.base import Line
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
+from drivebus.tasks import ServiceTasks
 
 if TYPE_CHECKING:
     from drivebus.bus.slave import SlaveHandle
@@ -87,7 +88,7 @@ class Bus:
         self._timer = PreciseTimer()
         self._waiting_for: _Request | None = None
         self._in_flight: _Request | None = None
-        self._tg: anyio.abc.TaskGroup | None = None
+        self._tg: ServiceTasks | None = None
         self._open = False
         self._handles: dict[int, SlaveHandle] = {}
 
@@ -97,7 +98,7 @@ class Bus:
         await self.line.open()
         self.stats = BusStats()
         self._open = True
-        self._tg = anyio.create_task_group()
+        self._tg = ServiceTasks()
         await self._tg.__aenter__()
         self._tg.start_soon(self._owner, name=f"drivebus bus owner {self.line.name}")
         return self
@@ -111,7 +112,6 @@ class Bus:
         self._open = False
         self._fail_queued(LineClosed(f"bus on {self.line.name} closed"))
         assert self._tg is not None
-        self._tg.cancel_scope.cancel()
         try:
             return await self._tg.__aexit__(exc_type, exc, tb)
         finally:

@@ -24,6 +24,7 @@ from drivebus.motion.state import MOVING_STATES
 from drivebus.sim.drive import SimDrive
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from drivebus.sim.wire import VirtualWire
+from drivebus.tasks import ServiceTasks
 
 __all__ = ["Machine", "open_machine"]
 
@@ -87,7 +88,7 @@ def _twin(axis: AxisConfig, line: LineConfig) -> SimDrive:
 async def _start_sim(
     stack: contextlib.AsyncExitStack, machine: Machine, name: str, line: LineConfig
 ) -> Line:
-    axes = {n: a for n, a in machine.config.axes.items() if a.line == name}
+    axes = {n: a for n, a in machine.config.axes.items() if a.line == name and not a.sim.absent}
     twins = {n: _twin(a, line) for n, a in axes.items()}
     machine.sim_drives.update(twins)
     if line.kind == "serial":
@@ -155,12 +156,14 @@ async def open_machine(config: str | Path | MachineConfig) -> AsyncIterator[Mach
             )
         for name, axis_cfg in cfg.axes.items():
             machine.axes[name] = await _make_axis(machine, name, axis_cfg)
-        tg = await stack.enter_async_context(anyio.create_task_group())
+        actors = await stack.enter_async_context(ServiceTasks())
         for axis in machine.axes.values():
-            tg.start_soon(axis.run, name=f"drivebus axis {axis.name}")
+            actors.start_soon(axis.run, name=f"drivebus axis {axis.name}")
         try:
             yield machine
         finally:
+            # Actors, buses and simulators are service tasks: still running here even when
+            # we are being cancelled, so the stops go out and are confirmed by polls.
             with anyio.CancelScope(shield=True), anyio.move_on_after(30):
                 await machine.stop_all()
-            tg.cancel_scope.cancel()
+            actors.cancel()

@@ -75,10 +75,10 @@ class Kinematics:
             if lo > hi:
                 continue
             (p_lo, _), (p_hi, _) = seg.at(lo), seg.at(hi)
+            if abs(p_lo - p) < 1e-6:
+                return lo  # sitting on it (a previous crossing may leave 1e-12 of float error)
             if (p_lo - p) * (p_hi - p) > 0:
                 continue
-            if p_lo == p:
-                return lo
             # Solve p0 + v0*dt + a/2*dt^2 = p on this segment.
             a, v0, c = 0.5 * seg.a, seg.v0, seg.p0 - p
             if abs(a) < 1e-12:

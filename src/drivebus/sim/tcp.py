@@ -35,6 +35,7 @@ from drivebus.pdu import request_length
 from drivebus.settings import LineSettings
 from drivebus.sim.slave import Fault, SimSlave
 from drivebus.sim.wire import WireFrame
+from drivebus.tasks import ServiceTasks
 from drivebus.timing import timing
 
 __all__ = ["ServerFaults", "SimSerialServer", "SimTcpServer", "TcpRequest"]
@@ -162,7 +163,7 @@ class _SimServer:
         listener = await anyio.create_tcp_listener(local_host=self.host, local_port=self.port)
         self._listener = listener
         self.port = listener.extra(SocketAttribute.local_port)
-        self._tg = anyio.create_task_group()
+        self._tg = ServiceTasks()  # keeps answering while its users clean up
         await self._tg.__aenter__()
         self._tg.start_soon(listener.serve, self._handle, self._tg, name=f"sim {self.kind}")
         self._start_tasks(self._tg)
@@ -176,7 +177,6 @@ class _SimServer:
     ) -> bool | None:
         assert self._tg is not None and self._listener is not None
         try:
-            self._tg.cancel_scope.cancel()
             return await self._tg.__aexit__(exc_type, exc, tb)
         finally:
             with anyio.CancelScope(shield=True):

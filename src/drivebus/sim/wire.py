@@ -22,13 +22,12 @@ from collections import deque
 from dataclasses import dataclass
 from types import TracebackType
 
-import anyio
-
 from drivebus.clock import PreciseTimer, monotonic
 from drivebus.line.rtu import crc_ok, frame
 from drivebus.pdu import request_length
 from drivebus.settings import LineSettings
 from drivebus.sim.slave import Fault, SimSlave
+from drivebus.tasks import ServiceTasks
 from drivebus.timing import switch_silence, timing
 
 __all__ = ["VirtualWire", "WireFrame", "lookup_wire"]
@@ -93,7 +92,7 @@ class VirtualWire:
         self._pending: deque[_Reply] = deque()
         self._wake: asyncio.Future[None] | None = None
         self._timer = PreciseTimer()
-        self._tg: anyio.abc.TaskGroup | None = None
+        self._tg: ServiceTasks | None = None
         self._rng = random.Random(0)
         self._log_waiters: list[tuple[int, asyncio.Future[None]]] = []
         self.request_count = 0
@@ -121,7 +120,7 @@ class VirtualWire:
         self.slave_path = os.ttyname(self._slave_fd)
         os.set_blocking(self._master_fd, False)
         _REGISTRY[self.name] = self
-        self._tg = anyio.create_task_group()
+        self._tg = ServiceTasks()
         await self._tg.__aenter__()
         self._tg.start_soon(self._responder)
         asyncio.get_running_loop().add_reader(self._master_fd, self._on_readable)
@@ -136,7 +135,6 @@ class VirtualWire:
         try:
             asyncio.get_running_loop().remove_reader(self._master_fd)
             assert self._tg is not None
-            self._tg.cancel_scope.cancel()
             return await self._tg.__aexit__(exc_type, exc, tb)
         finally:
             _REGISTRY.pop(self.name, None)

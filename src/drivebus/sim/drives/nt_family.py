@@ -1,0 +1,914 @@
+"""Simulated twins of the Rtelligent NT-family drives: ``SimNT86`` and ``SimEPR60``.
+
+They answer with the manuals' register maps (written out here independently of the
+profile's, so a profile mistake shows up), low-word-first 32-bit pairs, the status and
+alarm bits, and exception codes 01-04 of the manuals' appendix B:
+
+* 01 for any function but FC03/FC06/FC16;
+* 02 for an unmapped or reserved address, or a write to a read-only register;
+* 03 for a value outside the register's range (the manual does not say whether the drive
+  refuses or clamps; the twin refuses);
+* 04 DEVICEFAIL for a start command (18=1..4, or a homing trigger) while the motor moves,
+  is disabled or has an alarm. The manual says a moving drive "can only respond to stop
+  commands" without naming a code; of the four codes it lists, only 04 fits a well-formed
+  request the drive cannot carry out. (A real drive may simply ignore it.)
+
+Motion runs on ``self.kin`` in *physical* pulses (the frame in which the switch positions
+are given); the drive's position counter 8/9 is that plus an offset that homing, 85=1
+and power-up change. Events (switch edges, ends of ramps, stall timers) are processed
+lazily, in time order, whenever the twin is asked anything. Twin assumptions where the
+manuals are silent are marked "assumption".
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Generator
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+from drivebus import pdu as P
+from drivebus.clock import monotonic
+from drivebus.errors import ConfigError
+from drivebus.settings import LineSettings
+from drivebus.sim.drive import SimDrive
+from drivebus.sim.slave import SlaveException
+
+__all__ = ["SimEPR60", "SimNT86"]
+
+# Status register 1 bits.
+ENA, ALM, INPOS, MOV, HOME, RDY, ARRSPD, CLAMP, PL, NL, POW, TC = (1 << b for b in range(12))
+
+_NT86_BAUDS = (9600, 19200, 38400, 115200)
+
+
+@dataclass(frozen=True)
+class _Word:
+    """One register of the twin's map: default, allowed range and access."""
+
+    default: int = 0
+    lo: int = 0
+    hi: int = 0xFFFF
+    access: Literal["RW", "R", "W", "-"] = "RW"
+    """RW; R read-only; W reads back 0 (command registers that clear themselves);
+    "-" reserved: reads 0, writes are refused."""
+
+
+@dataclass(frozen=True)
+class _Wait:
+    """What a running motion program waits for next (the first of these to happen)."""
+
+    cross: tuple[tuple[str, float, int], ...] = ()
+    """(name, physical position, travel sign: +1/-1 only that way, 0 either)."""
+    rest: bool = False
+    until: float | None = None
+
+
+Program = Generator[_Wait, tuple[str, float], None]
+
+
+def _pair_words(value: int) -> tuple[int, int]:
+    u = value & 0xFFFFFFFF
+    return u & 0xFFFF, u >> 16
+
+
+def _signed32(value: int) -> int:
+    u = value & 0xFFFFFFFF
+    return u - (1 << 32) if u & 0x80000000 else u
+
+
+def _nt_common_map() -> tuple[dict[int, _Word], dict[int, tuple[int, int]]]:
+    """Registers 0-158 that the NT86 and EPR60 manuals share (defaults and ranges)."""
+    w: dict[int, _Word] = {a: _Word(access="R") for a in (*range(0, 6), *range(8, 16), 29)}
+    w.update({6: _Word(access="W", hi=0x3F), 7: _Word(access="W", hi=0x3F)})
+    w[16] = _Word(access="W", hi=1)
+    w.update({17: _Word(0, 0, 1), 18: _Word(0, 0, 6, "W"), 19: _Word(0, 0, 2)})
+    w.update({20: _Word(0, 0, 22), 21: _Word(0, 0, 1), 22: _Word(0, 0, 2), 23: _Word(0, 0, 1)})
+    w.update({25: _Word(3000, 0, 6000), 26: _Word(50, 0, 100), 27: _Word(500, 10, 65535)})
+    w.update({28: _Word(128, 1, 512), 30: _Word(0, 0, 1), 31: _Word(access="R")})
+    w.update({32: _Word(access="R"), 33: _Word(1000, 100, 10000), 34: _Word(1, 1, 10)})
+    w.update({35: _Word(200, 0, 1000), 36: _Word(1000, 200, 10000), 37: _Word(200, 0, 2000)})
+    w.update({38: _Word(256, 0, 1024), 39: _Word(0, 0, 1, "W"), 40: _Word(4000, 256, 65535)})
+    w.update({41: _Word(2000, 100, 65535), 42: _Word(10, 1), 43: _Word(50, 1), 44: _Word(100, 1)})
+    w.update({45: _Word(4000, 0, 5000), 46: _Word(50, 0, 100), 47: _Word(200, 10, 5000)})
+    w.update({48: _Word(600, 10, 5000), 49: _Word(0, 0, 500), 50: _Word(3000), 51: _Word(1000)})
+    w.update({52: _Word(0), 53: _Word(800), 54: _Word(600), 55: _Word(512, 0, 1024)})
+    w.update({56: _Word(0), 57: _Word(0), 58: _Word(5000, 10, 5000), 59: _Word(2000, 10, 5000)})
+    for n, default in enumerate((0, 1, 4, 7, 12, 11)):  # IN1-IN6: function + polarity bit 5
+        w[60 + n] = _Word(default, 0, 0x3F)
+    w.update({66: _Word(1, 0, 0x1F), 67: _Word(4, 0, 0x1F), 68: _Word(0, 0, 3)})
+    w.update({69: _Word(access="R"), 70: _Word(200, 10, 1000), 71: _Word(200, 10, 1000)})
+    w.update({72: _Word(600, 0, 3000), 73: _Word(2000), 74: _Word(0)})
+    w.update({75: _Word(100, 10, 1000), 76: _Word(100, 10, 1000), 77: _Word(600, 0, 3000)})
+    w.update({78: _Word(500, 10, 1000), 84: _Word(0, 0, 1), 85: _Word(0, 0, 1, "W")})
+    w.update({88: _Word(0, 0, 1), 89: _Word(50, 0, 500), 90: _Word(0, 0, 1, "W")})
+    w.update({91: _Word(0, 0, 1, "W"), 92: _Word(access="-")})
+    w.update({a: _Word(access="R") for a in (93, 94, 95, 104, 121)})
+    w.update({100: _Word(200), 101: _Word(1000, 0, 3000), 102: _Word(1, 0, 0x1F)})
+    w.update({103: _Word(4, 0, 0x1F), 122: _Word(100, 100, 110)})
+    for k in range(16):  # speed table 105-120, position table 125-156
+        w[105 + k] = _Word(100 * k, 0, 3000)
+        w[125 + 2 * k] = _Word(0)
+        w[126 + 2 * k] = _Word(0)
+    w.update({157: _Word(1000, 1), 158: _Word(15000)})
+    pairs = {73: (-16777216, 16777216)}
+    pairs.update({125 + 2 * k: (-16777216, 16777216) for k in range(16)})
+    return w, pairs
+
+
+def _nt86_map() -> tuple[dict[int, _Word], dict[int, tuple[int, int]]]:
+    """The NT86 manual's map: the common block plus 24, 79-83, 214-298."""
+    w, pairs = _nt_common_map()
+    w[24] = _Word(4000, 200, 65535)
+    w.update({a: _Word(0) for a in range(79, 84)})  # summary-only legacy homing block
+    w.update({214: _Word(4000), 215: _Word(0, 0, 0xF), 216: _Word(access="R")})
+    w.update({217: _Word(access="R"), 218: _Word(5)})
+    w.update({221: _Word(0, 0, 2), 222: _Word(16, 1, 16), 223: _Word(0, 0, 1)})
+    for n in range(16):  # multi-segment: speed, accel/decel, wait
+        w.update({224 + 3 * n: _Word(100, 0, 3000), 225 + 3 * n: _Word(100, 1, 2000)})
+        w[226 + 3 * n] = _Word(100)
+    w.update({272: _Word(0, 0, 1650), 273: _Word(10, 0, 2000), 274: _Word(50, 0, 1000)})
+    w.update({275: _Word(0, 0, 1000), 276: _Word(100, 0, 3000)})
+    w.update({a: _Word(access="R") for a in (277, 278, 279)})
+    w.update({a: _Word(0) for a in (280, 281, 282)})  # comms error counters, write resets
+    w.update({287: _Word(1, 0, 6), 288: _Word(0, 0, 5), 289: _Word(50, 0, 1000)})
+    w.update({290: _Word(10, 0, 1000), 291: _Word(200, 1, 1000), 292: _Word(access="-")})
+    w.update({293: _Word(0), 294: _Word(0), 295: _Word(0, 0, 3), 296: _Word(5000, 1000)})
+    w.update({297: _Word(5, 1, 1000), 298: _Word(1000, 1, 6000)})
+    pairs.update({214: (0, 0xFFFFF), 293: (-1048576, 1048576)})
+    return w, pairs
+
+
+def _epr60_map() -> tuple[dict[int, _Word], dict[int, tuple[int, int]]]:
+    """The EPR60 manual's map: the common block with its own 20, 77, 79-83, 96/97, 170-212."""
+    w, pairs = _nt_common_map()
+    w.update({20: _Word(0, 0, 11), 77: _Word(100, 0, 3000)})
+    w.update({79: _Word(0, 0, 1), 80: _Word(200, 0, 600), 81: _Word(40, 0, 600)})
+    w.update({82: _Word(100, 0, 1000), 83: _Word(100, 0, 1000)})
+    w.update({96: _Word(4000), 97: _Word(0)})
+    for a, default in zip(
+        range(170, 181), (192, 168, 0, 192, 168, 0, 1, 255, 255, 255, 0), strict=True
+    ):
+        w[a] = _Word(default, 0, 255)
+    # 190-212: named in the summary only, values undocumented: stored, no effect.
+    w.update({a: _Word(0) for a in (190, 191, 192, *range(200, 210), 212)})
+    pairs[73] = (-(1 << 31), (1 << 31) - 1)  # no documented range besides int32
+    pairs[96] = (200, 65535)
+    return w, pairs
+
+
+class SimNT86(SimDrive):
+    """Simulated Rtelligent NT86: Modbus RTU at 8N1 only, 9600/19200/38400/115200 baud.
+
+    Family options: ``home_cam`` — the home switch is a cam active on the "positive"
+    (default) or "negative" side of ``home_switch``; ``hard_stop_negative`` /
+    ``hard_stop_positive`` — mechanical end stops for hard-stop homing (288=4/5, closed
+    loop only); ``control_mode`` — register 22 at power-up (0 open loop, 1/2 closed loop).
+    Physical inputs: IN6 conducts while the home switch is active (its default function 11);
+    ``set_input(n, on)`` drives IN1-IN5 (nothing is wired by default). The limit switches
+    feed input functions 9/10 directly (assumption: the default input setup has none).
+    """
+
+    family: ClassVar[str] = "NT86"
+    drive_id: ClassVar[int] = 86  # assumption: registers 93/94 formats are undocumented
+    drive_version: ClassVar[int] = 100
+
+    def __init__(
+        self,
+        address: int,
+        settings: LineSettings | None = None,
+        *,
+        turnaround: float = 0.001,
+        position: int = 0,
+        home_switch: float | None = None,
+        limit_negative: float | None = None,
+        limit_positive: float | None = None,
+        home_cam: Literal["positive", "negative"] = "positive",
+        hard_stop_negative: float | None = None,
+        hard_stop_positive: float | None = None,
+        control_mode: int = 0,
+    ) -> None:
+        settings = settings or LineSettings.parse("115200 8N1")
+        self._check_line(address, settings)
+        super().__init__(
+            address,
+            settings,
+            turnaround=turnaround,
+            position=position,
+            home_switch=home_switch,
+            limit_negative=limit_negative,
+            limit_positive=limit_positive,
+        )
+        if home_cam not in ("positive", "negative"):
+            raise ConfigError(f"home_cam must be 'positive' or 'negative', not {home_cam!r}")
+        self.home_cam = home_cam
+        self.hard_stop_negative = hard_stop_negative
+        self.hard_stop_positive = hard_stop_positive
+        self.spec, self.pairs = self._register_map()
+        self.params: dict[int, int] = {a: s.default for a, s in self.spec.items()}
+        self.params[22] = control_mode
+        self.flash: dict[int, int] = dict(self.params)
+        self._inputs = 0
+        self._offset = 0.0
+        self.homed = False
+        self._program: Program | None = None
+        self._program_kind = ""
+        self._wait: _Wait | None = None
+        self._wait_from = 0.0
+        self._jog: tuple[int, float, float] | None = None  # (direction, accel, decel)
+        self._stop_decel = 0.0
+        self._cmd_speed = 0.0
+        self._estopping = False
+        self._stalled = False
+        self._ready_at = 0.0
+        self._crc_base = 0
+        self._clear_trigger = True
+        self.enabled = not self._function_active(4, 0.0)
+        self._get = self._getters()
+        self._act = self._actions()
+
+    # -- configuration ---------------------------------------------------------------------
+
+    @classmethod
+    def _check_line(cls, address: int, settings: LineSettings) -> None:
+        """The NT86 has DIP-switch addresses 1-31 and baud rates; 8N1 only."""
+        if not 1 <= address <= 31:
+            raise ConfigError(f"NT86 address {address}: DIP switches SW1-SW5 give 1..31")
+        if settings.format != "8N1" or settings.baudrate not in _NT86_BAUDS:
+            raise ConfigError(
+                f"NT86 line settings {settings}: the drive does 8N1 only, at "
+                f"{', '.join(map(str, _NT86_BAUDS))} baud (DIP switches SW6/SW7)"
+            )
+
+    def _register_map(self) -> tuple[dict[int, _Word], dict[int, tuple[int, int]]]:
+        return _nt86_map()
+
+    # -- helpers ---------------------------------------------------------------------------
+
+    @property
+    def pulses_per_rev(self) -> int:
+        """Microstep setting (register 24)."""
+        return self.params[24]
+
+    def _pps(self, rpm: float) -> float:
+        return rpm * self.pulses_per_rev / 60.0
+
+    def _pps2(self, rps2: float) -> float:
+        return rps2 * self.pulses_per_rev
+
+    def _pair(self, low: int) -> int:
+        value = self.params[low] | (self.params[low + 1] << 16)
+        lo, _ = self.pairs[low]
+        return _signed32(value) if lo < 0 else value
+
+    def _phys(self, t: float) -> float:
+        return self.kin.position(t)
+
+    def counter(self, t: float) -> int:
+        """Position register 8/9 at ``t`` (signed 32-bit, wraps like the drive's counter)."""
+        return _signed32(round(self._phys(t) + self._offset))
+
+    def _set_counter(self, t: float, value: int) -> None:
+        self._offset = value - self._phys(t)
+
+    def switch_states(self, now: float) -> tuple[bool, bool, bool]:
+        """(home, limit negative, limit positive); the home cam side is ``home_cam``."""
+        home, neg, pos = super().switch_states(now)
+        if self.home_switch is not None and self.home_cam == "negative":
+            home = self.kin.position(now) <= self.home_switch
+        return home, neg, pos
+
+    def _input_mask(self, t: float) -> int:
+        home, _, _ = self.switch_states(t)
+        return self._inputs | (0x20 if home else 0)
+
+    def _function_active(self, function: int, t: float) -> bool:
+        """Input function ``function`` is active on some input at ``t``.
+
+        Assumption on the polarity bit (bit 5), which the manual contradicts (L880 says
+        1 = normally open is the default, yet every default value has bit 5 = 0): bit 5 = 0
+        makes a function active while its input conducts. This is the only reading under
+        which the default IN3 = 4 "motor offline", unwired, leaves the drive enabled at
+        power-up as L635 says; setting bit 5 inverts the input.
+        """
+        mask = self._input_mask(t)
+        for n in range(6):
+            cfg = self.params[60 + n]
+            if cfg & 0x1F == function and bool(mask >> n & 1) != bool(cfg & 0x20):
+                return True
+        return False
+
+    # -- public test helpers ---------------------------------------------------------------
+
+    def position(self, now: float | None = None) -> int:
+        """The drive's position counter (register 8/9) in pulses."""
+        t = monotonic() if now is None else now
+        self._advance(t)
+        return self.counter(t)
+
+    def physical_position(self, now: float | None = None) -> int:
+        """The motor's position in the switch positions' frame, in whole pulses."""
+        t = monotonic() if now is None else now
+        self._advance(t)
+        return round(self._phys(t))
+
+    def is_moving(self, now: float | None = None) -> bool:
+        """True while the motor turns or a homing runs (status bit MOV)."""
+        t = monotonic() if now is None else now
+        self._advance(t)
+        return self._mov(t)
+
+    def set_input(self, n: int, conducting: bool, now: float | None = None) -> None:
+        """Drive physical input IN n (1-5; IN6 follows the home switch)."""
+        if not 1 <= n <= 5:
+            raise ConfigError(f"IN{n}: the twin drives IN1..IN5 (IN6 is the home switch)")
+        t = monotonic() if now is None else now
+        self._advance(t)
+        before = self._functions(t)
+        self._inputs = (
+            (self._inputs | (1 << (n - 1))) if conducting else (self._inputs & ~(1 << (n - 1)))
+        )
+        self._functions_changed(before, t)
+
+    def raise_alarm(self, code: int, now: float | None = None) -> None:
+        """Latch alarm bits ``code`` (register 0 layout, e.g. 0x02 over-current).
+
+        The motor stops at once. It clears only by input function 5 "clear fault" or a
+        power cycle (the NT86 has no alarm-reset register).
+        """
+        if not 0 < code <= 0x1FF:
+            raise ConfigError(f"alarm code 0x{code:X}: register 0 has bits 0-8")
+        t = monotonic() if now is None else now
+        self._advance(t)
+        self._abort_program(t)
+        self._jog = None
+        super().raise_alarm(self.alarm_code | code, t)
+
+    def power_loss(self) -> None:
+        """Power cut: silent until restored; motion is lost."""
+        t = monotonic()
+        self._advance(t)
+        self._abort_program(t)
+        self._jog = None
+        super().power_loss()
+
+    def power_restore(self) -> None:
+        """Power back: parameters from flash, counter 0, not homed, alarms cleared."""
+        t = monotonic()
+        super().power_restore()
+        self.params = dict(self.flash)
+        self.alarm_code = 0
+        self.homed = False
+        self._estopping = False
+        self._set_counter(t, 0)
+        self.enabled = not self._function_active(4, t)
+        self._ready_at = t + 0.1
+
+    # -- Modbus hooks ----------------------------------------------------------------------
+
+    def read_registers(self, function: int, address: int, count: int, now: float) -> list[int]:
+        """FC03 only (FC04 is exception 01); unmapped addresses are exception 02."""
+        if function != P.READ_HOLDING:
+            raise SlaveException(1)
+        self._advance(now)
+        return [self._read_word(a, now) for a in range(address, address + count)]
+
+    def write_registers(self, address: int, values: list[int], now: float) -> None:
+        """Validate the whole write (02/03), then apply it register by register."""
+        self._advance(now)
+        addresses = range(address, address + len(values))
+        for a, v in zip(addresses, values, strict=True):
+            spec = self.spec.get(a)
+            if spec is None or spec.access in ("R", "-"):
+                raise SlaveException(2)
+            if not spec.lo <= v <= spec.hi:
+                raise SlaveException(3)
+        for low, (lo, hi) in self.pairs.items():
+            if low in addresses and low + 1 in addresses:
+                raw = values[low - address] | (values[low + 1 - address] << 16)
+                value = _signed32(raw) if lo < 0 else raw
+                if not lo <= value <= hi:
+                    raise SlaveException(3)
+        for a, v in zip(addresses, values, strict=True):
+            self._write_word(a, v, now)
+
+    def _read_word(self, a: int, t: float) -> int:
+        getter = self._get.get(a)
+        if getter is not None:
+            return getter(t) & 0xFFFF
+        spec = self.spec.get(a)
+        if spec is None:
+            raise SlaveException(2)
+        return 0 if spec.access in ("W", "-") else self.params[a]
+
+    def _getters(self) -> dict[int, Callable[[float], int]]:
+        return {
+            0: lambda t: self.alarm_code,
+            1: self._status,
+            2: self._input_mask,
+            3: self._outputs,
+            8: lambda t: _pair_words(self.counter(t))[0],
+            9: lambda t: _pair_words(self.counter(t))[1],
+            10: self._speed_rpm,
+            11: lambda t: 48,  # bus voltage (the manual's unit is unclear)
+            29: lambda t: self.counter(t),
+            93: lambda t: self.drive_id,
+            94: lambda t: self.drive_version,
+            281: lambda t: self.crc_errors - self._crc_base,
+        }
+
+    def _write_word(self, a: int, v: int, t: float) -> None:
+        old = self.params.get(a, 0)
+        before = self._functions(t) if 60 <= a <= 65 else None
+        if self.spec[a].access != "W":
+            self.params[a] = v
+        if before is not None:  # an input's function or polarity changed
+            self._functions_changed(before, t)
+        action = self._act.get(a)
+        if action is not None:
+            action(v, old, t)
+
+    def _actions(self) -> dict[int, Callable[[int, int, float], None]]:
+        acts: dict[int, Callable[[int, int, float], None]] = {
+            18: lambda v, old, t: self._command(v, t),
+            77: self._on_jog_speed,
+            78: self._on_estop_decel,
+            85: lambda v, old, t: self._set_counter(t, 0) if v else None,
+            90: lambda v, old, t: self._save() if v else None,
+            91: lambda v, old, t: self._factory_reset(t) if v else None,
+            281: lambda v, old, t: setattr(self, "_crc_base", self.crc_errors),
+            287: self._on_home_trigger,
+        }
+        return acts
+
+    # -- status ----------------------------------------------------------------------------
+
+    def _mov(self, t: float) -> bool:
+        return self.kin.moving(t) or self._program_kind == "homing"
+
+    def _status(self, t: float) -> int:
+        _, neg, pos = self.switch_states(t)
+        moving = self._mov(t)
+        s = POW
+        if self.enabled:
+            s |= ENA | CLAMP
+            if t >= self._ready_at and not self.alarm_code:
+                s |= RDY
+            if self.params[22] and not moving:
+                s |= INPOS  # closed loop: settled (the twin has no following error)
+        s |= ALM if self.alarm_code else 0
+        s |= MOV if moving else 0
+        s |= HOME if self.homed else 0
+        s |= ARRSPD if self._at_speed(t) else 0
+        s |= (PL if pos else 0) | (NL if neg else 0) | (TC if self._stalled else 0)
+        return s
+
+    def _at_speed(self, t: float) -> bool:
+        v = abs(self.kin.velocity(t))
+        return self._cmd_speed > 0 and abs(v - self._cmd_speed) < 1e-6 * self._cmd_speed
+
+    def _speed_rpm(self, t: float) -> int:
+        rpm = round(self.kin.velocity(t) * 60.0 / self.pulses_per_rev)
+        return max(-32768, min(32767, rpm))
+
+    def _outputs(self, t: float) -> int:
+        """OUT1/OUT2 (registers 66/67 functions; polarity not modelled)."""
+        status = self._status(t)
+        active = {
+            0: None,
+            1: status & ALM,
+            3: status & INPOS,
+            4: status & ARRSPD,
+            5: status & HOME,
+            6: status & RDY,
+            7: not status & MOV,
+            8: status & PL,
+            9: status & NL,
+            10: True,
+            11: status & TC,
+        }
+        out = 0
+        for n, reg in enumerate((66, 67)):
+            function = self.params[reg] & 0x0F
+            on = self.params[68] >> n & 1 if function == 0 else active.get(function)
+            out |= (1 << n) if on else 0
+        return out
+
+    # -- commands --------------------------------------------------------------------------
+
+    def _check_can_start(self, t: float) -> None:
+        """A start is refused (04) while moving, disabled or in alarm."""
+        if self._mov(t) or not self.enabled or self.alarm_code:
+            raise SlaveException(4)
+
+    def _command(self, code: int, t: float) -> None:
+        if self.params[20] != 0:
+            return  # register 18 acts only in application mode 0 (assumption: ignored)
+        if code == 5:
+            self._estop(t)
+        elif code == 6:
+            self._decel_stop(t)
+        elif code in (1, 2):
+            self._check_can_start(t)
+            self._start_move(code, t)
+        elif code in (3, 4):
+            self._check_can_start(t)
+            self._start_jog(1 if code == 3 else -1, t)
+
+    def _estop(self, t: float) -> None:
+        self._abort_program(t)
+        self._jog = None
+        self._estopping = True
+        self.kin.stop(t, self._pps2(self.params[78]))
+
+    def _decel_stop(self, t: float) -> None:
+        decel = self._stop_decel
+        self._abort_program(t)
+        self._jog = None
+        self.kin.stop(t, decel)
+
+    def _blocked_by_limit(self, direction: int, t: float) -> bool:
+        """Assumption: a start towards an active limit switch is not obeyed."""
+        _, neg, pos = self.switch_states(t)
+        return (direction > 0 and pos) or (direction < 0 and neg)
+
+    def _start_move(self, code: int, t: float) -> None:
+        speed = self._pps(self.params[72])
+        accel, decel = self._pps2(self.params[70]), self._pps2(self.params[71])
+        value = self._pair(73)
+        here = self._phys(t)
+        if self.params[84] == 0:
+            target = here + (abs(value) if code == 1 else -abs(value))
+        else:
+            target = value - self._offset
+        if speed <= 0 or target == here or self._blocked_by_limit(1 if target > here else -1, t):
+            return
+        self._estopping = False
+        self._stop_decel, self._cmd_speed = decel, speed
+        self.kin.move_to(t, target, speed, accel, decel)
+        self._run_program(self._watch_limits(), "motion", t)
+
+    def _start_jog(self, direction: int, t: float) -> None:
+        speed = self._pps(self.params[77])
+        accel, decel = self._pps2(self.params[75]), self._pps2(self.params[76])
+        if self._blocked_by_limit(direction, t):
+            return
+        self._estopping = False
+        self._jog = (direction, accel, decel)
+        self._stop_decel, self._cmd_speed = decel, speed
+        self.kin.run(t, direction * speed, accel, decel)
+        self._run_program(self._watch_limits(), "motion", t)
+
+    def _on_jog_speed(self, v: int, old: int, t: float) -> None:
+        """77 takes effect at once during a jog (manual 3.2.2), with the latched ramps."""
+        if self._jog is not None and self.kin.moving(t):
+            direction, accel, decel = self._jog
+            self._cmd_speed = self._pps(v)
+            self.kin.run(t, direction * self._cmd_speed, accel, decel)
+
+    def _on_estop_decel(self, v: int, old: int, t: float) -> None:
+        """78 applies even to an emergency stop in progress (manual 3.2.1)."""
+        if self._estopping and self.kin.moving(t):
+            self.kin.stop(t, self._pps2(v))
+
+    def _save(self) -> None:
+        self.flash = dict(self.params)
+
+    def _factory_reset(self, t: float) -> None:
+        before = self._functions(t)
+        control = self.params[22]
+        self.params = {a: s.default for a, s in self.spec.items()}
+        self.params[22] = control  # keeps the twin's wiring choice
+        self._functions_changed(before, t)
+
+    # -- input functions -------------------------------------------------------------------
+
+    def _functions(self, t: float) -> dict[int, bool]:
+        return {f: self._function_active(f, t) for f in (4, 5, 6, 12)}
+
+    def _functions_changed(self, before: dict[int, bool], t: float) -> None:
+        after = self._functions(t)
+        if after[4] and not before[4]:  # motor offline
+            self.enabled = False
+            self._abort_program(t)
+            self._jog = None
+            self.kin.stop(t, None)
+        elif before[4] and not after[4]:
+            self.enabled = True
+            self._ready_at = t + 0.1  # RDY about 100 ms after enabling
+        if after[5] and not before[5]:  # clear fault
+            self.alarm_code = 0
+        if after[6] and not before[6]:  # emergency stop input
+            self._estop(t)
+        if after[12] and not before[12]:  # start homing
+            self._on_start_homing_input(t)
+
+    def _on_start_homing_input(self, t: float) -> None:
+        """287=1: mechanical, 287=2: electrical homing, started by function 12."""
+        mode = self.params[287]
+        hard_stop_open_loop = self.params[288] in (4, 5) and self.params[22] == 0
+        if mode in (1, 2) and self._may_start(t) and not (mode == 1 and hard_stop_open_loop):
+            self._start_homing(4 if mode == 1 else 5, t, clear_trigger=False)
+
+    def _may_start(self, t: float) -> bool:
+        return not self._mov(t) and self.enabled and not self.alarm_code
+
+    # -- programs --------------------------------------------------------------------------
+
+    def _run_program(self, program: Program, kind: str, t: float) -> None:
+        self._program, self._program_kind = program, kind
+        self._wait_from = t
+        try:
+            self._wait = next(program)
+        except StopIteration:
+            self._program, self._program_kind, self._wait = None, "", None
+
+    def _abort_program(self, t: float) -> None:
+        if self._program_kind == "homing":
+            self._homing_aborted()
+        self._program, self._program_kind, self._wait = None, "", None
+        self._stalled = False
+
+    def _advance(self, now: float) -> None:
+        """Process the running program's events up to ``now``, in time order."""
+        for _ in range(1000):  # a program takes a handful of steps; never spin forever
+            if self._program is None or self._wait is None:
+                return
+            event = self._next_event(self._wait, self._wait_from, now)
+            if event is None:
+                return
+            self._wait_from = event[1]
+            try:
+                self._wait = self._program.send(event)
+            except StopIteration:
+                self._program, self._program_kind, self._wait = None, "", None
+
+    def _next_event(self, wait: _Wait, t0: float, t1: float) -> tuple[str, float] | None:
+        best: tuple[str, float] | None = None
+        for name, p, sign in wait.cross:
+            tc = self._crossing(p, t0, t1, sign)
+            if tc is not None and (best is None or tc < best[1]):
+                best = (name, tc)
+        if wait.rest:
+            end = max(self.kin.end_time(), t0)
+            if end <= t1 and (best is None or end < best[1]):
+                best = ("rest", end)
+        if wait.until is not None and wait.until <= t1 and (best is None or wait.until < best[1]):
+            best = ("timer", max(wait.until, t0))
+        return best
+
+    def _crossing(self, p: float, t0: float, t1: float, sign: int) -> float | None:
+        """First time in [t0, t1] the motor passes ``p`` travelling in direction ``sign``."""
+        if t0 <= t1 and abs(self.kin.position(t0) - p) < 1e-6:
+            v = self.kin.velocity(t0) or self.kin.velocity(min(t0 + 1e-6, t1))
+            if sign == 0 or v * sign > 0:
+                return t0
+        for _ in range(8):
+            tc = self.kin.crossing(p, t0, t1)
+            if tc is None:
+                return None
+            v = self.kin.velocity(tc) or self.kin.velocity(tc + 1e-6)
+            if sign == 0 or v * sign > 0:
+                return tc
+            t0 = tc + 1e-6
+            if t0 > t1:
+                return None
+        return None
+
+    def _watch_limits(self) -> Program:
+        """A move or jog: a limit switch reached going outwards stops it at the 78 decel
+        (assumption: the manual does not say how the drive reacts to a limit input)."""
+        cross = []
+        if self.limit_positive is not None:
+            cross.append(("limit", self.limit_positive, 1))
+        if self.limit_negative is not None:
+            cross.append(("limit", self.limit_negative, -1))
+        name, t = yield _Wait(cross=tuple(cross), rest=True)
+        if name == "rest":
+            return
+        self._jog = None
+        self.kin.stop(t, self._pps2(self.params[78]))
+        yield _Wait(rest=True)
+
+    # -- homing (NT86: 287-298) ------------------------------------------------------------
+
+    def _on_home_trigger(self, v: int, old: int, t: float) -> None:
+        """287=4/5/6 start homing over Modbus (refused with 04 while moving etc.)."""
+        if v in (4, 5, 6):
+            if not self._may_start(t):
+                self.params[287] = old
+                raise SlaveException(4)
+            self._start_homing(v, t, clear_trigger=True)
+
+    def _start_homing(self, mode: int, t: float, *, clear_trigger: bool) -> None:
+        method = self.params[288]
+        if mode == 4 and method in (4, 5) and self.params[22] == 0:
+            self.params[287] = 0
+            raise SlaveException(4)  # hard-stop homing works only in closed loop
+        self.homed = False
+        self._jog = None
+        self._estopping = False
+        self._clear_trigger = clear_trigger
+        if mode == 6:
+            self._set_counter(t, self._pair(293))
+            self.homed = True
+            self.params[287] = 0
+            return
+        self._stop_decel = self._pps2(self.params[291])
+        program = self._home_electrical() if mode == 5 else self._home_mechanical(t)
+        self._run_program(program, "homing", t)
+
+    def _homing_aborted(self) -> None:
+        if self._clear_trigger:
+            self.params[287] = 0
+
+    def _homing_done(self, t: float, coordinate: int) -> None:
+        """The origin is found: the counter becomes ``coordinate``; 287 clears (4/5/6)."""
+        self._set_counter(t, coordinate)
+        self.homed = True
+        self._stalled = False
+        if self._clear_trigger and 287 in self.params:
+            self.params[287] = 0
+
+    def _home_electrical(self) -> Program:
+        """287=5: move to the absolute position 293/294 at speed 289 (accel 291)."""
+        t = self._wait_from
+        target = self._pair(293) - self._offset
+        speed, acc = self._pps(self.params[289]), self._pps2(self.params[291])
+        if speed > 0 and acc > 0:
+            self.kin.move_to(t, target, speed, acc, acc)
+            _, t = yield _Wait(rest=True)
+        self._homing_done(t, self._pair(293))
+
+    def _signal(self, method: int) -> float | None:
+        return {
+            0: self.home_switch,
+            1: self.home_switch,
+            2: self.limit_positive,
+            3: self.limit_negative,
+        }.get(method)
+
+    def _signal_active(self, method: int, t: float) -> bool:
+        home, neg, pos = self.switch_states(t)
+        return (home, home, pos, neg)[method]
+
+    def _home_mechanical(self, t0: float) -> Program:
+        """288=0-3: search the switch fast, back off slowly to its falling edge, creep back
+        to its rising edge (the origin); 288=4/5: creep into the hard stop (manual 3.1.2)."""
+        method, handling = self.params[288], self.params[295]
+        d = 1 if method in (0, 2, 4) else -1
+        fast, slow = self._pps(self.params[289]), self._pps(self.params[290])
+        acc = self._pps2(self.params[291])
+        if method in (4, 5):
+            t = yield from self._hard_stop(d, slow, acc)
+        else:
+            t = yield from self._switch_search(method, d, fast, slow, acc, handling)
+            if t is None:
+                return  # stopped at a limit (295=0/1): wait for a new trigger
+        offset = self._pair(293)
+        if handling in (1, 3) and offset:
+            self.kin.move_to(t, self._phys(t) + offset, max(fast, 1.0), acc, acc)
+            _, t = yield _Wait(rest=True)
+        self._homing_done(t, offset)
+
+    def _switch_search(
+        self, method: int, d: int, fast: float, slow: float, acc: float, handling: int
+    ) -> Generator[_Wait, tuple[str, float], float | None]:
+        t = self._wait_from
+        edge = self._signal(method)
+        if edge is None:
+            self.kin.run(t, d * fast, acc, acc)
+            yield _Wait()  # no such switch: runs until stopped
+            return None
+        if not self._signal_active(method, t):
+            self.kin.run(t, d * fast, acc, acc)
+            limit = self.limit_positive if d > 0 else self.limit_negative
+            watch = [("edge", edge, d)]
+            if method in (0, 1) and limit is not None:
+                watch.append(("limit", limit, d))
+            name, t = yield _Wait(cross=tuple(watch))
+            self.kin.stop(t, acc)
+            _, t = yield _Wait(rest=True)
+            if name == "limit":
+                if handling in (0, 1):
+                    self._homing_aborted()
+                    return None
+                # Reverse fast to the switch's far edge, decelerate, then creep back.
+                self.kin.run(t, -d * fast, acc, acc)
+                _, t = yield _Wait(cross=(("edge", edge, -d),))
+                self.kin.stop(t, acc)
+                _, t = yield _Wait(rest=True)
+                return (yield from self._creep(edge, d, slow, acc))
+        self.kin.run(t, -d * slow, acc, acc)
+        _, t = yield _Wait(cross=(("edge", edge, -d),))
+        self.kin.hold(t, edge)  # stop at once, on the edge
+        return (yield from self._creep(edge, d, slow, acc))
+
+    def _creep(
+        self, edge: float, d: int, slow: float, acc: float
+    ) -> Generator[_Wait, tuple[str, float], float]:
+        """Creep in direction ``d`` to the switch edge and stop there at once."""
+        self.kin.run(self._wait_from, d * slow, acc, acc)
+        _, t = yield _Wait(cross=(("edge", edge, d),))
+        self.kin.hold(t, edge)
+        return t
+
+    def _hard_stop(
+        self, d: int, slow: float, acc: float
+    ) -> Generator[_Wait, tuple[str, float], float]:
+        """Creep at 290 until the motor stalls on the end stop for 296 x 50 µs."""
+        t = self._wait_from
+        stop = self.hard_stop_positive if d > 0 else self.hard_stop_negative
+        self.kin.run(t, d * slow, acc, acc)
+        if stop is None:
+            yield _Wait()  # nothing to hit: creeps until stopped
+            return t
+        _, t = yield _Wait(cross=(("stall", stop, d),))
+        self.kin.hold(t, stop)
+        self._stalled = True
+        _, t = yield _Wait(until=t + self.params[296] * 50e-6)
+        return t
+
+
+class SimEPR60(SimNT86):
+    """Simulated Rtelligent EPR60/EPT60: the NT map as its own manual gives it.
+
+    Pulses/rev at 96/97; homing on a limit switch (79: 0 negative, 1 positive) with 80-83,
+    started by input function 12 while application mode 20 = 1; no 287-298. Registers
+    192/212 (alarm clear, motor enable) are stored without effect: their values are
+    undocumented. Served over TCP by the TCP simulator; on a serial sim wire it takes any
+    line settings (default 115200 8N1).
+
+    Homing sequence (assumption; the manual gives none): fast (80) towards the limit to
+    its edge, decelerate (82), back off slowly (81) to the edge where the limit releases,
+    stop at once, travel 83 pulses further away from the limit, and that point is 0.
+    """
+
+    family: ClassVar[str] = "EPR60"
+    drive_id: ClassVar[int] = 60
+    drive_version: ClassVar[int] = 100
+
+    @classmethod
+    def _check_line(cls, address: int, settings: LineSettings) -> None:
+        """Any unit id 1-247 and any serial settings (the real drive is on Ethernet)."""
+
+    def _register_map(self) -> tuple[dict[int, _Word], dict[int, tuple[int, int]]]:
+        return _epr60_map()
+
+    @property
+    def pulses_per_rev(self) -> int:
+        """Microstep setting (registers 96/97)."""
+        return max(self._pair(96), 1)
+
+    def _getters(self) -> dict[int, Callable[[float], int]]:
+        g = super()._getters()
+        del g[281]
+        return g
+
+    def _actions(self) -> dict[int, Callable[[int, int, float], None]]:
+        acts = super()._actions()
+        for a in (281, 287):
+            del acts[a]
+        acts[20] = self._on_app_mode
+        return acts
+
+    def _on_app_mode(self, v: int, old: int, t: float) -> None:
+        """Leaving homing mode 1 while homing runs aborts it (decelerating at 82)."""
+        if v != 1 and self._program_kind == "homing":
+            self._abort_program(t)
+            self.kin.stop(t, self._pps2(self.params[82]))
+
+    def _homing_aborted(self) -> None:
+        pass  # no trigger register to clear
+
+    def _on_start_homing_input(self, t: float) -> None:
+        if self.params[20] == 1 and self._may_start(t):
+            self.homed = False
+            self._jog = None
+            self._estopping = False
+            self._stop_decel = self._pps2(self.params[82])
+            self._run_program(self._home_limit(), "homing", t)
+
+    def _home_limit(self) -> Program:
+        t = self._wait_from
+        d = 1 if self.params[79] == 1 else -1
+        edge = self.limit_positive if d > 0 else self.limit_negative
+        fast, slow = self._pps(self.params[80]), self._pps(self.params[81])
+        acc = self._pps2(self.params[82])
+        if edge is None:
+            self.kin.run(t, d * fast, acc, acc)
+            yield _Wait()  # no limit switch: runs until stopped
+            return
+        active = self.switch_states(t)[2 if d > 0 else 1]
+        if not active:
+            self.kin.run(t, d * fast, acc, acc)
+            _, t = yield _Wait(cross=(("edge", edge, d),))
+            self.kin.stop(t, acc)
+            _, t = yield _Wait(rest=True)
+        self.kin.run(t, -d * slow, acc, acc)
+        _, t = yield _Wait(cross=(("edge", edge, -d),))
+        self.kin.hold(t, edge)
+        offset = self.params[83]
+        if offset and slow > 0 and acc > 0:
+            self.kin.move_to(t, self._phys(t) - d * offset, slow, acc, acc)
+            _, t = yield _Wait(rest=True)
+        self._homing_done(t, 0)

@@ -1,0 +1,76 @@
+"""ServiceTasks: background tasks that keep serving while their users clean up.
+
+A bus owner, an axis actor or a simulated wire must keep working while the code that
+uses them is being cancelled: the shielded stop that a cancelled motion sends still needs
+the bus, the actor's polls and the simulator. Each task here runs in its own shielded
+cancel scope, so an outer cancellation does not reach it; it ends only when its owner
+calls ``cancel()`` (or leaves the ``async with``), or when a sibling fails.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable
+from types import TracebackType
+from typing import Any
+
+import anyio
+import anyio.abc
+
+__all__ = ["ServiceTasks"]
+
+
+class ServiceTasks:
+    """A task group whose tasks are shielded from outer cancellation until ``cancel()``."""
+
+    def __init__(self) -> None:
+        self._tg: anyio.abc.TaskGroup | None = None
+        self._scopes: list[anyio.CancelScope] = []
+
+    async def __aenter__(self) -> ServiceTasks:
+        self._tg = anyio.create_task_group()
+        await self._tg.__aenter__()
+        return self
+
+    def start_soon(
+        self, fn: Callable[..., Awaitable[Any]], *args: Any, name: object = None
+    ) -> None:
+        """Start ``fn(*args)`` as a service task."""
+        assert self._tg is not None, "ServiceTasks used outside its async with"
+        scope = anyio.CancelScope(shield=True)
+        self._scopes.append(scope)
+
+        async def run() -> None:
+            try:
+                with scope:
+                    await fn(*args)
+            except BaseException:
+                self.cancel()  # siblings are shielded: the group's own cancel cannot reach them
+                raise
+            finally:
+                self._scopes.remove(scope)
+
+        self._tg.start_soon(run, name=name)
+
+    def cancel(self) -> None:
+        """End every service task."""
+        for s in list(self._scopes):
+            s.cancel()
+        if self._tg is not None:
+            self._tg.cancel_scope.cancel()
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> bool | None:
+        self.cancel()
+        assert self._tg is not None
+        try:
+            return await self._tg.__aexit__(exc_type, exc, tb)
+        except BaseExceptionGroup as group:
+            # Only the body's own exception: give it back as it was raised, not wrapped,
+            # so ``async with Bus(...)`` does not turn a DriveOffline into a group.
+            if exc is not None and len(group.exceptions) == 1 and group.exceptions[0] is exc:
+                raise exc from exc.__cause__
+            raise
