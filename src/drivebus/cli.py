@@ -38,11 +38,15 @@ def bench(
 
 
 @app.command()
-def demo() -> None:
-    """Run the demo machine on the built-in simulator."""
+def demo(
+    config: Annotated[
+        Path | None, typer.Argument(help="machine file (default: the built-in demo machine)")
+    ] = None,
+) -> None:
+    """Run the demo job on the built-in simulator: home, group moves, a jog, a stop."""
     from drivebus.demo import run_demo
 
-    anyio.run(run_demo)
+    raise typer.Exit(anyio.run(run_demo, config))
 
 
 def main() -> None:

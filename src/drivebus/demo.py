@@ -1,32 +1,147 @@
-"""The demo: a simulated RS-485 line with drives at mixed settings, driven through the bus."""
+"""The demo job: home, a coordinated multi-axis sequence, a jog and a stop, on the simulator."""
 
 from __future__ import annotations
 
+import sys
+import time
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+
 import anyio
+from rich.console import Console
+from rich.live import Live
+from rich.table import Table
 
-from drivebus.bus import Priority
-from drivebus.settings import LineSettings
-from drivebus.sim import RegisterSlave, sim_bus
+from drivebus.errors import MotionAborted
+from drivebus.motion import Machine, open_machine
+from drivebus.motion.state import AxisState
+
+__all__ = ["DEFAULT_CONFIG", "axes_table", "run_demo"]
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "demo.toml"
 
 
-async def run_demo() -> None:
-    """Poll four slaves at four line settings on one simulated line and print the figures."""
-    mixed = [LineSettings.parse(s) for s in ("9600 8N1", "19200 8E1", "38400 8N2", "115200 8N1")]
-    slaves = [RegisterSlave(a, s, initial=[(0, a)]) for a, s in enumerate(mixed, start=1)]
-    async with sim_bus(slaves, mixed[-1]) as (wire, bus):
-        handles = [bus.slave(s.address, settings=s.settings) for s in slaves]
+def _fmt(v: float | None, digits: int = 2) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
 
-        async def poll(h) -> None:  # type: ignore[no-untyped-def]
-            for _ in range(25):
-                await h.read_holding_registers(0, 2, priority=Priority.POLL)
 
-        async with anyio.create_task_group() as tg:
-            for h in handles:
-                tg.start_soon(poll, h)
-        await handles[0].write_register(1, 1, priority=Priority.EMERGENCY)
-        for s in slaves:
-            st = bus.stats.slave(s.address)
-            print(f"slave {s.address} at {s.settings}: {st.transactions} transactions, "
-                  f"{st.errors} errors")
-        print(f"line utilisation {bus.stats.utilisation:.0%}, frames {wire.frames}, "
-              f"gap violations {wire.violations}")
+def axes_table(m: Machine) -> Table:
+    """A table of every axis (state, position, velocity, alarm) and per-line bus figures."""
+    t = Table(title=f"drivebus: {m.config.name}", expand=False)
+    for col in ("axis", "drive", "line", "settings", "state", "position", "velocity", "alarm"):
+        t.add_column(col)
+    for name, ax in m.axes.items():
+        st = ax.status
+        settings = ax.config.settings or m.config.lines[ax.config.line].settings
+        kind = m.config.lines[ax.config.line].kind
+        t.add_row(
+            name,
+            ax.profile.family,
+            ax.config.line,
+            "TCP" if kind == "tcp" else str(settings),
+            str(ax.state),
+            _fmt(ax.position),
+            _fmt(ax.velocity),
+            "" if st is None or not st.alarm else f"{st.alarm_code} {st.alarm_text}",
+        )
+    for name, bus in m.buses.items():
+        tot = bus.stats.total()
+        t.add_row(
+            f"[dim]line {name}", "", "", "", "", f"{bus.stats.transactions} tx",
+            f"{bus.stats.utilisation:.0%} busy", f"{tot.errors} errors" if tot.errors else "",
+        )
+    return t
+
+
+async def _step(log: Callable[[str], None], what: str, fn: Callable[[], Awaitable[object]]) -> None:
+    t0 = time.monotonic()
+    await fn()
+    log(f"{what}: done in {time.monotonic() - t0:.2f} s")
+
+
+async def _job(m: Machine, log: Callable[[str], None]) -> int:
+    x, y, z, r = (m.axes[n] for n in ("x", "y", "z", "r"))
+    motion = m.group("x", "y", "z", "r")
+    for ax in (x, y, z, r):
+        await ax.enable()
+    await _step(log, "home x, y, z, r in parallel", motion.home)
+    moves = 0
+    for targets in ({"x": 100.0, "y": 50.0, "z": 30.0, "r": 360.0},
+                    {"x": 250.0, "y": 120.0, "z": 60.0, "r": 0.0},
+                    {"x": 20.0, "y": 10.0, "z": 5.0, "r": 180.0}):
+        report = await motion.move_to(targets)
+        moves += 1
+        log(f"group move to {targets}: planned {report.duration:.2f} s, "
+            f"start skew {report.start_skew * 1000:.1f} ms")
+    async with z.jogging(+10.0):
+        log("jog z at +10 mm/s for 0.5 s")
+        await anyio.sleep(0.5)
+    log(f"jog ended: z stopped at {z.position:.3f} mm")
+
+    async def stop_x_midway() -> None:
+        async for _st in x.watch():
+            if x.position is not None and x.position > 150.0:
+                await x.stop()
+                return
+
+    async with anyio.create_task_group() as tg:
+        tg.start_soon(stop_x_midway)  # returns once the stop has brought x to standstill
+        try:
+            await x.move_to(380.0)
+        except MotionAborted as exc:
+            log(f"x move_to(380) ended by a stop: {exc}")
+    log(f"x stopped at {x.position:.3f} mm, state {x.state}")
+    await _step(log, "x back to 0", lambda: x.move_to(0.0))
+    moves += 1
+    aux = m.axes["aux"]
+    if aux.status is not None:
+        log(f"aux ({aux.profile.family}): enabled={aux.status.enabled} alarm={aux.status.alarm}")
+    return moves
+
+
+async def run_demo(config: str | Path | None = None) -> int:
+    """Run the demo job on ``config`` (the built-in demo machine by default); exit status."""
+    path = Path(config) if config is not None else DEFAULT_CONFIG
+    console = Console()
+    interactive = sys.stdout.isatty()
+    lines: list[str] = []
+
+    def log(msg: str) -> None:
+        lines.append(msg)
+        if interactive:
+            console.log(msg)
+        else:
+            print(msg, flush=True)
+
+    t0 = time.monotonic()
+    async with open_machine(path) as m:
+        log(f"machine {m.config.name}: {len(m.axes)} axes on {len(m.buses)} lines (simulated)")
+        if interactive:
+            with Live(axes_table(m), console=console, refresh_per_second=10) as live:
+
+                async def refresh() -> None:
+                    while True:
+                        live.update(axes_table(m))
+                        await anyio.sleep(0.1)
+
+                async with anyio.create_task_group() as tg:
+                    tg.start_soon(refresh)
+                    moves = await _job(m, log)
+                    tg.cancel_scope.cancel()
+                live.update(axes_table(m))
+        else:
+            moves = await _job(m, log)
+            Console(file=sys.stdout, width=110).print(axes_table(m))
+        errors = sum(b.stats.total().errors for b in m.buses.values())
+        tx = sum(b.stats.transactions for b in m.buses.values())
+        util = {n: f"{b.stats.utilisation:.0%}" for n, b in m.buses.items()}
+        faulted = [n for n, a in m.axes.items() if a.state is AxisState.ERROR_STOP]
+        wire = m.wires.get("rs485")
+        violations = getattr(wire, "violations", 0)
+    print(
+        f"summary: {moves} coordinated/point moves, {tx} transactions, {errors} errors, "
+        f"line utilisation {util}, gap violations {violations}, "
+        f"{time.monotonic() - t0:.1f} s",
+        flush=True,
+    )
+    return 1 if faulted or violations else 0

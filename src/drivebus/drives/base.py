@@ -126,6 +126,9 @@ class DriveProfile:
         """De-energise the motor."""
         raise self.unsupported("disable the motor")
 
+    def check_move(self, params: MoveParams) -> None:
+        """LimitViolation if the drive cannot take ``params`` (no I/O; planners use it)."""
+
     async def move_absolute(self, position: int, params: MoveParams) -> None:
         """Start a move to ``position`` pulses; returns once the drive accepted it."""
         raise self.unsupported("make an absolute move")

@@ -416,6 +416,12 @@ class CL86RProfile(DriveProfile):
         """Release the motor (free shaft): 0x0038 = 0."""
         await self.write(ENABLE, 0, priority=Priority.COMMAND)
 
+    def check_move(self, params: MoveParams) -> None:
+        """Range-check the speed and the ramp times a move would write."""
+        speed = _whole_rpm(MAX_SPEED, abs(params.speed_rpm), minimum=1)
+        ramp_time_ms(ACCEL_TIME, speed, params.accel_rps2)
+        ramp_time_ms(DECEL_TIME, speed, params.decel_rps2)
+
     async def _move(self, target: int, params: MoveParams, *, absolute: bool) -> None:
         speed = _whole_rpm(MAX_SPEED, abs(params.speed_rpm), minimum=1)
         accel = ramp_time_ms(ACCEL_TIME, speed, params.accel_rps2)

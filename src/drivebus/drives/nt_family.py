@@ -522,6 +522,10 @@ class NT86Profile(DriveProfile):
             await self.write(self.regs.position_mode, mode, priority=Priority.COMMAND)
             self._position_mode = mode
 
+    def check_move(self, params: MoveParams) -> None:
+        """Range-check the speed and ramps of a move (registers 70-72)."""
+        self._move_words(0, params)
+
     def _move_words(self, target: int, params: MoveParams) -> list[tuple[Register, int]]:
         r = self.regs
         return [

@@ -257,8 +257,13 @@ class Axis:
                     if cond(st):
                         return st
         except TimeoutError:
+            st = self.status
+            last = "" if st is None else (
+                f" (last status: position {st.position}, moving={st.moving}, "
+                f"in_position={st.in_position}, homed={st.homed})"
+            )
             raise MotionTimeout(
-                f"axis {self.name}: {what} did not complete within {timeout:.1f} s"
+                f"axis {self.name}: {what} did not complete within {timeout:.1f} s{last}"
             ) from None
         finally:
             self._waiters -= 1
@@ -374,6 +379,7 @@ class Axis:
             self.command_started_at = monotonic()
             tol = self.config.in_position_tolerance
             seen_motion = False
+            start_by = self.command_started_at + max(0.25, 5 * self.config.poll.moving)
 
             def arrived(st: DriveStatus) -> bool:
                 nonlocal seen_motion
@@ -383,6 +389,14 @@ class Axis:
                 at = st.position is None or abs(st.position - target_p) <= tol
                 if at and st.in_position:
                     return True
+                if not seen_motion and st.position == start_p and monotonic() > start_by:
+                    limits = [n for n, on in (("negative", st.limit_negative),
+                                              ("positive", st.limit_positive)) if on]
+                    why = f" ({' and '.join(limits)} limit switch active)" if limits else ""
+                    raise MotionError(
+                        f"axis {self.name}: the drive accepted the move to {target} but did "
+                        f"not start it{why}"
+                    )
                 if seen_motion and not at:
                     side = (" at the positive limit" if st.limit_positive
                             else " at the negative limit" if st.limit_negative else "")

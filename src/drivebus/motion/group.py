@@ -8,10 +8,14 @@ from dataclasses import dataclass
 
 import anyio
 
-from drivebus.errors import DrivebusError
+from drivebus.errors import DrivebusError, LimitViolation
 from drivebus.motion.axis import Axis, MotionPlan
 
 __all__ = ["AxisGroup", "GroupMotionError", "GroupMoveReport", "synchronise"]
+
+
+class _TooShort(Exception):
+    """A planned group duration is too short for one axis's own ramps."""
 
 
 class GroupMotionError(DrivebusError):
@@ -34,7 +38,9 @@ class GroupMoveReport:
 
 
 def synchronise(
-    distances: Mapping[str, float], limits: Mapping[str, MotionPlan]
+    distances: Mapping[str, float],
+    limits: Mapping[str, MotionPlan],
+    min_duration: float = 0.0,
 ) -> tuple[float, dict[str, MotionPlan]]:
     """Per-axis plans so every axis covers its distance in the same time, same ramp fractions.
 
@@ -50,6 +56,8 @@ def synchronise(
     total = lp.duration(ld)
     peak = min(lp.speed, math.sqrt(2 * ld * lp.accel * lp.decel / (lp.accel + lp.decel)))
     t_acc, t_dec = peak / lp.accel, peak / lp.decel
+    if min_duration > total:  # stretch: same ramp times, every axis cruises slower
+        total = min_duration
     for _ in range(200):
         cruise = total - (t_acc + t_dec) / 2
         plans = {}
@@ -104,6 +112,17 @@ class AxisGroup:
         distances = {n: targets[n] - starts[n] for n in targets}
         limits = {n: self.axes[n].plan() for n in targets}
         duration, plans = synchronise(distances, limits)
+        for _ in range(50):  # every plan is checked before any axis moves
+            try:
+                plans = {
+                    n: self._drive_ready(self.axes[n], distances[n], duration, plans[n])
+                    for n in targets
+                }
+                break
+            except _TooShort:
+                duration, plans = synchronise(distances, limits, duration * 1.1)
+        else:
+            raise LimitViolation("group move: no common duration fits every drive's ramps")
 
         async def move(axis: Axis) -> None:
             p = plans[axis.name]
@@ -114,6 +133,32 @@ class AxisGroup:
         report = GroupMoveReport(duration, max(times) - min(times), plans)
         self.last_report = report
         return report
+
+    @staticmethod
+    def _drive_ready(axis: Axis, distance: float, duration: float, plan: MotionPlan) -> MotionPlan:
+        """``plan`` if the drive takes it; else the same duration with the axis's own ramps.
+
+        Scaling an axis down to the lead's ramp fractions can ask for a ramp below what
+        its drive can do (a minimum acceleration, a longest ramp time). Then it ramps at
+        its configured rate and cruises slower, arriving at the same time.
+        """
+        try:
+            axis.profile.check_move(axis.drive_params(plan))
+            return plan
+        except LimitViolation:
+            own = axis.plan()
+        d = abs(distance)
+        # d = v * (T - v/(2a) - v/(2b))  ->  v = (T - sqrt(T² - 2 d k)) / k, k = 1/(2a)+1/(2b)
+        if d == 0:
+            return own
+        k = 1 / (2 * own.accel) + 1 / (2 * own.decel)
+        disc = duration * duration - 4 * k * d
+        if disc < 0:
+            raise _TooShort  # even at its own ramps it cannot get there in time
+        v = (duration - math.sqrt(disc)) / (2 * k)
+        fallback = MotionPlan(v, own.accel, own.decel)
+        axis.profile.check_move(axis.drive_params(fallback))  # raises, naming the register
+        return fallback
 
     async def move_by(self, distances: Mapping[str, float]) -> GroupMoveReport:
         """Move the named axes by their distances, together."""

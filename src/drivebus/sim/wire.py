@@ -19,6 +19,7 @@ import random
 import termios
 import tty
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import TracebackType
 
@@ -94,7 +95,7 @@ class VirtualWire:
         self._timer = PreciseTimer()
         self._tg: ServiceTasks | None = None
         self._rng = random.Random(0)
-        self._log_waiters: list[tuple[int, asyncio.Future[None]]] = []
+        self._log_waiters: list[tuple[Callable[[], bool], asyncio.Future[None]]] = []
         self.request_count = 0
         """Master frames seen since the wire started (not reset by ``clear_log``)."""
 
@@ -244,26 +245,34 @@ class VirtualWire:
         self.log.append(f)
         if f.direction == "request":
             self.request_count += 1
-            if self._log_waiters:
-                self._wake_waiters()
+        if self._log_waiters:
+            self._wake_waiters()
 
     def _wake_waiters(self) -> None:
         keep = []
-        for n, fut in self._log_waiters:
-            if self.request_count >= n:
+        for cond, fut in self._log_waiters:
+            if cond():
                 if not fut.done():
                     fut.set_result(None)
             else:
-                keep.append((n, fut))
+                keep.append((cond, fut))
         self._log_waiters = keep
+
+    async def _wait(self, cond: Callable[[], bool]) -> None:
+        if cond():
+            return
+        fut = asyncio.get_running_loop().create_future()
+        self._log_waiters.append((cond, fut))
+        await fut
 
     async def wait_requests(self, n: int) -> None:
         """Return once ``n`` master frames in all have been seen (tests synchronise on it)."""
-        if self.request_count >= n:
-            return
-        fut = asyncio.get_running_loop().create_future()
-        self._log_waiters.append((n, fut))
-        await fut
+        await self._wait(lambda: self.request_count >= n)
+
+    async def wait_frames(self, n: int) -> None:
+        """Return once ``n`` frames (requests and replies) have been logged since the start
+        or the last ``clear_log``."""
+        await self._wait(lambda: self.frames >= n)
 
     # -- replying ----------------------------------------------------------------------------
 
