@@ -283,3 +283,13 @@ async def test_unreachable_drive_is_named_and_nothing_is_left_running() -> None:
             pass  # pragma: no cover
     with pytest.raises(KeyError):
         lookup_wire("motion2CL86R")  # the simulated line was closed again
+
+
+@pytest.mark.parametrize("name", ["demo.toml", "single.toml", "template.toml"])
+def test_shipped_configs_validate(name: str) -> None:
+    from pathlib import Path
+
+    from drivebus.config import load_config
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / name)
+    assert cfg.axes

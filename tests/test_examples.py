@@ -1,0 +1,31 @@
+"""The example scripts run end to end on the simulator (as a user would run them)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize(
+    ("script", "last_line"),
+    [("coordinated.py", "rectangle done"), ("service.py", "service done: x=120.00 y=80.00")],
+)
+def test_example_runs(script: str, last_line: str) -> None:
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / script)],
+        capture_output=True, text=True, timeout=120, cwd=ROOT,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = proc.stdout.strip().splitlines()
+    assert lines[-1].startswith(last_line), proc.stdout[-2000:]
+    if script == "coordinated.py":
+        assert sum(line.startswith("corner") for line in lines) == 5
+        assert "x=20.00 y=10.00 r=0.0" in lines[-2]
+    else:
+        assert any(line.startswith("jogger: z stopped") for line in lines)
+        assert any("monitor: y is DiscreteMotion" in line for line in lines)
