@@ -52,7 +52,16 @@ _libc = _load_libc()
 
 
 class PreciseTimer:
-    """One re-armable timer per owner (a line, a simulated wire); not shared across tasks."""
+    """One re-armable timer per owner (a line, a simulated wire); not shared across tasks.
+
+    The kernel and the event loop wake us some tens of microseconds after the timer
+    fires. The timer therefore fires ``lead`` seconds early and the rest is spun on the
+    clock; ``lead`` adapts to the wake-up latency seen (shared by every timer of the
+    process), so the spin stays short and the deadline is met, never anticipated.
+    """
+
+    lead = 50e-6
+    _LEAD_MAX = 300e-6
 
     def __init__(self) -> None:
         self._fd: int | None = None
@@ -105,10 +114,11 @@ class PreciseTimer:
         loop = asyncio.get_running_loop()
         waiter = loop.create_future()
         self._waiter = waiter
+        lead = PreciseTimer.lead
         if fallback:
             handle = loop.call_later(delay, self.wake)
         else:
-            self._arm(deadline)
+            self._arm(max(deadline - lead, monotonic() + 1e-6))
         try:
             await waiter
         finally:
@@ -118,6 +128,22 @@ class PreciseTimer:
                 self._waiter = None
                 if not fallback:
                     self._disarm()
+        if not fallback and delay > lead:
+            self._adapt(deadline)
+
+    @staticmethod
+    def _adapt(deadline: float) -> None:
+        """Spin to ``deadline`` if we woke early, and move ``lead`` toward the latency seen."""
+        now = monotonic()
+        if now < deadline:
+            early = deadline - now
+            while monotonic() < deadline:
+                pass
+            # Woke before the deadline: the lead is more than the latency; shave it.
+            PreciseTimer.lead = max(0.0, PreciseTimer.lead - 0.25 * early)
+        else:
+            late = now - deadline
+            PreciseTimer.lead = min(PreciseTimer._LEAD_MAX, PreciseTimer.lead + 0.25 * late)
 
     def wake(self) -> None:
         """End the sleep in progress now (the owner has something more urgent to do)."""
