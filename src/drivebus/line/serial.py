@@ -10,14 +10,14 @@ import serial
 import serial.rs485
 import serial_asyncio
 
-from drivebus.clock import PreciseTimer, monotonic
+from drivebus.clock import monotonic
 from drivebus.errors import (
     ConfigError,
     LineClosed,
 )
 from drivebus.line.base import Exchange, Line
+from drivebus.line.link import RtuLink
 from drivebus.line.receiver import RtuReceiver
-from drivebus.line.rtu import frame
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import switch_silence, timing
@@ -76,8 +76,7 @@ class SerialLine(Line):
         self._rx: RtuReceiver | None = None
         self._serial: serial.Serial | None = None
         self._current: LineSettings | None = None
-        self._quiet_since = 0.0
-        self._timer = PreciseTimer()
+        self._link = RtuLink()
         self._closed = True
         self._fd = -1
 
@@ -121,7 +120,7 @@ class SerialLine(Line):
                     f"serial port {self.port!r} does not support RS-485 mode (RTS direction "
                     f"control): {exc}; set rs485 = false if the adapter switches by itself"
                 ) from exc
-        self._quiet_since = monotonic()
+        self._link.quiet_since = monotonic()
         self._closed = False
 
     async def close(self) -> None:
@@ -131,7 +130,7 @@ class SerialLine(Line):
         if rx is not None and rx.transport is not None:
             rx.transport.close()
             rx.connection_lost(None)
-        self._timer.close()
+        self._link.close()
         self._serial = None
 
     def _reconfigure(self, s: LineSettings) -> None:
@@ -147,28 +146,23 @@ class SerialLine(Line):
 
     def ready_at(self, settings: LineSettings | None) -> float:
         """When the silence before a frame at ``settings`` will have passed."""
-        rx = self._rx
-        last = max(self._quiet_since, rx.last_rx if rx is not None else 0.0)
-        return last + switch_silence(self._current, settings or self.settings)
+        silence = switch_silence(self._current, settings or self.settings)
+        return self._link.ready_at(self._rx, silence)
 
-    async def _wait_quiet(self, silence: float) -> None:
-        """Wait until the line has been silent for ``silence`` since its last activity."""
-        rx = self._rx
-        assert rx is not None
-        while True:
-            quiet = max(self._quiet_since, rx.last_rx)
-            await self._timer.sleep_until(quiet + silence)
-            # Bytes may sit in the kernel's buffer that the event loop has not handed us
-            # yet (a slave answering late, noise): they are line activity too.
-            try:
-                late = os.read(self._fd, 4096)
-            except (BlockingIOError, InterruptedError):
-                late = b""
-            if late:
-                rx.data_received(late)
-            if rx.last_rx <= quiet:
-                break  # nothing arrived while we waited
-        rx.discard()
+    def _drain(self) -> bytes:
+        try:
+            return os.read(self._fd, 4096)
+        except (BlockingIOError, InterruptedError):
+            return b""
+
+    def _send(self, adu: bytes) -> None:
+        try:
+            written = os.write(self._fd, adu)
+        except BlockingIOError:
+            written = 0
+        if written < len(adu):
+            assert self._rx is not None and self._rx.transport is not None
+            self._rx.transport.write(adu[written:])  # type: ignore[attr-defined]
 
     async def transact(
         self,
@@ -184,36 +178,19 @@ class SerialLine(Line):
             raise LineClosed(f"serial line {self.port} is closed")
         target = settings or self.settings
         tm = timing(target)
-        await self._wait_quiet(switch_silence(self._current, target))
+        await self._link.wait_quiet(self._rx, switch_silence(self._current, target), self._drain)
         if target is not self._current and target != self._current:
             self._reconfigure(target)
-        rx = self._rx
-        adu = frame(unit, pdu)
-        try:
-            tx_start = monotonic()
-            try:
-                written = os.write(self._fd, adu)
-            except BlockingIOError:
-                written = 0
-            if written < len(adu):
-                rx.transport.write(adu[written:])  # type: ignore[union-attr]
-            tx_end = tx_start + tm.frame_time(len(adu))
-            self._quiet_since = tx_end
-            if self.local_echo:
-                await rx.take_echo(adu, tx_end + tm.t35 + 0.05)
-            if expect is None:
-                self._quiet_since = tx_end + self.broadcast_delay
-                return Exchange(b"", tx_start, tx_end, tx_end, len(adu), 0, tm.frame_time(len(adu)))
-            reply = await rx.read_reply(unit, expect, tx_end + timeout, tm.char_time, tm.t35)
-        except BaseException:
-            # Whatever happened, the line must be silent before the next frame.
-            self._quiet_since = max(self._quiet_since, monotonic())
-            raise
-        rx_end = rx.last_rx
-        self._quiet_since = rx_end
-        n = len(reply) + 3
-        return Exchange(
-            reply, tx_start, tx_end, rx_end, len(adu), n, tm.frame_time(len(adu) + n)
+        return await self._link.exchange(
+            self._rx,
+            self._send,
+            unit,
+            pdu,
+            expect,
+            tm,
+            timeout=timeout,
+            broadcast_delay=self.broadcast_delay,
+            local_echo=self.local_echo,
         )
 
     def __repr__(self) -> str:

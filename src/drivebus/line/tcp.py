@@ -22,7 +22,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Protocol
 
-from drivebus.clock import PreciseTimer, monotonic
+from drivebus.clock import monotonic
 from drivebus.errors import (
     ConfigError,
     ConnectionLost,
@@ -33,8 +33,8 @@ from drivebus.errors import (
     WrongResponder,
 )
 from drivebus.line.base import Exchange, Line
+from drivebus.line.link import RtuLink
 from drivebus.line.receiver import RtuReceiver
-from drivebus.line.rtu import frame
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import timing
@@ -536,8 +536,7 @@ class RtuOverTcpLine(_NetworkLine):
         self.broadcast_delay = broadcast_delay
         self.per_slave_settings = False
         self._lock = asyncio.Lock()
-        self._timer = PreciseTimer()
-        self._quiet_since = 0.0
+        self._link = RtuLink(latency=latency)
 
     def _make_protocol(self) -> asyncio.Protocol:
         return _RtuTcpReceiver(self)
@@ -551,23 +550,13 @@ class RtuOverTcpLine(_NetworkLine):
     def ready_at(self, settings: LineSettings | None) -> float:
         """When t3.5 at the serial port's settings will have passed since the last traffic."""
         rx = self._conn
-        last = self._quiet_since
-        if isinstance(rx, RtuReceiver):
-            last = max(last, rx.last_rx)
-        return last + timing(self.settings).t35
+        return self._link.ready_at(rx if isinstance(rx, RtuReceiver) else None,
+                                   timing(self.settings).t35)
 
     async def close(self) -> None:
         """Close the connection and release the silence timer."""
         await super().close()
-        self._timer.close()
-
-    async def _wait_quiet(self, rx: RtuReceiver, silence: float) -> None:
-        while True:
-            quiet = max(self._quiet_since, rx.last_rx)
-            await self._timer.sleep_until(quiet + silence)
-            if rx.last_rx <= quiet:
-                break  # nothing arrived while we waited
-        rx.discard()
+        self._link.close()
 
     async def transact(
         self,
@@ -607,25 +596,17 @@ class RtuOverTcpLine(_NetworkLine):
         timeout: float,
     ) -> Exchange:
         tm = timing(self.settings)
-        await self._wait_quiet(rx, tm.t35)
-        adu = frame(unit, pdu)
-        try:
-            tx_start = monotonic()
-            rx.transport.write(adu)  # type: ignore[union-attr]
-            tx_end = tx_start + tm.frame_time(len(adu))  # the server's UART needs this long
-            self._quiet_since = tx_end
-            if expect is None:
-                self._quiet_since = tx_end + self.latency + self.broadcast_delay
-                return Exchange(b"", tx_start, tx_end, tx_end, len(adu), 0, tm.frame_time(len(adu)))
-            reply = await rx.read_reply(unit, expect, tx_end + timeout, tm.char_time, tm.t35)
-        except BaseException:
-            # No reply to time the silence from: the request may still be on the wire.
-            self._quiet_since = max(self._quiet_since + self.latency, monotonic())
-            raise
-        rx_end = rx.last_rx
-        self._quiet_since = rx_end
-        n = len(reply) + 3
-        return Exchange(reply, tx_start, tx_end, rx_end, len(adu), n, tm.frame_time(len(adu) + n))
+        await self._link.wait_quiet(rx, tm.t35)
+        return await self._link.exchange(
+            rx,
+            rx.transport.write,  # type: ignore[union-attr]
+            unit,
+            pdu,
+            expect,
+            tm,
+            timeout=timeout,
+            broadcast_delay=self.broadcast_delay,
+        )
 
     def __repr__(self) -> str:
         return f"RtuOverTcpLine({self.host!r}, {self.port}, {self.settings})"
