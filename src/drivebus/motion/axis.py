@@ -164,7 +164,13 @@ class Axis:
                     self._publish()
                 continue
             fails = 0
+            orphaned = self.state is _S.OFFLINE and st.moving and self._busy is None
             self._apply(st, issued)
+            if orphaned:
+                # Back from Offline and still moving with nobody's command waiting on it
+                # (the motion's caller already got DriveOffline): stop it.
+                log.warning("axis %s: drive answers again while moving: stopping it", self.name)
+                await self._send_stop(emergency=False)
             await self._watchdogs()
 
     def _apply(self, st: DriveStatus, issued: float) -> None:
@@ -514,9 +520,8 @@ class Axis:
         await self._halt(emergency=True, decel=None)
 
     async def _halt(self, *, emergency: bool, decel: float | None) -> None:
-        if self.state is _S.OFFLINE:
-            raise self.error or DriveOffline(f"axis {self.name} is offline")
-        if self.state in (_S.STANDSTILL, _S.DISABLED) and not (
+        offline = self.state is _S.OFFLINE
+        if not offline and self.state in (_S.STANDSTILL, _S.DISABLED) and not (
             self.status is not None and self.status.moving
         ):
             return
@@ -525,10 +530,19 @@ class Axis:
         self._jog_deadline = None
         try:
             t_cmd = monotonic()
-            if emergency:
-                await self.profile.emergency_stop()
-            else:
-                await self.profile.stop(None if decel is None else self.units.to_rps2(decel))
+            try:
+                # Offline or not, the stop is sent: the drive may be back (a network blip)
+                # and a motor must not keep running because our polls failed.
+                if emergency:
+                    await self.profile.emergency_stop()
+                else:
+                    await self.profile.stop(None if decel is None else self.units.to_rps2(decel))
+            except TransactionError as exc:
+                if offline:
+                    raise (self.error or DriveOffline(f"axis {self.name} is offline")) from exc
+                raise
+            if offline:
+                self.error = None
             self.command_started_at = monotonic()
             if self.state is not _S.ERROR_STOP:
                 self.state = _S.STOPPING
