@@ -335,12 +335,26 @@ async def test_limit_switch_stops_a_speed_run_and_is_reported() -> None:
         await profile.speed_run(600, 100.0, 100.0)
         st = await wait_for(profile, lambda s: s.limit_positive and not s.moving)
         assert not st.limit_negative
-        assert st.position >= 2000
+        # 10000 pulses/s braked over 100 ms: the stop overshoots the switch by 500 pulses.
+        assert st.position == 2500
         await profile.move_relative(500, QUICK)  # into the limit: refused
         assert not (await profile.read_status()).moving
-        await profile.move_relative(-500, QUICK)  # away from it: allowed
+        # Away from it: allowed. Going back by just the overshoot would end on the switch
+        # edge itself (active there, p >= 2000), so go back well past it.
+        await profile.move_relative(-1000, QUICK)
         st = await wait_for(profile, lambda s: s.in_position)
+        assert st.position == 1500
         assert not st.limit_positive
+
+
+async def test_move_ending_on_the_limit_edge_completes() -> None:
+    # Coming back from beyond the switch to exactly its edge is not a rising limit edge:
+    # the move completes (the switch is active at its edge, p >= 2000).
+    async with bhss(limit_positive=2000, position=2500) as (_wire, sim, profile):
+        await profile.move_relative(-500, QUICK)
+        st = await wait_for(profile, lambda s: s.in_position)
+        assert st.position == 2000 == sim.position()
+        assert st.limit_positive
 
 
 async def test_resettable_alarm_raised_and_cleared() -> None:

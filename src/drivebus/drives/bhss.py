@@ -349,6 +349,12 @@ class BHSSProfile(DriveProfile):
         """Release the shaft: 0x0029 = 0."""
         await self.write(Regs.ENABLE, 0, priority=Priority.COMMAND)
 
+    def check_move(self, params: MoveParams) -> None:
+        """Range-check the speed and the ramp times a move would write."""
+        speed = self.speed_word(params.speed_rpm, move=True)
+        self.ramp_ms(Regs.ACCEL_TIME, speed, params.accel_rps2)
+        self.ramp_ms(Regs.DECEL_TIME, speed, params.decel_rps2)
+
     async def _write_profile(self, params: MoveParams) -> None:
         speed = self.speed_word(params.speed_rpm, move=True)
         acc = self.ramp_ms(Regs.ACCEL_TIME, speed, params.accel_rps2)

@@ -421,7 +421,13 @@ class SimBHSS(SimDrive):
             tc = self.kin.crossing(x, t, t1)
             if tc is None:
                 return self._boundary_edge(index, rising, t, t1)
-            step = math.copysign(0.5, self.kin.velocity(tc))
+            # Which way the motor passes x: at a start from rest (or a turnaround) the
+            # velocity at tc is 0 and the way it leaves counts. If it stays at rest there
+            # (a move that ended on the switch's edge, from either side), nothing crosses.
+            v = self.kin.velocity(tc) or self.kin.velocity(tc + 1e-6)
+            if v == 0.0:
+                return None
+            step = math.copysign(0.5, v)
             before, after = self._input(index, x - step), self._input(index, x + step)
             if before != after and after == rising:
                 return tc
@@ -440,8 +446,10 @@ class SimBHSS(SimDrive):
         first segment's end a hair on one side of it and the next segment's start on the
         other, so neither segment sees the crossing. That is the normal case in homing:
         the back-off accelerates over exactly the distance the search braked over, so it
-        reaches search speed right at the reference edge. Comparing the input level at
-        both ends catches it; bisection finds the time of the edge.
+        reaches search speed right at the reference edge. ``crossing`` now accepts a start
+        within 1e-6 pulses of ``x``, but the jump is speed times the clock's rounding and
+        grows with both, so comparing the input level at both ends still backs it up;
+        bisection finds the time of the edge.
         """
         start = self._level(index, t0)
         if start == self._level(index, t1) or self._level(index, t1) != rising:
