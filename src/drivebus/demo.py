@@ -10,47 +10,15 @@ from pathlib import Path
 import anyio
 from rich.console import Console
 from rich.live import Live
-from rich.table import Table
 
 from drivebus.errors import MotionAborted
 from drivebus.motion import Machine, open_machine
 from drivebus.motion.state import AxisState
+from drivebus.views import axes_table
 
 __all__ = ["DEFAULT_CONFIG", "axes_table", "run_demo"]
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "demo.toml"
-
-
-def _fmt(v: float | None, digits: int = 2) -> str:
-    return "-" if v is None else f"{v:.{digits}f}"
-
-
-def axes_table(m: Machine) -> Table:
-    """A table of every axis (state, position, velocity, alarm) and per-line bus figures."""
-    t = Table(title=f"drivebus: {m.config.name}", expand=False)
-    for col in ("axis", "drive", "line", "settings", "state", "position", "velocity", "alarm"):
-        t.add_column(col)
-    for name, ax in m.axes.items():
-        st = ax.status
-        settings = ax.config.settings or m.config.lines[ax.config.line].settings
-        kind = m.config.lines[ax.config.line].kind
-        t.add_row(
-            name,
-            ax.profile.family,
-            ax.config.line,
-            "TCP" if kind == "tcp" else str(settings),
-            str(ax.state),
-            _fmt(ax.position),
-            _fmt(ax.velocity),
-            "" if st is None or not st.alarm else f"{st.alarm_code} {st.alarm_text}",
-        )
-    for name, bus in m.buses.items():
-        tot = bus.stats.total()
-        t.add_row(
-            f"[dim]line {name}", "", "", "", "", f"{bus.stats.transactions} tx",
-            f"{bus.stats.utilisation:.0%} busy", f"{tot.errors} errors" if tot.errors else "",
-        )
-    return t
 
 
 async def _step(log: Callable[[str], None], what: str, fn: Callable[[], Awaitable[object]]) -> None:

@@ -81,6 +81,7 @@ class Axis:
         self._waiters = 0
         self._generation = 0  # bumped by every command: a waiter of an older one is aborted
         self._busy: str | None = None
+        self._commanded = False
         self._jog_deadline: float | None = None
         self._watchers: list[_Latest] = []
         self.moves_done = 0
@@ -88,6 +89,11 @@ class Axis:
         """When the last motion command was accepted by the drive (for start skew)."""
 
     # -- reading -----------------------------------------------------------------------------
+
+    @property
+    def commanded(self) -> bool:
+        """True if a motion commanded through this axis may still be under way."""
+        return self._commanded and self.state in MOVING_STATES
 
     @property
     def position(self) -> float | None:
@@ -283,6 +289,7 @@ class Axis:
             )
         self._generation += 1
         self._busy = what
+        self._commanded = True
         self.state = state
         self._jog_deadline = None
         return self._generation

@@ -22,6 +22,7 @@ from drivebus.motion.axis import Axis
 from drivebus.motion.group import AxisGroup
 from drivebus.motion.state import MOVING_STATES
 from drivebus.sim.drive import SimDrive
+from drivebus.sim.machine import start_sim_line
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from drivebus.sim.wire import VirtualWire
 from drivebus.tasks import ServiceTasks
@@ -49,8 +50,11 @@ class Machine:
             raise ConfigError(f"no axis {', '.join(missing)} (axes: {', '.join(self.axes)})")
         return AxisGroup([self.axes[n] for n in (names or tuple(self.axes))])
 
-    async def stop_all(self) -> None:
-        """Stop every moving axis, in parallel; errors are logged, never raised."""
+    async def stop_all(self, *, only_commanded: bool = False) -> None:
+        """Stop every moving axis (or only those this machine set moving), in parallel.
+
+        Errors are logged, never raised.
+        """
 
         async def stop(axis: Axis) -> None:
             try:
@@ -61,49 +65,17 @@ class Machine:
         async with anyio.create_task_group() as tg:
             for a in self.axes.values():
                 moving = a.status is not None and a.status.moving
-                if a.state in MOVING_STATES or moving:
+                if (a.commanded if only_commanded else a.state in MOVING_STATES or moving):
                     tg.start_soon(stop, a)
-
-
-def _twin(axis: AxisConfig, line: LineConfig) -> SimDrive:
-    cls = family(axis.drive).sim
-    u = axis.units_per_rev / axis.pulses_per_rev
-
-    def pulses(v: float | None) -> float | None:
-        return None if v is None else v / u
-
-    s = axis.sim
-    kwargs = dict(
-        turnaround=s.turnaround,
-        position=round(s.position / u),
-        home_switch=pulses(s.home_switch),
-        limit_negative=pulses(s.limit_negative),
-        limit_positive=pulses(s.limit_positive),
-        **s.options,
-    )
-    settings = axis.settings or (line.settings if line.kind != "tcp" else None)
-    return cls(axis.address, settings, **kwargs)  # type: ignore[arg-type]
 
 
 async def _start_sim(
     stack: contextlib.AsyncExitStack, machine: Machine, name: str, line: LineConfig
 ) -> Line:
-    axes = {n: a for n, a in machine.config.axes.items() if a.line == name and not a.sim.absent}
-    twins = {n: _twin(a, line) for n, a in axes.items()}
-    machine.sim_drives.update(twins)
-    if line.kind == "serial":
-        wire = await stack.enter_async_context(VirtualWire(line.sim_name))
-        for t in twins.values():
-            wire.attach(t)
-        machine.wires[name] = wire
-        return SerialLine(wire.url, line.settings, local_echo=line.local_echo)
-    if line.kind == "tcp":
-        srv = await stack.enter_async_context(SimTcpServer(twins.values()))
-        machine.wires[name] = srv
-        return TcpLine("127.0.0.1", srv.port)
-    ser = await stack.enter_async_context(SimSerialServer(twins.values(), line.settings))
-    machine.wires[name] = ser
-    return RtuOverTcpLine("127.0.0.1", ser.port, line.settings)
+    sim = await start_sim_line(machine.config, name, stack)
+    machine.sim_drives.update(sim.twins)
+    machine.wires[name] = sim.server
+    return sim.master_line()
 
 
 def _real_line(line: LineConfig) -> Line:
@@ -138,11 +110,16 @@ async def _make_axis(machine: Machine, name: str, cfg: AxisConfig) -> Axis:
 
 
 @asynccontextmanager
-async def open_machine(config: str | Path | MachineConfig) -> AsyncIterator[Machine]:
+async def open_machine(
+    config: str | Path | MachineConfig, *, stop_on_exit: bool = True
+) -> AsyncIterator[Machine]:
     """Open every line, check every drive answers, start the axis actors.
 
     On exit (normal, error or cancellation) every moving axis is stopped before the
-    lines close. ``sim://NAME`` lines start the built-in simulator with a twin per axis.
+    lines close. An observer that must not touch motion it did not start (a status or
+    monitor tool) passes ``stop_on_exit=False``: then only motions commanded through
+    this machine are stopped. ``sim://NAME`` lines start the built-in simulator with a
+    twin per axis.
     """
     cfg = config if isinstance(config, MachineConfig) else load_config(config)
     machine = Machine(cfg)
@@ -165,5 +142,5 @@ async def open_machine(config: str | Path | MachineConfig) -> AsyncIterator[Mach
             # Actors, buses and simulators are service tasks: still running here even when
             # we are being cancelled, so the stops go out and are confirmed by polls.
             with anyio.CancelScope(shield=True), anyio.move_on_after(30):
-                await machine.stop_all()
+                await machine.stop_all(only_commanded=not stop_on_exit)
             actors.cancel()

@@ -32,6 +32,11 @@ class Segment:
         return self.t0 + self.duration
 
 
+def _end(seg: Segment) -> float:
+    """Where ``seg`` ends: the next segment starts exactly there (no rounding gap at joins)."""
+    return seg.at(seg.t1)[0]
+
+
 class Kinematics:
     """Position and velocity of one simulated axis over time."""
 
@@ -123,8 +128,8 @@ class Kinematics:
             return
         a = -math.copysign(decel, v)
         dur = abs(v) / decel
-        end_p = p + v * dur + 0.5 * a * dur * dur
-        self._segments = [Segment(t, dur, p, v, a), Segment(t + dur, math.inf, end_p, 0.0, 0.0)]
+        ramp = Segment(t, dur, p, v, a)
+        self._segments = [ramp, Segment(t + dur, math.inf, _end(ramp), 0.0, 0.0)]
 
     def run(self, t: float, speed: float, accel: float, decel: float) -> None:
         """Ramp to ``speed`` (signed) and keep running; a new call changes the speed."""
@@ -136,13 +141,13 @@ class Kinematics:
             dur = abs(v) / decel
             a = -math.copysign(decel, v)
             segs.append(Segment(t, dur, p, v, a))
-            p, v, t = p + v * dur + 0.5 * a * dur * dur, 0.0, t + dur
+            p, v, t = _end(segs[-1]), 0.0, t + dur
         rate = accel if abs(speed) > abs(v) else decel
         dur = abs(speed - v) / rate if rate > 0 else 0.0
         a = math.copysign(rate, speed - v) if dur > 0 else 0.0
         if dur > 0:
             segs.append(Segment(t, dur, p, v, a))
-            p, v, t = p + v * dur + 0.5 * a * dur * dur, speed, t + dur
+            p, v, t = _end(segs[-1]), speed, t + dur
         segs.append(Segment(t, math.inf, p, speed, 0.0))
         self._segments = segs
 
@@ -161,7 +166,8 @@ class Kinematics:
             a = -math.copysign(decel, v) if v else 0.0
             if dur > 0:
                 segs.append(Segment(t, dur, p, v, a))
-            p, t = p + v * dur + 0.5 * a * dur * dur, t + dur
+                p = _end(segs[-1])
+            t = t + dur
             v = 0.0
             dist = target - p
             direction = 1.0 if dist >= 0 else -1.0
@@ -179,10 +185,10 @@ class Kinematics:
         s = direction
         if t_up > 0:
             segs.append(Segment(t, t_up, p, s * u, s * (up_rate if vp >= u else -up_rate)))
-            p, t = p + s * d_up, t + t_up
+            p, t = _end(segs[-1]), t + t_up
         if t_cruise > 0:
             segs.append(Segment(t, t_cruise, p, s * vp, 0.0))
-            p, t = p + s * d_cruise, t + t_cruise
+            p, t = _end(segs[-1]), t + t_cruise
         if t_down > 0:
             segs.append(Segment(t, t_down, p, s * vp, -s * decel))
             t = t + t_down

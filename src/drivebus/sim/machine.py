@@ -1,0 +1,106 @@
+"""The simulated side of a machine config: a twin per axis on each ``sim://`` line.
+
+``open_machine`` uses ``start_sim_line`` for every simulated line of its config;
+``drivebus sim`` uses ``start_simulators`` to serve all of them standalone, so that an
+outside master (mbpoll, a PLC, pymodbus) can talk to the simulated drives.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+
+from drivebus.config import AxisConfig, LineConfig, MachineConfig
+from drivebus.drives.registry import family
+from drivebus.line.base import Line
+from drivebus.line.serial import SerialLine
+from drivebus.line.tcp import RtuOverTcpLine, TcpLine
+from drivebus.sim.drive import SimDrive
+from drivebus.sim.tcp import SimSerialServer, SimTcpServer
+from drivebus.sim.wire import VirtualWire
+
+__all__ = ["SimLine", "make_twin", "start_sim_line", "start_simulators"]
+
+SimServer = VirtualWire | SimSerialServer | SimTcpServer
+
+
+@dataclass
+class SimLine:
+    """One running simulated line: its config, the twins on it and what serves them."""
+
+    name: str
+    config: LineConfig
+    server: SimServer
+    twins: dict[str, SimDrive] = field(default_factory=dict)
+    """The twin behind each axis on this line, by axis name."""
+
+    def master_line(self) -> Line:
+        """A master-side ``Line`` that reaches this simulator (what ``open_machine`` uses)."""
+        cfg, srv = self.config, self.server
+        if isinstance(srv, VirtualWire):
+            return SerialLine(srv.url, cfg.settings, local_echo=cfg.local_echo)
+        if isinstance(srv, SimTcpServer):
+            return TcpLine("127.0.0.1", srv.port)
+        return RtuOverTcpLine("127.0.0.1", srv.port, cfg.settings)
+
+    @property
+    def endpoint(self) -> str:
+        """Where an outside master connects: the pty path, or ``127.0.0.1:PORT``."""
+        srv = self.server
+        if isinstance(srv, VirtualWire):
+            return srv.slave_path
+        return f"127.0.0.1:{srv.port}"
+
+
+def make_twin(axis: AxisConfig, line: LineConfig) -> SimDrive:
+    """The simulated drive for ``axis``: its family's twin, switches and start position
+    converted from the axis's user units to pulses."""
+    cls = family(axis.drive).sim
+    u = axis.units_per_rev / axis.pulses_per_rev
+
+    def pulses(v: float | None) -> float | None:
+        return None if v is None else v / u
+
+    s = axis.sim
+    kwargs = dict(
+        turnaround=s.turnaround,
+        position=round(s.position / u),
+        home_switch=pulses(s.home_switch),
+        limit_negative=pulses(s.limit_negative),
+        limit_positive=pulses(s.limit_positive),
+        **s.options,
+    )
+    settings = axis.settings or (line.settings if line.kind != "tcp" else None)
+    return cls(axis.address, settings, **kwargs)  # type: ignore[arg-type]
+
+
+async def start_sim_line(
+    config: MachineConfig, name: str, stack: contextlib.AsyncExitStack
+) -> SimLine:
+    """Start the simulator of line ``name`` (a ``sim://`` line) with a twin per present axis;
+    it runs until ``stack`` closes."""
+    line = config.lines[name]
+    axes = {n: a for n, a in config.axes.items() if a.line == name and not a.sim.absent}
+    twins = {n: make_twin(a, line) for n, a in axes.items()}
+    server: SimServer
+    if line.kind == "serial":
+        wire = await stack.enter_async_context(VirtualWire(line.sim_name))
+        for t in twins.values():
+            wire.attach(t)
+        server = wire
+    elif line.kind == "tcp":
+        server = await stack.enter_async_context(SimTcpServer(twins.values()))
+    else:
+        server = await stack.enter_async_context(SimSerialServer(twins.values(), line.settings))
+    return SimLine(name, line, server, twins)
+
+
+async def start_simulators(
+    config: MachineConfig, stack: contextlib.AsyncExitStack
+) -> dict[str, SimLine]:
+    """Start every ``sim://`` line of ``config``; they run until ``stack`` closes."""
+    return {
+        name: await start_sim_line(config, name, stack)
+        for name, line in config.lines.items()
+        if line.simulated
+    }

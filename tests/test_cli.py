@@ -1,0 +1,475 @@
+"""The ``drivebus`` command line, run as a user runs it: in subprocesses, against the
+built-in simulator (``sim://`` configs) and against ``drivebus sim`` serving a pty.
+
+Subprocesses are synchronised on what they print (their output is read line by line
+with deadlines), never on fixed sleeps.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import os
+import pty
+import queue
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+import serial
+from typer.testing import CliRunner
+
+from drivebus.cli import app, explain
+from drivebus.config import load_config
+from drivebus.errors import LineClosed
+from drivebus.ops import Out, check_config, scan_line
+from drivebus.scan import scan_settings
+from drivebus.settings import LineSettings
+from drivebus.sim.machine import start_simulators
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMO = ROOT / "configs" / "demo.toml"
+SINGLE = ROOT / "configs" / "single.toml"
+CLI = [sys.executable, "-m", "drivebus.cli"]
+
+
+@pytest.fixture(autouse=True)
+def _private_runtime_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``drivebus sim`` publishes its pty paths here: keep tests apart from a user's sims."""
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "run"))
+
+
+def drivebus(*args: str | Path, timeout: float = 30) -> subprocess.CompletedProcess[str]:
+    """Run ``drivebus ARGS`` to completion (stdout is a pipe: plain output)."""
+    return subprocess.run(
+        [*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout, check=False
+    )
+
+
+@dataclass
+class Proc:
+    """A running ``drivebus`` subprocess whose stdout is read line by line."""
+
+    popen: subprocess.Popen[str]
+    lines: queue.Queue[str] = field(default_factory=queue.Queue)
+    seen: list[str] = field(default_factory=list)
+
+    def expect(self, pattern: str, timeout: float = 10) -> re.Match[str]:
+        """The first new stdout line matching ``pattern``; fails after ``timeout`` s."""
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            try:
+                line = self.lines.get(timeout=max(0.0, left))
+            except queue.Empty:
+                pytest.fail(f"no line matching {pattern!r} within {timeout} s: {self.seen}")
+            self.seen.append(line)
+            if (m := re.search(pattern, line)) is not None:
+                return m
+
+    def interrupt(self, timeout: float = 20) -> int:
+        """SIGINT, then the exit status."""
+        self.popen.send_signal(signal.SIGINT)
+        return self.popen.wait(timeout)
+
+    def rest(self) -> str:
+        """Everything printed after the last ``expect`` (after the process ended)."""
+        out = []
+        while not self.lines.empty():
+            out.append(self.lines.get())
+        self.seen += out
+        return "\n".join(out)
+
+
+@contextlib.contextmanager
+def spawn(*args: str | Path) -> Iterator[Proc]:
+    """Start ``drivebus ARGS``; killed at the end if still running."""
+    p = subprocess.Popen(
+        [*CLI, *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    proc = Proc(p)
+
+    def pump() -> None:
+        assert p.stdout is not None
+        for line in p.stdout:
+            proc.lines.put(line.rstrip("\n"))
+
+    reader = threading.Thread(target=pump, daemon=True)
+    reader.start()
+    try:
+        yield proc
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait(10)
+        reader.join(5)
+
+
+@contextlib.contextmanager
+def sim_server(config: Path, *extra: str) -> Iterator[tuple[Proc, dict[str, str]]]:
+    """``drivebus sim CONFIG``: the process and its endpoints by line name; stopped (and
+    its clean exit checked) at the end."""
+    with spawn("sim", config, *extra) as proc:
+        endpoints: dict[str, str] = {}
+        while True:
+            m = proc.expect(r"^(?:line (\S+) \S+ (\S+)|simulating machine)")
+            if m.group(1) is None:
+                break
+            endpoints[m.group(1)] = m.group(2)
+        yield proc, endpoints
+        if proc.popen.poll() is None:
+            assert proc.interrupt() == 0
+
+
+def pty_config(tmp_path: Path, pty: str) -> Path:
+    """single.toml with its line on ``pty`` (a ``drivebus sim`` of single.toml)."""
+    cfg = tmp_path / "client.toml"
+    cfg.write_text(SINGLE.read_text().replace("sim://single", pty))
+    return cfg
+
+
+def status_json(config: Path) -> dict[str, dict[str, object]]:
+    r = drivebus("status", config, "--json")
+    assert r.returncode == 0, r.stderr
+    return {a["axis"]: a for a in json.loads(r.stdout)}
+
+
+# -- commands on the built-in simulator ------------------------------------------------------------
+
+
+def test_help_lists_every_command() -> None:
+    r = CliRunner().invoke(app, ["--help"])
+    assert r.exit_code == 0
+    for cmd in ("scan", "status", "move", "home", "jog", "stop", "monitor", "sim", "check",
+                "demo", "bench"):
+        assert cmd in r.output
+
+
+def test_status_reports_every_axis_of_the_demo_machine() -> None:
+    axes = status_json(DEMO)
+    assert set(axes) == {"x", "y", "z", "aux", "r"}
+    # the positions the simulator starts at (configs/demo.toml sim.position)
+    assert axes["x"]["position"] == pytest.approx(12.0)
+    assert axes["y"]["position"] == pytest.approx(7.0)
+    assert axes["z"]["position"] == pytest.approx(-1.0)
+    assert axes["y"]["settings"] == "19200 8E1"
+    assert all(a["state"] == "Standstill" and a["moving"] is False for a in axes.values())
+    plain = drivebus("status", DEMO, "y", "z")
+    assert plain.returncode == 0
+    assert [ln.split(":")[0] for ln in plain.stdout.splitlines()] == ["y", "z"]
+    assert "\x1b[" not in plain.stdout  # not a terminal: no escapes, no live view
+
+
+def test_move_home_jog_and_stop_one_shot() -> None:
+    r = drivebus("move", SINGLE, "x", "30")
+    assert r.returncode == 0, r.stderr
+    assert re.search(r"x: move to 30 done in [\d.]+ s, position=30\.000 state=Standstill",
+                     r.stdout)
+    assert "state=DiscreteMotion" in r.stdout  # progress lines while it moved
+    r = drivebus("move", SINGLE, "x", "-4", "--by", "--speed", "100")
+    assert r.returncode == 0, r.stderr
+    assert "position=-4.000" in r.stdout  # the simulator starts at 0
+    r = drivebus("home", SINGLE, "x")
+    assert r.returncode == 0, r.stderr
+    assert "home (home_switch_positive) done" in r.stdout
+    r = drivebus("jog", SINGLE, "x", "-20", "--for", "0.3")
+    assert r.returncode == 0, r.stderr
+    m = re.search(r"jog at -20/s for 0.3 s done in [\d.]+ s, position=(-[\d.]+) "
+                  r"state=Standstill", r.stdout)
+    assert m is not None and float(m.group(1)) < -3.0
+    r = drivebus("stop", DEMO)
+    assert r.returncode == 0, r.stderr
+    assert len(re.findall(r"at standstill", r.stdout)) == 5
+
+
+def test_monitor_prints_axes_and_per_slave_counters() -> None:
+    r = drivebus("monitor", DEMO, "--count", "2", "--interval", "0.1")
+    assert r.returncode == 0, r.stderr
+    for axis in ("x", "y", "z", "aux", "r"):
+        assert len(re.findall(rf"^\S+ {axis}: ", r.stdout, re.M)) == 2
+    slaves = re.findall(r"line rs485 slave (\d) \(\w+\): tx=(\d+)", r.stdout)
+    assert {a for a, _ in slaves} == {"1", "2", "3", "4"}
+    assert all(int(tx) > 0 for _, tx in slaves)
+
+
+def test_monitor_runs_until_ctrl_c() -> None:
+    with spawn("monitor", SINGLE, "--interval", "0.1") as proc:
+        proc.expect(r"line bus slave 1 \(x\): tx=\d+")
+        assert proc.interrupt() == 0
+
+
+def in_terminal(*args: str | Path, timeout: float = 30) -> tuple[int, str]:
+    """Run ``drivebus ARGS`` with stdout on a pty (a terminal): exit status and output."""
+    master, slave = pty.openpty()
+    env = {**os.environ, "COLUMNS": "120", "TERM": "xterm"}
+    p = subprocess.Popen([*CLI, *map(str, args)], stdin=subprocess.DEVNULL, stdout=slave,
+                         stderr=slave, env=env)
+    os.close(slave)
+    chunks = []
+    with alarm_after(timeout):
+        while True:
+            try:
+                data = os.read(master, 65536)
+            except OSError:  # EIO: the child closed the terminal
+                break
+            if not data:
+                break
+            chunks.append(data)
+    os.close(master)
+    return p.wait(timeout), b"".join(chunks).decode(errors="replace")
+
+
+@contextlib.contextmanager
+def alarm_after(seconds: float) -> Iterator[None]:
+    """Fail the test if the block takes longer than ``seconds`` (SIGALRM)."""
+
+    def expired(signum: int, frame: object) -> None:
+        raise TimeoutError(f"terminal run took more than {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def test_terminal_views() -> None:
+    code, text = in_terminal("move", SINGLE, "x", "20")
+    assert code == 0, text
+    assert "━" in text and "move to 20" in text  # the progress bar
+    assert "position=20.000 state=Standstill" in text
+    code, text = in_terminal("monitor", DEMO, "--count", "2", "--interval", "0.1")
+    assert code == 0, text
+    assert "bus statistics per slave" in text and "OD2000" in text
+    code, text = in_terminal("status", DEMO)
+    assert code == 0, text
+    assert "drivebus: demo" in text and "┃" in text  # the table
+
+
+def test_demo_completes() -> None:
+    r = drivebus("demo", timeout=60)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "gap violations 0" in r.stdout
+
+
+# -- check and errors ---------------------------------------------------------------------------
+
+
+def test_check_reports_simulated_lines() -> None:
+    r = drivebus("check", DEMO)
+    assert r.returncode == 0
+    assert "line rs485: simulated (sim://demo-rs485, serial)" in r.stdout
+    assert "line eth: simulated (sim://demo-eth, tcp)" in r.stdout
+
+
+def test_check_warns_about_a_usb_serial_latency_timer(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    port = tmp_path / "dev" / "ttyUSB0"
+    port.parent.mkdir()
+    port.touch()
+    timer = tmp_path / "sys" / "bus" / "usb-serial" / "devices" / "ttyUSB0" / "latency_timer"
+    timer.parent.mkdir(parents=True)
+    timer.write_text("16\n")
+    cfg = tmp_path / "m.toml"
+    cfg.write_text(SINGLE.read_text().replace("sim://single", str(port)))
+    assert check_config(Out(False), cfg, sysfs=tmp_path / "sys") == 0
+    err = capsys.readouterr().err
+    assert "latency timer is 16 ms" in err and "echo 1 | sudo tee" in err
+    timer.write_text("1\n")
+    assert check_config(Out(False), cfg, sysfs=tmp_path / "sys") == 0
+    assert "latency" not in capsys.readouterr().err
+
+
+def _one_error_line(r: subprocess.CompletedProcess[str], code: int, *needles: str) -> None:
+    assert r.returncode == code, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr
+    assert r.stderr.startswith("error: ")
+    for n in needles:
+        assert n in r.stderr
+
+
+def test_errors_are_one_clear_line(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(DEMO.read_text().replace('drive = "CL86R"', 'drive = "CL99"'))
+    _one_error_line(drivebus("status", bad), 2, "axes.z.drive", "unknown drive 'CL99'")
+    _one_error_line(drivebus("check", tmp_path / "nope.toml"), 2, "no such config file")
+    _one_error_line(drivebus("move", SINGLE, "q", "1"), 2, "no axis q", "axes: x")
+    _one_error_line(drivebus("scan", "/dev/ttyUSB9", "--format", "8X1"), 2, "--format")
+    missing = tmp_path / "missing.toml"
+    missing.write_text(SINGLE.read_text().replace("sim://single", "/dev/ttyDRIVEBUS-NONE"))
+    _one_error_line(drivebus("status", missing), 1, "/dev/ttyDRIVEBUS-NONE",
+                    "does not exist")
+    _one_error_line(drivebus("check", missing), 1, "does not exist")
+    _one_error_line(drivebus("scan", "/dev/ttyDRIVEBUS-NONE"), 1, "does not exist")
+    absent = tmp_path / "absent.toml"
+    absent.write_text(SINGLE.read_text().replace("sim = {", "sim = { absent = true,"))
+    _one_error_line(drivebus("status", absent), 1, "does not answer", "drivebus scan")
+    r = drivebus("status", absent, "--debug")
+    assert r.returncode != 0 and "Traceback" in r.stderr
+
+
+def test_permission_denied_names_the_fix() -> None:
+    cause = serial.SerialException(errno.EACCES, "could not open port /dev/ttyUSB0")
+    exc = LineClosed("cannot open serial port '/dev/ttyUSB0': could not open port")
+    exc.__cause__ = cause
+    text, code = explain(exc)
+    assert code == 1 and "Permission denied" in text and "dialout" in text
+    text, _ = explain(PermissionError(errno.EACCES, "Permission denied", "/dev/ttyS0"))
+    assert "/dev/ttyS0" in text and "dialout" in text
+
+
+# -- scan ----------------------------------------------------------------------------------------
+
+
+async def test_scan_in_process_finds_slaves_at_mixed_settings() -> None:
+    """sim://NAME in this process: the side channel carries parity, so the 8E1 BHSS too."""
+    cfg = load_config(DEMO)
+    async with contextlib.AsyncExitStack() as stack:
+        sims = await start_simulators(cfg, stack)
+        wire = sims["rs485"].server
+        settings = scan_settings([9600, 19200, 38400, 115200], ["8N1", "8E1", "8N2"])
+        found = await scan_line(Out(False), "sim://demo-rs485", settings, [1, 2, 3, 4, 5],
+                                0.04, quiet=True)
+        probes = wire.requests()  # type: ignore[union-attr]
+    got = {f.address: (str(f.settings), f.family) for f in found}
+    assert got == {
+        1: ("9600 8N1", "OD2000"),
+        2: ("115200 8N1", "NT86"),
+        3: ("19200 8E1", "BHSS"),
+        4: ("38400 8N2", "CL86R"),
+    }
+    # all addresses at one setting, then the next; a found address is not probed again
+    index = {str(s): i for i, s in enumerate(settings)}
+    seq = [index[str(f.settings)] for f in probes]
+    assert seq == sorted(seq)
+    for f in probes:
+        if f.address in got:
+            assert seq[probes.index(f)] <= index[got[f.address][0]]
+    assert [f.address for f in probes if str(f.settings) == "9600 8E1"] == [2, 3, 4, 5]
+
+
+def test_scan_of_a_drivebus_sim_from_another_process() -> None:
+    with sim_server(DEMO) as (_, ends):
+        pty = ends["rs485"]
+        r = drivebus("scan", pty, "--baud", "9600,38400,115200", "--address", "1-5", "--json")
+        assert r.returncode == 0, r.stderr
+        got = {f["address"]: (f["settings"], f["family"]) for f in json.loads(r.stdout)}
+        # 8N1/8N2 only across a pty: the 8E1 BHSS cannot be reached from outside
+        assert got == {1: ("9600 8N1", "OD2000"), 2: ("115200 8N1", "NT86"),
+                       4: ("38400 8N2", "CL86R")}
+        assert "8E1, 8O1 are not probed" in r.stderr
+        r = drivebus("scan", "sim://demo-rs485", "--baud", "38400", "--address", "3-4")
+        assert r.returncode == 0, r.stderr
+        assert "found address 4 at 38400 8N2: CL86R" in r.stdout
+        r = drivebus("scan", pty, "--baud", "57600", "--format", "8N1", "--address", "1-3")
+        assert r.returncode == 1
+        assert "no slave answered" in r.stderr
+    r = drivebus("scan", "sim://demo-rs485")
+    assert r.returncode == 2 and "drivebus sim CONFIG" in r.stderr
+
+
+def test_mbpoll_reads_registers_from_drivebus_sim() -> None:
+    mbpoll = shutil.which("mbpoll")
+    if mbpoll is None:
+        pytest.skip("mbpoll is not installed (make test installs it with apt-get as root)")
+    with sim_server(DEMO) as (_, ends):
+        r = subprocess.run(
+            [mbpoll, "-m", "rtu", "-b", "38400", "-P", "none", "-s", "2", "-a", "4",
+             "-t", "4", "-r", "1", "-c", "2", "-1", "-o", "1", ends["rs485"]],
+            capture_output=True, text=True, timeout=20, check=False,
+        )
+    assert r.returncode == 0, r.stdout + r.stderr
+    # CL86R holding registers 0x0000-0x0001: model code 862, software version
+    assert re.search(r"^\[1\]:\s+862$", r.stdout, re.M), r.stdout
+    assert re.search(r"^\[2\]:\s+\d+$", r.stdout, re.M)
+
+
+# -- Ctrl-C and a drive left moving ---------------------------------------------------------------
+
+
+def test_ctrl_c_during_move_stops_the_axis(tmp_path: Path) -> None:
+    with sim_server(SINGLE) as (sim, ends):
+        cfg = pty_config(tmp_path, ends["bus"])
+        with spawn("move", cfg, "x", "150", "--speed", "20") as move:
+            # the move's own progress lines: positions polled from the drive
+            move.expect(r"position=([3-9]|\d\d)\.\d+ .*state=DiscreteMotion")
+            assert move.interrupt() == 130
+            assert re.search(r"x: move to 150 stopped after [\d.]+ s, position=[\d.]+ "
+                             r"state=Standstill", move.rest())
+        first, second = status_json(cfg)["x"], status_json(cfg)["x"]
+        assert first["moving"] is False and first["state"] == "Standstill"
+        assert first["position"] == second["position"]  # at rest across two reads
+        assert 3.0 < first["position"] < 100.0  # well short of the target
+        assert sim.interrupt() == 0
+        twin = re.search(r"twin x: position=(-?\d+) pulses moving=False", sim.rest())
+        assert twin is not None
+        assert int(twin.group(1)) * 5.0 / 1000 == pytest.approx(first["position"])
+
+
+def test_stop_halts_a_drive_left_moving_by_a_dead_process(tmp_path: Path) -> None:
+    with sim_server(SINGLE) as (_, ends):
+        cfg = pty_config(tmp_path, ends["bus"])
+        with spawn("jog", cfg, "x", "10") as jog:
+            jog.expect(r"position=[1-9]\.\d+ .*state=ContinuousMotion")
+            jog.popen.kill()  # no clean-up: the drive keeps running
+            jog.popen.wait(10)
+        r = drivebus("stop", cfg)
+        assert r.returncode == 0, r.stderr
+        # "stopped": its first poll found the drive moving ("at standstill" otherwise)
+        assert re.search(r"x: stopped at position=[\d.]+ state=Standstill", r.stdout)
+        assert status_json(cfg)["x"]["moving"] is False
+
+
+def test_status_and_monitor_leave_a_running_drive_alone(tmp_path: Path) -> None:
+    with sim_server(SINGLE) as (_, ends):
+        cfg = pty_config(tmp_path, ends["bus"])
+        with spawn("jog", cfg, "x", "10") as jog:
+            jog.expect(r"position=[1-9]\.\d+ .*state=ContinuousMotion")
+            jog.popen.kill()  # the drive keeps running with nobody watching it
+            jog.popen.wait(10)
+        first = status_json(cfg)["x"]
+        assert drivebus("monitor", cfg, "--count", "2").returncode == 0
+        second = status_json(cfg)["x"]
+        assert first["moving"] is True and second["moving"] is True  # observers stop nothing
+        assert second["position"] > first["position"]
+        assert drivebus("stop", cfg).returncode == 0
+        assert status_json(cfg)["x"]["moving"] is False
+
+
+def test_ctrl_c_ends_an_open_ended_jog_cleanly(tmp_path: Path) -> None:
+    with sim_server(SINGLE) as (_, ends):
+        cfg = pty_config(tmp_path, ends["bus"])
+        with spawn("jog", cfg, "x", "-10") as jog:
+            jog.expect(r"position=-[1-9]\.\d+ .*state=ContinuousMotion")
+            assert jog.interrupt() == 0  # Ctrl-C is how an open-ended jog ends
+            assert "stopped after" in jog.rest()
+        assert status_json(cfg)["x"]["moving"] is False
+
+
+def test_sim_log_prints_frames(tmp_path: Path) -> None:
+    with sim_server(SINGLE, "--log") as (sim, ends):
+        cfg = pty_config(tmp_path, ends["bus"])
+        assert drivebus("status", cfg).returncode == 0
+        sim.expect(r"bus request addr=1 115200-8N1 gap=[\d.]+ms 01 03 ")
+        sim.expect(r"bus reply   addr=1 115200-8N1 gap=[\d.]+ms 01 03 ")
+
+
+def test_pty_settings_are_8n1_or_8n2_only() -> None:
+    from drivebus.scan import pty_usable
+
+    ok, dropped = pty_usable([LineSettings.parse(t) for t in ("9600 8N1", "9600 8E1",
+                                                              "9600 8N2", "9600 7O1")])
+    assert [str(s) for s in ok] == ["9600 8N1", "9600 8N2"]
+    assert [str(s) for s in dropped] == ["9600 8E1", "9600 7O1"]
