@@ -9,7 +9,7 @@ from drivebus.errors import ConfigError, ModbusException
 from drivebus.settings import LineSettings
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Callable, Sequence
 
     from drivebus.bus.scheduler import Bus
 
@@ -56,27 +56,42 @@ class SlaveHandle:
         if self.is_broadcast:
             raise ConfigError("cannot read from the broadcast address 0: nobody answers")
 
+    async def _read(self, function: int, address: int, count: int, priority: Priority) -> list[int]:
+        self._no_broadcast_read()
+        req = P.read_request(function, address, count)
+        reply = await self.bus.execute(
+            self, req, expect=P.response_length, priority=priority, idempotent=True
+        )
+        return P.decode_read_reply(reply, function, count, slave=self.address)
+
+    async def _write(
+        self,
+        req: bytes,
+        check: Callable[..., None],
+        priority: Priority,
+        idempotent: bool,
+    ) -> None:
+        reply = await self.bus.execute(
+            self,
+            req,
+            expect=None if self.is_broadcast else P.response_length,
+            priority=priority,
+            idempotent=idempotent,
+        )
+        if not self.is_broadcast:
+            check(reply, req, slave=self.address)
+
     async def read_holding_registers(
         self, address: int, count: int, *, priority: Priority = Priority.CONFIG
     ) -> list[int]:
         """Read ``count`` holding registers (FC03); retried on timeout or bad frame."""
-        self._no_broadcast_read()
-        req = P.read_request(P.READ_HOLDING, address, count)
-        reply = await self.bus.execute(
-            self, req, expect=P.response_length, priority=priority, idempotent=True
-        )
-        return P.decode_read_reply(reply, P.READ_HOLDING, count, slave=self.address)
+        return await self._read(P.READ_HOLDING, address, count, priority)
 
     async def read_input_registers(
         self, address: int, count: int, *, priority: Priority = Priority.CONFIG
     ) -> list[int]:
         """Read ``count`` input registers (FC04); retried on timeout or bad frame."""
-        self._no_broadcast_read()
-        req = P.read_request(P.READ_INPUT, address, count)
-        reply = await self.bus.execute(
-            self, req, expect=P.response_length, priority=priority, idempotent=True
-        )
-        return P.decode_read_reply(reply, P.READ_INPUT, count, slave=self.address)
+        return await self._read(P.READ_INPUT, address, count, priority)
 
     async def write_register(
         self,
@@ -88,15 +103,7 @@ class SlaveHandle:
     ) -> None:
         """Write one register (FC06). Mark commands ``idempotent=False``: never retried."""
         req = P.write_single_request(address, value)
-        reply = await self.bus.execute(
-            self,
-            req,
-            expect=None if self.is_broadcast else P.response_length,
-            priority=priority,
-            idempotent=idempotent,
-        )
-        if not self.is_broadcast:
-            P.decode_write_single_reply(reply, req, slave=self.address)
+        await self._write(req, P.decode_write_single_reply, priority, idempotent)
 
     async def write_registers(
         self,
@@ -108,15 +115,7 @@ class SlaveHandle:
     ) -> None:
         """Write consecutive registers (FC16). Mark commands ``idempotent=False``."""
         req = P.write_multiple_request(address, values)
-        reply = await self.bus.execute(
-            self,
-            req,
-            expect=None if self.is_broadcast else P.response_length,
-            priority=priority,
-            idempotent=idempotent,
-        )
-        if not self.is_broadcast:
-            P.decode_write_multiple_reply(reply, req, slave=self.address)
+        await self._write(req, P.decode_write_multiple_reply, priority, idempotent)
 
     async def transact(
         self,
