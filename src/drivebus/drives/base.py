@@ -133,6 +133,20 @@ class DriveProfile:
         """Start a move to ``position`` pulses; returns once the drive accepted it."""
         raise self.unsupported("make an absolute move")
 
+    async def prepare_absolute(self, position: int, params: MoveParams) -> None:
+        """Write everything a move to ``position`` needs except its start.
+
+        ``start_absolute()`` then starts it with as little traffic as the drive allows, so a
+        group can prepare every axis first and start them back to back. The default keeps
+        the arguments and makes the whole move at the start.
+        """
+        self._prepared = (position, params)
+
+    async def start_absolute(self) -> None:
+        """Start the move that ``prepare_absolute`` prepared."""
+        position, params = self._prepared
+        await self.move_absolute(position, params)
+
     async def move_relative(self, distance: int, params: MoveParams) -> None:
         """Start a move by ``distance`` pulses; returns once the drive accepted it."""
         raise self.unsupported("make a relative move")

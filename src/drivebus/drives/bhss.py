@@ -378,9 +378,17 @@ class BHSSProfile(DriveProfile):
 
     async def move_absolute(self, position: int, params: MoveParams) -> None:
         """Ramps, speed and target, then 0x0027 = 5 (position mode, absolute)."""
+        await self.prepare_absolute(position, params)
+        await self.start_absolute()
+
+    async def prepare_absolute(self, position: int, params: MoveParams) -> None:
+        """Ramps, speed and target: everything but the start."""
         Regs.DISTANCE.check(position)
         await self._write_profile(params)
         await self._write_distance(position)
+
+    async def start_absolute(self) -> None:
+        """0x0027 = 5 starts the prepared absolute move."""
         await self._start(_START_ABSOLUTE)
 
     async def move_relative(self, distance: int, params: MoveParams) -> None:

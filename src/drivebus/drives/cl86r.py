@@ -423,6 +423,10 @@ class CL86RProfile(DriveProfile):
         ramp_time_ms(DECEL_TIME, speed, params.decel_rps2)
 
     async def _move(self, target: int, params: MoveParams, *, absolute: bool) -> None:
+        await self._write_move(target, params)
+        await self._start_move(absolute=absolute)
+
+    async def _write_move(self, target: int, params: MoveParams) -> None:
         speed = _whole_rpm(MAX_SPEED, abs(params.speed_rpm), minimum=1)
         accel = ramp_time_ms(ACCEL_TIME, speed, params.accel_rps2)
         decel = ramp_time_ms(DECEL_TIME, speed, params.decel_rps2)
@@ -430,17 +434,27 @@ class CL86RProfile(DriveProfile):
             (START_SPEED, self.start_speed_rpm), (ACCEL_TIME, accel), (DECEL_TIME, decel),
             (MAX_SPEED, speed), (TARGET, target),
         ])
+        self._speed_rpm = speed
+
+    async def _start_move(self, *, absolute: bool) -> None:
         word = Control.START_POSITION
         if absolute:
             word |= Control.ABSOLUTE
         if self.interrupt_moves:
             word |= Control.INTERRUPT
-        self._speed_rpm = speed
         await self._control(int(word), priority=Priority.COMMAND, idempotent=False)
 
     async def move_absolute(self, position: int, params: MoveParams) -> None:
         """Write 0x0030-0x0035 (speed is positive; the target's sign gives direction), 0x0036=3."""
         await self._move(position, params, absolute=True)
+
+    async def prepare_absolute(self, position: int, params: MoveParams) -> None:
+        """0x0030-0x0035: everything but the start."""
+        await self._write_move(position, params)
+
+    async def start_absolute(self) -> None:
+        """0x0036 = 3 starts the prepared absolute move."""
+        await self._start_move(absolute=True)
 
     async def move_relative(self, distance: int, params: MoveParams) -> None:
         """Write 0x0030-0x0035 (signed distance), then 0x0036 = 0x0001."""

@@ -546,10 +546,18 @@ class NT86Profile(DriveProfile):
 
     async def move_absolute(self, position: int, params: MoveParams) -> None:
         """84=1, 70-74 in one FC16 (signed target), then 18=1 (the manual's choice, L938)."""
+        await self.prepare_absolute(position, params)
+        await self.start_absolute()
+
+    async def prepare_absolute(self, position: int, params: MoveParams) -> None:
+        """84=1 and 70-74 (signed target): everything but the start."""
         block = self._move_words(int(position), params)
         await self._set_position_mode(1)
         await self._restore_estop_decel()
         await self.write_block(block, priority=Priority.COMMAND)
+
+    async def start_absolute(self) -> None:
+        """18=1 starts the prepared absolute move."""
         self._jog_command = None
         await self._command(CMD_FORWARD)
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 
@@ -354,11 +354,16 @@ class Axis:
         speed: float | None = None,
         accel: float | None = None,
         decel: float | None = None,
+        ready: Callable[[], Awaitable[None]] | None = None,
     ) -> None:
-        """Move to ``target`` (user units); return when the drive reports it is there."""
+        """Move to ``target`` (user units); return when the drive reports it is there.
+
+        With ``ready``, the move is prepared on the drive, then ``ready()`` is awaited
+        before the start command goes out (a group starts its axes back to back).
+        """
         self.check_limits(target)
         plan = self.plan(speed, accel, decel)
-        await self._move(target, plan, relative=None)
+        await self._move(target, plan, relative=None, ready=ready)
 
     async def move_by(
         self,
@@ -375,7 +380,14 @@ class Axis:
         self.check_limits(start + distance)
         await self._move(start + distance, plan, relative=distance)
 
-    async def _move(self, target: float, plan: MotionPlan, *, relative: float | None) -> None:
+    async def _move(
+        self,
+        target: float,
+        plan: MotionPlan,
+        *,
+        relative: float | None,
+        ready: Callable[[], Awaitable[None]] | None = None,
+    ) -> None:
         gen = self._begin(_S.DISCRETE_MOTION, "move", frozenset({_S.STANDSTILL}))
         async with self._stop_on_failure():
             before = self.status
@@ -385,7 +397,12 @@ class Axis:
             distance = self.units.from_pulses(target_p - start_p)
             timeout = plan.duration(distance) * 1.5 + 1.0 + 4 * self.config.poll.moving
             t_cmd = monotonic()
-            if relative is None:
+            if relative is None and ready is not None:
+                await self.profile.prepare_absolute(target_p, params)
+                await ready()
+                t_cmd = monotonic()
+                await self.profile.start_absolute()
+            elif relative is None:
                 await self.profile.move_absolute(target_p, params)
             else:
                 await self._start_relative(self.units.to_pulses(relative), params, before)

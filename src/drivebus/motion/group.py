@@ -18,6 +18,20 @@ class _TooShort(Exception):
     """A planned group duration is too short for one axis's own ramps."""
 
 
+class _Barrier:
+    """Every axis prepares its move, then all start together (the starts go back to back)."""
+
+    def __init__(self, parties: int) -> None:
+        self._left = parties
+        self._all_in = anyio.Event()
+
+    async def wait(self) -> None:
+        self._left -= 1
+        if self._left <= 0:
+            self._all_in.set()
+        await self._all_in.wait()
+
+
 class GroupMotionError(DrivebusError):
     """One axis of a group failed; the others were stopped. ``axis`` names the culprit."""
 
@@ -124,9 +138,12 @@ class AxisGroup:
         else:
             raise LimitViolation("group move: no common duration fits every drive's ramps")
 
+        barrier = _Barrier(len(targets))
+
         async def move(axis: Axis) -> None:
             p = plans[axis.name]
-            await axis.move_to(targets[axis.name], speed=p.speed, accel=p.accel, decel=p.decel)
+            await axis.move_to(targets[axis.name], speed=p.speed, accel=p.accel, decel=p.decel,
+                               ready=barrier.wait)
 
         await self._each([self.axes[n] for n in targets], move)
         times = [self.axes[n].command_started_at for n in targets]

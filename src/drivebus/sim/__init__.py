@@ -2,6 +2,7 @@
 
 from drivebus.sim.drive import SimDrive
 from drivebus.sim.harness import sim_bus
+from drivebus.sim.segment import Segment
 from drivebus.sim.slave import Fault, FaultPlan, RegisterSlave, SimSlave, SlaveException
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from drivebus.sim.wire import VirtualWire, WireFrame, lookup_wire
@@ -10,6 +11,7 @@ __all__ = [
     "Fault",
     "FaultPlan",
     "RegisterSlave",
+    "Segment",
     "SimDrive",
     "SimSerialServer",
     "SimSlave",

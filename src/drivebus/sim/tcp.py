@@ -4,8 +4,9 @@
   networked drive or a TCP gateway;
 * ``SimSerialServer`` is a transparent serial server (RTU over TCP): the bytes a client
   sends go out on a simulated RS-485 line at the port's settings, taking wire time, and
-  the slaves' replies come back after their turnaround and wire time. Frames are logged
-  with the silence before them, like ``VirtualWire``.
+  the slaves' replies come back after their turnaround and wire time. The line is a
+  ``Segment``, the model behind ``VirtualWire`` too: frames are logged with the silence
+  before them.
 
 Both are async context managers that own their tasks in an anyio task group, listen on
 127.0.0.1 at an ephemeral port (``.port``), and offer fault hooks for tests: close the
@@ -16,10 +17,8 @@ plus the slaves' own ``FaultPlan`` faults.
 from __future__ import annotations
 
 import math
-import random
 import socket
 import struct
-from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from types import TracebackType
@@ -28,15 +27,12 @@ import anyio
 import anyio.abc
 from anyio.abc import SocketAttribute
 
-from drivebus.clock import PreciseTimer, monotonic
-from drivebus.line.rtu import crc_ok, frame
+from drivebus.clock import monotonic
 from drivebus.line.tcp import mbap_frame
-from drivebus.pdu import request_length
 from drivebus.settings import LineSettings
+from drivebus.sim.segment import Segment, SegmentView, add_slave
 from drivebus.sim.slave import Fault, SimSlave
-from drivebus.sim.wire import WireFrame
 from drivebus.tasks import ServiceTasks
-from drivebus.timing import timing
 
 __all__ = ["ServerFaults", "SimSerialServer", "SimTcpServer", "TcpRequest"]
 
@@ -107,16 +103,6 @@ class _Client:
 
 
 @dataclass(eq=False)
-class _Reply:
-    """A slave's reply on its way out on the serial server's wire."""
-
-    due: float
-    adu: bytes
-    client: _Client
-    collided: bool = False
-
-
-@dataclass(eq=False)
 class TcpRequest:
     """One request as a simulated server received it, and what became of it."""
 
@@ -152,10 +138,7 @@ class _SimServer:
 
     def attach(self, slave: SimSlave) -> SimSlave:
         """Serve ``slave`` at its address, which must be free."""
-        if slave.address in self.slaves:
-            raise ValueError(f"address {slave.address} is taken on this {self.kind}")
-        self.slaves[slave.address] = slave
-        return slave
+        return add_slave(self.slaves, slave, f"this {self.kind}")
 
     # -- life cycle ---------------------------------------------------------------------------
 
@@ -378,7 +361,7 @@ class SimTcpServer(_SimServer):
         return adu
 
 
-class SimSerialServer(_SimServer):
+class SimSerialServer(SegmentView, _SimServer):
     """A transparent serial device server with simulated slaves on its RS-485 port.
 
     ``settings`` are the serial port's. Bytes from a client are transmitted back to back
@@ -386,7 +369,8 @@ class SimSerialServer(_SimServer):
     frames at its own settings, after its turnaround, and its reply takes wire time before
     the server forwards it to the client that sent the request. ``log`` holds every frame
     with the silence before it; a request that follows the previous frame by less than
-    t3.5 is a violation, and the slaves ignore it. Slave faults work as on ``VirtualWire``.
+    t3.5 is a violation, and the slaves ignore it. The wire is a ``Segment``, as behind
+    ``VirtualWire``: slave faults work the same.
     """
 
     kind = "serial server"
@@ -402,175 +386,39 @@ class SimSerialServer(_SimServer):
     ) -> None:
         super().__init__(slaves, host=host, port=port)
         self.settings = settings or LineSettings()
-        self.log: deque[WireFrame] = deque(maxlen=log_size)
-        self.violations = 0
-        self.frames = 0
-        self._rx = bytearray()
-        self._rx_start = 0.0
-        self._rx_end = 0.0
-        self._rx_gap = (0.0, 0.0)
-        self._rx_collision = False
-        self._rx_client: _Client | None = None
-        self._quiet_from = 0.0
-        self._pending: deque[_Reply] = deque()
-        self._rng = random.Random(0)
-        self._wake = anyio.Event()
-        self._timer = PreciseTimer()
+        self.segment: Segment[_Client] = Segment(
+            _to_client,
+            lambda: self.settings,
+            slaves=self.slaves,
+            where=f"this {self.kind}",
+            log_size=log_size,
+            split_frames=True,
+            on_request=self._on_request,
+        )
 
     async def __aenter__(self) -> SimSerialServer:
         await super().__aenter__()
         return self
 
     def _start_tasks(self, tg: anyio.abc.TaskGroup) -> None:
-        tg.start_soon(self._responder, name="sim serial server responder")
+        tg.start_soon(self.segment.run, name="sim serial server responder")
 
     def _stopped(self) -> None:
-        self._timer.close()
-
-    # -- the request side: bytes from TCP go out on the wire ------------------------------------
+        self.segment.close()
 
     async def _serve(self, client: _Client) -> None:
         while data := await client.receive():
-            self._feed(client, data, monotonic())
+            self.segment.feed(data, monotonic(), self.settings, client)
 
-    def _feed(self, client: _Client, data: bytes, now: float) -> None:
-        tm = timing(self.settings)
-        if self._rx and (now > self._rx_end + tm.t15 or client is not self._rx_client):
-            self._finish("incomplete")
-        if not self._rx:
-            self._begin(client, max(now, self._rx_end))
-        self._rx += data
-        self._rx_end = self._rx_start + tm.frame_time(len(self._rx))
-        while self._rx:
-            n = self._complete_length()
-            if n is None:
-                return
-            rest = bytes(self._rx[n:])
-            del self._rx[n:]
-            self._rx_end = self._rx_start + tm.frame_time(n)
-            self._finish("")
-            if rest:  # the next frame follows back to back: no silence at all
-                self._begin(client, self._rx_end)
-                self._rx += rest
-                self._rx_end = self._rx_start + tm.frame_time(len(rest))
-
-    def _begin(self, client: _Client, start: float) -> None:
-        gap = start - self._quiet_from
-        # A slave still due to reply (slower than the client's timeout) collides with this
-        # frame: both are lost. That is the slave's fault, not a gap violation.
-        self._rx_collision = bool(self._pending)
-        for r in self._pending:
-            r.collided = True
-        self._rx_start = start
-        self._rx_gap = (gap, timing(self.settings).t35)
-        self._rx_client = client
-
-    def _complete_length(self) -> int | None:
-        rx = self._rx
-        if len(rx) < 2:
-            return None
-        slave = self.slaves.get(rx[0])
-        if slave is not None and slave.powered:
-            length = slave.request_length(bytes(rx[1:]))
-        else:
-            length = request_length(bytes(rx[1:]))
-        if length is None or len(rx) < length + 3:
-            return None
-        return length + 3
-
-    def _finish(self, note: str) -> None:
-        data = bytes(self._rx)
-        self._rx.clear()
-        client = self._rx_client
-        assert client is not None
-        gap, required = self._rx_gap
-        start, end = self._rx_start, self._rx_end
-        self._quiet_from = max(self._quiet_from, end)
+    def _on_request(self, client: _Client, note: str) -> str:
+        """Count a request; drop its connection instead if ``faults`` say so."""
         self._count_request()
         if not note and self.faults.take_drop():
-            note = "connection dropped"
             client.drop(reset=self.faults.reset)
-        targets = self._targets(data[0])
-        if not targets and not note:
-            note = "no slave"
-        heard = [sl for sl in targets if sl.settings == self.settings]
-        if targets and not heard and not note:
-            note = "settings mismatch"
-        if self._rx_collision and not note:
-            note = "collision"
-        if gap < required and not note:
-            note = "gap violation"
-        good_crc = crc_ok(data)
-        if heard and not good_crc and not note:
-            note = "bad crc"
-        self._log(WireFrame("request", data[0], data, start, end, self.settings, gap, required,
-                            note))
-        if note and note != "bad crc":
-            return  # garbage, lost sync or nobody to hear it: no answer
-        for sl in heard:
-            reply = sl.handle_pdu(data[1:-2], end) if good_crc else sl.on_bad_crc(data)
-            if reply is not None and data[0] != 0:
-                self._schedule(sl, reply, end, client)
+            return "connection dropped"
+        return note
 
-    def _targets(self, address: int) -> list[SimSlave]:
-        if address == 0:
-            return [sl for sl in self.slaves.values() if sl.powered]
-        sl = self.slaves.get(address)
-        return [sl] if sl is not None and sl.powered else []
 
-    def _log(self, f: WireFrame) -> None:
-        self.frames += 1
-        if f.violation:
-            self.violations += 1
-        self.log.append(f)
-
-    # -- the reply side: slaves answer on the wire, the server forwards to TCP ---------------
-
-    def _schedule(self, slave: SimSlave, reply_pdu: bytes, request_end: float,
-                  client: _Client) -> None:
-        faults = slave.faults.take()
-        if Fault.NO_REPLY in faults:
-            return
-        address = slave.address
-        if Fault.WRONG_ADDRESS in faults:
-            address = int(faults[Fault.WRONG_ADDRESS] or (address % 247) + 1)  # type: ignore[arg-type]
-        adu = frame(address, reply_pdu)
-        if Fault.CRC_DAMAGE in faults:
-            adu = adu[:-1] + bytes((adu[-1] ^ 0x5A,))
-        if Fault.GARBAGE in faults:
-            junk = faults[Fault.GARBAGE]
-            adu = (junk if isinstance(junk, bytes) else bytes((0xFF, 0x00, 0x55))) + adu
-        delay = slave.turnaround + float(faults.get(Fault.SLOW_REPLY) or 0.0)  # type: ignore[arg-type]
-        due = request_end + delay + timing(self.settings).frame_time(len(adu))
-        self._pending.append(_Reply(due, adu, client))
-        self._wake.set()
-
-    async def _responder(self) -> None:
-        while True:
-            if not self._pending:
-                await self._wake.wait()
-                self._wake = anyio.Event()
-                continue
-            await self._timer.sleep_until(self._pending[0].due)
-            reply = self._pending.popleft()
-            now = monotonic()
-            adu = reply.adu
-            start = now - timing(self.settings).frame_time(len(adu))
-            gap = start - self._quiet_from
-            self._quiet_from = max(self._quiet_from, now)
-            note = "collision" if reply.collided else ""
-            self._log(WireFrame("reply", adu[0], adu, start, now, self.settings, gap, 0.0, note))
-            data = bytes(self._rng.randrange(256) for _ in adu) if reply.collided else adu
-            await reply.client.send(data)  # a client that has gone just misses it
-
-    # -- checks for tests ------------------------------------------------------------------------
-
-    def requests(self) -> list[WireFrame]:
-        """Logged request frames, oldest first."""
-        return [f for f in self.log if f.direction == "request"]
-
-    def clear_log(self) -> None:
-        """Forget the log and the violation count."""
-        self.log.clear()
-        self.violations = 0
-        self.frames = 0
+async def _to_client(data: bytes, client: _Client) -> None:
+    """Forward reply bytes to the client that asked (one that has gone just misses them)."""
+    await client.send(data)

@@ -1,0 +1,398 @@
+"""Segment: the simulated RS-485 segment, whatever carries the master's bytes to it.
+
+A segment plays every attached ``SimSlave``. A front-end feeds it the master's bytes with
+their arrival time and the settings they were sent at (``feed``); the segment
+
+* assembles request frames, gives each its wire time (its byte count times the character
+  time) and the silence before it, and logs it with what went wrong: "no slave",
+  "settings mismatch", "collision", "gap violation", "bad crc", "incomplete";
+* lets the slaves that understood the frame act (a slave only understands frames sent at
+  its own settings; address 0 reaches every powered slave and nobody answers);
+* schedules their replies, with the slaves' ``FaultPlan`` faults applied, for the end of
+  the turnaround plus the reply's wire time; ``run`` hands each reply to the front-end's
+  ``deliver`` callback at that time, with the route the request came by.
+
+Front-ends: ``VirtualWire`` (a pty; settings observed from termios and a side channel)
+and ``SimSerialServer`` (RTU over TCP; the port's fixed settings, replies per client).
+"""
+
+from __future__ import annotations
+
+import random
+from collections import deque
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
+
+import anyio
+
+from drivebus.clock import PreciseTimer, monotonic
+from drivebus.line.rtu import crc_ok, frame
+from drivebus.pdu import request_length
+from drivebus.settings import LineSettings
+from drivebus.sim.slave import Fault, SimSlave
+from drivebus.timing import switch_silence, timing
+
+__all__ = ["Segment", "SegmentView", "WireFrame", "add_slave"]
+
+R = TypeVar("R")
+"""How a front-end routes a reply back to the master that asked (a connection, or None)."""
+
+_GARBAGE = bytes((0xFF, 0x00, 0x55))
+
+
+@dataclass(slots=True)
+class WireFrame:
+    """One frame on the simulated wire, as the wire observed it."""
+
+    direction: str  # "request" (master to slaves) or "reply"
+    address: int
+    data: bytes
+    start: float
+    end: float
+    settings: LineSettings
+    gap: float  # silence before this frame
+    required: float  # silence the wire rules require before it
+    note: str = ""  # "", "no slave", "settings mismatch", "bad crc", "incomplete", ...
+
+    @property
+    def violation(self) -> bool:
+        """True if the frame started before the required silence had passed."""
+        return self.gap < self.required
+
+
+def add_slave(slaves: dict[int, SimSlave], slave: SimSlave, where: str) -> SimSlave:
+    """Put ``slave`` in ``slaves`` at its address, which must be free on ``where``."""
+    if slave.address in slaves:
+        raise ValueError(f"address {slave.address} is taken on {where}")
+    slaves[slave.address] = slave
+    return slave
+
+
+class _Incoming(Generic[R]):
+    """A request frame being received: its bytes so far and their place on the wire."""
+
+    def __init__(
+        self,
+        start: float,
+        settings: LineSettings,
+        route: R,
+        *,
+        quiet_since: float,
+        previous: LineSettings | None,
+        collided: bool,
+    ) -> None:
+        self.start = start
+        self.end = start
+        self.settings = settings
+        self.route = route
+        self.gap = start - quiet_since
+        """The silence before the frame."""
+        self.required = switch_silence(previous, settings)
+        """The silence the wire rules require after traffic at ``previous`` settings."""
+        self.collided = collided
+        """A reply was still due: both are lost."""
+        self.data = bytearray()
+
+    def add(self, data: bytes) -> None:
+        """Append ``data``; the frame now ends after all its bytes' wire time."""
+        self.data += data
+        self.end = self.start + timing(self.settings).frame_time(len(self.data))
+
+    def cut(self, n: int) -> bytes:
+        """Keep the first ``n`` bytes as this frame; give back the rest."""
+        rest = bytes(self.data[n:])
+        del self.data[n:]
+        self.end = self.start + timing(self.settings).frame_time(n)
+        return rest
+
+
+@dataclass(eq=False)
+class _Reply(Generic[R]):
+    """A slave's reply due on the wire."""
+
+    due: float
+    adu: bytes
+    slave: SimSlave
+    route: R
+    collided: bool = False
+
+
+class Segment(Generic[R]):
+    """One simulated RS-485 segment with its slaves, wire log and pending replies.
+
+    ``deliver(data, route)`` sends reply bytes to the master (``route`` is what ``feed``
+    got with the request); ``master_settings()`` says what the master's port is set to
+    when a reply arrives (a master at other settings decodes noise). ``split_frames``:
+    the master's bytes reach the wire through a transmit buffer, as in a serial server,
+    so frames that arrive in one chunk go out back to back and a frame starts no earlier
+    than the previous one ended; without it, what arrives is on the wire at once, and
+    the bytes received when a frame is complete are that frame. ``on_request(route,
+    note)`` lets the front-end judge each finished request before the slaves hear it
+    (e.g. drop the connection): it returns the note to go on with.
+    """
+
+    def __init__(
+        self,
+        deliver: Callable[[bytes, R], Awaitable[object]],
+        master_settings: Callable[[], LineSettings],
+        *,
+        slaves: dict[int, SimSlave] | None = None,
+        where: str = "this segment",
+        log_size: int = 200_000,
+        split_frames: bool = False,
+        on_request: Callable[[R, str], str] | None = None,
+    ) -> None:
+        self.slaves: dict[int, SimSlave] = {} if slaves is None else slaves
+        """The slaves on the segment by address (the front-end's own table, if it gave one)."""
+        self.where = where
+        self.split_frames = split_frames
+        self.log: deque[WireFrame] = deque(maxlen=log_size)
+        self.violations = 0
+        self.frames = 0
+        self.request_count = 0
+        """Master frames seen since the segment started (not reset by ``clear_log``)."""
+        self._deliver = deliver
+        self._master_settings = master_settings
+        self._on_request = on_request
+        self._rx: _Incoming[R] | None = None
+        self._request_end = 0.0  # when the last request frame left the wire
+        self._busy_until = 0.0  # when the last frame of either direction did
+        self._last_settings: LineSettings | None = None
+        self._pending: deque[_Reply[R]] = deque()
+        self._wake: anyio.Event | None = None
+        self._changed: anyio.Event | None = None
+        self._timer = PreciseTimer()
+        self._rng = random.Random(0)
+
+    def attach(self, slave: SimSlave) -> SimSlave:
+        """Put ``slave`` on the segment; its address must be free."""
+        return add_slave(self.slaves, slave, self.where)
+
+    # -- the master's bytes -----------------------------------------------------------------
+
+    def feed(self, data: bytes, now: float, settings: LineSettings, route: R) -> None:
+        """Take bytes that reached the segment at ``now``, sent at ``settings`` by the master
+        reached through ``route``."""
+        rx = self._rx
+        if rx is not None and (
+            now > rx.end + timing(settings).t15 or settings != rx.settings or route is not rx.route
+        ):
+            self._finish("incomplete")
+        if self._rx is None:
+            start = max(now, self._request_end) if self.split_frames else now
+            self._rx = self._begin(start, settings, route)
+        self._rx.add(data)
+        while (rx := self._rx) is not None and (n := self._complete_length(rx.data)) is not None:
+            rest = rx.cut(n) if self.split_frames else b""
+            self._finish("")
+            if rest:  # the next frame follows back to back: no silence at all
+                self._rx = self._begin(self._request_end, settings, route)
+                self._rx.add(rest)
+
+    def _begin(self, start: float, settings: LineSettings, route: R) -> _Incoming[R]:
+        # A slave still due to reply (slower than the master's timeout) collides with this
+        # frame: both are lost. That is the slave's fault, not a gap violation.
+        for r in self._pending:
+            r.collided = True
+        return _Incoming(
+            start,
+            settings,
+            route,
+            quiet_since=self._busy_until,
+            previous=self._last_settings,
+            collided=bool(self._pending),
+        )
+
+    def _complete_length(self, rx: bytearray) -> int | None:
+        """How many bytes of ``rx`` make the request, once all of it is there (without
+        ``split_frames``: all of them)."""
+        if len(rx) < 2:
+            return None
+        slave = self.slaves.get(rx[0])
+        if slave is not None and slave.powered:
+            length = slave.request_length(bytes(rx[1:]))
+        else:
+            length = request_length(bytes(rx[1:]))
+        if length is None or len(rx) < length + 3:
+            return None
+        return len(rx) if not self.split_frames else length + 3
+
+    def _finish(self, note: str) -> None:
+        rx, self._rx = self._rx, None
+        assert rx is not None
+        data = bytes(rx.data)
+        self._request_end = rx.end
+        self._busy_until = max(self._busy_until, rx.end)
+        self._last_settings = rx.settings
+        if self._on_request is not None:
+            note = self._on_request(rx.route, note)
+        heard, note = self._hearers(data, rx, note)
+        self._log(WireFrame("request", data[0], data, rx.start, rx.end, rx.settings, rx.gap,
+                            rx.required, note))
+        if note and note != "bad crc":
+            return  # a slave that lost sync, or heard garbage, does not answer
+        good_crc = note != "bad crc"
+        for sl in heard:
+            reply = sl.handle_pdu(data[1:-2], rx.end) if good_crc else sl.on_bad_crc(data)
+            if reply is not None and data[0] != 0:
+                self._schedule(sl, reply, rx.end, rx.route)
+
+    def _hearers(self, data: bytes, rx: _Incoming[R], note: str) -> tuple[list[SimSlave], str]:
+        """The slaves that decode the request, and the note it gets (the first that applies)."""
+        address = data[0]
+        if address == 0:
+            targets = [sl for sl in self.slaves.values() if sl.powered]
+        else:
+            sl = self.slaves.get(address)
+            targets = [sl] if sl is not None and sl.powered else []
+            if not targets and not note:
+                note = "no slave"
+        heard = [sl for sl in targets if sl.settings == rx.settings]
+        if targets and not heard and not note:
+            note = "settings mismatch"
+        if rx.collided and not note:
+            note = "collision"
+        if rx.gap < rx.required and not note:
+            note = "gap violation"
+        if heard and not note and not crc_ok(data):
+            note = "bad crc"
+        return heard, note
+
+    # -- the slaves' replies ------------------------------------------------------------------
+
+    def _schedule(self, slave: SimSlave, reply_pdu: bytes, request_end: float, route: R) -> None:
+        faults = slave.faults.take()
+        if Fault.NO_REPLY in faults:
+            return
+        adu = _faulty_frame(slave.address, reply_pdu, faults)
+        delay = slave.turnaround + float(faults.get(Fault.SLOW_REPLY) or 0.0)  # type: ignore[arg-type]
+        due = request_end + delay + timing(slave.settings).frame_time(len(adu))
+        self._pending.append(_Reply(due, adu, slave, route))
+        if self._wake is not None:
+            self._wake.set()
+
+    async def run(self) -> None:
+        """Put each reply on the wire and deliver it at its due time, for ever (the
+        front-end runs this as a service task)."""
+        while True:
+            if not self._pending:
+                self._wake = anyio.Event()
+                await self._wake.wait()
+                continue
+            await self._timer.sleep_until(self._pending[0].due)
+            await self._send(self._pending.popleft())
+
+    async def _send(self, reply: _Reply[R]) -> None:
+        now = monotonic()
+        adu, settings = reply.adu, reply.slave.settings
+        note = ""
+        if reply.collided:
+            note = "collision"
+        elif self._master_settings() != settings:
+            note = "master at other settings"  # its UART decodes noise, not our frame
+        start = now - timing(settings).frame_time(len(adu))
+        gap = start - self._busy_until
+        self._busy_until = max(self._busy_until, now)
+        self._last_settings = settings
+        self._log(WireFrame("reply", adu[0], adu, start, now, settings, gap, 0.0, note))
+        data = bytes(self._rng.randrange(256) for _ in adu) if note else adu
+        await self._deliver(data, reply.route)
+
+    def close(self) -> None:
+        """Release the reply timer (once ``run`` has ended)."""
+        self._timer.close()
+
+    # -- the wire log -------------------------------------------------------------------------
+
+    def _log(self, f: WireFrame) -> None:
+        self.frames += 1
+        if f.violation:
+            self.violations += 1
+        self.log.append(f)
+        if f.direction == "request":
+            self.request_count += 1
+        if self._changed is not None:
+            self._changed.set()
+            self._changed = None
+
+    async def _wait(self, cond: Callable[[], bool]) -> None:
+        while not cond():
+            if self._changed is None:
+                self._changed = anyio.Event()
+            await self._changed.wait()
+
+    async def wait_requests(self, n: int) -> None:
+        """Return once ``n`` master frames in all have been seen."""
+        await self._wait(lambda: self.request_count >= n)
+
+    async def wait_frames(self, n: int) -> None:
+        """Return once ``n`` frames have been logged since the start or the last ``clear_log``."""
+        await self._wait(lambda: self.frames >= n)
+
+    def requests(self) -> list[WireFrame]:
+        """Logged master frames, oldest first."""
+        return [f for f in self.log if f.direction == "request"]
+
+    def clear_log(self) -> None:
+        """Forget the log and the violation count."""
+        self.log.clear()
+        self.violations = 0
+        self.frames = 0
+
+
+def _faulty_frame(address: int, pdu: bytes, faults: dict[Fault, Any]) -> bytes:
+    """The RTU frame of a reply with the slave's WRONG_ADDRESS, CRC_DAMAGE and GARBAGE
+    faults applied."""
+    if Fault.WRONG_ADDRESS in faults:
+        address = int(faults[Fault.WRONG_ADDRESS] or (address % 247) + 1)
+    adu = frame(address, pdu)
+    if Fault.CRC_DAMAGE in faults:
+        adu = adu[:-1] + bytes((adu[-1] ^ 0x5A,))
+    if Fault.GARBAGE in faults:
+        junk = faults[Fault.GARBAGE]
+        adu = (junk if isinstance(junk, bytes) else _GARBAGE) + adu
+    return adu
+
+
+class SegmentView:
+    """The wire log of a front-end's ``segment``, shown on the front-end itself."""
+
+    segment: Segment[Any]
+
+    @property
+    def log(self) -> deque[WireFrame]:
+        """Every frame on the wire, oldest first (bounded)."""
+        return self.segment.log
+
+    @property
+    def violations(self) -> int:
+        """Logged frames that came before the required silence had passed."""
+        return self.segment.violations
+
+    @property
+    def frames(self) -> int:
+        """Frames logged since the start or the last ``clear_log``."""
+        return self.segment.frames
+
+    @property
+    def request_count(self) -> int:
+        """Master frames seen since the start (not reset by ``clear_log``)."""
+        return self.segment.request_count
+
+    def requests(self) -> list[WireFrame]:
+        """Logged master frames, oldest first."""
+        return self.segment.requests()
+
+    def clear_log(self) -> None:
+        """Forget the log and the violation count."""
+        self.segment.clear_log()
+
+    async def wait_requests(self, n: int) -> None:
+        """Return once ``n`` master frames in all have been seen (tests synchronise on it)."""
+        await self.segment.wait_requests(n)
+
+    async def wait_frames(self, n: int) -> None:
+        """Return once ``n`` frames (requests and replies) have been logged since the start
+        or the last ``clear_log``."""
+        await self.segment.wait_frames(n)
