@@ -2,58 +2,27 @@
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Callable
-from contextlib import asynccontextmanager
+from contextlib import AbstractAsyncContextManager
 from typing import Any
 
-import anyio
 import pytest
 
 from drivebus import LineSettings
-from drivebus.drives.base import MoveParams
 from drivebus.drives.nt_family import EPR60Profile, NT86Profile
-from drivebus.drives.status import DriveStatus
 from drivebus.errors import LimitViolation, ModbusException, NotSupported
 from drivebus.line.rtu import crc_ok
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.drives.nt_family import SimEPR60
+from nt_helpers import FAST, QUICK, idle, nt_rig, sent, wait_for
 
-FAST = LineSettings.parse("115200 8N1")
-QUICK = MoveParams(speed_rpm=3000, accel_rps2=1000, decel_rps2=1000)
 HOMING = {"speed_rpm": 500, "creep_rpm": 200, "accel_rps2": 1000}
 
 
-@asynccontextmanager
-async def epr60(
+def epr60(
     sim: SimEPR60 | None = None, **opts: Any
-) -> AsyncIterator[tuple[VirtualWire, EPR60Profile, SimEPR60]]:
+) -> AbstractAsyncContextManager[tuple[VirtualWire, EPR60Profile, SimEPR60]]:
     """A twin on a 115200 8N1 sim bus and a set-up profile for it."""
-    sim = sim or SimEPR60(1)
-    async with sim_bus([sim], FAST) as (wire, bus):
-        profile = EPR60Profile(bus.slave(1), **opts)
-        await profile.setup()
-        wire.clear_log()
-        yield wire, profile, sim
-
-
-async def wait_for(
-    profile: EPR60Profile, pred: Callable[[DriveStatus], bool], timeout: float = 5.0
-) -> DriveStatus:
-    """Poll the drive through the profile until ``pred`` holds (bounded by ``timeout``)."""
-    with anyio.fail_after(timeout):
-        while True:
-            st = await profile.read_status()
-            if pred(st):
-                return st
-            await anyio.sleep(0.005)
-
-
-def idle(st: DriveStatus) -> bool:
-    return not st.moving and not st.homing
-
-
-def sent(wire: VirtualWire) -> list[str]:
-    return [f.data.hex(" ").upper() for f in wire.requests()]
+    return nt_rig(sim or SimEPR60(1), EPR60Profile, **opts)
 
 
 async def test_setup_writes_microstep_to_96_97_low_word_first() -> None:

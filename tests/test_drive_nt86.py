@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Callable
-from contextlib import asynccontextmanager
+from contextlib import AbstractAsyncContextManager
 from typing import Any
 
-import anyio
 import pytest
 
 from drivebus import LineSettings
@@ -17,43 +15,14 @@ from drivebus.errors import ConfigError, LimitViolation, ModbusException, NotSup
 from drivebus.line.rtu import crc_ok
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.drives.nt_family import SimNT86
-
-FAST = LineSettings.parse("115200 8N1")
-QUICK = MoveParams(speed_rpm=3000, accel_rps2=1000, decel_rps2=1000)
+from nt_helpers import FAST, QUICK, idle, nt_rig, sent, wait_for
 
 
-@asynccontextmanager
-async def nt86(
+def nt86(
     sim: SimNT86 | None = None, **opts: Any
-) -> AsyncIterator[tuple[VirtualWire, NT86Profile, SimNT86]]:
+) -> AbstractAsyncContextManager[tuple[VirtualWire, NT86Profile, SimNT86]]:
     """A twin on a 115200 8N1 sim bus and a set-up profile for it."""
-    sim = sim or SimNT86(1)
-    async with sim_bus([sim], FAST) as (wire, bus):
-        profile = NT86Profile(bus.slave(1), **opts)
-        await profile.setup()
-        wire.clear_log()
-        yield wire, profile, sim
-
-
-async def wait_for(
-    profile: NT86Profile, pred: Callable[[DriveStatus], bool], timeout: float = 5.0
-) -> DriveStatus:
-    """Poll the drive through the profile until ``pred`` holds (bounded by ``timeout``)."""
-    with anyio.fail_after(timeout):
-        while True:
-            st = await profile.read_status()
-            if pred(st):
-                return st
-            await anyio.sleep(0.005)
-
-
-def idle(st: DriveStatus) -> bool:
-    return not st.moving and not st.homing
-
-
-def sent(wire: VirtualWire) -> list[str]:
-    """Request frames on the wire, as the manual writes them."""
-    return [f.data.hex(" ").upper() for f in wire.requests()]
+    return nt_rig(sim or SimNT86(1), NT86Profile, **opts)
 
 
 def replies(wire: VirtualWire) -> list[str]:

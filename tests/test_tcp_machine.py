@@ -27,7 +27,6 @@ from drivebus import AxisState, Bus, LineSettings, open_machine
 from drivebus.config import MachineConfig, parse_config
 from drivebus.drives.base import MoveParams
 from drivebus.drives.nt_family import EPR60Profile
-from drivebus.drives.status import DriveStatus
 from drivebus.errors import DriveOffline
 from drivebus.line.rtu import crc_ok
 from drivebus.line.tcp import TcpLine
@@ -35,6 +34,7 @@ from drivebus.motion import Machine
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.drives.nt_family import SimEPR60
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
+from nt_helpers import idle, wait_for
 
 HOST = "127.0.0.1"
 FAST = LineSettings.parse("115200 8N1")
@@ -190,23 +190,6 @@ async def over_rtu(sim: SimEPR60 | None = None, **opts: Any) -> AsyncIterator[Ri
 
 
 # -- waiting -----------------------------------------------------------------------------------
-
-
-async def wait_for(
-    profile: EPR60Profile, pred: Callable[[DriveStatus], bool], timeout: float = 5.0
-) -> DriveStatus:
-    """Poll the drive through the profile until ``pred`` holds (bounded by ``timeout``)."""
-    with anyio.fail_after(timeout):
-        while True:
-            st = await profile.read_status()
-            if pred(st):
-                return st
-            await anyio.sleep(0.005)
-
-
-def idle(st: DriveStatus) -> bool:
-    """At rest: neither moving nor homing."""
-    return not st.moving and not st.homing
 
 
 # == 1. the manual's operations on the EPR60 over Modbus TCP ===================================

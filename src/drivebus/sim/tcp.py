@@ -370,7 +370,9 @@ class SimSerialServer(SegmentView, _SimServer):
     the server forwards it to the client that sent the request. ``log`` holds every frame
     with the silence before it; a request that follows the previous frame by less than
     t3.5 is a violation, and the slaves ignore it. The wire is a ``Segment``, as behind
-    ``VirtualWire``: slave faults work the same.
+    ``VirtualWire``: slave faults work the same, and ``log``, ``violations``,
+    ``requests()``, ``clear_log()``, ``wait_requests()`` and ``wait_frames()`` are the
+    segment's (``SegmentView`` comes first for that).
     """
 
     kind = "serial server"
