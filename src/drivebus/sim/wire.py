@@ -44,12 +44,18 @@ def lookup_wire(name: str) -> VirtualWire:
 class VirtualWire(SegmentView):
     """A simulated RS-485 line; use as ``async with VirtualWire("name") as wire``."""
 
-    def __init__(self, name: str, *, echo: bool = False, log_size: int = 200_000) -> None:
+    def __init__(
+        self, name: str, *, echo: bool = False, strict: bool = True, log_size: int = 200_000
+    ) -> None:
         self.name = name
         self.echo = echo
         """Send every master byte back, as adapters that hear their own transmitter do."""
         self.segment: Segment[None] = Segment(
-            self._to_master, self.observed_settings, where=f"wire {name!r}", log_size=log_size
+            self._to_master,
+            self.observed_settings,
+            where=f"wire {name!r}",
+            log_size=log_size,
+            strict=strict,
         )
         self.slave_path = ""
         self._master_fd = -1
