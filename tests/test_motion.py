@@ -310,3 +310,10 @@ async def test_group_prepares_every_axis_then_starts_them_back_to_back() -> None
         assert max(params) < min(starts)  # every axis prepared before any starts
         assert starts[-1] - starts[0] <= 3  # back to back (at most a poll in flight between)
         assert report.start_skew < 0.02
+
+
+async def test_group_move_by_moves_each_axis_from_where_it_is() -> None:
+    async with open_machine(machine(2)) as m:
+        await m.axes["a1"].move_to(5.0)
+        await m.group().move_by({"a1": 10.0, "a2": -3.0})
+        assert [m.sim_drives[n].position() for n in ("a1", "a2")] == [1500, -300]

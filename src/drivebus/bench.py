@@ -159,11 +159,11 @@ async def stop_latency(settings: LineSettings, stops: int, turnaround: float) ->
                     await anyio.sleep(rng.uniform(0.0, 0.02))
                     h = handles[i % 8]
                     t_call = time.monotonic()
-                    seen = wire.request_count
                     await h.write_register(10, i & 0xFFFF, priority=Priority.EMERGENCY)
-                    frames = [f for f in list(wire.log)[-(wire.request_count - seen) * 2 - 2 :]
-                              if f.direction == "request" and f.data[1] == 0x06]
-                    lat.append(frames[-1].start - t_call)
+                    # the newest write on the wire is this stop: only the stopper writes
+                    stop = next(f for f in reversed(wire.log)
+                                if f.direction == "request" and f.data[1] == 0x06)
+                    lat.append(stop.start - t_call)
                 tg.cancel_scope.cancel()
 
             async with anyio.create_task_group() as tg:

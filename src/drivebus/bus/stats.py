@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 from drivebus.clock import monotonic
 
@@ -59,8 +59,8 @@ class BusStats:
     def total(self) -> SlaveStats:
         """All slaves' counters added up."""
         t = SlaveStats()
+        counters = [f.name for f in fields(SlaveStats) if f.name != "last_error"]
         for s in self.slaves.values():
-            for name in ("transactions", "retries", "timeouts", "crc_errors", "exceptions",
-                         "wrong_responder", "connection_errors", "broadcasts"):
+            for name in counters:
                 setattr(t, name, getattr(t, name) + getattr(s, name))
         return t

@@ -37,6 +37,8 @@ class DriveProfile:
     family: ClassVar[str] = "generic"
     word_order: ClassVar[WordOrder] = WordOrder.HIGH_FIRST
     exception_texts: ClassVar[dict[int, str]] = {}
+    unsupported_reason: ClassVar[str] = ""
+    """Why the family lacks the procedures it does not override (said with each error)."""
     homing_methods: ClassVar[tuple[str, ...]] = ()
     """Names of the homing methods ``home()`` accepts, the first is the default."""
 
@@ -47,6 +49,7 @@ class DriveProfile:
 
     def unsupported(self, what: str, why: str = "") -> NotSupported:
         """The error for a procedure this drive lacks."""
+        why = why or self.unsupported_reason
         tail = f": {why}" if why else ""
         return NotSupported(f"the {self.family} drive cannot {what} over Modbus{tail}")
 

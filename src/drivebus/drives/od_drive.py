@@ -34,10 +34,10 @@ from typing import ClassVar
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveProfile, MoveParams
+from drivebus.drives.base import DriveProfile
 from drivebus.drives.registers import Access, Register, WordOrder, join_words
 from drivebus.drives.status import DriveIdentity, DriveStatus
-from drivebus.errors import ConfigError, FrameError, ModbusException, NotSupported
+from drivebus.errors import ConfigError, FrameError, ModbusException
 from drivebus.settings import LineSettings
 
 __all__ = [
@@ -290,6 +290,11 @@ class ODDriveProfile(DriveProfile):
     word_order: ClassVar[WordOrder] = WordOrder.HIGH_FIRST
     exception_texts: ClassVar[dict[int, str]] = EXCEPTION_TEXTS
     homing_methods: ClassVar[tuple[str, ...]] = ()
+    # Enable/disable, moves, speed run, stops and homing stay the base's NotSupported:
+    # no enable object (2006h only sets whether a disabled motor holds), no target, speed
+    # or ramp, and the inputs can be origin/limit/quick stop (2022h) but homing and
+    # stopping are the fieldbus master's.
+    unsupported_reason: ClassVar[str] = WHY_NO_MOTION
     default_settings: ClassVar[LineSettings] = DEFAULT_SETTINGS
 
     def __init__(self, slave: SlaveHandle, *, pulses_per_rev: int = 10000) -> None:
@@ -565,48 +570,3 @@ class ODDriveProfile(DriveProfile):
     async def restore_factory_settings(self) -> None:
         """Restore the factory parameters (2030h bit1)."""
         await self._command(0x2030, RESTORE_BIT)
-
-    # -- what the port cannot do ---------------------------------------------------------------
-
-    def _no_motion(self, what: str) -> NotSupported:
-        return self.unsupported(what, WHY_NO_MOTION)
-
-    async def enable(self) -> None:
-        """Not over this port: there is no enable object."""
-        raise self._no_motion("enable the motor")
-
-    async def disable(self) -> None:
-        """Not over this port (2006h only sets whether a disabled motor holds)."""
-        raise self._no_motion("disable the motor")
-
-    async def move_absolute(self, position: int, params: MoveParams) -> None:
-        """Not over this port: there is no target position."""
-        raise self._no_motion("make an absolute move")
-
-    async def move_relative(self, distance: int, params: MoveParams) -> None:
-        """Not over this port: there is no target position."""
-        raise self._no_motion("make a relative move")
-
-    async def speed_run(self, speed_rpm: float, accel_rps2: float, decel_rps2: float) -> None:
-        """Not over this port: there is no speed command or jog."""
-        raise self._no_motion("run at a set speed")
-
-    async def stop(self, decel_rps2: float | None = None) -> None:
-        """Not over this port: there is no stop command."""
-        raise self._no_motion("stop with deceleration")
-
-    async def emergency_stop(self) -> None:
-        """Not over this port (only an input wired as "quick stop", 2022h = 8)."""
-        raise self._no_motion("make an emergency stop")
-
-    async def home(
-        self,
-        method: str | None = None,
-        *,
-        speed_rpm: float = 60.0,
-        creep_rpm: float = 10.0,
-        accel_rps2: float = 10.0,
-        offset: int = 0,
-    ) -> None:
-        """Not over this port: inputs can be origin/limits (2022h), homing is the master's."""
-        raise self._no_motion("home")

@@ -532,7 +532,6 @@ class RtuOverTcpLine(_NetworkLine):
         if broadcast_delay < 0 or latency < 0:
             raise ConfigError("broadcast_delay and latency must be >= 0 seconds")
         self.settings = settings or LineSettings()
-        self.latency = latency
         self.broadcast_delay = broadcast_delay
         self.per_slave_settings = False
         self._lock = asyncio.Lock()

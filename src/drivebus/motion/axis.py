@@ -83,6 +83,7 @@ class Axis:
         self._busy: str | None = None
         self._commanded = False
         self._jog_deadline: float | None = None
+        self._watchdog_period: float | None = None
         self._watchers: list[_Latest] = []
         self.moves_done = 0
         self.command_started_at = 0.0

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import anyio
@@ -111,18 +111,27 @@ class AxisGroup:
                 f"({', '.join(self.axes)})"
             )
 
-    async def move_to(self, targets: Mapping[str, float]) -> GroupMoveReport:
-        """Move the named axes to their targets, starting and arriving together."""
-        self._check_names(targets)
-        for name, t in targets.items():
-            self.axes[name].check_limits(t)
-        starts: dict[str, float] = {}
+    async def _positions(self, names: Iterable[str]) -> dict[str, float]:
+        """The named axes' present positions (user units), read from the drives at once."""
+        found: dict[str, float] = {}
 
         async def read(axis: Axis) -> None:
             st = await axis._fresh_status()
-            starts[axis.name] = axis.units.from_pulses(st.position or 0)
+            found[axis.name] = axis.units.from_pulses(st.position or 0)
 
-        await self._each([self.axes[n] for n in targets], read)
+        await self._each([self.axes[n] for n in names], read)
+        return found
+
+    async def move_to(self, targets: Mapping[str, float]) -> GroupMoveReport:
+        """Move the named axes to their targets, starting and arriving together."""
+        self._check_names(targets)
+        return await self._move(targets, await self._positions(targets))
+
+    async def _move(
+        self, targets: Mapping[str, float], starts: Mapping[str, float]
+    ) -> GroupMoveReport:
+        for name, t in targets.items():
+            self.axes[name].check_limits(t)
         distances = {n: targets[n] - starts[n] for n in targets}
         limits = {n: self.axes[n].plan() for n in targets}
         duration, plans = synchronise(distances, limits)
@@ -180,11 +189,8 @@ class AxisGroup:
     async def move_by(self, distances: Mapping[str, float]) -> GroupMoveReport:
         """Move the named axes by their distances, together."""
         self._check_names(distances)
-        targets = {}
-        for name, d in distances.items():
-            st = await self.axes[name]._fresh_status()
-            targets[name] = self.axes[name].units.from_pulses(st.position or 0) + d
-        return await self.move_to(targets)
+        starts = await self._positions(distances)
+        return await self._move({n: starts[n] + d for n, d in distances.items()}, starts)
 
     async def home(self) -> None:
         """Home every axis of the group in parallel."""
