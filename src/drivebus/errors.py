@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 __all__ = [
+    "ArgumentError",
     "BusClosed",
     "ConfigError",
     "ConnectionLost",
@@ -33,6 +34,11 @@ class DrivebusError(Exception):
 
 class ConfigError(DrivebusError, ValueError):
     """A setting, argument or config file is invalid; the message names it."""
+
+
+class ArgumentError(DrivebusError, ValueError):
+    """A call argument is invalid (not finite, not whole, negative, out of range); the
+    message names the parameter, the value and what is allowed. Nothing was sent."""
 
 
 class TransactionError(DrivebusError):
