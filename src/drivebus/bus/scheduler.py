@@ -5,6 +5,8 @@ from __future__ import annotations
 import asyncio
 import heapq
 import itertools
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from enum import IntEnum
 from types import TracebackType
@@ -88,6 +90,8 @@ class Bus:
         self._timer = PreciseTimer()
         self._waiting_for: _Request | None = None
         self._in_flight: _Request | None = None
+        self._holds = 0
+        self._idle_waiters: list[asyncio.Future[None]] = []
         self._tg: ServiceTasks | None = None
         self._open = False
         self._handles: dict[int, SlaveHandle] = {}
@@ -159,6 +163,23 @@ class Bus:
         self._handles[address] = h
         return h
 
+    @asynccontextmanager
+    async def hold(self) -> AsyncIterator[None]:
+        """Keep the line quiet for a burst: enter once the transaction in flight has ended;
+        until the body ends only ``Priority.EMERGENCY`` requests go out, the rest wait
+        (requests the body queues go first after it, by priority). A group move holds its
+        lines so its start commands leave at a known moment, back to back."""
+        self._holds += 1
+        try:
+            if self._in_flight is not None:
+                waiter = asyncio.get_running_loop().create_future()
+                self._idle_waiters.append(waiter)
+                await waiter
+            yield
+        finally:
+            self._holds -= 1
+            self._wake_owner()
+
     # -- submitting ------------------------------------------------------------------------
 
     async def execute(
@@ -190,9 +211,12 @@ class Bus:
             handle.raise_exception(reply)
         return reply
 
-    def _kick(self, req: _Request) -> None:
+    def _wake_owner(self) -> None:
         if self._work is not None and not self._work.done():
             self._work.set_result(None)
+
+    def _kick(self, req: _Request) -> None:
+        self._wake_owner()
         waiting = self._waiting_for
         if waiting is not None and req < waiting:
             self._timer.wake()  # re-plan: a more urgent request came in during the silence
@@ -201,6 +225,10 @@ class Bus:
         queue, self._queue = self._queue, []
         if self._in_flight is not None:
             queue.append(self._in_flight)  # cut off mid-transaction: its caller must hear it
+        for waiter in self._idle_waiters:
+            if not waiter.done():
+                waiter.set_exception(exc)
+        self._idle_waiters.clear()
         for req in queue:
             if not req.future.done():
                 req.future.set_exception(exc)
@@ -220,6 +248,10 @@ class Bus:
                 if req.future.done():  # the caller gave up while queued
                     heapq.heappop(self._queue)
                     continue
+                if self._holds and req.priority < Priority.EMERGENCY:
+                    self._work = loop.create_future()
+                    await self._work  # held: only an emergency request or the end of it
+                    continue
                 ready = line.ready_at(req.handle.settings)
                 if ready > monotonic():
                     self._waiting_for = req
@@ -232,6 +264,10 @@ class Bus:
                 self._in_flight = req
                 await self._run_one(req)
                 self._in_flight = None
+                for waiter in self._idle_waiters:
+                    if not waiter.done():
+                        waiter.set_result(None)
+                self._idle_waiters.clear()
         except BaseException as exc:
             self._open = False
             if not isinstance(exc, LineClosed):

@@ -19,7 +19,22 @@ from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import NotSupported
 
-__all__ = ["DriveProfile", "MoveParams"]
+__all__ = ["DriveProfile", "MoveParams", "ramp_time_quantized"]
+
+_PROCEDURES: dict[str, str] = {
+    "enable": "enable the motor",
+    "disable": "disable the motor",
+    "move_absolute": "make an absolute move",
+    "move_relative": "make a relative move",
+    "speed_run": "run at a set speed",
+    "stop": "stop with deceleration",
+    "emergency_stop": "make an emergency stop",
+    "home": "home",
+    "clear_alarm": "clear an alarm",
+    "zero_position": "set its position to zero",
+    "save_parameters": "save parameters",
+}
+"""Procedures a profile may lack, and how its NotSupported error says them."""
 
 
 @dataclass(frozen=True)
@@ -29,6 +44,18 @@ class MoveParams:
     speed_rpm: float
     accel_rps2: float
     decel_rps2: float
+
+
+def ramp_time_quantized(params: MoveParams) -> MoveParams:
+    """``params`` as a drive with whole-rpm speeds and whole-millisecond ramp times runs them."""
+    rpm = float(round(abs(params.speed_rpm)))
+
+    def rate(rps2: float) -> float:
+        ms = round(rpm / 60.0 / rps2 * 1000.0) if rps2 > 0 else 0
+        return rpm / 60.0 / (ms / 1000.0) if ms > 0 and rpm > 0 else rps2
+
+    return MoveParams(rpm, rate(params.accel_rps2), rate(params.decel_rps2))
+
 
 
 class DriveProfile:
@@ -52,6 +79,58 @@ class DriveProfile:
         why = why or self.unsupported_reason
         tail = f": {why}" if why else ""
         return NotSupported(f"the {self.family} drive cannot {what} over Modbus{tail}")
+
+    def check_supported(self, procedure: str) -> None:
+        """``NotSupported`` if this drive cannot do ``procedure`` at all (no I/O).
+
+        The axis asks before it changes state, so a refused command leaves it as it was.
+        The default: a procedure the profile does not override is not supported; profiles
+        whose support depends on options (an opted-in input, say) extend this.
+        """
+        what = _PROCEDURES[procedure]
+        if getattr(type(self), procedure) is getattr(DriveProfile, procedure):
+            raise self.unsupported(what)
+
+    def volatile_settings(self) -> list[tuple[Register, int]]:
+        """The (register, value) pairs this profile wrote that a power cycle undoes.
+
+        ``setup()`` writes them (or the profile caches what it wrote since, like a position
+        mode); after the drive was unreachable or looks reset, the axis reads them back with
+        ``lost_settings()`` and runs ``setup()`` again before the next command if any differs.
+        """
+        return []
+
+    async def lost_settings(self, *, priority: Priority = Priority.COMMAND) -> list[str]:
+        """Names of the volatile settings the drive no longer holds (read back; [] = intact)."""
+        wanted = sorted(self.volatile_settings(), key=lambda rv: rv[0].address)
+        lost: list[str] = []
+        i = 0
+        while i < len(wanted):
+            first = wanted[i][0]
+            group = wanted[i : i + 1]
+            if first.contiguous:
+                end = first.address + first.words
+                for reg, value in wanted[i + 1 :]:
+                    if not reg.contiguous or reg.address != end:
+                        break  # only registers side by side: a gap may be unmapped
+                    group.append((reg, value))
+                    end += reg.words
+                words = await self.slave.read_holding_registers(
+                    first.address, end - first.address, priority=priority
+                )
+                seen = {
+                    r.address: r.decode(words[r.address - first.address :][: r.words])
+                    for r, _ in group
+                }
+            else:
+                seen = {first.address: await self.read(first, priority=priority)}
+            lost.extend(
+                f"{r.name} ({r.address}) = {seen[r.address]}, not {v}"
+                for r, v in group
+                if seen[r.address] != v
+            )
+            i += len(group)
+        return lost
 
     # -- register helpers (one register codec) -----------------------------------------------
 
@@ -131,6 +210,12 @@ class DriveProfile:
 
     def check_move(self, params: MoveParams) -> None:
         """LimitViolation if the drive cannot take ``params`` (no I/O; planners use it)."""
+
+    def quantize(self, params: MoveParams) -> MoveParams:
+        """The speed and ramps the drive really runs for ``params``, after its registers'
+        rounding (whole rpm, whole r/s² or whole-millisecond ramp times); no range check.
+        A group plans with these so that axes on different drives arrive together."""
+        return params
 
     async def move_absolute(self, position: int, params: MoveParams) -> None:
         """Start a move to ``position`` pulses; returns once the drive accepted it."""

@@ -17,7 +17,7 @@ from typing import ClassVar
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveProfile, MoveParams
+from drivebus.drives.base import DriveProfile, MoveParams, ramp_time_quantized
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation
@@ -164,6 +164,12 @@ _STATUS_BLOCK = (0x0003, 9)  # drive mode .. position low word, gap-free
 _MAX_PULSE_RATE = 200_000  # the drive's pulse output cap (L438-L439)
 
 
+def _input_function_register(index: int) -> Register:
+    """The function register of input terminal ``index`` (PU, DR, X0..X4)."""
+    return Register(f"{INPUT_TERMINALS[index]} input function",
+                    Regs.INPUT_FUNCTION_BASE + index, minimum=0, maximum=20)
+
+
 class BHSSProfile(DriveProfile):
     """Profile of the Bholanath BHSS-100-MBUS (Modbus RTU, 8N1/8N2/8E1/8O1).
 
@@ -279,10 +285,24 @@ class BHSSProfile(DriveProfile):
         if self.start_speed_rpm is not None:
             await self.write(Regs.START_SPEED, self.start_speed_rpm)
         for index, function in sorted(self.inputs.items()):
-            reg = Register(f"{INPUT_TERMINALS[index]} input function",
-                           Regs.INPUT_FUNCTION_BASE + index, minimum=0, maximum=20)
-            await self.write(reg, function)
+            await self.write(_input_function_register(index), function)
         await self._load_limit_bits()
+
+    def volatile_settings(self) -> list[tuple[Register, int]]:
+        """EEPROM write-through, resolution, bus control, start speed and the input
+        functions setup() wrote (a power cycle reloads the registers from EEPROM)."""
+        wanted = [
+            (Regs.EEPROM_UPDATE, 0 if self.eeprom_write_through else 1),
+            (Regs.MICROSTEP, MICROSTEP_TABLE.index(self.pulses_per_rev)),
+            (Regs.CONTROL_SOURCE, 0),
+        ]
+        if self.start_speed_rpm is not None:
+            wanted.append((Regs.START_SPEED, self.start_speed_rpm))
+        wanted.extend(
+            (_input_function_register(index), function)
+            for index, function in sorted(self.inputs.items())
+        )
+        return wanted
 
     async def _load_limit_bits(self) -> None:
         funcs = await self.slave.read_holding_registers(
@@ -348,6 +368,10 @@ class BHSSProfile(DriveProfile):
     async def disable(self) -> None:
         """Release the shaft: 0x0029 = 0."""
         await self.write(Regs.ENABLE, 0, priority=Priority.COMMAND)
+
+    def quantize(self, params: MoveParams) -> MoveParams:
+        """Whole rpm, and ramps as whole milliseconds to reach it (0x0021/0x0022)."""
+        return ramp_time_quantized(params)
 
     def check_move(self, params: MoveParams) -> None:
         """Range-check the speed and the ramp times a move would write."""

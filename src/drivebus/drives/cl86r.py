@@ -32,7 +32,7 @@ from typing import ClassVar
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveProfile, MoveParams
+from drivebus.drives.base import DriveProfile, MoveParams, ramp_time_quantized
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import LimitViolation
@@ -371,6 +371,11 @@ class CL86RProfile(DriveProfile):
         self._di_invert = words[0]
         self._di_functions = tuple(words[3:10])
 
+    def volatile_settings(self) -> list[tuple[Register, int]]:
+        """The pulses per revolution setup() wrote (0x0023; a power cycle restores the
+        EEPROM value)."""
+        return [(MICROSTEP, self.pulses_per_rev)]
+
     async def read_status(self, *, priority: Priority = Priority.POLL) -> DriveStatus:
         """One read of 0x0000-0x0009: mode, status word, error code, inputs, position, speed."""
         w = await self.slave.read_holding_registers(0, _MONITOR_WORDS, priority=priority)
@@ -415,6 +420,10 @@ class CL86RProfile(DriveProfile):
     async def disable(self) -> None:
         """Release the motor (free shaft): 0x0038 = 0."""
         await self.write(ENABLE, 0, priority=Priority.COMMAND)
+
+    def quantize(self, params: MoveParams) -> MoveParams:
+        """Whole rpm, and ramps as whole milliseconds to reach it (0x0031/0x0032)."""
+        return ramp_time_quantized(params)
 
     def check_move(self, params: MoveParams) -> None:
         """Range-check the speed and the ramp times a move would write."""

@@ -327,6 +327,37 @@ class NT86Profile(DriveProfile):
         self._position_mode = None
         self._jog_command = None
 
+    def volatile_settings(self) -> list[tuple[Register, int]]:
+        """17=0, 20 (0, or 1 while an EPR60 homes), pulses/rev, and the position mode (84)
+        once a move has set it: a power cycle reloads them from flash (84 powers up 0,
+        incremental, which would turn the next absolute move into a relative one)."""
+        r = self.regs
+        wanted = [
+            (r.command_source, 0),
+            (r.app_mode, self._expected_app_mode()),
+            (r.microstep, self.pulses_per_rev),
+        ]
+        if self._position_mode is not None:
+            wanted.append((r.position_mode, self._position_mode))
+        return wanted
+
+    def _expected_app_mode(self) -> int:
+        return 0
+
+    def check_supported(self, procedure: str) -> None:
+        """Enable/disable and alarm clearing exist only through the opted-in inputs."""
+        super().check_supported(procedure)
+        if procedure in ("enable", "disable") and self.enable_input is None:
+            raise self.unsupported(
+                "enable the motor" if procedure == "enable" else "disable the motor",
+                "it has no enable register; pass enable_input=N to toggle IN N's polarity",
+            )
+        if procedure == "clear_alarm" and self.clear_alarm_input is None:
+            raise self.unsupported(
+                "clear an alarm",
+                "it has no alarm-reset register; pass clear_alarm_input=N to pulse IN N",
+            )
+
     async def _assign_input(self, n: int, function: int) -> None:
         """Give IN n ``function`` (keeping its polarity bit) unless it has it already."""
         reg = self.regs.input_config[n - 1]
@@ -521,6 +552,14 @@ class NT86Profile(DriveProfile):
         if self._position_mode != mode:
             await self.write(self.regs.position_mode, mode, priority=Priority.COMMAND)
             self._position_mode = mode
+
+    def quantize(self, params: MoveParams) -> MoveParams:
+        """Whole rpm (72) and whole r/s² (70/71)."""
+        return MoveParams(
+            float(round(params.speed_rpm)),
+            float(round(params.accel_rps2)),
+            float(round(params.decel_rps2)),
+        )
 
     def check_move(self, params: MoveParams) -> None:
         """Range-check the speed and ramps of a move (registers 70-72)."""
@@ -732,6 +771,19 @@ class EPR60Profile(NT86Profile):
         self._app_mode = 0
         if self.home_input is not None:
             await self._assign_input(self.home_input, FUNC_START_HOMING)
+
+    def _expected_app_mode(self) -> int:
+        return self._app_mode if self._app_mode is not None else 0
+
+    def check_supported(self, procedure: str) -> None:
+        """Homing exists only through the opted-in start-homing input."""
+        super().check_supported(procedure)
+        if procedure == "home" and self.home_input is None:
+            raise self.unsupported(
+                "start homing",
+                "its manual documents no Modbus homing trigger; pass home_input=N to pulse "
+                "IN N's polarity bit (input function 12 'start homing')",
+            )
 
     async def _homing_trigger(self, priority: Priority) -> int | None:
         return None  # no 287 on the EPR60: completion is HOME=1 with MOV=0

@@ -477,6 +477,14 @@ class ODDriveProfile(DriveProfile):
             await self.write_object(ppr.index, ppr.sub, self.pulses_per_rev)
         await self.read_input_functions()
 
+    async def lost_settings(self, *, priority: Priority = Priority.COMMAND) -> list[str]:
+        """The microstep (2005h) setup() writes, read back through the 2000h frames."""
+        ppr = lookup_name("pulses_per_rev")
+        value = await self.read_object(ppr.index, ppr.sub, priority=priority)
+        return [] if value == self.pulses_per_rev else [
+            f"{ppr.label} = {value}, not {self.pulses_per_rev}"
+        ]
+
     async def read_input_functions(
         self, *, priority: Priority = Priority.CONFIG
     ) -> list[int]:

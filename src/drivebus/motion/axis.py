@@ -1,11 +1,24 @@
-"""Axis: one actor per axis that polls its drive, plus awaitable, cancellation-safe motion.
+"""Axis: the actor that owns one drive — its polls, its command stream and its safety rules.
 
-The actor task (``Axis.run``, owned by the machine's task group) polls the drive's status
-at ``Priority.POLL`` — fast while a motion is under way or someone waits, slow at rest —
-never with more than one poll of its own in flight. Each poll is published to waiting
-motion coroutines and ``watch()`` subscribers. Motion coroutines send their command,
-then wait for a status *polled after the command* that shows completion; they raise on
-alarm, limit, timeout or offline drive, and stop the axis (shielded) when cancelled.
+One actor task per axis (``Axis.run``, owned by the machine) polls the drive at
+``Priority.POLL`` (fast while a motion runs or someone waits, slow at rest; never two polls
+of its own in flight) and makes every state decision from what it polls: a motion is done,
+failed or over at the poll that shows it, so a later command from another task can never
+turn an outcome that was already decided into another one.
+
+Commands (``move_to``, ``home``, ``jog``, ``enable``, ...) may come from any task. They pass
+the axis's command lane one at a time, and a refused command (bad argument, wrong state,
+limit, not supported) changes nothing. A stop or an emergency stop never queues: it aborts
+the motion being prepared or under way (frames of it not yet on the wire are dropped, and
+its caller gets ``MotionAborted``), sends the stop at ``Priority.EMERGENCY`` once nothing of
+that motion can follow it onto the wire, and returns when a status polled after it shows
+the drive at rest.
+
+Limits are guarantees, not polls: a jog towards a soft limit runs as a position move to the
+limit, so the drive itself brakes to land on it; a hardware limit switch reached during a
+motion puts the axis in ErrorStop (``LimitViolation``) until ``reset()``, after which only
+motion away from the switch is allowed. A drive that was unreachable, or looks reset, has
+its volatile settings read back and set up again before the next command.
 """
 
 from __future__ import annotations
@@ -14,23 +27,29 @@ import logging
 import math
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Literal
 
 import anyio
 
+from drivebus import checks
 from drivebus.bus import Priority
 from drivebus.clock import monotonic
 from drivebus.config import AxisConfig
 from drivebus.drives.base import DriveProfile, MoveParams
 from drivebus.drives.status import DriveStatus
 from drivebus.errors import (
+    ArgumentError,
+    ConfigError,
     DriveAlarm,
     DrivebusError,
     DriveOffline,
     LimitViolation,
+    ModbusException,
     MotionAborted,
     MotionError,
     MotionTimeout,
+    NotSupported,
     StateError,
     TransactionError,
 )
@@ -41,7 +60,11 @@ __all__ = ["Axis", "MotionPlan"]
 
 log = logging.getLogger(__name__)
 
-_S = AxisState
+_STOP_TIMEOUT = 30.0
+"""Longest a stop waits for the drive to report rest before it raises MotionTimeout."""
+
+_RESET_GAP = 0.5
+"""A silence between two answered polls longer than this may have hidden a power cycle."""
 
 
 @dataclass(frozen=True)
@@ -63,31 +86,100 @@ class MotionPlan:
         return vp / a + vp / b
 
 
+MotionKind = Literal["move", "home", "jog"]
+
+
+@dataclass(eq=False)
+class _Motion:
+    """One motion of the axis, from its submission until the actor decides its outcome."""
+
+    kind: MotionKind
+    what: str
+    """What it is, for messages: "move to 12.5", "jog at -10", "homing"."""
+    prior: AxisState
+    """The state before it: where a refused motion leaves the axis."""
+    direction: int = 0
+    """Drive direction (+1 towards positive pulses, -1, 0 unknown or homing)."""
+    start: int | None = None
+    target: int | None = None
+    """Target in pulses (a move, or a jog bounded by a soft limit)."""
+    plan: MotionPlan | None = None
+    speed: float = 0.0
+    """A jog's signed speed in user units/s."""
+    committing: bool = False
+    """The start command was sent or is on its way: the drive may be moving."""
+    accepted_at: float | None = None
+    """When the drive acknowledged the start; statuses polled later judge the motion."""
+    seen_motion: bool = False
+    restarting: bool = False
+    """A jog being stopped and started again (new speed or direction): rest is no end."""
+    io: anyio.CancelScope | None = None
+    """Its command I/O while that runs: a stop cancels it."""
+    io_done: anyio.Event | None = None
+    """Set when the command I/O that ``io`` belongs to has ended."""
+    finished: anyio.Event = field(default_factory=anyio.Event)
+    outcome: BaseException | None = None
+
+    @property
+    def over(self) -> bool:
+        """True once its outcome is decided."""
+        return self.finished.is_set()
+
+    def finish(self, error: BaseException | None = None) -> None:
+        """Decide the outcome (the first decision wins) and cancel its I/O if it runs."""
+        if self.finished.is_set():
+            return
+        self.outcome = error
+        self.finished.set()
+        if self.io is not None:
+            self.io.cancel()
+
+
+@dataclass(eq=False)
+class _RestWait:
+    """A stop waiting for a status polled after ``after`` that shows the drive at rest."""
+
+    after: float
+    event: anyio.Event = field(default_factory=anyio.Event)
+    error: DrivebusError | None = None
+
+
+_REFUSALS = (LimitViolation, StateError, ArgumentError, NotSupported, ConfigError, ModbusException)
+"""Errors that mean nothing was started: raised before any frame, or the drive's own no."""
+
+
 class Axis:
-    """A named axis: a drive profile, user units, limits, state and its polling actor."""
+    """A named axis: a drive profile, user units, limits, state and its actor."""
 
     def __init__(self, name: str, config: AxisConfig, profile: DriveProfile) -> None:
         self.name = name
         self.config = config
         self.profile = profile
         self.units = Units(config.pulses_per_rev, config.units_per_rev)
-        self.state: AxisState = _S.STANDSTILL
+        self.state: AxisState = AxisState.STANDSTILL
         self.status: DriveStatus | None = None
         self.error: DrivebusError | None = None
         """What put the axis into ErrorStop or Offline."""
+        self.moves_done = 0
+        self.command_started_at = 0.0
+        """When the drive last accepted a motion's start command (for start skew)."""
+        self.arrived_at = 0.0
+        """When the poll that showed the last move complete was sent (for arrival spread)."""
         self._status_issued = 0.0  # when the poll behind ``status`` was sent
-        self._tick = anyio.Event()
+        self._last_answer = 0.0  # when the drive last answered a poll
         self._poke = anyio.Event()
-        self._waiters = 0
-        self._generation = 0  # bumped by every command: a waiter of an older one is aborted
-        self._busy: str | None = None
+        self._waiters = 0  # callers waiting on a poll: poll fast
+        self._lane = anyio.Lock()
+        self._motion: _Motion | None = None
+        self._rest_waits: list[_RestWait] = []
+        self._stop_sent_at = 0.0
+        self._stop_due: str | None = None  # the actor must send a stop (and why)
+        self._check_due = False  # read the volatile settings back before the next command
+        self._homed_lost = False
         self._commanded = False
         self._jog_deadline: float | None = None
         self._watchdog_period: float | None = None
         self._watchers: list[_Latest] = []
-        self.moves_done = 0
-        self.command_started_at = 0.0
-        """When the last motion command was accepted by the drive (for start skew)."""
 
     # -- reading -----------------------------------------------------------------------------
 
@@ -108,23 +200,28 @@ class Axis:
         st = self.status
         if st is None or st.velocity_rpm is None:
             return None
-        return self.units.from_rpm(st.velocity_rpm)
+        return self.units.from_rpm(st.velocity_rpm) * (1 if self.units.units_per_rev > 0 else -1)
+
+    @property
+    def homed(self) -> bool:
+        """True if the drive reports homed and has not lost its position since (a reset)."""
+        st = self.status
+        return st is not None and st.homed and not self._homed_lost
 
     def plan(
         self, speed: float | None = None, accel: float | None = None, decel: float | None = None
     ) -> MotionPlan:
-        """The axis's defaults with any of them overridden; checked against max_speed."""
+        """The axis's defaults with any of them overridden; checked (ArgumentError,
+        LimitViolation beyond max_speed). Values are magnitudes: > 0."""
         c = self.config
         p = MotionPlan(
-            abs(speed) if speed is not None else c.speed,
-            accel if accel is not None else c.accel,
-            decel if decel is not None else c.decel,
+            checks.positive("speed", speed, unit="units/s") if speed is not None else c.speed,
+            checks.positive("accel", accel, unit="units/s²") if accel is not None else c.accel,
+            checks.positive("decel", decel, unit="units/s²") if decel is not None else c.decel,
         )
-        if p.speed <= 0 or p.accel <= 0 or p.decel <= 0:
-            raise LimitViolation(f"axis {self.name}: speed, accel and decel must be > 0 ({p})")
         if c.max_speed is not None and p.speed > c.max_speed:
             raise LimitViolation(
-                f"axis {self.name}: speed {p.speed} exceeds max_speed {c.max_speed} units/s"
+                f"axis {self.name}: speed {p.speed:g} exceeds max_speed {c.max_speed:g} units/s"
             )
         return p
 
@@ -138,215 +235,420 @@ class Axis:
         lim = self.config.limits
         if lim is not None and not lim[0] <= target <= lim[1]:
             raise LimitViolation(
-                f"axis {self.name}: target {target} is outside the soft limits "
-                f"{lim[0]}..{lim[1]}"
+                f"axis {self.name}: target {target:g} is outside the soft limits "
+                f"{lim[0]:g}..{lim[1]:g}"
+            )
+
+    def _pulses(self, target: float) -> int:
+        """``target`` (user units, within the soft limits) as pulses that stay within them."""
+        p = self.units.to_pulses(target)
+        lim = self.config.limits
+        if lim is None:
+            return p
+        for candidate in (p, p - 1, p + 1):
+            if lim[0] <= self.units.from_pulses(candidate) <= lim[1]:
+                return candidate
+        return p  # a limit range narrower than one pulse: nothing better exists
+
+    def _drive_direction(self, user_direction: float) -> int:
+        """The pulse direction of a motion in user direction ``user_direction``."""
+        if user_direction == 0:
+            return 0
+        return 1 if (user_direction > 0) == (self.units.units_per_rev > 0) else -1
+
+    def _check_switch(self, direction: int, status: DriveStatus | None = None) -> None:
+        """LimitViolation if a hardware limit switch is active in drive ``direction``."""
+        st = status or self.status
+        if st is None or direction == 0:
+            return
+        if (direction > 0 and st.limit_positive) or (direction < 0 and st.limit_negative):
+            side = "positive" if direction > 0 else "negative"
+            raise LimitViolation(
+                f"axis {self.name}: the {side} limit switch is active; only motion away "
+                f"from it is allowed"
             )
 
     # -- the actor ------------------------------------------------------------------------------
 
     async def run(self) -> None:
-        """Poll the drive until cancelled; owned by the machine's task group."""
+        """Poll the drive and keep its safety rules until cancelled; owned by the machine."""
         fails = 0
         poll = self.config.poll
         next_poll = monotonic()
         while True:
-            fast = self.state in MOVING_STATES or self._waiters > 0
-            next_poll = min(next_poll, monotonic() + (poll.moving if fast else poll.idle))
+            fast = self.state in MOVING_STATES or self._waiters > 0 or self._motion is not None
+            period = poll.moving if fast else poll.idle
+            next_poll = min(next_poll, monotonic() + period)
             with anyio.move_on_after(max(0.0, next_poll - monotonic())):
                 await self._poke.wait()
             self._poke = anyio.Event()
             issued = monotonic()
-            next_poll = issued + (poll.moving if fast else poll.idle)
+            next_poll = issued + period
             try:
                 st = await self.profile.read_status(priority=Priority.POLL)
             except TransactionError as exc:
                 fails += 1
-                if fails >= poll.offline_after and self.state is not _S.OFFLINE:
-                    self.error = DriveOffline(
-                        f"axis {self.name}: drive {self.profile.family} at address "
-                        f"{self.profile.slave.address} stopped answering ({exc})"
-                    )
-                    self.state = _S.OFFLINE
-                    log.warning("%s", self.error)
-                    self._publish()
+                self._check_due = True  # it may be a power cycle
+                if fails >= poll.offline_after and self.state is not AxisState.OFFLINE:
+                    self._go_offline(exc)
                 continue
             fails = 0
-            orphaned = self.state is _S.OFFLINE and st.moving and self._busy is None
+            if self._last_answer and issued - self._last_answer > _RESET_GAP:
+                self._check_due = True
+            self._last_answer = monotonic()
             self._apply(st, issued)
-            if orphaned:
-                # Back from Offline and still moving with nobody's command waiting on it
-                # (the motion's caller already got DriveOffline): stop it.
-                log.warning("axis %s: drive answers again while moving: stopping it", self.name)
-                await self._send_stop(emergency=False)
-            await self._watchdogs()
+            await self._act()
+
+    def _go_offline(self, exc: TransactionError) -> None:
+        self.error = DriveOffline(
+            f"axis {self.name}: drive {self.profile.family} at address "
+            f"{self.profile.slave.address} stopped answering ({exc})"
+        )
+        self.state = AxisState.OFFLINE
+        log.warning("%s", self.error)
+        if self._motion is not None:
+            self._end_motion(self._motion, self.error, None)
+        for w in self._rest_waits:
+            w.error = self.error
+            w.event.set()
+        self._rest_waits.clear()
+        self._publish()
 
     def _apply(self, st: DriveStatus, issued: float) -> None:
-        if self.state is _S.OFFLINE:
+        """Take a polled status: decide motions, state and waiting stops (no I/O)."""
+        if issued < self._status_issued:
+            return  # an older read that finished late
+        prev = self.status
+        if self.state is AxisState.OFFLINE:
             log.info("axis %s: drive answers again", self.name)
             self.error = None
-            self.state = _S.STOPPING if st.moving else _S.STANDSTILL
-        if st.alarm and self.state is not _S.ERROR_STOP:
+            self.state = AxisState.STOPPING if st.moving else AxisState.STANDSTILL
+            self._check_due = True
+            if st.moving and self._motion is None:
+                # Back from Offline, still moving, and nobody's motion waits on it (its
+                # caller already got DriveOffline): stop it.
+                self._stop_due = "the drive answers again while moving with no command"
+        elif prev is not None and self._motion is None and not st.moving and not prev.moving and (
+            st.position != prev.position or (prev.homed and not st.homed)
+        ):
+            self._check_due = True  # moved or lost its home at rest: maybe reset
+        self.status, self._status_issued = st, issued
+        m = self._motion
+        if st.alarm and self.state is not AxisState.ERROR_STOP:
             self.error = DriveAlarm(
                 f"axis {self.name}: drive alarm {st.alarm_code}: {st.alarm_text}".rstrip(": "),
                 code=st.alarm_code,
                 text=st.alarm_text,
             )
-            self.state = _S.ERROR_STOP
-        elif not st.alarm and not st.enabled and self.state is not _S.ERROR_STOP:
-            self.state = _S.DISABLED
-        elif self.state is _S.STANDSTILL and st.moving and not self._busy:
-            self.state = _S.DISCRETE_MOTION  # moved by someone else (a panel, a PLC)
-        elif self._settled(st, issued):
-            self.state = _S.STANDSTILL
-        self.status = st
-        self._status_issued = issued
+            if m is not None:
+                self._end_motion(m, self.error, None)
+            self.state = AxisState.ERROR_STOP
+            if st.moving:
+                self._stop_due = "drive alarm"
+        elif m is not None:
+            if m.accepted_at is not None and not m.restarting and issued > m.accepted_at:
+                self._judge(m, st, issued)
+        elif self.state is AxisState.ERROR_STOP:
+            pass  # only reset() leaves it
+        elif not st.enabled and not st.moving:
+            self.state = AxisState.DISABLED
+        elif self.state is AxisState.DISABLED:
+            self.state = AxisState.STANDSTILL
+        elif self.state is AxisState.STANDSTILL and st.moving:
+            self.state = AxisState.DISCRETE_MOTION  # moved by someone else (a panel, a PLC)
+        elif self.state in (AxisState.STOPPING, AxisState.DISCRETE_MOTION) and not st.moving and (
+            issued > self._stop_sent_at
+        ):
+            self.state = AxisState.STANDSTILL
+        if not st.moving:
+            for w in [w for w in self._rest_waits if issued > w.after]:
+                w.event.set()
+                self._rest_waits.remove(w)
         self._publish()
 
-    def _settled(self, st: DriveStatus, issued: float) -> bool:
-        """True if a state the actor owns has come to rest (nobody's command waits on it)."""
-        if self.state is _S.DISABLED:
-            return st.enabled
-        resting = not st.moving and issued > self.command_started_at
-        if self.state is _S.STOPPING:
-            return resting
-        return self.state is _S.DISCRETE_MOTION and not self._busy and resting
+    def _judge(self, m: _Motion, st: DriveStatus, issued: float) -> None:
+        """Decide from a status polled after ``m`` started: done, failed, or going on."""
+        if st.moving:
+            m.seen_motion = True
+            if m.kind != "home" and self._switch_ahead(st, m.direction):
+                self._limit_hit(m, st)
+            return
+        if m.kind == "home":
+            if st.homed and not st.homing:
+                self._homed_lost = False
+                self._end_motion(m, None, AxisState.STANDSTILL)
+            return
+        tol = self.config.in_position_tolerance
+        at = m.target is None or st.position is None or abs(st.position - m.target) <= tol
+        switch = self._switch_ahead(st, m.direction)
+        late = issued > (m.accepted_at or 0.0) + max(0.25, 5 * self.config.poll.moving)
+        here = f"{self.units.from_pulses(st.position or 0):.4f}"
+        if m.kind == "move" and at:
+            if st.in_position:
+                self.moves_done += 1
+                self.arrived_at = issued
+                self._end_motion(m, None, AxisState.STANDSTILL)
+            return  # at the target, still settling
+        if m.kind == "jog" and m.target is not None and at:
+            log.info("axis %s: %s came to rest at the soft limit %s", self.name, m.what, here)
+            self._end_motion(m, None, AxisState.STANDSTILL)
+            return
+        started = m.seen_motion or (st.position is not None and st.position != m.start)
+        if switch and started:
+            self._limit_hit(m, st)
+        elif not started and not late:
+            return  # not yet moving: the drive has a moment to start
+        elif not started:
+            why: DrivebusError = (
+                LimitViolation(f"axis {self.name}: the drive did not start the {m.what}: the "
+                               f"{'positive' if m.direction > 0 else 'negative'} limit switch "
+                               f"is active")
+                if switch
+                else MotionError(f"axis {self.name}: the drive accepted the {m.what} but did "
+                                 f"not start it")
+            )
+            self._end_motion(m, why, AxisState.STANDSTILL)
+        elif m.kind == "jog":
+            log.info("axis %s: %s ended at %s", self.name, m.what, here)
+            self._end_motion(m, None, AxisState.STANDSTILL)
+        else:
+            self._end_motion(m, MotionError(
+                f"axis {self.name}: the drive stopped at {here}, short of the {m.what}"
+            ), AxisState.STANDSTILL)
+
+    @staticmethod
+    def _switch_ahead(st: DriveStatus, direction: int) -> bool:
+        return (direction > 0 and st.limit_positive) or (direction < 0 and st.limit_negative)
+
+    def _limit_hit(self, m: _Motion, st: DriveStatus) -> None:
+        side = "positive" if m.direction > 0 else "negative"
+        self.error = LimitViolation(
+            f"axis {self.name}: the {side} limit switch was reached at "
+            f"{self.units.from_pulses(st.position or 0):.4f} during the {m.what}; reset() "
+            f"the axis, then only motion away from the switch is allowed"
+        )
+        self._end_motion(m, self.error, AxisState.ERROR_STOP)
+        self._stop_due = f"{side} limit switch"
+
+    def _end_motion(self, m: _Motion, error: BaseException | None, state: AxisState | None) -> None:
+        """Decide ``m``'s outcome; the axis goes to ``state`` (None: leave it)."""
+        m.finish(error)
+        if self._motion is m:
+            self._motion = None
+            self._jog_deadline = None
+            if state is not None:
+                self.state = state
+
+    async def _act(self) -> None:
+        """What a poll asked for: a stop (limit, watchdog, alarm), a settings check."""
+        reason = self._stop_due
+        if (
+            reason is None
+            and self.state is AxisState.CONTINUOUS_MOTION
+            and self._jog_deadline is not None
+            and monotonic() > self._jog_deadline
+        ):
+            reason = "jog watchdog expired (the application stopped feeding it)"
+        if reason is not None:
+            self._stop_due = None
+            log.warning("axis %s: stopping: %s", self.name, reason)
+            await self._stop_now(reason)
+        st = self.status
+        if (
+            self._check_due
+            and self._motion is None
+            and not self._lane.locked()
+            and st is not None
+            and not st.moving
+        ):
+            try:
+                async with self._lane:
+                    await self._verify_settings()
+            except TransactionError as exc:
+                log.info("axis %s: settings check failed, trying again later: %s", self.name, exc)
+
+    async def _verify_settings(self) -> None:
+        """Read back the volatile settings; set the drive up again if a reset lost them."""
+        self._check_due = False
+        try:
+            lost = await self.profile.lost_settings()
+        except TransactionError:
+            self._check_due = True
+            raise
+        if lost:
+            log.warning("axis %s: the drive was reset (%s): setting it up again; its position "
+                        "is no longer homed", self.name, "; ".join(lost))
+            await self.profile.setup()
+            self._homed_lost = True
+            self._publish()
 
     def _publish(self) -> None:
-        tick, self._tick = self._tick, anyio.Event()
-        tick.set()
         if self.status is not None:
             for w in self._watchers:
                 w.put(self.status)
 
-    async def _watchdogs(self) -> None:
-        """Stop a jog whose application stopped feeding it, or that crossed a soft limit."""
-        if self.state is not _S.CONTINUOUS_MOTION:
-            return
-        reason = ""
-        if self._jog_deadline is not None and monotonic() > self._jog_deadline:
-            reason = "jog watchdog expired (the application stopped feeding it)"
-        lim, pos, st = self.config.limits, self.position, self.status
-        if lim is not None and pos is not None and st is not None and st.velocity_rpm is not None:
-            if (pos >= lim[1] and st.velocity_rpm > 0) or (pos <= lim[0] and st.velocity_rpm < 0):
-                reason = f"soft limit reached at {pos:.3f}"
-        elif lim is not None and pos is not None and not lim[0] <= pos <= lim[1]:
-            reason = f"soft limit reached at {pos:.3f}"
-        if reason:
-            log.warning("axis %s: stopping: %s", self.name, reason)
-            self._jog_deadline = None
-            await self._send_stop(emergency=False)
-
-    # -- waiting for the drive -------------------------------------------------------------------
-
     def _poke_now(self) -> None:
         self._poke.set()
 
-    async def _wait_until(
-        self,
-        cond: Callable[[DriveStatus], bool],
-        *,
-        after: float,
-        timeout: float,
-        what: str,
-        generation: int,
-    ) -> DriveStatus:
-        """Wait for a status polled after ``after`` that meets ``cond``."""
-        self._waiters += 1
-        self._poke_now()
-        try:
-            with anyio.fail_after(timeout):
-                while True:
-                    tick = self._tick
-                    await tick.wait()
-                    if generation != self._generation:
-                        raise MotionAborted(f"axis {self.name}: {what} aborted by {self._busy}")
-                    if self.state is _S.OFFLINE:
-                        raise self.error or DriveOffline(f"axis {self.name} is offline")
-                    st = self.status
-                    if st is None or self._status_issued < after:
-                        continue
-                    if st.alarm:
-                        raise self.error or DriveAlarm(f"axis {self.name}: drive alarm")
-                    if cond(st):
-                        return st
-        except TimeoutError:
-            st = self.status
-            last = "" if st is None else (
-                f" (last status: position {st.position}, moving={st.moving}, "
-                f"in_position={st.in_position}, homed={st.homed})"
-            )
-            raise MotionTimeout(
-                f"axis {self.name}: {what} did not complete within {timeout:.1f} s{last}"
-            ) from None
-        finally:
-            self._waiters -= 1
+    # -- the command lane ------------------------------------------------------------------------
 
-    def _begin(self, state: AxisState, what: str, allowed: frozenset[AxisState]) -> int:
-        if self.state not in allowed:
+    async def _exclusive(
+        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None
+    ) -> None:
+        """Run ``io`` alone on the axis; a motion's I/O can be cancelled by a stop."""
+        async with self._lane:
+            if motion is not None and motion.over:
+                raise motion.outcome or MotionAborted(f"axis {self.name}: {motion.what} aborted")
+            scope, done = anyio.CancelScope(), anyio.Event()
+            if motion is not None:
+                motion.io, motion.io_done = scope, done
+            try:
+                with scope:
+                    if self._check_due:
+                        await self._verify_settings()
+                    await io()
+            finally:
+                if motion is not None:
+                    motion.io = None
+                done.set()
+            if motion is not None and scope.cancelled_caught:
+                raise motion.outcome or MotionAborted(f"axis {self.name}: {motion.what} aborted")
+
+    def _begin(
+        self,
+        kind: MotionKind,
+        what: str,
+        state: AxisState,
+        *,
+        direction: int = 0,
+        allowed: frozenset[AxisState] = frozenset({AxisState.STANDSTILL}),
+    ) -> _Motion:
+        """Take the axis for a motion (no I/O: StateError leaves everything as it was)."""
+        if self.state not in allowed or self._motion is not None:
             detail = f" ({self.error})" if self.error is not None else ""
+            running = f"; the {self._motion.what} is under way" if self._motion else ""
             raise StateError(
-                f"axis {self.name}: cannot {what} in state {self.state}{detail}"
-                + (f"; {self._busy} is running" if self._busy else "")
+                f"axis {self.name}: cannot start the {what} in state {self.state}{detail}"
+                f"{running}"
             )
-        self._generation += 1
-        self._busy = what
-        self._commanded = True
+        m = _Motion(kind, what, self.state, direction=direction)
+        if self.status is not None:
+            m.start = self.status.position
+        self._motion = m
         self.state = state
         self._jog_deadline = None
-        return self._generation
+        return m
 
-    async def _fresh_status(self) -> DriveStatus:
-        st = await self.profile.read_status(priority=Priority.COMMAND)
-        self._apply(st, monotonic())
-        return st
-
-    async def _send_stop(self, *, emergency: bool) -> None:
-        """Send a stop; failures are logged (the caller is already failing or cancelled)."""
+    async def _run_motion(
+        self,
+        m: _Motion,
+        io: Callable[[], Awaitable[None]],
+        *,
+        timeout: float | None,
+        wait: bool = True,
+    ) -> None:
+        """Start ``m`` with ``io`` and (``wait``) await its outcome; clean up on any failure."""
         try:
-            if emergency:
-                await self.profile.emergency_stop()
+            await self._exclusive(io, motion=m)
+            if not wait:
+                return
+            self._waiters += 1
+            self._poke_now()
+            try:
+                with anyio.fail_after(timeout):
+                    await m.finished.wait()
+            except TimeoutError:
+                st = self.status
+                last = "" if st is None else (
+                    f" (last status: position {st.position}, moving={st.moving}, "
+                    f"in_position={st.in_position}, homed={st.homed})"
+                )
+                raise MotionTimeout(
+                    f"axis {self.name}: the {m.what} did not complete within {timeout:.1f} s"
+                    f"{last}"
+                ) from None
+            finally:
+                self._waiters -= 1
+            if m.outcome is not None:
+                raise m.outcome
+        except BaseException as exc:
+            with anyio.CancelScope(shield=True):
+                await self._after_failure(m, exc)
+            raise
+
+    async def _after_failure(self, m: _Motion, exc: BaseException) -> None:
+        """Leave the axis right after ``m`` failed: unchanged if nothing moved, else stopped."""
+        if m.over:
+            return  # decided by the actor or a stop, which also saw to the axis
+        maybe_moving = m.accepted_at is not None or (
+            m.committing and not isinstance(exc, _REFUSALS)
+        )
+        if maybe_moving:
+            await self._stop_now(f"the {m.what} failed: {exc!r}", error=exc)
+            return
+        m.finish(exc)
+        if self._motion is m:  # refused before anything moved: back to where it was
+            self._motion = None
+            self.state = m.prior
+            self._jog_deadline = None
+
+    async def _commit(self, m: _Motion, start: Callable[[], Awaitable[None]]) -> None:
+        """Send ``m``'s start command. After a lost reply, read back before deciding: a
+        start is never sent twice unless the drive shows it did not act on the first."""
+        before = self.status
+        m.committing = True
+        try:
+            await start()
+        except ModbusException:
+            raise  # the drive answered: it refused the start
+        except TransactionError as exc:
+            st = await self.refresh()
+            if st.moving or (before is not None and st.position != before.position):
+                log.info("axis %s: the %s was accepted (its reply was lost: %s)",
+                         self.name, m.what, exc)
             else:
-                await self.profile.stop(None)
+                log.info("axis %s: the %s was not executed (%s); sending it again",
+                         self.name, m.what, exc)
+                await start()
+        m.accepted_at = self.command_started_at = monotonic()
+        self._commanded = True
+        self._poke_now()
+
+    async def _stop_now(self, reason: str, *, error: BaseException | None = None) -> None:
+        """Abort the motion under way and send a decelerating stop, not waiting for rest.
+
+        For the actor (limit, watchdog, alarm) and for a motion whose caller failed or was
+        cancelled; errors are logged (the caller is already failing).
+        """
+        m = self._motion
+        if m is not None:
+            running = m.io is not None
+            self._end_motion(m, error or MotionAborted(
+                f"axis {self.name}: the {m.what} was stopped: {reason}"), None)
+            if running and m.io_done is not None:
+                await m.io_done.wait()
+        self._jog_deadline = None
+        try:
+            await self.profile.stop(None)
         except DrivebusError as exc:
             log.error("axis %s: stop failed: %s", self.name, exc)
             return
-        self.command_started_at = monotonic()
-        if self.state not in (_S.ERROR_STOP, _S.OFFLINE, _S.DISABLED):
-            self.state = _S.STOPPING
+        self._stop_sent_at = monotonic()
+        if self.state not in (AxisState.ERROR_STOP, AxisState.OFFLINE, AxisState.DISABLED):
+            self.state = AxisState.STOPPING
         self._poke_now()
 
-    @asynccontextmanager
-    async def _stop_on_failure(self) -> AsyncIterator[None]:
-        """Around a motion: on any failure or cancellation, stop the axis, then re-raise."""
-        mine = self._busy
-        try:
-            yield
-        except BaseException as exc:
-            with anyio.CancelScope(shield=True):
-                if not isinstance(exc, MotionAborted) and self.state in MOVING_STATES:
-                    await self._send_stop(emergency=False)
-            raise
-        finally:
-            if self._busy == mine:
-                self._busy = None
+    async def refresh(self) -> DriveStatus:
+        """Read the drive's status now (at command priority) and take it in."""
+        issued = monotonic()
+        st = await self.profile.read_status(priority=Priority.COMMAND)
+        self._apply(st, issued)
+        return st
 
-    # -- commands --------------------------------------------------------------------------------
+    # -- motion commands -------------------------------------------------------------------------
 
-    async def enable(self) -> None:
-        """Energise the motor (no-op if the drive already reports it enabled)."""
-        st = self.status or await self._fresh_status()
-        if st.enabled and not st.alarm:
-            return
-        await self.profile.enable()
-        await self._fresh_status()
-
-    async def disable(self) -> None:
-        """De-energise the motor (only at rest)."""
-        if self.state in MOVING_STATES:
-            raise StateError(f"axis {self.name}: stop before disabling ({self.state})")
-        await self.profile.disable()
-        self.state = _S.DISABLED
-        await self._fresh_status()
+    def _timeout(self, plan: MotionPlan, distance: float) -> float:
+        return plan.duration(distance) * 1.5 + 1.0 + 4 * self.config.poll.moving
 
     async def move_to(
         self,
@@ -362,9 +664,34 @@ class Axis:
         With ``ready``, the move is prepared on the drive, then ``ready()`` is awaited
         before the start command goes out (a group starts its axes back to back).
         """
-        self.check_limits(target)
+        target = checks.finite("target", target)
         plan = self.plan(speed, accel, decel)
-        await self._move(target, plan, relative=None, ready=ready)
+        self.check_limits(target)
+        self.profile.check_supported("move_absolute")
+        target_p = self._pulses(target)
+        params = self.drive_params(plan)
+        self.profile.check_move(params)
+        here = self.status.position if self.status is not None else None
+        direction = 0 if here is None else (target_p > here) - (target_p < here)
+        self._check_switch(direction)
+        m = self._begin("move", f"move to {target:g}", AxisState.DISCRETE_MOTION,
+                        direction=direction)
+        m.target, m.plan = target_p, plan
+
+        async def io() -> None:
+            if m.start is None:  # no status polled yet: find out where the drive is
+                st = await self.refresh()
+                m.start = st.position
+                if st.position is not None:
+                    m.direction = (target_p > st.position) - (target_p < st.position)
+                self._check_switch(m.direction, st)
+            await self.profile.prepare_absolute(target_p, params)
+            if ready is not None:
+                await ready()
+            await self._commit(m, self.profile.start_absolute)
+
+        distance = self.units.from_pulses(target_p - (m.start or 0))
+        await self._run_motion(m, io, timeout=self._timeout(plan, distance))
 
     async def move_by(
         self,
@@ -375,115 +702,66 @@ class Axis:
         decel: float | None = None,
     ) -> None:
         """Move by ``distance`` (user units) from the present position."""
+        distance = checks.finite("distance", distance)
         plan = self.plan(speed, accel, decel)
-        st = await self._fresh_status()
-        start = self.units.from_pulses(st.position or 0)
-        self.check_limits(start + distance)
-        await self._move(start + distance, plan, relative=distance)
+        self.profile.check_supported("move_relative")
+        params = self.drive_params(plan)
+        self.profile.check_move(params)
+        if self.position is not None:
+            self.check_limits(self.position + distance)
+        direction = self._drive_direction(distance)
+        self._check_switch(direction)
+        m = self._begin("move", f"move by {distance:g}", AxisState.DISCRETE_MOTION,
+                        direction=direction)
+        m.plan = plan
 
-    async def _move(
-        self,
-        target: float,
-        plan: MotionPlan,
-        *,
-        relative: float | None,
-        ready: Callable[[], Awaitable[None]] | None = None,
-    ) -> None:
-        gen = self._begin(_S.DISCRETE_MOTION, "move", frozenset({_S.STANDSTILL}))
-        async with self._stop_on_failure():
-            before = self.status
-            target_p = self.units.to_pulses(target)
-            params = self.drive_params(plan)
-            start_p = before.position if before is not None and before.position is not None else 0
-            distance = self.units.from_pulses(target_p - start_p)
-            timeout = plan.duration(distance) * 1.5 + 1.0 + 4 * self.config.poll.moving
-            t_cmd = monotonic()
-            if relative is None and ready is not None:
-                await self.profile.prepare_absolute(target_p, params)
-                await ready()
-                t_cmd = monotonic()
-                await self.profile.start_absolute()
-            elif relative is None:
-                await self.profile.move_absolute(target_p, params)
-            else:
-                await self._start_relative(self.units.to_pulses(relative), params, before)
-            self.command_started_at = monotonic()
-            tol = self.config.in_position_tolerance
-            seen_motion = False
-            start_by = self.command_started_at + max(0.25, 5 * self.config.poll.moving)
+        async def io() -> None:
+            st = await self.refresh()
+            start = st.position or 0
+            self.check_limits(self.units.from_pulses(start) + distance)
+            self._check_switch(direction, st)
+            target = self._pulses(self.units.from_pulses(start) + distance)
+            m.start, m.target = start, target
+            await self._commit(m, lambda: self.profile.move_relative(target - start, params))
 
-            def arrived(st: DriveStatus) -> bool:
-                nonlocal seen_motion
-                seen_motion = seen_motion or st.moving
-                if st.moving:
-                    return False
-                at = st.position is None or abs(st.position - target_p) <= tol
-                if at and st.in_position:
-                    return True
-                if not seen_motion and st.position == start_p and monotonic() > start_by:
-                    limits = [n for n, on in (("negative", st.limit_negative),
-                                              ("positive", st.limit_positive)) if on]
-                    why = f" ({' and '.join(limits)} limit switch active)" if limits else ""
-                    raise MotionError(
-                        f"axis {self.name}: the drive accepted the move to {target} but did "
-                        f"not start it{why}"
-                    )
-                if seen_motion and not at:
-                    side = (" at the positive limit" if st.limit_positive
-                            else " at the negative limit" if st.limit_negative else "")
-                    raise MotionError(
-                        f"axis {self.name}: drive stopped at "
-                        f"{self.units.from_pulses(st.position or 0):.4f}{side}, "
-                        f"short of the target {target}"
-                    )
-                return False
-
-            await self._wait_until(arrived, after=t_cmd, timeout=timeout, what="move",
-                                   generation=gen)
-            self.state = _S.STANDSTILL
-            self.moves_done += 1
-
-    async def _start_relative(
-        self, distance: int, params: MoveParams, before: DriveStatus | None
-    ) -> None:
-        """Send a relative move; after a lost reply, read back before deciding (no blind retry)."""
-        try:
-            await self.profile.move_relative(distance, params)
-        except TransactionError as exc:
-            st = await self._fresh_status()
-            moved = st.moving or (
-                before is not None and st.position is not None and st.position != before.position
-            )
-            if moved:
-                log.info("axis %s: relative move was accepted (reply lost: %s)", self.name, exc)
-                return
-            log.info("axis %s: relative move was not executed (%s); sending it again",
-                     self.name, exc)
-            await self.profile.move_relative(distance, params)
+        await self._run_motion(m, io, timeout=self._timeout(plan, distance))
 
     async def home(self) -> None:
         """Run the configured homing procedure; return when the drive reports homed."""
         h = self.config.homing
-        gen = self._begin(_S.HOMING, "home", frozenset({_S.STANDSTILL}))
-        async with self._stop_on_failure():
-            u = self.units
-            t_cmd = monotonic()
-            await self.profile.home(
+        self.profile.check_supported("home")
+        m = self._begin("home", "homing", AxisState.HOMING)
+        u = self.units
+
+        async def io() -> None:
+            await self._commit(m, lambda: self.profile.home(
                 h.method,
                 speed_rpm=u.to_rpm(h.speed),
                 creep_rpm=u.to_rpm(h.creep),
                 accel_rps2=u.to_rps2(h.accel),
                 offset=u.to_pulses(h.offset),
+            ))
+
+        await self._run_motion(m, io, timeout=h.timeout)
+
+    def _jog_bound(self, speed: float) -> int | None:
+        """Pulses of the soft limit a jog at ``speed`` runs towards (None: no limits)."""
+        lim = self.config.limits
+        if lim is None:
+            return None
+        return self._pulses(lim[1] if speed > 0 else lim[0])
+
+    def _check_jog_room(self, speed: float) -> None:
+        """LimitViolation if a jog at ``speed`` has no room before a limit (nothing sent)."""
+        self._check_switch(self._drive_direction(speed))
+        lim, pos = self.config.limits, self.position
+        if lim is not None and pos is not None and (
+            (speed > 0 and pos >= lim[1]) or (speed < 0 and pos <= lim[0])
+        ):
+            raise LimitViolation(
+                f"axis {self.name}: at the soft limit ({pos:.4f}), cannot jog "
+                f"{'up' if speed > 0 else 'down'} (limits {lim[0]:g}..{lim[1]:g})"
             )
-            self.command_started_at = monotonic()
-            await self._wait_until(
-                lambda st: st.homed and not st.homing and not st.moving,
-                after=t_cmd,
-                timeout=h.timeout,
-                what="homing",
-                generation=gen,
-            )
-            self.state = _S.STANDSTILL
 
     async def jog(
         self,
@@ -493,35 +771,95 @@ class Axis:
         decel: float | None = None,
         watchdog: float | None = 1.0,
     ) -> None:
-        """Run at ``speed`` units/s (sign = direction) until ``stop()``.
+        """Run at ``speed`` units/s (sign = direction) until ``stop()``; returns once running.
 
-        With a ``watchdog`` the application must call ``jog`` (or ``feed``) again within
-        that many seconds, or the actor stops the axis. Calling it while jogging changes
-        the speed.
+        With soft limits the jog is a position move to the limit in its direction, so it
+        comes to rest on the limit at the latest. With a ``watchdog`` the application must
+        call ``jog`` (or ``feed``) again within that many seconds, or the actor stops the
+        axis. Called again while jogging with the same values it feeds the watchdog; with
+        another speed or direction it changes the jog (towards a limit: by a stop and a new
+        start, the drives cannot retarget a position move while it runs).
         """
+        speed = checks.finite("speed", speed)
+        if watchdog is not None:
+            watchdog = checks.positive("watchdog", watchdog, unit="s")
         if speed == 0:
             await self.stop()
             return
-        plan = self.plan(speed, accel, decel)
-        lim, pos = self.config.limits, self.position
-        if lim is not None and pos is not None and (
-            (speed > 0 and pos >= lim[1]) or (speed < 0 and pos <= lim[0])
-        ):
-            raise LimitViolation(f"axis {self.name}: at soft limit {pos:.3f}, cannot jog that way")
-        self._begin(
-            _S.CONTINUOUS_MOTION, "jog", frozenset({_S.STANDSTILL, _S.CONTINUOUS_MOTION})
-        )
-        async with self._stop_on_failure():
-            p = self.drive_params(plan)
-            rpm = math.copysign(p.speed_rpm, speed)
-            await self.profile.speed_run(rpm, p.accel_rps2, p.decel_rps2)
-            self.command_started_at = monotonic()
-        self._jog_deadline = None if watchdog is None else monotonic() + watchdog
+        plan = self.plan(abs(speed), accel, decel)
+        self._check_jog_room(speed)
+        bound = self._jog_bound(speed)
+        procedure = "move_absolute" if bound is not None else "speed_run"
+        self.profile.check_supported(procedure)
+        params = self.drive_params(plan)
+        if bound is not None:
+            self.profile.check_move(params)
+        m = self._motion
+        if m is not None and m.kind == "jog" and self.state is AxisState.CONTINUOUS_MOTION:
+            if m.speed == speed and m.plan == plan:
+                self._arm_watchdog(watchdog)  # the same jog again: a feed
+                return
+            await self._change_jog(m, speed, plan, bound, watchdog)
+            return
+        m = self._begin("jog", f"jog at {speed:g}", AxisState.CONTINUOUS_MOTION,
+                        direction=self._drive_direction(speed))
+        m.speed, m.plan, m.target = speed, plan, bound
+        await self._run_motion(m, lambda: self._start_jog(m), timeout=None, wait=False)
+        self._arm_watchdog(watchdog)
+
+    async def _start_jog(self, m: _Motion) -> None:
+        assert m.plan is not None
+        params = self.drive_params(m.plan)
+        if m.target is not None:
+            await self.profile.prepare_absolute(m.target, params)
+            await self._commit(m, self.profile.start_absolute)
+            return
+        rpm = math.copysign(params.speed_rpm, m.direction)
+        await self._commit(m, lambda: self.profile.speed_run(
+            rpm, params.accel_rps2, params.decel_rps2))
+
+    async def _change_jog(
+        self, m: _Motion, speed: float, plan: MotionPlan, bound: int | None,
+        watchdog: float | None,
+    ) -> None:
+        """A running jog at a new speed or direction (a stop first where the drive needs it)."""
+        direction = self._drive_direction(speed)
+
+        async def io() -> None:
+            if bound is None and direction == m.direction:
+                params = self.drive_params(plan)
+                rpm = math.copysign(params.speed_rpm, direction)
+                await self.profile.speed_run(rpm, params.accel_rps2, params.decel_rps2)
+            else:
+                m.restarting = True
+                await self.profile.stop(None)
+                after = self._stop_sent_at = monotonic()
+                st = await self._wait_rest(after, f"the {m.what}'s change of speed")
+                self._check_switch(direction, st)
+                m.start, m.seen_motion, m.accepted_at = st.position, False, None
+                m.restarting = False
+                m.direction, m.target = direction, bound
+                m.plan, m.speed, m.what = plan, speed, f"jog at {speed:g}"
+                await self._start_jog(m)
+            m.plan, m.speed, m.what = plan, speed, f"jog at {speed:g}"
+
+        try:
+            await self._exclusive(io, motion=m)
+        except BaseException as exc:
+            m.restarting = False
+            with anyio.CancelScope(shield=True):
+                if not m.over:
+                    await self._stop_now(f"changing the jog failed: {exc!r}", error=exc)
+            raise
+        self._arm_watchdog(watchdog)
+
+    def _arm_watchdog(self, watchdog: float | None) -> None:
         self._watchdog_period = watchdog
+        self._jog_deadline = None if watchdog is None else monotonic() + watchdog
 
     def feed(self) -> None:
         """Keep a watchdog-guarded jog going for another watchdog period."""
-        if self._jog_deadline is not None and self.state is _S.CONTINUOUS_MOTION:
+        if self._jog_deadline is not None and self.state is AxisState.CONTINUOUS_MOTION:
             self._jog_deadline = monotonic() + (self._watchdog_period or 0.0)
 
     @asynccontextmanager
@@ -536,68 +874,158 @@ class Axis:
             with anyio.CancelScope(shield=True):
                 await self.stop()
 
+    # -- stopping --------------------------------------------------------------------------------
+
     async def stop(self, *, decel: float | None = None) -> None:
-        """Decelerating stop; returns when the drive reports standstill."""
-        await self._halt(emergency=False, decel=decel)
+        """Decelerating stop; returns when a status polled after it shows the drive at rest.
+
+        It aborts whatever motion is being prepared or under way (its caller gets
+        ``MotionAborted``); a later command from another task does not change its outcome.
+        """
+        decel_rps2 = None
+        if decel is not None:
+            decel_rps2 = self.units.to_rps2(checks.positive("decel", decel, unit="units/s²"))
+        await self._halt(emergency=False, decel_rps2=decel_rps2)
 
     async def halt_now(self) -> None:
-        """Emergency stop; returns when the drive reports standstill."""
-        await self._halt(emergency=True, decel=None)
+        """Emergency stop; returns when a status polled after it shows the drive at rest."""
+        await self._halt(emergency=True, decel_rps2=None)
 
-    async def _halt(self, *, emergency: bool, decel: float | None) -> None:
-        offline = self.state is _S.OFFLINE
-        if not offline and self.state in (_S.STANDSTILL, _S.DISABLED) and not (
-            self.status is not None and self.status.moving
+    async def _halt(self, *, emergency: bool, decel_rps2: float | None) -> None:
+        by = "halt_now()" if emergency else "stop()"
+        offline = self.state is AxisState.OFFLINE
+        m = self._motion
+        running = m is not None and m.io is not None
+        if m is not None:
+            self._end_motion(m, MotionAborted(f"axis {self.name}: the {m.what} was aborted by "
+                                              f"{by}"), None)
+        self._jog_deadline = None
+        moving = self.status is not None and self.status.moving
+        if m is None and not offline and not moving and self.state in (
+            AxisState.STANDSTILL, AxisState.DISABLED, AxisState.ERROR_STOP
         ):
             return
-        self._generation += 1  # whoever waits for a motion is aborted
-        self._busy = "halt_now()" if emergency else "stop()"
-        self._jog_deadline = None
+        if self.state not in (AxisState.ERROR_STOP, AxisState.OFFLINE, AxisState.DISABLED):
+            self.state = AxisState.STOPPING
+        if running and m is not None and m.io_done is not None:
+            await m.io_done.wait()  # nothing of the aborted motion can follow the stop now
         try:
-            t_cmd = monotonic()
-            try:
-                # Offline or not, the stop is sent: the drive may be back (a network blip)
-                # and a motor must not keep running because our polls failed.
-                if emergency:
-                    await self.profile.emergency_stop()
-                else:
-                    await self.profile.stop(None if decel is None else self.units.to_rps2(decel))
-            except TransactionError as exc:
-                if offline:
-                    raise (self.error or DriveOffline(f"axis {self.name} is offline")) from exc
-                raise
+            # Offline or not, the stop is sent: the drive may be back (a network blip) and a
+            # motor must not keep running because our polls failed.
+            if emergency:
+                await self.profile.emergency_stop()
+            else:
+                await self.profile.stop(decel_rps2)
+        except TransactionError as exc:
             if offline:
-                self.error = None
-            self.command_started_at = monotonic()
-            if self.state is not _S.ERROR_STOP:
-                self.state = _S.STOPPING
-            gen = self._generation
-            await self._wait_until(lambda st: not st.moving, after=t_cmd, timeout=30.0,
-                                   what="stop", generation=gen)
-            if self.state is _S.STOPPING:
-                self.state = _S.STANDSTILL
+                raise (self.error or DriveOffline(f"axis {self.name} is offline")) from exc
+            raise
+        self._stop_sent_at = after = monotonic()
+        await self._wait_rest(after, by)
+
+    async def _wait_rest(self, after: float, what: str) -> DriveStatus:
+        """Wait for a status polled after ``after`` that shows the drive at rest."""
+        w = _RestWait(after)
+        self._rest_waits.append(w)
+        self._waiters += 1
+        self._poke_now()
+        try:
+            with anyio.fail_after(_STOP_TIMEOUT):
+                await w.event.wait()
+        except TimeoutError:
+            raise MotionTimeout(
+                f"axis {self.name}: {what}: the drive still reports motion after "
+                f"{_STOP_TIMEOUT:.0f} s"
+            ) from None
         finally:
-            self._busy = None
+            self._waiters -= 1
+            if w in self._rest_waits:
+                self._rest_waits.remove(w)
+        if w.error is not None:
+            raise w.error
+        assert self.status is not None
+        return self.status
+
+    # -- other commands --------------------------------------------------------------------------
+
+    def _at_rest_or_raise(self, what: str) -> None:
+        if self._motion is not None or self.state in MOVING_STATES or (
+            self.status is not None and self.status.moving
+        ):
+            raise StateError(f"axis {self.name}: stop before you {what} ({self.state})")
+
+    async def enable(self) -> None:
+        """Energise the motor (no-op if the drive already reports it enabled)."""
+
+        async def io() -> None:
+            st = self.status or await self.refresh()
+            if st.enabled and not st.alarm:
+                return
+            self.profile.check_supported("enable")
+            await self.profile.enable()
+            await self.refresh()
+
+        await self._exclusive(io)
+
+    async def disable(self) -> None:
+        """De-energise the motor (only at rest)."""
+        self._at_rest_or_raise("disable the motor")
+        self.profile.check_supported("disable")
+
+        async def io() -> None:
+            self._at_rest_or_raise("disable the motor")
+            await self.profile.disable()
+            self.state = AxisState.DISABLED
+            await self.refresh()
+
+        await self._exclusive(io)
+
+    async def reset(self) -> None:
+        """Leave ErrorStop (PLCopen MC_Reset): clear the drive's alarm if it has one.
+
+        After a limit switch stopped the axis, only motion away from it is allowed.
+        ``DriveAlarm`` if the alarm stays; ``NotSupported`` if the drive cannot clear it.
+        """
+        self._at_rest_or_raise("reset the axis")
+
+        async def io() -> None:
+            self._at_rest_or_raise("reset the axis")
+            st = await self.refresh()
+            if st.alarm:
+                self.profile.check_supported("clear_alarm")
+                await self.profile.clear_alarm()
+                st = await self.refresh()
+                if st.alarm:
+                    raise DriveAlarm(
+                        f"axis {self.name}: alarm {st.alarm_code} is still active: "
+                        f"{st.alarm_text}",
+                        code=st.alarm_code,
+                        text=st.alarm_text,
+                    )
+            if self.state in (AxisState.ERROR_STOP, AxisState.STANDSTILL, AxisState.DISABLED):
+                self.error = None
+                self.state = AxisState.STANDSTILL if st.enabled else AxisState.DISABLED
+            self._publish()
+
+        await self._exclusive(io)
 
     async def reset_alarm(self) -> None:
-        """Clear the drive's alarm and leave ErrorStop (DriveAlarm if it stays)."""
-        await self.profile.clear_alarm()
-        st = await self._fresh_status()
-        if st.alarm:
-            raise DriveAlarm(
-                f"axis {self.name}: alarm {st.alarm_code} is still active: {st.alarm_text}",
-                code=st.alarm_code,
-                text=st.alarm_text,
-            )
-        self.error = None
-        self.state = _S.STANDSTILL if st.enabled else _S.DISABLED
+        """Clear the drive's alarm and leave ErrorStop (the same as ``reset()``)."""
+        await self.reset()
 
     async def zero_position(self) -> None:
         """Make the present position zero (at rest)."""
-        if self.state is not _S.STANDSTILL:
+        if self.state is not AxisState.STANDSTILL:
             raise StateError(f"axis {self.name}: cannot zero the position in state {self.state}")
-        await self.profile.zero_position()
-        await self._fresh_status()
+        self._at_rest_or_raise("zero the position")
+        self.profile.check_supported("zero_position")
+
+        async def io() -> None:
+            self._at_rest_or_raise("zero the position")
+            await self.profile.zero_position()
+            await self.refresh()
+
+        await self._exclusive(io)
 
     # -- watching ----------------------------------------------------------------------------------
 

@@ -1,35 +1,48 @@
-"""AxisGroup: several axes moved together so that they start and arrive together."""
+"""AxisGroup: several axes moved together so that they start and arrive together.
+
+Arriving together takes three things. Every axis is planned for the same duration with
+the lead axis's ramp fractions (``synchronise``). Each plan is then fitted to what its
+drive really runs: drives round speeds to whole rpm and ramps to whole r/s² or whole
+milliseconds, which alone can shift a short, slow move by tens of milliseconds, so the
+fit searches the drive's quantized values for the one closest to the duration. And the
+start commands, which share lines, leave in a known order while the group's lines are
+held quiet, so each axis's start delay behind the first is predicted from the wire
+timing and taken off its duration.
+"""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
+from contextlib import AsyncExitStack
 from dataclasses import dataclass
 
 import anyio
+import anyio.lowlevel
 
-from drivebus.errors import DrivebusError, LimitViolation
+from drivebus import checks
+from drivebus.bus import Bus
+from drivebus.clock import monotonic
+from drivebus.errors import ArgumentError, DrivebusError, LimitViolation
 from drivebus.motion.axis import Axis, MotionPlan
+from drivebus.settings import LineSettings
+from drivebus.timing import switch_silence, timing
 
 __all__ = ["AxisGroup", "GroupMotionError", "GroupMoveReport", "synchronise"]
 
-
-class _TooShort(Exception):
-    """A planned group duration is too short for one axis's own ramps."""
-
-
-class _Barrier:
-    """Every axis prepares its move, then all start together (the starts go back to back)."""
-
-    def __init__(self, parties: int) -> None:
-        self._left = parties
-        self._all_in = anyio.Event()
-
-    async def wait(self) -> None:
-        self._left -= 1
-        if self._left <= 0:
-            self._all_in.set()
-        await self._all_in.wait()
+_START_FRAME = 8
+"""Bytes of a start command and of its reply (an FC06 write on every seed drive)."""
+_TURNAROUND = 0.001
+"""Assumed reply delay of a drive to a start command, seconds."""
+_ARRIVAL_TOLERANCE = 0.002
+"""A planned arrival this close to the common one is good enough, seconds."""
+_STRETCH_LIMIT = 0.05
+"""A group is slowed by up to this (or 10 %) to suit a coarse-stepped drive; beyond it,
+that drive's start is delayed instead, seconds."""
+_HOLD_LEAD = 0.05
+"""A delayed start holds its line this long before, so no poll is in flight then, seconds."""
+_NETWORK_DELAY = 0.0003
+"""Assumed delay of a start command on a Modbus TCP line, seconds."""
 
 
 class GroupMotionError(DrivebusError):
@@ -42,13 +55,18 @@ class GroupMotionError(DrivebusError):
 
 @dataclass(frozen=True)
 class GroupMoveReport:
-    """What a synchronised move planned and how tightly the axes started."""
+    """What a synchronised move planned, how tightly the axes started and arrived."""
 
     duration: float
-    """Planned time from start to arrival, seconds."""
+    """Planned time from the first start to the common arrival, seconds."""
     start_skew: float
     """Time between the first and the last axis's start command being accepted, seconds."""
     plans: dict[str, MotionPlan]
+    arrival_spread: float = 0.0
+    """Time between the first and the last axis seen arrived by its polls, seconds (each
+    is known to within its poll period)."""
+    start_offsets: dict[str, float] | None = None
+    """Each axis's predicted start delay behind the first start, seconds."""
 
 
 def synchronise(
@@ -72,6 +90,7 @@ def synchronise(
     t_acc, t_dec = peak / lp.accel, peak / lp.decel
     if min_duration > total:  # stretch: same ramp times, every axis cruises slower
         total = min_duration
+    plans: dict[str, MotionPlan] = {}
     for _ in range(200):
         cruise = total - (t_acc + t_dec) / 2
         plans = {}
@@ -94,29 +113,161 @@ def synchronise(
     return total, plans
 
 
+def _speed_for(distance: float, duration: float, accel: float, decel: float) -> float | None:
+    """Cruise speed that covers ``distance`` in ``duration`` with these ramps (None: none)."""
+    k = 1 / (2 * accel) + 1 / (2 * decel)
+    disc = duration * duration - 4 * k * distance
+    if disc < 0:
+        return None
+    return (duration - math.sqrt(disc)) / (2 * k)
+
+
+def fit_plan(
+    axis: Axis, distance: float, duration: float, shape: MotionPlan, *, at_least: bool = False
+) -> MotionPlan:
+    """The plan closest to covering ``distance`` in ``duration`` that the axis's drive
+    really runs (its quantized speed and ramps), within the axis's limits and the drive's
+    register ranges. ``shape`` gives the preferred ramp proportions. ``at_least``: the
+    closest that takes no less than ``duration`` (a coarse drive sets the pace then).
+
+    ``LimitViolation`` if no plan fits the drive at all.
+    """
+    d = abs(distance)
+    own = axis.plan()
+    if d == 0:
+        return own
+    u, profile = axis.units, axis.profile
+    best: tuple[float, float, MotionPlan] | None = None
+    first_error: LimitViolation | None = None
+    seen: set[tuple[float, float, float]] = set()
+
+    def consider(v: float, a: float, b: float) -> None:
+        nonlocal best, first_error
+        if not (v > 0 and a > 0 and b > 0) or not all(map(math.isfinite, (v, a, b))):
+            return
+        q = profile.quantize(axis.drive_params(MotionPlan(v, a, b)))
+        key = (q.speed_rpm, q.accel_rps2, q.decel_rps2)
+        if key in seen or min(key) <= 0:
+            return
+        seen.add(key)
+        plan = MotionPlan(u.from_rpm(q.speed_rpm), u.from_rps2(q.accel_rps2),
+                          u.from_rps2(q.decel_rps2))
+        if (plan.speed > own.speed * 1.000001 or plan.accel > own.accel * 1.000001
+                or plan.decel > own.decel * 1.000001):
+            return
+        try:
+            profile.check_move(axis.drive_params(plan))
+        except LimitViolation as exc:
+            first_error = first_error or exc
+            return
+        error = plan.duration(d) - duration
+        if at_least and error < -1e-9:
+            return
+        error = abs(error)
+        deviation = abs(plan.speed - shape.speed) / shape.speed
+        if best is None or (error, deviation) < best[:2]:
+            best = (error, deviation, plan)
+
+    for a0, b0 in ((shape.accel, shape.decel), (own.accel, own.decel)):
+        ratio = b0 / a0
+        v0 = _speed_for(d, duration, a0, b0) or min(own.speed, shape.speed)
+        rpm0 = u.to_rpm(v0)
+        for step in range(-3, 8 if at_least else 4):
+            rpm = round(rpm0) - step if at_least else round(rpm0) + step
+            if rpm <= 0:
+                continue
+            v = u.from_rpm(rpm)
+            # Ramps (accel s, decel s * ratio) for exactly ``duration``: a triangle that
+            # never reaches v, or a trapezoid that cruises at v.
+            scales = [2 * d * (1 + ratio) / (ratio * duration * duration)]
+            k = (duration - d / v) / v
+            if k > 0:
+                scales.append((1 + 1 / ratio) / (2 * k))
+            for scale in scales:
+                for j in range(-12, 13):
+                    a = scale * (1 + 0.002 * j)
+                    consider(v, a, a * ratio)
+            consider(v, a0, b0)
+        consider(v0, a0, b0)
+    if best is None:
+        raise first_error or LimitViolation(
+            f"axis {axis.name}: no speed and ramps the drive can run cover {d:g} in "
+            f"{duration:.3f} s"
+        )
+    return best[2]
+
+
+class _StartGate:
+    """Every axis prepares its move and waits here; once all are in, the gate holds the
+    group's lines quiet and lets the axes send their start commands in the planned order.
+    An axis too slow-stepped to stretch its move starts later instead, by ``delays``."""
+
+    def __init__(
+        self, order: Sequence[str], buses: Mapping[str, Bus], delays: Mapping[str, float]
+    ) -> None:
+        self.order = list(order)
+        self.buses = buses
+        self.delays = delays
+        self._go = {n: anyio.Event() for n in self.order}
+        self._left = len(self.order)
+        self.all_in = anyio.Event()
+
+    async def ready(self, name: str) -> None:
+        """Called by each axis once its move is prepared; returns when it may start."""
+        self._left -= 1
+        if self._left <= 0:
+            self.all_in.set()
+        await self._go[name].wait()
+
+    async def open(self) -> None:
+        """Wait for every axis, hold the lines, release the axes in order."""
+        await self.all_in.wait()
+        opened = monotonic()
+        now = [n for n in self.order if self.delays.get(n, 0.0) <= 0]
+        await self._release(now)
+        for name in sorted(set(self.order) - set(now), key=self.delays.__getitem__):
+            at = opened + self.delays[name]
+            await anyio.sleep(max(0.0, at - _HOLD_LEAD - monotonic()))
+            await self._release([name], at)
+
+    async def _release(self, names: Sequence[str], at: float = 0.0) -> None:
+        async with AsyncExitStack() as stack:
+            for bus in dict.fromkeys(self.buses[n] for n in names):
+                await stack.enter_async_context(bus.hold())
+            await anyio.sleep(max(0.0, at - monotonic()))
+            for name in names:
+                self._go[name].set()
+            # The axes queue their start commands now, while the lines are held: they
+            # leave first, back to back, in this order.
+            await anyio.lowlevel.checkpoint()
+
+
 class AxisGroup:
     """Axes of one machine commanded together: ``machine.group("x", "y")``."""
 
     def __init__(self, axes: Sequence[Axis]) -> None:
         if not axes:
-            raise ValueError("a group needs at least one axis")
+            raise ArgumentError("a group needs at least one axis")
         self.axes = {a.name: a for a in axes}
         self.last_report: GroupMoveReport | None = None
 
-    def _check_names(self, targets: Mapping[str, float]) -> None:
-        unknown = set(targets) - set(self.axes)
+    def _check(self, values: Mapping[str, float], what: str) -> dict[str, float]:
+        unknown = set(values) - set(self.axes)
         if unknown:
-            raise DrivebusError(
+            raise ArgumentError(
                 f"axes {', '.join(sorted(unknown))} are not in this group "
                 f"({', '.join(self.axes)})"
             )
+        if not values:
+            raise ArgumentError(f"{what}: no axes given")
+        return {n: checks.finite(f"{what}[{n!r}]", v) for n, v in values.items()}
 
     async def _positions(self, names: Iterable[str]) -> dict[str, float]:
         """The named axes' present positions (user units), read from the drives at once."""
         found: dict[str, float] = {}
 
         async def read(axis: Axis) -> None:
-            st = await axis._fresh_status()
+            st = await axis.refresh()
             found[axis.name] = axis.units.from_pulses(st.position or 0)
 
         await self._each([self.axes[n] for n in names], read)
@@ -124,73 +275,112 @@ class AxisGroup:
 
     async def move_to(self, targets: Mapping[str, float]) -> GroupMoveReport:
         """Move the named axes to their targets, starting and arriving together."""
-        self._check_names(targets)
+        targets = self._check(targets, "targets")
+        for name, t in targets.items():
+            self.axes[name].check_limits(t)
         return await self._move(targets, await self._positions(targets))
+
+    async def move_by(self, distances: Mapping[str, float]) -> GroupMoveReport:
+        """Move the named axes by their distances, together."""
+        distances = self._check(distances, "distances")
+        starts = await self._positions(distances)
+        targets = {n: starts[n] + d for n, d in distances.items()}
+        for name, t in targets.items():
+            self.axes[name].check_limits(t)
+        return await self._move(targets, starts)
+
+    def _start_order(self, names: Iterable[str]) -> dict[str, float]:
+        """Start order (the returned dict's order) and each axis's predicted delay from
+        the moment the gate opens to its drive receiving the start command.
+
+        On a serial line the start commands follow each other: an axis's delay is the
+        wire time of the starts before it, with their replies and silences. The shortest
+        transactions go first, so the last axis waits as little as possible.
+        """
+        by_bus: dict[int, list[Axis]] = {}
+        for n in names:
+            ax = self.axes[n]
+            by_bus.setdefault(id(ax.profile.slave.bus), []).append(ax)
+        offsets: dict[str, float] = {}
+        for axes in by_bus.values():
+            line_settings = axes[0].profile.slave.bus.line.settings
+            if line_settings is None:  # Modbus TCP: the starts go out at once
+                for i, ax in enumerate(axes):
+                    offsets[ax.name] = _NETWORK_DELAY * (i + 1)
+                continue
+            at = {ax.name: ax.profile.slave.settings or line_settings for ax in axes}
+            axes.sort(key=lambda ax: timing(at[ax.name]).transaction_time(
+                _START_FRAME, _START_FRAME, _TURNAROUND))
+            t = timing(at[axes[0].name]).t35 / 2  # the silence after the last frame, on average
+            previous: LineSettings | None = None
+            for ax in axes:
+                s = at[ax.name]
+                if previous is not None:
+                    t += switch_silence(previous, s)
+                tm = timing(s)
+                offsets[ax.name] = t + tm.frame_time(_START_FRAME)
+                t += tm.frame_time(_START_FRAME) * 2 + _TURNAROUND
+                previous = s
+        return {n: offsets[n] for n in sorted(offsets, key=offsets.__getitem__)}
 
     async def _move(
         self, targets: Mapping[str, float], starts: Mapping[str, float]
     ) -> GroupMoveReport:
-        for name, t in targets.items():
-            self.axes[name].check_limits(t)
         distances = {n: targets[n] - starts[n] for n in targets}
         limits = {n: self.axes[n].plan() for n in targets}
-        duration, plans = synchronise(distances, limits)
-        for _ in range(50):  # every plan is checked before any axis moves
-            try:
-                plans = {
-                    n: self._drive_ready(self.axes[n], distances[n], duration, plans[n])
-                    for n in targets
-                }
+        duration, shapes = synchronise(distances, limits)
+        offsets = self._start_order(targets)
+        moving = [n for n in targets if distances[n] != 0]
+        total = max(
+            (limits[n].duration(distances[n]) + offsets[n] for n in moving), default=0.0
+        )
+        total = max(total, duration)
+        plans = {n: limits[n] for n in targets}
+        miss: dict[str, float] = {}
+        for _ in range(8):  # every plan is checked against its drive before any axis moves
+            for n in moving:
+                plans[n] = fit_plan(self.axes[n], distances[n], total - offsets[n], shapes[n])
+            miss = {n: plans[n].duration(distances[n]) + offsets[n] - total for n in moving}
+            late = [n for n in moving if miss[n] > _ARRIVAL_TOLERANCE]
+            if late:  # its drive cannot run quite that fast: it sets the pace
+                total += max(miss[n] for n in late)
+                continue
+            early = [n for n in moving if miss[n] < -_ARRIVAL_TOLERANCE]
+            if not early:
                 break
-            except _TooShort:
-                duration, plans = synchronise(distances, limits, duration * 1.1)
-        else:
-            raise LimitViolation("group move: no common duration fits every drive's ramps")
-
-        barrier = _Barrier(len(targets))
+            # A drive too coarse-stepped to hit the duration: the next duration it can
+            # run that is no shorter, if that costs little; else it starts later.
+            n = min(early, key=miss.__getitem__)
+            try:
+                slower = fit_plan(self.axes[n], distances[n], total - offsets[n], shapes[n],
+                                  at_least=True)
+            except LimitViolation:
+                break
+            longer = slower.duration(distances[n]) + offsets[n]
+            if longer - total > max(_STRETCH_LIMIT, 0.1 * total):
+                break
+            total = max(total + 1e-4, longer)
+        delays = {n: -miss[n] for n in moving if miss.get(n, 0.0) < -_ARRIVAL_TOLERANCE}
+        buses = {n: self.axes[n].profile.slave.bus for n in targets}
+        gate = _StartGate(list(offsets), buses, delays)
 
         async def move(axis: Axis) -> None:
             p = plans[axis.name]
             await axis.move_to(targets[axis.name], speed=p.speed, accel=p.accel, decel=p.decel,
-                               ready=barrier.wait)
+                               ready=lambda: gate.ready(axis.name))
 
-        await self._each([self.axes[n] for n in targets], move)
+        arrived: dict[str, float] = {}
+
+        async def move_and_note(axis: Axis) -> None:
+            await move(axis)
+            arrived[axis.name] = axis.arrived_at
+
+        await self._each([self.axes[n] for n in targets], move_and_note, also=gate.open)
         times = [self.axes[n].command_started_at for n in targets]
-        report = GroupMoveReport(duration, max(times) - min(times), plans)
+        spread = max(arrived.values()) - min(arrived.values()) if arrived else 0.0
+        report = GroupMoveReport(total, max(times) - min(times), plans, spread, offsets)
         self.last_report = report
         return report
-
-    @staticmethod
-    def _drive_ready(axis: Axis, distance: float, duration: float, plan: MotionPlan) -> MotionPlan:
-        """``plan`` if the drive takes it; else the same duration with the axis's own ramps.
-
-        Scaling an axis down to the lead's ramp fractions can ask for a ramp below what
-        its drive can do (a minimum acceleration, a longest ramp time). Then it ramps at
-        its configured rate and cruises slower, arriving at the same time.
-        """
-        try:
-            axis.profile.check_move(axis.drive_params(plan))
-            return plan
-        except LimitViolation:
-            own = axis.plan()
-        d = abs(distance)
-        # d = v * (T - v/(2a) - v/(2b))  ->  v = (T - sqrt(T² - 2 d k)) / k, k = 1/(2a)+1/(2b)
-        if d == 0:
-            return own
-        k = 1 / (2 * own.accel) + 1 / (2 * own.decel)
-        disc = duration * duration - 4 * k * d
-        if disc < 0:
-            raise _TooShort  # even at its own ramps it cannot get there in time
-        v = (duration - math.sqrt(disc)) / (2 * k)
-        fallback = MotionPlan(v, own.accel, own.decel)
-        axis.profile.check_move(axis.drive_params(fallback))  # raises, naming the register
-        return fallback
-
-    async def move_by(self, distances: Mapping[str, float]) -> GroupMoveReport:
-        """Move the named axes by their distances, together."""
-        self._check_names(distances)
-        starts = await self._positions(distances)
-        return await self._move({n: starts[n] + d for n, d in distances.items()}, starts)
 
     async def home(self) -> None:
         """Home every axis of the group in parallel."""
@@ -200,8 +390,15 @@ class AxisGroup:
         """Stop every axis of the group in parallel."""
         await self._each(list(self.axes.values()), lambda a: a.stop())
 
-    async def _each(self, axes: Sequence[Axis], fn: Callable[[Axis], Awaitable[None]]) -> None:
-        """Run ``fn`` on every axis at once; the first failure stops the rest and is raised."""
+    async def _each(
+        self,
+        axes: Sequence[Axis],
+        fn: Callable[[Axis], Awaitable[None]],
+        *,
+        also: Callable[[], Awaitable[None]] | None = None,
+    ) -> None:
+        """Run ``fn`` on every axis at once (and ``also``); the first failure stops the
+        rest and is raised as a ``GroupMotionError`` naming its axis."""
         failure: list[tuple[str, BaseException]] = []
 
         async def one(axis: Axis, scope: anyio.CancelScope) -> None:
@@ -212,9 +409,20 @@ class AxisGroup:
                     failure.append((axis.name, exc))
                 scope.cancel()  # the others' motions are cancelled: each stops its axis
 
+        async def helper(scope: anyio.CancelScope) -> None:
+            assert also is not None
+            try:
+                await also()
+            except DrivebusError as exc:
+                if not failure:
+                    failure.append(("(group)", exc))
+                scope.cancel()
+
         async with anyio.create_task_group() as tg:
             for a in axes:
                 tg.start_soon(one, a, tg.cancel_scope)
+            if also is not None:
+                tg.start_soon(helper, tg.cancel_scope)
         if failure:
             name, exc = failure[0]
             raise GroupMotionError(f"axis {name} failed, the group was stopped: {exc}",

@@ -98,15 +98,17 @@ async def _make_axis(machine: Machine, name: str, cfg: AxisConfig) -> Axis:
         )
     except TypeError as exc:
         raise ConfigError(f"axes.{name}.drive_options: {exc}") from None
+    axis = Axis(name, cfg, profile)
     try:
         await profile.read_status()
         await profile.setup()
+        await axis.refresh()  # the axis starts knowing where its drive is
     except TransactionError as exc:
         raise DriveOffline(
             f"axis {name}: the {fam.name} drive at address {cfg.address} on line "
             f"{cfg.line} does not answer: {exc}"
         ) from exc
-    return Axis(name, cfg, profile)
+    return axis
 
 
 @asynccontextmanager
