@@ -297,7 +297,6 @@ class NT86Profile(DriveProfile):
         self.home_reverse_at_limit = home_reverse_at_limit
         self.closed_loop: bool | None = None
         """Control mode 22 != 0, learnt in setup() (None until then)."""
-        self._position_mode: int | None = None
         self._jog_command: int | None = None
         self._estop_dirty = False
         self._homing = False
@@ -324,21 +323,17 @@ class NT86Profile(DriveProfile):
             await self._assign_input(self.enable_input, FUNC_OFFLINE)
         if self.clear_alarm_input is not None:
             await self._assign_input(self.clear_alarm_input, FUNC_CLEAR_FAULT)
-        self._position_mode = None
         self._jog_command = None
 
     def volatile_settings(self) -> list[tuple[Register, int]]:
-        """17=0, 20 (0, or 1 while an EPR60 homes), pulses/rev, and the position mode (84)
-        once a move has set it: a power cycle reloads them from flash (84 powers up 0,
-        incremental, which would turn the next absolute move into a relative one)."""
+        """17=0, 20 (0, or 1 while an EPR60 homes) and pulses/rev: a power cycle reloads
+        them from flash. (The position mode 84 is written with every move instead.)"""
         r = self.regs
         wanted = [
             (r.command_source, 0),
             (r.app_mode, self._expected_app_mode()),
             (r.microstep, self.pulses_per_rev),
         ]
-        if self._position_mode is not None:
-            wanted.append((r.position_mode, self._position_mode))
         return wanted
 
     def _expected_app_mode(self) -> int:
@@ -549,9 +544,10 @@ class NT86Profile(DriveProfile):
             self._estop_dirty = False
 
     async def _set_position_mode(self, mode: int) -> None:
-        if self._position_mode != mode:
-            await self.write(self.regs.position_mode, mode, priority=Priority.COMMAND)
-            self._position_mode = mode
+        """84 = ``mode``, written before every move, never taken for granted: a power
+        cycle between two polls resets it to 0 (incremental), which would make the next
+        absolute move a relative one."""
+        await self.write(self.regs.position_mode, mode, priority=Priority.COMMAND)
 
     def quantize(self, params: MoveParams) -> MoveParams:
         """Whole rpm (72) and whole r/s² (70/71)."""

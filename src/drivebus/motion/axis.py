@@ -328,10 +328,12 @@ class Axis:
                 # Back from Offline, still moving, and nobody's motion waits on it (its
                 # caller already got DriveOffline): stop it.
                 self._stop_due = "the drive answers again while moving with no command"
-        elif prev is not None and self._motion is None and not st.moving and not prev.moving and (
-            st.position != prev.position or (prev.homed and not st.homed)
+        elif prev is not None and (
+            (prev.homed and not st.homed)
+            or (self._motion is None and not st.moving and not prev.moving
+                and st.position != prev.position)
         ):
-            self._check_due = True  # moved or lost its home at rest: maybe reset
+            self._check_due = True  # lost its home, or moved at rest: maybe reset
         self.status, self._status_issued = st, issued
         m = self._motion
         if st.alarm and self.state is not AxisState.ERROR_STOP:
@@ -410,6 +412,7 @@ class Axis:
             self._end_motion(m, why, AxisState.STANDSTILL)
         elif m.kind == "jog":
             log.info("axis %s: %s ended at %s", self.name, m.what, here)
+            self._check_due = True  # nobody stopped it: the drive did, or was reset
             self._end_motion(m, None, AxisState.STANDSTILL)
         else:
             self._end_motion(m, MotionError(
@@ -431,7 +434,15 @@ class Axis:
         self._stop_due = f"{side} limit switch"
 
     def _end_motion(self, m: _Motion, error: BaseException | None, state: AxisState | None) -> None:
-        """Decide ``m``'s outcome; the axis goes to ``state`` (None: leave it)."""
+        """Decide ``m``'s outcome; the axis goes to ``state`` (None: leave it).
+
+        A motion that ended in an error the drive caused (it stopped short, did not start,
+        an alarm) may hide a reset: the drive's settings are checked before the next
+        command."""
+        if error is not None and not isinstance(error, MotionAborted):
+            self._check_due = True
+        if not m.over:
+            log.debug("axis %s: %s ends: %s", self.name, m.what, error or "done")
         m.finish(error)
         if self._motion is m:
             self._motion = None
@@ -534,6 +545,7 @@ class Axis:
         m = _Motion(kind, what, self.state, direction=direction)
         if self.status is not None:
             m.start = self.status.position
+        log.debug("axis %s: %s begins (from %s)", self.name, what, m.start)
         self._motion = m
         self.state = state
         self._jog_deadline = None
@@ -592,9 +604,20 @@ class Axis:
             self.state = m.prior
             self._jog_deadline = None
 
-    async def _commit(self, m: _Motion, start: Callable[[], Awaitable[None]]) -> None:
-        """Send ``m``'s start command. After a lost reply, read back before deciding: a
-        start is never sent twice unless the drive shows it did not act on the first."""
+    async def _commit(
+        self,
+        m: _Motion,
+        start: Callable[[], Awaitable[None]],
+        *,
+        prepare: Callable[[], Awaitable[None]] | None = None,
+    ) -> None:
+        """Send ``m``'s start command. If the drive may have been reset since it was
+        prepared (a poll failed meanwhile), check its settings and ``prepare`` it again
+        first. After a lost reply, read back before deciding: a start is never sent twice
+        unless the drive shows it did not act on the first."""
+        if prepare is not None and self._check_due:
+            await self._verify_settings()
+            await prepare()
         before = self.status
         m.committing = True
         try:
@@ -611,6 +634,7 @@ class Axis:
                          self.name, m.what, exc)
                 await start()
         m.accepted_at = self.command_started_at = monotonic()
+        log.debug("axis %s: %s started (target %s pulses)", self.name, m.what, m.target)
         self._commanded = True
         self._poke_now()
 
@@ -678,6 +702,9 @@ class Axis:
                         direction=direction)
         m.target, m.plan = target_p, plan
 
+        async def prepare() -> None:
+            await self.profile.prepare_absolute(target_p, params)
+
         async def io() -> None:
             if m.start is None:  # no status polled yet: find out where the drive is
                 st = await self.refresh()
@@ -685,10 +712,10 @@ class Axis:
                 if st.position is not None:
                     m.direction = (target_p > st.position) - (target_p < st.position)
                 self._check_switch(m.direction, st)
-            await self.profile.prepare_absolute(target_p, params)
+            await prepare()
             if ready is not None:
                 await ready()
-            await self._commit(m, self.profile.start_absolute)
+            await self._commit(m, self.profile.start_absolute, prepare=prepare)
 
         distance = self.units.from_pulses(target_p - (m.start or 0))
         await self._run_motion(m, io, timeout=self._timeout(plan, distance))
@@ -811,8 +838,13 @@ class Axis:
         assert m.plan is not None
         params = self.drive_params(m.plan)
         if m.target is not None:
-            await self.profile.prepare_absolute(m.target, params)
-            await self._commit(m, self.profile.start_absolute)
+            target = m.target
+
+            async def prepare() -> None:
+                await self.profile.prepare_absolute(target, params)
+
+            await prepare()
+            await self._commit(m, self.profile.start_absolute, prepare=prepare)
             return
         rpm = math.copysign(params.speed_rpm, m.direction)
         await self._commit(m, lambda: self.profile.speed_run(
@@ -893,6 +925,7 @@ class Axis:
 
     async def _halt(self, *, emergency: bool, decel_rps2: float | None) -> None:
         by = "halt_now()" if emergency else "stop()"
+        log.debug("axis %s: %s in state %s", self.name, by, self.state)
         offline = self.state is AxisState.OFFLINE
         m = self._motion
         running = m is not None and m.io is not None
