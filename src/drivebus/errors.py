@@ -13,6 +13,7 @@ __all__ = [
     "DriveOffline",
     "DrivebusError",
     "FrameError",
+    "LeaseHeld",
     "LimitViolation",
     "LineClosed",
     "LineConfigError",
@@ -20,6 +21,7 @@ __all__ = [
     "MotionAborted",
     "MotionError",
     "MotionTimeout",
+    "NotFound",
     "NotSupported",
     "ResponseTimeout",
     "StateError",
@@ -149,3 +151,16 @@ class MotionAborted(DrivebusError):
 
 class MotionError(DrivebusError):
     """The drive stopped or refused a motion without an alarm (e.g. stopped short)."""
+
+
+class NotFound(DrivebusError, LookupError):
+    """No such axis, line or motion; the message names what was asked and what exists."""
+
+
+class LeaseHeld(DrivebusError):
+    """Another client holds the machine's command lease; ``holder`` names it (an
+    emergency stop is never refused by a lease)."""
+
+    def __init__(self, message: str, *, holder: str) -> None:
+        super().__init__(message)
+        self.holder = holder

@@ -533,15 +533,11 @@ class Axis:
         *,
         direction: int = 0,
         allowed: frozenset[AxisState] = frozenset({AxisState.STANDSTILL}),
+        accepted: Callable[[], object] | None = None,
     ) -> _Motion:
-        """Take the axis for a motion (no I/O: StateError leaves everything as it was)."""
-        if self.state not in allowed or self._motion is not None:
-            detail = f" ({self.error})" if self.error is not None else ""
-            running = f"; the {self._motion.what} is under way" if self._motion else ""
-            raise StateError(
-                f"axis {self.name}: cannot start the {what} in state {self.state}{detail}"
-                f"{running}"
-            )
+        """Take the axis for a motion (no I/O: StateError leaves everything as it was),
+        then tell ``accepted``."""
+        self.check_free(what, allowed)
         m = _Motion(kind, what, self.state, direction=direction)
         if self.status is not None:
             m.start = self.status.position
@@ -549,7 +545,24 @@ class Axis:
         self._motion = m
         self.state = state
         self._jog_deadline = None
+        if accepted is not None:
+            accepted()
         return m
+
+    def check_free(
+        self,
+        what: str = "motion",
+        allowed: frozenset[AxisState] = frozenset({AxisState.STANDSTILL}),
+    ) -> None:
+        """``StateError`` unless the axis may start a motion now (at rest, nothing under
+        way); no I/O, nothing changes."""
+        if self.state not in allowed or self._motion is not None:
+            detail = f" ({self.error})" if self.error is not None else ""
+            running = f"; the {self._motion.what} is under way" if self._motion else ""
+            raise StateError(
+                f"axis {self.name}: cannot start the {what} in state {self.state}{detail}"
+                f"{running}"
+            )
 
     async def _run_motion(
         self,
@@ -682,11 +695,14 @@ class Axis:
         accel: float | None = None,
         decel: float | None = None,
         ready: Callable[[], Awaitable[None]] | None = None,
+        accepted: Callable[[], object] | None = None,
     ) -> None:
         """Move to ``target`` (user units); return when the drive reports it is there.
 
         With ``ready``, the move is prepared on the drive, then ``ready()`` is awaited
         before the start command goes out (a group starts its axes back to back).
+        ``accepted()`` is called once every check has passed and the axis has taken the
+        move (a service answers "running" then; a refusal raises before it).
         """
         target = checks.finite("target", target)
         plan = self.plan(speed, accel, decel)
@@ -699,7 +715,7 @@ class Axis:
         direction = 0 if here is None else (target_p > here) - (target_p < here)
         self._check_switch(direction)
         m = self._begin("move", f"move to {target:g}", AxisState.DISCRETE_MOTION,
-                        direction=direction)
+                        direction=direction, accepted=accepted)
         m.target, m.plan = target_p, plan
 
         async def prepare() -> None:
@@ -727,8 +743,10 @@ class Axis:
         speed: float | None = None,
         accel: float | None = None,
         decel: float | None = None,
+        accepted: Callable[[], object] | None = None,
     ) -> None:
-        """Move by ``distance`` (user units) from the present position."""
+        """Move by ``distance`` (user units) from the present position (``accepted``: as
+        for ``move_to``)."""
         distance = checks.finite("distance", distance)
         plan = self.plan(speed, accel, decel)
         self.profile.check_supported("move_relative")
@@ -739,7 +757,7 @@ class Axis:
         direction = self._drive_direction(distance)
         self._check_switch(direction)
         m = self._begin("move", f"move by {distance:g}", AxisState.DISCRETE_MOTION,
-                        direction=direction)
+                        direction=direction, accepted=accepted)
         m.plan = plan
 
         async def io() -> None:
@@ -753,11 +771,12 @@ class Axis:
 
         await self._run_motion(m, io, timeout=self._timeout(plan, distance))
 
-    async def home(self) -> None:
-        """Run the configured homing procedure; return when the drive reports homed."""
+    async def home(self, *, accepted: Callable[[], object] | None = None) -> None:
+        """Run the configured homing procedure; return when the drive reports homed
+        (``accepted``: as for ``move_to``)."""
         h = self.config.homing
         self.profile.check_supported("home")
-        m = self._begin("home", "homing", AxisState.HOMING)
+        m = self._begin("home", "homing", AxisState.HOMING, accepted=accepted)
         u = self.units
 
         async def io() -> None:

@@ -260,7 +260,10 @@ class AxisGroup:
             )
         if not values:
             raise ArgumentError(f"{what}: no axes given")
-        return {n: checks.finite(f"{what}[{n!r}]", v) for n, v in values.items()}
+        checked = {n: checks.finite(f"{what}[{n!r}]", v) for n, v in values.items()}
+        for n in checked:
+            self.axes[n].check_free("group move")
+        return checked
 
     async def _positions(self, names: Iterable[str]) -> dict[str, float]:
         """The named axes' present positions (user units), read from the drives at once."""
@@ -273,21 +276,29 @@ class AxisGroup:
         await self._each([self.axes[n] for n in names], read)
         return found
 
-    async def move_to(self, targets: Mapping[str, float]) -> GroupMoveReport:
-        """Move the named axes to their targets, starting and arriving together."""
+    async def move_to(
+        self, targets: Mapping[str, float], *, accepted: Callable[[], object] | None = None
+    ) -> GroupMoveReport:
+        """Move the named axes to their targets, starting and arriving together.
+
+        ``accepted()`` is called once every check has passed and every plan fits its drive,
+        just before the axes take their moves."""
         targets = self._check(targets, "targets")
         for name, t in targets.items():
             self.axes[name].check_limits(t)
-        return await self._move(targets, await self._positions(targets))
+        return await self._move(targets, await self._positions(targets), accepted)
 
-    async def move_by(self, distances: Mapping[str, float]) -> GroupMoveReport:
-        """Move the named axes by their distances, together."""
+    async def move_by(
+        self, distances: Mapping[str, float], *, accepted: Callable[[], object] | None = None
+    ) -> GroupMoveReport:
+        """Move the named axes by their distances, together (``accepted``: as for
+        ``move_to``)."""
         distances = self._check(distances, "distances")
         starts = await self._positions(distances)
         targets = {n: starts[n] + d for n, d in distances.items()}
         for name, t in targets.items():
             self.axes[name].check_limits(t)
-        return await self._move(targets, starts)
+        return await self._move(targets, starts, accepted)
 
     def _start_order(self, names: Iterable[str]) -> dict[str, float]:
         """Start order (the returned dict's order) and each axis's predicted delay from
@@ -324,7 +335,10 @@ class AxisGroup:
         return {n: offsets[n] for n in sorted(offsets, key=offsets.__getitem__)}
 
     async def _move(
-        self, targets: Mapping[str, float], starts: Mapping[str, float]
+        self,
+        targets: Mapping[str, float],
+        starts: Mapping[str, float],
+        accepted: Callable[[], object] | None = None,
     ) -> GroupMoveReport:
         distances = {n: targets[n] - starts[n] for n in targets}
         limits = {n: self.axes[n].plan() for n in targets}
@@ -363,6 +377,10 @@ class AxisGroup:
         delays = {n: -miss[n] for n in moving if miss.get(n, 0.0) < -_ARRIVAL_TOLERANCE}
         buses = {n: self.axes[n].profile.slave.bus for n in targets}
         gate = _StartGate(list(offsets), buses, delays)
+        for n in targets:
+            self.axes[n].check_free("group move")
+        if accepted is not None:
+            accepted()
 
         async def move(axis: Axis) -> None:
             p = plans[axis.name]

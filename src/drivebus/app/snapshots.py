@@ -1,0 +1,179 @@
+"""Snapshots: the machine, its lines and its axes as plain data.
+
+The records every front end shows: the CLI's tables and JSON, the service's JSON and
+WebSocket messages, the MQTT bridge's retained state. ``as_dict()`` gives JSON-ready data.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from drivebus.bus import Bus
+from drivebus.errors import DrivebusError
+from drivebus.motion import Axis, Machine
+
+__all__ = [
+    "AxisSnapshot",
+    "LineSnapshot",
+    "MachineSnapshot",
+    "axis_snapshot",
+    "error_record",
+    "line_snapshot",
+    "machine_snapshot",
+]
+
+
+def _finite(v: float | None) -> float | None:
+    """JSON has no NaN or infinity."""
+    return v if v is None or math.isfinite(v) else None
+
+
+def error_record(exc: BaseException | None) -> dict[str, str] | None:
+    """A typed error as data: its type's name and its message."""
+    if exc is None:
+        return None
+    return {"type": type(exc).__name__, "message": str(exc)}
+
+
+@dataclass(frozen=True)
+class AxisSnapshot:
+    """One axis as its actor last saw it, in user units."""
+
+    name: str
+    drive: str
+    line: str
+    address: int
+    state: str
+    position: float | None
+    velocity: float | None
+    enabled: bool | None
+    moving: bool | None
+    homed: bool
+    alarm: bool
+    alarm_code: int | None
+    alarm_text: str
+    limit_positive: bool
+    limit_negative: bool
+    soft_limits: tuple[float, float] | None
+    units_per_rev: float
+    pulses_per_rev: int
+    error: dict[str, str] | None
+    """What put the axis into ErrorStop or Offline (type and message)."""
+    timestamp: float
+    """When the status behind this was polled (monotonic seconds; 0 if never)."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready data."""
+        d = asdict(self)
+        d["soft_limits"] = list(self.soft_limits) if self.soft_limits else None
+        return d
+
+
+def axis_snapshot(axis: Axis) -> AxisSnapshot:
+    """``axis`` as plain data."""
+    st = axis.status
+    cfg = axis.config
+    return AxisSnapshot(
+        name=axis.name,
+        drive=axis.profile.family,
+        line=cfg.line,
+        address=cfg.address,
+        state=str(axis.state),
+        position=_finite(axis.position),
+        velocity=_finite(axis.velocity),
+        enabled=None if st is None else st.enabled,
+        moving=None if st is None else st.moving,
+        homed=axis.homed,
+        alarm=bool(st and st.alarm),
+        alarm_code=None if st is None else st.alarm_code,
+        alarm_text="" if st is None else st.alarm_text,
+        limit_positive=bool(st and st.limit_positive),
+        limit_negative=bool(st and st.limit_negative),
+        soft_limits=cfg.limits,
+        units_per_rev=cfg.units_per_rev,
+        pulses_per_rev=cfg.pulses_per_rev,
+        error=error_record(axis.error),
+        timestamp=0.0 if st is None else st.timestamp,
+    )
+
+
+@dataclass(frozen=True)
+class LineSnapshot:
+    """One line: how it is set up and how busy it is."""
+
+    name: str
+    kind: str
+    endpoint: str
+    settings: str | None
+    utilisation: float
+    transactions: int
+    errors: int
+    retries: int
+    timeouts: int
+    last_error: str
+    slaves: dict[int, dict[str, Any]] = field(default_factory=dict)
+    """Per-slave counters by address."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready data."""
+        d = asdict(self)
+        d["slaves"] = {str(k): v for k, v in self.slaves.items()}
+        return d
+
+
+def line_snapshot(name: str, bus: Bus, kind: str, endpoint: str) -> LineSnapshot:
+    """The line ``name`` served by ``bus`` as plain data."""
+    stats = bus.stats
+    total = stats.total()
+    last = next((s.last_error for s in stats.slaves.values() if s.last_error), "")
+    return LineSnapshot(
+        name=name,
+        kind=kind,
+        endpoint=endpoint,
+        settings=None if bus.line.settings is None else str(bus.line.settings),
+        utilisation=round(stats.utilisation, 4),
+        transactions=stats.transactions,
+        errors=total.errors,
+        retries=total.retries,
+        timeouts=total.timeouts,
+        last_error=last,
+        slaves={
+            a: {k: v for k, v in asdict(s).items()} for a, s in sorted(stats.slaves.items())
+        },
+    )
+
+
+@dataclass(frozen=True)
+class MachineSnapshot:
+    """The whole machine: its name, lines and axes."""
+
+    name: str
+    lines: list[LineSnapshot]
+    axes: list[AxisSnapshot]
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready data."""
+        return {
+            "name": self.name,
+            "lines": [ln.as_dict() for ln in self.lines],
+            "axes": [ax.as_dict() for ax in self.axes],
+        }
+
+
+def machine_snapshot(machine: Machine) -> MachineSnapshot:
+    """``machine`` as plain data."""
+    lines = []
+    for name, bus in machine.buses.items():
+        cfg = machine.config.lines[name]
+        endpoint = cfg.port or f"{cfg.host}:{cfg.tcp_port}"
+        lines.append(line_snapshot(name, bus, cfg.kind, endpoint))
+    return MachineSnapshot(
+        machine.config.name, lines, [axis_snapshot(a) for a in machine.axes.values()]
+    )
+
+
+def describe(exc: DrivebusError) -> str:
+    """One line naming a typed error (for logs and terminals)."""
+    return f"{type(exc).__name__}: {exc}"
