@@ -6,13 +6,13 @@ import asyncio
 import heapq
 import itertools
 from dataclasses import dataclass, field
-from enum import IntEnum
 from types import TracebackType
-from typing import TYPE_CHECKING
 
 import anyio
-import anyio.abc
 
+from drivebus.bus.priority import Priority
+from drivebus.bus.slave import SlaveHandle
+from drivebus.bus.stats import BusStats
 from drivebus.clock import PreciseTimer, monotonic
 from drivebus.errors import (
     ConfigError,
@@ -29,22 +29,7 @@ from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.tasks import ServiceTasks
 
-if TYPE_CHECKING:
-    from drivebus.bus.slave import SlaveHandle
-
-from drivebus.bus.stats import BusStats
-
 __all__ = ["Bus", "Priority"]
-
-
-class Priority(IntEnum):
-    """Request priority on a line: a stop overtakes everything queued."""
-
-    POLL = 0
-    CONFIG = 1
-    COMMAND = 2
-    EMERGENCY = 3
-
 
 @dataclass(eq=False)
 class _Request:
@@ -134,8 +119,6 @@ class Bus:
         exception_texts: dict[int, str] | None = None,
     ) -> SlaveHandle:
         """A handle for the slave at ``address`` (0 = broadcast) with its own settings."""
-        from drivebus.bus.slave import SlaveHandle
-
         if not 0 <= address <= 247:
             raise ConfigError(f"slave address {address} is outside 0..247 (0 = broadcast)")
         if settings is not None and settings != self.line.settings:
@@ -143,7 +126,7 @@ class Bus:
                 raise ConfigError(
                     f"line {self.line.name} is not a serial line: no per-slave settings"
                 )
-            if not getattr(self.line, "per_slave_settings", True):
+            if not self.line.per_slave_settings:
                 raise ConfigError(
                     f"slave {address}: line {self.line.name} has one setting for all slaves "
                     f"({self.line.settings}); {settings} cannot be used on it"

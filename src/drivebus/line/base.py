@@ -1,4 +1,9 @@
-"""What every line (serial RTU, Modbus TCP, RTU over TCP) offers the bus scheduler."""
+"""What every line (serial RTU, Modbus TCP, RTU over TCP) offers the bus scheduler.
+
+A line declares what it can do (``per_slave_settings``, ``local_echo``, ``max_in_flight``,
+``counts_garbage``) as typed attributes, so the scheduler and tools read them instead of
+probing the object.
+"""
 
 from __future__ import annotations
 
@@ -28,12 +33,36 @@ class Exchange:
 
 
 class Line(abc.ABC):
-    """A medium that carries one Modbus transaction at a time."""
-
-    settings: LineSettings | None
-    """Default line settings (None for plain Modbus TCP)."""
+    """A medium that carries Modbus transactions, one at a time unless it says otherwise."""
 
     name: str
+    """What error messages call the line (a port, ``tcp://host:port``, ...)."""
+
+    settings: LineSettings | None
+    """Default line settings (None for plain Modbus TCP, which has none)."""
+
+    # -- capabilities: class defaults, set per class or per instance by each line ------------
+
+    per_slave_settings: bool = False
+    """Each slave may have its own baud rate and format: the line reconfigures its port
+    before a frame at other settings (and keeps the longer silence)."""
+
+    local_echo: bool = False
+    """The medium hears its own transmitter: every frame sent comes back first and is
+    consumed before the reply."""
+
+    max_in_flight: int = 1
+    """How many requests the line can have outstanding at once (replies matched by id)."""
+
+    counts_garbage: bool = False
+    """``garbage_bytes`` counts the bytes received outside any reply; False: always 0."""
+
+    @property
+    def garbage_bytes(self) -> int:
+        """Bytes received outside any reply (late answers, noise), discarded."""
+        return 0
+
+    # -- life cycle and transactions ---------------------------------------------------------
 
     @abc.abstractmethod
     async def open(self) -> None:

@@ -7,13 +7,14 @@ CRC or a short frame it waits for t3.5 of silence and then looks for a valid fra
 from __future__ import annotations
 
 import asyncio
+from typing import cast
 
 from drivebus.clock import monotonic
 from drivebus.errors import FrameError, LineClosed, ResponseTimeout, WrongResponder
 from drivebus.line.rtu import crc_ok
 from drivebus.pdu import LengthPredictor
 
-__all__ = ["RtuReceiver"]
+__all__ = ["RtuReceiver", "StreamProtocol"]
 
 
 def _expire(w: asyncio.Future[None]) -> None:
@@ -26,24 +27,42 @@ def _loop_time(loop: asyncio.AbstractEventLoop, t: float) -> float:
     return t - monotonic() + loop.time()
 
 
-class RtuReceiver(asyncio.Protocol):
-    """asyncio protocol collecting received bytes with the arrival time of the last one."""
+class StreamProtocol(asyncio.Protocol):
+    """An asyncio protocol on a byte stream (serial port, TCP socket) that keeps its
+    transport and, once the stream is gone, why."""
 
     def __init__(self, name: str = "line") -> None:
         self.name = name
+        """The line's name, for error messages."""
+        self.transport: asyncio.Transport | None = None
+        self.lost: BaseException | None = None
+        """Why the stream ended (None while it is up)."""
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        # Serial ports and TCP sockets both give a (read/write) ``asyncio.Transport``.
+        self.transport = cast(asyncio.Transport, transport)
+
+    def send(self, data: bytes) -> None:
+        """Queue ``data`` on the transport; ``LineClosed`` if the stream is not up."""
+        transport = self.transport
+        if transport is None or self.lost is not None:
+            raise LineClosed(f"{self.name} is not connected")
+        transport.write(data)
+
+
+class RtuReceiver(StreamProtocol):
+    """Stream protocol collecting received bytes with the arrival time of the last one."""
+
+    def __init__(self, name: str = "line") -> None:
+        super().__init__(name)
         self.buf = bytearray()
         self.last_rx = 0.0
         self.need = 0
         self.waiter: asyncio.Future[None] | None = None
-        self.lost: BaseException | None = None
-        self.transport: asyncio.BaseTransport | None = None
         self.garbage_bytes = 0
         """Bytes received outside any reply (late answers, noise), discarded."""
 
     # -- asyncio.Protocol --------------------------------------------------------------------
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport
 
     def data_received(self, data: bytes) -> None:
         self.last_rx = monotonic()

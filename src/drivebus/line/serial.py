@@ -11,10 +11,7 @@ import serial.rs485
 import serial_asyncio
 
 from drivebus.clock import monotonic
-from drivebus.errors import (
-    ConfigError,
-    LineClosed,
-)
+from drivebus.errors import ConfigError, LineClosed
 from drivebus.line.base import Exchange, Line
 from drivebus.line.link import RtuLink
 from drivebus.line.receiver import RtuReceiver
@@ -55,6 +52,10 @@ class SerialLine(Line):
     ``settings`` are the line's defaults; a transaction may ask for others (per-slave
     baud/format) and the port is then reconfigured in place after the longer silence.
     """
+
+    per_slave_settings = True
+    counts_garbage = True
+    settings: LineSettings
 
     def __init__(
         self,
@@ -161,8 +162,8 @@ class SerialLine(Line):
         except BlockingIOError:
             written = 0
         if written < len(adu):
-            assert self._rx is not None and self._rx.transport is not None
-            self._rx.transport.write(adu[written:])  # type: ignore[attr-defined]
+            assert self._rx is not None
+            self._rx.send(adu[written:])
 
     async def transact(
         self,

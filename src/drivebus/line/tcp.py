@@ -20,7 +20,7 @@ import socket
 import struct
 from collections import deque
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Generic, TypeVar
 
 from drivebus.clock import monotonic
 from drivebus.errors import (
@@ -34,7 +34,7 @@ from drivebus.errors import (
 )
 from drivebus.line.base import Exchange, Line
 from drivebus.line.link import RtuLink
-from drivebus.line.receiver import RtuReceiver
+from drivebus.line.receiver import RtuReceiver, StreamProtocol
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import timing
@@ -42,6 +42,7 @@ from drivebus.timing import timing
 __all__ = [
     "ConnectionLost",
     "LineConfigError",
+    "NetworkLine",
     "RtuOverTcpLine",
     "TcpLine",
     "TcpLineStats",
@@ -80,15 +81,16 @@ def _cause(exc: BaseException | None) -> str:
     return f"{type(exc).__name__}: {text}"
 
 
-class _Connection(Protocol):
-    transport: asyncio.BaseTransport | None
-    lost: BaseException | None
-
-    def connection_lost(self, exc: Exception | None) -> None: ...
+ConnectionT = TypeVar("ConnectionT", bound=StreamProtocol)
+"""The protocol object one connection of a networked line runs."""
 
 
-class _NetworkLine(Line, abc.ABC):
-    """Connection handling shared by the TCP lines: connect, keepalive, reconnect backoff."""
+class NetworkLine(Line, Generic[ConnectionT], abc.ABC):
+    """Connection handling shared by the TCP lines: connect, keepalive, reconnect backoff.
+
+    A subclass says which protocol a connection runs (``_make_protocol``); the base hands
+    back that type from ``_connection()``.
+    """
 
     scheme = "tcp"
 
@@ -118,7 +120,7 @@ class _NetworkLine(Line, abc.ABC):
         self.reconnect_delay_max = reconnect_delay_max
         self.connect_on_open = connect_on_open
         self.stats = TcpLineStats()
-        self._conn: _Connection | None = None
+        self._conn: ConnectionT | None = None
         self._connect_lock = asyncio.Lock()
         self._closed = True
         self._failures = 0
@@ -134,21 +136,24 @@ class _NetworkLine(Line, abc.ABC):
     @property
     def connected(self) -> bool:
         """True while a connection is up."""
-        return self._usable(self._conn)
+        return self._live() is not None
 
     @property
     def reconnect_at(self) -> float:
         """Monotonic time of the next connect attempt (when down; the past means "now")."""
         return self._next_attempt
 
-    @staticmethod
-    def _usable(conn: _Connection | None) -> bool:
-        return (
-            conn is not None
-            and conn.lost is None
-            and conn.transport is not None
-            and not conn.transport.is_closing()
-        )
+    def _live(self) -> ConnectionT | None:
+        """The current connection if it is up, else None."""
+        conn = self._conn
+        if (
+            conn is None
+            or conn.lost is not None
+            or conn.transport is None
+            or conn.transport.is_closing()
+        ):
+            return None
+        return conn
 
     # -- life cycle ---------------------------------------------------------------------------
 
@@ -170,22 +175,21 @@ class _NetworkLine(Line, abc.ABC):
             conn.connection_lost(None)  # wake waiters now; asyncio repeats it harmlessly
 
     @abc.abstractmethod
-    def _make_protocol(self) -> asyncio.Protocol:
+    def _make_protocol(self) -> ConnectionT:
         """A fresh protocol object for one connection."""
 
-    async def _connect(self) -> _Connection:
+    async def _connect(self) -> ConnectionT:
         """Connect now; ``LineClosed`` naming host:port and the cause if that fails."""
         loop = asyncio.get_running_loop()
         try:
             async with asyncio.timeout(self.connect_timeout):
-                _, proto = await loop.create_connection(self._make_protocol, self.host, self.port)
+                _, conn = await loop.create_connection(self._make_protocol, self.host, self.port)
         except TimeoutError as exc:
             raise self._connect_failed(
                 f"no answer within the connect timeout of {self.connect_timeout:g} s"
             ) from exc
         except OSError as exc:
             raise self._connect_failed(_cause(exc)) from exc
-        conn: _Connection = proto  # type: ignore[assignment]
         assert conn.transport is not None
         sock = conn.transport.get_extra_info("socket")
         if sock is not None:
@@ -204,18 +208,19 @@ class _NetworkLine(Line, abc.ABC):
         self.stats.last_error = f"cannot connect to {self.address}: {cause}"
         return LineClosed(f"{self.name}: cannot connect to {self.address}: {cause}")
 
-    async def _connection(self) -> _Connection:
+    async def _connection(self) -> ConnectionT:
         """The live connection, reconnecting if one is due; ``ConnectionLost`` otherwise."""
         if self._closed:
             raise LineClosed(f"{self.name} is closed")
-        conn = self._conn
-        if self._usable(conn):
-            return conn  # type: ignore[return-value]
+        conn = self._live()
+        if conn is not None:
+            return conn
         async with self._connect_lock:
             if self._closed:
                 raise LineClosed(f"{self.name} is closed")
-            if self._usable(self._conn):
-                return self._conn  # type: ignore[return-value]
+            conn = self._live()
+            if conn is not None:
+                return conn
             wait = self._next_attempt - monotonic()
             if wait > 0:
                 raise ConnectionLost(
@@ -227,7 +232,7 @@ class _NetworkLine(Line, abc.ABC):
             except LineClosed as exc:
                 raise ConnectionLost(str(exc)) from exc
 
-    def _connection_lost(self, conn: _Connection, exc: BaseException | None) -> None:
+    def _connection_lost(self, conn: ConnectionT, exc: BaseException | None) -> None:
         """Called by the protocols: forget the connection; the next attempt is immediate."""
         if conn.lost is None:
             conn.lost = exc or ConnectionResetError("connection closed")
@@ -252,19 +257,15 @@ class _Pending:
     future: asyncio.Future[bytes]
 
 
-class _MbapProtocol(asyncio.Protocol):
+class _MbapProtocol(StreamProtocol):
     """One Modbus TCP connection: splits the byte stream into MBAP frames."""
 
     def __init__(self, line: TcpLine) -> None:
+        super().__init__(line.name)
         self.line = line
-        self.transport: asyncio.BaseTransport | None = None
-        self.lost: BaseException | None = None
         self.buf = bytearray()
         self.pending: dict[int, _Pending] = {}
         self.abandoned: deque[int] = deque(maxlen=64)
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport
 
     def data_received(self, data: bytes) -> None:
         buf = self.buf
@@ -284,7 +285,7 @@ class _MbapProtocol(asyncio.Protocol):
         self.line._connection_lost(self, exc)
 
 
-class TcpLine(_NetworkLine):
+class TcpLine(NetworkLine[_MbapProtocol]):
     """A Modbus TCP connection to one device or gateway (MBAP framing, transaction ids).
 
     One request is in flight at a time by default; ``max_in_flight`` allows more on
@@ -325,7 +326,7 @@ class TcpLine(_NetworkLine):
         self._tid = 0
         self._timeouts_in_row = 0
 
-    def _make_protocol(self) -> asyncio.Protocol:
+    def _make_protocol(self) -> _MbapProtocol:
         return _MbapProtocol(self)
 
     def _next_tid(self, conn: _MbapProtocol) -> int:
@@ -357,7 +358,7 @@ class TcpLine(_NetworkLine):
                 slave=unit,
             )
         async with self._slots:
-            conn: _MbapProtocol = await self._connection()  # type: ignore[assignment]
+            conn = await self._connection()
             return await self._exchange(conn, unit, pdu, expect, timeout)
 
     async def _exchange(
@@ -374,13 +375,13 @@ class TcpLine(_NetworkLine):
         tx = monotonic()
         if expect is None:
             conn.abandoned.append(tid)  # whatever comes back is not awaited
-            conn.transport.write(adu)  # type: ignore[union-attr]
+            conn.send(adu)
             return Exchange(b"", tx, tx, tx, len(adu), 0, 0.0)
         fut: asyncio.Future[bytes] = loop.create_future()
         conn.pending[tid] = _Pending(unit, fut)
         handle = loop.call_later(timeout, self._expire, conn, tid, unit, timeout)
         try:
-            conn.transport.write(adu)  # type: ignore[union-attr]
+            conn.send(adu)
             reply = await fut
         finally:
             handle.cancel()
@@ -461,9 +462,8 @@ class TcpLine(_NetworkLine):
         if conn.transport is not None:
             conn.transport.close()
 
-    def _connection_lost(self, conn: _Connection, exc: BaseException | None) -> None:
+    def _connection_lost(self, conn: _MbapProtocol, exc: BaseException | None) -> None:
         super()._connection_lost(conn, exc)
-        assert isinstance(conn, _MbapProtocol)
         for p in conn.pending.values():
             if p.future.done():
                 continue
@@ -496,7 +496,7 @@ class _RtuTcpReceiver(RtuReceiver):
         self.line._connection_lost(self, exc)
 
 
-class RtuOverTcpLine(_NetworkLine):
+class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
     """RTU frames through a transparent serial device server (an RS-485 line over TCP).
 
     ``settings`` are those of the server's serial port: the silences (t3.5) are computed
@@ -507,6 +507,8 @@ class RtuOverTcpLine(_NetworkLine):
     """
 
     scheme = "rtu+tcp"
+    counts_garbage = True
+    settings: LineSettings
 
     def __init__(
         self,
@@ -533,24 +535,20 @@ class RtuOverTcpLine(_NetworkLine):
             raise ConfigError("broadcast_delay and latency must be >= 0 seconds")
         self.settings = settings or LineSettings()
         self.broadcast_delay = broadcast_delay
-        self.per_slave_settings = False
         self._lock = asyncio.Lock()
         self._link = RtuLink(latency=latency)
 
-    def _make_protocol(self) -> asyncio.Protocol:
+    def _make_protocol(self) -> _RtuTcpReceiver:
         return _RtuTcpReceiver(self)
 
     @property
     def garbage_bytes(self) -> int:
         """Bytes received outside any reply on the current connection, discarded."""
-        rx = self._conn
-        return rx.garbage_bytes if isinstance(rx, RtuReceiver) else 0
+        return self._conn.garbage_bytes if self._conn is not None else 0
 
     def ready_at(self, settings: LineSettings | None) -> float:
         """When t3.5 at the serial port's settings will have passed since the last traffic."""
-        rx = self._conn
-        return self._link.ready_at(rx if isinstance(rx, RtuReceiver) else None,
-                                   timing(self.settings).t35)
+        return self._link.ready_at(self._conn, timing(self.settings).t35)
 
     async def close(self) -> None:
         """Close the connection and release the silence timer."""
@@ -574,7 +572,7 @@ class RtuOverTcpLine(_NetworkLine):
                 slave=unit,
             )
         async with self._lock:
-            rx: _RtuTcpReceiver = await self._connection()  # type: ignore[assignment]
+            rx = await self._connection()
             try:
                 return await self._exchange(rx, unit, pdu, expect, timeout)
             except LineClosed as exc:
@@ -598,7 +596,7 @@ class RtuOverTcpLine(_NetworkLine):
         await self._link.wait_quiet(rx, tm.t35)
         return await self._link.exchange(
             rx,
-            rx.transport.write,  # type: ignore[union-attr]
+            rx.send,
             unit,
             pdu,
             expect,
