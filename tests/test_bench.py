@@ -4,13 +4,20 @@ from __future__ import annotations
 
 import json
 
-from drivebus.bench import format_table, results_json, run_bench
+import pytest
+
+from drivebus.bench import format_table, results_json, run_bench, scenarios
+from drivebus.errors import ArgumentError
+
+BUILT_IN = {"efficiency", "stop latency", "cpu", "scale", "pymodbus baseline"}
 
 
 async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
     results = await run_bench(quick=True, seconds=0.15)
-    scenarios = {r.scenario for r in results}
-    assert scenarios == {"efficiency", "stop latency", "cpu", "scale", "pymodbus baseline"}
+    found = [s.name for s in scenarios()]
+    assert set(found) >= BUILT_IN
+    # every scenario module found gave rows, in the declared order
+    assert list(dict.fromkeys(r.scenario for r in results)) == found
     for r in results:
         if r.scenario in ("efficiency", "scale"):
             assert r.figures["violations"] == 0, r
@@ -20,3 +27,10 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
     assert stop.figures["stops"] == 20
     assert "efficiency" in format_table(results)
     assert len(json.loads(results_json(results))) == len(results)
+
+
+async def test_scenarios_can_be_chosen_by_name() -> None:
+    results = await run_bench(quick=True, seconds=0.1, only={"cpu"})
+    assert [r.scenario for r in results] == ["cpu"]
+    with pytest.raises(ArgumentError, match="no bench scenario named nope"):
+        await run_bench(quick=True, only={"nope"})
