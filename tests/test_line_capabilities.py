@@ -21,7 +21,7 @@ def test_each_line_declares_its_capabilities() -> None:
         for line in (serial, tcp, rtu_tcp)
     }
     assert rows[serial] == (True, True, 1, True)
-    assert rows[tcp] == (False, False, 4, False)
+    assert rows[tcp] == (False, False, 4, True)
     assert rows[rtu_tcp] == (False, False, 1, True)
     assert (Line.per_slave_settings, Line.local_echo, Line.max_in_flight, Line.counts_garbage) == (
         False, False, 1, False

@@ -72,6 +72,12 @@ class Line(abc.ABC):
     async def close(self) -> None:
         """Close; a transaction waiting on the line fails with ``LineClosed``."""
 
+    def last_activity(self) -> float:
+        """Monotonic time the line's last known traffic ended (a frame sent, a byte
+        received; 0: the line keeps no silences). While the line is idle it moves only
+        when bytes arrive that nobody asked for: the scheduler reads that as noise."""
+        return 0.0
+
     def ready_at(self, settings: LineSettings | None) -> float:
         """Monotonic time from which a frame at ``settings`` may start (0: at once)."""
         return 0.0
@@ -85,8 +91,15 @@ class Line(abc.ABC):
         expect: LengthPredictor | None,
         settings: LineSettings | None = None,
         timeout: float = 0.1,
+        quiet_by: float | None = None,
     ) -> Exchange:
-        """Send ``pdu`` to ``unit`` and return its reply (``expect=None``: no reply)."""
+        """Send ``pdu`` to ``unit`` and return its reply (``expect=None``: no reply).
+
+        ``timeout`` bounds the wait for the reply once the request is out. A line that
+        keeps silences bounds the wait before it too: if received bytes keep it busy
+        until ``quiet_by`` (default: ``timeout`` from now), ``LineNoise`` with
+        ``sent=False``. A reply drowned in noise is ``LineNoise`` with ``sent=True``.
+        """
 
     async def __aenter__(self) -> Line:
         await self.open()

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import abc
 import asyncio
+import functools
 import socket
 import struct
 from collections import deque
@@ -29,12 +30,13 @@ from drivebus.errors import (
     FrameError,
     LineClosed,
     LineConfigError,
+    LineNoise,
     ResponseTimeout,
     WrongResponder,
 )
 from drivebus.line.base import Exchange, Line
 from drivebus.line.link import RtuLink
-from drivebus.line.receiver import RtuReceiver, StreamProtocol
+from drivebus.line.receiver import RtuReceiver, StreamProtocol, read_waiting
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import timing
@@ -51,6 +53,9 @@ __all__ = [
 
 _MBAP = struct.Struct(">HHHB")  # transaction id, protocol id (0), length (unit + PDU), unit id
 MAX_PDU = 253
+UNSOLICITED_LIMIT = 16
+"""Replies in a row that match no request (beyond ``max_in_flight`` late ones) after which
+a Modbus TCP peer is taken for a babbler and the connection is dropped."""
 
 
 def mbap_frame(tid: int, unit: int, pdu: bytes) -> bytes:
@@ -258,7 +263,12 @@ class _Pending:
 
 
 class _MbapProtocol(StreamProtocol):
-    """One Modbus TCP connection: splits the byte stream into MBAP frames."""
+    """One Modbus TCP connection: splits the byte stream into MBAP frames.
+
+    Each read is parsed in one pass with bounded work: at most one reply per request in
+    flight plus ``UNSOLICITED_LIMIT`` unmatched ones, or up to the first bytes that are
+    not MBAP; then the connection is dropped as noisy.
+    """
 
     def __init__(self, line: TcpLine) -> None:
         super().__init__(line.name)
@@ -266,20 +276,39 @@ class _MbapProtocol(StreamProtocol):
         self.buf = bytearray()
         self.pending: dict[int, _Pending] = {}
         self.abandoned: deque[int] = deque(maxlen=64)
+        self.unsolicited = 0
+        """Replies in a row that matched no waiting request."""
+        self.noise = ""
+        """Why the line dropped this connection as noisy ("" while it has not)."""
 
     def data_received(self, data: bytes) -> None:
+        if self.noise:
+            return  # dropped; the transport is closing
         buf = self.buf
         buf += data
-        while len(buf) >= _MBAP.size:
-            tid, pid, length, unit = _MBAP.unpack_from(buf)
+        pos, end = 0, len(buf)
+        limit = UNSOLICITED_LIMIT + self.line.max_in_flight
+        while end - pos >= _MBAP.size:
+            tid, pid, length, unit = _MBAP.unpack_from(buf, pos)
             if pid != 0 or not 2 <= length <= MAX_PDU + 1:
-                self.line._corrupt_stream(self, bytes(buf[: _MBAP.size]))
+                header = bytes(buf[pos : pos + _MBAP.size]).hex(" ")
+                self.line._noisy_stream(self, f"not a Modbus TCP header: {header}")
                 return
-            if len(buf) < 6 + length:
+            frame_end = pos + 6 + length
+            if frame_end > end:
+                break
+            pdu = bytes(buf[pos + _MBAP.size : frame_end])
+            pos = frame_end
+            if self.line._on_reply(self, tid, unit, pdu):
+                self.unsolicited = 0
+                continue
+            self.unsolicited += 1
+            if self.unsolicited > limit:
+                self.line._noisy_stream(
+                    self, f"{self.unsolicited} replies in a row match no request"
+                )
                 return
-            pdu = bytes(buf[_MBAP.size : 6 + length])
-            del buf[: 6 + length]
-            self.line._on_reply(self, tid, unit, pdu)
+        del buf[:pos]
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.line._connection_lost(self, exc)
@@ -294,6 +323,8 @@ class TcpLine(NetworkLine[_MbapProtocol]):
     connection never reports itself) so that the next request reconnects; 0 disables it.
     An ``Exchange``'s ``wire_time`` is the round trip: the time the connection was busy.
     """
+
+    counts_garbage = True
 
     def __init__(
         self,
@@ -325,6 +356,12 @@ class TcpLine(NetworkLine[_MbapProtocol]):
         self._slots = asyncio.Semaphore(max_in_flight)
         self._tid = 0
         self._timeouts_in_row = 0
+        self._garbage_bytes = 0
+
+    @property
+    def garbage_bytes(self) -> int:
+        """Bytes discarded with streams dropped as junk (not Modbus TCP, or a babbler)."""
+        return self._garbage_bytes
 
     def _make_protocol(self) -> _MbapProtocol:
         return _MbapProtocol(self)
@@ -344,8 +381,13 @@ class TcpLine(NetworkLine[_MbapProtocol]):
         expect: LengthPredictor | None,
         settings: LineSettings | None = None,
         timeout: float = 0.1,
+        quiet_by: float | None = None,
     ) -> Exchange:
-        """Send ``pdu`` to ``unit`` and await the reply with the same transaction id."""
+        """Send ``pdu`` to ``unit`` and await the reply with the same transaction id.
+
+        A TCP connection keeps no silences: ``quiet_by`` does not apply; junk from the
+        peer fails the requests in flight with ``LineNoise`` and drops the connection.
+        """
         if settings is not None:
             raise LineConfigError(
                 f"{self.name} is Modbus TCP: slave {unit} cannot have serial settings",
@@ -420,7 +462,8 @@ class TcpLine(NetworkLine[_MbapProtocol]):
 
     # -- called by the protocol -----------------------------------------------------------------
 
-    def _on_reply(self, conn: _MbapProtocol, tid: int, unit: int, pdu: bytes) -> None:
+    def _on_reply(self, conn: _MbapProtocol, tid: int, unit: int, pdu: bytes) -> bool:
+        """Hand a reply to the request waiting for it; False if none was (late, unknown)."""
         p = conn.pending.get(tid)
         if p is not None and not p.future.done():
             if unit != p.unit:
@@ -434,10 +477,10 @@ class TcpLine(NetworkLine[_MbapProtocol]):
                 )
             else:
                 p.future.set_result(pdu)
-            return
+            return True
         if tid in conn.abandoned:
             self.stats.late_replies += 1
-            return
+            return False
         self.stats.rejected_replies += 1
         waiting = [q for q in conn.pending.values() if not q.future.done()]
         msg = f"{self.name}: reply with transaction id {tid} matches no request"
@@ -450,17 +493,24 @@ class TcpLine(NetworkLine[_MbapProtocol]):
                 FrameError(f"{msg} (expected {wanted}): reply rejected", slave=q.unit)
             )
         # With several in flight the reply cannot be attributed: they time out instead.
+        return False
 
-    def _corrupt_stream(self, conn: _MbapProtocol, header: bytes) -> None:
-        """A header that is not MBAP: the stream is out of step; drop the connection."""
-        msg = f"{self.name}: not a Modbus TCP header: {header.hex(' ')}; reconnecting"
+    def _noisy_stream(self, conn: _MbapProtocol, cause: str) -> None:
+        """Junk from the peer: the stream is out of step; fail what is in flight with
+        ``LineNoise`` and drop the connection (the next request reconnects)."""
+        msg = f"{self.name}: {cause}; the peer sends junk, reconnecting"
         self.stats.last_error = msg
+        conn.noise = msg
+        self._garbage_bytes += len(conn.buf)
+        conn.buf.clear()
         for p in conn.pending.values():
             if not p.future.done():
-                p.future.set_exception(FrameError(msg, slave=p.unit))
-        conn.buf.clear()
+                p.future.set_exception(self._noise_error(conn, p.unit))
         if conn.transport is not None:
             conn.transport.close()
+
+    def _noise_error(self, conn: _MbapProtocol, unit: int) -> LineNoise:
+        return LineNoise(f"slave {unit} on {conn.noise}", slave=unit, line=self.name)
 
     def _connection_lost(self, conn: _MbapProtocol, exc: BaseException | None) -> None:
         super()._connection_lost(conn, exc)
@@ -469,6 +519,8 @@ class TcpLine(NetworkLine[_MbapProtocol]):
                 continue
             if self._closed:
                 err: Exception = LineClosed(f"{self.name} closed")
+            elif conn.noise:
+                err = self._noise_error(conn, p.unit)
             else:
                 err = ConnectionLost(
                     f"slave {p.unit} on {self.name}: connection to {self.address} lost "
@@ -488,6 +540,12 @@ class _RtuTcpReceiver(RtuReceiver):
         super().__init__(line.name)
         self.line = line
         self.cause = ""
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        super().connection_made(transport)
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            self.pending_bytes = functools.partial(read_waiting, sock.fileno())
 
     def connection_lost(self, exc: Exception | None) -> None:
         if not self.cause:
@@ -546,6 +604,10 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
         """Bytes received outside any reply on the current connection, discarded."""
         return self._conn.garbage_bytes if self._conn is not None else 0
 
+    def last_activity(self) -> float:
+        """When the last frame sent or byte received (on this connection) ended."""
+        return self._link.last_activity(self._conn)
+
     def ready_at(self, settings: LineSettings | None) -> float:
         """When t3.5 at the serial port's settings will have passed since the last traffic."""
         return self._link.ready_at(self._conn, timing(self.settings).t35)
@@ -563,8 +625,10 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
         expect: LengthPredictor | None,
         settings: LineSettings | None = None,
         timeout: float = 0.1,
+        quiet_by: float | None = None,
     ) -> Exchange:
-        """Send one RTU frame after t3.5 of silence and read its reply by length."""
+        """Send one RTU frame after t3.5 of silence and read its reply by length
+        (``LineNoise`` if the line is not quiet by ``quiet_by``)."""
         if settings is not None and settings != self.settings:
             raise LineConfigError(
                 f"slave {unit} on {self.name}: settings {settings} differ from the serial "
@@ -573,8 +637,10 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
             )
         async with self._lock:
             rx = await self._connection()
+            if quiet_by is None:
+                quiet_by = monotonic() + timeout
             try:
-                return await self._exchange(rx, unit, pdu, expect, timeout)
+                return await self._exchange(rx, unit, pdu, expect, timeout, quiet_by)
             except LineClosed as exc:
                 if self._closed:
                     raise
@@ -591,9 +657,10 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
         pdu: bytes,
         expect: LengthPredictor | None,
         timeout: float,
+        quiet_by: float,
     ) -> Exchange:
         tm = timing(self.settings)
-        await self._link.wait_quiet(rx, tm.t35)
+        await self._link.wait_quiet(rx, unit, tm.t35, quiet_by)
         return await self._link.exchange(
             rx,
             rx.send,
