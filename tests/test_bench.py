@@ -9,7 +9,7 @@ import pytest
 from drivebus.bench import format_table, results_json, run_bench, scenarios
 from drivebus.errors import ArgumentError
 
-BUILT_IN = {"efficiency", "stop latency", "cpu", "scale", "pymodbus baseline"}
+BUILT_IN = {"efficiency", "stop latency", "cpu", "scale", "pymodbus baseline", "flood"}
 
 
 async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
@@ -23,6 +23,12 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
             assert r.figures["violations"] == 0, r
         if r.scenario == "efficiency":
             assert r.figures["transactions"] > 0 and 0 < r.figures["efficiency"] <= 1.0, r
+    flood = {r.case.split(",")[0]: r.figures for r in results if r.scenario == "flood"}
+    assert set(flood) == {"none", "line rate", "flat out"}
+    for figures in flood.values():
+        assert figures["healthy_violations"] == 0 and figures["healthy_transactions"] > 0
+    assert flood["none"]["line_noise"] == 0
+    assert isinstance(flood["flat out"]["line_noise"], int) and flood["flat out"]["line_noise"] > 0
     stop = next(r for r in results if r.scenario == "stop latency")
     assert stop.figures["stops"] == 20
     assert "efficiency" in format_table(results)
