@@ -4,19 +4,39 @@ from __future__ import annotations
 
 import json
 
-from drivebus.bench import format_table, results_json, run_bench
+import pytest
+
+from drivebus.bench import format_table, results_json, run_bench, scenarios
+from drivebus.errors import ArgumentError
+
+BUILT_IN = {"efficiency", "stop latency", "cpu", "scale", "pymodbus baseline", "flood"}
 
 
 async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
     results = await run_bench(quick=True, seconds=0.15)
-    scenarios = {r.scenario for r in results}
-    assert scenarios == {"efficiency", "stop latency", "cpu", "scale", "pymodbus baseline"}
+    found = [s.name for s in scenarios()]
+    assert set(found) >= BUILT_IN
+    # every scenario module found gave rows, in the declared order
+    assert list(dict.fromkeys(r.scenario for r in results)) == found
     for r in results:
         if r.scenario in ("efficiency", "scale"):
             assert r.figures["violations"] == 0, r
         if r.scenario == "efficiency":
             assert r.figures["transactions"] > 0 and 0 < r.figures["efficiency"] <= 1.0, r
+    flood = {r.case.split(",")[0]: r.figures for r in results if r.scenario == "flood"}
+    assert set(flood) == {"none", "line rate", "flat out"}
+    for figures in flood.values():
+        assert figures["healthy_violations"] == 0 and figures["healthy_transactions"] > 0
+    assert flood["none"]["line_noise"] == 0
+    assert isinstance(flood["flat out"]["line_noise"], int) and flood["flat out"]["line_noise"] > 0
     stop = next(r for r in results if r.scenario == "stop latency")
     assert stop.figures["stops"] == 20
     assert "efficiency" in format_table(results)
     assert len(json.loads(results_json(results))) == len(results)
+
+
+async def test_scenarios_can_be_chosen_by_name() -> None:
+    results = await run_bench(quick=True, seconds=0.1, only={"cpu"})
+    assert [r.scenario for r in results] == ["cpu"]
+    with pytest.raises(ArgumentError, match="no bench scenario named nope"):
+        await run_bench(quick=True, only={"nope"})

@@ -17,6 +17,7 @@ __all__ = [
     "LimitViolation",
     "LineClosed",
     "LineConfigError",
+    "LineNoise",
     "ModbusException",
     "MotionAborted",
     "MotionError",
@@ -57,6 +58,25 @@ class ResponseTimeout(TransactionError):
 
 class FrameError(TransactionError):
     """A reply arrived but is unusable: bad CRC, short or malformed frame."""
+
+
+class LineNoise(FrameError):
+    """Bytes nobody asked for kept the line busy: noise, a babbling device, a slave at the
+    wrong rate, or a network peer sending junk. ``line`` names the line.
+
+    ``sent`` says whether the request went out: False, the line never went quiet for its
+    silence within the request's timeout, so nothing was sent (a command was certainly
+    not executed); True, it went out and its reply was drowned. The bus counts it in
+    ``SlaveStats.line_noise`` and never waits past the request's timeout for a quiet
+    line; the line recovers by itself once the noise stops.
+    """
+
+    def __init__(
+        self, message: str, *, slave: int | None = None, line: str = "", sent: bool = True
+    ) -> None:
+        super().__init__(message, slave=slave)
+        self.line = line
+        self.sent = sent
 
 
 class WrongResponder(TransactionError):

@@ -1,6 +1,7 @@
 """The bus scheduler: priorities, retries, statistics, slave handles."""
 
-from drivebus.bus.scheduler import Bus, Priority
+from drivebus.bus.priority import Priority
+from drivebus.bus.scheduler import Bus
 from drivebus.bus.slave import SlaveHandle
 from drivebus.bus.stats import BusStats, SlaveStats
 

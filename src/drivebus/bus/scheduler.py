@@ -5,23 +5,24 @@ from __future__ import annotations
 import asyncio
 import heapq
 import itertools
+import math
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
-from enum import IntEnum
 from types import TracebackType
-from typing import TYPE_CHECKING
 
 import anyio
-import anyio.abc
 
+from drivebus.bus.priority import Priority
+from drivebus.bus.slave import SlaveHandle
+from drivebus.bus.stats import BusStats
 from drivebus.clock import PreciseTimer, monotonic
 from drivebus.errors import (
     ConfigError,
     ConnectionLost,
-    FrameError,
     LineClosed,
     LineConfigError,
+    LineNoise,
     ResponseTimeout,
     TransactionError,
     WrongResponder,
@@ -31,22 +32,7 @@ from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.tasks import ServiceTasks
 
-if TYPE_CHECKING:
-    from drivebus.bus.slave import SlaveHandle
-
-from drivebus.bus.stats import BusStats
-
 __all__ = ["Bus", "Priority"]
-
-
-class Priority(IntEnum):
-    """Request priority on a line: a stop overtakes everything queued."""
-
-    POLL = 0
-    CONFIG = 1
-    COMMAND = 2
-    EMERGENCY = 3
-
 
 @dataclass(eq=False)
 class _Request:
@@ -57,6 +43,9 @@ class _Request:
     expect: LengthPredictor | None
     retries_left: int
     future: asyncio.Future[bytes] = field(repr=False)
+    queued_at: float = field(default_factory=monotonic)
+    sent: bool = False
+    """An attempt went out on the line (so a device may have acted on it)."""
 
     def __lt__(self, other: _Request) -> bool:
         if self.priority != other.priority:
@@ -64,7 +53,45 @@ class _Request:
         return self.seq < other.seq
 
 
-_RETRYABLE = (ResponseTimeout, FrameError, WrongResponder)
+class _NoiseWatch:
+    """Tells the bus owner when bytes nobody asked for keep its line busy, and since when.
+
+    While the owner waits for the line's silence it sends nothing, so if the line's last
+    activity moves, bytes arrived that are no reply: noise. From then on each queued
+    request has its own timeout to see the line quiet (counted from when it was queued,
+    or from when the noise was noticed, whichever is later), never longer.
+    """
+
+    def __init__(self, line: Line) -> None:
+        self.line = line
+        self.seen = line.last_activity()
+        self.since: float | None = None
+        """When noise was first noticed (None: the line is not known to be noisy)."""
+
+    def reset(self) -> None:
+        """The line carried a transaction (or the owner was idle): start watching afresh."""
+        self.seen = self.line.last_activity()
+        self.since = None
+
+    def look(self, now: float) -> None:
+        """Note noise if the line was active since the last look."""
+        activity = self.line.last_activity()
+        if activity > self.seen:
+            self.seen = activity
+            if self.since is None:
+                self.since = now
+
+    def noted(self, now: float) -> None:
+        """The line reported noise itself (a reply lost in it)."""
+        if self.since is None:
+            self.since = now
+        self.seen = self.line.last_activity()
+
+    def deadline(self, req: _Request) -> float | None:
+        """The latest time ``req`` may still go out, while the line is noisy."""
+        if self.since is None:
+            return None
+        return max(req.queued_at, self.since) + req.handle.timeout
 
 
 class Bus:
@@ -73,6 +100,11 @@ class Bus:
     Requests are served highest ``Priority`` first, FIFO within a priority. Reads (and
     writes marked idempotent) are retried after a timeout or a bad frame; a write marked
     non-idempotent never is: the caller must read back state before deciding.
+
+    A noisy line (bytes nobody asked for keep it from going quiet) fails each request
+    with ``LineNoise`` once the request's timeout has passed since it was queued or since
+    the noise was noticed, whichever is later; it is not retried, and ``sent`` tells
+    whether any attempt went out. Other lines and tasks are unaffected.
     """
 
     def __init__(self, line: Line, *, timeout: float = 0.1, retries: int = 2) -> None:
@@ -138,8 +170,6 @@ class Bus:
         exception_texts: dict[int, str] | None = None,
     ) -> SlaveHandle:
         """A handle for the slave at ``address`` (0 = broadcast) with its own settings."""
-        from drivebus.bus.slave import SlaveHandle
-
         if not 0 <= address <= 247:
             raise ConfigError(f"slave address {address} is outside 0..247 (0 = broadcast)")
         if settings is not None and settings != self.line.settings:
@@ -147,7 +177,7 @@ class Bus:
                 raise ConfigError(
                     f"line {self.line.name} is not a serial line: no per-slave settings"
                 )
-            if not getattr(self.line, "per_slave_settings", True):
+            if not self.line.per_slave_settings:
                 raise ConfigError(
                     f"slave {address}: line {self.line.name} has one setting for all slaves "
                     f"({self.line.settings}); {settings} cannot be used on it"
@@ -238,31 +268,40 @@ class Bus:
     async def _owner(self) -> None:
         loop = asyncio.get_running_loop()
         line = self.line
+        noise = _NoiseWatch(line)
         try:
             while True:
                 if not self._queue:
                     self._work = loop.create_future()
                     await self._work
+                    noise.reset()
                     continue
                 req = self._queue[0]
-                if req.future.done():  # the caller gave up while queued
+                if req.future.done():  # the caller gave up (or ran out of time) while queued
                     heapq.heappop(self._queue)
                     continue
+                now = monotonic()
+                noise.look(now)
+                next_expiry = math.inf
+                if noise.since is not None:
+                    next_expiry = self._expire_noisy(noise.since, now)
+                    if req.future.done():
+                        continue
                 if self._holds and req.priority < Priority.EMERGENCY:
                     self._work = loop.create_future()
                     await self._work  # held: only an emergency request or the end of it
                     continue
                 ready = line.ready_at(req.handle.settings)
-                if ready > monotonic():
+                if ready > now:
                     self._waiting_for = req
                     try:
-                        await self._timer.sleep_until(ready)
+                        await self._timer.sleep_until(min(ready, next_expiry))
                     finally:
                         self._waiting_for = None
                     continue  # the queue's head may have changed meanwhile
                 heapq.heappop(self._queue)
                 self._in_flight = req
-                await self._run_one(req)
+                await self._run_one(req, noise)
                 self._in_flight = None
                 for waiter in self._idle_waiters:
                     if not waiter.done():
@@ -275,18 +314,73 @@ class Bus:
             self._fail_queued(exc)
             raise
 
-    async def _run_one(self, req: _Request) -> None:
+    def _expire_noisy(self, since: float, now: float) -> float:
+        """Fail the queued requests whose time to see the noisy line quiet has run out;
+        return the next such deadline (inf: none)."""
+        nearest = math.inf
+        for req in self._queue:
+            if req.future.done():
+                continue
+            deadline = max(req.queued_at, since) + req.handle.timeout
+            if deadline > now:
+                nearest = min(nearest, deadline)
+                continue
+            h = req.handle
+            garbage = (
+                f"; {self.line.garbage_bytes} bytes discarded so far"
+                if self.line.counts_garbage
+                else ""
+            )
+            exc = LineNoise(
+                f"slave {h.address}: {self.line.name} is noisy: bytes nobody asked for kept "
+                f"it busy for {(now - since) * 1e3:.0f} ms, past the "
+                f"{h.timeout * 1e3:.0f} ms timeout (noise, a babbling device or a slave at "
+                f"another rate{garbage}); "
+                + ("an earlier attempt was sent" if req.sent else "not sent"),
+                slave=h.address,
+                line=self.line.name,
+                sent=req.sent,
+            )
+            st = self.stats.slave(h.address)
+            st.line_noise += 1
+            st.last_error = str(exc)
+            req.future.set_exception(exc)
+        return nearest
+
+    async def _run_one(self, req: _Request, noise: _NoiseWatch) -> None:
         h = req.handle
         st = self.stats.slave(h.address)
         try:
             ex = await self.line.transact(
-                h.address, req.pdu, expect=req.expect, settings=h.settings, timeout=h.timeout
+                h.address,
+                req.pdu,
+                expect=req.expect,
+                settings=h.settings,
+                timeout=h.timeout,
+                quiet_by=noise.deadline(req),
             )
         except LineClosed as exc:
             if not req.future.done():
                 req.future.set_exception(exc)
             raise
+        except LineNoise as exc:
+            noise.noted(monotonic())
+            if exc.sent:
+                self.stats.transactions += 1
+            elif req.sent:
+                exc = LineNoise(
+                    f"{exc} (an earlier attempt was sent)", slave=h.address, line=exc.line
+                )
+            req.sent = exc.sent
+            st.line_noise += 1
+            st.last_error = str(exc)
+            # Not retried: noise that outlasted the timeout (and, for a drowned reply, the
+            # longest frame's wire time) would only hold the caller for another timeout.
+            self._retry_or_fail(req, exc, retry=False)
+            return
         except TransactionError as exc:
+            noise.reset()
+            req.sent = req.sent or not isinstance(exc, LineConfigError)
             self.stats.transactions += 1
             st.last_error = str(exc)
             if isinstance(exc, ResponseTimeout):
@@ -299,13 +393,7 @@ class Bus:
                 pass  # refused before it reached the wire; not a wire error
             else:
                 st.crc_errors += 1
-            retry = not isinstance(exc, LineConfigError) and not req.future.done()
-            if retry and req.retries_left > 0:
-                req.retries_left -= 1
-                st.retries += 1
-                heapq.heappush(self._queue, req)  # same seq: keeps its place in line
-            elif not req.future.done():
-                req.future.set_exception(exc)
+            self._retry_or_fail(req, exc, retry=not isinstance(exc, LineConfigError))
             return
         except (OSError, ValueError) as exc:
             # The port failed under us (unplugged adapter): this request fails, the line is gone.
@@ -313,6 +401,7 @@ class Bus:
             if not req.future.done():
                 req.future.set_exception(err)
             raise err from exc
+        noise.reset()
         self.stats.transactions += 1
         self.stats.wire_time += ex.wire_time
         if req.expect is None:
@@ -324,4 +413,13 @@ class Bus:
         if not req.future.done():
             req.future.set_result(ex.reply)
 
-
+    def _retry_or_fail(self, req: _Request, exc: TransactionError, *, retry: bool) -> None:
+        """Queue ``req`` again if it may be retried and has retries left, else fail it."""
+        if req.future.done():
+            return  # its caller gave up
+        if retry and req.retries_left > 0:
+            req.retries_left -= 1
+            self.stats.slave(req.handle.address).retries += 1
+            heapq.heappush(self._queue, req)  # same seq: keeps its place in line
+        else:
+            req.future.set_exception(exc)

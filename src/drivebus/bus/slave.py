@@ -2,20 +2,43 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Sequence
+from typing import Protocol
 
-from drivebus import pdu as P
+from drivebus.bus.priority import Priority
 from drivebus.errors import ConfigError, ModbusException
+from drivebus.pdu import (
+    READ_HOLDING,
+    READ_INPUT,
+    LengthPredictor,
+    check_exception,
+    decode_read_reply,
+    decode_write_multiple_reply,
+    decode_write_single_reply,
+    read_request,
+    response_length,
+    write_multiple_request,
+    write_single_request,
+)
 from drivebus.settings import LineSettings
 
-if TYPE_CHECKING:
-    from collections.abc import Callable, Sequence
+__all__ = ["Executor", "SlaveHandle"]
 
-    from drivebus.bus.scheduler import Bus
 
-from drivebus.bus.scheduler import Priority
+class Executor(Protocol):
+    """What a slave handle needs from its bus: run one transaction for it."""
 
-__all__ = ["SlaveHandle"]
+    async def execute(
+        self,
+        handle: SlaveHandle,
+        pdu: bytes,
+        *,
+        expect: LengthPredictor | None,
+        priority: Priority,
+        idempotent: bool,
+    ) -> bytes:
+        """Queue one transaction and return its reply PDU (empty for a broadcast)."""
+        ...
 
 
 class SlaveHandle:
@@ -23,7 +46,7 @@ class SlaveHandle:
 
     def __init__(
         self,
-        bus: Bus,
+        bus: Executor,
         address: int,
         *,
         settings: LineSettings | None,
@@ -49,7 +72,7 @@ class SlaveHandle:
 
     def raise_exception(self, reply: bytes) -> None:
         """Raise the typed error for an exception reply, with the vendor's text."""
-        P.check_exception(reply, slave=self.address, texts=self.exception_texts)
+        check_exception(reply, slave=self.address, texts=self.exception_texts)
         raise ModbusException(0, function=reply[0] & 0x7F, slave=self.address)  # unreachable
 
     def _no_broadcast_read(self) -> None:
@@ -58,11 +81,11 @@ class SlaveHandle:
 
     async def _read(self, function: int, address: int, count: int, priority: Priority) -> list[int]:
         self._no_broadcast_read()
-        req = P.read_request(function, address, count)
+        req = read_request(function, address, count)
         reply = await self.bus.execute(
-            self, req, expect=P.response_length, priority=priority, idempotent=True
+            self, req, expect=response_length, priority=priority, idempotent=True
         )
-        return P.decode_read_reply(reply, function, count, slave=self.address)
+        return decode_read_reply(reply, function, count, slave=self.address)
 
     async def _write(
         self,
@@ -74,7 +97,7 @@ class SlaveHandle:
         reply = await self.bus.execute(
             self,
             req,
-            expect=None if self.is_broadcast else P.response_length,
+            expect=None if self.is_broadcast else response_length,
             priority=priority,
             idempotent=idempotent,
         )
@@ -85,13 +108,13 @@ class SlaveHandle:
         self, address: int, count: int, *, priority: Priority = Priority.CONFIG
     ) -> list[int]:
         """Read ``count`` holding registers (FC03); retried on timeout or bad frame."""
-        return await self._read(P.READ_HOLDING, address, count, priority)
+        return await self._read(READ_HOLDING, address, count, priority)
 
     async def read_input_registers(
         self, address: int, count: int, *, priority: Priority = Priority.CONFIG
     ) -> list[int]:
         """Read ``count`` input registers (FC04); retried on timeout or bad frame."""
-        return await self._read(P.READ_INPUT, address, count, priority)
+        return await self._read(READ_INPUT, address, count, priority)
 
     async def write_register(
         self,
@@ -102,8 +125,8 @@ class SlaveHandle:
         idempotent: bool = True,
     ) -> None:
         """Write one register (FC06). Mark commands ``idempotent=False``: never retried."""
-        req = P.write_single_request(address, value)
-        await self._write(req, P.decode_write_single_reply, priority, idempotent)
+        req = write_single_request(address, value)
+        await self._write(req, decode_write_single_reply, priority, idempotent)
 
     async def write_registers(
         self,
@@ -114,14 +137,14 @@ class SlaveHandle:
         idempotent: bool = True,
     ) -> None:
         """Write consecutive registers (FC16). Mark commands ``idempotent=False``."""
-        req = P.write_multiple_request(address, values)
-        await self._write(req, P.decode_write_multiple_reply, priority, idempotent)
+        req = write_multiple_request(address, values)
+        await self._write(req, decode_write_multiple_reply, priority, idempotent)
 
     async def transact(
         self,
         pdu: bytes,
         *,
-        expect: P.LengthPredictor | None = P.response_length,
+        expect: LengthPredictor | None = response_length,
         priority: Priority = Priority.CONFIG,
         idempotent: bool = False,
     ) -> bytes:

@@ -23,13 +23,22 @@ class SlaveStats:
     wrong_responder: int = 0
     connection_errors: int = 0
     """Requests lost to a dropped network connection (TCP lines)."""
+    line_noise: int = 0
+    """Requests that failed because noise kept the line busy past their timeout (never
+    sent) or drowned their reply (``LineNoise``)."""
     broadcasts: int = 0
     last_error: str = ""
 
     @property
     def errors(self) -> int:
         """All failed attempts."""
-        return self.timeouts + self.crc_errors + self.wrong_responder + self.connection_errors
+        return (
+            self.timeouts
+            + self.crc_errors
+            + self.wrong_responder
+            + self.connection_errors
+            + self.line_noise
+        )
 
 
 @dataclass

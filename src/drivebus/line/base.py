@@ -1,4 +1,9 @@
-"""What every line (serial RTU, Modbus TCP, RTU over TCP) offers the bus scheduler."""
+"""What every line (serial RTU, Modbus TCP, RTU over TCP) offers the bus scheduler.
+
+A line declares what it can do (``per_slave_settings``, ``local_echo``, ``max_in_flight``,
+``counts_garbage``) as typed attributes, so the scheduler and tools read them instead of
+probing the object.
+"""
 
 from __future__ import annotations
 
@@ -28,12 +33,36 @@ class Exchange:
 
 
 class Line(abc.ABC):
-    """A medium that carries one Modbus transaction at a time."""
-
-    settings: LineSettings | None
-    """Default line settings (None for plain Modbus TCP)."""
+    """A medium that carries Modbus transactions, one at a time unless it says otherwise."""
 
     name: str
+    """What error messages call the line (a port, ``tcp://host:port``, ...)."""
+
+    settings: LineSettings | None
+    """Default line settings (None for plain Modbus TCP, which has none)."""
+
+    # -- capabilities: class defaults, set per class or per instance by each line ------------
+
+    per_slave_settings: bool = False
+    """Each slave may have its own baud rate and format: the line reconfigures its port
+    before a frame at other settings (and keeps the longer silence)."""
+
+    local_echo: bool = False
+    """The medium hears its own transmitter: every frame sent comes back first and is
+    consumed before the reply."""
+
+    max_in_flight: int = 1
+    """How many requests the line can have outstanding at once (replies matched by id)."""
+
+    counts_garbage: bool = False
+    """``garbage_bytes`` counts the bytes received outside any reply; False: always 0."""
+
+    @property
+    def garbage_bytes(self) -> int:
+        """Bytes received outside any reply (late answers, noise), discarded."""
+        return 0
+
+    # -- life cycle and transactions ---------------------------------------------------------
 
     @abc.abstractmethod
     async def open(self) -> None:
@@ -42,6 +71,12 @@ class Line(abc.ABC):
     @abc.abstractmethod
     async def close(self) -> None:
         """Close; a transaction waiting on the line fails with ``LineClosed``."""
+
+    def last_activity(self) -> float:
+        """Monotonic time the line's last known traffic ended (a frame sent, a byte
+        received; 0: the line keeps no silences). While the line is idle it moves only
+        when bytes arrive that nobody asked for: the scheduler reads that as noise."""
+        return 0.0
 
     def ready_at(self, settings: LineSettings | None) -> float:
         """Monotonic time from which a frame at ``settings`` may start (0: at once)."""
@@ -56,8 +91,15 @@ class Line(abc.ABC):
         expect: LengthPredictor | None,
         settings: LineSettings | None = None,
         timeout: float = 0.1,
+        quiet_by: float | None = None,
     ) -> Exchange:
-        """Send ``pdu`` to ``unit`` and return its reply (``expect=None``: no reply)."""
+        """Send ``pdu`` to ``unit`` and return its reply (``expect=None``: no reply).
+
+        ``timeout`` bounds the wait for the reply once the request is out. A line that
+        keeps silences bounds the wait before it too: if received bytes keep it busy
+        until ``quiet_by`` (default: ``timeout`` from now), ``LineNoise`` with
+        ``sent=False``. A reply drowned in noise is ``LineNoise`` with ``sent=True``.
+        """
 
     async def __aenter__(self) -> Line:
         await self.open()

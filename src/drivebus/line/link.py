@@ -4,6 +4,8 @@ Both the serial line and RTU over TCP use it, so the wire rules live in one plac
 silence is counted from the last byte that left (write time + n × character time) or
 arrived; bytes that arrive while we wait are line activity and restart the count; after
 a failure the count starts from now (plus ``latency`` where the medium adds delay).
+The wait for silence is bounded: bytes that keep the line busy past the caller's
+``quiet_by`` end it with ``LineNoise`` (nothing sent).
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from drivebus.clock import PreciseTimer, monotonic
+from drivebus.errors import LineNoise
 from drivebus.line.base import Exchange
 from drivebus.line.receiver import RtuReceiver
 from drivebus.line.rtu import frame
@@ -30,29 +33,54 @@ class RtuLink:
         """When the line's last known activity ended."""
         self.timer = PreciseTimer()
 
+    def last_activity(self, rx: RtuReceiver | None) -> float:
+        """When the line's last known activity (a frame of ours, a byte received) ended."""
+        return self.quiet_since if rx is None else max(self.quiet_since, rx.last_rx)
+
     def ready_at(self, rx: RtuReceiver | None, silence: float) -> float:
         """When ``silence`` will have passed since the last activity."""
-        last = self.quiet_since if rx is None else max(self.quiet_since, rx.last_rx)
-        return last + silence
+        return self.last_activity(rx) + silence
 
     async def wait_quiet(
-        self, rx: RtuReceiver, silence: float, drain: Callable[[], bytes] | None = None
+        self,
+        rx: RtuReceiver,
+        unit: int,
+        silence: float,
+        quiet_by: float,
     ) -> None:
         """Wait for ``silence`` since the last activity; drop bytes that came meanwhile.
 
-        ``drain`` returns bytes already received but not yet delivered by the event loop
-        (a slave answering late): they count as activity too.
+        Bytes already received but not yet delivered by the event loop (a slave answering
+        late) count as activity too (``rx.pending_bytes``). If received bytes still keep
+        the line busy at ``quiet_by``, ``LineNoise`` (the silence our own traffic needs,
+        e.g. after a broadcast, is waited in full).
         """
+        started = monotonic()
         while True:
-            quiet = max(self.quiet_since, rx.last_rx)
-            await self.timer.sleep_until(quiet + silence)
-            if drain is not None:
-                late = drain()
-                if late:
-                    rx.data_received(late)
+            quiet = self.last_activity(rx)
+            ready = quiet + silence
+            if ready > quiet_by and rx.last_rx > self.quiet_since:
+                if monotonic() >= quiet_by:
+                    raise self._noise(rx, unit, silence, monotonic() - started)
+                await self.timer.sleep_until(quiet_by)  # perhaps the noise stops by then
+                continue
+            await self.timer.sleep_until(ready)
+            rx.take_pending()
             if rx.last_rx <= quiet:
                 break  # nothing arrived while we waited
         rx.discard()
+
+    @staticmethod
+    def _noise(rx: RtuReceiver, unit: int, silence: float, waited: float) -> LineNoise:
+        rx.discard()
+        return LineNoise(
+            f"slave {unit}: {rx.name} is noisy: no silence of {silence * 1e3:.2f} ms in "
+            f"{waited * 1e3:.0f} ms (noise, a babbling device or a slave at another rate; "
+            f"{rx.garbage_bytes} bytes discarded on this line so far); not sent",
+            slave=unit,
+            line=rx.line_name,
+            sent=False,
+        )
 
     async def exchange(
         self,

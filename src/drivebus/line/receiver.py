@@ -2,18 +2,51 @@
 
 End of frame is found by length (function code and byte count); after garbage, a bad
 CRC or a short frame it waits for t3.5 of silence and then looks for a valid frame.
+Every step does bounded work: the buffer keeps at most ``BUFFER_LIMIT`` bytes, a wait for
+silence wakes once per silence (not per byte) and ends at a limit, and the search for a
+frame in junk checks at most ``SCAN_CRC_BUDGET`` bytes of CRC. A line flooded with bytes
+therefore costs bounded CPU per wake-up and ends in ``LineNoise``, never in a hang.
 """
 
 from __future__ import annotations
 
 import asyncio
+import os
+from collections.abc import Callable
+from typing import cast
 
 from drivebus.clock import monotonic
-from drivebus.errors import FrameError, LineClosed, ResponseTimeout, WrongResponder
+from drivebus.errors import FrameError, LineClosed, LineNoise, ResponseTimeout, WrongResponder
 from drivebus.line.rtu import crc_ok
 from drivebus.pdu import LengthPredictor
 
-__all__ = ["RtuReceiver"]
+__all__ = [
+    "BUFFER_LIMIT",
+    "MAX_ADU",
+    "SCAN_CRC_BUDGET",
+    "RtuReceiver",
+    "StreamProtocol",
+    "read_waiting",
+]
+
+MAX_ADU = 256
+"""The longest RTU frame (Modbus over serial line, 2.5.1.1)."""
+BUFFER_LIMIT = 2 * MAX_ADU
+"""Received bytes kept at most: a reply and as much junk before it; older bytes go."""
+SCAN_CRC_BUDGET = 8 * 1024
+"""Bytes of CRC computed at most when looking for a frame in junk (a few ms of CPU)."""
+_NEVER = BUFFER_LIMIT + 1
+"""A byte count the buffer never reaches: ``wait_for(_NEVER, t)`` waits for ``t`` only."""
+
+
+def read_waiting(fd: int) -> bytes:
+    """What a non-blocking descriptor (serial port, socket) has received and nobody has read
+    yet, up to ``BUFFER_LIMIT`` bytes; empty if nothing (or the descriptor failed: its
+    transport will report that itself)."""
+    try:
+        return os.read(fd, BUFFER_LIMIT)
+    except OSError:  # EAGAIN: nothing waiting; EIO/ECONNRESET: the transport will see it
+        return b""
 
 
 def _expire(w: asyncio.Future[None]) -> None:
@@ -26,30 +59,62 @@ def _loop_time(loop: asyncio.AbstractEventLoop, t: float) -> float:
     return t - monotonic() + loop.time()
 
 
-class RtuReceiver(asyncio.Protocol):
-    """asyncio protocol collecting received bytes with the arrival time of the last one."""
+class StreamProtocol(asyncio.Protocol):
+    """An asyncio protocol on a byte stream (serial port, TCP socket) that keeps its
+    transport and, once the stream is gone, why."""
 
-    def __init__(self, name: str = "line") -> None:
+    def __init__(self, name: str = "line", *, line_name: str | None = None) -> None:
         self.name = name
+        """What error messages call the stream (e.g. "serial port /dev/ttyUSB0")."""
+        self.line_name = name if line_name is None else line_name
+        """The name of the line it belongs to (``Line.name``), for typed errors."""
+        self.transport: asyncio.Transport | None = None
+        self.lost: BaseException | None = None
+        """Why the stream ended (None while it is up)."""
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        # Serial ports and TCP sockets both give a (read/write) ``asyncio.Transport``.
+        self.transport = cast(asyncio.Transport, transport)
+
+    def send(self, data: bytes) -> None:
+        """Queue ``data`` on the transport; ``LineClosed`` if the stream is not up."""
+        transport = self.transport
+        if transport is None or self.lost is not None:
+            raise LineClosed(f"{self.name} is not connected")
+        transport.write(data)
+
+
+class RtuReceiver(StreamProtocol):
+    """Stream protocol collecting received bytes with the arrival time of the last one.
+
+    It holds at most ``BUFFER_LIMIT`` bytes: older ones are dropped (and counted as
+    garbage) as newer ones come, so a flooded line costs one bounded copy per read.
+    """
+
+    def __init__(self, name: str = "line", *, line_name: str | None = None) -> None:
+        super().__init__(name, line_name=line_name)
         self.buf = bytearray()
         self.last_rx = 0.0
         self.need = 0
         self.waiter: asyncio.Future[None] | None = None
-        self.lost: BaseException | None = None
-        self.transport: asyncio.BaseTransport | None = None
         self.garbage_bytes = 0
         """Bytes received outside any reply (late answers, noise), discarded."""
+        self.pending_bytes: Callable[[], bytes] | None = None
+        """Reads what the medium has received and the event loop has not delivered yet
+        (set by lines that can, e.g. a serial port's non-blocking read)."""
 
     # -- asyncio.Protocol --------------------------------------------------------------------
 
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport
-
     def data_received(self, data: bytes) -> None:
         self.last_rx = monotonic()
-        self.buf += data
+        buf = self.buf
+        buf += data
+        excess = len(buf) - BUFFER_LIMIT
+        if excess > 0:
+            del buf[:excess]  # a reply is at most MAX_ADU bytes: these cannot all be one
+            self.garbage_bytes += excess
         w = self.waiter
-        if w is not None and len(self.buf) >= self.need and not w.done():
+        if w is not None and len(buf) >= self.need and not w.done():
             w.set_result(None)
 
     def connection_lost(self, exc: Exception | None) -> None:
@@ -58,10 +123,22 @@ class RtuReceiver(asyncio.Protocol):
         if w is not None and not w.done():
             w.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
 
+    def take_pending(self) -> None:
+        """Take in bytes received but not delivered yet, so that ``last_rx`` is up to date
+        before a decision on silence (the loop may have been busy elsewhere)."""
+        if self.pending_bytes is not None:
+            late = self.pending_bytes()
+            if late:
+                self.data_received(late)
+
     # -- waiting -------------------------------------------------------------------------------
 
     async def wait_for(self, n: int, deadline: float) -> bool:
-        """Wait until ``n`` bytes are buffered; False if ``deadline`` passed first."""
+        """Wait until ``n`` bytes are buffered; False if ``deadline`` passed first.
+
+        ``n`` beyond ``BUFFER_LIMIT`` is never reached: that waits for the deadline (or
+        the loss of the stream) only.
+        """
         if len(self.buf) >= n:
             return True
         if self.lost is not None:
@@ -76,6 +153,21 @@ class RtuReceiver(asyncio.Protocol):
             handle.cancel()
             self.waiter = None
         return len(self.buf) >= n
+
+    async def wait_silence(self, silence: float, limit: float) -> bool:
+        """Wait until ``silence`` has passed since the last byte; False if ``limit`` came
+        first (bytes kept arriving). Wakes once per silence, not once per byte."""
+        while True:
+            now = monotonic()
+            quiet_at = self.last_rx + silence
+            if now >= quiet_at:
+                self.take_pending()
+                if monotonic() >= self.last_rx + silence:
+                    return True
+                continue  # bytes were waiting: not quiet after all
+            if now >= limit:
+                return False
+            await self.wait_for(_NEVER, min(quiet_at, limit))
 
     def discard(self) -> None:
         """Drop whatever is buffered (bytes that arrived outside a reply)."""
@@ -101,13 +193,16 @@ class RtuReceiver(asyncio.Protocol):
         buf = self.buf
         need = 2
         extended = False
+        # A reply that does not start where expected may still come after junk; it is
+        # given the wire time of the longest frame beyond the deadline to end.
+        resync_limit = deadline + MAX_ADU * char + 2 * t35
         while True:
             if not await self.wait_for(need, deadline):
                 if buf:
-                    return await self._resync(unit, expect, t35, deadline)
-                raise ResponseTimeout(f"slave {unit}: no reply", slave=unit)
+                    return await self._resync(unit, expect, t35, resync_limit)
+                raise ResponseTimeout(f"slave {unit} on {self.line_name}: no reply", slave=unit)
             if buf[0] != unit:
-                return await self._resync(unit, expect, t35, deadline)
+                return await self._resync(unit, expect, t35, resync_limit)
             length = expect(bytes(buf[1:need]))
             if length is None:
                 need += 1
@@ -121,40 +216,65 @@ class RtuReceiver(asyncio.Protocol):
                 continue
             adu = bytes(buf[:total])
             if not crc_ok(adu):
-                return await self._resync(unit, expect, t35, deadline)
+                return await self._resync(unit, expect, t35, resync_limit)
             del buf[:total]  # anything after it is garbage, dropped before the next frame
             return adu[1:-2]
 
     async def _resync(
-        self, unit: int, expect: LengthPredictor, t35: float, deadline: float
+        self, unit: int, expect: LengthPredictor, t35: float, limit: float
     ) -> bytes:
-        """Error path: wait for t3.5 of silence, then look for a valid frame in the bytes."""
-        limit = deadline + 0.5  # a babbling line must not hold us forever
-        while monotonic() < limit:
-            quiet_at = self.last_rx + t35
-            if monotonic() >= quiet_at:
-                break
-            await self.wait_for(len(self.buf) + 1, min(quiet_at, limit))
+        """Error path: wait for t3.5 of silence, then look for a valid frame in the bytes.
+
+        If bytes are still coming at ``limit`` the reply is lost in noise: ``LineNoise``.
+        """
+        if not await self.wait_silence(t35, limit):
+            dropped = len(self.buf)
+            self.discard()
+            raise LineNoise(
+                f"slave {unit}: reply lost in noise on {self.name}: bytes kept arriving with "
+                f"no silence of {t35 * 1e3:.2f} ms ({dropped} kept at the end, "
+                f"{self.garbage_bytes} discarded on this line so far)",
+                slave=unit,
+                line=self.line_name,
+                sent=True,
+            )
         data = bytes(self.buf)
         self.buf.clear()
-        other: int | None = None
-        for i in range(len(data) - 3):
-            length = expect(data[i + 1 :])
-            if length is None or i + length + 3 > len(data):
-                continue
-            adu = data[i : i + length + 3]
-            if crc_ok(adu):
-                if adu[0] == unit:
-                    self.garbage_bytes += len(data) - len(adu)
-                    return adu[1:-2]
-                other = adu[0] if other is None else other
+        found, other = _scan(data, unit, expect)
+        if found is not None:
+            self.garbage_bytes += len(data) - len(found) - 3
+            return found
         self.garbage_bytes += len(data)
         if other is not None:
             raise WrongResponder(
-                f"slave {unit}: reply came from address {other}", slave=unit, responder=other
+                f"slave {unit} on {self.line_name}: reply came from address {other}",
+                slave=unit,
+                responder=other,
             )
         kind = "bad CRC" if len(data) >= 4 else "short frame"
         raise FrameError(
-            f"slave {unit}: unusable reply ({kind}, {len(data)} bytes: {data[:32].hex(' ')})",
+            f"slave {unit} on {self.line_name}: unusable reply ({kind}, {len(data)} bytes: "
+            f"{data[:32].hex(' ')})",
             slave=unit,
         )
+
+
+def _scan(data: bytes, unit: int, expect: LengthPredictor) -> tuple[bytes | None, int | None]:
+    """The first valid frame from ``unit`` in ``data`` (its PDU), and the address of the first
+    valid frame from another address. CRC checks stop after ``SCAN_CRC_BUDGET`` bytes, so
+    adversarial junk (every byte a plausible frame start) costs bounded time."""
+    budget = SCAN_CRC_BUDGET
+    other: int | None = None
+    for i in range(len(data) - 3):
+        length = expect(data[i + 1 : i + 1 + MAX_ADU])
+        if length is None or i + length + 3 > len(data):
+            continue
+        budget -= length + 3
+        if budget < 0:
+            break
+        adu = data[i : i + length + 3]
+        if crc_ok(adu):
+            if adu[0] == unit:
+                return adu[1:-2], other
+            other = adu[0] if other is None else other
+    return None, other

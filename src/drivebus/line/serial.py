@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import os
 import termios
 
@@ -11,13 +12,10 @@ import serial.rs485
 import serial_asyncio
 
 from drivebus.clock import monotonic
-from drivebus.errors import (
-    ConfigError,
-    LineClosed,
-)
+from drivebus.errors import ConfigError, LineClosed
 from drivebus.line.base import Exchange, Line
 from drivebus.line.link import RtuLink
-from drivebus.line.receiver import RtuReceiver
+from drivebus.line.receiver import RtuReceiver, read_waiting
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import switch_silence, timing
@@ -56,6 +54,10 @@ class SerialLine(Line):
     baud/format) and the port is then reconfigured in place after the longer silence.
     """
 
+    per_slave_settings = True
+    counts_garbage = True
+    settings: LineSettings
+
     def __init__(
         self,
         port: str,
@@ -79,11 +81,14 @@ class SerialLine(Line):
         self._link = RtuLink()
         self._closed = True
         self._fd = -1
+        self._garbage_closed = 0  # counted by receivers of earlier openings
 
     @property
     def garbage_bytes(self) -> int:
-        """Bytes received outside any reply (late answers, noise), discarded."""
-        return self._rx.garbage_bytes if self._rx is not None else 0
+        """Bytes received outside any reply (late answers, noise), discarded, since the
+        line was created."""
+        rx = self._rx.garbage_bytes if self._rx is not None else 0
+        return self._garbage_closed + rx
 
     @property
     def current_settings(self) -> LineSettings | None:
@@ -94,7 +99,7 @@ class SerialLine(Line):
         """Open the port at the default settings."""
         s = self.settings
         loop = asyncio.get_running_loop()
-        rx = RtuReceiver(f"serial port {self.port}")
+        rx = RtuReceiver(f"serial port {self.port}", line_name=self.name)
         try:
             port = serial.serial_for_url(
                 self.port,
@@ -108,6 +113,7 @@ class SerialLine(Line):
         transport = _Transport(loop, rx, port)
         self._serial = port
         self._fd = port.fileno()
+        rx.pending_bytes = functools.partial(read_waiting, self._fd)
         self._rx = rx
         self._current = s
         if self.rs485:
@@ -127,9 +133,11 @@ class SerialLine(Line):
         """Close the port; a waiting transaction fails with ``LineClosed``."""
         self._closed = True
         rx, self._rx = self._rx, None
-        if rx is not None and rx.transport is not None:
-            rx.transport.close()
-            rx.connection_lost(None)
+        if rx is not None:
+            self._garbage_closed += rx.garbage_bytes
+            if rx.transport is not None:
+                rx.transport.close()
+                rx.connection_lost(None)
         self._link.close()
         self._serial = None
 
@@ -144,16 +152,14 @@ class SerialLine(Line):
         port._reconfigure_port()
         self._current = s
 
+    def last_activity(self) -> float:
+        """When the last frame sent or byte received ended."""
+        return self._link.last_activity(self._rx)
+
     def ready_at(self, settings: LineSettings | None) -> float:
         """When the silence before a frame at ``settings`` will have passed."""
         silence = switch_silence(self._current, settings or self.settings)
         return self._link.ready_at(self._rx, silence)
-
-    def _drain(self) -> bytes:
-        try:
-            return os.read(self._fd, 4096)
-        except (BlockingIOError, InterruptedError):
-            return b""
 
     def _send(self, adu: bytes) -> None:
         try:
@@ -161,8 +167,8 @@ class SerialLine(Line):
         except BlockingIOError:
             written = 0
         if written < len(adu):
-            assert self._rx is not None and self._rx.transport is not None
-            self._rx.transport.write(adu[written:])  # type: ignore[attr-defined]
+            assert self._rx is not None
+            self._rx.send(adu[written:])
 
     async def transact(
         self,
@@ -172,13 +178,20 @@ class SerialLine(Line):
         expect: LengthPredictor | None,
         settings: LineSettings | None = None,
         timeout: float = 0.1,
+        quiet_by: float | None = None,
     ) -> Exchange:
-        """Send one frame and, unless ``expect`` is None, read its reply by length."""
+        """Send one frame after the silence and, unless ``expect`` is None, read its reply
+        by length (``LineNoise`` if the line is not quiet by ``quiet_by``)."""
         if self._closed or self._rx is None:
             raise LineClosed(f"serial line {self.port} is closed")
         target = settings or self.settings
         tm = timing(target)
-        await self._link.wait_quiet(self._rx, switch_silence(self._current, target), self._drain)
+        await self._link.wait_quiet(
+            self._rx,
+            unit,
+            switch_silence(self._current, target),
+            monotonic() + timeout if quiet_by is None else quiet_by,
+        )
         if target is not self._current and target != self._current:
             self._reconfigure(target)
         return await self._link.exchange(

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import abc
 import asyncio
+import functools
 import socket
 import struct
 from collections import deque
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Generic, TypeVar
 
 from drivebus.clock import monotonic
 from drivebus.errors import (
@@ -29,12 +30,13 @@ from drivebus.errors import (
     FrameError,
     LineClosed,
     LineConfigError,
+    LineNoise,
     ResponseTimeout,
     WrongResponder,
 )
 from drivebus.line.base import Exchange, Line
 from drivebus.line.link import RtuLink
-from drivebus.line.receiver import RtuReceiver
+from drivebus.line.receiver import RtuReceiver, StreamProtocol, read_waiting
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import timing
@@ -42,6 +44,7 @@ from drivebus.timing import timing
 __all__ = [
     "ConnectionLost",
     "LineConfigError",
+    "NetworkLine",
     "RtuOverTcpLine",
     "TcpLine",
     "TcpLineStats",
@@ -50,6 +53,9 @@ __all__ = [
 
 _MBAP = struct.Struct(">HHHB")  # transaction id, protocol id (0), length (unit + PDU), unit id
 MAX_PDU = 253
+UNSOLICITED_LIMIT = 16
+"""Replies in a row that match no request (beyond ``max_in_flight`` late ones) after which
+a Modbus TCP peer is taken for a babbler and the connection is dropped."""
 
 
 def mbap_frame(tid: int, unit: int, pdu: bytes) -> bytes:
@@ -80,15 +86,16 @@ def _cause(exc: BaseException | None) -> str:
     return f"{type(exc).__name__}: {text}"
 
 
-class _Connection(Protocol):
-    transport: asyncio.BaseTransport | None
-    lost: BaseException | None
-
-    def connection_lost(self, exc: Exception | None) -> None: ...
+ConnectionT = TypeVar("ConnectionT", bound=StreamProtocol)
+"""The protocol object one connection of a networked line runs."""
 
 
-class _NetworkLine(Line, abc.ABC):
-    """Connection handling shared by the TCP lines: connect, keepalive, reconnect backoff."""
+class NetworkLine(Line, Generic[ConnectionT], abc.ABC):
+    """Connection handling shared by the TCP lines: connect, keepalive, reconnect backoff.
+
+    A subclass says which protocol a connection runs (``_make_protocol``); the base hands
+    back that type from ``_connection()``.
+    """
 
     scheme = "tcp"
 
@@ -118,7 +125,7 @@ class _NetworkLine(Line, abc.ABC):
         self.reconnect_delay_max = reconnect_delay_max
         self.connect_on_open = connect_on_open
         self.stats = TcpLineStats()
-        self._conn: _Connection | None = None
+        self._conn: ConnectionT | None = None
         self._connect_lock = asyncio.Lock()
         self._closed = True
         self._failures = 0
@@ -134,21 +141,24 @@ class _NetworkLine(Line, abc.ABC):
     @property
     def connected(self) -> bool:
         """True while a connection is up."""
-        return self._usable(self._conn)
+        return self._live() is not None
 
     @property
     def reconnect_at(self) -> float:
         """Monotonic time of the next connect attempt (when down; the past means "now")."""
         return self._next_attempt
 
-    @staticmethod
-    def _usable(conn: _Connection | None) -> bool:
-        return (
-            conn is not None
-            and conn.lost is None
-            and conn.transport is not None
-            and not conn.transport.is_closing()
-        )
+    def _live(self) -> ConnectionT | None:
+        """The current connection if it is up, else None."""
+        conn = self._conn
+        if (
+            conn is None
+            or conn.lost is not None
+            or conn.transport is None
+            or conn.transport.is_closing()
+        ):
+            return None
+        return conn
 
     # -- life cycle ---------------------------------------------------------------------------
 
@@ -170,22 +180,21 @@ class _NetworkLine(Line, abc.ABC):
             conn.connection_lost(None)  # wake waiters now; asyncio repeats it harmlessly
 
     @abc.abstractmethod
-    def _make_protocol(self) -> asyncio.Protocol:
+    def _make_protocol(self) -> ConnectionT:
         """A fresh protocol object for one connection."""
 
-    async def _connect(self) -> _Connection:
+    async def _connect(self) -> ConnectionT:
         """Connect now; ``LineClosed`` naming host:port and the cause if that fails."""
         loop = asyncio.get_running_loop()
         try:
             async with asyncio.timeout(self.connect_timeout):
-                _, proto = await loop.create_connection(self._make_protocol, self.host, self.port)
+                _, conn = await loop.create_connection(self._make_protocol, self.host, self.port)
         except TimeoutError as exc:
             raise self._connect_failed(
                 f"no answer within the connect timeout of {self.connect_timeout:g} s"
             ) from exc
         except OSError as exc:
             raise self._connect_failed(_cause(exc)) from exc
-        conn: _Connection = proto  # type: ignore[assignment]
         assert conn.transport is not None
         sock = conn.transport.get_extra_info("socket")
         if sock is not None:
@@ -204,18 +213,19 @@ class _NetworkLine(Line, abc.ABC):
         self.stats.last_error = f"cannot connect to {self.address}: {cause}"
         return LineClosed(f"{self.name}: cannot connect to {self.address}: {cause}")
 
-    async def _connection(self) -> _Connection:
+    async def _connection(self) -> ConnectionT:
         """The live connection, reconnecting if one is due; ``ConnectionLost`` otherwise."""
         if self._closed:
             raise LineClosed(f"{self.name} is closed")
-        conn = self._conn
-        if self._usable(conn):
-            return conn  # type: ignore[return-value]
+        conn = self._live()
+        if conn is not None:
+            return conn
         async with self._connect_lock:
             if self._closed:
                 raise LineClosed(f"{self.name} is closed")
-            if self._usable(self._conn):
-                return self._conn  # type: ignore[return-value]
+            conn = self._live()
+            if conn is not None:
+                return conn
             wait = self._next_attempt - monotonic()
             if wait > 0:
                 raise ConnectionLost(
@@ -227,7 +237,7 @@ class _NetworkLine(Line, abc.ABC):
             except LineClosed as exc:
                 raise ConnectionLost(str(exc)) from exc
 
-    def _connection_lost(self, conn: _Connection, exc: BaseException | None) -> None:
+    def _connection_lost(self, conn: ConnectionT, exc: BaseException | None) -> None:
         """Called by the protocols: forget the connection; the next attempt is immediate."""
         if conn.lost is None:
             conn.lost = exc or ConnectionResetError("connection closed")
@@ -252,39 +262,59 @@ class _Pending:
     future: asyncio.Future[bytes]
 
 
-class _MbapProtocol(asyncio.Protocol):
-    """One Modbus TCP connection: splits the byte stream into MBAP frames."""
+class _MbapProtocol(StreamProtocol):
+    """One Modbus TCP connection: splits the byte stream into MBAP frames.
+
+    Each read is parsed in one pass with bounded work: at most one reply per request in
+    flight plus ``UNSOLICITED_LIMIT`` unmatched ones, or up to the first bytes that are
+    not MBAP; then the connection is dropped as noisy.
+    """
 
     def __init__(self, line: TcpLine) -> None:
+        super().__init__(line.name)
         self.line = line
-        self.transport: asyncio.BaseTransport | None = None
-        self.lost: BaseException | None = None
         self.buf = bytearray()
         self.pending: dict[int, _Pending] = {}
         self.abandoned: deque[int] = deque(maxlen=64)
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport
+        self.unsolicited = 0
+        """Replies in a row that matched no waiting request."""
+        self.noise = ""
+        """Why the line dropped this connection as noisy ("" while it has not)."""
 
     def data_received(self, data: bytes) -> None:
+        if self.noise:
+            return  # dropped; the transport is closing
         buf = self.buf
         buf += data
-        while len(buf) >= _MBAP.size:
-            tid, pid, length, unit = _MBAP.unpack_from(buf)
+        pos, end = 0, len(buf)
+        limit = UNSOLICITED_LIMIT + self.line.max_in_flight
+        while end - pos >= _MBAP.size:
+            tid, pid, length, unit = _MBAP.unpack_from(buf, pos)
             if pid != 0 or not 2 <= length <= MAX_PDU + 1:
-                self.line._corrupt_stream(self, bytes(buf[: _MBAP.size]))
+                header = bytes(buf[pos : pos + _MBAP.size]).hex(" ")
+                self.line._noisy_stream(self, f"not a Modbus TCP header: {header}")
                 return
-            if len(buf) < 6 + length:
+            frame_end = pos + 6 + length
+            if frame_end > end:
+                break
+            pdu = bytes(buf[pos + _MBAP.size : frame_end])
+            pos = frame_end
+            if self.line._on_reply(self, tid, unit, pdu):
+                self.unsolicited = 0
+                continue
+            self.unsolicited += 1
+            if self.unsolicited > limit:
+                self.line._noisy_stream(
+                    self, f"{self.unsolicited} replies in a row match no request"
+                )
                 return
-            pdu = bytes(buf[_MBAP.size : 6 + length])
-            del buf[: 6 + length]
-            self.line._on_reply(self, tid, unit, pdu)
+        del buf[:pos]
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.line._connection_lost(self, exc)
 
 
-class TcpLine(_NetworkLine):
+class TcpLine(NetworkLine[_MbapProtocol]):
     """A Modbus TCP connection to one device or gateway (MBAP framing, transaction ids).
 
     One request is in flight at a time by default; ``max_in_flight`` allows more on
@@ -293,6 +323,8 @@ class TcpLine(_NetworkLine):
     connection never reports itself) so that the next request reconnects; 0 disables it.
     An ``Exchange``'s ``wire_time`` is the round trip: the time the connection was busy.
     """
+
+    counts_garbage = True
 
     def __init__(
         self,
@@ -324,8 +356,14 @@ class TcpLine(_NetworkLine):
         self._slots = asyncio.Semaphore(max_in_flight)
         self._tid = 0
         self._timeouts_in_row = 0
+        self._garbage_bytes = 0
 
-    def _make_protocol(self) -> asyncio.Protocol:
+    @property
+    def garbage_bytes(self) -> int:
+        """Bytes discarded with streams dropped as junk (not Modbus TCP, or a babbler)."""
+        return self._garbage_bytes
+
+    def _make_protocol(self) -> _MbapProtocol:
         return _MbapProtocol(self)
 
     def _next_tid(self, conn: _MbapProtocol) -> int:
@@ -343,8 +381,13 @@ class TcpLine(_NetworkLine):
         expect: LengthPredictor | None,
         settings: LineSettings | None = None,
         timeout: float = 0.1,
+        quiet_by: float | None = None,
     ) -> Exchange:
-        """Send ``pdu`` to ``unit`` and await the reply with the same transaction id."""
+        """Send ``pdu`` to ``unit`` and await the reply with the same transaction id.
+
+        A TCP connection keeps no silences: ``quiet_by`` does not apply; junk from the
+        peer fails the requests in flight with ``LineNoise`` and drops the connection.
+        """
         if settings is not None:
             raise LineConfigError(
                 f"{self.name} is Modbus TCP: slave {unit} cannot have serial settings",
@@ -357,7 +400,7 @@ class TcpLine(_NetworkLine):
                 slave=unit,
             )
         async with self._slots:
-            conn: _MbapProtocol = await self._connection()  # type: ignore[assignment]
+            conn = await self._connection()
             return await self._exchange(conn, unit, pdu, expect, timeout)
 
     async def _exchange(
@@ -374,13 +417,13 @@ class TcpLine(_NetworkLine):
         tx = monotonic()
         if expect is None:
             conn.abandoned.append(tid)  # whatever comes back is not awaited
-            conn.transport.write(adu)  # type: ignore[union-attr]
+            conn.send(adu)
             return Exchange(b"", tx, tx, tx, len(adu), 0, 0.0)
         fut: asyncio.Future[bytes] = loop.create_future()
         conn.pending[tid] = _Pending(unit, fut)
         handle = loop.call_later(timeout, self._expire, conn, tid, unit, timeout)
         try:
-            conn.transport.write(adu)  # type: ignore[union-attr]
+            conn.send(adu)
             reply = await fut
         finally:
             handle.cancel()
@@ -419,7 +462,8 @@ class TcpLine(_NetworkLine):
 
     # -- called by the protocol -----------------------------------------------------------------
 
-    def _on_reply(self, conn: _MbapProtocol, tid: int, unit: int, pdu: bytes) -> None:
+    def _on_reply(self, conn: _MbapProtocol, tid: int, unit: int, pdu: bytes) -> bool:
+        """Hand a reply to the request waiting for it; False if none was (late, unknown)."""
         p = conn.pending.get(tid)
         if p is not None and not p.future.done():
             if unit != p.unit:
@@ -433,10 +477,10 @@ class TcpLine(_NetworkLine):
                 )
             else:
                 p.future.set_result(pdu)
-            return
+            return True
         if tid in conn.abandoned:
             self.stats.late_replies += 1
-            return
+            return False
         self.stats.rejected_replies += 1
         waiting = [q for q in conn.pending.values() if not q.future.done()]
         msg = f"{self.name}: reply with transaction id {tid} matches no request"
@@ -449,26 +493,34 @@ class TcpLine(_NetworkLine):
                 FrameError(f"{msg} (expected {wanted}): reply rejected", slave=q.unit)
             )
         # With several in flight the reply cannot be attributed: they time out instead.
+        return False
 
-    def _corrupt_stream(self, conn: _MbapProtocol, header: bytes) -> None:
-        """A header that is not MBAP: the stream is out of step; drop the connection."""
-        msg = f"{self.name}: not a Modbus TCP header: {header.hex(' ')}; reconnecting"
+    def _noisy_stream(self, conn: _MbapProtocol, cause: str) -> None:
+        """Junk from the peer: the stream is out of step; fail what is in flight with
+        ``LineNoise`` and drop the connection (the next request reconnects)."""
+        msg = f"{self.name}: {cause}; the peer sends junk, reconnecting"
         self.stats.last_error = msg
+        conn.noise = msg
+        self._garbage_bytes += len(conn.buf)
+        conn.buf.clear()
         for p in conn.pending.values():
             if not p.future.done():
-                p.future.set_exception(FrameError(msg, slave=p.unit))
-        conn.buf.clear()
+                p.future.set_exception(self._noise_error(conn, p.unit))
         if conn.transport is not None:
             conn.transport.close()
 
-    def _connection_lost(self, conn: _Connection, exc: BaseException | None) -> None:
+    def _noise_error(self, conn: _MbapProtocol, unit: int) -> LineNoise:
+        return LineNoise(f"slave {unit} on {conn.noise}", slave=unit, line=self.name)
+
+    def _connection_lost(self, conn: _MbapProtocol, exc: BaseException | None) -> None:
         super()._connection_lost(conn, exc)
-        assert isinstance(conn, _MbapProtocol)
         for p in conn.pending.values():
             if p.future.done():
                 continue
             if self._closed:
                 err: Exception = LineClosed(f"{self.name} closed")
+            elif conn.noise:
+                err = self._noise_error(conn, p.unit)
             else:
                 err = ConnectionLost(
                     f"slave {p.unit} on {self.name}: connection to {self.address} lost "
@@ -489,6 +541,12 @@ class _RtuTcpReceiver(RtuReceiver):
         self.line = line
         self.cause = ""
 
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        super().connection_made(transport)
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            self.pending_bytes = functools.partial(read_waiting, sock.fileno())
+
     def connection_lost(self, exc: Exception | None) -> None:
         if not self.cause:
             self.cause = _cause(exc)
@@ -496,7 +554,7 @@ class _RtuTcpReceiver(RtuReceiver):
         self.line._connection_lost(self, exc)
 
 
-class RtuOverTcpLine(_NetworkLine):
+class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
     """RTU frames through a transparent serial device server (an RS-485 line over TCP).
 
     ``settings`` are those of the server's serial port: the silences (t3.5) are computed
@@ -507,6 +565,8 @@ class RtuOverTcpLine(_NetworkLine):
     """
 
     scheme = "rtu+tcp"
+    counts_garbage = True
+    settings: LineSettings
 
     def __init__(
         self,
@@ -533,24 +593,24 @@ class RtuOverTcpLine(_NetworkLine):
             raise ConfigError("broadcast_delay and latency must be >= 0 seconds")
         self.settings = settings or LineSettings()
         self.broadcast_delay = broadcast_delay
-        self.per_slave_settings = False
         self._lock = asyncio.Lock()
         self._link = RtuLink(latency=latency)
 
-    def _make_protocol(self) -> asyncio.Protocol:
+    def _make_protocol(self) -> _RtuTcpReceiver:
         return _RtuTcpReceiver(self)
 
     @property
     def garbage_bytes(self) -> int:
         """Bytes received outside any reply on the current connection, discarded."""
-        rx = self._conn
-        return rx.garbage_bytes if isinstance(rx, RtuReceiver) else 0
+        return self._conn.garbage_bytes if self._conn is not None else 0
+
+    def last_activity(self) -> float:
+        """When the last frame sent or byte received (on this connection) ended."""
+        return self._link.last_activity(self._conn)
 
     def ready_at(self, settings: LineSettings | None) -> float:
         """When t3.5 at the serial port's settings will have passed since the last traffic."""
-        rx = self._conn
-        return self._link.ready_at(rx if isinstance(rx, RtuReceiver) else None,
-                                   timing(self.settings).t35)
+        return self._link.ready_at(self._conn, timing(self.settings).t35)
 
     async def close(self) -> None:
         """Close the connection and release the silence timer."""
@@ -565,8 +625,10 @@ class RtuOverTcpLine(_NetworkLine):
         expect: LengthPredictor | None,
         settings: LineSettings | None = None,
         timeout: float = 0.1,
+        quiet_by: float | None = None,
     ) -> Exchange:
-        """Send one RTU frame after t3.5 of silence and read its reply by length."""
+        """Send one RTU frame after t3.5 of silence and read its reply by length
+        (``LineNoise`` if the line is not quiet by ``quiet_by``)."""
         if settings is not None and settings != self.settings:
             raise LineConfigError(
                 f"slave {unit} on {self.name}: settings {settings} differ from the serial "
@@ -574,9 +636,11 @@ class RtuOverTcpLine(_NetworkLine):
                 slave=unit,
             )
         async with self._lock:
-            rx: _RtuTcpReceiver = await self._connection()  # type: ignore[assignment]
+            rx = await self._connection()
+            if quiet_by is None:
+                quiet_by = monotonic() + timeout
             try:
-                return await self._exchange(rx, unit, pdu, expect, timeout)
+                return await self._exchange(rx, unit, pdu, expect, timeout, quiet_by)
             except LineClosed as exc:
                 if self._closed:
                     raise
@@ -593,12 +657,13 @@ class RtuOverTcpLine(_NetworkLine):
         pdu: bytes,
         expect: LengthPredictor | None,
         timeout: float,
+        quiet_by: float,
     ) -> Exchange:
         tm = timing(self.settings)
-        await self._link.wait_quiet(rx, tm.t35)
+        await self._link.wait_quiet(rx, unit, tm.t35, quiet_by)
         return await self._link.exchange(
             rx,
-            rx.transport.write,  # type: ignore[union-attr]
+            rx.send,
             unit,
             pdu,
             expect,

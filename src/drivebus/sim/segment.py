@@ -156,6 +156,8 @@ class Segment(Generic[R]):
         self.frames = 0
         self.request_count = 0
         """Master frames seen since the segment started (not reset by ``clear_log``)."""
+        self.noise_bytes = 0
+        """Bytes of noise (from no master and no slave) put on the wire so far."""
         self._deliver = deliver
         self._master_settings = master_settings
         self._on_request = on_request
@@ -265,6 +267,19 @@ class Segment(Generic[R]):
         if heard and not note and not crc_ok(data):
             note = "bad crc"
         return heard, note
+
+    # -- noise ------------------------------------------------------------------------------
+
+    def noise(self, nbytes: int, now: float) -> None:
+        """``nbytes`` of noise (a babbling device, interference) were on the wire until
+        ``now``: a request or reply under way is corrupted (both collide), and the next
+        frame needs its full silence after the noise."""
+        self.noise_bytes += nbytes
+        self._busy_until = max(self._busy_until, now)
+        if self._rx is not None:
+            self._rx.collided = True
+        for r in self._pending:
+            r.collided = True
 
     # -- the slaves' replies ------------------------------------------------------------------
 
@@ -386,6 +401,11 @@ class SegmentView:
     def request_count(self) -> int:
         """Master frames seen since the start (not reset by ``clear_log``)."""
         return self.segment.request_count
+
+    @property
+    def noise_bytes(self) -> int:
+        """Bytes of noise put on the wire so far (``babbling()``)."""
+        return self.segment.noise_bytes
 
     def requests(self) -> list[WireFrame]:
         """Logged master frames, oldest first."""

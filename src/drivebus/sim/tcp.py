@@ -11,15 +11,17 @@
 Both are async context managers that own their tasks in an anyio task group, listen on
 127.0.0.1 at an ephemeral port (``.port``), and offer fault hooks for tests: close the
 connection instead of answering the next request(s), answer with a wrong transaction id,
-plus the slaves' own ``FaultPlan`` faults.
+plus the slaves' own ``FaultPlan`` faults; and ``babbling()``, junk sent without pause to
+every client.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 import struct
-from collections.abc import Iterable
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
 from dataclasses import dataclass, field
 from types import TracebackType
 
@@ -30,9 +32,11 @@ from anyio.abc import SocketAttribute
 from drivebus.clock import monotonic
 from drivebus.line.tcp import mbap_frame
 from drivebus.settings import LineSettings
+from drivebus.sim.noise import babble_flat_out, babble_paced
 from drivebus.sim.segment import Segment, SegmentView, add_slave
 from drivebus.sim.slave import Fault, SimSlave
 from drivebus.tasks import ServiceTasks
+from drivebus.timing import timing
 
 __all__ = ["ServerFaults", "SimSerialServer", "SimTcpServer", "TcpRequest"]
 
@@ -194,6 +198,7 @@ class _SimServer:
         with anyio.CancelScope() as scope:
             client = _Client(self.accepted, stream, scope)
             self._clients[client.number] = client
+            self._notify()
             try:
                 async with stream:
                     await self._serve(client)
@@ -221,6 +226,36 @@ class _SimServer:
     def _count_request(self) -> None:
         self.received += 1
         self._notify()
+
+    # -- noise -----------------------------------------------------------------------------------
+
+    @contextlib.asynccontextmanager
+    async def _babbling(
+        self, babble: Callable[[Callable[[bytes], Awaitable[None]]], Awaitable[None]]
+    ) -> AsyncIterator[None]:
+        """Run ``babble(emit)`` while inside; ``emit`` gives junk to every client."""
+        async def run() -> None:
+            await babble(self._to_every_client)
+
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(run, name=f"sim {self.kind} babbler")
+            try:
+                yield
+            finally:
+                tg.cancel_scope.cancel()
+
+    async def _to_every_client(self, data: bytes) -> None:
+        """Send ``data`` to every connected client (wait for one if there is none)."""
+        clients = list(self._clients.values())
+        if not clients:
+            await self._changed.wait()
+            return
+        self._noted_noise(len(data))
+        for c in clients:
+            await c.send(data)
+
+    def _noted_noise(self, nbytes: int) -> None:
+        """Account for ``nbytes`` of junk about to go out (the serial server's wire)."""
 
 
 class SimTcpServer(_SimServer):
@@ -250,10 +285,20 @@ class SimTcpServer(_SimServer):
         self.outstanding = 0
         """Requests received and not yet answered (or dropped), all connections."""
         self.max_outstanding = 0
+        self.noise_bytes = 0
+        """Junk bytes sent by ``babbling()`` so far (to each client)."""
 
     async def __aenter__(self) -> SimTcpServer:
         await super().__aenter__()
         return self
+
+    def babbling(self) -> contextlib.AbstractAsyncContextManager[None]:
+        """While inside, every connection gets junk (not Modbus TCP) without pause, as
+        fast as it takes it: a peer that is no Modbus device, or one gone mad."""
+        return self._babbling(babble_flat_out)
+
+    def _noted_noise(self, nbytes: int) -> None:
+        self.noise_bytes += nbytes
 
     async def _serve(self, client: _Client) -> None:
         send, receive = anyio.create_memory_object_stream[TcpRequest](math.inf)
@@ -404,6 +449,23 @@ class SimSerialServer(SegmentView, _SimServer):
 
     def _start_tasks(self, tg: anyio.abc.TaskGroup) -> None:
         tg.start_soon(self.segment.run, name="sim serial server responder")
+
+    def babbling(self, *, flat_out: bool = False) -> contextlib.AbstractAsyncContextManager[None]:
+        """While inside, a device on the server's RS-485 port sends junk without pause at
+        the port's rate (the wire never quiet for t1.5), which the server forwards to
+        every client; ``flat_out``: as fast as the connections take it. Frames under way
+        on the wire collide with it."""
+        if flat_out:
+            return self._babbling(babble_flat_out)
+        tm = timing(self.settings)
+
+        async def paced(emit: Callable[[bytes], Awaitable[None]]) -> None:
+            await babble_paced(emit, tm)
+
+        return self._babbling(paced)
+
+    def _noted_noise(self, nbytes: int) -> None:
+        self.segment.noise(nbytes, monotonic())
 
     def _stopped(self) -> None:
         self.segment.close()

@@ -7,7 +7,8 @@ attached ``SimSlave`` and logs the frames. The wire's own part is the transport:
 * it observes the settings the master really set: baud rate and stop bits from the pty's
   termios (the kernel carries them across a pty), parity and byte size from the sim port
   class's side channel (a pty drops them) — never from the master's own bookkeeping;
-* it writes the slaves' replies to the pty (and, with ``echo``, every master byte back).
+* it writes the slaves' replies to the pty (and, with ``echo``, every master byte back);
+* with ``babbling()`` a device on the wire sends junk without pause (a fault to inject).
 """
 
 from __future__ import annotations
@@ -17,13 +18,18 @@ import contextlib
 import os
 import termios
 import tty
+from collections.abc import AsyncIterator
 from types import TracebackType
+
+import anyio
 
 from drivebus.clock import monotonic
 from drivebus.settings import LineSettings
+from drivebus.sim.noise import babble_flat_out, babble_paced
 from drivebus.sim.segment import Segment, SegmentView, WireFrame
 from drivebus.sim.slave import SimSlave
 from drivebus.tasks import ServiceTasks
+from drivebus.timing import timing
 
 __all__ = ["VirtualWire", "WireFrame", "lookup_wire"]
 
@@ -141,3 +147,46 @@ class VirtualWire(SegmentView):
             os.write(self._master_fd, data)
         except OSError:
             return  # master closed its side; a real wire just carries it to nobody
+
+    # -- noise ---------------------------------------------------------------------------------
+
+    @contextlib.asynccontextmanager
+    async def babbling(
+        self, settings: LineSettings | None = None, *, flat_out: bool = False
+    ) -> AsyncIterator[None]:
+        """While inside, a device on the wire sends junk without pause: at the character
+        rate of ``settings`` (default: the master's settings now), the wire never quiet
+        for t1.5; or, ``flat_out``, as fast as the pty takes it. Frames under way collide
+        with it; ``noise_bytes`` counts it."""
+        async with anyio.create_task_group() as tg:
+            if flat_out:
+                tg.start_soon(babble_flat_out, self._noise_flat_out, name=f"{self.name} babbler")
+            else:
+                tm = timing(settings or self.observed_settings())
+                tg.start_soon(babble_paced, self._noise, tm, name=f"{self.name} babbler")
+            try:
+                yield
+            finally:
+                tg.cancel_scope.cancel()
+
+    async def _noise(self, data: bytes) -> None:
+        try:
+            n = os.write(self._master_fd, data)
+        except OSError:
+            return  # pty full (bytes lost, as in an overrun) or nobody has it open
+        self.segment.noise(n, monotonic())
+
+    async def _noise_flat_out(self, data: bytes) -> None:
+        await self._noise(data)
+        loop = asyncio.get_running_loop()
+        writable: asyncio.Future[None] = loop.create_future()
+        loop.add_writer(self._master_fd, _set_done, writable)
+        try:
+            await writable  # the pty has room again (the master read some)
+        finally:
+            loop.remove_writer(self._master_fd)
+
+
+def _set_done(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)
