@@ -1,0 +1,152 @@
+"""The application layer on the demo machine: sessions, motions with ids, leases, e-stop,
+jogs held by a client, events; judged by the simulated twins."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import anyio
+import pytest
+
+from drivebus import AxisState
+from drivebus.app import MachineSession
+from drivebus.app.events import Event, Subscription
+from drivebus.errors import ArgumentError, LeaseHeld, LimitViolation, NotFound
+
+DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
+
+
+async def test_snapshot_names_lines_and_axes_as_plain_data() -> None:
+    async with MachineSession.open(DEMO) as s:
+        snap = s.snapshot().as_dict()
+        assert snap["name"] == "demo"
+        assert {ln["name"] for ln in snap["lines"]} == {"rs485", "eth"}
+        assert {ax["name"] for ax in snap["axes"]} == {"x", "y", "z", "aux", "r"}
+        x = s.axis_snapshot("x").as_dict()
+        assert x["drive"] == "NT86" and x["soft_limits"] == [-5.0, 400.0]
+        assert x["position"] == pytest.approx(12.0)
+        with pytest.raises(NotFound, match="no axis 'w'.*x, y, z, aux, r"):
+            s.axis_snapshot("w")
+
+
+async def test_a_move_runs_with_an_id_and_ends_done_on_the_twin() -> None:
+    async with MachineSession.open(DEMO) as s:
+        twin = s.machine.sim_drives["x"]
+        rec = await s.start_move("x", target=20.0, client="a")
+        assert rec.state == "running" and rec.id and s.motion(rec.id) is rec
+        await rec.done.wait()
+        assert rec.state == "done" and rec.error is None
+        assert twin.position() == s.axis("x").units.to_pulses(20.0)
+        rec = await s.start_move("x", by=-5.0)
+        await rec.done.wait()
+        assert twin.position() == s.axis("x").units.to_pulses(15.0)
+
+
+async def test_a_refused_move_raises_and_leaves_no_record() -> None:
+    async with MachineSession.open(DEMO) as s:
+        before = len(s.motions())
+        with pytest.raises(LimitViolation):
+            await s.start_move("x", target=1000.0)
+        with pytest.raises(ArgumentError, match="exactly one"):
+            await s.start_move("x", target=1.0, by=2.0)
+        with pytest.raises(ArgumentError):
+            await s.start_move("x", target=float("nan"))
+        with pytest.raises(NotFound):
+            await s.start_move("nope", target=1.0)
+        assert len(s.motions()) == before
+        assert s.axis("x").state is AxisState.STANDSTILL
+
+
+async def test_cancelling_a_motion_stops_the_twin() -> None:
+    async with MachineSession.open(DEMO) as s:
+        twin = s.machine.sim_drives["x"]
+        rec = await s.start_move("x", target=390.0, speed=50.0)
+        async for st in s.axis("x").watch():
+            if st.moving:
+                break
+        await s.cancel_motion(rec.id)
+        assert rec.state == "aborted"
+        assert not twin.is_moving()
+        assert twin.position() < s.axis("x").units.to_pulses(390.0)
+
+
+async def test_estop_halts_every_axis_and_is_never_refused_by_a_lease() -> None:
+    async with MachineSession.open(DEMO) as s:
+        s.acquire_lease("holder", 30.0)
+        with pytest.raises(LeaseHeld, match="holder") as exc:
+            await s.start_move("x", target=100.0, client="other")
+        assert exc.value.holder == "holder"
+        recs = [await s.start_move(n, target=t, client="holder")
+                for n, t in (("x", 300.0), ("y", 150.0), ("z", 80.0), ("r", 600.0))]
+        async for st in s.axis("r").watch():
+            if st.moving:
+                break
+        outcome = await s.estop()  # no client, no lease: still goes through
+        assert all(v is None for v in outcome.values()), outcome
+        assert not any(t.is_moving() for t in s.machine.sim_drives.values())
+        for rec in recs:
+            await rec.done.wait()
+            assert rec.state in ("aborted", "done")
+        s.release_lease("holder")
+        assert s.lease is None
+
+
+async def test_a_jog_stops_when_its_client_stops_feeding_it_or_leaves() -> None:
+    async with MachineSession.open(DEMO) as s:
+        z, twin = s.axis("z"), s.machine.sim_drives["z"]
+        await s.jog("z", 5.0, ttl=0.2, client="pendant")
+        async for st in z.watch():
+            if st.moving:
+                break
+        with anyio.fail_after(5):  # not fed: the watchdog stops it
+            async for st in z.watch():
+                if not st.moving and z.state is AxisState.STANDSTILL:
+                    break
+        assert not twin.is_moving()
+        await s.jog("z", -5.0, ttl=5.0, client="pendant")
+        async for st in z.watch():
+            if st.moving:
+                break
+        await s.release("pendant")  # the client disconnected
+        with anyio.fail_after(5):
+            async for st in z.watch():
+                if not st.moving:
+                    break
+        assert not twin.is_moving()
+
+
+async def test_events_carry_every_axis_as_polled_and_motion_events() -> None:
+    async with MachineSession.open(DEMO, stats_period=0.05) as s:
+        seen: set[str] = set()
+        kinds: list[str] = []
+        with s.events.subscribe({"axes", "lines", "motions"}) as sub:
+            rec = await s.start_group_move({"x": 30.0, "z": 20.0})
+            with anyio.fail_after(10):
+                async for ev in sub:
+                    if ev.data["type"] == "axis":
+                        seen.add(ev.data["axis"])
+                        assert {"state", "position", "velocity"} <= set(ev.data)
+                    elif ev.data["type"] == "motion" and ev.data["id"] == rec.id:
+                        kinds.append(ev.data["event"])
+                    if seen == set(s.machine.axes) and "done" in kinds:
+                        break
+        assert kinds[0] == "started" and kinds[-1] == "done"
+        assert rec.result is not None and rec.result["duration"] > 0
+
+
+def test_a_slow_subscriber_gets_the_latest_state_and_a_bounded_backlog() -> None:
+    sub = Subscription({"axes", "motions"}, capacity=3)
+    for i in range(100):
+        sub.put(Event("axes", "x", {"i": i}))
+        sub.put(Event("motions", None, {"n": i}))
+    assert sub.lost == 97
+    got = []
+
+    async def drain() -> None:
+        for _ in range(4):
+            got.append(await sub.get())
+
+    anyio.run(drain)
+    states = [e.data["i"] for e in got if e.topic == "axes"]
+    assert states == [99]  # one state: the latest
+    assert [e.data["n"] for e in got if e.topic == "motions"] == [97, 98, 99]
