@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 import anyio
 import anyio.abc
 
+from drivebus import checks
 from drivebus.clock import PreciseTimer, monotonic
 from drivebus.errors import (
     ConfigError,
@@ -74,13 +75,9 @@ class Bus:
     """
 
     def __init__(self, line: Line, *, timeout: float = 0.1, retries: int = 2) -> None:
-        if timeout <= 0:
-            raise ConfigError(f"response timeout must be > 0 s, not {timeout}")
-        if retries < 0:
-            raise ConfigError(f"retries must be >= 0, not {retries}")
         self.line = line
-        self.timeout = timeout
-        self.retries = retries
+        self.timeout = checks.response_timeout("response timeout", timeout)
+        self.retries = checks.retry_count("retries", retries)
         self.stats = BusStats()
         self._queue: list[_Request] = []
         self._seq = itertools.count()
@@ -136,8 +133,13 @@ class Bus:
         """A handle for the slave at ``address`` (0 = broadcast) with its own settings."""
         from drivebus.bus.slave import SlaveHandle
 
-        if not 0 <= address <= 247:
-            raise ConfigError(f"slave address {address} is outside 0..247 (0 = broadcast)")
+        address = checks.whole("slave address (0 = broadcast)", address, 0, 247,
+                               error=ConfigError)
+        if settings is not None and not isinstance(settings, LineSettings):
+            raise ConfigError(
+                f"slave {address}: settings must be LineSettings (e.g. "
+                f"LineSettings.parse('9600 8N1')) or None, not {settings!r}"
+            )
         if settings is not None and settings != self.line.settings:
             if self.line.settings is None:
                 raise ConfigError(
