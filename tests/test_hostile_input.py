@@ -9,6 +9,7 @@ entries in ``test_fuzz.py``.
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Awaitable, Callable
 from typing import Any
@@ -17,6 +18,7 @@ import pytest
 
 from drivebus import Bus, LineSettings, Priority
 from drivebus.bus import SlaveHandle
+from drivebus.drives.registry import FAMILIES
 from drivebus.errors import ArgumentError, ConfigError
 from drivebus.sim import RegisterSlave, sim_bus
 
@@ -132,3 +134,94 @@ def test_priority_accepts_the_enum_and_its_values() -> None:
     assert member("priority", Priority.POLL, Priority) is Priority.POLL
     with pytest.raises(ArgumentError, match=r"priority: expected one of POLL \(0\)"):
         member("priority", 4, Priority)
+
+
+# -- drive profiles: what each declares it accepts ---------------------------------------------
+
+PROFILES = {f.name: f.profile for f in FAMILIES.values()}
+
+
+def _handle(address: int = 1) -> SlaveHandle:
+    """A slave handle on a bus that is never opened (constructors do no I/O)."""
+    from drivebus import SerialLine
+
+    return Bus(SerialLine("sim://unused", FAST)).slave(address)
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_each_profile_declares_exactly_its_constructor_options(name: str) -> None:
+    """The options declaration and the constructor's keyword options are the same set, so
+    a machine file is checked against what the constructor really takes."""
+    cls = PROFILES[name]
+    params = inspect.signature(cls.__init__).parameters
+    keywords = {p for p, v in params.items() if v.kind is inspect.Parameter.KEYWORD_ONLY}
+    assert set(cls.options.model_fields) == keywords - {"pulses_per_rev"}
+    assert cls.line_kinds and cls.line_kinds <= {"serial", "tcp", "rtu-over-tcp"}
+    assert cls.pulses_per_rev_problem(4000 if name != "OD2000" else 10000) is None
+
+
+BAD_OPTIONS: list[tuple[str, dict[str, Any], tuple[str, ...]]] = [
+    ("NT86", {"enable_input": 7}, ("enable_input", "7", "less than or equal to 6")),
+    ("NT86", {"estop_decel_rps2": math.nan}, ("estop_decel_rps2", "nan", "finite")),
+    ("NT86", {"estop_decel_rps2": 5.0}, ("estop_decel_rps2", "5.0", "10")),
+    ("NT86", {"enable_input": 3, "clear_alarm_input": 3}, ("clear_alarm_input", "IN3")),
+    ("NT86", {"home_offset_moves": "yes"}, ("home_offset_moves", "'yes'", "boolean")),
+    ("EPR60", {"home_input": 0}, ("home_input", "0", "greater than or equal to 1")),
+    ("EPR60", {"home_input": 5, "enable_input": 5}, ("home_input", "enable_input", "IN5")),
+    ("BHSS", {"start_speed_rpm": 301}, ("start_speed_rpm", "301", "300")),
+    ("BHSS", {"inputs": {"X9": "origin"}}, ("inputs.X9", "'X9'", "'X0'")),
+    ("BHSS", {"inputs": {"X0": "orign"}}, ("inputs.X0", "'orign'", "'origin'")),
+    ("CL86R", {"start_speed_rpm": 1}, ("start_speed_rpm", "(got 1)", "2")),
+    ("CL86R", {"block_writes": 1}, ("block_writes", "(got 1)", "boolean")),
+]
+
+
+@pytest.mark.parametrize(("drive", "options", "needles"), BAD_OPTIONS,
+                         ids=[f"{d}-{'-'.join(o)}" for d, o, _ in BAD_OPTIONS])
+def test_bad_profile_options_are_config_errors(
+    drive: str, options: dict[str, Any], needles: tuple[str, ...]
+) -> None:
+    """The constructor refuses them with ConfigError naming drive, option, value and range."""
+    with pytest.raises(ConfigError) as info:
+        PROFILES[drive](_handle(), **options)
+    text = str(info.value)
+    assert text.startswith(f"{drive} drive options: ")
+    for n in needles:
+        assert n in text, text
+
+
+@pytest.mark.parametrize(
+    ("drive", "pulses", "allowed"),
+    [("NT86", 100, "200..65535"), ("EPR60", 70000, "200..65535"), ("BHSS", 1234, "400, 800"),
+     ("CL86R", 200, "400..51200"), ("OD2000", 1000, "6400..51200"), ("NT86", 4000.5, "200")],
+)
+def test_pulses_per_rev_a_drive_cannot_run_is_a_config_error(
+    drive: str, pulses: float, allowed: str
+) -> None:
+    with pytest.raises(ConfigError) as info:
+        PROFILES[drive](_handle(), pulses_per_rev=pulses)  # type: ignore[arg-type]
+    text = str(info.value)
+    assert text.startswith("pulses_per_rev: ") and repr(pulses) in text and allowed in text
+
+
+@pytest.mark.parametrize(
+    ("drive", "settings", "needle"),
+    [("NT86", "19200 8E1", "cannot talk 8E1 (it talks 8N1)"),
+     ("NT86", "57600 8N1", "cannot run 57600 baud"),
+     ("BHSS", "12345 8N1", "cannot run 12345 baud"),
+     ("BHSS", "19200 7E1", "cannot talk 7E1"),
+     ("CL86R", "9600 8E1", "8N1 only at 9600 baud"),
+     ("CL86R", "57600 8N1", "cannot run 57600 baud (it runs 9600, 19200, 38400, 115200)"),
+     ("OD2000", "19200 8N1", "cannot run 19200 baud (it runs 9600)")],
+)
+def test_line_settings_a_drive_cannot_do_are_named(drive: str, settings: str, needle: str) -> None:
+    assert needle in (PROFILES[drive].settings_problem(LineSettings.parse(settings)) or "")
+
+
+@pytest.mark.parametrize(
+    ("drive", "settings"),
+    [("NT86", "115200 8N1"), ("BHSS", "128000 8O1"), ("CL86R", "38400 8N2"),
+     ("CL86R", "9600 8N1"), ("OD2000", "9600 8N1")],
+)
+def test_line_settings_a_drive_can_do_pass(drive: str, settings: str) -> None:
+    assert PROFILES[drive].settings_problem(LineSettings.parse(settings)) is None

@@ -15,7 +15,9 @@ import math
 from collections.abc import Sequence
 from enum import IntEnum
 from numbers import Integral, Real
-from typing import TypeVar
+from typing import Any, TypeVar, get_args, get_origin
+
+from pydantic import BaseModel, ValidationError
 
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
 
@@ -27,6 +29,7 @@ __all__ = [
     "positive",
     "response_timeout",
     "retry_count",
+    "validation_problems",
     "whole",
     "words",
 ]
@@ -116,3 +119,62 @@ def response_timeout(
 def retry_count(name: str, value: object, *, error: type[DrivebusError] = ConfigError) -> int:
     """A retry count: a whole number 0..``MAX_RETRIES``."""
     return whole(name, value, 0, MAX_RETRIES, error=error)
+
+
+def _key_path(loc: Sequence[int | str]) -> str:
+    path = ""
+    for part in loc:
+        if part == "[key]":  # pydantic's marker for a bad dict key: the key itself is named
+            continue
+        path += f"[{part}]" if isinstance(part, int) else (f".{part}" if path else str(part))
+    return path
+
+
+def _allowed_keys(model: type[BaseModel] | None, loc: Sequence[int | str]) -> list[str]:
+    """The keys the model allows where ``loc`` (ending in an unknown key) points."""
+    node: Any = model
+    for part in loc[:-1]:
+        if isinstance(node, type) and issubclass(node, BaseModel):
+            field = node.model_fields.get(str(part))
+            node = field.annotation if field is not None else None
+            args = get_args(node)
+            if get_origin(node) is dict and args:
+                node = ("dict", args[1])
+            elif args:
+                node = next((a for a in args if isinstance(a, type)
+                             and issubclass(a, BaseModel)), None)
+        elif isinstance(node, tuple):
+            node = node[1]  # the value type of a dict, whatever the key
+        else:
+            return []
+    if isinstance(node, type) and issubclass(node, BaseModel):
+        return list(node.model_fields)
+    return []
+
+
+def validation_problems(
+    exc: ValidationError,
+    *,
+    model: type[BaseModel] | None = None,
+    prefix: str = "",
+    limit: int = 5,
+) -> list[str]:
+    """A pydantic ``ValidationError`` as ``key.path: what is wrong (got value)`` lines, one
+    per problem (at most ``limit``, then a count); ``prefix`` goes before every key path.
+    ``model`` (the validated model) lets an unknown key be answered with the keys allowed
+    there."""
+    out = []
+    for e in exc.errors(include_url=False)[:limit]:
+        loc = tuple(e["loc"])
+        msg = str(e["msg"]).removeprefix("Value error, ")
+        value = e.get("input")
+        if e["type"] != "missing" and not isinstance(value, dict | list | tuple | BaseModel):
+            msg += f" (got {value!r})"
+        if e["type"] == "extra_forbidden":
+            allowed = _allowed_keys(model, loc)
+            msg = f"unknown key, set to {value!r}" if "(got" in msg else "unknown key"
+            msg += f" (allowed: {', '.join(allowed)})" if allowed else ""
+        where = _key_path((prefix, *loc) if prefix else loc)
+        out.append(f"{where}: {msg}" if where else msg)
+    more = len(exc.errors()) - limit
+    return out + ([f"and {more} more"] if more > 0 else [])
