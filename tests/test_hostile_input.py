@@ -11,16 +11,21 @@ from __future__ import annotations
 
 import inspect
 import math
+import re
+import tomllib
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
 
-from drivebus import Bus, LineSettings, Priority
+from drivebus import Bus, LineSettings, Priority, open_machine
 from drivebus.bus import SlaveHandle
+from drivebus.config import load_config, parse_config
 from drivebus.drives.registry import FAMILIES
-from drivebus.errors import ArgumentError, ConfigError
-from drivebus.sim import RegisterSlave, sim_bus
+from drivebus.errors import ArgumentError, ConfigError, LimitViolation
+from drivebus.motion.units import Units
+from drivebus.sim import RegisterSlave, VirtualWire, lookup_wire, sim_bus
 
 FAST = LineSettings.parse("115200 8N1")
 
@@ -225,3 +230,150 @@ def test_line_settings_a_drive_cannot_do_are_named(drive: str, settings: str, ne
 )
 def test_line_settings_a_drive_can_do_pass(drive: str, settings: str) -> None:
     assert PROFILES[drive].settings_problem(LineSettings.parse(settings)) is None
+
+
+# -- machine files -------------------------------------------------------------------------------
+
+DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
+
+
+def _demo() -> dict[str, Any]:
+    return tomllib.loads(DEMO.read_text())
+
+
+def _set(path: str, value: object) -> Callable[[dict[str, Any]], None]:
+    """A change to the demo machine: ``value`` at dotted ``path``."""
+
+    def change(d: dict[str, Any]) -> None:
+        *parents, last = path.split(".")
+        for p in parents:
+            d = d.setdefault(p, {})
+        d[last] = value
+
+    return change
+
+
+BAD_FILES: list[tuple[str, Callable[[dict[str, Any]], None], tuple[str, ...]]] = [
+    ("NaN units_per_rev", _set("axes.x.units_per_rev", math.nan),
+     ("axes.x.units_per_rev", "finite", "nan")),
+    ("NaN soft limit", _set("axes.x.limits", [math.nan, 10.0]), ("axes.x.limits[0]", "nan")),
+    ("infinite speed", _set("axes.y.speed", math.inf), ("axes.y.speed", "inf")),
+    ("NaN homing offset", _set("axes.z.homing.offset", math.nan), ("axes.z.homing.offset", "nan")),
+    ("NaN poll period", _set("axes.x.poll.moving", math.nan), ("axes.x.poll.moving", "nan")),
+    ("infinite sim position", _set("axes.x.sim.position", -math.inf),
+     ("axes.x.sim.position", "-inf")),
+    ("NaN line timeout", _set("lines.rs485.timeout", math.nan), ("lines.rs485.timeout", "nan")),
+    ("NaN in a sim option", _set("axes.x.sim.options", {"hard_stop_positive": math.nan}),
+     ("axes.x.sim.options", "hard_stop_positive", "nan")),
+    ("NaN drive option", _set("axes.x.drive_options", {"estop_decel_rps2": math.nan}),
+     ("axes.x.drive_options.estop_decel_rps2", "nan")),
+    ("bool address", _set("axes.x.address", True), ("axes.x.address", "True")),
+    ("text speed", _set("axes.x.speed", "fast"), ("axes.x.speed", "'fast'")),
+    ("misspelt key", _set("axes.x.spede", 3.0), ("axes.x.spede", "unknown key", "speed")),
+    ("two lines on one sim name", _set("lines.eth.host", "sim://demo-rs485"),
+     ("lines.eth.host", "sim://demo-rs485", "already line rs485")),
+    ("two serial lines on one port",
+     _set("lines.second", {"port": "sim://demo-rs485", "settings": "9600 8N1"}),
+     ("lines.second.port", "sim://demo-rs485", "already line rs485")),
+    ("NT86 at 8E1", _set("axes.x.settings", "115200 8E1"),
+     ("axes.x.settings", "115200 8E1", "NT86", "8N1")),
+    ("CL86R at 12345 baud", _set("axes.z.settings", "12345 8N2"),
+     ("axes.z.settings", "12345", "9600, 19200, 38400, 115200")),
+    ("OD2000 at 19200", _set("axes.aux.settings", "19200 8N1"), ("axes.aux.settings", "9600")),
+    ("BHSS on the line default 7E1", _set("axes.y.settings", "19200 7E1"),
+     ("axes.y.settings", "7E1", "8N1, 8N2, 8E1, 8O1")),
+    ("NT86 address 40", _set("axes.x.address", 40), ("axes.x.address", "1..31", "40")),
+    ("EPR60 on the RS-485 line", _set("axes.r.line", "rs485"),
+     ("axes.r.line", "EPR60", "serial line")),
+    ("misspelt homing method", _set("axes.x.homing.method", "home_switch_postive"),
+     ("axes.x.homing.method", "'home_switch_postive'", "home_switch_positive")),
+    ("homing an OD2000", _set("axes.aux.homing", {"method": "limit_negative"}),
+     ("axes.aux.homing.method", "cannot home")),
+    ("misspelt drive option", _set("axes.r.drive_options", {"home_inptu": 5}),
+     ("axes.r.drive_options.home_inptu", "unknown key", "5", "home_input")),
+    ("drive option out of range", _set("axes.r.drive_options", {"home_input": 9}),
+     ("axes.r.drive_options.home_input", "9", "6")),
+    ("pulses/rev the BHSS lacks", _set("axes.y.pulses_per_rev", 1234),
+     ("axes.y.pulses_per_rev", "1234", "51200")),
+    ("speed above max_speed", _set("axes.x.max_speed", 100.0),
+     ("axes.x.speed", "200", "max_speed 100")),
+    ("sim switches crossed", _set("axes.y.sim.limit_negative", 300.0),
+     ("axes.y.sim.limit_negative", "300", "limit_positive 210")),
+    ("soft limits beyond the sim switch", _set("axes.x.sim.limit_positive", -20.0),
+     ("axes.x.sim.limit_positive", "-20", "-5..400")),
+    ("sim position beyond 32 bits", _set("axes.x.sim.position", 1e12),
+     ("axes.x.sim.position", "1e+12", "32-bit")),
+    ("unknown twin option", _set("axes.z.sim.options", {"bogus": 1}),
+     ("axes.z.sim.options.bogus", "CL86R")),
+    ("per-slave settings on a serial server",
+     _set("lines.rs485", {"kind": "rtu-over-tcp", "host": "sim://demo-rs485",
+                          "settings": "115200 8N1"}),
+     ("axes.y.settings", "19200 8E1", "one setting")),
+    ("sim:// without a name", _set("lines.rs485.port", "sim://"), ("lines.rs485", "sim://NAME")),
+]
+
+
+@pytest.mark.parametrize(("what", "change", "needles"), BAD_FILES, ids=[b[0] for b in BAD_FILES])
+def test_bad_machine_files_are_one_config_error(
+    what: str, change: Callable[[dict[str, Any]], None], needles: tuple[str, ...]
+) -> None:
+    """One ConfigError naming the file and the key path, with the value and what is allowed."""
+    data = _demo()
+    change(data)
+    with pytest.raises(ConfigError) as info:
+        parse_config(data, "demo.toml")
+    text = str(info.value)
+    assert text.startswith("demo.toml: ")
+    for n in needles:
+        assert n in text, text
+
+
+def test_a_nan_in_a_toml_file_is_refused_when_loaded(tmp_path: Path) -> None:
+    """TOML spells NaN and infinity ``nan``/``inf``: refused by load_config (what
+    open_machine and ``drivebus check`` both run), naming file, key and value."""
+    f = tmp_path / "m.toml"
+    f.write_text(DEMO.read_text().replace("units_per_rev = 10.0", "units_per_rev = nan"))
+    with pytest.raises(ConfigError, match=rf"{re.escape(str(f))}: axes\.x\.units_per_rev: .*nan"):
+        load_config(f)
+
+
+async def test_open_machine_refuses_a_bad_file_before_opening_anything(tmp_path: Path) -> None:
+    f = tmp_path / "m.toml"
+    f.write_text(DEMO.read_text().replace('host = "sim://demo-eth"', 'host = "sim://demo-rs485"'))
+    with pytest.raises(ConfigError, match=r"lines\.eth\.host: sim://demo-rs485 is already"):
+        async with open_machine(f):
+            pytest.fail("opened")
+    with pytest.raises(KeyError):
+        lookup_wire("demo-rs485")  # no simulator was started
+
+
+async def test_a_simulator_name_in_use_is_a_config_error() -> None:
+    """Two machines (or a machine and a test wire) on one sim:// name in one process."""
+    async with VirtualWire("hostile-taken"):
+        cfg = parse_config({
+            "lines": {"l": {"port": "sim://hostile-taken", "settings": "115200 8N1"}},
+            "axes": {"x": {"line": "l", "address": 1, "drive": "CL86R", "pulses_per_rev": 1000}},
+        })
+        with pytest.raises(ConfigError, match=r"sim://hostile-taken: .*already running"):
+            async with open_machine(cfg):
+                pytest.fail("opened")
+
+
+async def test_a_twin_that_refuses_its_options_names_the_axis() -> None:
+    """A value only the simulated drive can judge fails at start-up naming axis and key."""
+    cfg = parse_config({
+        "lines": {"l": {"port": "sim://hostile-twin", "settings": "115200 8N1"}},
+        "axes": {"x": {"line": "l", "address": 1, "drive": "NT86", "pulses_per_rev": 4000,
+                       "settings": "115200 8N1", "sim": {"options": {"home_cam": "sideways"}}}},
+    })
+    with pytest.raises(ConfigError, match=r"axes\.x\.sim: the simulated NT86 .*'sideways'"):
+        async with open_machine(cfg):
+            pytest.fail("opened")
+
+
+def test_positions_too_far_for_any_drive_are_limit_violations() -> None:
+    """A finite target so far out that its pulse count overflows: typed, not OverflowError."""
+    u = Units(pulses_per_rev=1000, units_per_rev=0.001)
+    with pytest.raises(LimitViolation, match=r"1e\+307 units is inf pulses"):
+        u.to_pulses(1e307)
+    assert u.to_pulses(1.5) == 1_500_000

@@ -20,6 +20,7 @@ import tty
 from types import TracebackType
 
 from drivebus.clock import monotonic
+from drivebus.errors import ConfigError
 from drivebus.settings import LineSettings
 from drivebus.sim.segment import Segment, SegmentView, WireFrame
 from drivebus.sim.slave import SimSlave
@@ -81,7 +82,10 @@ class VirtualWire(SegmentView):
 
     async def __aenter__(self) -> VirtualWire:
         if self.name in _REGISTRY:
-            raise ValueError(f"a virtual wire named {self.name!r} is already running")
+            raise ConfigError(
+                f"sim://{self.name}: a simulated line of that name is already running in "
+                f"this process: give each simulated line its own name"
+            )
         async with contextlib.AsyncExitStack() as stack:  # undone in reverse by __aexit__
             self._master_fd, self._slave_fd = os.openpty()
             stack.callback(os.close, self._slave_fd)
