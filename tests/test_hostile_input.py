@@ -19,11 +19,11 @@ from typing import Any
 
 import pytest
 
-from drivebus import Bus, LineSettings, Priority, open_machine
+from drivebus import Bus, LineSettings, Priority, SerialLine, open_machine
 from drivebus.bus import SlaveHandle
 from drivebus.config import load_config, parse_config
 from drivebus.drives.registry import FAMILIES
-from drivebus.errors import ArgumentError, ConfigError, LimitViolation
+from drivebus.errors import ArgumentError, ConfigError, LimitViolation, LineConfigError
 from drivebus.motion.units import Units
 from drivebus.sim import RegisterSlave, VirtualWire, lookup_wire, sim_bus
 
@@ -123,8 +123,6 @@ async def test_bad_slave_settings_are_config_errors(
 def test_bad_bus_settings_are_config_errors(
     kwargs: dict[str, Any], needles: tuple[str, ...]
 ) -> None:
-    from drivebus import SerialLine
-
     with pytest.raises(ConfigError) as info:
         Bus(SerialLine("sim://unused", FAST), **kwargs)
     for n in needles:
@@ -148,8 +146,6 @@ PROFILES = {f.name: f.profile for f in FAMILIES.values()}
 
 def _handle(address: int = 1) -> SlaveHandle:
     """A slave handle on a bus that is never opened (constructors do no I/O)."""
-    from drivebus import SerialLine
-
     return Bus(SerialLine("sim://unused", FAST)).slave(address)
 
 
@@ -377,3 +373,65 @@ def test_positions_too_far_for_any_drive_are_limit_violations() -> None:
     with pytest.raises(LimitViolation, match=r"1e\+307 units is inf pulses"):
         u.to_pulses(1e307)
     assert u.to_pulses(1.5) == 1_500_000
+
+
+# -- baud rates and formats a port cannot run -----------------------------------------------------
+
+ODD = LineSettings.parse("12345 8N1")
+
+
+async def test_a_non_standard_baud_rate_works_end_to_end_on_a_pty() -> None:
+    """pyserial sets 12345 baud on a pty (termios2, BOTHER); the wire observes the rate the
+    port really runs, and a slave at 12345 baud answers, with the silences of that rate."""
+    slave = RegisterSlave(1, ODD, initial=[(0, 7)])
+    async with sim_bus([slave], ODD, timeout=0.5) as (wire, bus):
+        assert await bus.slave(1).read_holding_registers(0, 1) == [7]
+        assert {f.settings for f in wire.log} == {ODD} and wire.violations == 0
+    async with VirtualWire("hostile-plain-pty") as wire:  # the pty path itself, no sim://
+        wire.attach(RegisterSlave(1, ODD, initial=[(0, 9)]))
+        async with Bus(SerialLine(wire.slave_path, ODD), timeout=0.5) as bus:
+            assert await bus.slave(1).read_holding_registers(0, 1) == [9]
+
+
+async def test_a_rate_the_adapter_cannot_run_is_a_config_error_naming_rate_and_port() -> None:
+    """An adapter whose driver substitutes the nearest rate it can make: opening the line
+    at 12345 baud fails at once with ConfigError (not a ResponseTimeout later)."""
+    async with VirtualWire("hostile-std", adapter_bauds=(9600, 19200, 38400, 115200)) as wire:
+        wire.attach(RegisterSlave(1, ODD))
+        with pytest.raises(ConfigError) as info:
+            async with Bus(SerialLine(wire.url, ODD)):
+                pytest.fail("opened")
+        text = str(info.value)
+        assert "'sim://hostile-std' cannot run 12345 8N1" in text and "set 9600 baud" in text
+        assert wire.request_count == 0
+
+
+async def test_a_per_slave_rate_the_adapter_cannot_run_fails_that_request_only() -> None:
+    """The request fails with LineConfigError naming slave, rate and port; the line goes on
+    at its previous settings for the other slaves."""
+    fast = RegisterSlave(2, FAST, initial=[(0, 5)])
+    async with VirtualWire("hostile-mixed", adapter_bauds=(9600, 115200)) as wire:
+        wire.attach(RegisterSlave(1, ODD))
+        wire.attach(fast)
+        async with Bus(SerialLine(wire.url, FAST), timeout=0.2, retries=2) as bus:
+            with pytest.raises(LineConfigError) as info:
+                await bus.slave(1, settings=ODD).read_holding_registers(0, 1)
+            assert "slave 1:" in str(info.value) and "cannot run 12345 8N1" in str(info.value)
+            assert isinstance(info.value, ConfigError) and bus.stats.slave(1).retries == 0
+            assert await bus.slave(2).read_holding_registers(0, 1) == [5]
+            assert {f.settings for f in wire.requests()} == {FAST}
+
+
+async def test_a_format_the_port_refuses_is_a_config_error_not_a_termios_error() -> None:
+    """Ports (and some kernels' ptys) refuse parity with EINVAL from tcsetattr: no raw
+    termios.error, but ConfigError at open and LineConfigError for a per-slave setting."""
+    even = LineSettings.parse("19200 8E1")
+    async with VirtualWire("hostile-no-parity", adapter_formats=("8N1", "8N2")) as wire:
+        wire.attach(RegisterSlave(1, FAST, initial=[(0, 3)]))
+        with pytest.raises(ConfigError, match=r"cannot run 19200 8E1 \(.*Invalid argument"):
+            async with Bus(SerialLine(wire.url, even)):
+                pytest.fail("opened")
+        async with Bus(SerialLine(wire.url, FAST)) as bus:
+            with pytest.raises(LineConfigError, match=r"slave 4: .* cannot run 19200 8E1"):
+                await bus.slave(4, settings=even).read_holding_registers(0, 1)
+            assert await bus.slave(1).read_holding_registers(0, 1) == [3]
