@@ -133,24 +133,7 @@ class Bus:
         """A handle for the slave at ``address`` (0 = broadcast) with its own settings."""
         from drivebus.bus.slave import SlaveHandle
 
-        address = checks.whole("slave address (0 = broadcast)", address, 0, 247,
-                               error=ConfigError)
-        if settings is not None and not isinstance(settings, LineSettings):
-            raise ConfigError(
-                f"slave {address}: settings must be LineSettings (e.g. "
-                f"LineSettings.parse('9600 8N1')) or None, not {settings!r}"
-            )
-        if settings is not None and settings != self.line.settings:
-            if self.line.settings is None:
-                raise ConfigError(
-                    f"line {self.line.name} is not a serial line: no per-slave settings"
-                )
-            if not getattr(self.line, "per_slave_settings", True):
-                raise ConfigError(
-                    f"slave {address}: line {self.line.name} has one setting for all slaves "
-                    f"({self.line.settings}); {settings} cannot be used on it"
-                )
-        h = SlaveHandle(
+        h = SlaveHandle(  # checks address, settings, timeout and retries
             self,
             address,
             settings=settings,
@@ -158,7 +141,17 @@ class Bus:
             retries=self.retries if retries is None else retries,
             exception_texts=exception_texts,
         )
-        self._handles[address] = h
+        if h.settings is not None and h.settings != self.line.settings:
+            if self.line.settings is None:
+                raise ConfigError(
+                    f"line {self.line.name} is not a serial line: no per-slave settings"
+                )
+            if not getattr(self.line, "per_slave_settings", True):
+                raise ConfigError(
+                    f"slave {h.address}: line {self.line.name} has one setting for all slaves "
+                    f"({self.line.settings}); {h.settings} cannot be used on it"
+                )
+        self._handles[h.address] = h
         return h
 
     # -- submitting ------------------------------------------------------------------------

@@ -36,7 +36,8 @@ class SlaveHandle:
         retries: int,
         exception_texts: dict[int, str] | None = None,
     ) -> None:
-        self.address = checks.whole("slave address", address, 0, 247, error=ConfigError)
+        self.address = checks.whole("slave address (0 = broadcast)", address, 0, 247,
+                                    error=ConfigError)
         if settings is not None and not isinstance(settings, LineSettings):
             raise ConfigError(
                 f"slave {address}: settings must be LineSettings (e.g. "
