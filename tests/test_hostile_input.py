@@ -1,14 +1,17 @@
-"""Issue 12: every bad value at a public entry is a typed error naming its cause.
+"""Issue 12: every bad value at a public entry, and every misbehaving peer, is a typed error
+naming its cause.
 
 One test per class of bad input: call arguments (Bus, SlaveHandle, the PDU codec), line
-settings, drive-profile constructor options, machine files. Each asserts the exact error
-type, that the message names the parameter (or key) and the value, and that nothing
-reached the wire. The CLI's side is in ``test_cli.py``; property-based fuzzing of the same
-entries in ``test_fuzz.py``.
+settings, drive-profile constructor options, machine files, ports that cannot run the
+settings, and peers that misbehave (RTU on a pty, Modbus TCP on loopback). Each asserts the
+exact error type and that the message names the cause (parameter or key, and value), and
+for bad arguments that nothing reached the wire. The CLI's side is in ``test_cli.py``;
+property-based fuzzing of the same entries in ``test_fuzz.py``.
 """
 
 from __future__ import annotations
 
+import asyncio
 import inspect
 import math
 import re
@@ -19,13 +22,25 @@ from typing import Any
 
 import pytest
 
-from drivebus import Bus, LineSettings, Priority, SerialLine, open_machine
+from drivebus import Bus, LineSettings, Priority, SerialLine, TcpLine, open_machine
 from drivebus.bus import SlaveHandle
 from drivebus.config import load_config, parse_config
 from drivebus.drives.registry import FAMILIES
-from drivebus.errors import ArgumentError, ConfigError, LimitViolation, LineConfigError
+from drivebus.errors import (
+    ArgumentError,
+    ConfigError,
+    DrivebusError,
+    FrameError,
+    LimitViolation,
+    LineConfigError,
+    ModbusException,
+    ResponseTimeout,
+    WrongResponder,
+)
+from drivebus.line.rtu import frame
 from drivebus.motion.units import Units
 from drivebus.sim import RegisterSlave, VirtualWire, lookup_wire, sim_bus
+from peers import MakeReply, TcpPeer, mbap, pty_bus, values_pdu
 
 FAST = LineSettings.parse("115200 8N1")
 
@@ -435,3 +450,78 @@ async def test_a_format_the_port_refuses_is_a_config_error_not_a_termios_error()
             with pytest.raises(LineConfigError, match=r"slave 4: .* cannot run 19200 8E1"):
                 await bus.slave(4, settings=even).read_holding_registers(0, 1)
             assert await bus.slave(1).read_holding_registers(0, 1) == [3]
+
+
+# -- hostile peers ---------------------------------------------------------------------------------
+
+GOOD = values_pdu([1, 2])
+
+RTU_PEERS: list[tuple[str, list[bytes], type[DrivebusError], tuple[str, ...]]] = [
+    ("silence", [], ResponseTimeout, ("slave 1: no reply",)),
+    ("truncated reply", [frame(1, GOOD)[:5]], FrameError, ("slave 1", "unusable reply")),
+    ("bad CRC", [frame(1, GOOD)[:-1] + b"\x00"], FrameError, ("slave 1", "bad CRC")),
+    ("wrong function", [frame(1, b"\x04" + GOOD[1:])], FrameError,
+     ("slave 1", "reply function 0x04 to request 0x03")),
+    ("exception", [frame(1, b"\x83\x02")], ModbusException,
+     ("slave 1", "exception 0x02: illegal data address")),
+    ("another address", [frame(5, GOOD)], WrongResponder, ("slave 1", "from address 5")),
+    ("too many registers", [frame(1, values_pdu([1, 2, 3]))], FrameError,
+     ("slave 1", "carries 6 bytes, 4 expected")),
+    ("garbage", [b"\xff\x00\x55" * 5], FrameError, ("slave 1", "ff 00 55")),
+]
+
+
+@pytest.mark.parametrize(("what", "script", "error", "needles"), RTU_PEERS,
+                         ids=[p[0] for p in RTU_PEERS])
+async def test_a_misbehaving_rtu_peer_is_a_typed_error_naming_it(
+    what: str, script: list[bytes], error: type[DrivebusError], needles: tuple[str, ...]
+) -> None:
+    """Over the real serial stack on a pty; then a proper reply is read correctly."""
+    async with pty_bus([*script, frame(1, GOOD)] if script else []) as bus:
+        with pytest.raises(error) as info:
+            await bus.slave(1).read_holding_registers(0, 2)
+        assert type(info.value) is error and info.value.slave == 1
+        for n in needles:
+            assert n in str(info.value), str(info.value)
+        if script:
+            assert await bus.slave(1).read_holding_registers(0, 2) == [1, 2]
+
+
+TCP_PEERS: list[tuple[str, MakeReply, type[DrivebusError], tuple[str, ...]]] = [
+    ("silence", lambda tid: b"", ResponseTimeout, ("slave 1", "no reply within 50 ms")),
+    ("wrong transaction id", lambda tid: mbap(tid ^ 7, GOOD), FrameError,
+     ("matches no request", "reply rejected")),
+    ("wrong protocol id", lambda tid: mbap(tid, GOOD, protocol=1), FrameError,
+     ("not a Modbus TCP header", "reconnecting")),
+    ("length out of range", lambda tid: mbap(tid, GOOD, length=300), FrameError,
+     ("not a Modbus TCP header", "01 2c")),
+    ("another unit", lambda tid: mbap(tid, GOOD, unit=5), WrongResponder,
+     ("slave 1", "came from unit 5")),
+    ("exception", lambda tid: mbap(tid, b"\x83\x02"), ModbusException,
+     ("slave 1", "illegal data address")),
+    ("too many registers", lambda tid: mbap(tid, values_pdu([1, 2, 3])), FrameError,
+     ("slave 1", "carries 6 bytes, 4 expected")),
+]
+
+
+@pytest.mark.parametrize(("what", "make", "error", "needles"), TCP_PEERS,
+                         ids=[p[0] for p in TCP_PEERS])
+async def test_a_misbehaving_tcp_peer_is_a_typed_error_naming_it(
+    what: str, make: MakeReply, error: type[DrivebusError], needles: tuple[str, ...]
+) -> None:
+    """Over a real loopback connection; then the line works again (reconnecting if the
+    stream was out of step)."""
+    peer = TcpPeer(make, [1, 2])
+    server = await asyncio.start_server(peer.serve, "127.0.0.1", 0)
+    try:
+        line = TcpLine("127.0.0.1", server.sockets[0].getsockname()[1], reconnect_delay=0.0)
+        async with Bus(line, timeout=0.05, retries=0) as bus:
+            with pytest.raises(error) as info:
+                await bus.slave(1).read_holding_registers(0, 2)
+            assert type(info.value) is error
+            for n in needles:
+                assert n in str(info.value), str(info.value)
+            assert await bus.slave(1, retries=2).read_holding_registers(0, 2) == [1, 2]
+    finally:
+        server.close()
+        await server.wait_closed()
