@@ -246,6 +246,7 @@ def test_line_settings_a_drive_can_do_pass(drive: str, settings: str) -> None:
 # -- machine files -------------------------------------------------------------------------------
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
+SINGLE = DEMO.with_name("single.toml")
 
 
 def _demo() -> dict[str, Any]:
@@ -286,6 +287,14 @@ BAD_FILES: list[tuple[str, Callable[[dict[str, Any]], None], tuple[str, ...]]] =
     ("two serial lines on one port",
      _set("lines.second", {"port": "sim://demo-rs485", "settings": "9600 8N1"}),
      ("lines.second.port", "sim://demo-rs485", "already line rs485")),
+    ("two lines on one real port",
+     lambda d: d["lines"].update(a={"port": "/dev/ttyUSB0"}, b={"port": "/dev/../dev/ttyUSB0"}),
+     ("lines.b.port", "serial port /dev/../dev/ttyUSB0 is already line a")),
+    ("two lines on one serial server",
+     lambda d: d["lines"].update(
+         a={"kind": "rtu-over-tcp", "host": "10.0.0.9", "tcp_port": 4001},
+         b={"kind": "rtu-over-tcp", "host": "10.0.0.9", "tcp_port": 4001}),
+     ("lines.b.host", "serial server 10.0.0.9:4001 is already line a")),
     ("NT86 at 8E1", _set("axes.x.settings", "115200 8E1"),
      ("axes.x.settings", "115200 8E1", "NT86", "8N1")),
     ("CL86R at 12345 baud", _set("axes.z.settings", "12345 8N2"),
@@ -379,6 +388,23 @@ async def test_a_twin_that_refuses_its_options_names_the_axis() -> None:
     })
     with pytest.raises(ConfigError, match=r"axes\.x\.sim: the simulated NT86 .*'sideways'"):
         async with open_machine(cfg):
+            pytest.fail("opened")
+
+
+async def test_open_machine_takes_a_mapping_and_refuses_anything_else() -> None:
+    """The mapping form is validated like a file; other types, and group names that are
+    not axes, are ConfigErrors too (no TypeError from deep inside)."""
+    data = tomllib.loads(SINGLE.read_text())
+    data["lines"]["bus"]["port"] = "sim://hostile-mapping"
+    async with open_machine(data) as m:
+        with pytest.raises(ConfigError, match=r"no axis 5, 'q' \(axes: x\)"):
+            m.group(5, "q")  # type: ignore[arg-type]
+    data["axes"]["x"]["speed"] = -1.0
+    with pytest.raises(ConfigError, match=r"^config: axes\.x\.speed: .*\(got -1\.0\)"):
+        async with open_machine(data):
+            pytest.fail("opened")
+    with pytest.raises(ConfigError, match="a machine file is a path, not 5"):
+        async with open_machine(5):  # type: ignore[arg-type]
             pytest.fail("opened")
 
 

@@ -16,6 +16,7 @@ import inspect
 import math
 import os
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -35,7 +36,16 @@ from drivebus.checks import MAX_RETRIES, MAX_TIMEOUT, validation_problems
 from drivebus.errors import ConfigError
 from drivebus.settings import LineSettings
 
-__all__ = ["AxisConfig", "HomingConfig", "LineConfig", "MachineConfig", "PollConfig", "load_config"]
+__all__ = [
+    "AxisConfig",
+    "HomingConfig",
+    "LineConfig",
+    "MachineConfig",
+    "PollConfig",
+    "load_config",
+    "machine_config",
+    "parse_config",
+]
 
 
 def _settings(v: Any) -> Any:
@@ -316,6 +326,8 @@ def parse_config(data: dict[str, Any], source: str = "config") -> MachineConfig:
 
 def load_config(path: str | Path) -> MachineConfig:
     """Read and validate a TOML machine file."""
+    if not isinstance(path, str | os.PathLike):
+        raise ConfigError(f"a machine file is a path, not {path!r}")
     p = Path(path)
     try:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
@@ -328,3 +340,12 @@ def load_config(path: str | Path) -> MachineConfig:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
     return parse_config(data, str(p))
+
+
+def machine_config(config: str | Path | Mapping[str, Any] | MachineConfig) -> MachineConfig:
+    """A validated config from a machine file's path, a mapping or a ``MachineConfig``."""
+    if isinstance(config, MachineConfig):
+        return config
+    if isinstance(config, Mapping):
+        return parse_config(dict(config))
+    return load_config(config)
