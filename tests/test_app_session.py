@@ -25,7 +25,7 @@ async def test_snapshot_names_lines_and_axes_as_plain_data() -> None:
         x = s.axis_snapshot("x").as_dict()
         assert x["drive"] == "NT86" and x["soft_limits"] == [-5.0, 400.0]
         assert x["position"] == pytest.approx(12.0)
-        with pytest.raises(NotFound, match="no axis 'w'.*x, y, z, aux, r"):
+        with pytest.raises(NotFound, match=r"no axis 'w'.*x, y, z, aux, r"):
             s.axis_snapshot("w")
 
 

@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,9 +29,9 @@ import pytest
 import serial
 from typer.testing import CliRunner
 
-from drivebus.cli import app, explain
+from drivebus.cli import _fail, app, explain
 from drivebus.config import load_config
-from drivebus.errors import LineClosed
+from drivebus.errors import ConfigError, DriveOffline, LineClosed
 from drivebus.ops import Out, check_config, scan_line
 from drivebus.scan import scan_settings
 from drivebus.settings import LineSettings
@@ -318,6 +319,99 @@ def test_errors_are_one_clear_line(tmp_path: Path) -> None:
     _one_error_line(drivebus("status", absent), 1, "does not answer", "drivebus scan")
     r = drivebus("status", absent, "--debug")
     assert r.returncode != 0 and "Traceback" in r.stderr
+
+
+def _bad_file(tmp_path: Path, name: str, old: str, new: str) -> Path:
+    text = DEMO.read_text()
+    assert old in text
+    f = tmp_path / f"{name}.toml"
+    f.write_text(text.replace(old, new, 1))
+    return f
+
+
+def _hostile_cases(tmp_path: Path) -> list[tuple[list[str | Path], int, tuple[str, ...]]]:
+    """(arguments, exit status, what the one line on stderr must name): issue 12's bad input
+    at the command line, in files and in arguments."""
+    nan_units = _bad_file(tmp_path, "nan", "units_per_rev = 10.0", "units_per_rev = nan")
+    same_sim = _bad_file(tmp_path, "same", 'host = "sim://demo-eth"', 'host = "sim://demo-rs485"')
+    homing = _bad_file(tmp_path, "homing", 'method = "home_switch_positive", speed = 40.0',
+                       'method = "home_switch_postive", speed = 40.0')
+    option = _bad_file(tmp_path, "option", "home_input = 5", "home_inptu = 5")
+    baud = _bad_file(tmp_path, "baud", 'settings = "38400 8N2"', 'settings = "12345 8N2"')
+    return [
+        (["status", nan_units], 2, ("nan.toml", "axes.x.units_per_rev", "nan")),
+        (["check", nan_units], 2, ("nan.toml", "axes.x.units_per_rev", "finite")),
+        (["move", nan_units, "x", "1"], 2, ("axes.x.units_per_rev",)),
+        (["status", same_sim], 2, ("lines.eth.host", "sim://demo-rs485", "already line rs485")),
+        (["check", same_sim], 2, ("lines.eth.host",)),
+        (["check", homing], 2, ("axes.x.homing.method", "'home_switch_postive'")),
+        (["home", homing, "x"], 2, ("axes.x.homing.method",)),
+        (["check", option], 2, ("axes.r.drive_options.home_inptu", "home_input")),
+        (["status", option, "r"], 2, ("axes.r.drive_options.home_inptu",)),
+        (["check", baud], 2, ("axes.z.settings", "12345", "CL86R")),
+        (["move", SINGLE, "x", "nan"], 2, ("TARGET", "nan")),
+        (["move", SINGLE, "x", "-inf", "--by"], 2, ("TARGET", "-inf")),
+        (["move", SINGLE, "x", "5", "--speed", "-5"], 2, ("--speed", "-5", "> 0")),
+        (["move", SINGLE, "x", "5", "--speed", "nan"], 2, ("--speed", "nan")),
+        (["jog", SINGLE, "x", "inf"], 2, ("SPEED", "inf")),
+        (["jog", SINGLE, "x", "0"], 2, ("SPEED", "must not be 0")),
+        (["jog", SINGLE, "x", "5", "--for", "-1"], 2, ("--for", "-1")),
+        (["monitor", SINGLE, "--interval", "nan"], 2, ("--interval", "nan")),
+        (["monitor", SINGLE, "--count", "0"], 2, ("--count", "0")),
+        (["scan", "/dev/ttyDRIVEBUS-NONE", "--address", "5-1"], 2, ("--address", "'5-1'")),
+        (["scan", "/dev/ttyDRIVEBUS-NONE", "--address", "0-300"], 2, ("--address", "1 to 247")),
+        (["scan", "/dev/ttyDRIVEBUS-NONE", "--baud", "9600,fast"], 2, ("--baud", "fast")),
+        (["scan", "/dev/ttyDRIVEBUS-NONE", "--baud", "0"], 2, ("--baud", "300")),
+        (["scan", "/dev/ttyDRIVEBUS-NONE", "--timeout", "inf"], 2, ("--timeout", "inf")),
+        (["bench", "--turnaround", "-1"], 2, ("--turnaround", "-1")),
+        (["move", SINGLE, "x"], 2, ("Missing argument 'target'", "drivebus move --help")),
+        (["move", SINGLE, "x", "far"], 2, ("'target'", "drivebus move --help")),
+        (["status", SINGLE, "--bogus"], 2, ("--bogus", "drivebus status --help")),
+        (["frobnicate"], 2, ("No such command 'frobnicate'", "drivebus --help")),
+    ]
+
+
+def test_hostile_input_is_one_line_and_the_right_exit_status(tmp_path: Path) -> None:
+    """Every bad file and argument: exit status 2, exactly one line on stderr naming the
+    cause (key or option, value), no traceback, and nothing run (no output on stdout)."""
+    cases = _hostile_cases(tmp_path)
+    with ThreadPoolExecutor(4) as pool:  # independent processes: run a few at a time
+        results = list(pool.map(lambda c: drivebus(*c[0]), cases))
+    for (args, code, needles), r in zip(cases, results, strict=True):
+        what = " ".join(map(str, args))
+        assert r.returncode == code, (what, r.stdout, r.stderr)
+        assert "Traceback" not in r.stderr, what
+        lines = r.stderr.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: "), (what, r.stderr)
+        for n in needles:
+            assert n in lines[0], (what, lines[0])
+        if args[0] != "check":
+            assert r.stdout == "", (what, r.stdout)
+
+
+def test_exception_groups_are_unwrapped_into_one_line_per_cause(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Task groups wrap errors: the lines name what is inside; an unexpected error is one
+    line too (no traceback without --debug), and the gravest exit status wins."""
+    group = BaseExceptionGroup("unhandled errors in a TaskGroup", [
+        ExceptionGroup("inner", [ConfigError("m.toml: axes.x.speed: bad")]),
+        DriveOffline("axis y: no answer"),
+    ])
+    with pytest.raises(SystemExit) as ex:
+        _fail(group, debug=False)
+    assert ex.value.code == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "error: m.toml: axes.x.speed: bad"
+    assert err[1].startswith("error: axis y: no answer; check power") and len(err) == 2
+    with pytest.raises(SystemExit) as ex:
+        _fail(ExceptionGroup("g", [ZeroDivisionError("division by zero")]), debug=False)
+    assert ex.value.code == 1
+    assert capsys.readouterr().err == (
+        "internal error: ZeroDivisionError: division by zero (run the command again with "
+        "--debug to see where, and please report it)\n")
+    with pytest.raises(ExceptionGroup):
+        _fail(ExceptionGroup("g", [ZeroDivisionError()]), debug=True)
 
 
 def test_permission_denied_names_the_fix() -> None:

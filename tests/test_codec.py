@@ -14,7 +14,7 @@ from pymodbus.pdu.register_message import (
 
 from drivebus import pdu as P
 from drivebus.drives.registers import Register, WordOrder, join_words, split_words
-from drivebus.errors import ConfigError, FrameError, LimitViolation, ModbusException
+from drivebus.errors import ArgumentError, FrameError, LimitViolation, ModbusException
 from drivebus.line.rtu import crc16, crc_ok, frame
 
 
@@ -73,11 +73,11 @@ def test_lengths_are_predicted_from_the_first_bytes(values: list[int]) -> None:
 
 
 def test_bad_requests_name_the_problem() -> None:
-    with pytest.raises(ConfigError, match="count 126"):
+    with pytest.raises(ArgumentError, match=r"register count: 126 is outside 1\.\.125"):
         P.read_request(3, 0, 126)
-    with pytest.raises(ConfigError, match="70000"):
+    with pytest.raises(ArgumentError, match=r"register value: 70000 is outside 0\.\.65535"):
         P.write_single_request(1, 70000)
-    with pytest.raises(ConfigError, match="past 65535"):
+    with pytest.raises(ArgumentError, match="past 65535"):
         P.read_request(3, 65530, 10)
 
 

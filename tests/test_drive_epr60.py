@@ -9,7 +9,7 @@ import pytest
 
 from drivebus import LineSettings
 from drivebus.drives.nt_family import EPR60Profile, NT86Profile
-from drivebus.errors import LimitViolation, ModbusException, NotSupported
+from drivebus.errors import ConfigError, LimitViolation, ModbusException, NotSupported
 from drivebus.line.rtu import crc_ok
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.drives.nt_family import SimEPR60
@@ -41,7 +41,7 @@ async def test_setup_writes_microstep_to_96_97_low_word_first() -> None:
         with pytest.raises(ModbusException) as err:
             await bus.slave(1).read_holding_registers(287, 1)  # no NT86 homing block
         assert err.value.code == 2
-    with pytest.raises(LimitViolation, match=r"pulses per revolution.*200\.\.65535"):
+    with pytest.raises(ConfigError, match=r"pulses_per_rev: .* 100 pulses/rev.*200\.\.65535"):
         EPR60Profile(profile.slave, pulses_per_rev=100)
 
 

@@ -29,12 +29,16 @@ def test_parse(text: str, expected: tuple[int, int, str, int]) -> None:
 @pytest.mark.parametrize(
     ("kwargs", "field"),
     [({"baudrate": 0}, "baudrate"), ({"parity": "X"}, "parity"), ({"stopbits": 3}, "stopbits"),
-     ({"bytesize": 9}, "bytesize"), ({"baud": 9600}, "baud")],
+     ({"bytesize": 9}, "bytesize"), ({"baud": 9600}, "baud"), ({"baudrate": 9600.5}, "baudrate"),
+     ({"baudrate": True}, "baudrate"), ({"stopbits": True}, "stopbits")],
 )
 def test_bad_values_name_the_field(kwargs: dict[str, object], field: str) -> None:
-    with pytest.raises(ValidationError) as exc:
+    """A ConfigError (not pydantic's ValidationError) naming the field and the value."""
+    with pytest.raises(ConfigError) as exc:
         LineSettings(**kwargs)  # type: ignore[arg-type]
-    assert field in str(exc.value)
+    assert not isinstance(exc.value, ValidationError)
+    text = str(exc.value)
+    assert field in text and repr(next(iter(kwargs.values()))) in text
 
 
 def test_parse_errors() -> None:

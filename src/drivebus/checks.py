@@ -1,50 +1,180 @@
-"""Argument checks at the public edge: one place that turns a bad value into ``ArgumentError``.
+"""Argument checks at the public edge: one place that turns a bad value into a typed error.
 
 Every public call that takes a number (positions, speeds, register addresses and values)
 checks it here before anything is queued or sent, so a NaN, an infinity, a fraction where a
 whole number belongs or a negative speed never reaches a register codec or the wire.
+
+Call arguments fail with ``ArgumentError``; the same checks serve settings (a bus's
+response timeout, a profile's options) with ``error=ConfigError``. Messages name the
+parameter, the value and what is allowed.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from enum import IntEnum
 from numbers import Integral, Real
+from typing import Any, TypeVar, get_args, get_origin
 
-from drivebus.errors import ArgumentError
+from pydantic import BaseModel, ValidationError
 
-__all__ = ["finite", "positive", "whole"]
+from drivebus.errors import ArgumentError, ConfigError, DrivebusError
+
+__all__ = [
+    "MAX_RETRIES",
+    "MAX_TIMEOUT",
+    "finite",
+    "member",
+    "positive",
+    "response_timeout",
+    "retry_count",
+    "validation_problems",
+    "whole",
+    "words",
+]
+
+MAX_TIMEOUT = 10.0
+"""Longest response timeout a slave may have, seconds (a longer one only hides a fault)."""
+MAX_RETRIES = 10
+"""Most retries a transaction may have."""
+
+E = TypeVar("E", bound=IntEnum)
 
 
-def finite(name: str, value: object) -> float:
-    """``value`` as a float if it is a finite real number; else ``ArgumentError``."""
+def finite(name: str, value: object, *, error: type[DrivebusError] = ArgumentError) -> float:
+    """``value`` as a float if it is a finite real number; else ``error``."""
     if isinstance(value, bool) or not isinstance(value, Real):
-        raise ArgumentError(f"{name}: expected a number, got {value!r}")
+        raise error(f"{name}: expected a number, got {value!r}")
     v = float(value)
     if not math.isfinite(v):
-        raise ArgumentError(f"{name}: {value!r} is not a finite number")
+        raise error(f"{name}: {value!r} is not a finite number")
     return v
 
 
-def positive(name: str, value: object, *, unit: str = "") -> float:
-    """``value`` as a float if it is finite and > 0; else ``ArgumentError``."""
-    v = finite(name, value)
+def positive(
+    name: str, value: object, *, unit: str = "", error: type[DrivebusError] = ArgumentError
+) -> float:
+    """``value`` as a float if it is finite and > 0; else ``error``."""
+    v = finite(name, value, error=error)
     if v <= 0:
         tail = f" {unit}" if unit else ""
-        raise ArgumentError(f"{name}: must be > 0{tail}, not {value!r}")
+        raise error(f"{name}: must be > 0{tail}, not {value!r}")
     return v
 
 
-def whole(name: str, value: object, lo: int, hi: int) -> int:
-    """``value`` as an int if it is a whole number in ``lo..hi``; else ``ArgumentError``."""
+def whole(
+    name: str, value: object, lo: int, hi: int, *, error: type[DrivebusError] = ArgumentError
+) -> int:
+    """``value`` as an int if it is a whole number in ``lo..hi``; else ``error``."""
     if isinstance(value, bool) or not isinstance(value, Integral | Real):
-        raise ArgumentError(f"{name}: expected a whole number in {lo}..{hi}, got {value!r}")
+        raise error(f"{name}: expected a whole number in {lo}..{hi}, got {value!r}")
     if isinstance(value, Integral):
         v = int(value)
     else:
         f = float(value)
         if not math.isfinite(f) or f != int(f):
-            raise ArgumentError(f"{name}: expected a whole number in {lo}..{hi}, got {value!r}")
+            raise error(f"{name}: expected a whole number in {lo}..{hi}, got {value!r}")
         v = int(f)
     if not lo <= v <= hi:
-        raise ArgumentError(f"{name}: {v} is outside {lo}..{hi}")
+        raise error(f"{name}: {v} is outside {lo}..{hi}")
     return v
+
+
+def words(
+    name: str, values: object, max_count: int, *, error: type[DrivebusError] = ArgumentError
+) -> list[int]:
+    """``values`` as a list of 1..``max_count`` 16-bit words (whole numbers 0..65535)."""
+    if isinstance(values, str | bytes | bytearray) or not isinstance(values, Sequence):
+        raise error(f"{name}: expected a sequence of register values, got {values!r}")
+    if not 1 <= len(values) <= max_count:
+        raise error(f"{name}: {len(values)} values, but 1..{max_count} are allowed")
+    return [whole(f"{name}[{i}]", v, 0, 0xFFFF, error=error) for i, v in enumerate(values)]
+
+
+def member(
+    name: str, value: object, kind: type[E], *, error: type[DrivebusError] = ArgumentError
+) -> E:
+    """``value`` as a member of the int enum ``kind``; else ``error`` listing its members."""
+    allowed = ", ".join(f"{m.name} ({m.value})" for m in kind)
+    if isinstance(value, bool) or not isinstance(value, Integral):
+        raise error(f"{name}: expected one of {allowed}, got {value!r}")
+    try:
+        return kind(int(value))
+    except ValueError:
+        raise error(f"{name}: expected one of {allowed}, got {value!r}") from None
+
+
+def response_timeout(
+    name: str, value: object, *, error: type[DrivebusError] = ConfigError
+) -> float:
+    """A response timeout: finite, > 0 and at most ``MAX_TIMEOUT`` seconds."""
+    v = positive(name, value, unit="s", error=error)
+    if v > MAX_TIMEOUT:
+        raise error(f"{name}: {value!r} s is above the longest response timeout, "
+                    f"{MAX_TIMEOUT:g} s")
+    return v
+
+
+def retry_count(name: str, value: object, *, error: type[DrivebusError] = ConfigError) -> int:
+    """A retry count: a whole number 0..``MAX_RETRIES``."""
+    return whole(name, value, 0, MAX_RETRIES, error=error)
+
+
+def _key_path(loc: Sequence[int | str]) -> str:
+    path = ""
+    for part in loc:
+        if part == "[key]":  # pydantic's marker for a bad dict key: the key itself is named
+            continue
+        path += f"[{part}]" if isinstance(part, int) else (f".{part}" if path else str(part))
+    return path
+
+
+def _allowed_keys(model: type[BaseModel] | None, loc: Sequence[int | str]) -> list[str]:
+    """The keys the model allows where ``loc`` (ending in an unknown key) points."""
+    node: Any = model
+    for part in loc[:-1]:
+        if isinstance(node, type) and issubclass(node, BaseModel):
+            field = node.model_fields.get(str(part))
+            node = field.annotation if field is not None else None
+            args = get_args(node)
+            if get_origin(node) is dict and args:
+                node = ("dict", args[1])
+            elif args:
+                node = next((a for a in args if isinstance(a, type)
+                             and issubclass(a, BaseModel)), None)
+        elif isinstance(node, tuple):
+            node = node[1]  # the value type of a dict, whatever the key
+        else:
+            return []
+    if isinstance(node, type) and issubclass(node, BaseModel):
+        return list(node.model_fields)
+    return []
+
+
+def validation_problems(
+    exc: ValidationError,
+    *,
+    model: type[BaseModel] | None = None,
+    prefix: str = "",
+    limit: int = 5,
+) -> list[str]:
+    """A pydantic ``ValidationError`` as ``key.path: what is wrong (got value)`` lines, one
+    per problem (at most ``limit``, then a count); ``prefix`` goes before every key path.
+    ``model`` (the validated model) lets an unknown key be answered with the keys allowed
+    there."""
+    out = []
+    for e in exc.errors(include_url=False)[:limit]:
+        loc = tuple(e["loc"])
+        msg = str(e["msg"]).removeprefix("Value error, ")
+        value = e.get("input")
+        if e["type"] != "missing" and not isinstance(value, dict | list | tuple | BaseModel):
+            msg += f" (got {value!r})"
+        if e["type"] == "extra_forbidden":
+            allowed = _allowed_keys(model, loc)
+            msg = f"unknown key, set to {value!r}" if "(got" in msg else "unknown key"
+            msg += f" (allowed: {', '.join(allowed)})" if allowed else ""
+        where = _key_path((prefix, *loc) if prefix else loc)
+        out.append(f"{where}: {msg}" if where else msg)
+    more = len(exc.errors()) - limit
+    return out + ([f"and {more} more"] if more > 0 else [])

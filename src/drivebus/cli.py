@@ -21,13 +21,20 @@ from typing import Annotated, NoReturn
 import anyio
 import typer
 
+from drivebus import checks
 from drivebus.errors import (
+    ArgumentError,
     ConfigError,
     DrivebusError,
     DriveOffline,
     LineClosed,
     TransactionError,
 )
+
+try:  # typer vendors click from 0.2x on; before, it used click itself
+    from typer._click.exceptions import UsageError
+except ImportError:  # pragma: no cover
+    from click.exceptions import UsageError  # type: ignore[no-redef]
 
 app = typer.Typer(
     name="drivebus",
@@ -55,6 +62,8 @@ def bench(
     """Measure bus efficiency, stop latency, CPU per transaction and scale on simulated lines."""
     from drivebus.bench import format_table, results_json, run_bench
 
+    if not 0 <= checks.finite("--turnaround", turnaround) <= 1:
+        raise ArgumentError(f"--turnaround: {turnaround!r} s is outside 0..1 s")
     results = anyio.run(lambda: run_bench(quick=quick, turnaround=turnaround))
     typer.echo(format_table(results))
     if json_path is not None:
@@ -124,8 +133,8 @@ def scan(
 
     settings = sc.scan_settings(sc.parse_bauds(baud), sc.parse_formats(fmt))
     addresses = sc.parse_addresses(address)
-    if not 0 < timeout <= 5:
-        raise ConfigError(f"--timeout {timeout}: must be above 0 and at most 5 s")
+    if checks.positive("--timeout", timeout, unit="s") > 5:
+        raise ArgumentError(f"--timeout: {timeout!r} s is above 5 s (a probe answers in ms)")
     target = _resolve_port(port)
     if sc.is_pty(target):
         settings, dropped = sc.pty_usable(settings)
@@ -182,6 +191,9 @@ def move(
     """Move an axis to TARGET (or by it) and wait until it is there; Ctrl-C stops it."""
     from drivebus.ops import Out, move_axis, run_guarded
 
+    checks.finite("TARGET", target)
+    if speed is not None:
+        checks.positive("--speed", speed, unit="units/s")
     out = Out()
     raise typer.Exit(run_guarded(lambda: move_axis(out, config, axis, target, by, speed)))
 
@@ -210,8 +222,10 @@ def jog(
     """Jog an axis at SPEED until Ctrl-C (or for --for seconds), then stop it."""
     from drivebus.ops import Out, jog_axis, run_guarded
 
-    if seconds is not None and seconds <= 0:
-        raise ConfigError(f"--for {seconds}: must be above 0 seconds")
+    if checks.finite("SPEED", speed) == 0:
+        raise ArgumentError("SPEED: must not be 0 (units/s; its sign is the direction)")
+    if seconds is not None:
+        checks.positive("--for", seconds, unit="s")
     out = Out()
     code = run_guarded(lambda: jog_axis(out, config, axis, speed, seconds),
                        interrupt_ok=seconds is None)
@@ -241,8 +255,9 @@ def monitor(
     from drivebus.ops import Out, run_guarded
     from drivebus.ops import monitor as run_monitor
 
-    if interval <= 0:
-        raise ConfigError(f"--interval {interval}: must be above 0 seconds")
+    checks.positive("--interval", interval, unit="s")
+    if count is not None and count < 1:
+        raise ArgumentError(f"--count: must be at least 1 update, not {count}")
     out = Out()
     raise typer.Exit(run_guarded(lambda: run_monitor(out, config, interval, count),
                                  interrupt_ok=True))
@@ -309,7 +324,7 @@ def _errno(exc: BaseException) -> int | None:
 
 def explain(exc: BaseException) -> tuple[str, int]:
     """The one line to print for ``exc`` (cause; what to do) and the exit status."""
-    if isinstance(exc, ConfigError):
+    if isinstance(exc, ConfigError | ArgumentError):
         return f"error: {exc}", 2
     code = _errno(exc)
     if isinstance(exc, LineClosed | OSError) and code in _PORT_HINTS:
@@ -327,38 +342,64 @@ def explain(exc: BaseException) -> tuple[str, int]:
 
 
 def _leaves(exc: BaseException) -> list[BaseException]:
+    """The errors inside ``exc``: task groups wrap them in (nested) exception groups."""
     if isinstance(exc, BaseExceptionGroup):
         return [leaf for e in exc.exceptions for leaf in _leaves(e)]
     return [exc]
 
 
+def _explain_any(exc: BaseException) -> tuple[str, int]:
+    """``explain`` for the errors drivebus raises on purpose; one line for anything else."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", 130
+    if isinstance(exc, DrivebusError | OSError | termios.error):
+        return explain(exc)
+    return (f"internal error: {type(exc).__name__}: {exc} (run the command again with --debug "
+            f"to see where, and please report it)"), 1
+
+
 def _fail(exc: BaseException, debug: bool) -> NoReturn:
-    leaves = _leaves(exc)
-    known = [e for e in leaves if isinstance(e, DrivebusError | OSError | termios.error)]
-    if debug or not known:
+    """Print one line per distinct cause inside ``exc`` and exit with the gravest status
+    (``--debug``: the traceback instead)."""
+    if debug:
         raise exc
-    explained = [explain(e) for e in known]
+    explained = [_explain_any(e) for e in _leaves(exc)]
     for text in dict.fromkeys(t for t, _ in explained):
         typer.echo(text, err=True)
-    for e in leaves:
-        if e not in known:
-            typer.echo(f"internal error: {type(e).__name__}: {e} (--debug shows where)",
-                       err=True)
     sys.exit(max(c for _, c in explained))
 
 
+def _usage(exc: UsageError) -> NoReturn:
+    """A command-line usage error as one line (exit status 2); no arguments: the help."""
+    if type(exc).__name__ == "NoArgsIsHelpError":  # no arguments at all: show the help
+        exc.show()
+        sys.exit(exc.exit_code)
+    where = exc.ctx.command_path if exc.ctx is not None else "drivebus"
+    typer.echo(f"error: {exc.format_message().rstrip('.')}; see `{where} --help`", err=True)
+    sys.exit(2)
+
+
 def main() -> None:
-    """Console-script entry point: one clear line per error, no traceback."""
+    """Console-script entry point: one clear line per error, no traceback (unless --debug).
+
+    Exit status: 0 done, 1 a runtime failure (a port, a drive, a motion), 2 a usage or
+    configuration error, 130 interrupted (after stopping what the command started).
+    """
     debug = "--debug" in sys.argv
     if debug:
         sys.argv.remove("--debug")
     try:
-        app()
-    except KeyboardInterrupt:
+        code = app(standalone_mode=False, prog_name="drivebus")
+    except UsageError as exc:
+        if debug:
+            raise
+        _usage(exc)
+    except (KeyboardInterrupt, typer.Abort):
         typer.echo("interrupted", err=True)
         sys.exit(130)
-    except (DrivebusError, OSError, termios.error, BaseExceptionGroup) as exc:
+    except (Exception, BaseExceptionGroup) as exc:
         _fail(exc, debug)
+    sys.exit(code if isinstance(code, int) else 0)
 
 
 __all__ = ["app", "explain", "main"]

@@ -1,20 +1,51 @@
 """Machine configuration: lines and axes, from TOML files, validated with pydantic.
 
 A bad file gives one ``ConfigError`` naming the file, the key path and what is allowed.
+Validation is complete before anything is opened: besides each value's type and range
+(numbers finite everywhere), the cross-checks of ``MachineConfig`` run here, so that
+``open_machine`` and ``drivebus check`` run exactly the same checks: two lines on one
+port or simulator name, what each axis's drive accepts (``DriveProfile.axis_problems``:
+address, line kind, line settings, pulses/rev, homing method, ``drive_options``), speeds
+above ``max_speed``, and a simulation that cannot work (switches or soft limits that
+leave the axis no room, positions beyond a drive's 32-bit range, unknown twin options).
 """
 
 from __future__ import annotations
 
+import inspect
+import math
+import os
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictFloat,
+    StrictInt,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
+from drivebus.checks import MAX_RETRIES, MAX_TIMEOUT, validation_problems
 from drivebus.errors import ConfigError
 from drivebus.settings import LineSettings
 
-__all__ = ["AxisConfig", "HomingConfig", "LineConfig", "MachineConfig", "PollConfig", "load_config"]
+__all__ = [
+    "AxisConfig",
+    "HomingConfig",
+    "LineConfig",
+    "MachineConfig",
+    "PollConfig",
+    "load_config",
+    "machine_config",
+    "parse_config",
+]
 
 
 def _settings(v: Any) -> Any:
@@ -24,7 +55,11 @@ def _settings(v: Any) -> Any:
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+_POSITION_PULSES = 1 << 31
+"""Every drive keeps its position in a signed 32-bit register."""
 
 
 class LineConfig(_Model):
@@ -33,12 +68,12 @@ class LineConfig(_Model):
     kind: Literal["serial", "tcp", "rtu-over-tcp"] = "serial"
     port: str | None = Field(None, description="serial: device path or sim://NAME")
     host: str | None = Field(None, description="tcp: host name, address or sim://NAME")
-    tcp_port: int = Field(502, ge=1, le=65535)
+    tcp_port: StrictInt = Field(502, ge=1, le=65535)
     settings: LineSettings = Field(default_factory=LineSettings)
-    timeout: float = Field(0.1, gt=0, le=10)
-    retries: int = Field(2, ge=0, le=10)
-    local_echo: bool = False
-    rs485: bool = False
+    timeout: StrictFloat = Field(0.1, gt=0, le=MAX_TIMEOUT, description="response timeout, s")
+    retries: StrictInt = Field(2, ge=0, le=MAX_RETRIES)
+    local_echo: StrictBool = False
+    rs485: StrictBool = False
 
     _parse_settings = field_validator("settings", mode="before")(_settings)
 
@@ -48,6 +83,12 @@ class LineConfig(_Model):
             raise ValueError("a serial line needs 'port' (a device path or sim://NAME)")
         if self.kind != "serial" and not self.host:
             raise ValueError(f"a {self.kind} line needs 'host' (an address or sim://NAME)")
+        unused = "host" if self.kind == "serial" else "port"
+        if getattr(self, unused):
+            raise ValueError(f"a {self.kind} line has no '{unused}' (set 'kind' to say what "
+                             f"the line is: serial, tcp or rtu-over-tcp)")
+        if self.simulated and not self.sim_name.strip("/"):
+            raise ValueError("sim:// needs a name (sim://NAME)")
         return self
 
     @property
@@ -65,49 +106,58 @@ class HomingConfig(_Model):
     """How an axis homes: the profile's method name, speeds (units/s) and offset (units)."""
 
     method: str | None = None
-    speed: float = Field(10.0, gt=0)
-    creep: float = Field(2.0, gt=0)
-    accel: float = Field(100.0, gt=0)
-    offset: float = 0.0
-    timeout: float = Field(60.0, gt=0)
+    speed: StrictFloat = Field(10.0, gt=0)
+    creep: StrictFloat = Field(2.0, gt=0)
+    accel: StrictFloat = Field(100.0, gt=0)
+    offset: StrictFloat = 0.0
+    timeout: StrictFloat = Field(60.0, gt=0, le=3600)
 
 
 class PollConfig(_Model):
     """Status poll periods in seconds: fast while moving or homing, slow at rest."""
 
-    moving: float = Field(0.02, gt=0, le=5)
-    idle: float = Field(0.2, gt=0, le=60)
-    offline_after: int = Field(3, ge=1, le=100, description="failed polls before Offline")
+    moving: StrictFloat = Field(0.02, gt=0, le=5)
+    idle: StrictFloat = Field(0.2, gt=0, le=60)
+    offline_after: StrictInt = Field(3, ge=1, le=100, description="failed polls before Offline")
 
 
 class SimAxisConfig(_Model):
     """Simulation only: where the switches are (user units) and where the axis starts."""
 
-    position: float = 0.0
-    home_switch: float | None = None
-    limit_negative: float | None = None
-    limit_positive: float | None = None
-    turnaround: float = Field(0.001, ge=0, le=1)
-    absent: bool = False
+    position: StrictFloat = 0.0
+    home_switch: StrictFloat | None = None
+    limit_negative: StrictFloat | None = None
+    limit_positive: StrictFloat | None = None
+    turnaround: StrictFloat = Field(0.001, ge=0, le=1)
+    absent: StrictBool = False
     """No twin on the wire: the drive is configured but unplugged."""
     options: dict[str, Any] = Field(default_factory=dict)
+    """Keyword options of the drive family's simulated twin (checked against it)."""
+
+    @field_validator("options")
+    @classmethod
+    def _finite(cls, v: dict[str, Any]) -> dict[str, Any]:
+        for key, value in v.items():
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"{key}: {value!r} is not a finite number")
+        return v
 
 
 class AxisConfig(_Model):
     """One axis: which drive on which line, its units, defaults and limits."""
 
     line: str
-    address: int = Field(ge=1, le=247)
+    address: StrictInt = Field(ge=1, le=247)
     drive: str
     settings: LineSettings | None = None
-    pulses_per_rev: int = Field(10000, gt=0)
-    units_per_rev: float = 1.0
-    speed: float = Field(10.0, gt=0, description="default speed, units/s")
-    accel: float = Field(100.0, gt=0, description="default acceleration, units/s²")
-    decel: float = Field(100.0, gt=0, description="default deceleration, units/s²")
-    max_speed: float | None = Field(None, gt=0)
-    limits: tuple[float, float] | None = None
-    in_position_tolerance: int = Field(2, ge=0, description="pulses")
+    pulses_per_rev: StrictInt = Field(10000, gt=0)
+    units_per_rev: StrictFloat = 1.0
+    speed: StrictFloat = Field(10.0, gt=0, description="default speed, units/s")
+    accel: StrictFloat = Field(100.0, gt=0, description="default acceleration, units/s²")
+    decel: StrictFloat = Field(100.0, gt=0, description="default deceleration, units/s²")
+    max_speed: StrictFloat | None = Field(None, gt=0)
+    limits: tuple[StrictFloat, StrictFloat] | None = None
+    in_position_tolerance: StrictInt = Field(2, ge=0, description="pulses")
     homing: HomingConfig = Field(default_factory=HomingConfig)
     poll: PollConfig = Field(default_factory=PollConfig)
     drive_options: dict[str, Any] = Field(default_factory=dict)
@@ -149,45 +199,153 @@ class MachineConfig(_Model):
 
     @model_validator(mode="after")
     def _consistent(self) -> MachineConfig:
+        problems = self._line_problems() + self._axis_problems()
+        if problems:
+            raise ValueError("; ".join(problems))
+        return self
+
+    def _line_problems(self) -> list[str]:
+        """Two lines on one serial port (a device, a serial server's port) or one
+        simulator name (serial and TCP alike)."""
+        out = []
+        seen: dict[tuple[str, str], str] = {}
+        for name, ln in self.lines.items():
+            if ln.simulated:
+                key, where = ("sim", ln.sim_name.strip("/")), f"sim://{ln.sim_name}"
+            elif ln.kind == "serial":
+                assert ln.port is not None
+                key, where = ("serial", os.path.realpath(ln.port)), f"serial port {ln.port}"
+            elif ln.kind == "rtu-over-tcp":
+                key = ("server", f"{ln.host}:{ln.tcp_port}")
+                where = f"serial server {ln.host}:{ln.tcp_port}"
+            else:
+                continue  # a Modbus TCP server takes several connections
+            if key in seen:
+                field = "port" if ln.kind == "serial" else "host"
+                out.append(f"lines.{name}.{field}: {where} is already line {seen[key]}: one "
+                           f"line per port (put both lines' axes on one line)")
+            else:
+                seen[key] = name
+        return out
+
+    def _axis_problems(self) -> list[str]:
+        from drivebus.drives.registry import family
+
+        out = []
         seen: dict[tuple[str, int], str] = {}
         for name, ax in self.axes.items():
+            where = f"axes.{name}"
             if ax.line not in self.lines:
-                raise ValueError(
-                    f"axes.{name}.line: no line {ax.line!r} (lines: {', '.join(self.lines)})"
-                )
+                out.append(f"{where}.line: no line {ax.line!r} (lines: {', '.join(self.lines)})")
+                continue
             key = (ax.line, ax.address)
             if key in seen:
-                raise ValueError(
-                    f"axes.{name}.address: {ax.address} is already used by axis {seen[key]} "
-                    f"on line {ax.line}"
-                )
+                out.append(f"{where}.address: {ax.address} is already used by axis {seen[key]} "
+                           f"on line {ax.line}")
             seen[key] = name
             line = self.lines[ax.line]
             if line.kind == "tcp" and ax.settings is not None:
-                raise ValueError(f"axes.{name}.settings: line {ax.line} is Modbus TCP")
-        return self
+                out.append(f"{where}.settings: line {ax.line} is Modbus TCP: no serial settings")
+            if line.kind == "rtu-over-tcp" and ax.settings not in (None, line.settings):
+                out.append(f"{where}.settings: {ax.settings} differs from line {ax.line}'s "
+                           f"{line.settings}: a serial server's port has one setting for all")
+            profile = family(ax.drive).profile
+            out += [f"{where}.{p}" for p in profile.axis_problems(
+                address=ax.address,
+                line_kind=line.kind,
+                settings=None if line.kind == "tcp" else ax.settings or line.settings,
+                pulses_per_rev=ax.pulses_per_rev,
+                homing_method=ax.homing.method,
+                options=ax.drive_options,
+            )]
+            out += [f"{where}.{p}" for p in _speed_problems(ax)]
+            if line.simulated and not ax.sim.absent:
+                out += [f"{where}.sim{p}" for p in _sim_problems(ax)]
+        return out
 
 
-def _where(loc: tuple[int | str, ...]) -> str:
-    return ".".join(str(p) for p in loc) or "(top level)"
+def _speed_problems(ax: AxisConfig) -> list[str]:
+    """Default speeds above ``max_speed``: every motion using them would be refused."""
+    if ax.max_speed is None:
+        return []
+    speeds = {"speed": ax.speed, "homing.speed": ax.homing.speed, "homing.creep": ax.homing.creep}
+    return [f"{key}: {v:g} units/s is above max_speed {ax.max_speed:g}"
+            for key, v in speeds.items() if v > ax.max_speed]
+
+
+_TWIN_SET = frozenset({"turnaround", "position", "home_switch", "limit_negative",
+                       "limit_positive"})
+"""Twin constructor options that come from the ``sim`` section's own keys."""
+
+
+def _sim_problems(ax: AxisConfig) -> list[str]:
+    """What makes the simulated axis unusable: unknown twin options, positions beyond the
+    drive's range, switches that leave it no room (``.key: problem``)."""
+    from drivebus.drives.registry import family
+
+    out = []
+    s = ax.sim
+    twin = family(ax.drive).sim
+    params = inspect.signature(twin.__init__).parameters
+    known = sorted(p for p, v in params.items()
+                   if v.kind is inspect.Parameter.KEYWORD_ONLY and p not in _TWIN_SET)
+    for key in s.options:
+        if key not in known:
+            out.append(f".options.{key}: the simulated {ax.drive} has no option {key!r} "
+                       f"(it has {', '.join(known) or 'none'})")
+    pulses_per_unit = ax.pulses_per_rev / ax.units_per_rev
+    for key in ("position", "home_switch", "limit_negative", "limit_positive"):
+        v = getattr(s, key)
+        if v is not None and not abs(v * pulses_per_unit) < _POSITION_PULSES:
+            out.append(f".{key}: {v:g} units is {v * pulses_per_unit:g} pulses, beyond the "
+                       f"drive's 32-bit position range")
+    neg, pos = s.limit_negative, s.limit_positive
+    if neg is not None and pos is not None and neg >= pos:
+        out.append(f".limit_negative: {neg:g} is not below limit_positive {pos:g}: the axis "
+                   f"would always be on a limit switch")
+    if ax.limits is not None:
+        lo, hi = ax.limits
+        if neg is not None and hi <= neg:
+            out.append(f".limit_negative: the switch at {neg:g} lies above the whole soft-limit "
+                       f"range {lo:g}..{hi:g}: every allowed position is beyond it")
+        if pos is not None and lo >= pos:
+            out.append(f".limit_positive: the switch at {pos:g} lies below the whole soft-limit "
+                       f"range {lo:g}..{hi:g}: every allowed position is beyond it")
+    return out
 
 
 def parse_config(data: dict[str, Any], source: str = "config") -> MachineConfig:
-    """Validate a config mapping; ``ConfigError`` names ``source``, key path and the problem."""
+    """Validate a config mapping, cross-checks included; ``ConfigError`` names ``source``,
+    each key path, the value and what is allowed."""
     try:
         return MachineConfig.model_validate(data)
     except ValidationError as exc:
-        problems = "; ".join(f"{_where(e['loc'])}: {e['msg']}" for e in exc.errors()[:5])
+        problems = "; ".join(validation_problems(exc, model=MachineConfig))
         raise ConfigError(f"{source}: {problems}") from None
 
 
 def load_config(path: str | Path) -> MachineConfig:
     """Read and validate a TOML machine file."""
+    if not isinstance(path, str | os.PathLike):
+        raise ConfigError(f"a machine file is a path, not {path!r}")
     p = Path(path)
     try:
-        data = tomllib.loads(p.read_text())
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"{p}: no such config file") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not a text file (not UTF-8 at byte {exc.start})") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read the config file: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
     return parse_config(data, str(p))
+
+
+def machine_config(config: str | Path | Mapping[str, Any] | MachineConfig) -> MachineConfig:
+    """A validated config from a machine file's path, a mapping or a ``MachineConfig``."""
+    if isinstance(config, MachineConfig):
+        return config
+    if isinstance(config, Mapping):
+        return parse_config(dict(config))
+    return load_config(config)

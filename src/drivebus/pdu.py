@@ -9,7 +9,8 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Sequence
 
-from drivebus.errors import ConfigError, FrameError, ModbusException
+from drivebus.checks import whole, words
+from drivebus.errors import ArgumentError, FrameError, ModbusException
 
 __all__ = [
     "READ_HOLDING",
@@ -35,6 +36,8 @@ WRITE_MULTIPLE = 0x10
 
 MAX_READ = 125
 MAX_WRITE = 123
+MAX_PDU = 253
+"""Longest PDU: an RTU frame (address + PDU + CRC) is at most 256 bytes."""
 
 LengthPredictor = Callable[[bytes], "int | None"]
 """Given the PDU bytes received so far, the PDU's full length, or None if more are needed."""
@@ -42,46 +45,32 @@ LengthPredictor = Callable[[bytes], "int | None"]
 _HDR = struct.Struct(">BHH")
 
 
-def _check_address(address: int) -> None:
-    if not 0 <= address <= 0xFFFF:
-        raise ConfigError(f"register address {address} is outside 0..65535")
-
-
-def _check_word(value: int) -> None:
-    if not 0 <= value <= 0xFFFF:
-        raise ConfigError(f"register value {value} is outside 0..65535 (one 16-bit word)")
+def _span(address: object, count: int) -> int:
+    """The start address, checked, for ``count`` registers that must end by 65535."""
+    a = whole("register address", address, 0, 0xFFFF)
+    if a + count > 0x10000:
+        raise ArgumentError(f"register address: registers {a}..{a + count - 1} run past 65535")
+    return a
 
 
 def read_request(function: int, address: int, count: int) -> bytes:
     """FC03/FC04 request for ``count`` registers from ``address``."""
-    _check_address(address)
-    if not 1 <= count <= MAX_READ:
-        raise ConfigError(f"register count {count} is outside 1..{MAX_READ}")
-    if address + count > 0x10000:
-        raise ConfigError(f"registers {address}..{address + count - 1} run past 65535")
-    return _HDR.pack(function, address, count)
+    n = whole("register count", count, 1, MAX_READ)
+    return _HDR.pack(function, _span(address, n), n)
 
 
 def write_single_request(address: int, value: int) -> bytes:
     """FC06 request writing one register."""
-    _check_address(address)
-    _check_word(value)
-    return _HDR.pack(WRITE_SINGLE, address, value)
+    a = whole("register address", address, 0, 0xFFFF)
+    return _HDR.pack(WRITE_SINGLE, a, whole("register value", value, 0, 0xFFFF))
 
 
 def write_multiple_request(address: int, values: Sequence[int]) -> bytes:
     """FC16 request writing consecutive registers."""
-    _check_address(address)
-    count = len(values)
-    if not 1 <= count <= MAX_WRITE:
-        raise ConfigError(f"register count {count} is outside 1..{MAX_WRITE}")
-    if address + count > 0x10000:
-        raise ConfigError(f"registers {address}..{address + count - 1} run past 65535")
-    for v in values:
-        _check_word(v)
-    return _HDR.pack(WRITE_MULTIPLE, address, count) + bytes([2 * count]) + struct.pack(
-        f">{count}H", *values
-    )
+    vs = words("register values", values, MAX_WRITE)
+    count = len(vs)
+    header = _HDR.pack(WRITE_MULTIPLE, _span(address, count), count) + bytes((2 * count,))
+    return header + struct.pack(f">{count}H", *vs)
 
 
 def response_length(pdu: bytes) -> int | None:

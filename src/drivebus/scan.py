@@ -15,7 +15,13 @@ from collections.abc import Awaitable, Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from drivebus.bus import Bus, SlaveHandle
-from drivebus.errors import ConfigError, FrameError, ModbusException, TransactionError
+from drivebus.errors import (
+    ConfigError,
+    FrameError,
+    LineConfigError,
+    ModbusException,
+    TransactionError,
+)
 from drivebus.line.serial import SerialLine
 from drivebus.settings import LineSettings
 
@@ -143,6 +149,8 @@ async def _present(slave: SlaveHandle) -> bool:
         await slave.read_holding_registers(0, 1)
     except ModbusException:
         return True
+    except LineConfigError:
+        raise  # the port cannot run this setting: say so, do not report "nobody"
     except TransactionError:
         return False  # timeout, or a garbled answer (a slave at other settings)
     return True
@@ -166,6 +174,8 @@ async def probe(bus: Bus, address: int, settings: LineSettings) -> Found | None:
 async def _identify(p: FamilyProbe, slave: SlaveHandle) -> str | None:
     try:
         return await p.identify(slave)
+    except LineConfigError:
+        raise
     except TransactionError:
         return None
 

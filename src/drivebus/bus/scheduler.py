@@ -13,6 +13,7 @@ from types import TracebackType
 
 import anyio
 
+from drivebus import checks
 from drivebus.bus.priority import Priority
 from drivebus.bus.slave import SlaveHandle
 from drivebus.bus.stats import BusStats
@@ -108,13 +109,9 @@ class Bus:
     """
 
     def __init__(self, line: Line, *, timeout: float = 0.1, retries: int = 2) -> None:
-        if timeout <= 0:
-            raise ConfigError(f"response timeout must be > 0 s, not {timeout}")
-        if retries < 0:
-            raise ConfigError(f"retries must be >= 0, not {retries}")
         self.line = line
-        self.timeout = timeout
-        self.retries = retries
+        self.timeout = checks.response_timeout("response timeout", timeout)
+        self.retries = checks.retry_count("retries", retries)
         self.stats = BusStats()
         self._queue: list[_Request] = []
         self._seq = itertools.count()
@@ -170,19 +167,7 @@ class Bus:
         exception_texts: dict[int, str] | None = None,
     ) -> SlaveHandle:
         """A handle for the slave at ``address`` (0 = broadcast) with its own settings."""
-        if not 0 <= address <= 247:
-            raise ConfigError(f"slave address {address} is outside 0..247 (0 = broadcast)")
-        if settings is not None and settings != self.line.settings:
-            if self.line.settings is None:
-                raise ConfigError(
-                    f"line {self.line.name} is not a serial line: no per-slave settings"
-                )
-            if not self.line.per_slave_settings:
-                raise ConfigError(
-                    f"slave {address}: line {self.line.name} has one setting for all slaves "
-                    f"({self.line.settings}); {settings} cannot be used on it"
-                )
-        h = SlaveHandle(
+        h = SlaveHandle(  # checks address, settings, timeout and retries
             self,
             address,
             settings=settings,
@@ -190,7 +175,17 @@ class Bus:
             retries=self.retries if retries is None else retries,
             exception_texts=exception_texts,
         )
-        self._handles[address] = h
+        if h.settings is not None and h.settings != self.line.settings:
+            if self.line.settings is None:
+                raise ConfigError(
+                    f"line {self.line.name} is not a serial line: no per-slave settings"
+                )
+            if not self.line.per_slave_settings:
+                raise ConfigError(
+                    f"slave {h.address}: line {self.line.name} has one setting for all slaves "
+                    f"({self.line.settings}); {h.settings} cannot be used on it"
+                )
+        self._handles[h.address] = h
         return h
 
     @asynccontextmanager

@@ -5,9 +5,11 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Protocol
 
+from drivebus import checks
 from drivebus.bus.priority import Priority
-from drivebus.errors import ConfigError, ModbusException
+from drivebus.errors import ArgumentError, ConfigError, ModbusException
 from drivebus.pdu import (
+    MAX_PDU,
     READ_HOLDING,
     READ_INPUT,
     LengthPredictor,
@@ -41,6 +43,10 @@ class Executor(Protocol):
         ...
 
 
+def _priority(priority: object) -> Priority:
+    return checks.member("priority", priority, Priority)
+
+
 class SlaveHandle:
     """One slave on a bus: its address, line settings, timeout, retries and exception texts."""
 
@@ -54,15 +60,17 @@ class SlaveHandle:
         retries: int,
         exception_texts: dict[int, str] | None = None,
     ) -> None:
-        if timeout <= 0:
-            raise ConfigError(f"slave {address}: response timeout must be > 0 s")
-        if retries < 0:
-            raise ConfigError(f"slave {address}: retries must be >= 0")
+        self.address = checks.whole("slave address (0 = broadcast)", address, 0, 247,
+                                    error=ConfigError)
+        if settings is not None and not isinstance(settings, LineSettings):
+            raise ConfigError(
+                f"slave {address}: settings must be LineSettings (e.g. "
+                f"LineSettings.parse('9600 8N1')) or None, not {settings!r}"
+            )
         self.bus = bus
-        self.address = address
         self.settings = settings
-        self.timeout = timeout
-        self.retries = retries
+        self.timeout = checks.response_timeout(f"slave {address}: response timeout", timeout)
+        self.retries = checks.retry_count(f"slave {address}: retries", retries)
         self.exception_texts = dict(exception_texts or {})
 
     @property
@@ -82,10 +90,11 @@ class SlaveHandle:
     async def _read(self, function: int, address: int, count: int, priority: Priority) -> list[int]:
         self._no_broadcast_read()
         req = read_request(function, address, count)
+        prio = _priority(priority)
         reply = await self.bus.execute(
-            self, req, expect=response_length, priority=priority, idempotent=True
+            self, req, expect=response_length, priority=prio, idempotent=True
         )
-        return decode_read_reply(reply, function, count, slave=self.address)
+        return decode_read_reply(reply, function, int(count), slave=self.address)
 
     async def _write(
         self,
@@ -98,8 +107,8 @@ class SlaveHandle:
             self,
             req,
             expect=None if self.is_broadcast else response_length,
-            priority=priority,
-            idempotent=idempotent,
+            priority=_priority(priority),
+            idempotent=bool(idempotent),
         )
         if not self.is_broadcast:
             check(reply, req, slave=self.address)
@@ -152,10 +161,17 @@ class SlaveHandle:
 
         For drives with non-standard frames; exception replies still raise.
         """
-        if not pdu:
-            raise ConfigError("empty PDU")
+        if not isinstance(pdu, bytes | bytearray | memoryview) or not 1 <= len(pdu) <= MAX_PDU:
+            raise ArgumentError(
+                f"pdu: expected 1..{MAX_PDU} bytes (function code first), got {pdu!r}"
+            )
+        if expect is not None and not callable(expect):
+            raise ArgumentError(
+                f"expect: expected a reply-length function or None, got {expect!r}"
+            )
         return await self.bus.execute(
-            self, bytes(pdu), expect=expect, priority=priority, idempotent=idempotent
+            self, bytes(pdu), expect=expect, priority=_priority(priority),
+            idempotent=bool(idempotent),
         )
 
     def __repr__(self) -> str:

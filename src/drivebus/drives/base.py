@@ -10,16 +10,46 @@ register. What a drive cannot do raises ``NotSupported`` naming drive and functi
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
+from pydantic import BaseModel, ConfigDict, ValidationError
+
 from drivebus.bus import Priority, SlaveHandle
+from drivebus.checks import validation_problems
 from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
-from drivebus.errors import NotSupported
+from drivebus.errors import ConfigError, NotSupported
+from drivebus.settings import LineSettings
 
-__all__ = ["DriveProfile", "MoveParams", "ramp_time_quantized"]
+__all__ = [
+    "LINE_KINDS",
+    "DriveOptions",
+    "DriveProfile",
+    "MoveParams",
+    "describe_values",
+    "ramp_time_quantized",
+]
+
+LINE_KINDS = frozenset({"serial", "rtu-over-tcp", "tcp"})
+"""Every kind of line (as in a machine file's ``kind``)."""
+
+
+class DriveOptions(BaseModel):
+    """Declares the keyword options a profile's constructor takes (a machine file's
+    ``drive_options``): one field per option, with its type and range. Every field
+    defaults to None ("not given"), so that the options given are checked on their own;
+    the constructor's signature holds the real defaults."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def describe_values(values: Collection[int]) -> str:
+    """``lo..hi`` for a range, else the values listed."""
+    if isinstance(values, range):
+        return f"{values.start}..{values.stop - 1}"
+    return ", ".join(map(str, values))
 
 _PROCEDURES: dict[str, str] = {
     "enable": "enable the motor",
@@ -69,10 +99,108 @@ class DriveProfile:
     homing_methods: ClassVar[tuple[str, ...]] = ()
     """Names of the homing methods ``home()`` accepts, the first is the default."""
 
+    # -- what the drive accepts (checked by machine files and by the constructor) ---------------
+
+    options: ClassVar[type[DriveOptions]] = DriveOptions
+    """The constructor's keyword options beyond ``pulses_per_rev``, typed and ranged."""
+    pulses_per_rev_allowed: ClassVar[Collection[int]] = range(1, 1 << 31)
+    """The pulses per revolution the drive can be set to."""
+    addresses: ClassVar[range] = range(1, 248)
+    """The slave addresses (Modbus TCP: unit ids) the drive can have."""
+    line_kinds: ClassVar[frozenset[str]] = LINE_KINDS
+    """The kinds of line that can reach it ("tcp" for an RTU drive: through a gateway)."""
+    baud_rates: ClassVar[tuple[int, ...]] = ()
+    """The baud rates it can run on a serial line (empty: any)."""
+    line_formats: ClassVar[tuple[str, ...]] = ()
+    """The character formats (``8N1``...) it can run on a serial line (empty: any)."""
+
     def __init__(self, slave: SlaveHandle, *, pulses_per_rev: int = 10000) -> None:
         self.slave = slave
-        self.pulses_per_rev = pulses_per_rev
+        self.pulses_per_rev = self.check_pulses_per_rev(pulses_per_rev)
         slave.exception_texts.update(self.exception_texts)
+
+    @classmethod
+    def option_problems(cls, options: Mapping[str, object], *, prefix: str = "") -> list[str]:
+        """``name: problem (got value)`` for each of ``options`` the drive does not take
+        (``prefix`` goes before each name)."""
+        try:
+            cls.options.model_validate(dict(options))
+        except ValidationError as exc:
+            return validation_problems(exc, model=cls.options, prefix=prefix)
+        return []
+
+    @classmethod
+    def check_options(cls, options: Mapping[str, object]) -> None:
+        """``ConfigError`` naming each option the drive does not take, its value and range."""
+        problems = cls.option_problems(options)
+        if problems:
+            raise ConfigError(f"{cls.family} drive options: {'; '.join(problems)}")
+
+    @classmethod
+    def pulses_per_rev_problem(cls, pulses_per_rev: object) -> str | None:
+        """Why the drive cannot be set to ``pulses_per_rev``, or None if it can."""
+        ok = cls.pulses_per_rev_allowed
+        if isinstance(pulses_per_rev, int) and not isinstance(pulses_per_rev, bool) and (
+            pulses_per_rev in ok
+        ):
+            return None
+        return (f"the {cls.family} drive cannot run {pulses_per_rev!r} pulses/rev "
+                f"(allowed: {describe_values(ok)})")
+
+    @classmethod
+    def check_pulses_per_rev(cls, pulses_per_rev: int) -> int:
+        """``pulses_per_rev`` if the drive can be set to it; else ``ConfigError``."""
+        problem = cls.pulses_per_rev_problem(pulses_per_rev)
+        if problem:
+            raise ConfigError(f"pulses_per_rev: {problem}")
+        return pulses_per_rev
+
+    @classmethod
+    def settings_problem(cls, settings: LineSettings) -> str | None:
+        """Why the drive cannot talk at ``settings`` on a serial line, or None if it can."""
+        if cls.baud_rates and settings.baudrate not in cls.baud_rates:
+            return (f"the {cls.family} drive cannot run {settings.baudrate} baud "
+                    f"(it runs {describe_values(cls.baud_rates)})")
+        if cls.line_formats and settings.format not in cls.line_formats:
+            return (f"the {cls.family} drive cannot talk {settings.format} "
+                    f"(it talks {', '.join(cls.line_formats)})")
+        return None
+
+    @classmethod
+    def axis_problems(
+        cls,
+        *,
+        address: int,
+        line_kind: str,
+        settings: LineSettings | None,
+        pulses_per_rev: int,
+        homing_method: str | None,
+        options: Mapping[str, object],
+    ) -> list[str]:
+        """``axis key: problem`` for every setting of an axis that this drive cannot take:
+        what a machine file is checked against before anything is opened."""
+        out: list[str] = []
+        if address not in cls.addresses:
+            out.append(f"address: the {cls.family} drive has addresses "
+                       f"{describe_values(cls.addresses)}, not {address}")
+        if line_kind not in cls.line_kinds:
+            kinds = ", ".join(sorted(cls.line_kinds))
+            out.append(f"line: the {cls.family} drive cannot be reached on a {line_kind} line "
+                       f"(only on {kinds} lines)")
+        elif settings is not None and line_kind != "tcp":
+            problem = cls.settings_problem(settings)
+            if problem:
+                out.append(f"settings: {settings}: {problem}")
+        problem = cls.pulses_per_rev_problem(pulses_per_rev)
+        if problem:
+            out.append(f"pulses_per_rev: {problem}")
+        if homing_method is not None and homing_method not in cls.homing_methods:
+            methods = ", ".join(cls.homing_methods)
+            has = f"it has {methods}" if methods else "it cannot home over Modbus"
+            out.append(f"homing.method: the {cls.family} drive has no homing method "
+                       f"{homing_method!r} ({has})")
+        out += cls.option_problems(options, prefix="drive_options")
+        return out
 
     def unsupported(self, what: str, why: str = "") -> NotSupported:
         """The error for a procedure this drive lacks."""

@@ -13,11 +13,13 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from typing import ClassVar
+from typing import Annotated, ClassVar, Literal
+
+from pydantic import Field, StrictBool, StrictInt
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveProfile, MoveParams, ramp_time_quantized
+from drivebus.drives.base import DriveOptions, DriveProfile, MoveParams, ramp_time_quantized
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation
@@ -164,6 +166,21 @@ _STATUS_BLOCK = (0x0003, 9)  # drive mode .. position low word, gap-free
 _MAX_PULSE_RATE = 200_000  # the drive's pulse output cap (L438-L439)
 
 
+_Terminal = Literal[INPUT_TERMINALS]  # type: ignore[valid-type]
+_InputFunction = Literal[tuple(INPUT_FUNCTIONS)]  # type: ignore[valid-type]
+
+
+class BHSSOptions(DriveOptions):
+    """The BHSS's options (see ``BHSSProfile``)."""
+
+    eeprom_write_through: StrictBool | None = None
+    start_speed_rpm: (
+        Annotated[StrictInt, Field(ge=Regs.START_SPEED.lo, le=Regs.START_SPEED.hi)] | None
+    ) = None
+    write_multiple: StrictBool | None = None
+    inputs: dict[_Terminal, _InputFunction] | None = None
+
+
 def _input_function_register(index: int) -> Register:
     """The function register of input terminal ``index`` (PU, DR, X0..X4)."""
     return Register(f"{INPUT_TERMINALS[index]} input function",
@@ -196,6 +213,11 @@ class BHSSProfile(DriveProfile):
     word_order: ClassVar[WordOrder] = WordOrder.HIGH_FIRST
     exception_texts: ClassVar[dict[int, str]] = EXCEPTION_TEXTS
     homing_methods: ClassVar[tuple[str, ...]] = tuple(_HOMING_MODES)
+    options: ClassVar[type[DriveOptions]] = BHSSOptions
+    pulses_per_rev_allowed = tuple(sorted(MICROSTEP_TABLE))  # register 0x0011's table
+    addresses = range(1, 128)  # 1-31 by DIP switch, 32-127 in register 0x0013
+    baud_rates = (9600, 14400, 19200, 38400, 115200, 128000, 256000)  # switches, or 0x0014
+    line_formats = ("8N1", "8N2", "8E1", "8O1")  # register 0x0015
 
     def __init__(
         self,
@@ -207,11 +229,10 @@ class BHSSProfile(DriveProfile):
         write_multiple: bool = False,
         inputs: Mapping[str, str] | None = None,
     ) -> None:
-        if pulses_per_rev not in MICROSTEP_TABLE:
-            raise ConfigError(
-                f"the BHSS cannot run {pulses_per_rev} pulses/rev: register 0x0011 offers "
-                f"{sorted(MICROSTEP_TABLE)}"
-            )
+        self.check_options(dict(
+            eeprom_write_through=eeprom_write_through, start_speed_rpm=start_speed_rpm,
+            write_multiple=write_multiple, inputs=None if inputs is None else dict(inputs),
+        ))
         super().__init__(slave, pulses_per_rev=pulses_per_rev)
         self.eeprom_write_through = eeprom_write_through
         self.start_speed_rpm = start_speed_rpm
@@ -221,15 +242,8 @@ class BHSSProfile(DriveProfile):
 
     @staticmethod
     def _check_inputs(inputs: Mapping[str, str]) -> dict[int, int]:
-        out: dict[int, int] = {}
-        for terminal, function in inputs.items():
-            if terminal not in INPUT_TERMINALS:
-                raise ConfigError(f"BHSS input {terminal!r} is not one of {INPUT_TERMINALS}")
-            if function not in INPUT_FUNCTIONS:
-                raise ConfigError(f"BHSS input function {function!r} is not one of "
-                                  f"{sorted(INPUT_FUNCTIONS)}")
-            out[INPUT_TERMINALS.index(terminal)] = INPUT_FUNCTIONS[function]
-        return out
+        """Terminal index -> function code (names checked by ``BHSSOptions``)."""
+        return {INPUT_TERMINALS.index(t): INPUT_FUNCTIONS[f] for t, f in inputs.items()}
 
     # -- unit conversion --------------------------------------------------------------------
 

@@ -28,14 +28,17 @@ from __future__ import annotations
 
 import enum
 import math
-from typing import ClassVar
+from typing import Annotated, ClassVar
+
+from pydantic import Field, StrictBool, StrictInt
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveProfile, MoveParams, ramp_time_quantized
+from drivebus.drives.base import DriveOptions, DriveProfile, MoveParams, ramp_time_quantized
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import LimitViolation
+from drivebus.settings import LineSettings
 
 __all__ = [
     "ACCEL_TIME",
@@ -294,6 +297,16 @@ def _alarm_text(code: int) -> str:
     return "; ".join(parts)
 
 
+class CL86ROptions(DriveOptions):
+    """The CL86R's options (see ``CL86RProfile``)."""
+
+    start_speed_rpm: (
+        Annotated[StrictInt, Field(ge=START_SPEED.lo, le=START_SPEED.hi)] | None
+    ) = None
+    interrupt_moves: StrictBool | None = None
+    block_writes: StrictBool | None = None
+
+
 class CL86RProfile(DriveProfile):
     """The CL86R closed-loop stepper drive over Modbus RTU (control word 0x0036).
 
@@ -316,6 +329,11 @@ class CL86RProfile(DriveProfile):
         4: "CRC check error",
     }
     homing_methods: ClassVar[tuple[str, ...]] = tuple(HOMING_MODES)
+    options: ClassVar[type[DriveOptions]] = CL86ROptions
+    pulses_per_rev_allowed = range(MICROSTEP.lo, MICROSTEP.hi + 1)
+    addresses = range(1, 32)  # DIP switches SW1-SW5, or register 0x0020 (1..31)
+    baud_rates = (9600, 19200, 38400, 115200)  # DIP switches SW6/SW7
+    line_formats = tuple(DATA_FORMATS)  # register 0x0021, from 19200 baud up
 
     def __init__(
         self,
@@ -326,14 +344,24 @@ class CL86RProfile(DriveProfile):
         interrupt_moves: bool = False,
         block_writes: bool = True,
     ) -> None:
-        super().__init__(slave, pulses_per_rev=MICROSTEP.check(pulses_per_rev))
-        self.start_speed_rpm = START_SPEED.check(start_speed_rpm)
+        self.check_options(dict(start_speed_rpm=start_speed_rpm,
+                                interrupt_moves=interrupt_moves, block_writes=block_writes))
+        super().__init__(slave, pulses_per_rev=pulses_per_rev)
+        self.start_speed_rpm = start_speed_rpm
         self.interrupt_moves = interrupt_moves
         self.block_writes = block_writes
         self._di_functions: tuple[int, ...] = (1, 2, 3, 0, 0, 0, 0)  # factory X0..X6
         self._di_invert = 0
         self._speed_rpm: int | None = None
         """|maximum speed| last written: the reference of a stop's decel time."""
+
+    @classmethod
+    def settings_problem(cls, settings: LineSettings) -> str | None:
+        """As declared, and at 9600 baud the format is fixed at 8N1 (0x0021 is ignored)."""
+        problem = super().settings_problem(settings)
+        if problem is None and settings.baudrate == 9600 and settings.format != "8N1":
+            return "the CL86R runs 8N1 only at 9600 baud (0x0021 applies from 19200 up)"
+        return problem
 
     # -- helpers --------------------------------------------------------------------------------
 

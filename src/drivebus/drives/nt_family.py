@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Annotated, ClassVar
 
 import anyio
+from pydantic import Field, StrictBool, StrictFloat, StrictInt, model_validator
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveProfile, MoveParams
+from drivebus.drives.base import DriveOptions, DriveProfile, MoveParams
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation, StateError
@@ -249,6 +250,43 @@ def _round_unit(reg: Register, value: float, *, nonzero: bool = False) -> int:
     return reg.check(v)
 
 
+_Input = Annotated[StrictInt, Field(ge=1, le=6, description="input IN1..IN6")]
+
+
+class _NTOptions(DriveOptions):
+    """Options both NT-family drives take; an input serves one opted-in function only."""
+
+    estop_decel_rps2: StrictFloat | None = Field(
+        None, ge=NT86_MAP.estop_decel.lo, le=NT86_MAP.estop_decel.hi, description="r/s²"
+    )
+    enable_input: _Input | None = None
+    clear_alarm_input: _Input | None = None
+
+    @model_validator(mode="after")
+    def _one_function_per_input(self) -> _NTOptions:
+        used: dict[int, str] = {}
+        for name, n in self.model_dump().items():
+            if name.endswith("_input") and n is not None:
+                if n in used:
+                    raise ValueError(f"{name} and {used[n]} are both IN{n}: give each its own "
+                                     f"input")
+                used[n] = name
+        return self
+
+
+class NT86Options(_NTOptions):
+    """The NT86's options (see ``NT86Profile``)."""
+
+    home_offset_moves: StrictBool | None = None
+    home_reverse_at_limit: StrictBool | None = None
+
+
+class EPR60Options(_NTOptions):
+    """The EPR60's options (see ``EPR60Profile``)."""
+
+    home_input: _Input | None = None
+
+
 class NT86Profile(DriveProfile):
     """Rtelligent NT86 over Modbus RTU (8N1, 9600-115200 baud by DIP switch).
 
@@ -276,6 +314,11 @@ class NT86Profile(DriveProfile):
         "set_origin",  # 287=6: the present position becomes the offset
     )
     regs: ClassVar[NTRegisterMap] = NT86_MAP
+    options: ClassVar[type[DriveOptions]] = NT86Options
+    pulses_per_rev_allowed = range(NT86_MAP.microstep.lo, NT86_MAP.microstep.hi + 1)
+    addresses = range(1, 32)  # DIP switches SW1-SW5
+    baud_rates = (9600, 19200, 38400, 115200)  # DIP switches SW6/SW7
+    line_formats = ("8N1",)
 
     def __init__(
         self,
@@ -288,11 +331,15 @@ class NT86Profile(DriveProfile):
         home_offset_moves: bool = False,
         home_reverse_at_limit: bool = False,
     ) -> None:
+        NT86Profile.check_options(dict(
+            estop_decel_rps2=estop_decel_rps2, enable_input=enable_input,
+            clear_alarm_input=clear_alarm_input, home_offset_moves=home_offset_moves,
+            home_reverse_at_limit=home_reverse_at_limit,
+        ))
         super().__init__(slave, pulses_per_rev=pulses_per_rev)
-        self.regs.microstep.check(pulses_per_rev)
         self.estop_decel = _round_unit(self.regs.estop_decel, estop_decel_rps2)
-        self.enable_input = self._check_input(enable_input, "enable_input")
-        self.clear_alarm_input = self._check_input(clear_alarm_input, "clear_alarm_input")
+        self.enable_input = enable_input
+        self.clear_alarm_input = clear_alarm_input
         self.home_offset_moves = home_offset_moves
         self.home_reverse_at_limit = home_reverse_at_limit
         self.closed_loop: bool | None = None
@@ -301,12 +348,6 @@ class NT86Profile(DriveProfile):
         self._estop_dirty = False
         self._homing = False
         self._seen_moving = False
-
-    @staticmethod
-    def _check_input(n: int | None, what: str) -> int | None:
-        if n is not None and not 1 <= n <= 6:
-            raise ConfigError(f"{what}={n}: the drive has inputs IN1..IN6")
-        return n
 
     # -- setup and status ---------------------------------------------------------------
 
@@ -740,6 +781,12 @@ class EPR60Profile(NT86Profile):
     family: ClassVar[str] = "EPR60"
     homing_methods: ClassVar[tuple[str, ...]] = ("limit_negative", "limit_positive")
     regs: ClassVar[NTRegisterMap] = EPR60_MAP
+    options: ClassVar[type[DriveOptions]] = EPR60Options
+    pulses_per_rev_allowed = range(EPR60_MAP.microstep.lo, EPR60_MAP.microstep.hi + 1)
+    addresses = range(1, 248)  # the Modbus TCP unit id (the manual's examples use 1)
+    line_kinds = frozenset({"tcp", "rtu-over-tcp"})  # an Ethernet port only
+    baud_rates = ()
+    line_formats = ()
 
     def __init__(
         self,
@@ -751,6 +798,10 @@ class EPR60Profile(NT86Profile):
         clear_alarm_input: int | None = None,
         home_input: int | None = None,
     ) -> None:
+        self.check_options(dict(
+            estop_decel_rps2=estop_decel_rps2, enable_input=enable_input,
+            clear_alarm_input=clear_alarm_input, home_input=home_input,
+        ))
         super().__init__(
             slave,
             pulses_per_rev=pulses_per_rev,
@@ -758,7 +809,7 @@ class EPR60Profile(NT86Profile):
             enable_input=enable_input,
             clear_alarm_input=clear_alarm_input,
         )
-        self.home_input = self._check_input(home_input, "home_input")
+        self.home_input = home_input
         self._app_mode: int | None = None
 
     async def setup(self) -> None:

@@ -297,13 +297,19 @@ class ODDriveProfile(DriveProfile):
     unsupported_reason: ClassVar[str] = WHY_NO_MOTION
     default_settings: ClassVar[LineSettings] = DEFAULT_SETTINGS
 
+    pulses_per_rev_allowed = range(lookup_name("pulses_per_rev").register.lo,
+                                   lookup_name("pulses_per_rev").register.hi + 1)
+    addresses = range(SERIAL_ADDRESS, SERIAL_ADDRESS + 1)
+    line_kinds = frozenset({"serial", "rtu-over-tcp"})  # its 9-byte frames pass no gateway
+    baud_rates = (DEFAULT_SETTINGS.baudrate,)
+    line_formats = (DEFAULT_SETTINGS.format,)
+
     def __init__(self, slave: SlaveHandle, *, pulses_per_rev: int = 10000) -> None:
-        if slave.address != SERIAL_ADDRESS:
+        if slave.address not in self.addresses:
             raise ConfigError(
                 f"the {FAMILY} drive's serial address is fixed at {SERIAL_ADDRESS}, "
                 f"not {slave.address}"
             )
-        lookup_name("pulses_per_rev").register.check(pulses_per_rev)
         super().__init__(slave, pulses_per_rev=pulses_per_rev)
         self._input_functions: list[int] | None = None
 

@@ -12,8 +12,9 @@ import serial.rs485
 import serial_asyncio
 
 from drivebus.clock import monotonic
-from drivebus.errors import ConfigError, LineClosed
+from drivebus.errors import ConfigError, LineClosed, LineConfigError
 from drivebus.line.base import Exchange, Line
+from drivebus.line.baud import port_baudrate, rate_matches
 from drivebus.line.link import RtuLink
 from drivebus.line.receiver import RtuReceiver, read_waiting
 from drivebus.pdu import LengthPredictor
@@ -108,8 +109,14 @@ class SerialLine(Line):
                 parity=_PARITY[s.parity],
                 stopbits=s.stopbits,
             )
-        except (serial.SerialException, OSError, ValueError) as exc:
+        except (ValueError, termios.error) as exc:  # the port refused the settings
+            raise ConfigError(self._cannot_run(s, exc)) from exc
+        except (serial.SerialException, OSError) as exc:
             raise LineClosed(f"cannot open serial port {self.port!r}: {exc}") from exc
+        actual = port_baudrate(port.fileno())
+        if not rate_matches(s.baudrate, actual):
+            port.close()
+            raise ConfigError(self._cannot_run(s, f"its driver set {actual} baud"))
         transport = _Transport(loop, rx, port)
         self._serial = port
         self._fd = port.fileno()
@@ -141,7 +148,11 @@ class SerialLine(Line):
         self._link.close()
         self._serial = None
 
-    def _reconfigure(self, s: LineSettings) -> None:
+    def _cannot_run(self, s: LineSettings, why: object) -> str:
+        return (f"serial port {self.port!r} cannot run {s} ({why}): use a baud rate and "
+                f"format that the adapter and the drives support")
+
+    def _apply(self, s: LineSettings) -> None:
         port = self._serial
         assert port is not None
         # Set all fields, then apply once: one tcsetattr, no close/reopen.
@@ -150,6 +161,26 @@ class SerialLine(Line):
         port._parity = _PARITY[s.parity]
         port._stopbits = s.stopbits
         port._reconfigure_port()
+
+    def _reconfigure(self, s: LineSettings, unit: int) -> None:
+        """Switch the port to ``s``; ``LineConfigError`` (this request fails, the line goes
+        on at its previous settings) if the port refuses them or runs another rate."""
+        why: str | None = None
+        try:
+            self._apply(s)
+        except (ValueError, OSError, termios.error) as exc:
+            why = str(exc) or type(exc).__name__
+        else:
+            actual = port_baudrate(self._fd)
+            if not rate_matches(s.baudrate, actual):
+                why = f"its driver set {actual} baud"
+        if why is not None:
+            try:
+                if self._current is not None:
+                    self._apply(self._current)
+            except (ValueError, OSError, termios.error) as exc:
+                raise LineClosed(f"serial port {self.port!r} failed: {exc}") from exc
+            raise LineConfigError(f"slave {unit}: {self._cannot_run(s, why)}", slave=unit)
         self._current = s
 
     def last_activity(self) -> float:
@@ -193,7 +224,7 @@ class SerialLine(Line):
             monotonic() + timeout if quiet_by is None else quiet_by,
         )
         if target is not self._current and target != self._current:
-            self._reconfigure(target)
+            self._reconfigure(target, unit)
         return await self._link.exchange(
             self._rx,
             self._send,

@@ -401,6 +401,11 @@ class TcpLine(NetworkLine[_MbapProtocol]):
             )
         async with self._slots:
             conn = await self._connection()
+            if conn.buf and not conn.pending:
+                # Bytes left over from an earlier exchange (trailing junk, half a late
+                # frame): the stream is out of step. Start this request on a fresh one.
+                self._noisy_stream(conn, "bytes left over from an earlier reply")
+                conn = await self._connection()
             return await self._exchange(conn, unit, pdu, expect, timeout)
 
     async def _exchange(
@@ -455,6 +460,12 @@ class TcpLine(NetworkLine[_MbapProtocol]):
             )
         )
         self._timeouts_in_row += 1
+        if conn.buf and conn.transport is not None:
+            # Part of a frame is left over: the stream is out of step, and the next reply
+            # would be read behind those bytes. A fresh connection starts clean.
+            self._timeouts_in_row = 0
+            conn.transport.close()
+            return
         if self.drop_after_timeouts and self._timeouts_in_row >= self.drop_after_timeouts:
             self._timeouts_in_row = 0
             if conn.transport is not None:

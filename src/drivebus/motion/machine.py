@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Mapping
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import Any
 
 import anyio
 
 from drivebus.bus import Bus
-from drivebus.config import AxisConfig, LineConfig, MachineConfig, load_config
+from drivebus.config import AxisConfig, LineConfig, MachineConfig, machine_config
 from drivebus.drives.base import DriveProfile
 from drivebus.drives.registry import family
 from drivebus.errors import ConfigError, DrivebusError, DriveOffline, TransactionError
@@ -45,7 +46,7 @@ class Machine:
 
     def group(self, *names: str) -> AxisGroup:
         """The named axes as a group (all axes if none are named)."""
-        missing = [n for n in names if n not in self.axes]
+        missing = [repr(n) for n in names if not isinstance(n, str) or n not in self.axes]
         if missing:
             raise ConfigError(f"no axis {', '.join(missing)} (axes: {', '.join(self.axes)})")
         return AxisGroup([self.axes[n] for n in (names or tuple(self.axes))])
@@ -113,7 +114,7 @@ async def _make_axis(machine: Machine, name: str, cfg: AxisConfig) -> Axis:
 
 @asynccontextmanager
 async def open_machine(
-    config: str | Path | MachineConfig, *, stop_on_exit: bool = True
+    config: str | Path | Mapping[str, Any] | MachineConfig, *, stop_on_exit: bool = True
 ) -> AsyncIterator[Machine]:
     """Open every line, check every drive answers, start the axis actors.
 
@@ -121,9 +122,10 @@ async def open_machine(
     lines close. An observer that must not touch motion it did not start (a status or
     monitor tool) passes ``stop_on_exit=False``: then only motions commanded through
     this machine are stopped. ``sim://NAME`` lines start the built-in simulator with a
-    twin per axis.
+    twin per axis. ``config`` is a machine file's path, its content as a mapping, or a
+    ``MachineConfig``; it is validated in full (``ConfigError``) before anything opens.
     """
-    cfg = config if isinstance(config, MachineConfig) else load_config(config)
+    cfg = machine_config(config)
     machine = Machine(cfg)
     async with contextlib.AsyncExitStack() as stack:
         for name, line in cfg.lines.items():

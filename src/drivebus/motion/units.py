@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-from drivebus.errors import ConfigError
+from drivebus.errors import ConfigError, LimitViolation
 
 __all__ = ["Units"]
 
@@ -23,8 +24,12 @@ class Units:
             raise ConfigError("units_per_rev must not be 0")
 
     def to_pulses(self, units: float) -> int:
-        """A position or distance in user units as whole pulses (rounded)."""
-        return round(units / self.units_per_rev * self.pulses_per_rev)
+        """A position or distance in user units as whole pulses (rounded); ``LimitViolation``
+        if it is not finite (a NaN, or so far that the count overflows)."""
+        pulses = units / self.units_per_rev * self.pulses_per_rev
+        if not math.isfinite(pulses):
+            raise LimitViolation(f"{units!r} units is {pulses} pulses: beyond any drive's range")
+        return round(pulses)
 
     def from_pulses(self, pulses: int) -> float:
         """Pulses as user units."""

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from drivebus.config import AxisConfig, LineConfig, MachineConfig
 from drivebus.drives.registry import family
+from drivebus.errors import ConfigError
 from drivebus.line.base import Line
 from drivebus.line.serial import SerialLine
 from drivebus.line.tcp import RtuOverTcpLine, TcpLine
@@ -81,7 +82,13 @@ async def start_sim_line(
     it runs until ``stack`` closes."""
     line = config.lines[name]
     axes = {n: a for n, a in config.axes.items() if a.line == name and not a.sim.absent}
-    twins = {n: make_twin(a, line) for n, a in axes.items()}
+    twins = {}
+    for n, a in axes.items():
+        try:
+            twins[n] = make_twin(a, line)
+        except (ValueError, TypeError) as exc:  # ConfigError included
+            raise ConfigError(f"axes.{n}.sim: the simulated {a.drive} refuses this axis: "
+                              f"{exc}") from exc
     server: SimServer
     if line.kind == "serial":
         wire = await stack.enter_async_context(VirtualWire(line.sim_name))

@@ -5,9 +5,15 @@ pyserial finds this module through ``serial.protocol_handler_packages`` (drivebu
 adds the side channel that tells the wire the byte size and parity. A pty carries baud
 rate and stop bits to the other side but not parity or byte size (some kernels refuse
 PARENB on a pty with EINVAL), so those two go to the pty as 8N and to the wire directly.
+A wire may model an adapter that runs only some baud rates (``adapter_bauds``: the port
+then sets the nearest one, as such an adapter's driver does) or formats
+(``adapter_formats``: setting another fails with EINVAL, as ``tcsetattr`` does).
 """
 
 from __future__ import annotations
+
+import errno
+import termios
 
 import serial
 from serial.serialposix import Serial as PosixSerial
@@ -21,12 +27,17 @@ class _SimPort(PosixSerial):
     wire = None  # set per wire by serial_class_for_url
 
     def _reconfigure_port(self, force_update: bool = False) -> None:
-        bytesize, parity = self._bytesize, self._parity
+        bytesize, parity, baudrate = self._bytesize, self._parity, self._baudrate
+        formats = None if self.wire is None else self.wire.adapter_formats
+        if formats is not None and f"{bytesize}{parity}{int(self._stopbits)}" not in formats:
+            raise termios.error(errno.EINVAL, "Invalid argument")  # as tcsetattr refuses it
         self._bytesize, self._parity = serial.EIGHTBITS, serial.PARITY_NONE
+        if self.wire is not None:  # the rate the simulated adapter's driver really sets
+            self._baudrate = self.wire.adapter_baud(baudrate)
         try:
             super()._reconfigure_port(force_update)
         finally:
-            self._bytesize, self._parity = bytesize, parity
+            self._bytesize, self._parity, self._baudrate = bytesize, parity, baudrate
         if self.wire is not None:
             self.wire.note_format(bytesize, parity)
 

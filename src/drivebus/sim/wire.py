@@ -18,12 +18,14 @@ import contextlib
 import os
 import termios
 import tty
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Collection
 from types import TracebackType
 
 import anyio
 
 from drivebus.clock import monotonic
+from drivebus.errors import ConfigError
+from drivebus.line.baud import port_baudrate
 from drivebus.settings import LineSettings
 from drivebus.sim.noise import babble_flat_out, babble_paced
 from drivebus.sim.segment import Segment, SegmentView, WireFrame
@@ -51,11 +53,25 @@ class VirtualWire(SegmentView):
     """A simulated RS-485 line; use as ``async with VirtualWire("name") as wire``."""
 
     def __init__(
-        self, name: str, *, echo: bool = False, strict: bool = True, log_size: int = 200_000
+        self,
+        name: str,
+        *,
+        echo: bool = False,
+        strict: bool = True,
+        log_size: int = 200_000,
+        adapter_bauds: Collection[int] | None = None,
+        adapter_formats: Collection[str] | None = None,
     ) -> None:
         self.name = name
         self.echo = echo
         """Send every master byte back, as adapters that hear their own transmitter do."""
+        self.adapter_bauds = tuple(sorted(adapter_bauds)) if adapter_bauds else None
+        """The baud rates the master's simulated adapter can generate (None: any). Asked for
+        another one, its driver runs (and reports) the nearest, as USB adapters' drivers do."""
+        self.adapter_formats = frozenset(adapter_formats) if adapter_formats else None
+        """The character formats (``8N1``...) the master's simulated port accepts (None: any);
+        asked for another one, setting the port fails with EINVAL, as ``tcsetattr`` does on
+        ports (and kernels' ptys) that refuse parity."""
         self.segment: Segment[None] = Segment(
             self._to_master,
             self.observed_settings,
@@ -87,7 +103,10 @@ class VirtualWire(SegmentView):
 
     async def __aenter__(self) -> VirtualWire:
         if self.name in _REGISTRY:
-            raise ValueError(f"a virtual wire named {self.name!r} is already running")
+            raise ConfigError(
+                f"sim://{self.name}: a simulated line of that name is already running in "
+                f"this process: give each simulated line its own name"
+            )
         async with contextlib.AsyncExitStack() as stack:  # undone in reverse by __aexit__
             self._master_fd, self._slave_fd = os.openpty()
             stack.callback(os.close, self._slave_fd)
@@ -114,6 +133,12 @@ class VirtualWire(SegmentView):
 
     # -- what the master set --------------------------------------------------------------
 
+    def adapter_baud(self, baudrate: int) -> int:
+        """The rate the simulated adapter runs when asked for ``baudrate``."""
+        if self.adapter_bauds is None:
+            return baudrate
+        return min(self.adapter_bauds, key=lambda b: abs(b - baudrate))
+
     def note_format(self, bytesize: int, parity: str) -> None:
         """Side channel from the sim port class: the byte size and parity it configured."""
         self._format = (int(bytesize), str(parity))
@@ -121,7 +146,8 @@ class VirtualWire(SegmentView):
     def observed_settings(self) -> LineSettings:
         """The line settings the master's port has right now."""
         attrs = termios.tcgetattr(self._master_fd)  # the slave side's termios
-        baud = _SPEEDS.get(attrs[5], 0) or 38400
+        # termios2 carries any rate (BOTHER); the classic speed codes only the standard ones
+        baud = port_baudrate(self._master_fd) or _SPEEDS.get(attrs[5], 0) or 38400
         stop = 2 if attrs[2] & termios.CSTOPB else 1
         bytesize, parity = self._format or (8, "N")
         return LineSettings(baudrate=baud, bytesize=bytesize, parity=parity, stopbits=stop)
