@@ -12,7 +12,6 @@ leave the axis no room, positions beyond a drive's 32-bit range, unknown twin op
 
 from __future__ import annotations
 
-import inspect
 import math
 import os
 import tomllib
@@ -34,6 +33,7 @@ from pydantic import (
 
 from drivebus.checks import MAX_RETRIES, MAX_TIMEOUT, validation_problems
 from drivebus.errors import ConfigError
+from drivebus.providers import line_provider, scheme_of
 from drivebus.settings import LineSettings
 
 __all__ = [
@@ -57,9 +57,6 @@ def _settings(v: Any) -> Any:
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-
-_POSITION_PULSES = 1 << 31
-"""Every drive keeps its position in a signed 32-bit register."""
 
 
 class LineConfig(_Model):
@@ -92,14 +89,20 @@ class LineConfig(_Model):
         return self
 
     @property
+    def scheme(self) -> str | None:
+        """The line provider's scheme when the line is ``SCHEME://NAME`` (``sim``), else None."""
+        return scheme_of(self.port or self.host)
+
+    @property
     def simulated(self) -> bool:
-        """True if the line is the built-in simulator's."""
-        return (self.port or self.host or "").startswith("sim://")
+        """True if the line is the built-in simulator's (``sim://NAME``)."""
+        return self.scheme == "sim"
 
     @property
     def sim_name(self) -> str:
-        """The NAME of sim://NAME."""
-        return (self.port or self.host or "").removeprefix("sim://")
+        """The NAME of ``SCHEME://NAME``."""
+        address = self.port or self.host or ""
+        return address.split("://", 1)[1] if "://" in address else ""
 
 
 class HomingConfig(_Model):
@@ -259,8 +262,8 @@ class MachineConfig(_Model):
                 options=ax.drive_options,
             )]
             out += [f"{where}.{p}" for p in _speed_problems(ax)]
-            if line.simulated and not ax.sim.absent:
-                out += [f"{where}.sim{p}" for p in _sim_problems(ax)]
+        for scheme in sorted({ln.scheme for ln in self.lines.values() if ln.scheme}):
+            out += line_provider(scheme).problems(self)
         return out
 
 
@@ -271,47 +274,6 @@ def _speed_problems(ax: AxisConfig) -> list[str]:
     speeds = {"speed": ax.speed, "homing.speed": ax.homing.speed, "homing.creep": ax.homing.creep}
     return [f"{key}: {v:g} units/s is above max_speed {ax.max_speed:g}"
             for key, v in speeds.items() if v > ax.max_speed]
-
-
-_TWIN_SET = frozenset({"turnaround", "position", "home_switch", "limit_negative",
-                       "limit_positive"})
-"""Twin constructor options that come from the ``sim`` section's own keys."""
-
-
-def _sim_problems(ax: AxisConfig) -> list[str]:
-    """What makes the simulated axis unusable: unknown twin options, positions beyond the
-    drive's range, switches that leave it no room (``.key: problem``)."""
-    from drivebus.drives.registry import family
-
-    out = []
-    s = ax.sim
-    twin = family(ax.drive).sim
-    params = inspect.signature(twin.__init__).parameters
-    known = sorted(p for p, v in params.items()
-                   if v.kind is inspect.Parameter.KEYWORD_ONLY and p not in _TWIN_SET)
-    for key in s.options:
-        if key not in known:
-            out.append(f".options.{key}: the simulated {ax.drive} has no option {key!r} "
-                       f"(it has {', '.join(known) or 'none'})")
-    pulses_per_unit = ax.pulses_per_rev / ax.units_per_rev
-    for key in ("position", "home_switch", "limit_negative", "limit_positive"):
-        v = getattr(s, key)
-        if v is not None and not abs(v * pulses_per_unit) < _POSITION_PULSES:
-            out.append(f".{key}: {v:g} units is {v * pulses_per_unit:g} pulses, beyond the "
-                       f"drive's 32-bit position range")
-    neg, pos = s.limit_negative, s.limit_positive
-    if neg is not None and pos is not None and neg >= pos:
-        out.append(f".limit_negative: {neg:g} is not below limit_positive {pos:g}: the axis "
-                   f"would always be on a limit switch")
-    if ax.limits is not None:
-        lo, hi = ax.limits
-        if neg is not None and hi <= neg:
-            out.append(f".limit_negative: the switch at {neg:g} lies above the whole soft-limit "
-                       f"range {lo:g}..{hi:g}: every allowed position is beyond it")
-        if pos is not None and lo >= pos:
-            out.append(f".limit_positive: the switch at {pos:g} lies below the whole soft-limit "
-                       f"range {lo:g}..{hi:g}: every allowed position is beyond it")
-    return out
 
 
 def parse_config(data: dict[str, Any], source: str = "config") -> MachineConfig:

@@ -18,13 +18,11 @@ from drivebus.line.baud import port_baudrate, rate_matches
 from drivebus.line.link import RtuLink
 from drivebus.line.receiver import RtuReceiver, read_waiting
 from drivebus.pdu import LengthPredictor
+from drivebus.providers import line_provider, scheme_of
 from drivebus.settings import LineSettings
 from drivebus.timing import switch_silence, timing
 
 __all__ = ["SerialLine"]
-
-if "drivebus.sim" not in serial.protocol_handler_packages:
-    serial.protocol_handler_packages.append("drivebus.sim")  # sim://NAME virtual lines
 
 _PARITY = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN, "O": serial.PARITY_ODD}
 
@@ -101,6 +99,11 @@ class SerialLine(Line):
         s = self.settings
         loop = asyncio.get_running_loop()
         rx = RtuReceiver(f"serial port {self.port}", line_name=self.name)
+        scheme = scheme_of(self.port)
+        if scheme is not None:
+            # SCHEME://NAME: a provider's port (the simulator's); loading the provider
+            # teaches pyserial the URL.
+            line_provider(scheme)
         try:
             port = serial.serial_for_url(
                 self.port,

@@ -12,20 +12,14 @@ from typing import Any
 import anyio
 
 from drivebus.bus import Bus
-from drivebus.config import AxisConfig, LineConfig, MachineConfig, machine_config
+from drivebus.config import AxisConfig, MachineConfig, machine_config
 from drivebus.drives.base import DriveProfile
 from drivebus.drives.registry import family
 from drivebus.errors import ConfigError, DrivebusError, DriveOffline, TransactionError
-from drivebus.line.base import Line
-from drivebus.line.serial import SerialLine
-from drivebus.line.tcp import RtuOverTcpLine, TcpLine
 from drivebus.motion.axis import Axis
 from drivebus.motion.group import AxisGroup
+from drivebus.motion.lines import open_line
 from drivebus.motion.state import MOVING_STATES
-from drivebus.sim.drive import SimDrive
-from drivebus.sim.machine import start_sim_line
-from drivebus.sim.tcp import SimSerialServer, SimTcpServer
-from drivebus.sim.wire import VirtualWire
 from drivebus.tasks import ServiceTasks
 
 __all__ = ["Machine", "open_machine"]
@@ -34,15 +28,19 @@ log = logging.getLogger(__name__)
 
 
 class Machine:
-    """The running machine: ``axes`` by name, ``buses`` by line name, and sim twins."""
+    """The running machine: ``axes`` by name, ``buses`` by line name, and what line
+    providers serve (the simulator's twins and wires)."""
 
     def __init__(self, config: MachineConfig) -> None:
         self.config = config
         self.buses: dict[str, Bus] = {}
         self.axes: dict[str, Axis] = {}
-        self.sim_drives: dict[str, SimDrive] = {}
-        """The simulated twin behind each axis on a sim:// line (tests, demo)."""
-        self.wires: dict[str, VirtualWire | SimSerialServer | SimTcpServer] = {}
+        self.sim_drives: dict[str, Any] = {}
+        """The stand-in behind each axis on a provided line: on ``sim://`` lines, the
+        simulated twin (``drivebus.sim.SimDrive``) the tests and the demo judge by."""
+        self.wires: dict[str, Any] = {}
+        """What serves each provided line: on ``sim://`` lines, the simulator's wire or
+        server (its wire log, faults)."""
 
     def group(self, *names: str) -> AxisGroup:
         """The named axes as a group (all axes if none are named)."""
@@ -68,25 +66,6 @@ class Machine:
                 moving = a.status is not None and a.status.moving
                 if (a.commanded if only_commanded else a.state in MOVING_STATES or moving):
                     tg.start_soon(stop, a)
-
-
-async def _start_sim(
-    stack: contextlib.AsyncExitStack, machine: Machine, name: str, line: LineConfig
-) -> Line:
-    sim = await start_sim_line(machine.config, name, stack)
-    machine.sim_drives.update(sim.twins)
-    machine.wires[name] = sim.server
-    return sim.master_line()
-
-
-def _real_line(line: LineConfig) -> Line:
-    if line.kind == "serial":
-        assert line.port is not None
-        return SerialLine(line.port, line.settings, local_echo=line.local_echo, rs485=line.rs485)
-    assert line.host is not None
-    if line.kind == "tcp":
-        return TcpLine(line.host, line.tcp_port)
-    return RtuOverTcpLine(line.host, line.tcp_port, line.settings)
 
 
 async def _make_axis(machine: Machine, name: str, cfg: AxisConfig) -> Axis:
@@ -129,9 +108,10 @@ async def open_machine(
     machine = Machine(cfg)
     async with contextlib.AsyncExitStack() as stack:
         for name, line in cfg.lines.items():
-            ln = await _start_sim(stack, machine, name, line) if line.simulated else _real_line(
-                line
-            )
+            ln, provided = await open_line(cfg, name, stack)
+            if provided is not None:
+                machine.sim_drives.update(provided.twins)
+                machine.wires[name] = provided.server
             machine.buses[name] = await stack.enter_async_context(
                 Bus(ln, timeout=line.timeout, retries=line.retries)
             )

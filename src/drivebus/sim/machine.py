@@ -1,6 +1,7 @@
 """The simulated side of a machine config: a twin per axis on each ``sim://`` line.
 
-``open_machine`` uses ``start_sim_line`` for every simulated line of its config;
+The simulator's line provider (``drivebus.sim.provider``, which ``open_machine`` finds by
+the ``sim`` scheme) uses ``start_sim_line`` for every simulated line of a config;
 ``drivebus sim`` uses ``start_simulators`` to serve all of them standalone, so that an
 outside master (mbpoll, a PLC, pymodbus) can talk to the simulated drives.
 """
@@ -11,13 +12,10 @@ import contextlib
 from dataclasses import dataclass, field
 
 from drivebus.config import AxisConfig, LineConfig, MachineConfig
-from drivebus.drives.registry import family
 from drivebus.errors import ConfigError
-from drivebus.line.base import Line
-from drivebus.line.serial import SerialLine
-from drivebus.line.tcp import RtuOverTcpLine, TcpLine
 from drivebus.sim.drive import SimDrive
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
+from drivebus.sim.twins import twin_class
 from drivebus.sim.wire import VirtualWire
 
 __all__ = ["SimLine", "make_twin", "start_sim_line", "start_simulators"]
@@ -35,14 +33,13 @@ class SimLine:
     twins: dict[str, SimDrive] = field(default_factory=dict)
     """The twin behind each axis on this line, by axis name."""
 
-    def master_line(self) -> Line:
-        """A master-side ``Line`` that reaches this simulator (what ``open_machine`` uses)."""
+    def master_config(self) -> LineConfig:
+        """The line's config pointed at this simulator: what a master connects to (the
+        wire's ``sim://NAME`` port, or the server's loopback address)."""
         cfg, srv = self.config, self.server
         if isinstance(srv, VirtualWire):
-            return SerialLine(srv.url, cfg.settings, local_echo=cfg.local_echo)
-        if isinstance(srv, SimTcpServer):
-            return TcpLine("127.0.0.1", srv.port)
-        return RtuOverTcpLine("127.0.0.1", srv.port, cfg.settings)
+            return cfg.model_copy(update={"port": srv.url})
+        return cfg.model_copy(update={"host": "127.0.0.1", "tcp_port": srv.port})
 
     @property
     def endpoint(self) -> str:
@@ -56,7 +53,7 @@ class SimLine:
 def make_twin(axis: AxisConfig, line: LineConfig) -> SimDrive:
     """The simulated drive for ``axis``: its family's twin, switches and start position
     converted from the axis's user units to pulses."""
-    cls = family(axis.drive).sim
+    cls = twin_class(axis.drive)
     u = axis.units_per_rev / axis.pulses_per_rev
 
     def pulses(v: float | None) -> float | None:

@@ -1,0 +1,90 @@
+"""The simulator as a line provider: it serves a machine file's ``sim://NAME`` lines.
+
+``open_machine`` finds it by the ``sim`` scheme (an entry point of the package, see
+``drivebus.providers``), never by importing it. Loading it also teaches pyserial the
+``sim://NAME`` URL (``drivebus.sim.protocol_sim``), so ``SerialLine("sim://NAME")`` reaches a
+running virtual wire of this process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import inspect
+
+import serial
+
+from drivebus.config import AxisConfig, MachineConfig
+from drivebus.providers import ProvidedLine
+from drivebus.sim.machine import start_sim_line
+from drivebus.sim.twins import TWINS
+
+__all__ = ["SimLineProvider"]
+
+if "drivebus.sim" not in serial.protocol_handler_packages:
+    serial.protocol_handler_packages.append("drivebus.sim")  # sim://NAME, protocol_sim.py
+
+_POSITION_PULSES = 1 << 31
+"""Every drive keeps its position in a signed 32-bit register."""
+
+_TWIN_SET = frozenset({"turnaround", "position", "home_switch", "limit_negative",
+                       "limit_positive"})
+"""Twin constructor options that come from the ``sim`` section's own keys."""
+
+
+class SimLineProvider:
+    """Serves ``sim://NAME`` lines with a simulated twin per axis."""
+
+    scheme = "sim"
+
+    def problems(self, config: MachineConfig) -> list[str]:
+        """Twin options, positions and switches of the simulated axes that cannot work."""
+        out = []
+        for name, ax in config.axes.items():
+            line = config.lines.get(ax.line)
+            if line is None or line.scheme != self.scheme or ax.sim.absent:
+                continue
+            out += [f"axes.{name}.sim{p}" for p in _axis_problems(ax)]
+        return out
+
+    async def open(
+        self, config: MachineConfig, line: str, stack: contextlib.AsyncExitStack
+    ) -> ProvidedLine:
+        """Start the simulator of line ``line``; it runs until ``stack`` closes."""
+        sim = await start_sim_line(config, line, stack)
+        return ProvidedLine(sim.master_config(), dict(sim.twins), sim.server)
+
+
+def _axis_problems(ax: AxisConfig) -> list[str]:
+    """What makes the simulated axis unusable: unknown twin options, positions beyond the
+    drive's range, switches that leave it no room (``.key: problem``)."""
+    out = []
+    s = ax.sim
+    twin = TWINS.get(ax.drive)
+    if twin is None:
+        return [f": the simulator has no twin of drive {ax.drive!r}"]
+    params = inspect.signature(twin.__init__).parameters
+    known = sorted(p for p, v in params.items()
+                   if v.kind is inspect.Parameter.KEYWORD_ONLY and p not in _TWIN_SET)
+    for key in s.options:
+        if key not in known:
+            out.append(f".options.{key}: the simulated {ax.drive} has no option {key!r} "
+                       f"(it has {', '.join(known) or 'none'})")
+    pulses_per_unit = ax.pulses_per_rev / ax.units_per_rev
+    for key in ("position", "home_switch", "limit_negative", "limit_positive"):
+        v = getattr(s, key)
+        if v is not None and not abs(v * pulses_per_unit) < _POSITION_PULSES:
+            out.append(f".{key}: {v:g} units is {v * pulses_per_unit:g} pulses, beyond the "
+                       f"drive's 32-bit position range")
+    neg, pos = s.limit_negative, s.limit_positive
+    if neg is not None and pos is not None and neg >= pos:
+        out.append(f".limit_negative: {neg:g} is not below limit_positive {pos:g}: the axis "
+                   f"would always be on a limit switch")
+    if ax.limits is not None:
+        lo, hi = ax.limits
+        if neg is not None and hi <= neg:
+            out.append(f".limit_negative: the switch at {neg:g} lies above the whole soft-limit "
+                       f"range {lo:g}..{hi:g}: every allowed position is beyond it")
+        if pos is not None and lo >= pos:
+            out.append(f".limit_positive: the switch at {pos:g} lies below the whole soft-limit "
+                       f"range {lo:g}..{hi:g}: every allowed position is beyond it")
+    return out
