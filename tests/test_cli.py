@@ -29,11 +29,11 @@ import pytest
 import serial
 from typer.testing import CliRunner
 
+from drivebus.app.scan import scan_settings
 from drivebus.cli import _fail, app, explain
 from drivebus.config import load_config
 from drivebus.errors import ConfigError, DriveOffline, LineClosed
 from drivebus.ops import Out, check_config, scan_line
-from drivebus.scan import scan_settings
 from drivebus.settings import LineSettings
 from drivebus.sim.machine import start_simulators
 
@@ -561,7 +561,7 @@ def test_sim_log_prints_frames(tmp_path: Path) -> None:
 
 
 def test_pty_settings_are_8n1_or_8n2_only() -> None:
-    from drivebus.scan import pty_usable
+    from drivebus.app.scan import pty_usable
 
     ok, dropped = pty_usable([LineSettings.parse(t) for t in ("9600 8N1", "9600 8E1",
                                                               "9600 8N2", "9600 7O1")])

@@ -128,7 +128,7 @@ def scan(
     found; a probe is one read of holding register 0 with no retries. An answering slave
     is identified by its drive family's identity registers where it has them.
     """
-    from drivebus import scan as sc
+    from drivebus.app import scan as sc
     from drivebus.ops import Out, run_guarded, scan_line
 
     settings = sc.scan_settings(sc.parse_bauds(baud), sc.parse_formats(fmt))

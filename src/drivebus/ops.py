@@ -33,11 +33,11 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
+from drivebus.app.scan import Found, scan
 from drivebus.config import MachineConfig, load_config
 from drivebus.errors import ConfigError, DrivebusError, DriveOffline
 from drivebus.motion import Axis, Machine, open_machine
 from drivebus.motion.state import AxisState
-from drivebus.scan import Found, scan
 from drivebus.settings import LineSettings
 from drivebus.sim.machine import SimLine, start_simulators
 from drivebus.sim.wire import VirtualWire, WireFrame

@@ -20,7 +20,7 @@ from drivebus.bus import Priority, SlaveHandle
 from drivebus.checks import validation_problems
 from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
-from drivebus.errors import ConfigError, NotSupported
+from drivebus.errors import ConfigError, FrameError, ModbusException, NotSupported
 from drivebus.settings import LineSettings
 
 __all__ = [
@@ -114,10 +114,43 @@ class DriveProfile:
     line_formats: ClassVar[tuple[str, ...]] = ()
     """The character formats (``8N1``...) it can run on a serial line (empty: any)."""
 
+    standard_frames: ClassVar[bool] = True
+    """Speaks standard Modbus frames (a scan finds it by a plain register read first)."""
+
     def __init__(self, slave: SlaveHandle, *, pulses_per_rev: int = 10000) -> None:
         self.slave = slave
         self.pulses_per_rev = self.check_pulses_per_rev(pulses_per_rev)
         slave.exception_texts.update(self.exception_texts)
+
+    # -- who the drive is (a scan asks every family in the registry) ----------------------------
+
+    @classmethod
+    def could_be_at(cls, address: int, line_kind: str, settings: LineSettings | None) -> bool:
+        """Whether a drive of this family can answer at ``address`` on a ``line_kind`` line
+        with ``settings`` (from its declarations; no I/O)."""
+        if address not in cls.addresses or line_kind not in cls.line_kinds:
+            return False
+        if settings is None or line_kind == "tcp":
+            return True
+        return (not cls.baud_rates or settings.baudrate in cls.baud_rates) and (
+            not cls.line_formats or settings.format in cls.line_formats
+        )
+
+    @classmethod
+    async def identify(cls, slave: SlaveHandle) -> DriveIdentity | None:
+        """Probe ``slave``: this family's identity (model and firmware where the drive
+        tells them) if it is a drive of this family, else None. A refusal or an unusable
+        answer means "not this family"; a timeout or a port error propagates."""
+        profile = cls(slave)
+        try:
+            ident = await profile.read_identity()
+        except (ModbusException, FrameError):
+            return None
+        return ident if profile.is_own_identity(ident) else None
+
+    def is_own_identity(self, ident: DriveIdentity) -> bool:
+        """Whether ``ident`` (as ``read_identity`` read it) is this family's."""
+        return False
 
     @classmethod
     def option_problems(cls, options: Mapping[str, object], *, prefix: str = "") -> list[str]:

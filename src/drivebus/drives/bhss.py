@@ -363,6 +363,13 @@ class BHSSProfile(DriveProfile):
             timestamp=monotonic(),
         )
 
+    MODEL_WORD: ClassVar[int] = 0x0305
+    """What register 0x0000 reads on a BHSS-100-MBUS (manual Table 10)."""
+
+    def is_own_identity(self, ident: DriveIdentity) -> bool:
+        """Model word 0x0305."""
+        return ident.raw.get("model") == self.MODEL_WORD
+
     async def read_identity(self) -> DriveIdentity:
         """Model word 0x0000 (0x0305) and driver version 0x0001 (0x0101 = "1.01")."""
         model, version = await self.slave.read_holding_registers(0x0000, 2)

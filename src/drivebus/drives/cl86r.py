@@ -431,6 +431,13 @@ class CL86RProfile(DriveProfile):
             timestamp=monotonic(),
         )
 
+    MODEL_CODE: ClassVar[int] = 862
+    """What register 0x0000 reads on a CL86R (manual: the model code)."""
+
+    def is_own_identity(self, ident: DriveIdentity) -> bool:
+        """Model code 862."""
+        return ident.raw.get("model") == self.MODEL_CODE
+
     async def read_identity(self) -> DriveIdentity:
         """Model code (0x0000, 862 for the CL86R) and software version (0x0001)."""
         model, software = await self.slave.read_holding_registers(MODEL.address, 2)

@@ -482,6 +482,14 @@ class NT86Profile(DriveProfile):
 
     # -- identity, save, zero -------------------------------------------------------------
 
+    DRIVE_ID: ClassVar[int] = 86
+    """What drive ID register 93 reads. The manual leaves its format open: this is the
+    value drivebus's simulated twin reports (an assumption for real drives)."""
+
+    def is_own_identity(self, ident: DriveIdentity) -> bool:
+        """Drive ID register 93 reads ``DRIVE_ID``."""
+        return ident.raw.get("drive_id") == self.DRIVE_ID
+
     async def read_identity(self) -> DriveIdentity:
         """Drive ID (93), version (94) and non-standard number (95); formats undocumented."""
         r = self.regs
@@ -779,6 +787,7 @@ class EPR60Profile(NT86Profile):
     """
 
     family: ClassVar[str] = "EPR60"
+    DRIVE_ID: ClassVar[int] = 60
     homing_methods: ClassVar[tuple[str, ...]] = ("limit_negative", "limit_positive")
     regs: ClassVar[NTRegisterMap] = EPR60_MAP
     options: ClassVar[type[DriveOptions]] = EPR60Options

@@ -546,6 +546,25 @@ class ODDriveProfile(DriveProfile):
             timestamp=monotonic(),
         )
 
+    standard_frames: ClassVar[bool] = False
+
+    @classmethod
+    async def identify(cls, slave: SlaveHandle) -> DriveIdentity | None:
+        """Object 201Ah.1 (software version) in the drive's own frames: an answer in
+        them, an exception reply included, is this drive (it has no model code)."""
+        slave.exception_texts.update(EXCEPTION_TEXTS)
+        try:
+            reply = await slave.transact(read_pdu(0x201A, 1, 1), expect=reply_length)
+        except ModbusException as exc:
+            return DriveIdentity(FAMILY, model="", firmware=f"(answered exception {exc.code})")
+        except FrameError:
+            return None
+        if len(reply) != 4 or reply[1] != 2:
+            return None
+        software = int.from_bytes(reply[2:4], "big")
+        return DriveIdentity(FAMILY, firmware=f"software {software}",
+                             raw={"software": software})
+
     async def read_identity(self) -> DriveIdentity:
         """Software, hardware and bus-side software versions (201Ah.1-3); no model code."""
         sw, hw, bus = [await self.read_object(0x201A, n) for n in (1, 2, 3)]

@@ -2,22 +2,23 @@
 
 The scan probes every address at one setting, then the next setting, skipping addresses
 already found (a slave answers at one setting only). The probe is a read of holding
-register 0 (any answer, a Modbus exception included, means a slave is there); then each
-drive family's identification probe runs in turn. Drives with non-standard frames (the
-OD2000) have a probe of their own, tried only where they can be (their fixed address and
-line settings).
+register 0 (any answer, a Modbus exception included, means a slave is there); then every
+drive family of the registry that could be there (its declared addresses, baud rates and
+formats) identifies itself (``DriveProfile.identify``). A family with frames of its own
+(the OD2000) is asked directly where it could be. The scan knows no vendor.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Awaitable, Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from drivebus.bus import Bus, SlaveHandle
+from drivebus.drives.registry import FAMILIES, DriveFamily
+from drivebus.drives.status import DriveIdentity
 from drivebus.errors import (
     ConfigError,
-    FrameError,
     LineConfigError,
     ModbusException,
     TransactionError,
@@ -26,8 +27,6 @@ from drivebus.line.serial import SerialLine
 from drivebus.settings import LineSettings
 
 __all__ = [
-    "FAMILY_PROBES",
-    "FamilyProbe",
     "Found",
     "parse_addresses",
     "parse_bauds",
@@ -44,7 +43,8 @@ class Found:
     """A slave that answered: where, at which settings, and what it said it is."""
 
     address: int
-    settings: LineSettings
+    settings: LineSettings | None
+    """None on Modbus TCP."""
     family: str
     """A drive family name (``drivebus.drives.registry``) or "unknown Modbus slave"."""
     detail: str = ""
@@ -53,94 +53,12 @@ class Found:
         """JSON-able form for ``drivebus scan --json``."""
         return {
             "address": self.address,
-            "baudrate": self.settings.baudrate,
-            "format": self.settings.format,
-            "settings": str(self.settings),
+            "baudrate": None if self.settings is None else self.settings.baudrate,
+            "format": None if self.settings is None else self.settings.format,
+            "settings": None if self.settings is None else str(self.settings),
             "family": self.family,
             "detail": self.detail,
         }
-
-
-Identify = Callable[[SlaveHandle], Awaitable[str | None]]
-
-
-@dataclass(frozen=True)
-class FamilyProbe:
-    """How to recognise one drive family: ``identify`` returns a detail text, or None."""
-
-    family: str
-    identify: Identify
-    standard: bool = True
-    """Speaks standard Modbus frames, so it answers the presence probe."""
-    applies: Callable[[int, LineSettings], bool] = lambda address, settings: True
-    """Where the family can be at all (e.g. a fixed address or line format)."""
-
-
-async def _words(slave: SlaveHandle, address: int, count: int) -> list[int] | None:
-    try:
-        return await slave.read_holding_registers(address, count)
-    except (ModbusException, FrameError):
-        return None
-
-
-async def _bhss(slave: SlaveHandle) -> str | None:
-    w = await _words(slave, 0x0000, 2)  # drive model 0x0305, driver version (BHSS manual)
-    if w is None or w[0] != 0x0305:
-        return None
-    return f"BHSS-100-MBUS, model 0x{w[0]:04X}, version {w[1] >> 8}.{w[1] & 0xFF:02d}"
-
-
-async def _cl86r(slave: SlaveHandle) -> str | None:
-    w = await _words(slave, 0x0000, 2)  # model code 862, software version (CL86R manual)
-    if w is None or w[0] != 862:
-        return None
-    return f"CL86R, model code {w[0]}, software {w[1]}"
-
-
-_NT_IDS = {86: "NT86", 60: "EPR60"}
-"""Drive ID register 93 values. The NT86 manual leaves the format undocumented; these
-are the values drivebus's simulated twins report (an assumption for real drives)."""
-
-
-def _nt(name: str) -> Identify:
-    async def probe(slave: SlaveHandle) -> str | None:
-        w = await _words(slave, 93, 3)  # drive ID, version, non-standard number
-        if w is None or _NT_IDS.get(w[0]) != name:
-            return None
-        return f"{name}, drive ID {w[0]}, version {w[1]}"
-
-    return probe
-
-
-async def _od2000(slave: SlaveHandle) -> str | None:
-    from drivebus.drives.od_drive import EXCEPTION_TEXTS, read_pdu, reply_length
-
-    slave.exception_texts = dict(EXCEPTION_TEXTS)
-    try:  # object 201Ah.1: software version (the drive has no model code)
-        reply = await slave.transact(read_pdu(0x201A, 1, 1), expect=reply_length)
-    except ModbusException as exc:
-        return f"OD2000 object-dictionary drive (answered with exception {exc.code})"
-    except FrameError:
-        return None
-    if len(reply) != 4 or reply[1] != 2:
-        return None
-    return f"OD2000 object-dictionary drive, software {int.from_bytes(reply[2:4], 'big')}"
-
-
-def _od_applies(address: int, settings: LineSettings) -> bool:
-    from drivebus.drives.od_drive import DEFAULT_SETTINGS, SERIAL_ADDRESS
-
-    return address == SERIAL_ADDRESS and settings == DEFAULT_SETTINGS
-
-
-FAMILY_PROBES: tuple[FamilyProbe, ...] = (
-    FamilyProbe("BHSS", _bhss),
-    FamilyProbe("CL86R", _cl86r),
-    FamilyProbe("NT86", _nt("NT86")),
-    FamilyProbe("EPR60", _nt("EPR60")),
-    FamilyProbe("OD2000", _od2000, standard=False, applies=_od_applies),
-)
-"""Identification probes, tried in this order."""
 
 
 async def _present(slave: SlaveHandle) -> bool:
@@ -156,24 +74,37 @@ async def _present(slave: SlaveHandle) -> bool:
     return True
 
 
-async def probe(bus: Bus, address: int, settings: LineSettings) -> Found | None:
-    """Probe one address at one setting; the slave found there, if any."""
+def _detail(ident: DriveIdentity) -> str:
+    return ", ".join(p for p in (ident.model or ident.family, ident.firmware and
+                                 f"firmware {ident.firmware}") if p)
+
+
+async def probe(
+    bus: Bus, address: int, settings: LineSettings | None, *, line_kind: str = "serial"
+) -> Found | None:
+    """Probe one address at one setting; the slave found there, if any.
+
+    A standard slave is found by a plain read; then each drive family of the registry
+    that could be there tries to identify it. A family with frames of its own (the
+    OD2000) is asked directly where it could be.
+    """
     slave = bus.slave(address, settings=settings)
-    usable = [p for p in FAMILY_PROBES if p.applies(address, settings)]
+    families = [f for f in FAMILIES.values()
+                if f.profile.could_be_at(address, line_kind, settings)]
     if await _present(slave):
-        for p in usable:
-            if p.standard and (detail := await _identify(p, slave)):
-                return Found(address, settings, p.family, detail)
+        for fam in families:
+            if fam.profile.standard_frames and (ident := await _identify(fam, slave)):
+                return Found(address, settings, fam.name, _detail(ident))
         return Found(address, settings, UNKNOWN)
-    for p in usable:
-        if not p.standard and (detail := await _identify(p, slave)):
-            return Found(address, settings, p.family, detail)
+    for fam in families:
+        if not fam.profile.standard_frames and (ident := await _identify(fam, slave)):
+            return Found(address, settings, fam.name, _detail(ident))
     return None
 
 
-async def _identify(p: FamilyProbe, slave: SlaveHandle) -> str | None:
+async def _identify(fam: DriveFamily, slave: SlaveHandle) -> DriveIdentity | None:
     try:
-        return await p.identify(slave)
+        return await fam.profile.identify(slave)
     except LineConfigError:
         raise
     except TransactionError:
