@@ -1,6 +1,6 @@
 """Drive profiles: one module per drive family on a shared base."""
 
-from drivebus.drives.base import DriveProfile, MoveParams
+from drivebus.drives.base import DriveProfile, HomingParams, MoveParams
 from drivebus.drives.registers import Access, Register, WordOrder, join_words, split_words
 from drivebus.drives.status import DriveIdentity, DriveStatus
 
@@ -9,6 +9,7 @@ __all__ = [
     "DriveIdentity",
     "DriveProfile",
     "DriveStatus",
+    "HomingParams",
     "MoveParams",
     "Register",
     "WordOrder",

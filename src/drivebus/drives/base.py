@@ -27,6 +27,7 @@ __all__ = [
     "LINE_KINDS",
     "DriveOptions",
     "DriveProfile",
+    "HomingParams",
     "MoveParams",
     "describe_values",
     "ramp_time_quantized",
@@ -65,6 +66,18 @@ _PROCEDURES: dict[str, str] = {
     "save_parameters": "save parameters",
 }
 """Procedures a profile may lack, and how its NotSupported error says them."""
+
+
+@dataclass(frozen=True)
+class HomingParams:
+    """One homing in drive units: the family's method name (None: its default), speeds
+    in rev/min, acceleration in rev/s², the offset in pulses."""
+
+    method: str | None = None
+    speed_rpm: float = 60.0
+    creep_rpm: float = 10.0
+    accel_rps2: float = 10.0
+    offset: int = 0
 
 
 @dataclass(frozen=True)
@@ -249,7 +262,8 @@ class DriveProfile:
         whose support depends on options (an opted-in input, say) extend this.
         """
         what = _PROCEDURES[procedure]
-        if getattr(type(self), procedure) is getattr(DriveProfile, procedure):
+        method = "start_homing" if procedure == "home" else procedure
+        if getattr(type(self), method) is getattr(DriveProfile, method):
             raise self.unsupported(what)
 
     def volatile_settings(self) -> list[tuple[Register, int]]:
@@ -421,7 +435,12 @@ class DriveProfile:
         accel_rps2: float = 10.0,
         offset: int = 0,
     ) -> None:
-        """Start homing with ``method`` (one of ``homing_methods``)."""
+        """Start homing with ``method`` (one of ``homing_methods``), speeds in rev/min,
+        acceleration in rev/s², ``offset`` in pulses (``start_homing`` does it)."""
+        await self.start_homing(HomingParams(method, speed_rpm, creep_rpm, accel_rps2, offset))
+
+    async def start_homing(self, params: HomingParams) -> None:
+        """Start the homing ``params`` describe; each family that can home overrides this."""
         raise self.unsupported("home")
 
     async def clear_alarm(self) -> None:

@@ -19,7 +19,13 @@ from pydantic import Field, StrictBool, StrictInt
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveOptions, DriveProfile, MoveParams, ramp_time_quantized
+from drivebus.drives.base import (
+    DriveOptions,
+    DriveProfile,
+    HomingParams,
+    MoveParams,
+    ramp_time_quantized,
+)
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation
@@ -37,7 +43,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-HF = WordOrder.HIGH_FIRST
 
 
 class Regs:
@@ -55,7 +60,7 @@ class Regs:
     INPUTS = Register("input terminal state", 0x0008, access=Access.R)
     OUTPUTS = Register("output terminal state", 0x0009, access=Access.R)
     POSITION = Register(
-        "current position", 0x000A, words=2, signed=True, order=HF, unit="pulses",
+        "current position", 0x000A, words=2, signed=True, order=WordOrder.HIGH_FIRST, unit="pulses",
         access=Access.R,
     )
     # control group 1 (configuration)
@@ -75,7 +80,8 @@ class Regs:
     MAX_SPEED = Register(
         "maximum speed", 0x0023, signed=True, unit="rpm", minimum=-3000, maximum=3000
     )
-    DISTANCE = Register("total number of pulses", 0x0024, words=2, signed=True, order=HF,
+    DISTANCE = Register("total number of pulses", 0x0024, words=2, signed=True,
+                        order=WordOrder.HIGH_FIRST,
                         unit="pulses")
     DISTANCE_HIGH = Register("total number of pulses, high word", 0x0024)
     DISTANCE_LOW = Register("total number of pulses, low word", 0x0025)
@@ -477,33 +483,25 @@ class BHSSProfile(DriveProfile):
         """Emergency stop without ramp: 0x0028 = 1."""
         await self.write(Regs.STOP, 1, priority=Priority.EMERGENCY, idempotent=False)
 
-    async def home(
-        self,
-        method: str | None = None,
-        *,
-        speed_rpm: float = 60.0,
-        creep_rpm: float = 10.0,
-        accel_rps2: float = 10.0,
-        offset: int = 0,
-    ) -> None:
+    async def start_homing(self, params: HomingParams) -> None:
         """Write mode, speeds, ramp and offset (0x0031..0x0036), then 0x0030 = 1.
 
         The offset is a compensation move after the origin is found: positive values go
         to 0x0035 (counter-clockwise = positive), negative ones to 0x0036.
         """
-        name = method or self.homing_methods[0]
+        name = params.method or self.homing_methods[0]
         if name not in _HOMING_MODES:
             raise ConfigError(
                 f"BHSS homing method {name!r} is not one of {self.homing_methods}"
             )
-        ramp = self.ramp_ms(Regs.HOME_RAMP, speed_rpm, accel_rps2)
+        ramp = self.ramp_ms(Regs.HOME_RAMP, params.speed_rpm, params.accel_rps2)
         p = Priority.COMMAND
         await self.write(Regs.HOME_MODE, _HOMING_MODES[name], priority=p)
-        await self.write(Regs.HOME_SPEED, round(speed_rpm), priority=p)
-        await self.write(Regs.HOME_CREEP, round(creep_rpm), priority=p)
+        await self.write(Regs.HOME_SPEED, round(params.speed_rpm), priority=p)
+        await self.write(Regs.HOME_CREEP, round(params.creep_rpm), priority=p)
         await self.write(Regs.HOME_RAMP, ramp, priority=p)
-        await self.write(Regs.HOME_OFFSET_POS, max(offset, 0), priority=p)
-        await self.write(Regs.HOME_OFFSET_NEG, max(-offset, 0), priority=p)
+        await self.write(Regs.HOME_OFFSET_POS, max(params.offset, 0), priority=p)
+        await self.write(Regs.HOME_OFFSET_NEG, max(-params.offset, 0), priority=p)
         await self.write(Regs.HOME_START, 1, priority=p, idempotent=False)
 
     async def clear_alarm(self) -> None:

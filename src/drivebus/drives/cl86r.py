@@ -34,7 +34,13 @@ from pydantic import Field, StrictBool, StrictInt
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveOptions, DriveProfile, MoveParams, ramp_time_quantized
+from drivebus.drives.base import (
+    DriveOptions,
+    DriveProfile,
+    HomingParams,
+    MoveParams,
+    ramp_time_quantized,
+)
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import LimitViolation
@@ -80,22 +86,21 @@ __all__ = [
     "ramp_time_ms",
 ]
 
-_R = Access.R
-_HI = WordOrder.HIGH_FIRST
 
 # -- register map (addresses are the 0-based PDU addresses the manual prints) ------------------
 
-MODEL = Register("drive model", 0x0000, access=_R)
-SOFTWARE = Register("software version", 0x0001, access=_R)
-OPERATING_MODE = Register("operating mode", 0x0002, access=_R)
-STATUS = Register("status word", 0x0003, access=_R)
-ERROR_CODE = Register("error code", 0x0004, access=_R)
-INPUTS = Register("input terminal status", 0x0005, access=_R)
-OUTPUTS = Register("output terminal status", 0x0006, access=_R)
+MODEL = Register("drive model", 0x0000, access=Access.R)
+SOFTWARE = Register("software version", 0x0001, access=Access.R)
+OPERATING_MODE = Register("operating mode", 0x0002, access=Access.R)
+STATUS = Register("status word", 0x0003, access=Access.R)
+ERROR_CODE = Register("error code", 0x0004, access=Access.R)
+INPUTS = Register("input terminal status", 0x0005, access=Access.R)
+OUTPUTS = Register("output terminal status", 0x0006, access=Access.R)
 POSITION = Register(
-    "current position", 0x0007, words=2, signed=True, order=_HI, unit="pulses", access=_R
+    "current position", 0x0007, words=2, signed=True, order=WordOrder.HIGH_FIRST,
+    unit="pulses", access=Access.R,
 )
-CURRENT_SPEED = Register("current speed", 0x0009, signed=True, unit="rpm", access=_R)
+CURRENT_SPEED = Register("current speed", 0x0009, signed=True, unit="rpm", access=Access.R)
 
 DI_LEVEL = Register("DI active level", 0x0010, minimum=0, maximum=127)  # manual: "0~7" (7 bits)
 DI_FILTER = Register("DI filter time", 0x0011, unit="ms", minimum=0, maximum=1000)
@@ -119,7 +124,9 @@ START_SPEED = Register("start speed", 0x0030, unit="rpm", minimum=2, maximum=300
 ACCEL_TIME = Register("acceleration time", 0x0031, unit="ms", minimum=1, maximum=2000)
 DECEL_TIME = Register("deceleration time", 0x0032, unit="ms", minimum=1, maximum=2000)
 MAX_SPEED = Register("maximum speed", 0x0033, signed=True, unit="rpm", minimum=-3000, maximum=3000)
-TARGET = Register("target position", 0x0034, words=2, signed=True, order=_HI, unit="pulses")
+TARGET = Register(
+    "target position", 0x0034, words=2, signed=True, order=WordOrder.HIGH_FIRST, unit="pulses"
+)
 CONTROL = Register("movement control word", 0x0036, minimum=0, maximum=127)
 AUX_CONTROL = Register("auxiliary control", 0x0037, minimum=0, maximum=8)
 ENABLE = Register("motor enable", 0x0038, minimum=0, maximum=1)
@@ -131,7 +138,7 @@ HOME_SPEED = Register("homing high speed", 0x0041, unit="rpm", minimum=5, maximu
 HOME_CREEP = Register("homing creep speed", 0x0042, unit="rpm", minimum=5, maximum=300)
 HOME_RAMP = Register("homing accel/decel time", 0x0043, unit="ms", minimum=1, maximum=2000)
 # Each half is documented as 0~65535; the manual does not say the pair is signed.
-HOME_OFFSET = Register("origin offset", 0x0044, words=2, order=_HI, unit="pulses")
+HOME_OFFSET = Register("origin offset", 0x0044, words=2, order=WordOrder.HIGH_FIRST, unit="pulses")
 JOG_SPEED = Register("JOG speed", 0x0046, unit="rpm", minimum=0, maximum=3000)
 JOG_ACCEL = Register("JOG acceleration time", 0x0047, unit="ms", minimum=1, maximum=2000)
 JOG_DECEL = Register("JOG deceleration time", 0x0048, unit="ms", minimum=1, maximum=2000)
@@ -149,7 +156,7 @@ def path_pulses(n: int) -> Register:
     """Position path ``n``'s pulses: high word at 0x0060+n, low word 0x10 further on."""
     _check_path(n)
     return Register(
-        f"position path {n} pulses", 0x0060 + n, words=2, signed=True, order=_HI,
+        f"position path {n} pulses", 0x0060 + n, words=2, signed=True, order=WordOrder.HIGH_FIRST,
         unit="pulses", low_address=0x0070 + n,
     )
 
@@ -555,27 +562,19 @@ class CL86RProfile(DriveProfile):
             "it documents " + ", ".join(f"{k} ({v})" for k, v in HOMING_MODES.items()),
         )
 
-    async def home(
-        self,
-        method: str | None = None,
-        *,
-        speed_rpm: float = 60.0,
-        creep_rpm: float = 10.0,
-        accel_rps2: float = 10.0,
-        offset: int = 0,
-    ) -> None:
+    async def start_homing(self, params: HomingParams) -> None:
         """Write the origin offset (0x0044/45), mode and speeds (0x0040-0x0043), 0x0036 = 0x0010.
 
         ``accel_rps2`` becomes the homing ramp time referred to ``speed_rpm``. The offset
         is the position the drive assigns to the origin edge (CiA-402 reading, the manual
         is silent); its documented range is 0..2^32-1.
         """
-        mode = self.homing_mode(method)
-        high = _whole_rpm(HOME_SPEED, speed_rpm)
-        creep = _whole_rpm(HOME_CREEP, creep_rpm)
-        ramp = ramp_time_ms(HOME_RAMP, high, accel_rps2)
-        HOME_OFFSET.check(offset)
-        await self.write(HOME_OFFSET, offset, priority=Priority.COMMAND)
+        mode = self.homing_mode(params.method)
+        high = _whole_rpm(HOME_SPEED, params.speed_rpm)
+        creep = _whole_rpm(HOME_CREEP, params.creep_rpm)
+        ramp = ramp_time_ms(HOME_RAMP, high, params.accel_rps2)
+        HOME_OFFSET.check(params.offset)
+        await self.write(HOME_OFFSET, params.offset, priority=Priority.COMMAND)
         await self._write_params(
             [(HOME_MODE, mode), (HOME_SPEED, high), (HOME_CREEP, creep), (HOME_RAMP, ramp)]
         )

@@ -28,7 +28,7 @@ from pydantic import Field, StrictBool, StrictFloat, StrictInt, model_validator
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveOptions, DriveProfile, MoveParams
+from drivebus.drives.base import DriveOptions, DriveProfile, HomingParams, MoveParams
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation, StateError
@@ -44,8 +44,6 @@ __all__ = [
     "decode_alarm",
 ]
 
-LOW = WordOrder.LOW_FIRST
-_R = Access.R
 
 
 class StatusBit:
@@ -139,11 +137,12 @@ def _inputs() -> tuple[Register, ...]:
 
 
 NT86_MAP = NTRegisterMap(
-    alarm=Register("alarm code", 0, access=_R),
-    status=Register("status word", 1, access=_R),
-    inputs=Register("input port state", 2, access=_R),
-    position=Register("absolute position", 8, 2, signed=True, order=LOW, unit="pulses", access=_R),
-    speed=Register("command speed", 10, signed=True, unit="rpm", access=_R),
+    alarm=Register("alarm code", 0, access=Access.R),
+    status=Register("status word", 1, access=Access.R),
+    inputs=Register("input port state", 2, access=Access.R),
+    position=Register("absolute position", 8, 2, signed=True, order=WordOrder.LOW_FIRST,
+                      unit="pulses", access=Access.R),
+    speed=Register("command speed", 10, signed=True, unit="rpm", access=Access.R),
     command_source=_u16("command source", 17, lo=0, hi=1),
     command=_u16("motion command", 18, lo=0, hi=6),
     app_mode=_u16("application mode", 20, lo=0, hi=22),
@@ -158,7 +157,7 @@ NT86_MAP = NTRegisterMap(
         73,
         2,
         signed=True,
-        order=LOW,
+        order=WordOrder.LOW_FIRST,
         unit="pulses",
         minimum=-16777216,
         maximum=16777216,
@@ -170,9 +169,9 @@ NT86_MAP = NTRegisterMap(
     position_mode=_u16("incremental/absolute select", 84, lo=0, hi=1),
     clear_counter=_u16("clear internal pulse counter", 85, lo=0, hi=1),
     save=_u16("save parameters", 90, lo=0, hi=1),
-    drive_id=Register("drive ID", 93, access=_R),
-    version=Register("drive version", 94, access=_R),
-    custom_no=Register("non-standard number", 95, access=_R),
+    drive_id=Register("drive ID", 93, access=Access.R),
+    version=Register("drive version", 94, access=Access.R),
+    custom_no=Register("non-standard number", 95, access=Access.R),
 )
 """The NT86 register map (NT86 manual chapter 2)."""
 
@@ -185,7 +184,7 @@ EPR60_MAP = NTRegisterMap(
             "pulses per revolution",
             96,
             2,
-            order=LOW,
+            order=WordOrder.LOW_FIRST,
             unit="pulses/rev",
             minimum=200,
             maximum=65535,
@@ -193,7 +192,8 @@ EPR60_MAP = NTRegisterMap(
         # 73/74: the manual prints a per-word range of [0,3000] (a copy error, its section
         # 7 item 10); it documents a signed 32-bit value and no other bound.
         "move_target": Register(
-            "point move distance/target", 73, 2, signed=True, order=LOW, unit="pulses"
+            "point move distance/target", 73, 2, signed=True, order=WordOrder.LOW_FIRST,
+            unit="pulses",
         ),
     }
 )
@@ -210,7 +210,7 @@ NT86_HOME_OFFSET = Register(
     293,
     2,
     signed=True,
-    order=LOW,
+    order=WordOrder.LOW_FIRST,
     unit="pulses",
     minimum=-1048576,
     maximum=1048576,
@@ -731,22 +731,14 @@ class NT86Profile(DriveProfile):
             )
         return m
 
-    async def home(
-        self,
-        method: str | None = None,
-        *,
-        speed_rpm: float = 60.0,
-        creep_rpm: float = 10.0,
-        accel_rps2: float = 10.0,
-        offset: int = 0,
-    ) -> None:
+    async def start_homing(self, params: HomingParams) -> None:
         """Write 288-291 and 293-295 (292 is reserved), then 287=4 (mechanical homing),
         5 (electrical: move to the offset) or 6 (present position becomes the offset).
 
         After homing, position 8/9 equals ``offset``; with ``home_offset_moves`` the motor
         first travels ``offset`` pulses past the origin (295=1/3).
         """
-        m = self._method(method)
+        m = self._method(params.method)
         if m.startswith("hard_stop") and not self.closed_loop:
             raise self.unsupported(
                 f"home with method {m!r}",
@@ -755,17 +747,17 @@ class NT86Profile(DriveProfile):
             )
         handling = (1 if self.home_offset_moves else 0) + (2 if self.home_reverse_at_limit else 0)
         speeds = [
-            (NT86_HOME_FAST, _round_unit(NT86_HOME_FAST, speed_rpm, nonzero=True)),
-            (NT86_HOME_SLOW, _round_unit(NT86_HOME_SLOW, creep_rpm, nonzero=True)),
-            (NT86_HOME_ACCEL, _round_unit(NT86_HOME_ACCEL, accel_rps2)),
+            (NT86_HOME_FAST, _round_unit(NT86_HOME_FAST, params.speed_rpm, nonzero=True)),
+            (NT86_HOME_SLOW, _round_unit(NT86_HOME_SLOW, params.creep_rpm, nonzero=True)),
+            (NT86_HOME_ACCEL, _round_unit(NT86_HOME_ACCEL, params.accel_rps2)),
         ]
         if m == "electrical":  # 288 (the method) is left as it is
             await self.write_block(speeds, priority=Priority.COMMAND)
         elif m != "set_origin":
-            method = (NT86_HOME_METHOD, self.homing_methods.index(m))
-            await self.write_block([method, *speeds], priority=Priority.COMMAND)
+            method_word = (NT86_HOME_METHOD, self.homing_methods.index(m))
+            await self.write_block([method_word, *speeds], priority=Priority.COMMAND)
         await self.write_block(
-            [(NT86_HOME_OFFSET, int(offset)), (NT86_HOME_HANDLING, handling)],
+            [(NT86_HOME_OFFSET, int(params.offset)), (NT86_HOME_HANDLING, handling)],
             priority=Priority.COMMAND,
         )
         trigger = {"electrical": 5, "set_origin": 6}.get(m, 4)
@@ -855,21 +847,13 @@ class EPR60Profile(NT86Profile):
             await self.write(self.regs.app_mode, 0, priority=Priority.EMERGENCY)
             self._app_mode = 0
 
-    async def home(
-        self,
-        method: str | None = None,
-        *,
-        speed_rpm: float = 60.0,
-        creep_rpm: float = 10.0,
-        accel_rps2: float = 10.0,
-        offset: int = 0,
-    ) -> None:
+    async def start_homing(self, params: HomingParams) -> None:
         """79-83 in one FC16, 20=1 (homing mode), then pulse the start-homing input.
 
         ``offset`` (83, 0..1000 pulses) is travelled away from the limit after the origin
         edge; the manual gives no sign, sequence or final coordinate (see the twin).
         """
-        m = self._method(method)
+        m = self._method(params.method)
         if self.home_input is None:
             raise self.unsupported(
                 "start homing",
@@ -880,10 +864,10 @@ class EPR60Profile(NT86Profile):
         await self.write_block(
             [
                 (EPR60_HOME_MODE, self.homing_methods.index(m)),
-                (EPR60_HOME_FAST, _round_unit(EPR60_HOME_FAST, speed_rpm, nonzero=True)),
-                (EPR60_HOME_SLOW, _round_unit(EPR60_HOME_SLOW, creep_rpm, nonzero=True)),
-                (EPR60_HOME_ACCEL, _round_unit(EPR60_HOME_ACCEL, accel_rps2)),
-                (EPR60_HOME_OFFSET, int(offset)),
+                (EPR60_HOME_FAST, _round_unit(EPR60_HOME_FAST, params.speed_rpm, nonzero=True)),
+                (EPR60_HOME_SLOW, _round_unit(EPR60_HOME_SLOW, params.creep_rpm, nonzero=True)),
+                (EPR60_HOME_ACCEL, _round_unit(EPR60_HOME_ACCEL, params.accel_rps2)),
+                (EPR60_HOME_OFFSET, int(params.offset)),
             ],
             priority=Priority.COMMAND,
         )

@@ -36,7 +36,7 @@ from drivebus import checks
 from drivebus.bus import Priority
 from drivebus.clock import monotonic
 from drivebus.config import AxisConfig
-from drivebus.drives.base import DriveProfile, MoveParams
+from drivebus.drives.base import DriveProfile, HomingParams, MoveParams
 from drivebus.drives.status import DriveStatus
 from drivebus.errors import (
     ArgumentError,
@@ -780,13 +780,13 @@ class Axis:
         u = self.units
 
         async def io() -> None:
-            await self._commit(m, lambda: self.profile.home(
+            await self._commit(m, lambda: self.profile.start_homing(HomingParams(
                 h.method,
                 speed_rpm=u.to_rpm(h.speed),
                 creep_rpm=u.to_rpm(h.creep),
                 accel_rps2=u.to_rps2(h.accel),
                 offset=u.to_pulses(h.offset),
-            ))
+            )))
 
         await self._run_motion(m, io, timeout=h.timeout)
 
