@@ -86,27 +86,24 @@ def demo(
 # -- scan ------------------------------------------------------------------------------------------
 
 
-def _resolve_port(port: str) -> str:
-    """``sim://NAME`` of this process, else the pty of a running ``drivebus sim``."""
+def _announce_port(port: str) -> None:
+    """Say where a ``sim://NAME`` of another process (a running ``drivebus sim``) is."""
     if not port.startswith("sim://"):
-        return port
-    from drivebus.ops import published_sim
+        return
+    from drivebus.sim.serve import published_sim
     from drivebus.sim.wire import lookup_wire
 
     name = port.removeprefix("sim://").strip("/")
     try:
         lookup_wire(name)
-        return port
     except KeyError:
-        pass
-    path = published_sim(name)
-    if path is None:
-        raise ConfigError(
-            f"no simulated line {name!r} is running: start it with `drivebus sim CONFIG` "
-            f"(or scan the pty path it prints)"
-        )
-    typer.echo(f"note: {port} is served by another process, on {path}", err=True)
-    return path
+        path = published_sim(name)
+        if path is None:
+            raise ConfigError(
+                f"no simulated line {name!r} is running: start it with `drivebus sim CONFIG` "
+                f"(or scan the pty path it prints)"
+            ) from None
+        typer.echo(f"note: {port} is served by another process, on {path}", err=True)
 
 
 @app.command()
@@ -129,14 +126,15 @@ def scan(
     is identified by its drive family's identity registers where it has them.
     """
     from drivebus.app import scan as sc
-    from drivebus.ops import Out, run_guarded, scan_line
+    from drivebus.terminal import Out, run_guarded, scan_line
 
     settings = sc.scan_settings(sc.parse_bauds(baud), sc.parse_formats(fmt))
     addresses = sc.parse_addresses(address)
     if checks.positive("--timeout", timeout, unit="s") > 5:
         raise ArgumentError(f"--timeout: {timeout!r} s is above 5 s (a probe answers in ms)")
-    target = _resolve_port(port)
-    if sc.is_pty(target):
+    _announce_port(port)
+    target = port
+    if sc.is_pty(target) or port.startswith("sim://"):
         settings, dropped = sc.pty_usable(settings)
         if dropped:
             formats = ", ".join(dict.fromkeys(s.format for s in dropped))
@@ -174,7 +172,7 @@ def status(
     as_json: Annotated[bool, typer.Option("--json", help="print the status as JSON")] = False,
 ) -> None:
     """Show the state, position, velocity, flags and alarm of the axes (exit 1 on alarm)."""
-    from drivebus.ops import Out, run_guarded, show_status
+    from drivebus.terminal import Out, run_guarded, show_status
 
     out = Out()
     raise typer.Exit(run_guarded(lambda: show_status(out, config, axes or [], as_json)))
@@ -189,7 +187,7 @@ def move(
     speed: Annotated[float | None, typer.Option(help="speed, units/s")] = None,
 ) -> None:
     """Move an axis to TARGET (or by it) and wait until it is there; Ctrl-C stops it."""
-    from drivebus.ops import Out, move_axis, run_guarded
+    from drivebus.terminal import Out, move_axis, run_guarded
 
     checks.finite("TARGET", target)
     if speed is not None:
@@ -204,7 +202,7 @@ def home(
     axis: Annotated[str, typer.Argument(help="axis name")],
 ) -> None:
     """Run the axis's configured homing procedure; Ctrl-C stops it."""
-    from drivebus.ops import Out, home_axis, run_guarded
+    from drivebus.terminal import Out, home_axis, run_guarded
 
     out = Out()
     raise typer.Exit(run_guarded(lambda: home_axis(out, config, axis)))
@@ -220,7 +218,7 @@ def jog(
     ] = None,
 ) -> None:
     """Jog an axis at SPEED until Ctrl-C (or for --for seconds), then stop it."""
-    from drivebus.ops import Out, jog_axis, run_guarded
+    from drivebus.terminal import Out, jog_axis, run_guarded
 
     if checks.finite("SPEED", speed) == 0:
         raise ArgumentError("SPEED: must not be 0 (units/s; its sign is the direction)")
@@ -235,7 +233,7 @@ def jog(
 @app.command()
 def stop(config: ConfigArg, axes: AxesArg = None) -> None:
     """Stop the axes (all if none are named) with their decelerating stop."""
-    from drivebus.ops import Out, run_guarded, stop_axes
+    from drivebus.terminal import Out, run_guarded, stop_axes
 
     out = Out()
     raise typer.Exit(run_guarded(lambda: stop_axes(out, config, axes or [])))
@@ -252,8 +250,8 @@ def monitor(
     On a terminal this is a live table; otherwise one line per axis and per slave at
     every update, each prefixed with the time.
     """
-    from drivebus.ops import Out, run_guarded
-    from drivebus.ops import monitor as run_monitor
+    from drivebus.terminal import Out, run_guarded
+    from drivebus.terminal import monitor as run_monitor
 
     checks.positive("--interval", interval, unit="s")
     if count is not None and count < 1:
@@ -278,7 +276,7 @@ def sim(
     at 8N1 or 8N2 understand it (drivebus's own sim://NAME ports tell the wire directly).
     `drivebus scan sim://NAME` in another shell finds this process's line.
     """
-    from drivebus.ops import Out, run_guarded, serve_sim
+    from drivebus.terminal import Out, run_guarded, serve_sim
 
     out = Out()
     raise typer.Exit(run_guarded(lambda: serve_sim(out, config, log), interrupt_ok=True))
@@ -292,7 +290,7 @@ def check(config: ConfigArg) -> None:
     above 1 ms is reported (it caps the transaction rate). sim:// lines are reported as
     simulated. Exit status 1 if a line cannot work, 2 if the file is invalid.
     """
-    from drivebus.ops import Out, check_config
+    from drivebus.terminal import Out, check_config
 
     raise typer.Exit(check_config(Out(), config))
 

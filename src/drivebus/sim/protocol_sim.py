@@ -43,14 +43,24 @@ class _SimPort(PosixSerial):
 
 
 def serial_class_for_url(url: str) -> tuple[str, type[PosixSerial]]:
-    """Resolve ``sim://NAME`` to the wire's pty path and a port class bound to the wire."""
+    """Resolve ``sim://NAME`` to the wire's pty path and a port class bound to the wire.
+
+    A wire of this process is used with its format side channel; else the pty of a running
+    ``drivebus sim`` in another process (published by ``drivebus.sim.serve``), as a plain
+    port: parity and byte size do not cross a pty, so keep to 8N1/8N2 there.
+    """
+    from drivebus.sim.serve import published_sim
     from drivebus.sim.wire import lookup_wire
 
     name = url.split("://", 1)[1].strip("/")
     try:
         wire = lookup_wire(name)
     except KeyError:
-        raise serial.SerialException(
-            f"no simulated line named {name!r} is running (start it with drivebus.sim)"
-        ) from None
+        path = published_sim(name)
+        if path is None:
+            raise serial.SerialException(
+                f"no simulated line named {name!r} is running (start it with "
+                f"`drivebus sim CONFIG`, or open a machine whose line is sim://{name})"
+            ) from None
+        return path, PosixSerial
     return wire.slave_path, type("SimPort", (_SimPort,), {"wire": wire})

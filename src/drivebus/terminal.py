@@ -1,9 +1,10 @@
-"""What the ``drivebus`` commands do, as coroutines: one-shot axis operations, the live
-monitor, the standalone simulator and the config check. ``drivebus.cli`` parses the
-arguments, runs these under a SIGINT/SIGTERM guard and turns errors into one line.
+"""The terminal side of the ``drivebus`` commands: output, signals and progress displays.
 
-Output goes through ``Out``: rich progress and live views on a terminal, plain lines
-(one event per line, ``key=value`` fields) when stdout is a pipe or a file.
+The commands' work is done by the application layer (``drivebus.app``: operations, scan,
+the doctor) and the simulator's server (``drivebus.sim.serve``); this module renders it.
+Output goes through ``Out``: rich progress and live views on a terminal, plain lines (one
+event per line, ``key=value`` fields) when stdout is a pipe or a file. ``run_guarded``
+runs a command so that SIGINT/SIGTERM cancel it, its cleanup (stopping axes) included.
 """
 
 from __future__ import annotations
@@ -11,12 +12,10 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import os
 import signal
 import sys
-import tempfile
 import time
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterator, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,14 +32,19 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
+from drivebus.app.operations import (
+    Operation,
+    jog_ended_by_axis,
+    opened,
+    run_operation,
+)
+from drivebus.app.operations import (
+    check_config as check_machine_file,
+)
 from drivebus.app.scan import Found, scan
-from drivebus.config import MachineConfig, load_config
-from drivebus.errors import ConfigError, DrivebusError, DriveOffline
-from drivebus.motion import Axis, Machine, open_machine
-from drivebus.motion.state import AxisState
+from drivebus.motion import Axis, Machine
 from drivebus.settings import LineSettings
-from drivebus.sim.machine import SimLine, start_simulators
-from drivebus.sim.wire import VirtualWire, WireFrame
+from drivebus.sim.serve import serve_simulators
 from drivebus.views import axes_table, axis_line, axis_record, slaves_table, stats_lines
 
 __all__ = [
@@ -49,16 +53,13 @@ __all__ = [
     "found_line",
     "home_axis",
     "jog_axis",
-    "latency_timer",
     "monitor",
     "move_axis",
-    "published_sim",
     "run_guarded",
     "scan_line",
     "serve_sim",
     "show_status",
     "stop_axes",
-    "subset",
 ]
 
 
@@ -118,44 +119,6 @@ def run_guarded(fn: Callable[[], Awaitable[int]], *, interrupt_ok: bool = False)
     return anyio.run(main)
 
 
-# -- machine helpers -----------------------------------------------------------------------------
-
-
-def subset(cfg: MachineConfig, axes: Sequence[str]) -> MachineConfig:
-    """``cfg`` with only the named axes and the lines they use (all if none are named)."""
-    if not axes:
-        return cfg
-    missing = [a for a in axes if a not in cfg.axes]
-    if missing:
-        raise ConfigError(
-            f"no axis {', '.join(missing)} in machine {cfg.name} (axes: {', '.join(cfg.axes)})"
-        )
-    chosen = {n: cfg.axes[n] for n in dict.fromkeys(axes)}
-    used = {a.line for a in chosen.values()}
-    lines = {n: ln for n, ln in cfg.lines.items() if n in used}
-    return cfg.model_copy(update={"axes": chosen, "lines": lines})
-
-
-async def _first_status(m: Machine, timeout: float = 5.0) -> None:
-    """Wait until every axis has a status from its actor's poll."""
-
-    async def one(ax: Axis) -> None:
-        if ax.status is not None:
-            return
-        async with contextlib.aclosing(ax.watch()) as statuses:
-            async for _ in statuses:
-                return
-
-    try:
-        with anyio.fail_after(timeout):
-            async with anyio.create_task_group() as tg:
-                for ax in m.axes.values():
-                    tg.start_soon(one, ax)
-    except TimeoutError:
-        silent = [n for n, a in m.axes.items() if a.status is None]
-        raise DriveOffline(f"no status from axis {', '.join(silent)} within {timeout} s") from None
-
-
 def _fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.3f}"
 
@@ -200,9 +163,7 @@ async def scan_line(
 
 async def show_status(out: Out, config: Path, axes: Sequence[str], as_json: bool) -> int:
     """Print the named axes' (or all axes') status; exit status 1 if any is in alarm."""
-    cfg = subset(load_config(config), axes)
-    async with open_machine(cfg, stop_on_exit=False) as m:  # looking must not stop anything
-        await _first_status(m)
+    async with opened(config, axes, observer=True) as m:  # looking must not stop anything
         if as_json:
             print(json.dumps([axis_record(m, n) for n in m.axes], indent=2), flush=True)
         elif out.interactive:
@@ -216,9 +177,7 @@ async def show_status(out: Out, config: Path, axes: Sequence[str], as_json: bool
 
 async def stop_axes(out: Out, config: Path, axes: Sequence[str]) -> int:
     """Stop the named axes (all if none), each with its decelerating stop."""
-    cfg = subset(load_config(config), axes)
-    async with open_machine(cfg) as m:
-        await _first_status(m)
+    async with opened(config, axes) as m:
 
         async def stop(name: str, ax: Axis) -> None:
             moving = ax.status is not None and ax.status.moving
@@ -260,36 +219,28 @@ async def _progress(out: Out, ax: Axis, what: str, start: float | None, goal: fl
 
 @dataclass
 class _Run:
-    """One axis operation: what it is, when it started, whether it completed."""
+    """One axis operation on the terminal: the axis and the record of how it went."""
 
     axis: Axis
-    what: str = ""
-    started: float = 0.0
-    done: bool = False
-
-    @property
-    def commanded(self) -> bool:
-        """True if the drive accepted a command of this operation (it may have moved)."""
-        return self.axis.command_started_at >= self.started
+    op: Operation
 
 
 @asynccontextmanager
 async def _one_axis(out: Out, config: Path, axis: str) -> AsyncIterator[_Run]:
     """Open the machine with just ``axis``; once it is closed again (every moving axis
     stopped and at standstill), report where an operation that did not complete left it."""
-    cfg = subset(load_config(config), [axis])
     run: _Run | None = None
     try:
-        async with open_machine(cfg) as m:
-            await _first_status(m)
-            run = _Run(m.axes[axis])
+        async with opened(config, [axis]) as m:
+            run = _Run(m.axes[axis], Operation(axis, ""))
             yield run
     finally:
-        if run is not None and run.what and not run.done and run.commanded:
-            ax = run.axis
-            out.line(f"{ax.name}: {run.what} stopped after "
-                     f"{time.monotonic() - run.started:.2f} s, "
-                     f"position={_fmt(ax.position)} state={ax.state}")
+        if run is not None and run.op.what and not run.op.done:
+            ax, op = run.axis, run.op
+            if ax.command_started_at >= op.started:  # the drive took a command: it moved
+                out.line(f"{ax.name}: {op.what} stopped after "
+                         f"{time.monotonic() - op.started:.2f} s, "
+                         f"position={_fmt(ax.position)} state={ax.state}")
 
 
 async def _with_progress(
@@ -297,15 +248,13 @@ async def _with_progress(
     motion: Callable[[], Awaitable[object]],
 ) -> None:
     """Run ``motion`` while showing its progress; a report line when it completes."""
-    ax = run.axis
-    run.what, run.started = what, time.monotonic()
+    ax, op = run.axis, run.op
     async with anyio.create_task_group() as tg:
         tg.start_soon(_progress, out, ax, what, start, goal)
-        await motion()
-        run.done = True
+        await run_operation(ax, what, motion, op)
         tg.cancel_scope.cancel()
-    out.line(f"{ax.name}: {what} done in {time.monotonic() - run.started:.2f} s, "
-             f"position={_fmt(ax.position)} state={ax.state}")
+    out.line(f"{ax.name}: {what} done in {op.seconds:.2f} s, "
+             f"position={_fmt(op.position)} state={op.state}")
 
 
 async def move_axis(
@@ -331,8 +280,9 @@ async def move_axis(
 async def home_axis(out: Out, config: Path, axis: str) -> int:
     """Run an axis's configured homing procedure."""
     async with _one_axis(out, config, axis) as run:
-        method = run.axis.config.homing.method or "the drive's default"
-        await _with_progress(out, run, f"home ({method})", None, None, run.axis.home)
+        ax = run.axis
+        method = ax.config.homing.method or "the drive's default"
+        await _with_progress(out, run, f"home ({method})", None, None, ax.home)
     return 0
 
 
@@ -347,7 +297,7 @@ async def jog_axis(out: Out, config: Path, axis: str, speed: float, seconds: flo
                 with anyio.move_on_after(seconds if seconds else math.inf):
                     async with contextlib.aclosing(ax.watch()) as statuses:
                         async for _ in statuses:  # the drive or a soft limit may end it
-                            if ax.state is not AxisState.CONTINUOUS_MOTION:
+                            if jog_ended_by_axis(ax):
                                 out.warn(f"axis {axis}: jog ended by the axis ({ax.state}"
                                          f"{f': {ax.error}' if ax.error else ''})")
                                 return
@@ -361,8 +311,7 @@ async def jog_axis(out: Out, config: Path, axis: str, speed: float, seconds: flo
 
 async def monitor(out: Out, config: Path, interval: float, count: int | None) -> int:
     """Show every axis and the per-slave bus counters until Ctrl-C (or ``count`` updates)."""
-    async with open_machine(config, stop_on_exit=False) as m:  # an observer
-        await _first_status(m)
+    async with opened(config, observer=True) as m:
         n = 0
         if out.interactive:
             with Live(_monitor_view(m), console=out.console, refresh_per_second=8) as live:
@@ -390,163 +339,34 @@ def _monitor_view(m: Machine) -> Group:
 # -- the standalone simulator ---------------------------------------------------------------------
 
 
-def _registry_dir() -> Path:
-    base = os.environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()
-    return Path(base) / f"drivebus-{os.getuid()}" / "sim"
-
-
-def published_sim(name: str) -> str | None:
-    """The pty path a running ``drivebus sim`` serves ``sim://name`` on, if one does."""
-    try:
-        pid_text, path = (_registry_dir() / name).read_text().split("\n")[:2]
-        os.kill(int(pid_text), 0)
-    except (OSError, ValueError):
-        return None
-    return path if Path(path).exists() else None
-
-
-@contextlib.contextmanager
-def _publish(sims: dict[str, SimLine]) -> Iterator[None]:
-    """Record the pty path of each simulated serial line, for ``sim://NAME`` in other
-    processes (``drivebus scan``); removed on exit."""
-    d = _registry_dir()
-    files = []
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-        for s in sims.values():
-            if isinstance(s.server, VirtualWire):
-                f = d / s.config.sim_name
-                f.write_text(f"{os.getpid()}\n{s.endpoint}\n")
-                files.append(f)
-    except OSError as exc:
-        print(f"warning: cannot publish the simulator's pty paths in {d}: {exc}",
-              file=sys.stderr)
-    try:
-        yield
-    finally:
-        for f in files:
-            f.unlink(missing_ok=True)
-
-
-def _describe(sim: SimLine, cfg: MachineConfig) -> list[str]:
-    kind = sim.config.kind
-    lines = [f"line {sim.name} {kind} {sim.endpoint}"]
-    for axis, twin in sim.twins.items():
-        ac = cfg.axes[axis]
-        where = "unit" if kind == "tcp" else "slave"
-        settings = "" if kind == "tcp" else f" {twin.settings}"
-        lines.append(f"  {where} {twin.address} {ac.drive}{settings} (axis {axis})")
-    return lines
-
-
-def _frame_line(line: str, f: WireFrame) -> str:
-    note = f" [{f.note}]" if f.note else ""
-    return (f"{f.start:.6f} {line} {f.direction:<7} addr={f.address} "
-            f"{str(f.settings).replace(' ', '-')} gap={f.gap * 1000:.2f}ms "
-            f"{f.data.hex(' ')}{note}")
-
-
-async def _print_wire_log(name: str, wire: VirtualWire) -> None:
-    seen = wire.frames
-    while True:
-        await wire.wait_frames(seen + 1)
-        new = wire.frames - seen
-        seen = wire.frames
-        for f in list(wire.log)[-new:]:
-            print(_frame_line(name, f), flush=True)
-
-
 async def serve_sim(out: Out, config: Path, log: bool) -> int:
     """Serve the ``sim://`` lines of ``config`` (a twin per axis) until Ctrl-C/SIGTERM."""
-    cfg = load_config(config)
-    for ln in cfg.lines.values():
-        if ln.simulated and ln.kind == "serial" and (path := published_sim(ln.sim_name)):
-            raise DrivebusError(
-                f"{ln.port} is already served by another drivebus sim, on {path}: use that "
-                f"one, or stop it first"
-            )
-    async with contextlib.AsyncExitStack() as stack:
-        sims = await start_simulators(cfg, stack)
-        if not sims:
-            raise ConfigError(f"{config}: no sim:// lines: nothing to simulate")
-        with _publish(sims):
-            for s in sims.values():
-                for text in _describe(s, cfg):
-                    print(text, flush=True)
-            print(f"simulating machine {cfg.name}: Ctrl-C or SIGTERM ends it", flush=True)
-            try:
-                async with anyio.create_task_group() as tg:
-                    if log:
-                        for s in sims.values():
-                            if isinstance(s.server, VirtualWire):
-                                tg.start_soon(_print_wire_log, s.name, s.server)
-                    await anyio.sleep_forever()
-            finally:
-                for s in sims.values():
-                    for axis, twin in s.twins.items():
-                        print(f"twin {axis}: position={twin.position()} pulses "
-                              f"moving={twin.is_moving()}", flush=True)
+    await serve_simulators(config, log=log, warn=out.warn)
     return 0
 
 
 # -- check ---------------------------------------------------------------------------------------
 
 
-def latency_timer(port: str, sysfs: Path = Path("/sys")) -> int | None:
-    """The USB-serial adapter's latency timer (ms) behind ``port``, if it has one."""
-    tty = Path(os.path.realpath(port)).name
-    f = sysfs / "bus" / "usb-serial" / "devices" / tty / "latency_timer"
-    try:
-        return int(f.read_text().strip())
-    except (OSError, ValueError):
-        return None
-
-
-def _check_serial(port: str, sysfs: Path) -> tuple[list[str], list[str]]:
-    """(problems, warnings) for a real serial port."""
-    if not os.path.exists(port):
-        return [f"port {port} does not exist: plug in the adapter, check the name "
-                f"(ls /dev/serial/by-id/)"], []
-    if not os.access(port, os.R_OK | os.W_OK):
-        return [f"no permission to open {port}: add your user to its group "
-                f"(sudo usermod -aG dialout $USER) and log in again"], []
-    warnings = []
-    lt = latency_timer(port, sysfs)
-    if lt is not None and lt > 1:
-        tty = Path(os.path.realpath(port)).name
-        warnings.append(
-            f"{port}: the USB-serial latency timer is {lt} ms: every reply waits up to "
-            f"{lt} ms in the adapter, capping the line at about {1000 // (lt + 1)} "
-            f"transactions/s; set it to 1 ms: echo 1 | sudo tee "
-            f"/sys/bus/usb-serial/devices/{tty}/latency_timer (or a udev rule)"
-        )
-    if "/pts/" in os.path.realpath(port):
-        warnings.append(f"{port} is a pty (a simulator or virtual port): parity and byte "
-                        f"size are not carried; keep its slaves at 8N1/8N2")
-    return [], warnings
-
-
 def check_config(out: Out, config: Path, sysfs: Path = Path("/sys")) -> int:
     """Validate ``config`` and report on its lines; exit status 1 if a line cannot work."""
-    cfg = load_config(config)
-    problems: list[str] = []
-    out.line(f"{config}: valid machine {cfg.name!r}: {len(cfg.axes)} axes on "
-             f"{len(cfg.lines)} lines")
-    for name, ln in cfg.lines.items():
-        axes = [f"{n} ({a.drive} @{a.address})" for n, a in cfg.axes.items() if a.line == name]
-        on = ", ".join(axes) or "no axes"
+    report = check_machine_file(config, sysfs)
+    out.line(f"{config}: valid machine {report.name!r}: {_count(report.axes, 'axis', 'axes')} "
+             f"on {_count(len(report.lines), 'line', 'lines')}")
+    for ln in report.lines:
+        on = ", ".join(ln.axes) or "no axes"
         if ln.simulated:
-            out.line(f"line {name}: simulated ({ln.port or ln.host}, {ln.kind}): {on}")
-            continue
-        if ln.kind == "serial":
-            assert ln.port is not None
-            out.line(f"line {name}: serial port {ln.port} at {ln.settings}: {on}")
-            bad, warns = _check_serial(ln.port, sysfs)
-            problems += [f"line {name}: {p}" for p in bad]
-            for w in warns:
-                out.warn(f"line {name}: {w}")
+            out.line(f"line {ln.name}: simulated ({ln.where}, {ln.kind}): {on}")
+        elif ln.kind == "serial":
+            out.line(f"line {ln.name}: serial port {ln.where} at {ln.settings}: {on}")
         else:
-            out.line(f"line {name}: {ln.kind} {ln.host}:{ln.tcp_port}: {on}")
-    for p in problems:
+            out.line(f"line {ln.name}: {ln.kind} {ln.where}: {on}")
+        for w in ln.warnings:
+            out.warn(f"line {ln.name}: {w}")
+    for p in report.problems:
         print(f"error: {p}", file=sys.stderr, flush=True)
-    return 1 if problems else 0
+    return 1 if report.problems else 0
+
+
+def _count(n: int, one: str, many: str) -> str:
+    return f"{n} {one if n == 1 else many}"

@@ -1,0 +1,177 @@
+"""One-shot operations on a machine file: what the CLI's commands do, as plain coroutines.
+
+Each opens only the axes it needs, returns results as data and raises typed errors; the
+CLI renders them (``drivebus.terminal``), a script may call them directly.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import anyio
+
+from drivebus.app.doctor import check_serial_port
+from drivebus.config import MachineConfig, load_config, machine_config
+from drivebus.errors import ConfigError, DriveOffline
+from drivebus.motion import Axis, AxisState, Machine, open_machine
+
+__all__ = [
+    "ConfigReport",
+    "LineReport",
+    "Operation",
+    "check_config",
+    "first_status",
+    "jog_ended_by_axis",
+    "opened",
+    "run_operation",
+    "subset",
+]
+
+
+def subset(cfg: MachineConfig, axes: Sequence[str]) -> MachineConfig:
+    """``cfg`` with only the named axes and the lines they use (all if none are named)."""
+    if not axes:
+        return cfg
+    missing = [a for a in axes if a not in cfg.axes]
+    if missing:
+        raise ConfigError(
+            f"no axis {', '.join(missing)} in machine {cfg.name} (axes: {', '.join(cfg.axes)})"
+        )
+    chosen = {n: cfg.axes[n] for n in dict.fromkeys(axes)}
+    used = {a.line for a in chosen.values()}
+    lines = {n: ln for n, ln in cfg.lines.items() if n in used}
+    return cfg.model_copy(update={"axes": chosen, "lines": lines})
+
+
+async def first_status(m: Machine, timeout: float = 5.0) -> None:
+    """Wait until every axis has a status from its actor; ``DriveOffline`` naming the silent
+    ones after ``timeout`` s."""
+
+    async def one(ax: Axis) -> None:
+        if ax.status is not None:
+            return
+        async with contextlib.aclosing(ax.watch()) as statuses:
+            async for _ in statuses:
+                return
+
+    try:
+        with anyio.fail_after(timeout):
+            async with anyio.create_task_group() as tg:
+                for ax in m.axes.values():
+                    tg.start_soon(one, ax)
+    except TimeoutError:
+        silent = [n for n, a in m.axes.items() if a.status is None]
+        raise DriveOffline(f"no status from axis {', '.join(silent)} within {timeout} s") from None
+
+
+@contextlib.asynccontextmanager
+async def opened(
+    config: str | Path | MachineConfig, axes: Sequence[str] = (), *, observer: bool = False
+) -> AsyncIterator[Machine]:
+    """The machine with only ``axes`` (all if none) and their lines, every axis polled once.
+
+    An ``observer`` (status, monitor) must not touch motion it did not start: leaving it
+    stops only motions commanded through it; otherwise every moving axis is stopped.
+    """
+    cfg = subset(machine_config(config), axes)
+    async with open_machine(cfg, stop_on_exit=not observer) as m:
+        await first_status(m)
+        yield m
+
+
+@dataclass
+class Operation:
+    """One axis operation as it went: what, for how long, where it left the axis."""
+
+    axis: str
+    what: str
+    started: float = 0.0
+    """Monotonic time it began."""
+    done: bool = False
+    seconds: float = 0.0
+    position: float | None = None
+    state: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready data."""
+        return {"axis": self.axis, "what": self.what, "done": self.done,
+                "seconds": round(self.seconds, 4), "position": self.position,
+                "state": self.state}
+
+
+async def run_operation(
+    axis: Axis, what: str, motion: Callable[[], Awaitable[object]],
+    report: Operation | None = None,
+) -> Operation:
+    """Run ``motion`` on ``axis`` and fill ``report``: done or not, time, final position.
+
+    The record is filled in also when the motion fails or is cancelled (``done`` False),
+    so a caller can say where it left the axis.
+    """
+    op = report or Operation(axis.name, what)
+    op.what, op.started = what, time.monotonic()
+    try:
+        await motion()
+        op.done = True
+    finally:
+        op.seconds = time.monotonic() - op.started
+        op.position, op.state = axis.position, str(axis.state)
+    return op
+
+
+def jog_ended_by_axis(axis: Axis) -> bool:
+    """True when a jog that was running has ended on the axis's side (a limit, the drive)."""
+    return axis.state is not AxisState.CONTINUOUS_MOTION
+
+
+@dataclass
+class LineReport:
+    """One line of a machine file as ``check`` sees it."""
+
+    name: str
+    kind: str
+    where: str
+    settings: str | None
+    simulated: bool
+    axes: list[str]
+    problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class ConfigReport:
+    """What ``check`` found: the machine (valid, or ``load_config`` raised) and its lines."""
+
+    name: str
+    axes: int
+    lines: list[LineReport]
+
+    @property
+    def problems(self) -> list[str]:
+        """Every line's problems, named by line."""
+        return [f"line {ln.name}: {p}" for ln in self.lines for p in ln.problems]
+
+
+def check_config(config: str | Path, sysfs: Path = Path("/sys")) -> ConfigReport:
+    """Validate ``config`` exactly as ``open_machine`` does (``ConfigError`` if invalid), then
+    look at its real serial ports (exists, permissions, adapter latency timer)."""
+    cfg = load_config(config)
+    lines = []
+    for name, ln in cfg.lines.items():
+        axes = [f"{n} ({a.drive} @{a.address})" for n, a in cfg.axes.items() if a.line == name]
+        where = ln.port if ln.kind == "serial" else f"{ln.host}:{ln.tcp_port}"
+        report = LineReport(
+            name, ln.kind, ln.port or ln.host or "" if ln.scheme else where or "",
+            None if ln.kind == "tcp" else str(ln.settings), ln.scheme is not None, axes,
+        )
+        if ln.scheme is None and ln.kind == "serial":
+            assert ln.port is not None
+            port = check_serial_port(ln.port, sysfs)
+            report.problems, report.warnings = port.problems, port.warnings
+        lines.append(report)
+    return ConfigReport(cfg.name, len(cfg.axes), lines)
