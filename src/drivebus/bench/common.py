@@ -15,11 +15,16 @@ import time
 from collections.abc import Awaitable, Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
+from types import TracebackType
+from typing import Any
 
 import anyio
+import anyio.abc
+from anyio.streams.buffered import BufferedByteReceiveStream
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.settings import LineSettings
+from drivebus.sim.process import frame_from_record
 from drivebus.sim.slave import RegisterSlave
 from drivebus.sim.wire import WireFrame
 from drivebus.timing import timing
@@ -34,6 +39,7 @@ __all__ = [
     "BenchResult",
     "Figure",
     "Scenario",
+    "SimProcess",
     "WireFigures",
     "format_table",
     "percentile",
@@ -176,6 +182,88 @@ def wire_in_process(slaves: int, settings: LineSettings, turnaround: float) -> I
         yield proc.stdout.readline().strip()
     finally:
         proc.communicate(timeout=10)
+
+
+class SimProcess:
+    """Simulated lines served by ``drivebus.sim.process`` in a child process.
+
+    The master under test then shares its event loop and its CPU time with nothing of
+    the simulator, and its figures come from the wire log of the other process (the wire's
+    timestamps, shipped back by ``logs()``), never from the master's own bookkeeping.
+    """
+
+    def __init__(self, *args: str) -> None:
+        self.args = [sys.executable, "-m", "drivebus.sim.process", *args]
+        self.first_line = ""
+        """What the process printed first: its pty paths, or JSON for ``--machine``."""
+        self._proc: anyio.abc.Process | None = None
+        self._out: BufferedByteReceiveStream | None = None
+
+    @classmethod
+    def slaves(
+        cls, n: int, settings: Sequence[LineSettings], turnaround: float, *, lines: int = 1
+    ) -> SimProcess:
+        """``lines`` wires, each with slaves 1..``n`` (settings taken in turn)."""
+        return cls("--slaves", str(n), "--settings", ",".join(str(s) for s in settings),
+                   "--turnaround", repr(turnaround), "--lines", str(lines))
+
+    @property
+    def paths(self) -> list[str]:
+        """The pty path of each wire (slave mode)."""
+        return self.first_line.split()
+
+    async def __aenter__(self) -> SimProcess:
+        self._proc = await anyio.open_process(self.args, stderr=None)
+        assert self._proc.stdout is not None
+        self._out = BufferedByteReceiveStream(self._proc.stdout)
+        try:
+            self.first_line = await self._line()
+        except BaseException:
+            with anyio.CancelScope(shield=True):
+                await self._end()
+            raise
+        return self
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        with anyio.CancelScope(shield=True):
+            await self._end()
+
+    async def _end(self) -> None:
+        proc = self._proc
+        if proc is None:
+            return
+        self._proc = None
+        if proc.stdin is not None:
+            await proc.stdin.aclose()  # the process ends when its stdin closes
+        with anyio.move_on_after(10):
+            await proc.wait()
+            return
+        proc.kill()
+        await proc.wait()
+
+    async def _line(self) -> str:
+        assert self._out is not None
+        with anyio.fail_after(30):
+            data = await self._out.receive_until(b"\n", 1 << 30)
+        return data.decode()
+
+    async def _ask(self, command: str) -> str:
+        assert self._proc is not None and self._proc.stdin is not None
+        await self._proc.stdin.send(command.encode() + b"\n")
+        return await self._line()
+
+    async def clear(self) -> None:
+        """Every wire forgets its log."""
+        await self._ask("clear")
+
+    async def logs(self) -> dict[str, list[WireFrame]]:
+        """Each wire's log, by wire (or line) name."""
+        raw: dict[str, Any] = json.loads(await self._ask("log"))
+        raw.pop("cpu", None)
+        return {name: [frame_from_record(r) for r in frames] for name, frames in raw.items()}
 
 
 def results_json(results: Sequence[BenchResult]) -> str:

@@ -306,19 +306,21 @@ class Segment(Generic[R]):
             await self._send(self._pending.popleft())
 
     async def _send(self, reply: _Reply[R]) -> None:
-        now = monotonic()
         adu, settings = reply.adu, reply.slave.settings
         note = ""
         if reply.collided:
             note = "collision"
         elif self._master_settings() != settings:
             note = "master at other settings"  # its UART decodes noise, not our frame
+        data = bytes(self._rng.randrange(256) for _ in adu) if note else adu
+        # The reply's last byte is on the wire when it is handed over: stamp it then, after
+        # the simulator's own bookkeeping, so that the log shows the wire, not the sim.
+        now = monotonic()
         start = now - timing(settings).frame_time(len(adu))
         gap = start - self._busy_until
         self._busy_until = max(self._busy_until, now)
         self._last_settings = settings
         self._log(WireFrame("reply", adu[0], adu, start, now, settings, gap, 0.0, note))
-        data = bytes(self._rng.randrange(256) for _ in adu) if note else adu
         await self._deliver(data, reply.route)
 
     def close(self) -> None:

@@ -83,6 +83,7 @@ class VirtualWire(SegmentView):
         self._master_fd = -1
         self._slave_fd = -1
         self._format: tuple[int, str] | None = None  # (bytesize, parity) from the side channel
+        self._observed: dict[tuple[int, int, str, int], LineSettings] = {}
         self._stack = contextlib.AsyncExitStack()
 
     # -- set-up -------------------------------------------------------------------------
@@ -150,7 +151,13 @@ class VirtualWire(SegmentView):
         baud = port_baudrate(self._master_fd) or _SPEEDS.get(attrs[5], 0) or 38400
         stop = 2 if attrs[2] & termios.CSTOPB else 1
         bytesize, parity = self._format or (8, "N")
-        return LineSettings(baudrate=baud, bytesize=bytesize, parity=parity, stopbits=stop)
+        key = (baud, bytesize, parity, stop)
+        settings = self._observed.get(key)
+        if settings is None:  # one object per setting seen: no model built per frame
+            settings = self._observed[key] = LineSettings(
+                baudrate=baud, bytesize=bytesize, parity=parity, stopbits=stop
+            )
+        return settings
 
     # -- the pty --------------------------------------------------------------------------------
 
