@@ -67,6 +67,8 @@ def whole(
     name: str, value: object, lo: int, hi: int, *, error: type[DrivebusError] = ArgumentError
 ) -> int:
     """``value`` as an int if it is a whole number in ``lo..hi``; else ``error``."""
+    if type(value) is int and lo <= value <= hi:
+        return value  # the common case, without the numeric-tower checks
     if isinstance(value, bool) or not isinstance(value, Integral | Real):
         raise error(f"{name}: expected a whole number in {lo}..{hi}, got {value!r}")
     if isinstance(value, Integral):
@@ -96,6 +98,8 @@ def member(
     name: str, value: object, kind: type[E], *, error: type[DrivebusError] = ArgumentError
 ) -> E:
     """``value`` as a member of the int enum ``kind``; else ``error`` listing its members."""
+    if type(value) is kind:
+        return value  # type: ignore[return-value]  # a member already
     allowed = ", ".join(f"{m.name} ({m.value})" for m in kind)
     if isinstance(value, bool) or not isinstance(value, Integral):
         raise error(f"{name}: expected one of {allowed}, got {value!r}")

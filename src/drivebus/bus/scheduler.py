@@ -298,10 +298,16 @@ class Bus:
                 self._in_flight = req
                 await self._run_one(req, noise)
                 self._in_flight = None
-                for waiter in self._idle_waiters:
-                    if not waiter.done():
-                        waiter.set_result(None)
-                self._idle_waiters.clear()
+                if self._idle_waiters:
+                    for waiter in self._idle_waiters:
+                        if not waiter.done():
+                            waiter.set_result(None)
+                    self._idle_waiters.clear()
+                if not self._queue:
+                    # The caller just woken often asks again at once: let it run first (it
+                    # is scheduled before us), so that its request is found here without
+                    # a wake-up of its own.
+                    await asyncio.sleep(0)
         except BaseException as exc:
             self._open = False
             if not isinstance(exc, LineClosed):

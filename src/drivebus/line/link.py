@@ -64,7 +64,8 @@ class RtuLink:
                     raise self._noise(rx, unit, silence, monotonic() - started)
                 await self.timer.sleep_until(quiet_by)  # perhaps the noise stops by then
                 continue
-            await self.timer.sleep_until(ready)
+            if ready > monotonic():
+                await self.timer.sleep_until(ready)
             rx.take_pending()
             if rx.last_rx <= quiet:
                 break  # nothing arrived while we waited

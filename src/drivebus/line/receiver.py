@@ -191,7 +191,7 @@ class RtuReceiver(StreamProtocol):
     ) -> bytes:
         """The reply PDU from ``unit``, read by length; typed error if there is none."""
         buf = self.buf
-        need = 2
+        need = 3  # address, function code and a byte count: the shortest reply has 4 bytes
         extended = False
         # A reply that does not start where expected may still come after junk; it is
         # given the wire time of the longest frame beyond the deadline to end.
