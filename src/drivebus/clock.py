@@ -14,6 +14,7 @@ import ctypes.util
 import os
 import sys
 import time
+from collections.abc import Callable
 
 __all__ = ["PreciseTimer", "monotonic"]
 
@@ -68,6 +69,10 @@ class PreciseTimer:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._waiter: asyncio.Future[None] | None = None
         self._spec = _Itimerspec()
+        self._callback: Callable[[], None] | None = None
+        self._deadline = 0.0
+        self._handle: asyncio.TimerHandle | None = None
+        self._adapt_on_fire = False
 
     def _ensure(self) -> bool:
         if _libc is None:
@@ -101,9 +106,53 @@ class PreciseTimer:
             os.read(self._fd, 8)  # type: ignore[arg-type]
         except BlockingIOError:
             return
+        callback, self._callback = self._callback, None
+        if callback is not None:
+            self._reach(self._deadline, adapt=self._adapt_on_fire)
+            callback()
+            return
         waiter, self._waiter = self._waiter, None
         if waiter is not None and not waiter.done():
             waiter.set_result(None)
+
+    def _call_now(self) -> None:
+        """The fallback timer of ``call_at`` (no timerfd): asyncio's clock, then spin."""
+        self._handle = None
+        callback, self._callback = self._callback, None
+        if callback is not None:
+            self._reach(self._deadline, adapt=False)
+            callback()
+
+    def call_at(self, deadline: float, callback: Callable[[], None]) -> None:
+        """Call ``callback`` from the event loop once ``time.monotonic()`` has reached
+        ``deadline`` (at once if it has). It replaces whatever this timer had armed: one
+        timer per owner. The callback runs right at the deadline, with no task switch
+        after it: for an action that must follow a silence as closely as possible."""
+        self.cancel()
+        if deadline <= monotonic():
+            callback()
+            return
+        precise = self._ensure()
+        self._callback = callback
+        self._deadline = deadline
+        if precise:
+            lead = PreciseTimer.lead
+            self._adapt_on_fire = deadline - monotonic() > lead
+            self._arm(max(deadline - lead, monotonic() + 1e-6))
+        else:
+            loop = asyncio.get_running_loop()
+            self._handle = loop.call_at(deadline - monotonic() + loop.time(), self._call_now)
+
+    def cancel(self) -> None:
+        """Forget the callback armed by ``call_at``, if it has not run."""
+        if self._callback is None:
+            return
+        self._callback = None
+        if self._handle is not None:
+            self._handle.cancel()
+            self._handle = None
+        else:
+            self._disarm()
 
     async def sleep_until(self, deadline: float) -> None:
         """Return once ``time.monotonic()`` has reached ``deadline``."""
@@ -128,20 +177,20 @@ class PreciseTimer:
                 self._waiter = None
                 if not fallback:
                     self._disarm()
-        if not fallback and delay > lead:
-            self._adapt(deadline)
+        self._reach(deadline, adapt=not fallback and delay > lead)
 
     @staticmethod
-    def _adapt(deadline: float) -> None:
-        """Spin to ``deadline`` if we woke early, and move ``lead`` toward the latency seen."""
+    def _reach(deadline: float, *, adapt: bool) -> None:
+        """Spin to ``deadline`` if we woke early; with ``adapt``, move ``lead`` toward the
+        wake-up latency seen (a wait shorter than the lead says nothing about it)."""
         now = monotonic()
         if now < deadline:
             early = deadline - now
             while monotonic() < deadline:
                 pass
-            # Woke before the deadline: the lead is more than the latency; shave it.
-            PreciseTimer.lead = max(0.0, PreciseTimer.lead - 0.25 * early)
-        else:
+            if adapt:  # woke before the deadline: the lead is more than the latency; shave it
+                PreciseTimer.lead = max(0.0, PreciseTimer.lead - 0.25 * early)
+        elif adapt:
             late = now - deadline
             PreciseTimer.lead = min(PreciseTimer._LEAD_MAX, PreciseTimer.lead + 0.25 * late)
 
@@ -153,6 +202,7 @@ class PreciseTimer:
 
     def close(self) -> None:
         """Release the timer's file descriptor."""
+        self.cancel()
         if self._fd is not None:
             if self._loop is not None and not self._loop.is_closed():
                 self._loop.remove_reader(self._fd)

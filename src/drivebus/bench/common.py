@@ -23,6 +23,7 @@ import anyio.abc
 from anyio.streams.buffered import BufferedByteReceiveStream
 
 from drivebus.bus import Priority, SlaveHandle
+from drivebus.line.base import Exchange, Line
 from drivebus.settings import LineSettings
 from drivebus.sim.process import frame_from_record
 from drivebus.sim.slave import RegisterSlave
@@ -31,6 +32,7 @@ from drivebus.timing import timing
 
 __all__ = [
     "MIXED",
+    "MIXED_PTY",
     "S9600",
     "S19200",
     "S38400",
@@ -40,12 +42,18 @@ __all__ = [
     "Figure",
     "Scenario",
     "SimProcess",
+    "StageFigures",
+    "Target",
     "WireFigures",
+    "at_least",
+    "at_most",
     "format_table",
     "percentile",
     "poll_until",
+    "record_exchanges",
     "register_slaves",
     "results_json",
+    "stage_figures",
     "wire_figures",
     "wire_in_process",
 ]
@@ -56,6 +64,8 @@ S38400 = LineSettings.parse("38400 8N2")
 S115200 = LineSettings.parse("115200 8N1")
 MIXED = (S9600, S19200, S38400, S115200)
 """One slave at each of four settings: the per-slave reconfiguration case."""
+MIXED_PTY = (S9600, LineSettings.parse("19200 8N2"), LineSettings.parse("38400 8N1"), S115200)
+"""The mixed case with settings a pty carries to another process (rate and stop bits)."""
 
 Figure = float | int | str
 """One measured value in a result row."""
@@ -73,13 +83,46 @@ class BenchOptions:
     """Simulated slaves' turnaround (request end to reply start)."""
 
 
+@dataclass(frozen=True)
+class Target:
+    """What a figure should reach: at least (``">="``) or at most (``"<="``) ``value``."""
+
+    op: str
+    value: float
+
+    def met(self, figure: Figure) -> bool | None:
+        """Whether ``figure`` meets the target (None: not a number)."""
+        if isinstance(figure, str) or figure != figure:  # text, or NaN
+            return None
+        return figure >= self.value if self.op == ">=" else figure <= self.value
+
+    def __str__(self) -> str:
+        return f"{'≥' if self.op == '>=' else '≤'} {self.value:g}"
+
+
+def at_least(value: float) -> Target:
+    """A figure that should be ``value`` or more."""
+    return Target(">=", value)
+
+
+def at_most(value: float) -> Target:
+    """A figure that should be ``value`` or less."""
+    return Target("<=", value)
+
+
 @dataclass
 class BenchResult:
-    """One row of the bench's table: a scenario, the case it ran, and its figures."""
+    """One row of the bench's table: a scenario, the case it ran, its figures, and the
+    target of those figures that have one."""
 
     scenario: str
     case: str
     figures: dict[str, Figure] = field(default_factory=dict)
+    targets: dict[str, Target] = field(default_factory=dict)
+
+    def missed(self) -> list[str]:
+        """The figures that miss their target."""
+        return [k for k, t in self.targets.items() if t.met(self.figures.get(k, "")) is False]
 
 
 @dataclass(frozen=True)
@@ -146,12 +189,74 @@ def wire_figures(frames: Sequence[WireFrame], turnaround: float) -> WireFigures:
     )
 
 
-async def poll_until(handles: Sequence[SlaveHandle], deadline: float, per_slave: int = 1) -> None:
-    """Read two registers from every handle (``per_slave`` readers each) until ``deadline``."""
+@dataclass
+class StageFigures:
+    """Where the time between a reply and the next request goes (medians, µs), from the
+    wire's timestamps (another process) and the master's own, on the same clock."""
+
+    reply_to_master_us: float
+    """The reply's last byte on the wire until the master has it (pty, wake-up)."""
+    master_late_us: float
+    """The master's own lateness: its first byte out after its t3.5 from that moment."""
+    request_to_wire_us: float
+    """The master's write until the wire sees the request (pty, the wire's wake-up)."""
+
+
+def record_exchanges(line: Line) -> list[Exchange]:
+    """Keep every ``Exchange`` the line completes from now on (wraps its ``transact``)."""
+    kept: list[Exchange] = []
+    transact = line.transact
+
+    async def recording(*args: Any, **kwargs: Any) -> Exchange:
+        ex = await transact(*args, **kwargs)
+        kept.append(ex)
+        return ex
+
+    line.transact = recording  # type: ignore[method-assign]
+    return kept
+
+
+def stage_figures(frames: Sequence[WireFrame], exchanges: Sequence[Exchange]) -> StageFigures:
+    """Match the master's exchanges to the wire's frames and split the silences."""
+    requests = [i for i, f in enumerate(frames) if f.direction == "request"]
+    reply_in: list[float] = []
+    late: list[float] = []
+    out: list[float] = []
+    j = 0
+    previous: tuple[WireFrame, Exchange] | None = None
+    for ex in sorted(exchanges, key=lambda e: e.tx_start):
+        if not ex.reply:
+            previous = None
+            continue
+        while j < len(requests) and frames[requests[j]].start < ex.tx_start:
+            j += 1
+        if j >= len(requests):
+            break
+        i = requests[j]
+        request = frames[i]
+        reply = frames[i + 1] if i + 1 < len(frames) else None
+        if previous is not None:
+            prev_reply, prev_ex = previous
+            reply_in.append((prev_ex.rx_end - prev_reply.end) * 1e6)
+            late.append((ex.tx_start - prev_ex.rx_end - request.required) * 1e6)
+            out.append((request.start - ex.tx_start) * 1e6)
+        previous = (reply, ex) if reply is not None and reply.direction == "reply" else None
+
+    def med(v: list[float]) -> float:
+        return statistics.median(v) if v else float("nan")
+
+    return StageFigures(med(reply_in), med(late), med(out))
+
+
+async def poll_until(
+    handles: Sequence[SlaveHandle], deadline: float, per_slave: int = 1, registers: int = 2
+) -> None:
+    """Read ``registers`` registers from every handle (``per_slave`` readers each) until
+    ``deadline``."""
 
     async def poller(h: SlaveHandle) -> None:
         while time.monotonic() < deadline:
-            await h.read_holding_registers(0, 2, priority=Priority.POLL)
+            await h.read_holding_registers(0, registers, priority=Priority.POLL)
 
     async with anyio.create_task_group() as tg:
         for h in handles:
@@ -267,20 +372,52 @@ class SimProcess:
 
 
 def results_json(results: Sequence[BenchResult]) -> str:
-    """The results as JSON text."""
-    return json.dumps([asdict(r) for r in results], indent=2)
+    """The results as JSON text: each row's figures, targets (op and value) and the figures
+    that missed theirs."""
+    rows = []
+    for r in results:
+        row = asdict(r)
+        row["missed"] = r.missed()
+        rows.append(row)
+    return json.dumps(rows, indent=2)
+
+
+def _cell(v: Figure | None) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        if v != v:
+            return "-"
+        return f"{v:.3f}" if abs(v) < 10 else f"{v:.1f}" if abs(v) < 1000 else f"{v:.0f}"
+    return str(v)
 
 
 def format_table(results: Sequence[BenchResult]) -> str:
-    """The results as a plain-text table, one scenario per block."""
-    lines: list[str] = []
-    last = None
+    """The results as plain-text tables, one per scenario: a column per figure, the
+    targets in the row under the names, and ``!`` after a figure that misses its target."""
+    blocks: dict[str, list[BenchResult]] = {}
     for r in results:
-        if r.scenario != last:
-            lines.append(f"\n== {r.scenario}")
-            last = r.scenario
-        cells = ", ".join(
-            f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in r.figures.items()
-        )
-        lines.append(f"  {r.case:<28} {cells}")
-    return "\n".join(lines)
+        blocks.setdefault(r.scenario, []).append(r)
+    out: list[str] = []
+    for scenario, rows in blocks.items():
+        names = list(dict.fromkeys(k for r in rows for k in r.figures))
+        targets: dict[str, Target] = {}
+        for r in rows:
+            for k, t in r.targets.items():
+                targets.setdefault(k, t)
+        table = [["case", *names], ["target", *(str(targets.get(k, "")) for k in names)]]
+        for r in rows:
+            cells = [r.case]
+            for k in names:
+                cell = _cell(r.figures.get(k))
+                t = r.targets.get(k)
+                if t is not None and t.met(r.figures.get(k, "")) is False:
+                    cell += "!"
+                cells.append(cell)
+            table.append(cells)
+        widths = [max(len(row[i]) for row in table) for i in range(len(table[0]))]
+        out.append(f"\n== {scenario}")
+        for row in table:
+            out.append("  " + "  ".join(c.ljust(w) if i == 0 else c.rjust(w)
+                                         for i, (c, w) in enumerate(zip(row, widths, strict=True))))
+    return "\n".join(out)

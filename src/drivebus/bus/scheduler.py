@@ -28,7 +28,7 @@ from drivebus.errors import (
     TransactionError,
     WrongResponder,
 )
-from drivebus.line.base import Line
+from drivebus.line.base import Line, SendWithdrawn
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.tasks import ServiceTasks
@@ -196,7 +196,10 @@ class Bus:
         lines so its start commands leave at a known moment, back to back."""
         self._holds += 1
         try:
-            if self._in_flight is not None:
+            req = self._in_flight
+            if req is not None:
+                if req.priority < Priority.EMERGENCY:
+                    self.line.withdraw()  # still waiting for its silence: it goes after us
                 waiter = asyncio.get_running_loop().create_future()
                 self._idle_waiters.append(waiter)
                 await waiter
@@ -244,7 +247,9 @@ class Bus:
         self._wake_owner()
         waiting = self._waiting_for
         if waiting is not None and req < waiting:
-            self._timer.wake()  # re-plan: a more urgent request came in during the silence
+            # Re-plan: a more urgent request came in during the silence.
+            self._timer.wake()
+            self.line.withdraw()
 
     def _fail_queued(self, exc: Exception) -> None:
         queue, self._queue = self._queue, []
@@ -287,7 +292,12 @@ class Bus:
                     await self._work  # held: only an emergency request or the end of it
                     continue
                 ready = line.ready_at(req.handle.settings)
-                if ready > now:
+                # A line that waits for its silence itself gets the request at once and
+                # sends it right at the end of the silence; it gives it back if a more
+                # urgent one comes, a hold begins or bytes arrive meanwhile. On a line
+                # known to be noisy the owner waits itself, watching every deadline.
+                deferred = ready > now and line.waits_for_silence and noise.since is None
+                if ready > now and not deferred:
                     self._waiting_for = req
                     try:
                         await self._timer.sleep_until(min(ready, next_expiry))
@@ -296,7 +306,11 @@ class Bus:
                     continue  # the queue's head may have changed meanwhile
                 heapq.heappop(self._queue)
                 self._in_flight = req
-                await self._run_one(req, noise)
+                self._waiting_for = req if deferred else None
+                try:
+                    await self._run_one(req, noise, withdrawable=deferred)
+                finally:
+                    self._waiting_for = None
                 self._in_flight = None
                 if self._idle_waiters:
                     for waiter in self._idle_waiters:
@@ -348,18 +362,34 @@ class Bus:
             req.future.set_exception(exc)
         return nearest
 
-    async def _run_one(self, req: _Request, noise: _NoiseWatch) -> None:
+    async def _run_one(self, req: _Request, noise: _NoiseWatch, *, withdrawable: bool) -> None:
         h = req.handle
         st = self.stats.slave(h.address)
         try:
-            ex = await self.line.transact(
-                h.address,
-                req.pdu,
-                expect=req.expect,
-                settings=h.settings,
-                timeout=h.timeout,
-                quiet_by=noise.deadline(req),
-            )
+            if withdrawable:
+                ex = await self.line.transact(
+                    h.address,
+                    req.pdu,
+                    expect=req.expect,
+                    settings=h.settings,
+                    timeout=h.timeout,
+                    quiet_by=noise.deadline(req),
+                    withdrawable=True,  # type: ignore[call-arg]  # waits_for_silence lines
+                )
+            else:
+                ex = await self.line.transact(
+                    h.address,
+                    req.pdu,
+                    expect=req.expect,
+                    settings=h.settings,
+                    timeout=h.timeout,
+                    quiet_by=noise.deadline(req),
+                )
+        except SendWithdrawn:
+            # Taken back before its frame went out: it keeps its place (same seq) and the
+            # owner plans again (a more urgent request, a hold, or bytes on the line).
+            heapq.heappush(self._queue, req)
+            return
         except LineClosed as exc:
             if not req.future.done():
                 req.future.set_exception(exc)

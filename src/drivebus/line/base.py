@@ -14,7 +14,12 @@ from types import TracebackType
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 
-__all__ = ["Exchange", "Line"]
+__all__ = ["Exchange", "Line", "SendWithdrawn"]
+
+
+class SendWithdrawn(Exception):
+    """A request taken back before its frame went out (``Line.withdraw``, or bytes during
+    its silence on a ``withdrawable`` transaction): nothing was sent; plan again."""
 
 
 @dataclass(slots=True)
@@ -56,6 +61,17 @@ class Line(abc.ABC):
 
     counts_garbage: bool = False
     """``garbage_bytes`` counts the bytes received outside any reply; False: always 0."""
+
+    waits_for_silence: bool = False
+    """``transact`` waits for the line's silence itself, sends the frame right at its end,
+    and accepts ``withdrawable=True``: until the frame is out the request can be taken
+    back (``withdraw()``), and bytes arriving during the silence end it (``SendWithdrawn``
+    both). A bus hands such a line its next request at once instead of sleeping first."""
+
+    def withdraw(self) -> bool:
+        """Take back the ``withdrawable`` transaction waiting for its silence, if its frame
+        has not gone out (it raises ``SendWithdrawn``); False if there is none."""
+        return False
 
     @property
     def garbage_bytes(self) -> int:
@@ -99,6 +115,7 @@ class Line(abc.ABC):
         keeps silences bounds the wait before it too: if received bytes keep it busy
         until ``quiet_by`` (default: ``timeout`` from now), ``LineNoise`` with
         ``sent=False``. A reply drowned in noise is ``LineNoise`` with ``sent=True``.
+        Lines that declare ``waits_for_silence`` also take ``withdrawable`` (keyword).
         """
 
     async def __aenter__(self) -> Line:

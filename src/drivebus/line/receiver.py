@@ -102,6 +102,7 @@ class RtuReceiver(StreamProtocol):
         self.pending_bytes: Callable[[], bytes] | None = None
         """Reads what the medium has received and the event loop has not delivered yet
         (set by lines that can, e.g. a serial port's non-blocking read)."""
+        self._expiry: asyncio.TimerHandle | None = None
 
     # -- asyncio.Protocol --------------------------------------------------------------------
 
@@ -143,16 +144,32 @@ class RtuReceiver(StreamProtocol):
             return True
         if self.lost is not None:
             raise LineClosed(f"{self.name} lost: {self.lost}")
-        loop = asyncio.get_running_loop()
-        w = self.waiter = loop.create_future()
-        self.need = n
-        handle = loop.call_at(_loop_time(loop, deadline), _expire, w)
+        w: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self.expect_bytes(n, deadline, w)
         try:
             await w
         finally:
-            handle.cancel()
-            self.waiter = None
+            self.release()
         return len(self.buf) >= n
+
+    def expect_bytes(self, n: int, deadline: float, waiter: asyncio.Future[None]) -> None:
+        """Resolve ``waiter`` once ``n`` bytes are buffered or ``deadline`` has come,
+        whichever is first (an exception if the stream is lost); ``release()`` ends it."""
+        loop = waiter.get_loop()
+        self.need = n
+        self.waiter = waiter
+        self._expiry = loop.call_at(_loop_time(loop, deadline), _expire, waiter)
+        if self.lost is not None:
+            waiter.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
+        elif len(self.buf) >= n:
+            waiter.set_result(None)
+
+    def release(self) -> None:
+        """Stop resolving the waiter of ``expect_bytes``."""
+        if self._expiry is not None:
+            self._expiry.cancel()
+            self._expiry = None
+        self.waiter = None
 
     async def wait_silence(self, silence: float, limit: float) -> bool:
         """Wait until ``silence`` has passed since the last byte; False if ``limit`` came

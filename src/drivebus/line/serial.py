@@ -55,6 +55,7 @@ class SerialLine(Line):
 
     per_slave_settings = True
     counts_garbage = True
+    waits_for_silence = True
     settings: LineSettings
 
     def __init__(
@@ -137,6 +138,7 @@ class SerialLine(Line):
                     f"control): {exc}; set rs485 = false if the adapter switches by itself"
                 ) from exc
         self._link.quiet_since = monotonic()
+        self._link.traffic = s
         self._closed = False
 
     async def close(self) -> None:
@@ -192,8 +194,12 @@ class SerialLine(Line):
 
     def ready_at(self, settings: LineSettings | None) -> float:
         """When the silence before a frame at ``settings`` will have passed."""
-        silence = switch_silence(self._current, settings or self.settings)
+        silence = switch_silence(self._link.traffic, settings or self.settings)
         return self._link.ready_at(self._rx, silence)
+
+    def withdraw(self) -> bool:
+        """Take back the request waiting for its silence, if its frame is not out yet."""
+        return self._link.withdraw()
 
     def _send(self, adu: bytes) -> None:
         try:
@@ -213,31 +219,34 @@ class SerialLine(Line):
         settings: LineSettings | None = None,
         timeout: float = 0.1,
         quiet_by: float | None = None,
+        withdrawable: bool = False,
     ) -> Exchange:
         """Send one frame after the silence and, unless ``expect`` is None, read its reply
-        by length (``LineNoise`` if the line is not quiet by ``quiet_by``)."""
+        by length (``LineNoise`` if the line is not quiet by ``quiet_by``).
+
+        The port is switched to ``settings`` before the silence, not after it: the
+        silence is counted at the slower of the last frame's settings and these, and
+        whatever arrives meanwhile is garbage at either rate; the switch is then off the
+        path between the end of the silence and the first byte.
+        """
         if self._closed or self._rx is None:
             raise LineClosed(f"serial line {self.port} is closed")
         target = settings or self.settings
-        tm = timing(target)
-        await self._link.wait_quiet(
-            self._rx,
-            unit,
-            switch_silence(self._current, target),
-            monotonic() + timeout if quiet_by is None else quiet_by,
-        )
         if target is not self._current and target != self._current:
             self._reconfigure(target, unit)
-        return await self._link.exchange(
+        return await self._link.transact(
             self._rx,
             self._send,
             unit,
             pdu,
             expect,
-            tm,
+            timing(target),
+            silence=switch_silence(self._link.traffic, target),
+            quiet_by=monotonic() + timeout if quiet_by is None else quiet_by,
             timeout=timeout,
             broadcast_delay=self.broadcast_delay,
             local_echo=self.local_echo,
+            withdrawable=withdrawable,
         )
 
     def __repr__(self) -> str:

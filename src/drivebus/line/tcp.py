@@ -577,6 +577,7 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
 
     scheme = "rtu+tcp"
     counts_garbage = True
+    waits_for_silence = True
     settings: LineSettings
 
     def __init__(
@@ -628,6 +629,10 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
         await super().close()
         self._link.close()
 
+    def withdraw(self) -> bool:
+        """Take back the request waiting for its silence, if its frame is not out yet."""
+        return self._link.withdraw()
+
     async def transact(
         self,
         unit: int,
@@ -637,6 +642,7 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
         settings: LineSettings | None = None,
         timeout: float = 0.1,
         quiet_by: float | None = None,
+        withdrawable: bool = False,
     ) -> Exchange:
         """Send one RTU frame after t3.5 of silence and read its reply by length
         (``LineNoise`` if the line is not quiet by ``quiet_by``)."""
@@ -651,7 +657,8 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
             if quiet_by is None:
                 quiet_by = monotonic() + timeout
             try:
-                return await self._exchange(rx, unit, pdu, expect, timeout, quiet_by)
+                return await self._exchange(rx, unit, pdu, expect, timeout, quiet_by,
+                                            withdrawable)
             except LineClosed as exc:
                 if self._closed:
                     raise
@@ -669,18 +676,21 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
         expect: LengthPredictor | None,
         timeout: float,
         quiet_by: float,
+        withdrawable: bool,
     ) -> Exchange:
         tm = timing(self.settings)
-        await self._link.wait_quiet(rx, unit, tm.t35, quiet_by)
-        return await self._link.exchange(
+        return await self._link.transact(
             rx,
             rx.send,
             unit,
             pdu,
             expect,
             tm,
+            silence=tm.t35,
+            quiet_by=quiet_by,
             timeout=timeout,
             broadcast_delay=self.broadcast_delay,
+            withdrawable=withdrawable,
         )
 
     def __repr__(self) -> str:
