@@ -118,7 +118,8 @@ class Bus:
         self._work: asyncio.Future[None] | None = None
         self._timer = PreciseTimer()
         self._waiting_for: _Request | None = None
-        self._in_flight: _Request | None = None
+        self._flying: set[_Request] = set()
+        """Requests whose transaction is under way (at most ``line.max_in_flight``)."""
         self._holds = 0
         self._idle_waiters: list[asyncio.Future[None]] = []
         self._tg: ServiceTasks | None = None
@@ -190,15 +191,14 @@ class Bus:
 
     @asynccontextmanager
     async def hold(self) -> AsyncIterator[None]:
-        """Keep the line quiet for a burst: enter once the transaction in flight has ended;
-        until the body ends only ``Priority.EMERGENCY`` requests go out, the rest wait
-        (requests the body queues go first after it, by priority). A group move holds its
-        lines so its start commands leave at a known moment, back to back."""
+        """Keep the line quiet for a burst: enter once the transactions in flight have
+        ended; until the body ends only ``Priority.EMERGENCY`` requests go out, the rest
+        wait (requests the body queues go first after it, by priority). A group move holds
+        its lines so its start commands leave at a known moment, back to back."""
         self._holds += 1
         try:
-            req = self._in_flight
-            if req is not None:
-                if req.priority < Priority.EMERGENCY:
+            if self._flying:
+                if any(r.priority < Priority.EMERGENCY for r in self._flying):
                     self.line.withdraw()  # still waiting for its silence: it goes after us
                 waiter = asyncio.get_running_loop().create_future()
                 self._idle_waiters.append(waiter)
@@ -253,8 +253,7 @@ class Bus:
 
     def _fail_queued(self, exc: Exception) -> None:
         queue, self._queue = self._queue, []
-        if self._in_flight is not None:
-            queue.append(self._in_flight)  # cut off mid-transaction: its caller must hear it
+        queue.extend(self._flying)  # cut off mid-transaction: their callers must hear it
         for waiter in self._idle_waiters:
             if not waiter.done():
                 waiter.set_exception(exc)
@@ -265,69 +264,124 @@ class Bus:
 
     # -- the owner task ---------------------------------------------------------------------
 
+    def _landed(self, req: _Request) -> None:
+        """``req``'s transaction has ended: once none is in flight, holds may begin."""
+        self._flying.discard(req)
+        if self._idle_waiters and not self._flying:
+            for waiter in self._idle_waiters:
+                if not waiter.done():
+                    waiter.set_result(None)
+            self._idle_waiters.clear()
+
     async def _owner(self) -> None:
-        loop = asyncio.get_running_loop()
-        line = self.line
-        noise = _NoiseWatch(line)
         try:
-            while True:
-                if not self._queue:
-                    self._work = loop.create_future()
-                    await self._work
-                    noise.reset()
-                    continue
-                req = self._queue[0]
-                if req.future.done():  # the caller gave up (or ran out of time) while queued
-                    heapq.heappop(self._queue)
-                    continue
-                now = monotonic()
-                noise.look(now)
-                next_expiry = math.inf
-                if noise.since is not None:
-                    next_expiry = self._expire_noisy(noise.since, now)
-                    if req.future.done():
-                        continue
-                if self._holds and req.priority < Priority.EMERGENCY:
-                    self._work = loop.create_future()
-                    await self._work  # held: only an emergency request or the end of it
-                    continue
-                ready = line.ready_at(req.handle.settings)
-                # A line that waits for its silence itself gets the request at once and
-                # sends it right at the end of the silence; it gives it back if a more
-                # urgent one comes, a hold begins or bytes arrive meanwhile. On a line
-                # known to be noisy the owner waits itself, watching every deadline.
-                deferred = ready > now and line.waits_for_silence and noise.since is None
-                if ready > now and not deferred:
-                    self._waiting_for = req
-                    try:
-                        await self._timer.sleep_until(min(ready, next_expiry))
-                    finally:
-                        self._waiting_for = None
-                    continue  # the queue's head may have changed meanwhile
-                heapq.heappop(self._queue)
-                self._in_flight = req
-                self._waiting_for = req if deferred else None
-                try:
-                    await self._run_one(req, noise, withdrawable=deferred)
-                finally:
-                    self._waiting_for = None
-                self._in_flight = None
-                if self._idle_waiters:
-                    for waiter in self._idle_waiters:
-                        if not waiter.done():
-                            waiter.set_result(None)
-                    self._idle_waiters.clear()
-                if not self._queue:
-                    # The caller just woken often asks again at once: let it run first (it
-                    # is scheduled before us), so that its request is found here without
-                    # a wake-up of its own.
-                    await asyncio.sleep(0)
+            if self.line.max_in_flight > 1:
+                await self._pipeline()
+            else:
+                await self._one_at_a_time()
         except BaseException as exc:
             self._open = False
             if not isinstance(exc, LineClosed):
                 exc = LineClosed(f"bus owner on {self.line.name} stopped: {exc!r}")
             self._fail_queued(exc)
             raise
+
+    async def _pipeline(self) -> None:
+        """Up to ``line.max_in_flight`` transactions at once (a line that keeps no silences
+        and matches replies by id): the head of the queue goes out as soon as a slot is
+        free. The last slot is kept for ``Priority.EMERGENCY``, so a stop never waits for
+        a pipelined poll to come back; a hold lets only those out."""
+        loop = asyncio.get_running_loop()
+        limit = self.line.max_in_flight
+        noise = _NoiseWatch(self.line)
+        try:
+            await self._dispatch(loop, limit, noise)
+        except BaseExceptionGroup as group:
+            if len(group.exceptions) == 1:  # one flight failed (the line is gone): say why
+                raise group.exceptions[0] from None
+            raise
+
+    async def _dispatch(
+        self, loop: asyncio.AbstractEventLoop, limit: int, noise: _NoiseWatch
+    ) -> None:
+        async with anyio.create_task_group() as flights:
+            while True:
+                if self._queue and self._queue[0].future.done():
+                    heapq.heappop(self._queue)  # its caller gave up while it was queued
+                    continue
+                room = limit - len(self._flying)
+                if self._queue:
+                    req = self._queue[0]
+                    if req.priority < Priority.EMERGENCY:
+                        room = 0 if self._holds else room - 1
+                    if room > 0:
+                        heapq.heappop(self._queue)
+                        self._flying.add(req)
+                        flights.start_soon(self._fly, req, noise)
+                        continue
+                self._work = loop.create_future()
+                await self._work  # a request, a free slot or the end of a hold
+
+    async def _fly(self, req: _Request, noise: _NoiseWatch) -> None:
+        """One pipelined transaction; its slot is free again when it ends."""
+        try:
+            await self._run_one(req, noise, withdrawable=False)
+        finally:
+            self._landed(req)
+            self._wake_owner()
+
+    async def _one_at_a_time(self) -> None:
+        """One transaction at a time, highest priority first, each after its silence."""
+        loop = asyncio.get_running_loop()
+        line = self.line
+        noise = _NoiseWatch(line)
+        while True:
+            if not self._queue:
+                self._work = loop.create_future()
+                await self._work
+                noise.reset()
+                continue
+            req = self._queue[0]
+            if req.future.done():  # the caller gave up (or ran out of time) while queued
+                heapq.heappop(self._queue)
+                continue
+            now = monotonic()
+            noise.look(now)
+            next_expiry = math.inf
+            if noise.since is not None:
+                next_expiry = self._expire_noisy(noise.since, now)
+                if req.future.done():
+                    continue
+            if self._holds and req.priority < Priority.EMERGENCY:
+                self._work = loop.create_future()
+                await self._work  # held: only an emergency request or the end of it
+                continue
+            ready = line.ready_at(req.handle.settings)
+            # A line that waits for its silence itself gets the request at once and
+            # sends it right at the end of the silence; it gives it back if a more
+            # urgent one comes, a hold begins or bytes arrive meanwhile. On a line
+            # known to be noisy the owner waits itself, watching every deadline.
+            deferred = ready > now and line.waits_for_silence and noise.since is None
+            if ready > now and not deferred:
+                self._waiting_for = req
+                try:
+                    await self._timer.sleep_until(min(ready, next_expiry))
+                finally:
+                    self._waiting_for = None
+                continue  # the queue's head may have changed meanwhile
+            heapq.heappop(self._queue)
+            self._flying.add(req)
+            self._waiting_for = req if deferred else None
+            try:
+                await self._run_one(req, noise, withdrawable=deferred)
+            finally:
+                self._waiting_for = None
+            self._landed(req)
+            if not self._queue:
+                # The caller just woken often asks again at once: let it run first (it
+                # is scheduled before us), so that its request is found here without
+                # a wake-up of its own.
+                await asyncio.sleep(0)
 
     def _expire_noisy(self, since: float, now: float) -> float:
         """Fail the queued requests whose time to see the noisy line quiet has run out;
@@ -452,5 +506,6 @@ class Bus:
             req.retries_left -= 1
             self.stats.slave(req.handle.address).retries += 1
             heapq.heappush(self._queue, req)  # same seq: keeps its place in line
+            self._wake_owner()
         else:
             req.future.set_exception(exc)
