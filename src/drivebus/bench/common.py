@@ -16,7 +16,7 @@ from collections.abc import Awaitable, Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from types import TracebackType
-from typing import Any
+from typing import Any, Self
 
 import anyio
 import anyio.abc
@@ -39,6 +39,7 @@ __all__ = [
     "S115200",
     "BenchOptions",
     "BenchResult",
+    "ChildProcess",
     "Figure",
     "Scenario",
     "SimProcess",
@@ -289,35 +290,18 @@ def wire_in_process(slaves: int, settings: LineSettings, turnaround: float) -> I
         proc.communicate(timeout=10)
 
 
-class SimProcess:
-    """Simulated lines served by ``drivebus.sim.process`` in a child process.
+class ChildProcess:
+    """``python -m MODULE ARGS`` as a child process that prints where it serves on its
+    first line, answers one command per line on stdin and ends when stdin closes."""
 
-    The master under test then shares its event loop and its CPU time with nothing of
-    the simulator, and its figures come from the wire log of the other process (the wire's
-    timestamps, shipped back by ``logs()``), never from the master's own bookkeeping.
-    """
-
-    def __init__(self, *args: str) -> None:
-        self.args = [sys.executable, "-m", "drivebus.sim.process", *args]
+    def __init__(self, module: str, *args: str) -> None:
+        self.args = [sys.executable, "-m", module, *args]
         self.first_line = ""
-        """What the process printed first: its pty paths, or JSON for ``--machine``."""
+        """What the process printed first (where it serves)."""
         self._proc: anyio.abc.Process | None = None
         self._out: BufferedByteReceiveStream | None = None
 
-    @classmethod
-    def slaves(
-        cls, n: int, settings: Sequence[LineSettings], turnaround: float, *, lines: int = 1
-    ) -> SimProcess:
-        """``lines`` wires, each with slaves 1..``n`` (settings taken in turn)."""
-        return cls("--slaves", str(n), "--settings", ",".join(str(s) for s in settings),
-                   "--turnaround", repr(turnaround), "--lines", str(lines))
-
-    @property
-    def paths(self) -> list[str]:
-        """The pty path of each wire (slave mode)."""
-        return self.first_line.split()
-
-    async def __aenter__(self) -> SimProcess:
+    async def __aenter__(self) -> Self:
         self._proc = await anyio.open_process(self.args, stderr=None)
         assert self._proc.stdout is not None
         self._out = BufferedByteReceiveStream(self._proc.stdout)
@@ -359,6 +343,32 @@ class SimProcess:
         assert self._proc is not None and self._proc.stdin is not None
         await self._proc.stdin.send(command.encode() + b"\n")
         return await self._line()
+
+
+
+class SimProcess(ChildProcess):
+    """Simulated lines served by ``drivebus.sim.process`` in a child process.
+
+    The master under test then shares its event loop and its CPU time with nothing of
+    the simulator, and its figures come from the wire log of the other process (the wire's
+    timestamps, shipped back by ``logs()``), never from the master's own bookkeeping.
+    """
+
+    def __init__(self, *args: str) -> None:
+        super().__init__("drivebus.sim.process", *args)
+
+    @classmethod
+    def slaves(
+        cls, n: int, settings: Sequence[LineSettings], turnaround: float, *, lines: int = 1
+    ) -> SimProcess:
+        """``lines`` wires, each with slaves 1..``n`` (settings taken in turn)."""
+        return cls("--slaves", str(n), "--settings", ",".join(str(s) for s in settings),
+                   "--turnaround", repr(turnaround), "--lines", str(lines))
+
+    @property
+    def paths(self) -> list[str]:
+        """The pty path of each wire (slave mode)."""
+        return self.first_line.split()
 
     async def clear(self) -> None:
         """Every wire forgets its log."""
