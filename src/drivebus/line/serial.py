@@ -82,6 +82,20 @@ class SerialLine(Line):
         self._closed = True
         self._fd = -1
         self._garbage_closed = 0  # counted by receivers of earlier openings
+        self._canon: dict[int, tuple[LineSettings, LineSettings]] = {}
+
+    def _canonical(self, settings: LineSettings | None) -> LineSettings:
+        """One object per distinct setting: every slave handle has its own (equal) settings
+        object, and comparing models field by field on each transaction costs more than
+        the rest of the silence bookkeeping; equal settings are then the same object."""
+        if settings is None:
+            settings = self.settings
+        known = self._canon.get(id(settings))
+        if known is not None and known[0] is settings:
+            return known[1]
+        same = next((c for _, c in self._canon.values() if c == settings), settings)
+        self._canon[id(settings)] = (settings, same)  # keeps the object: its id stays unique
+        return same
 
     @property
     def garbage_bytes(self) -> int:
@@ -138,7 +152,7 @@ class SerialLine(Line):
                     f"control): {exc}; set rs485 = false if the adapter switches by itself"
                 ) from exc
         self._link.quiet_since = monotonic()
-        self._link.traffic = s
+        self._link.traffic = self._current = self._canonical(s)
         self._closed = False
 
     async def close(self) -> None:
@@ -194,7 +208,7 @@ class SerialLine(Line):
 
     def ready_at(self, settings: LineSettings | None) -> float:
         """When the silence before a frame at ``settings`` will have passed."""
-        silence = switch_silence(self._link.traffic, settings or self.settings)
+        silence = switch_silence(self._link.traffic, self._canonical(settings))
         return self._link.ready_at(self._rx, silence)
 
     def withdraw(self) -> bool:
@@ -231,8 +245,8 @@ class SerialLine(Line):
         """
         if self._closed or self._rx is None:
             raise LineClosed(f"serial line {self.port} is closed")
-        target = settings or self.settings
-        if target is not self._current and target != self._current:
+        target = self._canonical(settings)
+        if target is not self._current:
             self._reconfigure(target, unit)
         return await self._link.transact(
             self._rx,

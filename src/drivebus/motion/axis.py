@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import anyio
+import anyio.lowlevel
 
 from drivebus import checks
 from drivebus.bus import Priority
@@ -279,8 +280,12 @@ class Axis:
             fast = self.state in MOVING_STATES or self._waiters > 0 or self._motion is not None
             period = poll.moving if fast else poll.idle
             next_poll = min(next_poll, monotonic() + period)
-            with anyio.move_on_after(max(0.0, next_poll - monotonic())):
-                await self._poke.wait()
+            delay = next_poll - monotonic()
+            if delay > 0:  # a poll already due needs no cancel scope
+                with anyio.move_on_after(delay):
+                    await self._poke.wait()
+            else:
+                await anyio.lowlevel.checkpoint()
             self._poke = anyio.Event()
             issued = monotonic()
             next_poll = issued + period
