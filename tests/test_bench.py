@@ -9,7 +9,9 @@ import pytest
 from drivebus.bench import format_table, results_json, run_bench, scenarios
 from drivebus.errors import ArgumentError
 
-BUILT_IN = {"efficiency", "stop latency", "cpu", "scale", "pymodbus baseline", "flood"}
+BUILT_IN = {
+    "efficiency", "stop latency", "cpu", "scale", "pymodbus baseline", "pipelined tcp", "flood",
+}
 
 
 async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
@@ -21,8 +23,18 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
     for r in results:
         if r.scenario in ("efficiency", "scale"):
             assert r.figures["violations"] == 0, r
-        if r.scenario == "efficiency":
-            assert r.figures["transactions"] > 0 and 0 < r.figures["efficiency"] <= 1.0, r
+        if r.scenario == "efficiency":  # measured on the wire of the slaves' own process
+            assert 0 < r.figures["efficiency"] <= 1.0, r
+            assert 0 < r.figures["efficiency_in_process"] <= 1.0, r
+        if r.scenario == "scale":
+            assert r.figures["transactions"] > 0 and r.figures["moves"] > 0, r
+        assert set(r.targets) <= set(r.figures), r  # every target sits beside its figure
+    tcp = {r.case.split(",")[1].strip(): r.figures for r in results
+           if r.scenario == "pipelined tcp"}
+    assert set(tcp) == {"1 in flight", "8 in flight", "16 callers"}
+    assert all(f["tps"] > 0 for f in tcp.values())
+    cpu = next(r for r in results if r.scenario == "cpu")
+    assert cpu.figures["ratio"] > 0 and "ratio" in cpu.targets
     flood = {r.case.split(",")[0]: r.figures for r in results if r.scenario == "flood"}
     assert set(flood) == {"none", "line rate", "flat out"}
     for figures in flood.values():
@@ -31,8 +43,13 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
     assert isinstance(flood["flat out"]["line_noise"], int) and flood["flat out"]["line_noise"] > 0
     stop = next(r for r in results if r.scenario == "stop latency")
     assert stop.figures["stops"] == 20
-    assert "efficiency" in format_table(results)
-    assert len(json.loads(results_json(results))) == len(results)
+    table = format_table(results)
+    assert "efficiency" in table and "target" in table and "≥ 0.97" in table
+    rows = json.loads(results_json(results))
+    assert len(rows) == len(results)
+    eff = next(r for r in rows if r["scenario"] == "efficiency")
+    assert eff["targets"]["efficiency"] == {"op": ">=", "value": 0.97}
+    assert isinstance(eff["missed"], list)
 
 
 async def test_scenarios_can_be_chosen_by_name() -> None:

@@ -300,6 +300,8 @@ class ChildProcess:
         """What the process printed first (where it serves)."""
         self._proc: anyio.abc.Process | None = None
         self._out: BufferedByteReceiveStream | None = None
+        self.cpu = 0.0
+        """The process's CPU seconds when it last answered ``log``."""
 
     async def __aenter__(self) -> Self:
         self._proc = await anyio.open_process(self.args, stderr=None)
@@ -359,11 +361,19 @@ class SimProcess(ChildProcess):
 
     @classmethod
     def slaves(
-        cls, n: int, settings: Sequence[LineSettings], turnaround: float, *, lines: int = 1
+        cls, n: int, settings: Sequence[LineSettings], turnaround: float, *, lines: int = 1,
+        strict: bool = True,
     ) -> SimProcess:
-        """``lines`` wires, each with slaves 1..``n`` (settings taken in turn)."""
+        """``lines`` wires, each with slaves 1..``n`` (settings taken in turn); not
+        ``strict``: they answer frames sent without the silence too."""
         return cls("--slaves", str(n), "--settings", ",".join(str(s) for s in settings),
-                   "--turnaround", repr(turnaround), "--lines", str(lines))
+                   "--turnaround", repr(turnaround), "--lines", str(lines),
+                   *(() if strict else ("--lenient",)))
+
+    async def babble(self, mode: str) -> int:
+        """A device on every wire sends junk (``mode``: "paced", "flat" or "off"); the
+        noise bytes sent so far."""
+        return int(json.loads(await self._ask(f"babble {mode}"))["noise_bytes"])
 
     @property
     def paths(self) -> list[str]:
@@ -375,9 +385,9 @@ class SimProcess(ChildProcess):
         await self._ask("clear")
 
     async def logs(self) -> dict[str, list[WireFrame]]:
-        """Each wire's log, by wire (or line) name."""
+        """Each wire's log, by wire (or line) name (``cpu`` holds the CPU seconds)."""
         raw: dict[str, Any] = json.loads(await self._ask("log"))
-        raw.pop("cpu", None)
+        self.cpu = float(raw.pop("cpu", 0.0))
         return {name: [frame_from_record(r) for r in frames] for name, frames in raw.items()}
 
 

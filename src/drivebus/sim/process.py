@@ -14,7 +14,13 @@ bookkeeping (both processes read the same CLOCK_MONOTONIC):
 
 * ``clear``: every wire forgets its log (answer ``ok``);
 * ``log``: one JSON object, each wire's frames by line name (``frame_record``), and the
-  process's CPU seconds so far under ``"cpu"``.
+  process's CPU seconds so far under ``"cpu"``;
+* ``babble paced``, ``babble flat`` and ``babble off``: a device on every wire sends junk
+  without pause, at the line's rate or as fast as the pty takes it, until ``off``
+  (answer: JSON ``{"noise_bytes": n}``, all wires' noise so far).
+
+``--lenient``: slaves answer frames sent without the t3.5 silence (the violation is
+only logged), as many real slaves do.
 
 Without the in-process side channel the wire cannot observe parity or byte size: keep to
 8N1/8N2 (a pty carries baud rate and stop bits only).
@@ -64,31 +70,43 @@ def frame_from_record(r: Sequence[Any]) -> WireFrame:
 
 async def _control(wires: dict[str, VirtualWire]) -> None:
     """Answer the commands on stdin until it closes."""
-    while True:
-        command = await anyio.to_thread.run_sync(sys.stdin.readline)
-        if not command:
-            return  # the parent closed our stdin: done
-        command = command.strip()
-        if command == "clear":
+    async with contextlib.AsyncExitStack() as noise:
+        while True:
+            command = await anyio.to_thread.run_sync(sys.stdin.readline)
+            if not command:
+                return  # the parent closed our stdin: done
+            print(await _answer(command.strip(), wires, noise), flush=True)
+
+
+async def _answer(
+    command: str, wires: dict[str, VirtualWire], noise: contextlib.AsyncExitStack
+) -> str:
+    """The answer to one control command."""
+    if command.startswith("babble"):
+        await noise.aclose()  # whatever babbled before stops
+        mode = command.removeprefix("babble").strip()
+        if mode in ("paced", "flat"):
             for w in wires.values():
-                w.clear_log()
-            answer = "ok"
-        elif command == "log":
-            logs: dict[str, Any] = {n: [frame_record(f) for f in w.log] for n, w in wires.items()}
-            logs["cpu"] = time.process_time()
-            answer = json.dumps(logs)
-        else:
-            answer = json.dumps({"error": f"unknown command {command!r}"})
-        print(answer, flush=True)
+                await noise.enter_async_context(w.babbling(flat_out=mode == "flat"))
+        return json.dumps({"noise_bytes": sum(w.noise_bytes for w in wires.values())})
+    if command == "clear":
+        for w in wires.values():
+            w.clear_log()
+        return "ok"
+    if command == "log":
+        logs: dict[str, Any] = {n: [frame_record(f) for f in w.log] for n, w in wires.items()}
+        logs["cpu"] = time.process_time()
+        return json.dumps(logs)
+    return json.dumps({"error": f"unknown command {command!r}"})
 
 
 async def _serve_slaves(
-    slaves: int, settings: Sequence[LineSettings], turnaround: float, lines: int
+    slaves: int, settings: Sequence[LineSettings], turnaround: float, lines: int, strict: bool
 ) -> None:
     async with contextlib.AsyncExitStack() as stack:
         wires: dict[str, VirtualWire] = {}
         for i in range(lines):
-            wire = await stack.enter_async_context(VirtualWire(f"process-{i}"))
+            wire = await stack.enter_async_context(VirtualWire(f"process-{i}", strict=strict))
             for a in range(1, slaves + 1):
                 s = settings[(a - 1) % len(settings)]
                 wire.attach(RegisterSlave(a, s, size=64, turnaround=turnaround))
@@ -120,16 +138,18 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--lines", type=int, default=1)
     p.add_argument("--machine", type=Path, default=None,
                    help="serve this machine file's sim:// lines instead")
+    p.add_argument("--lenient", action="store_true",
+                   help="slaves answer frames sent without the t3.5 silence")
     a = p.parse_args(argv)
     if a.machine is not None:
-        from drivebus.config import load_config
+        from drivebus.config import machine_config
 
         path: Path = a.machine
-        cfg = load_config(json.loads(path.read_text()) if path.suffix == ".json" else path)
+        cfg = machine_config(json.loads(path.read_text()) if path.suffix == ".json" else path)
         anyio.run(_serve_machine, cfg)
         return
     settings = [LineSettings.parse(s.strip()) for s in a.settings.split(",")]
-    anyio.run(_serve_slaves, a.slaves, settings, a.turnaround, a.lines)
+    anyio.run(_serve_slaves, a.slaves, settings, a.turnaround, a.lines, not a.lenient)
 
 
 if __name__ == "__main__":
