@@ -6,6 +6,7 @@ simulator) uses these functions, so there is one codec for the protocol's data u
 
 from __future__ import annotations
 
+import functools
 import struct
 from collections.abc import Callable, Sequence
 
@@ -43,6 +44,12 @@ LengthPredictor = Callable[[bytes], "int | None"]
 """Given the PDU bytes received so far, the PDU's full length, or None if more are needed."""
 
 _HDR = struct.Struct(">BHH")
+
+
+@functools.lru_cache(maxsize=256)
+def _words(count: int) -> struct.Struct:
+    """The codec of ``count`` big-endian 16-bit registers."""
+    return struct.Struct(f">{count}H")
 
 
 def _span(address: object, count: int) -> int:
@@ -128,7 +135,7 @@ def decode_read_reply(pdu: bytes, function: int, count: int, *, slave: int | Non
         raise FrameError(
             f"slave {slave}: reply carries {pdu[1]} bytes, {2 * count} expected", slave=slave
         )
-    return list(struct.unpack_from(f">{count}H", pdu, 2))
+    return list(_words(count).unpack_from(pdu, 2))
 
 
 def decode_write_single_reply(pdu: bytes, request: bytes, *, slave: int | None) -> None:

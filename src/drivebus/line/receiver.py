@@ -214,7 +214,7 @@ class RtuReceiver(StreamProtocol):
         # given the wire time of the longest frame beyond the deadline to end.
         resync_limit = deadline + MAX_ADU * char + 2 * t35
         while True:
-            if not await self.wait_for(need, deadline):
+            if len(buf) < need and not await self.wait_for(need, deadline):
                 if buf:
                     return await self._resync(unit, expect, t35, resync_limit)
                 raise ResponseTimeout(f"slave {unit} on {self.line_name}: no reply", slave=unit)
