@@ -316,8 +316,11 @@ def test_errors_are_one_clear_line(tmp_path: Path) -> None:
     _one_error_line(drivebus("scan", "/dev/ttyDRIVEBUS-NONE"), 1, "does not exist")
     absent = tmp_path / "absent.toml"
     absent.write_text(SINGLE.read_text().replace("sim = {", "sim = { absent = true,"))
-    _one_error_line(drivebus("status", absent), 1, "does not answer", "drivebus scan")
-    r = drivebus("status", absent, "--debug")
+    r = drivebus("status", absent)  # every axis shown: the silent one Offline, with why
+    _one_error_line(r, 1, "does not answer", "drivebus scan")
+    assert "x: CL86R" in r.stdout and "state=Offline" in r.stdout, r.stdout
+    _one_error_line(drivebus("move", absent, "x", "1"), 1, "does not answer")
+    r = drivebus("move", absent, "x", "1", "--debug")
     assert r.returncode != 0 and "Traceback" in r.stderr
 
 

@@ -9,10 +9,7 @@ motion stops the axis before the command exits.
 
 from __future__ import annotations
 
-import errno
 import json
-import os
-import re
 import sys
 import termios
 from pathlib import Path
@@ -22,14 +19,8 @@ import anyio
 import typer
 
 from drivebus import checks
-from drivebus.errors import (
-    ArgumentError,
-    ConfigError,
-    DrivebusError,
-    DriveOffline,
-    LineClosed,
-    TransactionError,
-)
+from drivebus.errors import ArgumentError, ConfigError, DrivebusError
+from drivebus.terminal import explain
 
 try:  # typer vendors click from 0.2x on; before, it used click itself
     from typer._click.exceptions import UsageError
@@ -42,7 +33,47 @@ app = typer.Typer(
     "Add --debug to any command to see the traceback of an error.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,
 )
+
+_LEVELS = ("debug", "info", "warning", "error")
+
+
+def _version(value: bool) -> None:
+    if value:
+        from drivebus import __version__
+
+        typer.echo(f"drivebus {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _options(
+    verbose: Annotated[int, typer.Option(
+        "--verbose", "-v", count=True,
+        help="log more: -v warnings and progress (info), -vv everything (debug)")] = 0,
+    log_level: Annotated[str | None, typer.Option(
+        "--log-level", metavar="LEVEL", help=f"log level: {', '.join(_LEVELS)}")] = None,
+    trace: Annotated[bool, typer.Option(
+        "--trace", help="log every frame on the wire (time, direction, address, settings, "
+        "bytes, the silence before it)")] = False,
+    debug: Annotated[bool, typer.Option(
+        "--debug", help="show the traceback of an error (anywhere on the command line)")]
+    = False,
+    version: Annotated[bool, typer.Option(
+        "--version", callback=_version, is_eager=True, help="print the version and exit")]
+    = False,
+) -> None:
+    """Modbus stepper and servo drives on shared RS-485 lines and Modbus TCP."""
+    level = "error" if not verbose else "info" if verbose == 1 else "debug"
+    if log_level is not None:
+        if log_level.lower() not in _LEVELS:
+            raise ArgumentError(f"--log-level: {log_level!r} is not one of {', '.join(_LEVELS)}")
+        level = log_level.lower()
+    from drivebus.terminal import configure_logging
+
+    configure_logging(level, trace=trace)
+
 
 _SIGNED = {"ignore_unknown_options": True}
 """Let negative numbers through as arguments (``drivebus jog m.toml x -20``)."""
@@ -297,47 +328,6 @@ def check(config: ConfigArg) -> None:
 
 # -- errors ----------------------------------------------------------------------------------------
 
-_MISSING = "the port does not exist: plug in the adapter, check the name (ls /dev/serial/by-id/)"
-_DENIED = ("add your user to the port's group (sudo usermod -aG dialout $USER) and log in "
-           "again")
-_PORT_HINTS = {
-    errno.ENOENT: _MISSING,
-    errno.ENODEV: _MISSING,
-    errno.ENXIO: _MISSING,
-    errno.EACCES: _DENIED,
-    errno.EPERM: _DENIED,
-    errno.EBUSY: "another program has the port open: close it (fuser -v PORT shows which)",
-}
-
-
-def _errno(exc: BaseException) -> int | None:
-    seen: BaseException | None = exc
-    while seen is not None:
-        code = getattr(seen, "errno", None)
-        if isinstance(code, int):
-            return code
-        seen = seen.__cause__ or seen.__context__
-    return None
-
-
-def explain(exc: BaseException) -> tuple[str, int]:
-    """The one line to print for ``exc`` (cause; what to do) and the exit status."""
-    if isinstance(exc, ConfigError | ArgumentError):
-        return f"error: {exc}", 2
-    code = _errno(exc)
-    if isinstance(exc, LineClosed | OSError) and code in _PORT_HINTS:
-        port = getattr(exc, "filename", None)
-        if port is None and (m := re.search(r"serial port '([^']+)'", str(exc))):
-            port = m.group(1)
-        return f"error: cannot open {port or 'the port'}: {os.strerror(code)}; " \
-               f"{_PORT_HINTS[code]}", 1
-    if isinstance(exc, DriveOffline | TransactionError):
-        return (f"error: {exc}; check power, wiring, address and line settings "
-                f"(`drivebus scan PORT` lists the slaves that answer)"), 1
-    if isinstance(exc, termios.error):
-        return f"error: the serial port refused the line settings: {exc.args[-1]}", 1
-    return f"error: {exc}", 1
-
 
 def _leaves(exc: BaseException) -> list[BaseException]:
     """The errors inside ``exc``: task groups wrap them in (nested) exception groups."""
@@ -384,7 +374,7 @@ def main() -> None:
     configuration error, 130 interrupted (after stopping what the command started).
     """
     debug = "--debug" in sys.argv
-    if debug:
+    if debug:  # anywhere on the command line, not only before the command
         sys.argv.remove("--debug")
     try:
         code = app(standalone_mode=False, prog_name="drivebus")
@@ -400,7 +390,7 @@ def main() -> None:
     sys.exit(code if isinstance(code, int) else 0)
 
 
-__all__ = ["app", "explain", "main"]
+__all__ = ["app", "main"]
 
 if __name__ == "__main__":
     main()

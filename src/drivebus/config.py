@@ -155,6 +155,8 @@ class AxisConfig(_Model):
     settings: LineSettings | None = None
     pulses_per_rev: StrictInt = Field(10000, gt=0)
     units_per_rev: StrictFloat = 1.0
+    unit: str = Field("units", min_length=1, max_length=16, pattern=r"^[^\s]+$",
+                      description="name of the user unit in messages and displays (mm, deg)")
     speed: StrictFloat = Field(10.0, gt=0, description="default speed, units/s")
     accel: StrictFloat = Field(100.0, gt=0, description="default acceleration, units/s²")
     decel: StrictFloat = Field(100.0, gt=0, description="default deceleration, units/s²")

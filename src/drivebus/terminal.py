@@ -10,10 +10,15 @@ runs a command so that SIGINT/SIGTERM cancel it, its cleanup (stopping axes) inc
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
+import logging
 import math
+import os
+import re
 import signal
 import sys
+import termios
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
@@ -42,7 +47,14 @@ from drivebus.app.operations import (
     check_config as check_machine_file,
 )
 from drivebus.app.scan import Found, scan
-from drivebus.motion import Axis, Machine
+from drivebus.errors import (
+    ArgumentError,
+    ConfigError,
+    DriveOffline,
+    LineClosed,
+    TransactionError,
+)
+from drivebus.motion import Axis, AxisState, Machine
 from drivebus.settings import LineSettings
 from drivebus.sim.serve import serve_simulators
 from drivebus.views import axes_table, axis_line, axis_record, slaves_table, stats_lines
@@ -61,6 +73,23 @@ __all__ = [
     "show_status",
     "stop_axes",
 ]
+
+
+def configure_logging(level: str, *, trace: bool = False) -> None:
+    """Log to stderr at ``level`` (``debug``..``error``); ``trace`` also logs every frame
+    (the ``drivebus.trace`` logger) whatever the level."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger("drivebus")
+    root.handlers[:] = [handler]
+    root.setLevel(level.upper())
+    root.propagate = False
+    logging.getLogger("drivebus.trace").setLevel(logging.DEBUG if trace else logging.WARNING)
+    if trace and root.level > logging.DEBUG:
+        root.setLevel(logging.DEBUG)
+        for name in ("drivebus.motion", "drivebus.app", "drivebus.bus", "drivebus.line",
+                     "drivebus.sim", "drivebus.drives"):
+            logging.getLogger(name).setLevel(level.upper())
 
 
 class Out:
@@ -162,7 +191,8 @@ async def scan_line(
 
 
 async def show_status(out: Out, config: Path, axes: Sequence[str], as_json: bool) -> int:
-    """Print the named axes' (or all axes') status; exit status 1 if any is in alarm."""
+    """Print the named axes' (or all axes') status, the unreachable ones Offline with the
+    reason (also one line on stderr each); exit status 1 if any is in alarm or Offline."""
     async with opened(config, axes, observer=True) as m:  # looking must not stop anything
         if as_json:
             print(json.dumps([axis_record(m, n) for n in m.axes], indent=2), flush=True)
@@ -171,8 +201,12 @@ async def show_status(out: Out, config: Path, axes: Sequence[str], as_json: bool
         else:
             for n in m.axes:
                 out.line(axis_line(m, n))
-        alarms = [n for n, a in m.axes.items() if a.status is not None and a.status.alarm]
-    return 1 if alarms else 0
+        for ax in m.axes.values():
+            if ax.state is AxisState.OFFLINE and ax.error is not None:
+                print(explain(ax.error)[0], file=sys.stderr, flush=True)
+        faults = [n for n, a in m.axes.items() if a.state is AxisState.OFFLINE
+                  or (a.status is not None and a.status.alarm)]
+    return 1 if faults else 0
 
 
 async def stop_axes(out: Out, config: Path, axes: Sequence[str]) -> int:
@@ -334,6 +368,50 @@ async def monitor(out: Out, config: Path, interval: float, count: int | None) ->
 
 def _monitor_view(m: Machine) -> Group:
     return Group(axes_table(m), slaves_table(m))
+
+
+# -- errors as one line ----------------------------------------------------------------------------
+
+_MISSING = "the port does not exist: plug in the adapter, check the name (ls /dev/serial/by-id/)"
+_DENIED = ("add your user to the port's group (sudo usermod -aG dialout $USER) and log in "
+           "again")
+_PORT_HINTS = {
+    errno.ENOENT: _MISSING,
+    errno.ENODEV: _MISSING,
+    errno.ENXIO: _MISSING,
+    errno.EACCES: _DENIED,
+    errno.EPERM: _DENIED,
+    errno.EBUSY: "another program has the port open: close it (fuser -v PORT shows which)",
+}
+
+
+def _errno(exc: BaseException) -> int | None:
+    seen: BaseException | None = exc
+    while seen is not None:
+        code = getattr(seen, "errno", None)
+        if isinstance(code, int):
+            return code
+        seen = seen.__cause__ or seen.__context__
+    return None
+
+
+def explain(exc: BaseException) -> tuple[str, int]:
+    """The one line to print for ``exc`` (cause; what to do) and the exit status."""
+    if isinstance(exc, ConfigError | ArgumentError):
+        return f"error: {exc}", 2
+    code = _errno(exc)
+    if isinstance(exc, LineClosed | OSError) and code in _PORT_HINTS:
+        port = getattr(exc, "filename", None)
+        if port is None and (m := re.search(r"serial port '([^']+)'", str(exc))):
+            port = m.group(1)
+        return f"error: cannot open {port or 'the port'}: {os.strerror(code)}; " \
+               f"{_PORT_HINTS[code]}", 1
+    if isinstance(exc, DriveOffline | TransactionError):
+        return (f"error: {exc}; check power, wiring, address and line settings "
+                f"(`drivebus scan PORT` lists the slaves that answer)"), 1
+    if isinstance(exc, termios.error):
+        return f"error: the serial port refused the line settings: {exc.args[-1]}", 1
+    return f"error: {exc}", 1
 
 
 # -- the standalone simulator ---------------------------------------------------------------------
