@@ -10,6 +10,7 @@ runs a command so that SIGINT/SIGTERM cancel it, its cleanup (stopping axes) inc
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import json
 import logging
@@ -37,6 +38,7 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
+from drivebus.app import registers
 from drivebus.app.operations import (
     Operation,
     jog_ended_by_axis,
@@ -46,7 +48,9 @@ from drivebus.app.operations import (
 from drivebus.app.operations import (
     check_config as check_machine_file,
 )
+from drivebus.app.registers import RegisterValues, open_slave
 from drivebus.app.scan import Found, scan
+from drivebus.app.snapshots import machine_snapshot
 from drivebus.errors import (
     ArgumentError,
     ConfigError,
@@ -95,16 +99,26 @@ def configure_logging(level: str, *, trace: bool = False) -> None:
 class Out:
     """Where command output goes: a rich console on a terminal, plain lines otherwise."""
 
-    def __init__(self, interactive: bool | None = None) -> None:
-        self.interactive = sys.stdout.isatty() if interactive is None else interactive
+    def __init__(self, interactive: bool | None = None, *, as_json: bool = False) -> None:
+        self.as_json = as_json
+        """Results as JSON on stdout (``--json``): no tables, no progress, no text lines."""
+        self.interactive = (sys.stdout.isatty() if interactive is None else interactive) and (
+            not as_json)
         self.console = Console(highlight=False)
 
     def line(self, text: str) -> None:
-        """One line of output."""
+        """One line of output (none with ``--json``)."""
+        if self.as_json:
+            return
         if self.interactive:
             self.console.print(text, markup=False)
         else:
             print(text, flush=True)
+
+    def result(self, data: object, *, indent: int | None = 2) -> None:
+        """A command's result as JSON (with ``--json``; one line when ``indent`` is None)."""
+        if self.as_json:
+            print(json.dumps(data, indent=indent), flush=True)
 
     def warn(self, text: str) -> None:
         """A warning on stderr."""
@@ -158,33 +172,81 @@ def _fmt(v: float | None) -> str:
 def found_line(f: Found) -> str:
     """One slave found by a scan, as a line."""
     detail = f" ({f.detail})" if f.detail else ""
-    return f"address {f.address} at {f.settings}: {f.family}{detail}"
+    where = f"unit {f.address}" if f.settings is None else f"address {f.address} at {f.settings}"
+    return f"{where}: {f.family}{detail}"
 
 
 async def scan_line(
     out: Out, port: str, settings: list[LineSettings], addresses: list[int], timeout: float,
     *, quiet: bool = False,
 ) -> list[Found]:
-    """Scan ``port`` with a progress bar (terminal) or a line per slave found."""
+    """Scan ``port`` (any target) with a progress bar (terminal) or a line per slave found."""
     if quiet or not out.interactive:
 
-        def report(a: int, s: LineSettings, hit: Found | None) -> None:
+        def report(a: int, s: LineSettings | None, hit: Found | None) -> None:
             if hit is not None and not quiet:
                 print(f"found {found_line(hit)}", flush=True)
 
         return await scan(port, settings, addresses, timeout=timeout, on_probe=report)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   console=out.console) as prog:
-        task = prog.add_task("scanning", total=len(settings) * len(addresses))
+        rounds = len(settings) if settings else 1
+        task = prog.add_task("scanning", total=rounds * len(addresses))
 
-        def show(a: int, s: LineSettings, hit: Found | None) -> None:
+        def show(a: int, s: LineSettings | None, hit: Found | None) -> None:
             extra = 0
             if hit is not None:
-                extra = len(settings) - settings.index(s) - 1  # not probed again
+                if s is not None:
+                    extra = len(settings) - settings.index(s) - 1  # not probed again
                 prog.console.print(f"found {found_line(hit)}", markup=False)
-            prog.update(task, advance=1 + extra, description=f"scanning {s} address {a:>3}")
+            where = "unit" if s is None else f"{s} address"
+            prog.update(task, advance=1 + extra, description=f"scanning {where} {a:>3}")
 
         return await scan(port, settings, addresses, timeout=timeout, on_probe=show)
+
+
+# -- register tools ------------------------------------------------------------------------------
+
+
+async def read_registers(
+    out: Out, target: str, address: int, register: int, count: int, input_table: bool,
+    settings: object, fmt: str, interval: float | None, polls: int | None, timeout: float,
+) -> int:
+    """Read registers once, or every ``interval`` s (``polls`` times, else until Ctrl-C)."""
+    assert settings is None or isinstance(settings, LineSettings)
+    async with open_slave(target, address, settings=settings, timeout=timeout) as slave:
+        n = 0
+        while True:
+            words, values = await registers.read_registers(
+                slave, register, count, input=input_table, fmt=fmt)
+            record = RegisterValues(target, address, register, input_table, words, fmt, values)
+            if out.as_json:
+                out.result(record.as_dict(), indent=None if interval else 2)
+            else:
+                step = registers.words_per_value(fmt)
+                stamp = f"{time.strftime('%H:%M:%S')} " if interval else ""
+                for i, v in enumerate(values):
+                    out.line(f"{stamp}[{register + i * step}]: {v}")
+            n += 1
+            if interval is None or (polls is not None and n >= polls):
+                return 0
+            await anyio.sleep(interval)
+
+
+async def write_registers(
+    out: Out, target: str, address: int, register: int, values: Sequence[str],
+    settings: object, fmt: str, timeout: float,
+) -> int:
+    """Write registers and say what went to the slave."""
+    assert settings is None or isinstance(settings, LineSettings)
+    async with open_slave(target, address, settings=settings, timeout=timeout) as slave:
+        words = await registers.write_registers(slave, register, values, fmt=fmt)
+    out.line(f"wrote {len(words)} register{'' if len(words) == 1 else 's'} from "
+             f"[{register}] of slave {address} on {target}: "
+             f"{' '.join(f'0x{w:04X}' for w in words)}")
+    out.result({"target": target, "address": address, "register": register,
+                "format": fmt, "words": words})
+    return 0
 
 
 # -- status, stop --------------------------------------------------------------------------------
@@ -211,6 +273,7 @@ async def show_status(out: Out, config: Path, axes: Sequence[str], as_json: bool
 
 async def stop_axes(out: Out, config: Path, axes: Sequence[str]) -> int:
     """Stop the named axes (all if none), each with its decelerating stop."""
+    records: list[dict[str, object]] = []
     async with opened(config, axes) as m:
 
         async def stop(name: str, ax: Axis) -> None:
@@ -218,10 +281,13 @@ async def stop_axes(out: Out, config: Path, axes: Sequence[str]) -> int:
             await ax.stop()
             what = "stopped" if moving else "at standstill"
             out.line(f"{name}: {what} at position={_fmt(ax.position)} state={ax.state}")
+            records.append({"axis": name, "was_moving": moving, "position": ax.position,
+                            "state": str(ax.state)})
 
         async with anyio.create_task_group() as tg:
             for name, ax in m.axes.items():
                 tg.start_soon(stop, name, ax)
+    out.result(sorted(records, key=lambda r: str(r["axis"])))
     return 0
 
 
@@ -271,24 +337,29 @@ async def _one_axis(out: Out, config: Path, axis: str) -> AsyncIterator[_Run]:
     finally:
         if run is not None and run.op.what and not run.op.done:
             ax, op = run.axis, run.op
+            op.position, op.state = ax.position, str(ax.state)
             if ax.command_started_at >= op.started:  # the drive took a command: it moved
                 out.line(f"{ax.name}: {op.what} stopped after "
                          f"{time.monotonic() - op.started:.2f} s, "
                          f"position={_fmt(ax.position)} state={ax.state}")
+            out.result(op.as_dict())
 
 
 async def _with_progress(
     out: Out, run: _Run, what: str, start: float | None, goal: float | None,
     motion: Callable[[], Awaitable[object]],
 ) -> None:
-    """Run ``motion`` while showing its progress; a report line when it completes."""
+    """Run ``motion`` while showing its progress; a report line (``--json``: the record)
+    when it completes."""
     ax, op = run.axis, run.op
     async with anyio.create_task_group() as tg:
-        tg.start_soon(_progress, out, ax, what, start, goal)
+        if not out.as_json:
+            tg.start_soon(_progress, out, ax, what, start, goal)
         await run_operation(ax, what, motion, op)
         tg.cancel_scope.cancel()
     out.line(f"{ax.name}: {what} done in {op.seconds:.2f} s, "
              f"position={_fmt(op.position)} state={op.state}")
+    out.result(op.as_dict())
 
 
 async def move_axis(
@@ -344,9 +415,19 @@ async def jog_axis(out: Out, config: Path, axis: str, speed: float, seconds: flo
 
 
 async def monitor(out: Out, config: Path, interval: float, count: int | None) -> int:
-    """Show every axis and the per-slave bus counters until Ctrl-C (or ``count`` updates)."""
+    """Show every axis and the per-slave bus counters until Ctrl-C (or ``count`` updates);
+    with ``--json`` one JSON line per update."""
     async with opened(config, observer=True) as m:
         n = 0
+        if out.as_json:
+            while count is None or n < count:
+                snap = machine_snapshot(m).as_dict()
+                out.result({"time": time.time(), "axes": [axis_record(m, n) for n in m.axes],
+                            "lines": snap["lines"]}, indent=None)
+                n += 1
+                if count is None or n < count:
+                    await anyio.sleep(interval)
+            return 0
         if out.interactive:
             with Live(_monitor_view(m), console=out.console, refresh_per_second=8) as live:
                 while count is None or n < count:
@@ -429,6 +510,9 @@ async def serve_sim(out: Out, config: Path, log: bool) -> int:
 def check_config(out: Out, config: Path, sysfs: Path = Path("/sys")) -> int:
     """Validate ``config`` and report on its lines; exit status 1 if a line cannot work."""
     report = check_machine_file(config, sysfs)
+    out.result({"file": str(config), "machine": report.name, "axes": report.axes,
+                "lines": [dataclasses.asdict(ln) for ln in report.lines],
+                "problems": report.problems})
     out.line(f"{config}: valid machine {report.name!r}: {_count(report.axes, 'axis', 'axes')} "
              f"on {_count(len(report.lines), 'line', 'lines')}")
     for ln in report.lines:
