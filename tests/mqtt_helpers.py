@@ -29,6 +29,7 @@ from paho.mqtt.properties import Properties
 from drivebus.app import MachineSession
 from drivebus.config import parse_broker_url
 from drivebus.mqtt import Bridge, BridgeOptions
+from drivebus.mqtt.bridge import NO_DELAY
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "configs" / "demo.toml"
@@ -67,6 +68,7 @@ class Broker:
         self.conf = directory / "mosquitto.conf"
         self.conf.write_text(
             f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
+            f"set_tcp_nodelay true\n"
             f"max_queued_messages 100000\n"
         )
         self.log = directory / "mosquitto.log"
@@ -98,6 +100,16 @@ class Broker:
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait()
+
+    def freeze(self) -> None:
+        """SIGSTOP it: a hung broker (connections stay open, nothing is answered)."""
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGSTOP)
+
+    def thaw(self) -> None:
+        """SIGCONT after ``freeze``."""
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGCONT)
 
     # third-party clients ---------------------------------------------------------------
 
@@ -263,7 +275,8 @@ async def probe(url: str, *topics: str) -> AsyncIterator[Probe]:
     """A connected ``Probe`` subscribed to its reply topic and ``topics``."""
     port = int(url.rsplit(":", 1)[1])
     async with aiomqtt.Client("127.0.0.1", port, protocol=aiomqtt.ProtocolVersion.V5,
-                              identifier=f"probe-{uuid.uuid4().hex[:8]}") as client:
+                              identifier=f"probe-{uuid.uuid4().hex[:8]}",
+                              socket_options=[NO_DELAY]) as client:
         p = Probe(client)
         await client.subscribe(p.reply_topic, qos=1)
         for t in topics:

@@ -34,6 +34,7 @@ import json
 import logging
 import random
 import secrets
+import socket
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -56,7 +57,7 @@ from drivebus.mqtt.discovery import discovery_messages
 from drivebus.mqtt.outbox import Outbox, Outgoing
 from drivebus.mqtt.topics import PLANT_ESTOP, Topics, check_node
 
-__all__ = ["Bridge", "BridgeOptions", "run_bridge", "run_configured_bridge"]
+__all__ = ["NO_DELAY", "Bridge", "BridgeOptions", "run_bridge", "run_configured_bridge"]
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +71,9 @@ _RECONNECT_MIN = 0.2
 """First wait before reconnecting, s; it doubles up to ``reconnect_max``."""
 _GOODBYE = 3.0
 """Longest a bridge that is being cancelled spends saying ``offline``, s."""
+
+NO_DELAY = (socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+"""Small messages (an e-stop, a reply) leave at once, not after Nagle's wait for an ACK."""
 
 _STATE_KEYS = (
     "state", "position", "velocity", "enabled", "moving", "homed", "alarm", "alarm_code",
@@ -277,6 +281,7 @@ class Bridge:
             queue_type=_UrgentFirst,
             max_queued_incoming_messages=_INCOMING,
             logger=logging.getLogger("drivebus.mqtt.client"),
+            socket_options=[NO_DELAY],
         )
         client.pending_calls_threshold = _IN_FLIGHT + 8  # we bound them: no warning
         return client
