@@ -221,3 +221,28 @@ async def test_killing_the_broker_stops_a_jog_a_move_finishes_and_state_comes_ba
 
         await until(lambda: not waiting())
         assert bridge.outbox.dropped_replies == 0
+
+
+async def test_a_hung_broker_blocks_neither_the_axes_nor_the_buffers(broker: Broker) -> None:
+    async with bridged(DEMO, broker.url, keepalive=1) as (s, bridge), probe(broker.url) as p:
+        jog = await p.command("demo", "z", "jog", {"speed": 4.0, "ttl": 10.0})
+        assert jog[-1]["status"] == "done"
+        broker.freeze()  # SIGSTOP: the TCP connection stays up, nothing answers
+        try:
+            # the machine goes on at full speed: a move through the session completes
+            rec = await s.start_move("x", target=100.0, speed=150.0)
+            await rec.done.wait()
+            assert rec.state == "done"
+            assert s.machine.sim_drives["x"].position() == s.axis("x").units.to_pulses(100.0)
+            # the keepalive finds the broker dead: the MQTT jog stops
+            async for st in s.axis("z").watch():
+                if not st.moving and s.axis("z").state is AxisState.STANDSTILL:
+                    break
+            assert not s.machine.sim_drives["z"].is_moving() and not bridge.connected
+            # what waits for the broker is one message per topic, not a backlog
+            assert len(bridge.outbox) <= len(s.machine.axes) + len(s.machine.buses)
+        finally:
+            broker.thaw()
+        await until(lambda: bridge.connections >= 2)
+        got = _messages(await broker.sub("drivebus/demo/axes/x/state", count=1))
+        assert got[0][1]["position"] == pytest.approx(100.0)
