@@ -7,8 +7,11 @@ subscriber) and the command round trip (publish of a ``move`` to its ``accepted`
 the axis has admitted it and its start frames are on the wire). Then, with every axis
 moving, one message on ``drivebus/estop``: the fan-out time runs from that publish to the
 e-stop frame on each node's wire (the simulators' wire logs, CLOCK_MONOTONIC, shared by
-the processes); the figure is the last node's first e-stop frame, and
-``all_stopped`` the last e-stop frame of every axis of the plant.
+the processes); the figure is the last node's first e-stop frame, ``estop_delivery`` the
+last node's session being asked to e-stop (broker and bridge), and ``all_stopped`` the
+last e-stop frame of every axis of the plant. All processes share this host's cores
+(``node_cpu_cores`` is what the nodes and the broker used): on a plant each node has a
+host of its own.
 
 Needs ``mosquitto`` (Debian's package; ``make test`` installs it); without it the
 scenario gives one row saying so. ``python -m drivebus.bench.plant CONFIG URL NODE`` is
@@ -172,6 +175,7 @@ async def plant(nodes: int, lines: int, axes: int, seconds: float, estops: int
     rtt: list[float] = []
     fan_first: list[float] = []
     fan_all: list[float] = []
+    delivery: list[float] = []
     cpu0, wall0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
     with tempfile.TemporaryDirectory(prefix="drivebus-bench-plant-") as tmp:
         d = Path(tmp)
@@ -229,6 +233,7 @@ async def plant(nodes: int, lines: int, axes: int, seconds: float, estops: int
                     reps = [o.reports[(seq, n)] for n in names]
                     fan_first.append(max(r["first"] for r in reps) - t0)
                     fan_all.append(max(r["last"] for r in reps) - t0)
+                    delivery.append(max(r["received"] for r in reps) - t0)
                     await o.until(lambda: not any(s["moving"] for s in o.states.values()))
                 tg.cancel_scope.cancel()
             for p in procs:
@@ -248,6 +253,8 @@ async def plant(nodes: int, lines: int, axes: int, seconds: float, estops: int
         "estop_fanout_p50_ms": percentile(f1, 0.5),
         "estop_fanout_p99_ms": percentile(f1, 0.99),
         "estop_fanout_max_ms": max(f1) if f1 else float("nan"),
+        "estop_delivery_p50_ms": percentile([x * 1e3 for x in delivery], 0.5),
+        "estop_delivery_max_ms": max(delivery) * 1e3 if delivery else float("nan"),
         "all_stopped_p50_ms": percentile(fa, 0.5),
         "all_stopped_max_ms": max(fa) if fa else float("nan"),
         "node_cpu_cores": cores,
@@ -291,15 +298,26 @@ async def _node(config: str, url: str, node: str) -> None:
     async with MachineSession.open(config) as session, anyio.create_task_group() as tg:
         tg.start_soon(lambda: run_bridge(session, url, node=node, discovery=False,
                                          stats_period=1.0))
+        received: list[float] = []  # when the session was asked for each e-stop
+
+        async def estops() -> None:
+            with session.events.subscribe({"motions"}) as sub:
+                async for ev in sub:
+                    if ev.data.get("type") == "estop" and ev.data.get("event") == "requested":
+                        received.append(time.monotonic())
+
+        tg.start_soon(estops)
         async with aiomqtt.Client(host, int(port), protocol=aiomqtt.ProtocolVersion.V5,
                                   socket_options=[NO_DELAY]) as c:
             await c.subscribe(_REPORT, qos=1)
             async for msg in c.messages:
                 req = json.loads(msg.payload)
                 frames = _estop_frames(session, req["t0"])
+                nan = float("nan")
                 await c.publish(f"{_REPORT}/{node}", json.dumps({
-                    "seq": req["seq"], "first": frames[0] if frames else float("nan"),
-                    "last": frames[-1] if frames else float("nan"), "n": len(frames),
+                    "seq": req["seq"], "first": frames[0] if frames else nan,
+                    "last": frames[-1] if frames else nan, "n": len(frames),
+                    "received": next((t for t in received if t >= req["t0"]), nan),
                 }), qos=1)
 
 
