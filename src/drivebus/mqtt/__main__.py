@@ -73,11 +73,24 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         return run_guarded(node, interrupt_ok=True)
-    except DrivebusError as exc:
+    except (Exception, BaseExceptionGroup) as exc:
         if args.debug:
             raise
-        print(f"error: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return 2 if isinstance(exc, ConfigError) else 1
+        status = 0
+        for leaf in dict.fromkeys(_leaves(exc)):  # task groups wrap errors in groups
+            if isinstance(leaf, DrivebusError | OSError):
+                print(f"error: {type(leaf).__name__}: {leaf}", file=sys.stderr)
+            else:
+                print(f"internal error: {type(leaf).__name__}: {leaf} (--debug shows where)",
+                      file=sys.stderr)
+            status = max(status, 2 if isinstance(leaf, ConfigError) else 1)
+        return status
+
+
+def _leaves(exc: BaseException) -> list[BaseException]:
+    if isinstance(exc, BaseExceptionGroup):
+        return [leaf for e in exc.exceptions for leaf in _leaves(e)]
+    return [exc]
 
 
 if __name__ == "__main__":
