@@ -17,6 +17,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	-@sh .ci/ensure-mbpoll
+	-@sh .ci/ensure-mosquitto
 	$(BIN)/ruff check src tests examples
 	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q

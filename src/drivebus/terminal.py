@@ -39,6 +39,7 @@ from rich.progress import (
 )
 
 from drivebus.app import registers
+from drivebus.app.lifecycle import run_until_signalled
 from drivebus.app.operations import (
     Operation,
     jog_ended_by_axis,
@@ -129,37 +130,15 @@ class Out:
 
 
 def run_guarded(fn: Callable[[], Awaitable[int]], *, interrupt_ok: bool = False) -> int:
-    """Run ``fn`` in an event loop; SIGINT/SIGTERM cancel it (its cleanup, e.g. stopping
-    moving axes, runs in full) and give exit status 128+signal, or 0 if ``interrupt_ok``
-    (commands that run until Ctrl-C). Further signals during the cleanup are ignored."""
+    """Run a command: SIGINT/SIGTERM cancel it (its cleanup, e.g. stopping moving axes,
+    runs in full) and give exit status 128+signal, or 0 if ``interrupt_ok`` (commands that
+    run until Ctrl-C); an interrupted command says so on stderr."""
 
-    async def main() -> int:
-        caught: list[int] = []
-        result = 0
-        with anyio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
-            async with anyio.create_task_group() as tg:
+    def said(sig: signal.Signals) -> None:
+        if not interrupt_ok:
+            print(f"interrupted ({sig.name})", file=sys.stderr, flush=True)
 
-                async def watch() -> None:
-                    async for sig in signals:
-                        caught.append(int(sig))
-                        tg.cancel_scope.cancel()
-                        return
-
-                async def work() -> None:
-                    nonlocal result
-                    result = await fn()
-                    tg.cancel_scope.cancel()
-
-                tg.start_soon(watch)
-                tg.start_soon(work)
-        if caught:
-            if not interrupt_ok:
-                name = signal.Signals(caught[0]).name
-                print(f"interrupted ({name})", file=sys.stderr, flush=True)
-            return 0 if interrupt_ok else 128 + caught[0]
-        return result
-
-    return anyio.run(main)
+    return run_until_signalled(fn, interrupt_ok=interrupt_ok, on_signal=said)
 
 
 def _fmt(v: float | None) -> str:
