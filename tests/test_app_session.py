@@ -25,7 +25,7 @@ async def test_snapshot_names_lines_and_axes_as_plain_data() -> None:
         x = s.axis_snapshot("x").as_dict()
         assert x["drive"] == "NT86" and x["soft_limits"] == [-5.0, 400.0]
         assert x["position"] == pytest.approx(12.0)
-        with pytest.raises(NotFound, match="no axis 'w'.*x, y, z, aux, r"):
+        with pytest.raises(NotFound, match=r"no axis 'w'.*x, y, z, aux, r"):
             s.axis_snapshot("w")
 
 
@@ -150,3 +150,61 @@ def test_a_slow_subscriber_gets_the_latest_state_and_a_bounded_backlog() -> None
     states = [e.data["i"] for e in got if e.topic == "axes"]
     assert states == [99]  # one state: the latest
     assert [e.data["n"] for e in got if e.topic == "motions"] == [97, 98, 99]
+
+
+async def test_a_released_owner_stops_its_own_jog_but_not_a_later_motion() -> None:
+    async with MachineSession.open(DEMO) as s:
+        z, twin = s.axis("z"), s.machine.sim_drives["z"]
+        # the jog is authorized as the client and held by one of its connections
+        await s.jog("z", 5.0, ttl=0.2, client="tablet", owner="tablet#1")
+        async for st in z.watch():
+            if st.moving:
+                break
+        with anyio.fail_after(5):  # the watchdog ends it; then another client moves z
+            async for st in z.watch():
+                if not st.moving and z.state is AxisState.STANDSTILL:
+                    break
+        rec = await s.start_move("z", target=60.0, speed=10.0, client="mes")
+        async for st in z.watch():
+            if st.moving:
+                break
+        await s.release("tablet#1")  # the connection that jogged goes away
+        assert twin.is_moving() and rec.state == "running"
+        await s.cancel_motion(rec.id)
+        assert not twin.is_moving()
+
+
+async def test_stop_all_stops_the_moving_axes_and_names_them() -> None:
+    async with MachineSession.open(DEMO) as s:
+        assert await s.stop_all() == {}
+        await s.start_move("x", target=390.0, speed=50.0)
+        await s.jog("z", -5.0, ttl=30.0, client="pendant")
+        for name in ("x", "z"):
+            async for st in s.axis(name).watch():
+                if st.moving:
+                    break
+        outcome = await s.stop_all()
+        assert outcome == {"x": None, "z": None}
+        assert not any(t.is_moving() for t in s.machine.sim_drives.values())
+
+
+async def test_raw_registers_are_read_and_written_at_the_slaves_own_settings() -> None:
+    async with MachineSession.open(DEMO) as s:
+        twin = s.machine.sim_drives["x"]  # NT86 at 115200 8N1, address 2
+        assert await s.read_registers("rs485", 2, 93) == [twin.drive_id]
+        await s.write_registers("rs485", 2, 272, [5])
+        assert twin.params[272] == 5
+        assert await s.read_registers("rs485", 2, 272, 1) == [5]
+        assert len(await s.read_registers("eth", 1, 0, 4)) == 4  # the EPR60 over TCP
+        # the BHSS at 19200 8E1: the line is reconfigured for it
+        assert len(await s.read_registers("rs485", 3, 0, 2)) == 2
+        with pytest.raises(NotFound, match=r"no line 'can'.*rs485, eth"):
+            await s.read_registers("can", 2, 0)
+        with pytest.raises(ArgumentError, match="count"):
+            await s.read_registers("rs485", 2, 0, 126)
+        with pytest.raises(ArgumentError, match=r"values\[1\]"):
+            await s.write_registers("rs485", 2, 272, [1, 70000])
+        s.acquire_lease("holder", 30.0)
+        with pytest.raises(LeaseHeld):
+            await s.write_registers("rs485", 2, 272, [6], client="other")
+        assert twin.params[272] == 5
