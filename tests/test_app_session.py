@@ -208,3 +208,16 @@ async def test_raw_registers_are_read_and_written_at_the_slaves_own_settings() -
         with pytest.raises(LeaseHeld):
             await s.write_registers("rs485", 2, 272, [6], client="other")
         assert twin.params[272] == 5
+
+
+def test_a_subscription_changes_its_topics_and_drops_what_it_no_longer_watches() -> None:
+    sub = Subscription(set())
+    sub.put(Event("axes", "x", {"i": 0}))
+    assert sub.set_topics(["axes", "motions"]) == {"axes", "motions"}
+    sub.put(Event("axes", "x", {"i": 1}))
+    sub.put(Event("motions", None, {"n": 1}))
+    sub.set_topics(["motions"])
+    got = anyio.run(sub.get)
+    assert got.topic == "motions"
+    with pytest.raises(ArgumentError, match="no topic bogus"):
+        sub.set_topics(["axes", "bogus"])
