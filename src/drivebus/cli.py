@@ -270,6 +270,25 @@ def sim(
 
 
 @app.command()
+def serve(
+    config: ConfigArg,
+    host: Annotated[str, typer.Option(help="address to listen on (beyond loopback only "
+                                           "with --token-file)")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="TCP port (0: any free port)")] = 8000,
+    token_file: Annotated[Path | None, typer.Option(
+        help="bearer tokens, one 'NAME read|command TOKEN' per line")] = None,
+) -> None:
+    """Serve the machine over HTTP and WebSocket, with a live dashboard at /.
+
+    Opens the machine once and serves until Ctrl-C or SIGTERM, then stops every moving
+    axis before it exits. API docs at /docs.
+    """
+    from drivebus.service import run
+
+    raise typer.Exit(run(config, host=host, port=port, token_file=token_file))
+
+
+@app.command()
 def check(config: ConfigArg) -> None:
     """Validate a machine file and check its serial ports and adapters.
 
