@@ -530,8 +530,9 @@ class MachineSession:
     async def read_registers(
         self, line: str, address: int, register: int, count: int = 1, *, input: bool = False
     ) -> list[int]:
-        """Read ``count`` holding (or ``input``) registers from slave ``address`` on ``line``
-        at ``Priority.CONFIG``, between the axes' polls. Needs no lease."""
+        """Read ``count`` holding (or ``input``) registers from slave ``address`` on ``line``.
+        Needs no lease. At ``Priority.POLL``, in turn with the axes' polls: a client
+        reading in a loop never starves them (nor delays a command)."""
         address = checks.whole("address", address, 1, 247)
         register = checks.whole("register", register, 0, 0xFFFF)
         count = checks.whole("count", count, 1, 125)
@@ -539,8 +540,8 @@ class MachineSession:
             raise ArgumentError(f"register {register} + count {count} passes 65535")
         h = self._slave(line, address)
         if input:
-            return await h.read_input_registers(register, count, priority=Priority.CONFIG)
-        return await h.read_holding_registers(register, count, priority=Priority.CONFIG)
+            return await h.read_input_registers(register, count, priority=Priority.POLL)
+        return await h.read_holding_registers(register, count, priority=Priority.POLL)
 
     async def write_registers(
         self,
