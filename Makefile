@@ -17,6 +17,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	-@sh .ci/ensure-mbpoll
+	-@sh .ci/ensure-chromium
 	$(BIN)/ruff check src tests examples
 	$(BIN)/python -m pytest -q
 
