@@ -10,12 +10,15 @@ from pathlib import Path
 from typing import Any
 
 import anyio
+import anyio.lowlevel
 import pytest
 from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 from drivebus import AxisState
+from drivebus.app import Event, EventHub
 from drivebus.service import Service, TokenStore
+from drivebus.service.fanout import Fanout
 from service_rig import TOKENS, at_rest, auth, moving, running, token_file, until
 
 AXES = {"x", "y", "z", "aux", "r"}
@@ -214,3 +217,37 @@ async def test_websocket_authentication_and_scopes(tmp_path: Path) -> None:
             reply = await recv_until(conn, lambda m: m["type"] == "reply")
             assert reply["error"]["error"] == "LeaseHeld" and reply["error"]["holder"] == "bob"
             assert not svc.session.machine.sim_drives["z"].is_moving()
+
+
+async def test_the_fan_out_feeds_every_mailbox_and_a_slow_one_keeps_only_the_latest() -> None:
+    hub = EventHub()
+    fanout = Fanout(hub)
+    got: list[int] = []
+    async with anyio.create_task_group() as tg:
+        await tg.start(fanout.run)
+        with fanout.attach() as fast, fanout.attach() as slow:
+            fast.set_topics(["axes"])
+            slow.set_topics(["axes"])
+
+            caught_up = anyio.Event()
+
+            async def drain() -> None:
+                while not got or got[-1] != 99:
+                    got.append((await fast.get()).data["i"])
+                caught_up.set()
+
+            tg.start_soon(drain)
+            for i in range(100):
+                hub.publish(Event("axes", "x", {"i": i}))
+                for _ in range(4):  # let the fan-out and the fast reader run
+                    await anyio.lowlevel.checkpoint()
+            # nobody read the slow mailbox: it holds one state, the newest
+            assert (await slow.get()).data["i"] == 99
+            with anyio.move_on_after(0.05):
+                await slow.get()
+                raise AssertionError("the slow mailbox kept a backlog")
+            with anyio.fail_after(5):
+                await caught_up.wait()
+        assert fanout.connections == 0
+        tg.cancel_scope.cancel()
+    assert len(got) > 50 and got == sorted(got) and got[-1] == 99  # the fast one kept up

@@ -9,10 +9,13 @@ checks arguments, states and the lease and raises typed errors, which
 # No ``from __future__ import annotations`` here: FastAPI reads the annotations at runtime.
 
 import itertools
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
 
+import anyio
 from fastapi import APIRouter, Depends, FastAPI, Header, Request, Response
 from fastapi.responses import FileResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
@@ -22,6 +25,7 @@ from drivebus.app import MachineSession
 from drivebus.service import problems
 from drivebus.service.auth import Principal, TokenStore, require_command
 from drivebus.service.encoding import EventEncoder
+from drivebus.service.fanout import Fanout
 from drivebus.service.models import (
     GroupMoveRequest,
     JogRequest,
@@ -48,6 +52,11 @@ class ServiceState:
     tokens: TokenStore
     encoder: EventEncoder = field(default_factory=EventEncoder)
     connections: itertools.count = field(default_factory=lambda: itertools.count(1))
+    fanout: Fanout = field(init=False)
+    """The session's events to the WebSocket connections (run by the app's lifespan)."""
+
+    def __post_init__(self) -> None:
+        self.fanout = Fanout(self.session.events)
 
 
 def _state(request: Request) -> ServiceState:
@@ -306,7 +315,17 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     from drivebus.service.ws import websocket_endpoint
 
     tokens = tokens or TokenStore()
+    state = ServiceState(session, tokens)
+
+    @asynccontextmanager
+    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        async with anyio.create_task_group() as tg:
+            await tg.start(state.fanout.run, name="drivebus service: websocket fan-out")
+            yield
+            tg.cancel_scope.cancel()
+
     app = FastAPI(
+        lifespan=lifespan,
         title=f"drivebus: machine {session.name}",
         version="1",
         description="Modbus drives on shared lines: axes, motions, e-stop, leases, raw "
@@ -314,7 +333,7 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
         docs_url="/docs",
         redoc_url=None,
     )
-    app.state.drivebus = ServiceState(session, tokens)
+    app.state.drivebus = state
     problems.install(app)
     app.include_router(router)
     app.add_api_websocket_route("/api/ws", websocket_endpoint)

@@ -217,11 +217,12 @@ async def open_service(
                     if sock is not None:
                         server = _Server(uvicorn.Config(
                             create_app(session, tokens),
-                            lifespan="off",
+                            lifespan="on",
                             log_config=None,
                             access_log=False,
                             ws="websockets-sansio",
                             ws_max_size=64 * 1024,
+                            ws_per_message_deflate=False,
                             timeout_graceful_shutdown=GRACEFUL_SHUTDOWN,
                         ))
                         await tg.start(_serve_http, server, sock)

@@ -54,8 +54,6 @@ log = logging.getLogger(__name__)
 
 AUTH_TIMEOUT = 5.0
 """How long a connection may take to send ``{"auth": ...}``."""
-SEND_TIMEOUT = 10.0
-"""A client that takes no message for this long is disconnected (its jogs stop)."""
 COMMAND_QUEUE = 16
 """Jogs waiting per connection; beyond that a jog is refused, never queued."""
 EVENT_CAPACITY = 256
@@ -97,7 +95,6 @@ class _Connection:
         """The owner of this connection's jogs: they stop when it closes."""
         self.sub = sub
         self.scope = scope
-        self._send_lock = anyio.Lock()
         self._lost = 0
         self._epoch = 0  # bumped by an e-stop: queued jogs from before are dropped
         self._axis_epoch: dict[str, int] = {}  # bumped by a stop of that axis
@@ -105,12 +102,13 @@ class _Connection:
     # -- sending -----------------------------------------------------------------------------
 
     async def send(self, text: str) -> None:
-        """Send one message; a client that is gone or too slow ends the connection."""
+        """Send one message; a client that is gone ends the connection. A slow client
+        only holds up its own sender (its mailbox keeps the latest states meanwhile)."""
         try:
-            async with self._send_lock:
-                with anyio.fail_after(SEND_TIMEOUT):
-                    await self.ws.send_text(text)
-        except (WebSocketDisconnect, OSError, TimeoutError) as exc:
+            # Each send is one whole frame written at once (uvicorn queues the frames of
+            # concurrent senders in order), so replies and events need no lock.
+            await self.ws.send_text(text)
+        except (WebSocketDisconnect, OSError) as exc:
             log.debug("websocket %s: send failed (%r): closing", self.id, exc)
             self.scope.cancel()
 
@@ -312,7 +310,7 @@ async def websocket_endpoint(ws: WebSocket) -> None:
     session = state.session
     send_jobs, jobs = anyio.create_memory_object_stream[tuple[int, int, Any, _JogBody]](
         COMMAND_QUEUE)
-    with session.events.subscribe((), capacity=EVENT_CAPACITY) as sub:
+    with state.fanout.attach(capacity=EVENT_CAPACITY) as sub:
         conn: _Connection | None = None
         try:
             async with anyio.create_task_group() as tg, send_jobs, jobs:
