@@ -11,8 +11,9 @@ import httpx
 import pytest
 
 from drivebus import AxisState
-from drivebus.service import TokenStore
-from service_rig import auth, moving, running, token_file, until
+from drivebus.app import MachineSession
+from drivebus.service import TokenStore, open_service
+from service_rig import DEMO, auth, moving, running, token_file, until
 
 PROBLEM = "application/problem+json"
 
@@ -340,3 +341,23 @@ async def test_estop_gets_through_while_other_requests_are_in_flight() -> None:
         # 100 mm/s at 100 mm/s² takes 50 mm to stop: the e-stop cut that ramp short
         moved = (twins["x"].position() - p0) * x.config.units_per_rev / x.config.pulses_per_rev
         assert moved < 25.0
+
+
+async def test_sibling_tasks_share_the_session_and_http_can_be_left_out() -> None:
+    seen: list[str] = []
+
+    async def bridge(session: MachineSession) -> None:  # e.g. a plant bridge
+        seen.append(session.name)
+        try:
+            await anyio.sleep_forever()
+        finally:
+            seen.append("cancelled")
+
+    async with open_service(DEMO, http=False, extra=[bridge]) as svc:
+        assert svc.url is None
+        await until(svc, lambda: seen == ["demo"])
+        await svc.session.start_move("x", target=300.0, speed=50.0)
+        await moving(svc, "x")
+    assert seen == ["demo", "cancelled"]
+    assert svc.stopped == {"x": None} and svc.at_rest  # leaving it stopped x
+    assert not svc.session.machine.sim_drives["x"].is_moving()
