@@ -221,3 +221,16 @@ def test_a_subscription_changes_its_topics_and_drops_what_it_no_longer_watches()
     assert got.topic == "motions"
     with pytest.raises(ArgumentError, match="no topic bogus"):
         sub.set_topics(["axes", "bogus"])
+
+
+def test_drain_takes_every_waiting_event_without_waiting() -> None:
+    sub = Subscription({"axes", "motions"}, capacity=3)
+    assert sub.drain() == []
+    for i in range(5):
+        sub.put(Event("axes", "x", {"i": i}))
+        sub.put(Event("motions", None, {"n": i}))
+    got = sub.drain()
+    assert [e.data.get("i", e.data.get("n")) for e in got] == [2, 3, 4, 4]
+    assert sub.drain() == [] and sub.lost == 2
+    sub.put(Event("motions", None, {"n": 9}))  # the bound still holds after a drain
+    assert [e.data["n"] for e in sub.drain()] == [9]

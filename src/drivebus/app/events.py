@@ -93,6 +93,13 @@ class Subscription:
             self._discrete -= 1
         return event
 
+    def drain(self) -> list[Event]:
+        """Every waiting event, oldest first, without waiting (a paced reader's batch)."""
+        events = list(self._box.values())
+        self._box.clear()
+        self._discrete = 0
+        return events
+
     def __aiter__(self) -> AsyncIterator[Event]:
         return self._iterate()
 
