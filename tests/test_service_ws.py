@@ -64,7 +64,7 @@ async def test_subscribers_get_every_axis_in_the_fixed_shape_as_it_is_polled() -
         assert set(hello["axes"]) == AXES and hello["client"] == "anonymous"
         await send(conn, subscribe=["axes"])
         sub = await recv(conn)
-        assert sub == {"type": "subscribed", "id": None, "topics": ["axes"]}
+        assert sub == {"type": "subscribed", "id": None, "topics": ["axes"], "max_rate": None}
         seen: set[str] = set()
         while seen != AXES:
             msg = await recv(conn)
@@ -81,6 +81,34 @@ async def test_subscribers_get_every_axis_in_the_fixed_shape_as_it_is_polled() -
         assert positions == sorted(positions)
         msg = await recv_until(conn, lambda m: m["axis"] == "x" and m["state"] == "Standstill")
         assert msg["position"] == pytest.approx(60.0)
+
+
+async def test_a_max_rate_thins_the_states_but_the_last_one_always_comes() -> None:
+    async with running() as (svc, client), ws(svc) as every, ws(svc) as thin:
+        for conn, rate in ((every, None), (thin, 2)):
+            await recv(conn)
+            await send(conn, subscribe=["axes"], max_rate=rate)
+            assert (await recv(conn))["max_rate"] == rate
+        await client.post("/api/axes/x/move", json={"target": 150.0, "speed": 100.0})
+
+        async def count_until_done(conn: ClientConnection) -> tuple[int, dict[str, Any]]:
+            n, started = 0, False
+            while True:
+                msg = await recv(conn)
+                if msg["axis"] != "x":
+                    continue
+                started = started or msg["state"] == "DiscreteMotion"
+                n += started
+                if started and msg["state"] == "Standstill":
+                    return n, msg
+
+        n_every, last_every = await count_until_done(every)
+        n_thin, last_thin = await count_until_done(thin)
+        assert last_thin["position"] == pytest.approx(150.0) == last_every["position"]
+        assert n_thin < n_every / 3, (n_thin, n_every)
+        await send(thin, subscribe=["axes"], max_rate=0)
+        reply = await recv_until(thin, lambda m: m["type"] == "reply")
+        assert reply["error"]["error"] == "ArgumentError" and "max_rate" in reply["error"]["detail"]
 
 
 async def test_motion_events_lines_and_the_lease_come_to_subscribers() -> None:

@@ -7,7 +7,9 @@ reply carries back):
   carried no ``Authorization: Bearer`` header (browsers cannot set one).
 - ``{"subscribe": ["axes", "lines", "motions", "errors"]}``: what to receive from now on
   (it replaces the previous set). Answered by ``{"type": "subscribed", "topics": [...]}``
-  and then, for ``axes``, the present state of every axis.
+  and then, for ``axes``, the present state of every axis. With ``"max_rate": N`` the
+  messages come in batches N times a second, each axis's and line's newest state at most
+  once per batch (a tablet on Wi-Fi needs no more); without it, as polled.
 - ``{"jog": {"axis": "z", "speed": 5.0, "ttl": 0.5}}``: jog, or feed a running jog; the
   axis stops ``ttl`` seconds (at most 10) after the last feed, and at once when this
   connection closes. Speed 0 stops. Command scope.
@@ -96,6 +98,7 @@ class _Connection:
         self.sub = sub
         self.scope = scope
         self._lost = 0
+        self._interval = 0.0  # seconds between a key's states (0: as polled)
         self._epoch = 0  # bumped by an e-stop: queued jogs from before are dropped
         self._axis_epoch: dict[str, int] = {}  # bumped by a stop of that axis
 
@@ -122,13 +125,20 @@ class _Connection:
         await self.send(dumps(data))
 
     async def pump_events(self) -> None:
-        """Send the subscribed events as they come (latest state first, bounded backlog)."""
+        """Send the subscribed events as they come (latest state first, bounded backlog);
+        with a ``max_rate``, in batches at that rate: each axis's and line's newest state
+        at most that often, what happened meanwhile with it."""
         while True:
-            event = await self.sub.get()
+            batch = [await self.sub.get()]
+            if self._interval > 0:
+                batch += self.sub.drain()
             if self.sub.lost != self._lost:
                 await self.send(dumps({"type": "lost", "count": self.sub.lost - self._lost}))
                 self._lost = self.sub.lost
-            await self.send(self.state.encoder.encode(event))
+            for event in batch:
+                await self.send(self.state.encoder.encode(event))
+            if self._interval > 0:
+                await anyio.sleep(self._interval)  # meanwhile the mailbox keeps the newest
 
     # -- receiving ---------------------------------------------------------------------------
 
@@ -162,7 +172,8 @@ class _Connection:
         elif op == "auth":
             raise ArgumentError("this connection is already authenticated")
         elif op == "subscribe":
-            await self.subscribe(body, msg_id)
+            topics, max_rate = body
+            await self.subscribe(topics, msg_id, max_rate)
         elif op == "estop":
             self._epoch += 1
             tg.start_soon(self.estop, msg_id)
@@ -192,12 +203,19 @@ class _Connection:
                 raise ArgumentError(f"jog: more than {COMMAND_QUEUE} jogs waiting on this "
                                     f"connection: slow down the feed") from None
 
-    async def subscribe(self, body: Any, msg_id: Any) -> None:
-        """Watch the topics in ``body``; the present state of axes and lines follows."""
+    async def subscribe(self, body: Any, msg_id: Any, max_rate: Any = None) -> None:
+        """Watch the topics in ``body`` (states at most ``max_rate`` times a second per axis
+        or line; None: as polled); the present state of axes and lines follows."""
         if not isinstance(body, list) or not all(isinstance(t, str) for t in body):
             raise ArgumentError('subscribe: expected a list of topics, e.g. ["axes"]')
+        if max_rate is not None and (isinstance(max_rate, bool) or not isinstance(
+                max_rate, int | float) or not 0 < max_rate <= 1000):
+            raise ArgumentError(f"max_rate: expected updates per second in (0, 1000] or "
+                                f"null (as polled), got {max_rate!r}")
         topics = self.sub.set_topics(body)
-        await self.send(dumps({"type": "subscribed", "id": msg_id, "topics": sorted(topics)}))
+        self._interval = 0.0 if max_rate is None else 1.0 / max_rate
+        await self.send(dumps({"type": "subscribed", "id": msg_id, "topics": sorted(topics),
+                               "max_rate": max_rate}))
         if "axes" in topics:
             for name in self.session.machine.axes:
                 snap = self.session.axis_snapshot(name).as_dict()
@@ -253,10 +271,13 @@ def _parse(text: str) -> tuple[str, Any, Any]:
     if not isinstance(msg, dict):
         raise ArgumentError("expected a JSON object with one operation")
     ops = [k for k in msg if k in _OPS]
-    unknown = [k for k in msg if k not in _OPS and k != "id"]
+    unknown = [k for k in msg if k not in _OPS and k != "id"
+               and not (k == "max_rate" and ops == ["subscribe"])]
     if len(ops) != 1 or unknown:
         raise ArgumentError(f"expected one operation of {', '.join(_OPS)} (and an optional "
                             f"id), got {', '.join(map(str, msg)) or 'nothing'}")
+    if ops[0] == "subscribe":
+        return ops[0], msg.get("id"), (msg["subscribe"], msg.get("max_rate"))
     return ops[0], msg.get("id"), msg[ops[0]]
 
 

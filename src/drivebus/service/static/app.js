@@ -7,6 +7,7 @@
 const JOG_TTL = 0.5;        // s: the axis stops this long after the last feed
 const JOG_FEED = 150;       // ms between feeds while a jog button is held
 const PLOT_WINDOW = 30;     // s of position history in the plot
+const MAX_RATE = 20;        // axis/line updates per second: plenty for eyes and the plot
 const COLORS = ["#58a6ff", "#3fb950", "#d29922", "#f778ba", "#a5d6ff", "#ff7b72", "#bc8cff"];
 
 const state = {
@@ -102,7 +103,7 @@ function handle(msg) {
       $("machine").textContent = msg.machine;
       $("who").textContent = `${msg.client} (${msg.scope})`;
       $("login").hidden = true;
-      send({ subscribe: ["axes", "lines", "motions", "errors"] });
+      send({ subscribe: ["axes", "lines", "motions", "errors"], max_rate: MAX_RATE });
       setLive(true);
       break;
     case "axis":
