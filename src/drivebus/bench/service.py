@@ -5,11 +5,12 @@ a simulated RS-485 line at 115200 8N1 with two NT86 axes and four more slaves th
 polled as fast as the bus allows: the line is saturated. The line is measured from the
 wire's log, in turns: without clients (the 51 connections open but subscribed to
 nothing and commanding nothing), then with 50 clients watching every axis over
-``WS /api/ws`` and one jogging an axis back and forth over it; three rounds (one under
-``--quick``), medians reported. Reported: the line's efficiency without and with them
-and the drop in points (target: at most 2), the status-update latency p50/p99 (from the
-poll's reply to a watcher's receipt, on the system's monotonic clock), and the service
-process's CPU.
+``WS /api/ws`` and one jogging an axis back and forth over it, then the same with the
+watchers at the dashboard's ``max_rate`` (20 states a second per axis); three rounds (one
+under ``--quick``), medians reported. Reported: the line's efficiency without and with
+them and the drop in points (target: at most 2), the status-update latency p50/p99 (from
+the poll's reply to a watcher's receipt, on the system's monotonic clock), and the
+service process's CPU.
 
 The wire and the clients run in child processes of this module, as drives and clients
 are other devices on a plant (``python -m drivebus.bench.service wire TURNAROUND`` and
@@ -52,6 +53,8 @@ __all__ = ["SCENARIO", "service"]
 WATCHERS = 50
 DROP_TARGET = 2.0
 """Points of efficiency the watchers may cost at most."""
+DASHBOARD_RATE = 20.0
+"""The watchers' ``max_rate`` in the third case: what the dashboard asks for."""
 POLLED = range(11, 15)
 """The slaves polled as fast as the bus allows, beside the two axes."""
 
@@ -140,11 +143,14 @@ async def service(seconds: float, turnaround: float, rounds: int = 3,
             async with _Child("clients", svc.url, str(watchers)) as clients:
                 await clients.line()  # connected
                 await poll_until(handles, time.monotonic() + 0.2)  # warm-up
-                alone, watched = [], []
+                alone, watched, thinned = [], [], []
                 for _ in range(rounds):
                     alone.append(await measure())
                     await clients.ask("watch")
                     watched.append(await measure())
+                    await clients.ask("idle")
+                    await clients.ask(f"watch {DASHBOARD_RATE}")
+                    thinned.append(await measure())
                     await clients.ask("idle")
                 report = json.loads(await clients.ask("report"))
 
@@ -158,18 +164,20 @@ async def service(seconds: float, turnaround: float, rounds: int = 3,
             "rounds": len(runs),
         }
 
-    without, with_ = summary(alone), summary(watched)
+    def with_clients(runs: list[dict[str, Any]], figures: dict[str, Any]) -> dict[str, Any]:
+        row = summary(runs)
+        return {**row, "drop_points": (without["efficiency"] - row["efficiency"]) * 100,
+                "drop_target_points": DROP_TARGET, "updates": figures["updates"],
+                "update_p50_ms": figures["p50_ms"], "update_p99_ms": figures["p99_ms"],
+                "jog_feeds": figures["feeds"]}
+
+    without = summary(alone)
     return [
         BenchResult("service", "saturated line, no clients", without),
-        BenchResult("service", f"+ {watchers} watchers, 1 commander", {
-            **with_,
-            "drop_points": (without["efficiency"] - with_["efficiency"]) * 100,
-            "drop_target_points": DROP_TARGET,
-            "updates": report["updates"],
-            "update_p50_ms": report["p50_ms"],
-            "update_p99_ms": report["p99_ms"],
-            "jog_feeds": report["feeds"],
-        }),
+        BenchResult("service", f"+ {watchers} watchers, 1 commander",
+                    with_clients(watched, report["as polled"])),
+        BenchResult("service", f"+ {watchers} at max_rate {DASHBOARD_RATE:g}, 1 commander",
+                    with_clients(thinned, report["thinned"])),
     ]
 
 
@@ -211,8 +219,9 @@ class _Clients:
     def __init__(self, url: str, n: int) -> None:
         self.url = url.replace("http://", "ws://") + "/api/ws"
         self.n = n
-        self.latencies: list[float] = []
-        self.feeds = 0
+        self.latencies: dict[str, list[float]] = {"as polled": [], "thinned": []}
+        self.case = "as polled"
+        self.feeds: dict[str, int] = {"as polled": 0, "thinned": 0}
         self.watching = False
         self.conns: list[Any] = []
         self.subscribed: list[asyncio.Event] = []
@@ -229,15 +238,15 @@ class _Clients:
                 now = time.monotonic()
                 msg = json.loads(text)
                 if msg["type"] == "axis" and self.watching and msg["timestamp"]:
-                    self.latencies.append(now - msg["timestamp"])
+                    self.latencies[self.case].append(now - msg["timestamp"])
                 elif msg["type"] == "subscribed":
                     self.subscribed[k].set()
 
-    async def subscribe(self, topics: list[str]) -> None:
+    async def subscribe(self, topics: list[str], max_rate: float | None = None) -> None:
         for event in self.subscribed:
             event.clear()
         for ws in self.conns:
-            await ws.send(json.dumps({"subscribe": topics}))
+            await ws.send(json.dumps({"subscribe": topics, "max_rate": max_rate}))
         await asyncio.gather(*(e.wait() for e in self.subscribed))
 
     async def jog(self, ws: Any) -> None:
@@ -246,7 +255,7 @@ class _Clients:
             for _ in range(5):  # 0.5 s one way, fed every 100 ms
                 await ws.send(json.dumps({"jog": {"axis": "x", "speed": 50.0 * sign,
                                                   "ttl": 0.5}}))
-                self.feeds += 1
+                self.feeds[self.case] += 1
                 await asyncio.sleep(0.1)
             sign = -sign
 
@@ -262,8 +271,10 @@ class _Clients:
             await asyncio.wait_for(asyncio.gather(*(c.wait() for c in connected)), 60)
             print("connected", flush=True)
             while command := (await asyncio.to_thread(sys.stdin.readline)).strip():
-                if command == "watch":
-                    await self.subscribe(["axes"])
+                if command.startswith("watch"):
+                    rate = float(command.split()[1]) if " " in command else None
+                    self.case = "as polled" if rate is None else "thinned"
+                    await self.subscribe(["axes"], rate)
                     self.watching = True
                     self.jogging = tg.create_task(self.jog(commander))
                     print("ok", flush=True)
@@ -275,10 +286,13 @@ class _Clients:
                     await self.subscribe([])
                     print("ok", flush=True)
                 elif command == "report":
-                    ms = [x * 1e3 for x in self.latencies]
-                    print(json.dumps({"updates": len(ms), "p50_ms": percentile(ms, 0.5),
-                                      "p99_ms": percentile(ms, 0.99), "feeds": self.feeds}),
-                          flush=True)
+                    report = {}
+                    for case, seconds in self.latencies.items():
+                        ms = [x * 1e3 for x in seconds]
+                        report[case] = {"updates": len(ms), "p50_ms": percentile(ms, 0.5),
+                                        "p99_ms": percentile(ms, 0.99),
+                                        "feeds": self.feeds[case]}
+                    print(json.dumps(report), flush=True)
             for ws in self.conns:
                 await ws.close()
             for task in watchers:
