@@ -247,6 +247,10 @@ async def test_raw_registers_through_the_service() -> None:
         assert twin.params[272] == 7
         problem(await client.post("/api/lines/can/read", json={"address": 2, "register": 0}),
                 404, "NotFound")
+        body = problem(await client.post("/api/lines/rs485/read",  # nobody at address 9
+                                         json={"address": 9, "register": 0}),
+                       504, "ResponseTimeout")
+        assert body["slave"] == 9
         for bad in ({"address": 0, "register": 0}, {"address": 2, "register": 70000},
                     {"address": 2, "register": 0, "count": 126},
                     {"address": 2, "register": 0, "count": 1.5},
