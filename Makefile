@@ -18,6 +18,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	-@sh .ci/ensure-mbpoll
 	-@sh .ci/ensure-mosquitto
+	-@sh .ci/ensure-chromium
 	$(BIN)/ruff check src tests examples
 	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q

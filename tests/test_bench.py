@@ -9,7 +9,8 @@ import pytest
 from drivebus.bench import format_table, results_json, run_bench, scenarios
 from drivebus.errors import ArgumentError
 
-BUILT_IN = {"efficiency", "stop latency", "cpu", "scale", "pymodbus baseline", "flood"}
+BUILT_IN = {"efficiency", "stop latency", "cpu", "scale", "pymodbus baseline", "flood",
+            "service"}
 
 
 async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
@@ -29,6 +30,13 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
         assert figures["healthy_violations"] == 0 and figures["healthy_transactions"] > 0
     assert flood["none"]["line_noise"] == 0
     assert isinstance(flood["flat out"]["line_noise"], int) and flood["flat out"]["line_noise"] > 0
+    alone, *watched = (r.figures for r in results if r.scenario == "service")
+    assert len(watched) == 2  # as polled, and at the dashboard's max_rate
+    assert alone["violations"] == 0 and 0 < alone["efficiency"] <= 1.0
+    for row in watched:
+        assert row["violations"] == 0 and 0 < row["efficiency"] <= 1.0
+        assert row["updates"] > 0 and row["jog_feeds"] > 0  # 50 watched, one commanded
+        assert {"drop_points", "update_p50_ms", "update_p99_ms"} <= set(row)
     stop = next(r for r in results if r.scenario == "stop latency")
     assert stop.figures["stops"] == 20
     assert "efficiency" in format_table(results)

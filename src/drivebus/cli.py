@@ -419,6 +419,58 @@ def sim(
 
 
 @app.command()
+def serve(
+    config: ConfigArg,
+    host: Annotated[str, typer.Option(
+        "--host", metavar="ADDRESS",
+        help="address to listen on (beyond loopback only with --token-file)")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(
+        "--port", "-p", metavar="PORT", help="TCP port (0: any free port)")] = 8000,
+    token_file: Annotated[Path | None, typer.Option(
+        "--token-file", metavar="FILE",
+        help="bearer tokens, one 'NAME read|command TOKEN' per line")] = None,
+    mqtt: Annotated[str | None, typer.Option(
+        "--mqtt", metavar="URL",
+        help="also bridge the machine to an MQTT broker, mqtt://HOST[:PORT] (default: the "
+        "machine file's [mqtt] url, if any)")] = None,
+    node: Annotated[str | None, typer.Option(
+        "--node", metavar="NAME", help="node name in the MQTT topics (default: the "
+        "machine's name)")] = None,
+    no_discovery: Annotated[bool, typer.Option(
+        "--no-discovery", help="publish no Home Assistant discovery over MQTT")] = False,
+    no_http: Annotated[bool, typer.Option(
+        "--no-http", help="no HTTP service: only the MQTT bridge")] = False,
+) -> None:
+    """Serve the machine over HTTP and WebSocket (a live dashboard at /, API docs at /docs),
+    and over MQTT with --mqtt (or an [mqtt] section in the machine file).
+
+    Opens the machine once and serves until Ctrl-C or SIGTERM, then stops every moving
+    axis before it exits. An axis whose drive does not answer starts Offline and is set up
+    when it answers.
+    """
+    import functools
+
+    from drivebus.config import load_config
+    from drivebus.service import run
+
+    cfg = load_config(config)
+    bridge = mqtt is not None or (cfg.mqtt is not None and cfg.mqtt.url is not None)
+    if no_http and not bridge:
+        raise ArgumentError("--no-http: with no HTTP service there must be an MQTT bridge "
+                            "(--mqtt URL, or [mqtt] url in the machine file)")
+    extra = []
+    if bridge:
+        from drivebus.mqtt import run_configured_bridge
+
+        extra.append(functools.partial(run_configured_bridge, url=mqtt, node=node,
+                                       discovery=False if no_discovery else None))
+    elif node is not None or no_discovery:
+        raise ArgumentError("--node and --no-discovery go with an MQTT bridge (--mqtt URL)")
+    raise typer.Exit(run(cfg, host=host, port=port, token_file=token_file,
+                         http=not no_http, extra=extra))
+
+
+@app.command()
 def check(config: ConfigArg, as_json: JsonOpt = False) -> None:
     """Validate a machine file exactly as opening it does, and check its serial ports.
 
