@@ -35,6 +35,7 @@ from drivebus.errors import (
 from drivebus.line.rtu import frame
 from drivebus.line.serial import SerialLine  # noqa: F401  (registers the sim:// URL handler)
 from drivebus.sim import VirtualWire, sim_bus
+from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.od_drive import SimODDrive
 
 LINE = LineSettings.parse("9600 8N1")
@@ -368,7 +369,7 @@ async def test_save_survives_power_cycle_and_factory_reset() -> None:
 
 @pytest.mark.parametrize("position", [2**31 - 1, -(2**31), -1, -5, 0x12345678, 65535, 65536])
 async def test_position_round_trips_high_word_first(position: int) -> None:
-    sim = SimODDrive(position=position)
+    sim = SimODDrive(setup=TwinSetup(position=position))
     async with sim_bus([sim], LINE) as (wire, bus):
         profile = ODDriveProfile(bus.slave(1))
         status = await profile.read_status()
@@ -422,7 +423,8 @@ async def test_speed_and_motion_from_the_fieldbus_master() -> None:
 
 
 async def test_limit_and_home_inputs_follow_input_functions() -> None:
-    sim = SimODDrive(position=2000, home_switch=500, limit_negative=-1000, limit_positive=1000)
+    setup = TwinSetup(position=2000, home_switch=500, limit_negative=-1000, limit_positive=1000)
+    sim = SimODDrive(setup=setup)
     async with sim_bus([sim], LINE) as (_wire, bus):
         profile = ODDriveProfile(bus.slave(1))
         status = await profile.read_status()  # learns the input functions first

@@ -6,35 +6,52 @@ own registers, status bits and procedures onto these mechanics.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import ClassVar
+
 from drivebus.clock import monotonic
 from drivebus.settings import LineSettings
 from drivebus.sim.kinematics import Kinematics
 from drivebus.sim.slave import Fault, SimSlave
 
-__all__ = ["SimDrive"]
+__all__ = ["SimDrive", "TwinSetup"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class TwinSetup:
+    """How a simulated drive sits on its machine, whatever its family: how fast it answers,
+    where its axis starts and where the axis's switches are, in the drive's pulses."""
+
+    turnaround: float = 0.001
+    """Seconds from the end of a request to the start of the reply."""
+    position: int = 0
+    """The position at power-up."""
+    home_switch: float | None = None
+    """Where the home switch's cam begins (each family says which side it covers)."""
+    limit_negative: float | None = None
+    """The negative limit switch is active at and below this position."""
+    limit_positive: float | None = None
+    """The positive limit switch is active at and above this position."""
 
 
 class SimDrive(SimSlave):
     """A simulated drive: an axis in pulses with optional home and limit switches."""
 
-    family = "generic"
+    family: ClassVar[str] = "generic"
+    """The drive family this twin simulates (the name in the machine config)."""
 
     def __init__(
         self,
         address: int,
         settings: LineSettings | None = None,
-        *,
-        turnaround: float = 0.001,
-        position: int = 0,
-        home_switch: float | None = None,
-        limit_negative: float | None = None,
-        limit_positive: float | None = None,
+        setup: TwinSetup | None = None,
     ) -> None:
-        super().__init__(address, settings, turnaround=turnaround)
-        self.kin = Kinematics(position)
-        self.home_switch = home_switch
-        self.limit_negative = limit_negative
-        self.limit_positive = limit_positive
+        setup = setup or TwinSetup()
+        super().__init__(address, settings, turnaround=setup.turnaround)
+        self.kin = Kinematics(setup.position)
+        self.home_switch = setup.home_switch
+        self.limit_negative = setup.limit_negative
+        self.limit_positive = setup.limit_positive
         self.enabled = True
         self.alarm_code = 0
         """Latched alarm (0: none); the family's twin decides how it clears."""

@@ -15,7 +15,7 @@ from drivebus.drives.registry import family
 from drivebus.line.base import Line
 from drivebus.line.serial import SerialLine
 from drivebus.line.tcp import RtuOverTcpLine, TcpLine
-from drivebus.sim.drive import SimDrive
+from drivebus.sim.drive import SimDrive, TwinSetup
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from drivebus.sim.wire import VirtualWire
 
@@ -53,25 +53,25 @@ class SimLine:
 
 
 def make_twin(axis: AxisConfig, line: LineConfig) -> SimDrive:
-    """The simulated drive for ``axis``: its family's twin, switches and start position
-    converted from the axis's user units to pulses."""
-    cls = family(axis.drive).sim
-    u = axis.units_per_rev / axis.pulses_per_rev
+    """The simulated drive for ``axis``: its family's twin, set up from the axis's ``sim``
+    section (switches and start position converted from user units to pulses) and given
+    that section's family options."""
+    twin_class = family(axis.drive).sim
+    units_per_pulse = axis.units_per_rev / axis.pulses_per_rev
 
     def pulses(v: float | None) -> float | None:
-        return None if v is None else v / u
+        return None if v is None else v / units_per_pulse
 
-    s = axis.sim
-    kwargs = dict(
-        turnaround=s.turnaround,
-        position=round(s.position / u),
-        home_switch=pulses(s.home_switch),
-        limit_negative=pulses(s.limit_negative),
-        limit_positive=pulses(s.limit_positive),
-        **s.options,
+    sim = axis.sim
+    setup = TwinSetup(
+        turnaround=sim.turnaround,
+        position=round(sim.position / units_per_pulse),
+        home_switch=pulses(sim.home_switch),
+        limit_negative=pulses(sim.limit_negative),
+        limit_positive=pulses(sim.limit_positive),
     )
     settings = axis.settings or (line.settings if line.kind != "tcp" else None)
-    return cls(axis.address, settings, **kwargs)  # type: ignore[arg-type]
+    return twin_class(axis.address, settings, setup, **sim.options)
 
 
 async def start_sim_line(

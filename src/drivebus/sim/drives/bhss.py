@@ -34,7 +34,7 @@ from dataclasses import dataclass
 from drivebus import pdu as P
 from drivebus.clock import monotonic
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive
+from drivebus.sim.drive import SimDrive, TwinSetup
 from drivebus.sim.slave import SlaveException
 
 __all__ = ["FACTORY_SETTINGS", "SimBHSS"]
@@ -144,24 +144,18 @@ class SimBHSS(SimDrive):
         self,
         address: int,
         settings: LineSettings | None = None,
+        setup: TwinSetup | None = None,
         *,
-        turnaround: float = 0.001,
-        position: int = 0,
-        home_switch: float | None = None,
-        limit_negative: float | None = None,
-        limit_positive: float | None = None,
         crc_error_reply: bool = True,
     ) -> None:
         settings = settings or FACTORY_SETTINGS
-        super().__init__(address, settings, turnaround=turnaround, position=position,
-                         home_switch=home_switch, limit_negative=limit_negative,
-                         limit_positive=limit_positive)
+        super().__init__(address, settings, setup)
         self.crc_error_reply = crc_error_reply
         """Answer a bad-CRC frame with exception 01 (the manual's example) or stay silent."""
         self.regs: dict[int, int] = _factory_registers()
-        self.regs[0x0043] = F_ORIGIN if home_switch is not None else 0
-        self.regs[0x0044] = F_FWD_LIMIT if limit_positive is not None else 0
-        self.regs[0x0045] = F_BWD_LIMIT if limit_negative is not None else 0
+        self.regs[0x0043] = F_ORIGIN if self.home_switch is not None else 0
+        self.regs[0x0044] = F_FWD_LIMIT if self.limit_positive is not None else 0
+        self.regs[0x0045] = F_BWD_LIMIT if self.limit_negative is not None else 0
         self._switch_baud = self._apply_line_settings(settings)
         self.eeprom: dict[int, int] = dict(self.regs)
         self.eeprom_writes = 0

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from drivebus.clock import monotonic
 from drivebus.errors import ConfigError
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive
+from drivebus.sim.drive import SimDrive, TwinSetup
 from drivebus.sim.slave import SlaveException
 
 __all__ = ["SimCL86R"]
@@ -162,12 +162,8 @@ class SimCL86R(SimDrive):
         self,
         address: int,
         settings: LineSettings | None = None,
+        setup: TwinSetup | None = None,
         *,
-        turnaround: float = 0.001,
-        position: int = 0,
-        home_switch: float | None = None,
-        limit_negative: float | None = None,
-        limit_positive: float | None = None,
         home_switch_width: float | None = None,
         crc_error_reply: bool = True,
         model: int = 862,
@@ -175,11 +171,7 @@ class SimCL86R(SimDrive):
     ) -> None:
         settings = settings or LineSettings.parse("9600 8N1")
         _check_line(settings)
-        super().__init__(
-            address, settings, turnaround=turnaround, position=position,
-            home_switch=home_switch, limit_negative=limit_negative,
-            limit_positive=limit_positive,
-        )
+        super().__init__(address, settings, setup)
         self.home_switch_width = home_switch_width
         self.crc_error_reply = crc_error_reply
         self.model = model

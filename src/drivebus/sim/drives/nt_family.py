@@ -30,7 +30,7 @@ from drivebus import pdu as P
 from drivebus.clock import monotonic
 from drivebus.errors import ConfigError
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive
+from drivebus.sim.drive import SimDrive, TwinSetup
 from drivebus.sim.slave import SlaveException
 
 __all__ = ["SimEPR60", "SimNT86"]
@@ -176,12 +176,8 @@ class SimNT86(SimDrive):
         self,
         address: int,
         settings: LineSettings | None = None,
+        setup: TwinSetup | None = None,
         *,
-        turnaround: float = 0.001,
-        position: int = 0,
-        home_switch: float | None = None,
-        limit_negative: float | None = None,
-        limit_positive: float | None = None,
         home_cam: Literal["positive", "negative"] = "positive",
         hard_stop_negative: float | None = None,
         hard_stop_positive: float | None = None,
@@ -189,15 +185,7 @@ class SimNT86(SimDrive):
     ) -> None:
         settings = settings or LineSettings.parse("115200 8N1")
         self._check_line(address, settings)
-        super().__init__(
-            address,
-            settings,
-            turnaround=turnaround,
-            position=position,
-            home_switch=home_switch,
-            limit_negative=limit_negative,
-            limit_positive=limit_positive,
-        )
+        super().__init__(address, settings, setup)
         if home_cam not in ("positive", "negative"):
             raise ConfigError(f"home_cam must be 'positive' or 'negative', not {home_cam!r}")
         self.home_cam = home_cam

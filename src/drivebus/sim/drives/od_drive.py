@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 from drivebus.clock import monotonic
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive
+from drivebus.sim.drive import SimDrive, TwinSetup
 from drivebus.sim.slave import SlaveException
 
 __all__ = ["SimODDrive"]
@@ -118,27 +118,15 @@ class SimODDrive(SimDrive):
         self,
         address: int = 1,
         settings: LineSettings | None = None,
+        setup: TwinSetup | None = None,
         *,
-        turnaround: float = 0.001,
-        position: int = 0,
-        home_switch: float | None = None,
-        limit_negative: float | None = None,
-        limit_positive: float | None = None,
         crc_reply: bool = True,
         objects: Mapping[tuple[int, int], int] | None = None,
         bus_voltage: int = 48,
     ) -> None:
         if address != 1:
             raise ValueError(f"the OD2000 drive's serial address is fixed at 1, not {address}")
-        super().__init__(
-            address,
-            settings or _DEFAULT_SETTINGS,
-            turnaround=turnaround,
-            position=position,
-            home_switch=home_switch,
-            limit_negative=limit_negative,
-            limit_positive=limit_positive,
-        )
+        super().__init__(address, settings or _DEFAULT_SETTINGS, setup)
         self.crc_reply = crc_reply
         """Answer a damaged frame with exception 01 (the manual's example) or stay silent."""
         self.bus_voltage = bus_voltage
