@@ -34,9 +34,10 @@ from dataclasses import dataclass
 
 from drivebus.clock import monotonic
 from drivebus.errors import ConfigError
+from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
 from drivebus.sim.drive import SimDrive, TwinSetup
-from drivebus.sim.slave import SlaveException
+from drivebus.sim.registers import Access, ExceptionCodes, RegisterSpec, signed16, signed32
 
 __all__ = ["SimCL86R"]
 
@@ -49,91 +50,78 @@ _AUX_RESET, _AUX_SAVE, _AUX_CLEAR, _AUX_ZERO = 1, 2, 4, 8
 _MODE_NONE, _MODE_POSITION, _MODE_SPEED, _MODE_HOMING = 0, 1, 2, 3
 
 
-@dataclass(frozen=True)
-class _Reg:
-    """One parameter register of the twin: factory value, range, RW/S, signed."""
-
-    default: int
-    lo: int
-    hi: int
-    saved: bool = False  # RW/S: stored to EEPROM on write when 0x0024 = 1
-    signed: bool = False
-    writable: bool = True
-
-
-def _table() -> dict[int, _Reg]:
-    t: dict[int, _Reg] = {
-        0x0010: _Reg(0, 0, 127, saved=True),  # manual prints 0~7 for a 7-bit mask
-        0x0011: _Reg(2, 0, 1000),
-        0x0012: _Reg(0, 0, 7, saved=True),
-        0x0020: _Reg(1, 1, 31, saved=True),
-        0x0021: _Reg(0, 0, 3, saved=True),
-        0x0022: _Reg(0, 0, 1, saved=True),
-        0x0023: _Reg(1000, 400, 51200, saved=True),
-        0x0024: _Reg(0, 0, 1, saved=True),
-        0x0025: _Reg(0, 0, 1, saved=True),
-        0x0030: _Reg(5, 2, 300),
-        0x0031: _Reg(100, 1, 2000),
-        0x0032: _Reg(100, 1, 2000),
-        0x0033: _Reg(60, -3000, 3000, signed=True),
-        0x0034: _Reg(0, 0, 0xFFFF),
-        0x0035: _Reg(5000, 0, 0xFFFF),
-        0x0036: _Reg(0, 0, 127),
-        0x0037: _Reg(0, 0, 8),
-        0x0038: _Reg(1, 0, 1),
-        0x0039: _Reg(0, 0, 1),
-        0x003A: _Reg(0, 0, 1),
-        0x0040: _Reg(0, 0, 35, saved=True),
-        0x0041: _Reg(120, 5, 3000, saved=True),
-        0x0042: _Reg(60, 5, 300, saved=True),
-        0x0043: _Reg(200, 1, 2000, saved=True),
-        0x0044: _Reg(0, 0, 0xFFFF, saved=True),
-        0x0045: _Reg(0, 0, 0xFFFF, saved=True),
-        0x0046: _Reg(60, 0, 3000),
-        0x0047: _Reg(100, 1, 2000),
-        0x0048: _Reg(100, 1, 2000),
-        0x0050: _Reg(1, 0, 1, saved=True),
-        0x0051: _Reg(0, 0, 1),
-        0x0052: _Reg(4000, 400, 65535, saved=True),
-        0x0053: _Reg(42, 0, 80, saved=True),
-        0x0054: _Reg(75, 0, 80, saved=True),
-        0x0055: _Reg(56, 0, 80, saved=True),
-        0x0056: _Reg(60, 0, 1024, saved=True),
-        0x0057: _Reg(1000, 1000, 1000, saved=True),  # "cannot be modified"
-        0x0058: _Reg(200, 200, 200, saved=True),  # "cannot be modified"
-        0x0059: _Reg(300, 0, 1000, saved=True),
-        0x005A: _Reg(400, 0, 1000, saved=True),
-        0x005B: _Reg(80, 0, 300, saved=True),
-        0x005C: _Reg(10, 1, 200, saved=True),
-        0x005D: _Reg(5, 1, 1000, saved=True),
+def _table() -> dict[int, RegisterSpec]:
+    """The parameter registers: factory value, range, RW/S (stored to the EEPROM on write
+    while 0x0024 = 1), signed."""
+    t = {
+        0x0010: RegisterSpec(0, 0, 127, stored=True),  # manual prints 0~7 for a 7-bit mask
+        0x0011: RegisterSpec(2, 0, 1000),
+        0x0012: RegisterSpec(0, 0, 7, stored=True),
+        0x0020: RegisterSpec(1, 1, 31, stored=True),
+        0x0021: RegisterSpec(0, 0, 3, stored=True),
+        0x0022: RegisterSpec(0, 0, 1, stored=True),
+        0x0023: RegisterSpec(1000, 400, 51200, stored=True),
+        0x0024: RegisterSpec(0, 0, 1, stored=True),
+        0x0025: RegisterSpec(0, 0, 1, stored=True),
+        0x0030: RegisterSpec(5, 2, 300),
+        0x0031: RegisterSpec(100, 1, 2000),
+        0x0032: RegisterSpec(100, 1, 2000),
+        0x0033: RegisterSpec(60, -3000, 3000, signed=True),
+        0x0034: RegisterSpec(0, 0, 0xFFFF),
+        0x0035: RegisterSpec(5000, 0, 0xFFFF),
+        0x0036: RegisterSpec(0, 0, 127),
+        0x0037: RegisterSpec(0, 0, 8),
+        0x0038: RegisterSpec(1, 0, 1),
+        0x0039: RegisterSpec(0, 0, 1),
+        0x003A: RegisterSpec(0, 0, 1),
+        0x0040: RegisterSpec(0, 0, 35, stored=True),
+        0x0041: RegisterSpec(120, 5, 3000, stored=True),
+        0x0042: RegisterSpec(60, 5, 300, stored=True),
+        0x0043: RegisterSpec(200, 1, 2000, stored=True),
+        0x0044: RegisterSpec(0, 0, 0xFFFF, stored=True),
+        0x0045: RegisterSpec(0, 0, 0xFFFF, stored=True),
+        0x0046: RegisterSpec(60, 0, 3000),
+        0x0047: RegisterSpec(100, 1, 2000),
+        0x0048: RegisterSpec(100, 1, 2000),
+        0x0050: RegisterSpec(1, 0, 1, stored=True),
+        0x0051: RegisterSpec(0, 0, 1),
+        0x0052: RegisterSpec(4000, 400, 65535, stored=True),
+        0x0053: RegisterSpec(42, 0, 80, stored=True),
+        0x0054: RegisterSpec(75, 0, 80, stored=True),
+        0x0055: RegisterSpec(56, 0, 80, stored=True),
+        0x0056: RegisterSpec(60, 0, 1024, stored=True),
+        0x0057: RegisterSpec(1000, 1000, 1000, stored=True),  # "cannot be modified"
+        0x0058: RegisterSpec(200, 200, 200, stored=True),  # "cannot be modified"
+        0x0059: RegisterSpec(300, 0, 1000, stored=True),
+        0x005A: RegisterSpec(400, 0, 1000, stored=True),
+        0x005B: RegisterSpec(80, 0, 300, stored=True),
+        0x005C: RegisterSpec(10, 1, 200, stored=True),
+        0x005D: RegisterSpec(5, 1, 1000, stored=True),
     }
     for i, fn in enumerate((1, 2, 3, 0, 0, 0, 0)):
-        t[0x0013 + i] = _Reg(fn, 0, 16)
+        t[0x0013 + i] = RegisterSpec(fn, 0, 16)
     for i, fn in enumerate((1, 2, 4)):
-        t[0x001A + i] = _Reg(fn, 0, 5)
+        t[0x001A + i] = RegisterSpec(fn, 0, 5)
     for n in range(16):
-        t[0x0060 + n] = _Reg(0, 0, 0xFFFF)
-        t[0x0070 + n] = _Reg(5000, 0, 0xFFFF)
-        t[0x0080 + n] = _Reg(120, 0, 3000)
-        t[0x0090 + n] = _Reg(100, 1, 2000)
-        t[0x00A0 + n] = _Reg(100, 1, 2000)
-        t[0x00B0 + n] = _Reg(120, -3000, 3000, signed=True)
-        t[0x00C0 + n] = _Reg(100, 1, 2000)
-        t[0x00D0 + n] = _Reg(100, 1, 2000)
+        t[0x0060 + n] = RegisterSpec(0, 0, 0xFFFF)
+        t[0x0070 + n] = RegisterSpec(5000, 0, 0xFFFF)
+        t[0x0080 + n] = RegisterSpec(120, 0, 3000)
+        t[0x0090 + n] = RegisterSpec(100, 1, 2000)
+        t[0x00A0 + n] = RegisterSpec(100, 1, 2000)
+        t[0x00B0 + n] = RegisterSpec(120, -3000, 3000, signed=True)
+        t[0x00C0 + n] = RegisterSpec(100, 1, 2000)
+        t[0x00D0 + n] = RegisterSpec(100, 1, 2000)
     return t
 
 
-_TABLE = _table()
+_PARAMETERS = _table()
 _MONITOR = range(0x0000, 0x000A)  # read-only, computed at read time
+_MAP = {**{a: RegisterSpec(access=Access.R) for a in _MONITOR}, **_PARAMETERS}
 
 
-def _s16(word: int) -> int:
-    return word - 0x10000 if word & 0x8000 else word
-
-
-def _s32(value: int) -> int:
-    value &= 0xFFFFFFFF
-    return value - (1 << 32) if value & 0x80000000 else value
+def _factory_values() -> dict[int, int]:
+    """The parameter registers' factory values as words."""
+    return {a: spec.default & 0xFFFF for a, spec in _PARAMETERS.items()}
 
 
 @dataclass(frozen=True)
@@ -157,6 +145,9 @@ class SimCL86R(SimDrive):
     """Simulated CL86R: registers 0x0000-0x00DF, control word 0x0036, homing 17/18/24/29/35."""
 
     family = "CL86R"
+    register_map = _MAP
+    exception_codes = ExceptionCodes(crc=0x04)  # "CRC check error"
+    read_functions = frozenset((READ_HOLDING,))
 
     def __init__(
         self,
@@ -176,7 +167,7 @@ class SimCL86R(SimDrive):
         self.crc_error_reply = crc_error_reply
         self.model = model
         self.software = software
-        self.regs = {a: r.default & 0xFFFF for a, r in _TABLE.items()}
+        self.regs = _factory_values()
         self.regs[0x0021] = _FORMATS.index(settings.format) if settings.baudrate != 9600 else 0
         self.eeprom = dict(self.regs)
         """Parameter values that survive a power cycle."""
@@ -193,7 +184,7 @@ class SimCL86R(SimDrive):
 
     def position(self, now: float | None = None) -> int:
         """The drive's 32-bit position counter (it wraps at ±2^31)."""
-        return _s32(super().position(now))
+        return signed32(super().position(now))
 
     def physical_position(self, now: float | None = None) -> float:
         """Where the axis physically is (the frame of the switch positions)."""
@@ -276,38 +267,18 @@ class SimCL86R(SimDrive):
         return [self.model, self.software, self.mode, status, self.alarm_code, inputs, outputs,
                 p >> 16, p & 0xFFFF, rpm & 0xFFFF]
 
-    def read_registers(self, function: int, address: int, count: int, now: float) -> list[int]:
-        """FC03 only; undefined addresses are exception 02."""
-        if function != 0x03:
-            raise SlaveException(1)
-        self._advance(now)
-        monitor: list[int] | None = None
-        out = []
-        for a in range(address, address + count):
-            if a in _MONITOR:
-                monitor = monitor or self._monitor(now)
-                out.append(monitor[a])
-            elif a in _TABLE:
-                out.append(self.regs[a])
-            else:
-                raise SlaveException(2)
-        return out
+    def read_register(self, address: int, now: float) -> int:
+        """A monitor register (computed at read time) or a parameter."""
+        if address in _MONITOR:
+            return self._monitor(now)[address]
+        return self.regs[address]
 
-    def write_registers(self, address: int, values: list[int], now: float) -> None:
-        """Check every value first (02 undefined/read-only, 03 out of range), then apply."""
-        self._advance(now)
-        for a, v in zip(range(address, address + len(values)), values, strict=True):
-            reg = _TABLE.get(a)
-            if reg is None or not reg.writable:
-                raise SlaveException(2)
-            value = _s16(v) if reg.signed else v
-            if not reg.lo <= value <= reg.hi:
-                raise SlaveException(3)
-        for a, v in zip(range(address, address + len(values)), values, strict=True):
-            self.regs[a] = v
-            if _TABLE[a].saved and self.regs[0x0024] == 1:
-                self.eeprom[a] = v
-            self._effect(a, v, now)
+    def write_register(self, address: int, word: int, now: float) -> None:
+        """Store the parameter (RW/S ones also in the EEPROM while 0x0024 = 1), then act."""
+        self.regs[address] = word
+        if _MAP[address].stored and self.regs[0x0024] == 1:
+            self.eeprom[address] = word
+        self._effect(address, word, now)
 
     def _effect(self, address: int, value: int, now: float) -> None:
         if address == 0x0036:
@@ -320,18 +291,11 @@ class SimCL86R(SimDrive):
                 self._homing = None
                 self.kin.stop(now, None)  # released: the shaft is free, motion ends
 
-    def on_bad_crc(self, adu: bytes) -> bytes | None:
-        """The manual's exception 04 "CRC check error" (or silence if switched off)."""
-        super().on_bad_crc(adu)
-        if not self.crc_error_reply or len(adu) < 2:
-            return None
-        return bytes((adu[1] | 0x80, 0x04))
-
     # -- commands -------------------------------------------------------------------------------
 
     def _aux(self, value: int, now: float) -> None:
         if value & _AUX_RESET:
-            self.regs.update({a: r.default & 0xFFFF for a, r in _TABLE.items()})
+            self.regs.update(_factory_values())
             self.eeprom.update(self.regs)
         if value & _AUX_SAVE:
             self.eeprom.update(self.regs)
@@ -359,7 +323,8 @@ class SimCL86R(SimDrive):
     def _stop_rate(self, now: float) -> float:
         if self.mode == _MODE_HOMING:
             return self._home_rate()
-        ref = abs(_s16(self.regs[0x0033])) or abs(self.kin.velocity(now)) * 60 / self.regs[0x0023]
+        speed = abs(signed16(self.regs[0x0033]))
+        ref = speed or abs(self.kin.velocity(now)) * 60 / self.regs[0x0023]
         return self._rate(ref, self.regs[0x0032]) if ref else math.inf
 
     def _busy(self, word: int, now: float) -> bool:
@@ -369,7 +334,7 @@ class SimCL86R(SimDrive):
     def _wrap(self, now: float) -> float:
         """Keep the 32-bit position counter in range; the present position."""
         p = self.kin.position(now)
-        wrapped = _s32(round(p))
+        wrapped = signed32(round(p))
         if wrapped != round(p):
             self._set_counter(now, p + (wrapped - round(p)))
         return self.kin.position(now)
@@ -382,11 +347,11 @@ class SimCL86R(SimDrive):
         )
 
     def _start_position(self, word: int, now: float) -> None:
-        speed = abs(_s16(self.regs[0x0033]))
+        speed = abs(signed16(self.regs[0x0033]))
         if speed == 0 or self._busy(word, now):
             return
         p = self._wrap(now)
-        target = _s32((self.regs[0x0034] << 16) | self.regs[0x0035])
+        target = signed32((self.regs[0x0034] << 16) | self.regs[0x0035])
         if not word & _ABS:
             target += round(p)
         if self._blocked(target - p, now):
@@ -399,7 +364,7 @@ class SimCL86R(SimDrive):
         self._watch_from = now
 
     def _start_speed(self, word: int, now: float) -> None:
-        speed = _s16(self.regs[0x0033])
+        speed = signed16(self.regs[0x0033])
         changing = self.mode == _MODE_SPEED and self.kin.moving(now)
         if not changing and self._busy(word, now):
             return
@@ -531,7 +496,7 @@ class SimCL86R(SimDrive):
                 t0 = tc + 1e-6
         return min(hits) if hits else None
 
-    def _advance(self, now: float) -> None:
+    def advance(self, now: float) -> None:
         """Bring homing legs and limit stops up to ``now`` (state is computed lazily)."""
         if self._homing is not None:
             self._advance_homing(now)
@@ -548,7 +513,7 @@ class SimCL86R(SimDrive):
     def raise_alarm(self, code: int, now: float | None = None) -> None:
         """Latch error ``code`` (1 overcurrent, 2 overvoltage, 4 position error)."""
         t = monotonic() if now is None else now
-        self._advance(t)
+        self.advance(t)
         self._homing = None
         super().raise_alarm(code, t)
 
@@ -561,7 +526,7 @@ class SimCL86R(SimDrive):
         now = monotonic()
         self.regs = dict(self.eeprom)
         for a in (0x0036, 0x0037, 0x0038):
-            self.regs[a] = _TABLE[a].default
+            self.regs[a] = _PARAMETERS[a].default
         if self.settings.baudrate != 9600:
             self.settings = LineSettings.parse(
                 _FORMATS[self.regs[0x0021]], baudrate=self.settings.baudrate
