@@ -185,8 +185,8 @@ class SimBHSS(SimDrive):
         self._home_accel = 1.0
         self._latched_decel = math.inf
         self._last_dir = 0
-        self._t = 0.0  # events processed up to here
-        self._t_event = -math.inf
+        self._processed_until = 0.0  # events processed up to here
+        self._last_event = -math.inf
         self._shift = 0.0
         """Position counter minus physical position (zeroing, homing, power-up)."""
 
@@ -434,7 +434,7 @@ class SimBHSS(SimDrive):
         """Pulses/s for ``rpm`` at the resolution in 0x0011, capped at 200 kHz."""
         return min(abs(rpm) * _PULSES_PER_REV[self.regs[0x0011]] / 60.0, _MAX_PULSE_RATE)
 
-    def _rate(self, pps: float, ms: int) -> float:
+    def _ramp_rate(self, pps: float, ms: int) -> float:
         """Acceleration (pulses/s²) that ramps to ``pps`` in ``ms`` milliseconds."""
         return pps / max(ms / 1000.0, 0.001)
 
@@ -474,8 +474,8 @@ class SimBHSS(SimDrive):
             return
         speed = self._max_speed()
         pps = self._pps(speed)
-        acc = self._rate(pps, self.regs[0x0021])
-        dec = self._rate(pps, self.regs[0x0022])
+        acc = self._ramp_rate(pps, self.regs[0x0021])
+        dec = self._ramp_rate(pps, self.regs[0x0022])
         if v & 3 == 2:  # speed mode: the sign of 0x0023 is the direction
             if pps == 0:
                 self._stop(now, emergency=False)
@@ -512,7 +512,7 @@ class SimBHSS(SimDrive):
             return
         mode = self.regs[0x0031]
         pps = self._pps(self.regs[0x0032])
-        self._home_accel = self._rate(pps, self.regs[0x0034])
+        self._home_accel = self._ramp_rate(pps, self.regs[0x0034])
         self._home_dir = 1.0 if mode in (0, 2) else -1.0
         self.homed = False
         self.reached = False
@@ -530,32 +530,32 @@ class SimBHSS(SimDrive):
     def advance(self, now: float) -> None:
         """Run the drive's reactions (edges, limits, ends of ramps) up to ``now``."""
         for _ in range(64):
-            t_from = max(self._t, self._t_event + 1e-6)
+            t_from = max(self._processed_until, self._last_event + 1e-6)
             event = self._next_event(t_from, now)
             if event is None:
                 break
             t, handler = event
-            self._t_event = t
+            self._last_event = t
             handler(t)
-        self._t = max(self._t, now)
+        self._processed_until = max(self._processed_until, now)
 
     def _next_event(self, t0: float, t1: float) -> tuple[float, _Handler] | None:
         if t1 < t0:
             return None
         end = self.kin.end_time()
-        h = self._home
-        if h is _Home.SEARCH:
+        phase = self._home
+        if phase is _Home.SEARCH:
             reference = self._reference()
             return self._first(
                 (self._edge(reference, True, t0, t1), self._on_reference_found),
                 *((self._edge(limit, True, t0, t1) if reference != limit else None,
                    self._on_limit_reverse) for limit in _LIMITS),
             )
-        if h is _Home.BACKOFF:
+        if phase is _Home.BACKOFF:
             return self._first((self._edge(self._reference(), False, t0, t1), self._on_falling))
-        if h is _Home.CREEP:
+        if phase is _Home.CREEP:
             return self._first((self._edge(self._reference(), True, t0, t1), self._on_origin))
-        if h in (_Home.BRAKE1, _Home.BRAKE2, _Home.OFFSET):
+        if phase in (_Home.BRAKE1, _Home.BRAKE2, _Home.OFFSET):
             return (end, self._on_home_ramp_end) if end <= t1 else None
         if self.is_moving(t0):
             return self._first(

@@ -29,6 +29,7 @@ takes effect at the next power-up.
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass
 
@@ -124,6 +125,15 @@ def _factory_values() -> dict[int, int]:
     return {a: spec.default & 0xFFFF for a, spec in _PARAMETERS.items()}
 
 
+class _Edge(enum.Enum):
+    """A switch edge the drive can see (where its input is wired)."""
+
+    HOME_LOW = "home_low"  # where the home cam or dog begins
+    HOME_HIGH = "home_high"  # where the home dog ends
+    LIMIT_POSITIVE = "limit_positive"
+    LIMIT_NEGATIVE = "limit_negative"
+
+
 @dataclass(frozen=True)
 class _Phase:
     """One leg of a homing method: run in ``direction`` at high or creep speed until an
@@ -131,7 +141,7 @@ class _Phase:
 
     direction: int
     fast: bool
-    events: tuple[tuple[str, str], ...]  # (switch edge name, next leg)
+    events: tuple[tuple[_Edge, str], ...]  # (switch edge, next leg)
 
 
 @dataclass
@@ -202,8 +212,8 @@ class SimCL86R(SimDrive):
         The home switch is a cam from ``home_switch`` on, or a dog of ``home_switch_width``.
         """
         p = self.physical_position(now)
-        h, w = self.home_switch, self.home_switch_width
-        home = h is not None and p >= h and (w is None or p <= h + w)
+        start, width = self.home_switch, self.home_switch_width
+        home = start is not None and p >= start and (width is None or p <= start + width)
         neg = self.limit_negative is not None and p <= self.limit_negative
         pos = self.limit_positive is not None and p >= self.limit_positive
         return home, neg, pos
@@ -216,24 +226,30 @@ class SimCL86R(SimDrive):
         """rpm -> pulses/s at the microstep setting 0x0023."""
         return rpm * self.regs[0x0023] / 60.0
 
-    def _rate(self, speed_rpm: float, ms: int) -> float:
+    def _ramp_rate(self, speed_rpm: float, ms: int) -> float:
         """pulses/s² of a ramp reaching ``speed_rpm`` in ``ms``."""
         return self._pps(abs(speed_rpm)) / (ms / 1000.0)
 
-    def _home_rate(self) -> float:
-        return self._rate(self.regs[0x0041], self.regs[0x0043])
+    def _ramps(self, speed_rpm: float) -> tuple[float, float]:
+        """Acceleration and deceleration (pulses/s²) of a move at ``speed_rpm``: the ramp
+        times 0x0031/0x0032 reach it from standstill."""
+        return (self._ramp_rate(speed_rpm, self.regs[0x0031]),
+                self._ramp_rate(speed_rpm, self.regs[0x0032]))
 
-    def _boundary(self, which: str | None) -> float | None:
+    def _home_rate(self) -> float:
+        return self._ramp_rate(self.regs[0x0041], self.regs[0x0043])
+
+    def _boundary(self, which: _Edge) -> float | None:
         """Counter position of a switch edge the drive can see, or None."""
-        h, w = self.home_switch, self.home_switch_width
+        start, width = self.home_switch, self.home_switch_width
         edge: float | None = None
-        if which == "home_low" and self._wired(1):
-            edge = h
-        elif which == "home_high" and self._wired(1):
-            edge = h + w if h is not None and w is not None else None
-        elif which == "limit_positive" and self._wired(2):
+        if which is _Edge.HOME_LOW and self._wired(1):
+            edge = start
+        elif which is _Edge.HOME_HIGH and self._wired(1):
+            edge = start + width if start is not None and width is not None else None
+        elif which is _Edge.LIMIT_POSITIVE and self._wired(2):
             edge = self.limit_positive
-        elif which == "limit_negative" and self._wired(3):
+        elif which is _Edge.LIMIT_NEGATIVE and self._wired(3):
             edge = self.limit_negative
         return None if edge is None else edge + self._shift
 
@@ -325,7 +341,7 @@ class SimCL86R(SimDrive):
             return self._home_rate()
         speed = abs(signed16(self.regs[0x0033]))
         ref = speed or abs(self.kin.velocity(now)) * 60 / self.regs[0x0023]
-        return self._rate(ref, self.regs[0x0032]) if ref else math.inf
+        return self._ramp_rate(ref, self.regs[0x0032]) if ref else math.inf
 
     def _busy(self, word: int, now: float) -> bool:
         """True if a start must be ignored: moving, and no interrupt bit."""
@@ -356,10 +372,7 @@ class SimCL86R(SimDrive):
             target += round(p)
         if self._blocked(target - p, now):
             return
-        self.kin.move_to(
-            now, target, self._pps(speed),
-            self._rate(speed, self.regs[0x0031]), self._rate(speed, self.regs[0x0032]),
-        )
+        self.kin.move_to(now, target, self._pps(speed), *self._ramps(speed))
         self.mode = _MODE_POSITION
         self._watch_from = now
 
@@ -374,10 +387,7 @@ class SimCL86R(SimDrive):
         if speed == 0:
             self.kin.stop(now, self._stop_rate(now))
         else:
-            self.kin.run(
-                now, self._pps(speed),
-                self._rate(speed, self.regs[0x0031]), self._rate(speed, self.regs[0x0032]),
-            )
+            self.kin.run(now, self._pps(speed), *self._ramps(speed))
         self.mode = _MODE_SPEED
         self._watch_from = now
 
@@ -389,27 +399,32 @@ class SimCL86R(SimDrive):
     def _phases(self, mode: int, now: float) -> tuple[dict[str, _Phase], str] | None:
         """The homing method's legs and the first one, from the switch state at ``now``."""
         home, neg, pos = self.switch_states(now)
-        lo, hi, lp, ln = "home_low", "home_high", "limit_positive", "limit_negative"
         if mode == 18:  # origin: falling edge of the positive limit
-            p = {"fast": _Phase(+1, True, ((lp, "creep"),)),
-                 "creep": _Phase(-1, False, ((lp, "done"),))}
-            return p, "creep" if pos and self._wired(2) else "fast"
+            legs = {"fast": _Phase(+1, True, ((_Edge.LIMIT_POSITIVE, "creep"),)),
+                    "creep": _Phase(-1, False, ((_Edge.LIMIT_POSITIVE, "done"),))}
+            return legs, "creep" if pos and self._wired(2) else "fast"
         if mode == 17:  # origin: falling edge of the negative limit
-            p = {"fast": _Phase(-1, True, ((ln, "creep"),)),
-                 "creep": _Phase(+1, False, ((ln, "done"),))}
-            return p, "creep" if neg and self._wired(3) else "fast"
+            legs = {"fast": _Phase(-1, True, ((_Edge.LIMIT_NEGATIVE, "creep"),)),
+                    "creep": _Phase(+1, False, ((_Edge.LIMIT_NEGATIVE, "done"),))}
+            return legs, "creep" if neg and self._wired(3) else "fast"
         if mode == 24:  # origin: HW rising edge approached forward (lower edge)
-            p = {"fast": _Phase(+1, True, ((lo, "back"), (lp, "reverse"))),
-                 "back": _Phase(-1, False, ((lo, "final"),)),
-                 "reverse": _Phase(-1, True, ((hi, "back"),)),
-                 "final": _Phase(+1, False, ((lo, "done"),))}
-            return p, "back" if home and self._wired(1) else "fast"
+            legs = {
+                "fast": _Phase(+1, True, ((_Edge.HOME_LOW, "back"),
+                                          (_Edge.LIMIT_POSITIVE, "reverse"))),
+                "back": _Phase(-1, False, ((_Edge.HOME_LOW, "final"),)),
+                "reverse": _Phase(-1, True, ((_Edge.HOME_HIGH, "back"),)),
+                "final": _Phase(+1, False, ((_Edge.HOME_LOW, "done"),)),
+            }
+            return legs, "back" if home and self._wired(1) else "fast"
         if mode == 29:  # origin: HW rising edge approached in reverse (upper edge)
-            p = {"fast": _Phase(-1, True, ((hi, "back"), (ln, "reverse"))),
-                 "back": _Phase(+1, False, ((hi, "final"),)),
-                 "reverse": _Phase(+1, True, ((lo, "back"),)),
-                 "final": _Phase(-1, False, ((hi, "done"),))}
-            return p, "back" if home and self._wired(1) else "fast"
+            legs = {
+                "fast": _Phase(-1, True, ((_Edge.HOME_HIGH, "back"),
+                                          (_Edge.LIMIT_NEGATIVE, "reverse"))),
+                "back": _Phase(+1, False, ((_Edge.HOME_HIGH, "final"),)),
+                "reverse": _Phase(+1, True, ((_Edge.HOME_LOW, "back"),)),
+                "final": _Phase(-1, False, ((_Edge.HOME_HIGH, "done"),)),
+            }
+            return legs, "back" if home and self._wired(1) else "fast"
         return None
 
     def _start_homing(self, word: int, now: float) -> None:
@@ -445,7 +460,7 @@ class SimCL86R(SimDrive):
         assert self._homing is not None
         phase = self._homing.phases[self._homing.phase]
         events = list(phase.events)
-        ahead = "limit_positive" if phase.direction > 0 else "limit_negative"
+        ahead = _Edge.LIMIT_POSITIVE if phase.direction > 0 else _Edge.LIMIT_NEGATIVE
         if all(name != ahead for name, _ in events):
             events.append((ahead, "abort"))
         t_from = self._homing.t_dir + 1e-9
@@ -481,8 +496,8 @@ class SimCL86R(SimDrive):
     def _limit_hit(self, now: float) -> float | None:
         """When a position/speed move first ran into an active limit since its start."""
         hits = []
-        for boundary, direction in ((self._boundary("limit_positive"), 1),
-                                    (self._boundary("limit_negative"), -1)):
+        for boundary, direction in ((self._boundary(_Edge.LIMIT_POSITIVE), 1),
+                                    (self._boundary(_Edge.LIMIT_NEGATIVE), -1)):
             if boundary is None:
                 continue
             t0 = self._watch_from

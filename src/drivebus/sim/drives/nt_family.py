@@ -262,20 +262,20 @@ class SimNT86(SimDrive):
     def _pps2(self, rps2: float) -> float:
         return rps2 * self.pulses_per_rev
 
-    def _pair(self, low: int) -> int:
+    def _pair_value(self, low: int) -> int:
         value = self.params[low] | (self.params[low + 1] << 16)
         minimum, _ = self.pair_ranges[low]
         return signed32(value) if minimum < 0 else value
 
-    def _phys(self, t: float) -> float:
+    def _physical(self, t: float) -> float:
         return self.kin.position(t)
 
     def counter(self, t: float) -> int:
         """Position register 8/9 at ``t`` (signed 32-bit, wraps like the drive's counter)."""
-        return signed32(round(self._phys(t) + self._offset))
+        return signed32(round(self._physical(t) + self._offset))
 
     def _set_counter(self, t: float, value: int) -> None:
-        self._offset = value - self._phys(t)
+        self._offset = value - self._physical(t)
 
     def switch_states(self, now: float) -> tuple[bool, bool, bool]:
         """(home, limit negative, limit positive); the home cam side is ``home_cam``."""
@@ -316,13 +316,13 @@ class SimNT86(SimDrive):
         """The motor's position in the switch positions' frame, in whole pulses."""
         t = monotonic() if now is None else now
         self.advance(t)
-        return round(self._phys(t))
+        return round(self._physical(t))
 
     def is_moving(self, now: float | None = None) -> bool:
         """True while the motor turns or a homing runs (status bit MOV)."""
         t = monotonic() if now is None else now
         self.advance(t)
-        return self._mov(t)
+        return self._moving(t)
 
     def set_input(self, n: int, conducting: bool, now: float | None = None) -> None:
         """Drive physical input IN n (1-5; IN6 follows the home switch)."""
@@ -434,12 +434,12 @@ class SimNT86(SimDrive):
 
     # -- status ----------------------------------------------------------------------------
 
-    def _mov(self, t: float) -> bool:
+    def _moving(self, t: float) -> bool:
         return self.kin.moving(t) or self._program_kind == "homing"
 
     def _status(self, t: float) -> int:
         _, neg, pos = self.switch_states(t)
-        moving = self._mov(t)
+        moving = self._moving(t)
         s = POW
         if self.enabled:
             s |= ENA | CLAMP
@@ -489,7 +489,7 @@ class SimNT86(SimDrive):
 
     def _check_can_start(self, t: float) -> None:
         """A start is refused (04) while moving, disabled or in alarm."""
-        if self._mov(t) or not self.enabled or self.alarm_code:
+        if self._moving(t) or not self.enabled or self.alarm_code:
             raise SlaveException(4)
 
     def _command(self, code: int, t: float) -> None:
@@ -526,8 +526,8 @@ class SimNT86(SimDrive):
     def _start_move(self, code: int, t: float) -> None:
         speed = self._pps(self.params[72])
         accel, decel = self._pps2(self.params[70]), self._pps2(self.params[71])
-        value = self._pair(73)
-        here = self._phys(t)
+        value = self._pair_value(73)
+        here = self._physical(t)
         if self.params[84] == 0:
             target = here + (abs(value) if code == 1 else -abs(value))
         else:
@@ -602,7 +602,7 @@ class SimNT86(SimDrive):
             self._start_homing(4 if mode == 1 else 5, t, clear_trigger=False)
 
     def _may_start(self, t: float) -> bool:
-        return not self._mov(t) and self.enabled and not self.alarm_code
+        return not self._moving(t) and self.enabled and not self.alarm_code
 
     # -- programs --------------------------------------------------------------------------
 
@@ -701,7 +701,7 @@ class SimNT86(SimDrive):
         self._estopping = False
         self._clear_trigger = clear_trigger
         if mode == 6:
-            self._set_counter(t, self._pair(293))
+            self._set_counter(t, self._pair_value(293))
             self.homed = True
             self.params[287] = 0
             return
@@ -724,12 +724,12 @@ class SimNT86(SimDrive):
     def _home_electrical(self) -> Program:
         """287=5: move to the absolute position 293/294 at speed 289 (accel 291)."""
         t = self._wait_from
-        target = self._pair(293) - self._offset
+        target = self._pair_value(293) - self._offset
         speed, acc = self._pps(self.params[289]), self._pps2(self.params[291])
         if speed > 0 and acc > 0:
             self.kin.move_to(t, target, speed, acc, acc)
             _, t = yield _Wait(rest=True)
-        self._homing_done(t, self._pair(293))
+        self._homing_done(t, self._pair_value(293))
 
     def _signal(self, method: int) -> float | None:
         return {
@@ -757,9 +757,9 @@ class SimNT86(SimDrive):
             if found is None:
                 return  # stopped at a limit (295=0/1): wait for a new trigger
             t = found
-        offset = self._pair(293)
+        offset = self._pair_value(293)
         if handling in (1, 3) and offset:
-            self.kin.move_to(t, self._phys(t) + offset, max(fast, 1.0), acc, acc)
+            self.kin.move_to(t, self._physical(t) + offset, max(fast, 1.0), acc, acc)
             _, t = yield _Wait(rest=True)
         self._homing_done(t, offset)
 
@@ -849,7 +849,7 @@ class SimEPR60(SimNT86):
     @property
     def pulses_per_rev(self) -> int:
         """Microstep setting (registers 96/97)."""
-        return max(self._pair(96), 1)
+        return max(self._pair_value(96), 1)
 
     def _getters(self) -> dict[int, Callable[[float], int]]:
         g = super()._getters()
@@ -901,6 +901,6 @@ class SimEPR60(SimNT86):
         self.kin.hold(t, edge)
         offset = self.params[83]
         if offset and slow > 0 and acc > 0:
-            self.kin.move_to(t, self._phys(t) - d * offset, slow, acc, acc)
+            self.kin.move_to(t, self._physical(t) - d * offset, slow, acc, acc)
             _, t = yield _Wait(rest=True)
         self._homing_done(t, 0)
