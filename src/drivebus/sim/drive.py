@@ -14,7 +14,12 @@ from drivebus.settings import LineSettings
 from drivebus.sim.kinematics import Kinematics
 from drivebus.sim.slave import Fault, SimSlave
 
-__all__ = ["SimDrive", "TwinSetup"]
+__all__ = ["SimDrive", "TwinSetup", "time_or_present"]
+
+
+def time_or_present(now: float | None) -> float:
+    """``now``, or the present time where the caller gave none (tests usually do not)."""
+    return monotonic() if now is None else now
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -60,19 +65,23 @@ class SimDrive(SimSlave):
 
     def position(self, now: float | None = None) -> int:
         """The simulated motor position in whole pulses."""
-        return round(self.kin.position(monotonic() if now is None else now))
+        return round(self.kin.position(time_or_present(now)))
 
     def velocity(self, now: float | None = None) -> float:
         """The simulated velocity in pulses/s."""
-        return self.kin.velocity(monotonic() if now is None else now)
+        return self.kin.velocity(time_or_present(now))
 
     def is_moving(self, now: float | None = None) -> bool:
         """True while the simulated motor turns."""
-        return self.kin.moving(monotonic() if now is None else now)
+        return self.kin.moving(time_or_present(now))
+
+    def speed_rpm(self, now: float | None = None) -> float:
+        """The simulated speed in r/min (signed) at the drive's microstep setting."""
+        return self.velocity(now) * 60.0 / self.pulses_per_rev
 
     def raise_alarm(self, code: int, now: float | None = None) -> None:
         """Latch alarm ``code``: the motor stops at once (as a drive's fault reaction)."""
-        t = monotonic() if now is None else now
+        t = time_or_present(now)
         self.alarm_code = code
         self.kin.stop(t, None)
 
@@ -84,6 +93,21 @@ class SimDrive(SimSlave):
     def power_restore(self) -> None:
         """Power comes back (the drive answers again)."""
         self.faults.clear(Fault.POWER_LOSS)
+
+    # -- units of the drive's registers ---------------------------------------------------------
+
+    @property
+    def pulses_per_rev(self) -> int:
+        """The drive's microstep setting: pulses per motor revolution (from its registers)."""
+        raise NotImplementedError(f"{type(self).__name__} has no microstep setting")
+
+    def pulse_rate(self, rpm: float) -> float:
+        """Pulses/s of a speed of ``rpm`` r/min at the microstep setting."""
+        return rpm * self.pulses_per_rev / 60.0
+
+    def pulse_acceleration(self, rps2: float) -> float:
+        """Pulses/s² of an acceleration of ``rps2`` r/s² at the microstep setting."""
+        return rps2 * self.pulses_per_rev
 
     def switch_states(self, now: float) -> tuple[bool, bool, bool]:
         """(home, limit negative, limit positive) inputs at ``now``.

@@ -32,7 +32,7 @@ from collections.abc import Callable
 from drivebus.clock import monotonic
 from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive, TwinSetup
+from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
 from drivebus.sim.registers import Access, ExceptionCodes, RegisterSpec, SlaveException
 
 __all__ = ["FACTORY_SETTINGS", "SimBHSS"]
@@ -211,18 +211,18 @@ class SimBHSS(SimDrive):
 
     def position(self, now: float | None = None) -> int:
         """The drive's position counter (0x000A/0x000B) in whole pulses."""
-        t = monotonic() if now is None else now
+        t = time_or_present(now)
         return round(self.kin.position(t) + self._shift)
 
     def physical_position(self, now: float | None = None) -> float:
         """Where the motor physically is (the frame of the switch positions), in pulses."""
-        return self.kin.position(monotonic() if now is None else now)
+        return self.kin.position(time_or_present(now))
 
     def raise_alarm(self, code: int, now: float | None = None) -> None:
         """Latch alarm Err``code`` (1..5): the drive locks and the motor stops at once."""
         if not 1 <= code <= 5:
             raise ValueError(f"BHSS alarm codes are 1..5, not {code}")
-        t = monotonic() if now is None else now
+        t = time_or_present(now)
         self.advance(t)
         super().raise_alarm(code, t)
         self._end_motion()
@@ -430,9 +430,14 @@ class SimBHSS(SimDrive):
 
     # -- motion ------------------------------------------------------------------------------------
 
+    @property
+    def pulses_per_rev(self) -> int:
+        """The resolution chosen in 0x0011."""
+        return _PULSES_PER_REV[self.regs[0x0011]]
+
     def _pps(self, rpm: float) -> float:
-        """Pulses/s for ``rpm`` at the resolution in 0x0011, capped at 200 kHz."""
-        return min(abs(rpm) * _PULSES_PER_REV[self.regs[0x0011]] / 60.0, _MAX_PULSE_RATE)
+        """Pulses/s for ``rpm`` (either sign) at the resolution, capped at 200 kHz."""
+        return min(self.pulse_rate(abs(rpm)), _MAX_PULSE_RATE)
 
     def _ramp_rate(self, pps: float, ms: int) -> float:
         """Acceleration (pulses/s²) that ramps to ``pps`` in ``ms`` milliseconds."""

@@ -37,7 +37,7 @@ from drivebus.clock import monotonic
 from drivebus.errors import ConfigError
 from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive, TwinSetup
+from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
 from drivebus.sim.registers import Access, ExceptionCodes, RegisterSpec, signed16, signed32
 
 __all__ = ["SimCL86R"]
@@ -198,7 +198,7 @@ class SimCL86R(SimDrive):
 
     def physical_position(self, now: float | None = None) -> float:
         """Where the axis physically is (the frame of the switch positions)."""
-        return self.kin.position(monotonic() if now is None else now) - self._shift
+        return self.kin.position(time_or_present(now)) - self._shift
 
     def _set_counter(self, t: float, value: float) -> None:
         """Redefine the position counter at ``t`` as ``value`` (the axis does not move)."""
@@ -222,13 +222,14 @@ class SimCL86R(SimDrive):
         """True if some input X0..X6 is assigned DI ``function`` (1 home, 2 +limit, 3 -limit)."""
         return any(self.regs[0x0013 + i] == function for i in range(7))
 
-    def _pps(self, rpm: float) -> float:
-        """rpm -> pulses/s at the microstep setting 0x0023."""
-        return rpm * self.regs[0x0023] / 60.0
+    @property
+    def pulses_per_rev(self) -> int:
+        """The microstep setting 0x0023."""
+        return self.regs[0x0023]
 
     def _ramp_rate(self, speed_rpm: float, ms: int) -> float:
         """pulses/s² of a ramp reaching ``speed_rpm`` in ``ms``."""
-        return self._pps(abs(speed_rpm)) / (ms / 1000.0)
+        return self.pulse_rate(abs(speed_rpm)) / (ms / 1000.0)
 
     def _ramps(self, speed_rpm: float) -> tuple[float, float]:
         """Acceleration and deceleration (pulses/s²) of a move at ``speed_rpm``: the ramp
@@ -279,7 +280,7 @@ class SimCL86R(SimDrive):
                 outputs |= 1 << i
         outputs ^= self.regs[0x0012] & 0x07
         p = round(self.kin.position(now)) & 0xFFFFFFFF
-        rpm = round(self.kin.velocity(now) * 60.0 / self.regs[0x0023])
+        rpm = round(self.speed_rpm(now))
         return [self.model, self.software, self.mode, status, self.alarm_code, inputs, outputs,
                 p >> 16, p & 0xFFFF, rpm & 0xFFFF]
 
@@ -340,7 +341,7 @@ class SimCL86R(SimDrive):
         if self.mode == _MODE_HOMING:
             return self._home_rate()
         speed = abs(signed16(self.regs[0x0033]))
-        ref = speed or abs(self.kin.velocity(now)) * 60 / self.regs[0x0023]
+        ref = speed or abs(self.speed_rpm(now))
         return self._ramp_rate(ref, self.regs[0x0032]) if ref else math.inf
 
     def _busy(self, word: int, now: float) -> bool:
@@ -372,7 +373,7 @@ class SimCL86R(SimDrive):
             target += round(p)
         if self._blocked(target - p, now):
             return
-        self.kin.move_to(now, target, self._pps(speed), *self._ramps(speed))
+        self.kin.move_to(now, target, self.pulse_rate(speed), *self._ramps(speed))
         self.mode = _MODE_POSITION
         self._watch_from = now
 
@@ -387,7 +388,7 @@ class SimCL86R(SimDrive):
         if speed == 0:
             self.kin.stop(now, self._stop_rate(now))
         else:
-            self.kin.run(now, self._pps(speed), *self._ramps(speed))
+            self.kin.run(now, self.pulse_rate(speed), *self._ramps(speed))
         self.mode = _MODE_SPEED
         self._watch_from = now
 
@@ -451,7 +452,7 @@ class SimCL86R(SimDrive):
         rate = self._home_rate()
         speed = self.regs[0x0041] if phase.fast else self.regs[0x0042]
         v = self.kin.velocity(t)
-        self.kin.run(t, phase.direction * self._pps(speed), rate, rate)
+        self.kin.run(t, phase.direction * self.pulse_rate(speed), rate, rate)
         t_dir = t + abs(v) / rate if v * phase.direction < 0 else t
         self._homing.phase, self._homing.t_dir = name, t_dir
 
@@ -527,7 +528,7 @@ class SimCL86R(SimDrive):
 
     def raise_alarm(self, code: int, now: float | None = None) -> None:
         """Latch error ``code`` (1 overcurrent, 2 overvoltage, 4 position error)."""
-        t = monotonic() if now is None else now
+        t = time_or_present(now)
         self.advance(t)
         self._homing = None
         super().raise_alarm(code, t)

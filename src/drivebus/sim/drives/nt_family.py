@@ -30,7 +30,7 @@ from drivebus.clock import monotonic
 from drivebus.errors import ConfigError
 from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive, TwinSetup
+from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
 from drivebus.sim.registers import Access, RegisterSpec, SlaveException, signed32
 
 __all__ = ["SimEPR60", "SimNT86"]
@@ -256,12 +256,6 @@ class SimNT86(SimDrive):
         """Microstep setting (register 24)."""
         return self.params[24]
 
-    def _pps(self, rpm: float) -> float:
-        return rpm * self.pulses_per_rev / 60.0
-
-    def _pps2(self, rps2: float) -> float:
-        return rps2 * self.pulses_per_rev
-
     def _pair_value(self, low: int) -> int:
         value = self.params[low] | (self.params[low + 1] << 16)
         minimum, _ = self.pair_ranges[low]
@@ -308,19 +302,19 @@ class SimNT86(SimDrive):
 
     def position(self, now: float | None = None) -> int:
         """The drive's position counter (register 8/9) in pulses."""
-        t = monotonic() if now is None else now
+        t = time_or_present(now)
         self.advance(t)
         return self.counter(t)
 
     def physical_position(self, now: float | None = None) -> int:
         """The motor's position in the switch positions' frame, in whole pulses."""
-        t = monotonic() if now is None else now
+        t = time_or_present(now)
         self.advance(t)
         return round(self._physical(t))
 
     def is_moving(self, now: float | None = None) -> bool:
         """True while the motor turns or a homing runs (status bit MOV)."""
-        t = monotonic() if now is None else now
+        t = time_or_present(now)
         self.advance(t)
         return self._moving(t)
 
@@ -328,7 +322,7 @@ class SimNT86(SimDrive):
         """Drive physical input IN n (1-5; IN6 follows the home switch)."""
         if not 1 <= n <= 5:
             raise ConfigError(f"IN{n}: the twin drives IN1..IN5 (IN6 is the home switch)")
-        t = monotonic() if now is None else now
+        t = time_or_present(now)
         self.advance(t)
         before = self._functions(t)
         self._inputs = (
@@ -344,7 +338,7 @@ class SimNT86(SimDrive):
         """
         if not 0 < code <= 0x1FF:
             raise ConfigError(f"alarm code 0x{code:X}: register 0 has bits 0-8")
-        t = monotonic() if now is None else now
+        t = time_or_present(now)
         self.advance(t)
         self._abort_program(t)
         self._jog = None
@@ -459,7 +453,7 @@ class SimNT86(SimDrive):
         return self._cmd_speed > 0 and abs(v - self._cmd_speed) < 1e-6 * self._cmd_speed
 
     def _speed_rpm(self, t: float) -> int:
-        rpm = round(self.kin.velocity(t) * 60.0 / self.pulses_per_rev)
+        rpm = round(self.speed_rpm(t))
         return max(-32768, min(32767, rpm))
 
     def _outputs(self, t: float) -> int:
@@ -510,7 +504,7 @@ class SimNT86(SimDrive):
         self._abort_program(t)
         self._jog = None
         self._estopping = True
-        self.kin.stop(t, self._pps2(self.params[78]))
+        self.kin.stop(t, self.pulse_acceleration(self.params[78]))
 
     def _decel_stop(self, t: float) -> None:
         decel = self._stop_decel
@@ -524,8 +518,9 @@ class SimNT86(SimDrive):
         return (direction > 0 and pos) or (direction < 0 and neg)
 
     def _start_move(self, code: int, t: float) -> None:
-        speed = self._pps(self.params[72])
-        accel, decel = self._pps2(self.params[70]), self._pps2(self.params[71])
+        speed = self.pulse_rate(self.params[72])
+        accel = self.pulse_acceleration(self.params[70])
+        decel = self.pulse_acceleration(self.params[71])
         value = self._pair_value(73)
         here = self._physical(t)
         if self.params[84] == 0:
@@ -540,8 +535,9 @@ class SimNT86(SimDrive):
         self._run_program(self._watch_limits(), "motion", t)
 
     def _start_jog(self, direction: int, t: float) -> None:
-        speed = self._pps(self.params[77])
-        accel, decel = self._pps2(self.params[75]), self._pps2(self.params[76])
+        speed = self.pulse_rate(self.params[77])
+        accel = self.pulse_acceleration(self.params[75])
+        decel = self.pulse_acceleration(self.params[76])
         if self._blocked_by_limit(direction, t):
             return
         self._estopping = False
@@ -554,13 +550,13 @@ class SimNT86(SimDrive):
         """77 takes effect at once during a jog (manual 3.2.2), with the latched ramps."""
         if self._jog is not None and self.kin.moving(t):
             direction, accel, decel = self._jog
-            self._cmd_speed = self._pps(v)
+            self._cmd_speed = self.pulse_rate(v)
             self.kin.run(t, direction * self._cmd_speed, accel, decel)
 
     def _on_estop_decel(self, v: int, old: int, t: float) -> None:
         """78 applies even to an emergency stop in progress (manual 3.2.1)."""
         if self._estopping and self.kin.moving(t):
-            self.kin.stop(t, self._pps2(v))
+            self.kin.stop(t, self.pulse_acceleration(v))
 
     def _save(self) -> None:
         self.flash = dict(self.params)
@@ -678,7 +674,7 @@ class SimNT86(SimDrive):
         if name == "rest":
             return
         self._jog = None
-        self.kin.stop(t, self._pps2(self.params[78]))
+        self.kin.stop(t, self.pulse_acceleration(self.params[78]))
         yield _Wait(rest=True)
 
     # -- homing (NT86: 287-298) ------------------------------------------------------------
@@ -705,7 +701,7 @@ class SimNT86(SimDrive):
             self.homed = True
             self.params[287] = 0
             return
-        self._stop_decel = self._pps2(self.params[291])
+        self._stop_decel = self.pulse_acceleration(self.params[291])
         program = self._home_electrical() if mode == 5 else self._home_mechanical(t)
         self._run_program(program, "homing", t)
 
@@ -725,7 +721,7 @@ class SimNT86(SimDrive):
         """287=5: move to the absolute position 293/294 at speed 289 (accel 291)."""
         t = self._wait_from
         target = self._pair_value(293) - self._offset
-        speed, acc = self._pps(self.params[289]), self._pps2(self.params[291])
+        speed, acc = self.pulse_rate(self.params[289]), self.pulse_acceleration(self.params[291])
         if speed > 0 and acc > 0:
             self.kin.move_to(t, target, speed, acc, acc)
             _, t = yield _Wait(rest=True)
@@ -748,8 +744,8 @@ class SimNT86(SimDrive):
         to its rising edge (the origin); 288=4/5: creep into the hard stop (manual 3.1.2)."""
         method, handling = self.params[288], self.params[295]
         d = 1 if method in (0, 2, 4) else -1
-        fast, slow = self._pps(self.params[289]), self._pps(self.params[290])
-        acc = self._pps2(self.params[291])
+        fast, slow = self.pulse_rate(self.params[289]), self.pulse_rate(self.params[290])
+        acc = self.pulse_acceleration(self.params[291])
         if method in (4, 5):
             t = yield from self._hard_stop(d, slow, acc)
         else:
@@ -867,7 +863,7 @@ class SimEPR60(SimNT86):
         """Leaving homing mode 1 while homing runs aborts it (decelerating at 82)."""
         if v != 1 and self._program_kind == "homing":
             self._abort_program(t)
-            self.kin.stop(t, self._pps2(self.params[82]))
+            self.kin.stop(t, self.pulse_acceleration(self.params[82]))
 
     def _homing_aborted(self) -> None:
         pass  # no trigger register to clear
@@ -877,15 +873,15 @@ class SimEPR60(SimNT86):
             self.homed = False
             self._jog = None
             self._estopping = False
-            self._stop_decel = self._pps2(self.params[82])
+            self._stop_decel = self.pulse_acceleration(self.params[82])
             self._run_program(self._home_limit(), "homing", t)
 
     def _home_limit(self) -> Program:
         t = self._wait_from
         d = 1 if self.params[79] == 1 else -1
         edge = self.limit_positive if d > 0 else self.limit_negative
-        fast, slow = self._pps(self.params[80]), self._pps(self.params[81])
-        acc = self._pps2(self.params[82])
+        fast, slow = self.pulse_rate(self.params[80]), self.pulse_rate(self.params[81])
+        acc = self.pulse_acceleration(self.params[82])
         if edge is None:
             self.kin.run(t, d * fast, acc, acc)
             yield _Wait()  # no limit switch: runs until stopped

@@ -32,7 +32,7 @@ from collections.abc import Mapping
 
 from drivebus.clock import monotonic
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive, TwinSetup
+from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
 from drivebus.sim.registers import Access, ExceptionCodes, RegisterSpec, SlaveException
 
 __all__ = ["SimODDrive"]
@@ -149,36 +149,31 @@ class SimODDrive(SimDrive):
         """The microstep setting 2005h."""
         return self.values[(0x2005, 0)]
 
-    def _pps(self, rpm: float) -> float:
-        return rpm / 60.0 * self.pulses_per_rev
-
-    def _pps2(self, rps2: float) -> float:
-        return rps2 * self.pulses_per_rev
-
     def external_move_to(
         self, target: int, speed_rpm: float, accel_rps2: float, now: float | None = None
     ) -> None:
         """The fieldbus master commands a move to ``target`` pulses (refused while alarmed)."""
-        if self.alarm_code:
-            raise RuntimeError(f"OD2000 twin: alarm {self.alarm_code} is latched")
-        t = monotonic() if now is None else now
-        a = self._pps2(accel_rps2)
-        self.kin.move_to(t, target, self._pps(speed_rpm), a, a)
+        self._check_no_alarm()
+        ramp = self.pulse_acceleration(accel_rps2)
+        self.kin.move_to(time_or_present(now), target, self.pulse_rate(speed_rpm), ramp, ramp)
 
     def external_run(
         self, speed_rpm: float, accel_rps2: float, now: float | None = None
     ) -> None:
-        """The fieldbus master runs the motor at ``speed_rpm`` (signed)."""
+        """The fieldbus master runs the motor at ``speed_rpm`` (signed; refused while alarmed)."""
+        self._check_no_alarm()
+        ramp = self.pulse_acceleration(accel_rps2)
+        self.kin.run(time_or_present(now), self.pulse_rate(speed_rpm), ramp, ramp)
+
+    def _check_no_alarm(self) -> None:
+        """The drive does not move the motor while an alarm is latched."""
         if self.alarm_code:
             raise RuntimeError(f"OD2000 twin: alarm {self.alarm_code} is latched")
-        t = monotonic() if now is None else now
-        a = self._pps2(accel_rps2)
-        self.kin.run(t, self._pps(speed_rpm), a, a)
 
     def external_stop(self, decel_rps2: float | None = None, now: float | None = None) -> None:
         """The fieldbus master stops the motor (None: at once)."""
-        t = monotonic() if now is None else now
-        self.kin.stop(t, None if decel_rps2 is None else self._pps2(decel_rps2))
+        t = time_or_present(now)
+        self.kin.stop(t, None if decel_rps2 is None else self.pulse_acceleration(decel_rps2))
 
     def raise_alarm(self, code: int, now: float | None = None) -> None:
         """Latch alarm ``code``: the motor stops, 201Fh reports it, 201Ch.1 records it."""
@@ -282,7 +277,7 @@ class SimODDrive(SimDrive):
         if index == 0x2014:
             return self._inputs(now)
         if index == 0x2017:
-            rpm = abs(self.velocity(now)) * 60.0 / self.pulses_per_rev
+            rpm = abs(self.speed_rpm(now))
             return min(max(1, round(rpm)), 32767) if rpm > 0 else 0
         if index == 0x200D:
             return self.bus_voltage
