@@ -256,38 +256,63 @@ class SimCL86R(SimDrive):
 
     # -- registers ------------------------------------------------------------------------------
 
-    def _monitor(self, now: float) -> list[int]:
-        home, neg, pos = self.switch_states(now)
+    def _status(self, now: float) -> int:
+        """Status register 0x0003: in position, homed, moving, alarm, enabled."""
         moving = self.kin.moving(now)
-        status = (
+        return (
             (0x01 if not moving and not self.alarm_code else 0)
             | (0x02 if self.homed else 0)
             | (0x04 if moving else 0)
             | (0x08 if self.alarm_code else 0)
             | (0x10 if self.enabled else 0)
         )
+
+    def _inputs(self, now: float) -> int:
+        """Input terminals 0x0005: each input's function's level, XOR its inversion bit."""
+        home, neg, pos = self.switch_states(now)
         active = {1: home, 2: pos, 3: neg}
         inputs = 0
         for i in range(7):
             if active.get(self.regs[0x0013 + i], False):
                 inputs |= 1 << i
-        inputs ^= self.regs[0x0010] & 0x7F  # terminal state = logical level ^ inversion
-        signals = {1: bool(self.alarm_code), 2: moving, 3: self.homed,
+        return inputs ^ (self.regs[0x0010] & 0x7F)  # terminal state = logical level ^ inversion
+
+    def _outputs(self, now: float) -> int:
+        """Output terminals 0x0006: each output's function's signal, XOR its inversion bit."""
+        status = self._status(now)
+        signals = {1: bool(self.alarm_code), 2: bool(status & 0x04), 3: self.homed,
                    4: bool(status & 0x01), 5: self.enabled}
         outputs = 0
         for i in range(3):
             if signals.get(self.regs[0x001A + i], False):
                 outputs |= 1 << i
-        outputs ^= self.regs[0x0012] & 0x07
-        p = round(self.kin.position(now)) & 0xFFFFFFFF
-        rpm = round(self.speed_rpm(now))
-        return [self.model, self.software, self.mode, status, self.alarm_code, inputs, outputs,
-                p >> 16, p & 0xFFFF, rpm & 0xFFFF]
+        return outputs ^ (self.regs[0x0012] & 0x07)
+
+    def _monitor(self, address: int, now: float) -> int:
+        """Monitor register ``address`` (0x0000-0x0009), computed at ``now``."""
+        if address == 0x0000:
+            return self.model
+        if address == 0x0001:
+            return self.software
+        if address == 0x0002:
+            return self.mode
+        if address == 0x0003:
+            return self._status(now)
+        if address == 0x0004:
+            return self.alarm_code
+        if address == 0x0005:
+            return self._inputs(now)
+        if address == 0x0006:
+            return self._outputs(now)
+        if address in (0x0007, 0x0008):  # position counter, high word first
+            counter = round(self.kin.position(now)) & 0xFFFFFFFF
+            return counter >> 16 if address == 0x0007 else counter & 0xFFFF
+        return round(self.speed_rpm(now))  # 0x0009, signed
 
     def read_register(self, address: int, now: float) -> int:
         """A monitor register (computed at read time) or a parameter."""
         if address in _MONITOR:
-            return self._monitor(now)[address]
+            return self._monitor(address, now)
         return self.regs[address]
 
     def write_register(self, address: int, word: int, now: float) -> None:
