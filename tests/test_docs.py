@@ -14,6 +14,7 @@ import os
 import re
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -79,6 +80,16 @@ def test_family_page_states_the_declarations(site: Path, name: str) -> None:
     for code, meaning in p.exception_texts.items():
         assert " ".join(meaning.split()) in text, code
     assert "Registers" in text and "At a glance" in text
+
+
+def test_install_page_states_the_pymodbus_ranges(site: Path) -> None:
+    text = text_of(site / "guide/install/index.html")
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"
+    ]
+    for extra in ("bench", "test"):
+        (pin,) = [r for r in extras[extra] if r.startswith("pymodbus")]
+        assert pin in text, (extra, pin)
 
 
 def test_families_table_lists_every_family(site: Path) -> None:
