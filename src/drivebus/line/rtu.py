@@ -1,17 +1,44 @@
-"""RTU framing: CRC-16 and application data units (address + PDU + CRC)."""
+"""RTU framing: CRC-16 and application data units (address + PDU + CRC).
+
+The CRC is the one of "MODBUS over Serial Line" v1.02 (section 6.2.2 and its appendix B):
+CRC-16 with polynomial 0xA001 (0x8005 reflected), initial value 0xFFFF, sent low byte
+first. It is computed from a 256-entry table, one lookup per byte, as the spec's own
+table-driven form does.
+"""
 
 from __future__ import annotations
 
-from pymodbus.framer.rtu import FramerRTU
+__all__ = ["crc16", "crc16_value", "crc_ok", "frame"]
 
-__all__ = ["crc16", "crc_ok", "frame"]
-
-_compute = FramerRTU.compute_CRC  # pymodbus returns the CRC byte-swapped, i.e. wire order
+_POLY = 0xA001
 
 
-def crc16(data: bytes) -> bytes:
+def _table() -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ _POLY if crc & 1 else crc >> 1
+        table.append(crc)
+    return tuple(table)
+
+
+_TABLE = _table()
+"""The CRC of each byte value, shifted through the register once."""
+
+
+def crc16_value(data: bytes | bytearray | memoryview) -> int:
+    """The Modbus CRC-16 of ``data`` as a number (e.g. 0x1241 for ``02 07``)."""
+    crc = 0xFFFF
+    table = _TABLE
+    for b in data:
+        crc = (crc >> 8) ^ table[(crc ^ b) & 0xFF]
+    return crc
+
+
+def crc16(data: bytes | bytearray | memoryview) -> bytes:
     """The two CRC bytes of ``data`` in wire order (low byte first)."""
-    return _compute(data).to_bytes(2, "big")
+    return crc16_value(data).to_bytes(2, "little")
 
 
 def frame(address: int, pdu: bytes) -> bytes:
@@ -20,6 +47,6 @@ def frame(address: int, pdu: bytes) -> bytes:
     return body + crc16(body)
 
 
-def crc_ok(adu: bytes) -> bool:
+def crc_ok(adu: bytes | bytearray | memoryview) -> bool:
     """True if the last two bytes of ``adu`` are the CRC of the rest."""
-    return len(adu) >= 4 and crc16(adu[:-2]) == adu[-2:]
+    return len(adu) >= 4 and crc16(adu[:-2]) == bytes(adu[-2:])
