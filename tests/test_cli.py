@@ -669,3 +669,62 @@ def test_json_on_every_command_that_prints_results(tmp_path: Path) -> None:
     assert r.returncode == 0 and json.loads(r.stdout)["done"] is True
     r = drivebus("jog", SINGLE, "x", "5", "--for", "0.2", "-j")
     assert r.returncode == 0 and json.loads(r.stdout)["what"].startswith("jog")
+
+
+# -- one owner of a line ---------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def serving(config: Path) -> Iterator[tuple[Proc, str]]:
+    """``drivebus serve CONFIG --port 0``: the process and its URL; SIGINT at the end."""
+    with spawn("serve", config, "--port", "0") as proc:
+        m = proc.expect(r"drivebus serve: machine \S+ on (http://127\.0\.0\.1:\d+)/", 30)
+        yield proc, m.group(1)
+        if proc.popen.poll() is None:
+            assert proc.interrupt(30) == 0
+
+
+def test_one_shot_commands_talk_to_the_serve_that_owns_the_machine() -> None:
+    with serving(SINGLE) as (proc, url):
+        r = drivebus("move", SINGLE, "x", "50")
+        assert r.returncode == 0, r.stderr
+        assert "served by a running drivebus serve" in r.stderr
+        # the same machine, not a fresh simulator: x is still where the move left it
+        assert status_json(SINGLE)["x"]["position"] == pytest.approx(50.0)
+        r = drivebus("move", SINGLE, "x", "-5", "--by", "--json")
+        assert json.loads(r.stdout)["position"] == pytest.approx(45.0)
+        r = drivebus("read", "bus", "1", "0", "2", "--server", url, "--json")
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["words"][0] == 862  # the CL86R's model code
+        r = drivebus("move", SINGLE, "x", "1000")  # its typed error, through the service
+        assert r.returncode == 1, r.stderr  # as when the machine is opened here
+        assert r.stderr.splitlines()[-1].startswith("error: axis x: target 1000 is outside "
+                                                    "the soft limits")
+        with spawn("move", SINGLE, "x", "150", "--speed", "20") as move:
+            # the move runs in the service; Ctrl-C here cancels it there
+            move.expect(r"x: position=\S+ .*state=DiscreteMotion")
+            assert move.interrupt() == 130
+        first, second = status_json(SINGLE)["x"], status_json(SINGLE)["x"]
+        assert first["state"] == "Standstill" and first["moving"] is False
+        assert first["position"] == second["position"] < 150.0
+        r = drivebus("status", SINGLE, "--local")  # --local opens the machine here
+        assert r.returncode == 0 and "served by" not in r.stderr
+    out = proc.rest()
+    assert "every axis at rest" in out
+
+
+def test_a_serial_line_in_another_process_finds_a_running_drivebus_sim() -> None:
+    with sim_server(SINGLE):
+        code = (
+            "import anyio\n"
+            "from drivebus import Bus, LineSettings, SerialLine\n"
+            "async def main():\n"
+            "    line = SerialLine('sim://single', LineSettings.parse('115200 8N1'))\n"
+            "    async with Bus(line) as bus:\n"
+            "        print(await bus.slave(1).read_holding_registers(0, 1))\n"
+            "anyio.run(main)\n"
+        )
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           timeout=30, check=False)
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.strip() == "[862]"

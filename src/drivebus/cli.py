@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 import termios
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import anyio
 import typer
@@ -20,6 +20,9 @@ import typer
 from drivebus import checks
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
 from drivebus.terminal import explain
+
+if TYPE_CHECKING:
+    from drivebus.service.client import ServiceClient
 
 try:  # typer vendors click from 0.2x on; before, it used click itself
     from typer._click.exceptions import UsageError
@@ -94,6 +97,32 @@ FormatOpt = Annotated[str, typer.Option(
     help="hex, int (signed 16-bit), uint, int32-le, int32-be (low/high word first) or float")]
 TimeoutOpt = Annotated[float, typer.Option(
     "--timeout", "-t", metavar="SECONDS", help="response timeout")]
+ServerOpt = Annotated[str | None, typer.Option(
+    "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
+    help="talk to this drivebus serve (default: the one serving CONFIG, if it runs)")]
+TokenOpt = Annotated[str | None, typer.Option(
+    "--token", metavar="TOKEN", envvar="DRIVEBUS_TOKEN",
+    help="bearer token for --server (from its token file)")]
+LocalOpt = Annotated[bool, typer.Option(
+    "--local", help="open the machine here even if a drivebus serve owns it")]
+
+
+def _owner(
+    config: Path, server: str | None, token: str | None, local: bool
+) -> ServiceClient | None:
+    """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
+    through the file), as a client; None to open the machine here."""
+    from drivebus.service.client import ServiceClient, find_service
+
+    if local:
+        return None
+    url = server or find_service(config)
+    if url is None:
+        return None
+    if server is None:
+        typer.echo(f"note: {config} is served by a running drivebus serve at {url}: "
+                   f"talking to it (--local opens the machine here)", err=True)
+    return ServiceClient(url, token=token)
 
 
 @app.command()
@@ -246,10 +275,25 @@ def read(
         "--count", "-n", metavar="N", help="with --interval: stop after N polls")] = None,
     timeout: TimeoutOpt = 0.5,
     as_json: JsonOpt = False,
+    server: Annotated[str | None, typer.Option(
+        "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
+        help="through this drivebus serve: TARGET is then one of its lines")] = None,
+    token: TokenOpt = None,
 ) -> None:
     """Read COUNT registers (or values of --format) of the slave at ADDR on TARGET."""
-    from drivebus.terminal import Out, read_registers, run_guarded
+    from drivebus.terminal import Out, read_registers, remote_read, run_guarded
 
+    if server is not None:
+        from drivebus.app.registers import words_per_value
+        from drivebus.service.client import ServiceClient
+
+        words_per_value(fmt)
+        client = ServiceClient(server, token=token)
+        raise typer.Exit(run_guarded(
+            lambda: remote_read(Out(as_json=as_json), client, target, address, register,
+                                count, input_registers, fmt, interval, polls),
+            interrupt_ok=interval is not None,
+        ))
     _check_register_call(target, address, register, fmt)
     checks.whole("COUNT", count, 1, 125)
     wanted_settings = _settings(settings)
@@ -278,11 +322,23 @@ def write(
     fmt: FormatOpt = "uint",
     timeout: TimeoutOpt = 0.5,
     as_json: JsonOpt = False,
+    server: Annotated[str | None, typer.Option(
+        "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
+        help="through this drivebus serve: TARGET is then one of its lines")] = None,
+    token: TokenOpt = None,
 ) -> None:
     """Write VALUEs from register REG of the slave at ADDR on TARGET (one: FC06, more: FC16;
     never retried, a write may be a command)."""
     from drivebus.app.registers import encode
-    from drivebus.terminal import Out, run_guarded, write_registers
+    from drivebus.terminal import Out, remote_write, run_guarded, write_registers
+
+    if server is not None:
+        from drivebus.service.client import ServiceClient
+
+        words = encode(values, fmt)
+        client = ServiceClient(server, token=token)
+        raise typer.Exit(run_guarded(lambda: remote_write(
+            Out(as_json=as_json), client, target, address, register, words)))
 
     _check_register_call(target, address, register, fmt)
     encode(values, fmt)  # every value checked before the port opens
@@ -299,13 +355,17 @@ def write(
 
 
 @app.command()
-def status(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False) -> None:
+def status(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False,
+           server: ServerOpt = None, token: TokenOpt = None, local: LocalOpt = False) -> None:
     """Show every axis (or the named ones): state, position, velocity, flags, alarm; an axis
     whose drive does not answer is shown Offline with the reason (exit 1 then, and on an
     alarm)."""
-    from drivebus.terminal import Out, run_guarded, show_status
+    from drivebus.terminal import Out, remote_status, run_guarded, show_status
 
     out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        raise typer.Exit(run_guarded(lambda: remote_status(out, owner, axes or [], as_json)))
     raise typer.Exit(run_guarded(lambda: show_status(out, config, axes or [], as_json)))
 
 
@@ -319,23 +379,39 @@ def move(
     speed: Annotated[float | None, typer.Option(
         "--speed", "-s", metavar="SPEED", help="speed, the axis's units/s")] = None,
     as_json: JsonOpt = False,
+    server: ServerOpt = None,
+    token: TokenOpt = None,
+    local: LocalOpt = False,
 ) -> None:
     """Move an axis to TARGET (or by it) and wait until it is there; Ctrl-C stops it."""
-    from drivebus.terminal import Out, move_axis, run_guarded
+    from drivebus.terminal import Out, move_axis, remote_motion, run_guarded
 
     checks.finite("TARGET", target)
     if speed is not None:
         checks.positive("--speed", speed, unit="units/s")
     out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        body: dict[str, float] = {"by" if by else "target": target}
+        if speed is not None:
+            body["speed"] = speed
+        what = f"move {'by' if by else 'to'} {target:g}"
+        raise typer.Exit(run_guarded(lambda: remote_motion(
+            out, owner, axis, what, f"/axes/{axis}/move", body)))
     raise typer.Exit(run_guarded(lambda: move_axis(out, config, axis, target, by, speed)))
 
 
 @app.command()
-def home(config: ConfigArg, axis: AxisArg, as_json: JsonOpt = False) -> None:
+def home(config: ConfigArg, axis: AxisArg, as_json: JsonOpt = False, server: ServerOpt = None,
+         token: TokenOpt = None, local: LocalOpt = False) -> None:
     """Run the axis's configured homing procedure; Ctrl-C stops it."""
-    from drivebus.terminal import Out, home_axis, run_guarded
+    from drivebus.terminal import Out, home_axis, remote_motion, run_guarded
 
     out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        raise typer.Exit(run_guarded(lambda: remote_motion(
+            out, owner, axis, "home", f"/axes/{axis}/home")))
     raise typer.Exit(run_guarded(lambda: home_axis(out, config, axis)))
 
 
@@ -348,26 +424,37 @@ def jog(
     seconds: Annotated[float | None, typer.Option(
         "--for", metavar="SECONDS", help="stop after SECONDS")] = None,
     as_json: JsonOpt = False,
+    server: ServerOpt = None,
+    token: TokenOpt = None,
+    local: LocalOpt = False,
 ) -> None:
     """Jog an axis at SPEED until Ctrl-C (or for --for seconds), then stop it."""
-    from drivebus.terminal import Out, jog_axis, run_guarded
+    from drivebus.terminal import Out, jog_axis, remote_jog, run_guarded
 
     if checks.finite("SPEED", speed) == 0:
         raise ArgumentError("SPEED: must not be 0 (units/s; its sign is the direction)")
     if seconds is not None:
         checks.positive("--for", seconds, unit="s")
     out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        raise typer.Exit(run_guarded(lambda: remote_jog(out, owner, axis, speed, seconds),
+                                     interrupt_ok=seconds is None))
     code = run_guarded(lambda: jog_axis(out, config, axis, speed, seconds),
                        interrupt_ok=seconds is None)
     raise typer.Exit(code)
 
 
 @app.command()
-def stop(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False) -> None:
+def stop(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False,
+         server: ServerOpt = None, token: TokenOpt = None, local: LocalOpt = False) -> None:
     """Stop the axes (all if none are named) with their decelerating stop."""
-    from drivebus.terminal import Out, run_guarded, stop_axes
+    from drivebus.terminal import Out, remote_stop, run_guarded, stop_axes
 
     out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        raise typer.Exit(run_guarded(lambda: remote_stop(out, owner, axes or [])))
     raise typer.Exit(run_guarded(lambda: stop_axes(out, config, axes or [])))
 
 
@@ -380,6 +467,9 @@ def monitor(
         "--count", "-n", metavar="N", help="stop after N updates")] = None,
     as_json: Annotated[bool, typer.Option(
         "--json", "-j", help="one JSON line per update")] = False,
+    server: ServerOpt = None,
+    token: TokenOpt = None,
+    local: LocalOpt = False,
 ) -> None:
     """Watch every axis and the per-slave bus counters until Ctrl-C.
 
@@ -393,6 +483,12 @@ def monitor(
     if count is not None and count < 1:
         raise ArgumentError(f"--count: must be at least 1 update, not {count}")
     out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        from drivebus.terminal import remote_monitor
+
+        raise typer.Exit(run_guarded(lambda: remote_monitor(out, owner, interval, count),
+                                     interrupt_ok=True))
     raise typer.Exit(run_guarded(lambda: run_monitor(out, config, interval, count),
                                  interrupt_ok=True))
 
@@ -466,7 +562,7 @@ def serve(
                                        discovery=False if no_discovery else None))
     elif node is not None or no_discovery:
         raise ArgumentError("--node and --no-discovery go with an MQTT bridge (--mqtt URL)")
-    raise typer.Exit(run(cfg, host=host, port=port, token_file=token_file,
+    raise typer.Exit(run(config, host=host, port=port, token_file=token_file,
                          http=not no_http, extra=extra))
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
+import functools
 import json
 import logging
 import math
@@ -25,8 +26,10 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import anyio
+import anyio.to_thread
 from rich.console import Console, Group
 from rich.live import Live
 from rich.progress import (
@@ -38,6 +41,7 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
+from drivebus import errors
 from drivebus.app import registers
 from drivebus.app.lifecycle import run_until_signalled
 from drivebus.app.operations import (
@@ -55,11 +59,13 @@ from drivebus.app.snapshots import machine_snapshot
 from drivebus.errors import (
     ArgumentError,
     ConfigError,
+    DrivebusError,
     DriveOffline,
     LineClosed,
     TransactionError,
 )
 from drivebus.motion import Axis, AxisState, Machine
+from drivebus.service.client import ServiceClient
 from drivebus.settings import LineSettings
 from drivebus.sim.serve import serve_simulators
 from drivebus.views import axes_table, axis_line, axis_record, slaves_table, stats_lines
@@ -511,3 +517,168 @@ def check_config(out: Out, config: Path, sysfs: Path = Path("/sys")) -> int:
 
 def _count(n: int, one: str, many: str) -> str:
     return f"{n} {one if n == 1 else many}"
+
+
+# -- through a running drivebus serve (the line's one owner) ---------------------------------------
+
+
+async def _call(fn: Callable[..., Any], *args: Any) -> Any:
+    """A blocking client request, off the event loop."""
+    return await anyio.to_thread.run_sync(functools.partial(fn, *args))
+
+
+def _remote_line(a: dict[str, Any]) -> str:
+    flags = [k for k in ("enabled", "moving", "homed", "limit_negative", "limit_positive")
+             if a.get(k)]
+    extra = ""
+    if a.get("alarm"):
+        extra = f" alarm={a.get('alarm_code')} {a.get('alarm_text', '')}".rstrip()
+    elif a.get("error"):
+        extra = f" error={a['error'].get('message')!r}"
+    return (f"{a['name']}: {a['drive']} line={a['line']} address={a['address']} "
+            f"state={a['state']} position={_fmt(a.get('position'))} "
+            f"velocity={_fmt(a.get('velocity'))} flags={','.join(flags) or '-'}{extra}")
+
+
+async def remote_status(out: Out, client: ServiceClient, axes: Sequence[str], as_json: bool
+                        ) -> int:
+    """``status`` through the service: every axis (or the named ones) as it polls them."""
+    machine = await _call(client.machine)
+    names = list(axes) or [a["name"] for a in machine["axes"]]
+    records = [await _call(client.axis, n) for n in names]
+    if as_json:
+        print(json.dumps([{"axis": r["name"], **r} for r in records], indent=2), flush=True)
+    else:
+        for r in records:
+            out.line(_remote_line(r))
+    faults = [r for r in records if r["state"] == "Offline" or r.get("alarm")]
+    return 1 if faults else 0
+
+
+async def remote_motion(out: Out, client: ServiceClient, axis: str, what: str, path: str,
+                        body: object = None) -> int:
+    """Start a motion on the service and wait for it; cancelled (Ctrl-C), cancel it."""
+    record = await _call(client.start, path, body)
+    started = shown = time.monotonic()
+    try:
+        while record.get("state") == "running":
+            await anyio.sleep(0.05)
+            record = await _call(client.request, "GET", f"/motions/{record['id']}")
+            if time.monotonic() - shown >= 0.2 and record.get("state") == "running":
+                shown = time.monotonic()
+                a = await _call(client.axis, axis)
+                out.line(f"{axis}: position={_fmt(a.get('position'))} "
+                         f"velocity={_fmt(a.get('velocity'))} state={a['state']}")
+    except BaseException:
+        with anyio.CancelScope(shield=True):
+            record = await _call(client.cancel, record["id"])
+            a = await _call(client.axis, axis)
+            out.line(f"{axis}: {what} stopped after {time.monotonic() - started:.2f} s, "
+                     f"position={_fmt(a.get('position'))} state={a['state']}")
+        raise
+    a = await _call(client.axis, axis)
+    op = {"axis": axis, "what": what, "done": record["state"] == "done",
+          "seconds": round(time.monotonic() - started, 4), "position": a.get("position"),
+          "state": a["state"], "motion": record}
+    if record["state"] != "done":
+        err = record.get("error") or {}
+        kind = getattr(errors, str(err.get("type")), DrivebusError)
+        raise kind(str(err.get("message", f"the {what} ended {record['state']}")))
+    out.line(f"{axis}: {what} done in {op['seconds']:.2f} s, "
+             f"position={_fmt(op['position'])} state={op['state']}")
+    out.result(op)
+    return 0
+
+
+async def remote_jog(out: Out, client: ServiceClient, axis: str, speed: float,
+                     seconds: float | None) -> int:
+    """Jog through the service, fed every 0.2 s (a 0.5 s watchdog); stop at the end."""
+    started = time.monotonic()
+    try:
+        with anyio.move_on_after(seconds if seconds else math.inf):
+            while True:
+                await _call(client.command, axis, "jog", {"speed": speed, "ttl": 0.5})
+                await anyio.sleep(0.2)
+    finally:
+        with anyio.CancelScope(shield=True):
+            await _call(client.command, axis, "stop")
+            a = await _call(client.axis, axis)
+            out.line(f"{axis}: jog at {speed:g}/s ended after "
+                     f"{time.monotonic() - started:.2f} s, position={_fmt(a.get('position'))} "
+                     f"state={a['state']}")
+            out.result({"axis": axis, "what": f"jog at {speed:g}", "done": True,
+                        "position": a.get("position"), "state": a["state"]})
+    return 0
+
+
+async def remote_stop(out: Out, client: ServiceClient, axes: Sequence[str]) -> int:
+    """``stop`` through the service."""
+    machine = await _call(client.machine)
+    names = list(axes) or [a["name"] for a in machine["axes"]]
+    records = []
+    for n in names:
+        await _call(client.command, n, "stop")
+        a = await _call(client.axis, n)
+        out.line(f"{n}: at standstill at position={_fmt(a.get('position'))} "
+                 f"state={a['state']}")
+        records.append({"axis": n, "position": a.get("position"), "state": a["state"]})
+    out.result(records)
+    return 0
+
+
+async def remote_monitor(out: Out, client: ServiceClient, interval: float,
+                         count: int | None) -> int:
+    """``monitor`` through the service: its axes every ``interval`` s."""
+    n = 0
+    while count is None or n < count:
+        machine = await _call(client.machine)
+        records = [await _call(client.axis, a["name"]) for a in machine["axes"]]
+        if out.as_json:
+            out.result({"time": time.time(), "axes": records, "lines": machine["lines"]},
+                       indent=None)
+        else:
+            stamp = time.strftime("%H:%M:%S")
+            for r in records:
+                out.line(f"{stamp} {_remote_line(r)}")
+        n += 1
+        if count is None or n < count:
+            await anyio.sleep(interval)
+    return 0
+
+
+async def remote_read(
+    out: Out, client: ServiceClient, line: str, address: int, register: int, count: int,
+    input_table: bool, fmt: str, interval: float | None, polls: int | None,
+) -> int:
+    """``read`` through the service's bus (line ``line``), once or every ``interval`` s."""
+    n = 0
+    words_needed = count * registers.words_per_value(fmt)
+    while True:
+        words = await _call(functools.partial(client.read, line, address, register,
+                                              words_needed, input=input_table))
+        values = registers.decode(words, fmt)
+        record = RegisterValues(f"{client.url} line {line}", address, register, input_table,
+                                words, fmt, values)
+        if out.as_json:
+            out.result(record.as_dict(), indent=None if interval else 2)
+        else:
+            step = registers.words_per_value(fmt)
+            stamp = f"{time.strftime('%H:%M:%S')} " if interval else ""
+            for i, v in enumerate(values):
+                out.line(f"{stamp}[{register + i * step}]: {v}")
+        n += 1
+        if interval is None or (polls is not None and n >= polls):
+            return 0
+        await anyio.sleep(interval)
+
+
+async def remote_write(out: Out, client: ServiceClient, line: str, address: int,
+                       register: int, words: list[int]) -> int:
+    """``write`` through the service's bus (line ``line``)."""
+    await _call(client.write, line, address, register, words)
+    out.line(f"wrote {len(words)} register{'' if len(words) == 1 else 's'} from "
+             f"[{register}] of slave {address} on line {line} of {client.url}: "
+             f"{' '.join(f'0x{w:04X}' for w in words)}")
+    out.result({"target": f"{client.url} line {line}", "address": address,
+                "register": register, "words": words})
+    return 0

@@ -25,6 +25,7 @@ import anyio
 import anyio.abc
 import uvicorn
 
+from drivebus import runtime
 from drivebus.app import MachineSession
 from drivebus.config import MachineConfig
 from drivebus.errors import ConfigError
@@ -257,15 +258,26 @@ async def serve(
     on_stop: Callable[[Service], object] | None = None,
 ) -> None:
     """Serve until cancelled (see ``open_service``); ``say`` gets one line when it is
-    ready and one after it stopped every moving axis, ``on_stop`` the ended service."""
+    ready and one after it stopped every moving axis, ``on_stop`` the ended service.
+
+    Served from a machine file, its URL is published under that file (``drivebus.runtime``)
+    so that one-shot commands on the same file talk to this process, the line's one owner.
+    """
     service: Service | None = None
+    file = None
+    if not isinstance(config, MachineConfig):
+        file = str(await anyio.Path(config).resolve())
     try:
         async with open_service(config, host=host, port=port, tokens=tokens,
                                 token_file=token_file, http=http, extra=extra) as service:
             where = f"on {service.url}/ (API /api, docs /docs)" if service.url else "without HTTP"
-            say(f"drivebus serve: machine {service.session.name} {where}; "
-                f"Ctrl-C or SIGTERM stops it")
-            await anyio.sleep_forever()
+            entries = {file: [service.url]} if file and service.url else {}
+            with runtime.publish("serve", entries) as problems:
+                for p in problems:
+                    say(f"drivebus serve: warning: {p}")
+                say(f"drivebus serve: machine {service.session.name} {where}; "
+                    f"Ctrl-C or SIGTERM stops it")
+                await anyio.sleep_forever()
     finally:
         if service is not None:
             say(report(service))
