@@ -8,6 +8,7 @@ sim://NAME``) in another process reaches it. Output goes to ``echo`` (a terminal
 from __future__ import annotations
 
 import contextlib
+import math
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -64,10 +65,15 @@ def describe(sim: SimLine, cfg: MachineConfig) -> list[str]:
 
 
 def frame_text(line: str, f: WireFrame) -> str:
-    """One frame of a wire log as a line."""
+    """One frame of a wire log as a line (the silence before it in ms, or in s when the
+    line was idle for a second or more)."""
     note = f" [{f.note}]" if f.note else ""
+    if math.isinf(f.gap):
+        gap = "none-before"  # the first frame since the wire started
+    else:
+        gap = f"{f.gap * 1000:.2f}ms" if f.gap < 1.0 else f"{f.gap:.1f}s"
     return (f"{f.start:.6f} {line} {f.direction:<7} addr={f.address} "
-            f"{str(f.settings).replace(' ', '-')} gap={f.gap * 1000:.2f}ms "
+            f"{str(f.settings).replace(' ', '-')} gap={gap} "
             f"{f.data.hex(' ')}{note}")
 
 
