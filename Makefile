@@ -4,12 +4,12 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test test-install lint docs bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -e '.[test,docs]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -17,12 +17,21 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	-@sh .ci/ensure-mbpoll
-	$(BIN)/ruff check src tests examples
+	-@sh .ci/ensure-mosquitto
+	-@sh .ci/ensure-chromium
+	$(BIN)/ruff check src tests examples docs/hooks
 	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
+
+# Slow: throwaway venvs and real pip installs (pymodbus beside drivebus, the pymodbus range).
+test-install: $(STAMP)
+	$(BIN)/python -m pytest -q -m install
+
+docs: $(STAMP)
+	$(BIN)/mkdocs build --strict
 
 bench: $(STAMP)
 	$(BIN)/drivebus bench
 
 clean:
-	rm -rf $(VENV) build src/*.egg-info .pytest_cache
+	rm -rf $(VENV) build site src/*.egg-info .pytest_cache

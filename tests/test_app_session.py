@@ -150,3 +150,87 @@ def test_a_slow_subscriber_gets_the_latest_state_and_a_bounded_backlog() -> None
     states = [e.data["i"] for e in got if e.topic == "axes"]
     assert states == [99]  # one state: the latest
     assert [e.data["n"] for e in got if e.topic == "motions"] == [97, 98, 99]
+
+
+async def test_a_released_owner_stops_its_own_jog_but_not_a_later_motion() -> None:
+    async with MachineSession.open(DEMO) as s:
+        z, twin = s.axis("z"), s.machine.sim_drives["z"]
+        # the jog is authorized as the client and held by one of its connections
+        await s.jog("z", 5.0, ttl=0.2, client="tablet", owner="tablet#1")
+        async for st in z.watch():
+            if st.moving:
+                break
+        with anyio.fail_after(5):  # the watchdog ends it; then another client moves z
+            async for st in z.watch():
+                if not st.moving and z.state is AxisState.STANDSTILL:
+                    break
+        rec = await s.start_move("z", target=60.0, speed=10.0, client="mes")
+        async for st in z.watch():
+            if st.moving:
+                break
+        await s.release("tablet#1")  # the connection that jogged goes away
+        assert twin.is_moving() and rec.state == "running"
+        await s.cancel_motion(rec.id)
+        assert not twin.is_moving()
+
+
+async def test_stop_all_stops_the_moving_axes_and_names_them() -> None:
+    async with MachineSession.open(DEMO) as s:
+        assert await s.stop_all() == {}
+        await s.start_move("x", target=390.0, speed=50.0)
+        await s.jog("z", -5.0, ttl=30.0, client="pendant")
+        for name in ("x", "z"):
+            async for st in s.axis(name).watch():
+                if st.moving:
+                    break
+        outcome = await s.stop_all()
+        assert outcome == {"x": None, "z": None}
+        assert not any(t.is_moving() for t in s.machine.sim_drives.values())
+
+
+async def test_raw_registers_are_read_and_written_at_the_slaves_own_settings() -> None:
+    async with MachineSession.open(DEMO) as s:
+        twin = s.machine.sim_drives["x"]  # NT86 at 115200 8N1, address 2
+        assert await s.read_registers("rs485", 2, 93) == [twin.drive_id]
+        await s.write_registers("rs485", 2, 272, [5])
+        assert twin.params[272] == 5
+        assert await s.read_registers("rs485", 2, 272, 1) == [5]
+        assert len(await s.read_registers("eth", 1, 0, 4)) == 4  # the EPR60 over TCP
+        # the BHSS at 19200 8E1: the line is reconfigured for it
+        assert len(await s.read_registers("rs485", 3, 0, 2)) == 2
+        with pytest.raises(NotFound, match=r"no line 'can'.*rs485, eth"):
+            await s.read_registers("can", 2, 0)
+        with pytest.raises(ArgumentError, match="count"):
+            await s.read_registers("rs485", 2, 0, 126)
+        with pytest.raises(ArgumentError, match=r"values\[1\]"):
+            await s.write_registers("rs485", 2, 272, [1, 70000])
+        s.acquire_lease("holder", 30.0)
+        with pytest.raises(LeaseHeld):
+            await s.write_registers("rs485", 2, 272, [6], client="other")
+        assert twin.params[272] == 5
+
+
+def test_a_subscription_changes_its_topics_and_drops_what_it_no_longer_watches() -> None:
+    sub = Subscription(set())
+    sub.put(Event("axes", "x", {"i": 0}))
+    assert sub.set_topics(["axes", "motions"]) == {"axes", "motions"}
+    sub.put(Event("axes", "x", {"i": 1}))
+    sub.put(Event("motions", None, {"n": 1}))
+    sub.set_topics(["motions"])
+    got = anyio.run(sub.get)
+    assert got.topic == "motions"
+    with pytest.raises(ArgumentError, match="no topic bogus"):
+        sub.set_topics(["axes", "bogus"])
+
+
+def test_drain_takes_every_waiting_event_without_waiting() -> None:
+    sub = Subscription({"axes", "motions"}, capacity=3)
+    assert sub.drain() == []
+    for i in range(5):
+        sub.put(Event("axes", "x", {"i": i}))
+        sub.put(Event("motions", None, {"n": i}))
+    got = sub.drain()
+    assert [e.data.get("i", e.data.get("n")) for e in got] == [2, 3, 4, 4]
+    assert sub.drain() == [] and sub.lost == 2
+    sub.put(Event("motions", None, {"n": 9}))  # the bound still holds after a drain
+    assert [e.data["n"] for e in sub.drain()] == [9]

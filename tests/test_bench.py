@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import pytest
 
@@ -11,6 +13,7 @@ from drivebus.errors import ArgumentError
 
 BUILT_IN = {
     "efficiency", "stop latency", "cpu", "scale", "pymodbus baseline", "pipelined tcp", "flood",
+    "service",
 }
 
 
@@ -41,6 +44,13 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
         assert figures["healthy_violations"] == 0 and figures["healthy_transactions"] > 0
     assert flood["none"]["line_noise"] == 0
     assert isinstance(flood["flat out"]["line_noise"], int) and flood["flat out"]["line_noise"] > 0
+    alone, *watched = (r.figures for r in results if r.scenario == "service")
+    assert len(watched) == 2  # as polled, and at the dashboard's max_rate
+    assert alone["violations"] == 0 and 0 < alone["efficiency"] <= 1.0
+    for row in watched:
+        assert row["violations"] == 0 and 0 < row["efficiency"] <= 1.0
+        assert row["updates"] > 0 and row["jog_feeds"] > 0  # 50 watched, one commanded
+        assert {"drop_points", "update_p50_ms", "update_p99_ms"} <= set(row)
     stop = next(r for r in results if r.scenario == "stop latency")
     assert stop.figures["stops"] == 20
     table = format_table(results)
@@ -57,3 +67,28 @@ async def test_scenarios_can_be_chosen_by_name() -> None:
     assert [r.scenario for r in results] == ["cpu"]
     with pytest.raises(ArgumentError, match="no bench scenario named nope"):
         await run_bench(quick=True, only={"nope"})
+
+
+async def test_pymodbus_baseline_polls_with_the_installed_pymodbus() -> None:
+    results = await run_bench(quick=True, seconds=0.15, only={"pymodbus baseline"})
+    assert len(results) == 4
+    for r in results:
+        assert r.figures["transactions"] > 0, r
+        assert isinstance(r.figures["pymodbus"], str) and r.figures["pymodbus"].startswith("3.")
+
+
+def test_bench_without_pymodbus_says_so_and_runs_the_rest() -> None:
+    code = (
+        "import sys; sys.modules['pymodbus'] = None  # as if it were not installed\n"
+        "import anyio\n"
+        "from drivebus.bench import format_table, run_bench\n"
+        "rows = anyio.run(lambda: run_bench(quick=True, seconds=0.1,"
+        " only={'pymodbus baseline', 'cpu'}))\n"
+        "print(format_table(rows))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    ).stdout
+    assert "== cpu" in out
+    assert "== pymodbus baseline" in out
+    assert "note=pymodbus is not installed" in out and "drivebus[bench]" in out

@@ -316,8 +316,11 @@ def test_errors_are_one_clear_line(tmp_path: Path) -> None:
     _one_error_line(drivebus("scan", "/dev/ttyDRIVEBUS-NONE"), 1, "does not exist")
     absent = tmp_path / "absent.toml"
     absent.write_text(SINGLE.read_text().replace("sim = {", "sim = { absent = true,"))
-    _one_error_line(drivebus("status", absent), 1, "does not answer", "drivebus scan")
-    r = drivebus("status", absent, "--debug")
+    r = drivebus("status", absent)  # every axis shown: the silent one Offline, with why
+    _one_error_line(r, 1, "does not answer", "drivebus scan")
+    assert "x: CL86R" in r.stdout and "state=Offline" in r.stdout, r.stdout
+    _one_error_line(drivebus("move", absent, "x", "1"), 1, "does not answer")
+    r = drivebus("move", absent, "x", "1", "--debug")
     assert r.returncode != 0 and "Traceback" in r.stderr
 
 
@@ -364,8 +367,8 @@ def _hostile_cases(tmp_path: Path) -> list[tuple[list[str | Path], int, tuple[st
         (["scan", "/dev/ttyDRIVEBUS-NONE", "--baud", "0"], 2, ("--baud", "300")),
         (["scan", "/dev/ttyDRIVEBUS-NONE", "--timeout", "inf"], 2, ("--timeout", "inf")),
         (["bench", "--turnaround", "-1"], 2, ("--turnaround", "-1")),
-        (["move", SINGLE, "x"], 2, ("Missing argument 'target'", "drivebus move --help")),
-        (["move", SINGLE, "x", "far"], 2, ("'target'", "drivebus move --help")),
+        (["move", SINGLE, "x"], 2, ("Missing argument 'TARGET'", "drivebus move --help")),
+        (["move", SINGLE, "x", "far"], 2, ("'TARGET'", "drivebus move --help")),
         (["status", SINGLE, "--bogus"], 2, ("--bogus", "drivebus status --help")),
         (["frobnicate"], 2, ("No such command 'frobnicate'", "drivebus --help")),
     ]
@@ -567,3 +570,161 @@ def test_pty_settings_are_8n1_or_8n2_only() -> None:
                                                               "9600 8N2", "9600 7O1")])
     assert [str(s) for s in ok] == ["9600 8N1", "9600 8N2"]
     assert [str(s) for s in dropped] == ["9600 8E1", "9600 7O1"]
+
+
+# -- register tools, conventions -------------------------------------------------------------------
+
+
+def _mbpoll(*args: str) -> str:
+    mbpoll = shutil.which("mbpoll")
+    if mbpoll is None:
+        pytest.skip("mbpoll is not installed (make test installs it with apt-get as root)")
+    r = subprocess.run([mbpoll, "-m", "rtu", "-P", "none", "-0", "-1", "-o", "1", *args],
+                       capture_output=True, text=True, timeout=20, check=False)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return r.stdout
+
+
+def _mbpoll_values(out: str) -> dict[int, int]:
+    return {int(a): int(v) for a, v in re.findall(r"^\[(\d+)\]:\s+(-?\d+)$", out, re.M)}
+
+
+def test_read_and_write_agree_with_mbpoll_on_a_drivebus_sim() -> None:
+    with sim_server(DEMO) as (_, ends):
+        pty = ends["rs485"]
+        # CL86R (38400 8N2) model code and software version, by both tools
+        r = drivebus("read", "sim://demo-rs485", "4", "0", "2", "-S", "38400 8N2", "--json")
+        assert r.returncode == 0, r.stderr
+        ours = json.loads(r.stdout)
+        theirs = _mbpoll_values(_mbpoll("-b", "38400", "-s", "2", "-a", "4", "-r", "0",
+                                        "-c", "2", pty))
+        assert ours["words"] == [theirs[0], theirs[1]] and ours["words"][0] == 862
+        # NT86 (115200 8N1): drivebus writes, mbpoll reads; mbpoll writes, drivebus reads
+        r = drivebus("write", "sim://demo-rs485", "2", "70", "300", "310", "320",
+                     "-S", "115200 8N1")
+        assert r.returncode == 0, r.stderr
+        assert "wrote 3 registers from [70] of slave 2" in r.stdout
+        assert _mbpoll_values(_mbpoll("-b", "115200", "-a", "2", "-r", "70", "-c", "3",
+                                      pty)) == {70: 300, 71: 310, 72: 320}
+        _mbpoll("-b", "115200", "-a", "2", "-r", "72", pty, "555")
+        r = drivebus("read", pty, "2", "70", "3", "-S", "115200 8N1")
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.splitlines() == ["[70]: 300", "[71]: 310", "[72]: 555"]
+        # formats: hex words, and the 32-bit position (8/9, low word first) as one value
+        r = drivebus("read", pty, "2", "72", "-S", "115200 8N1", "-f", "hex")
+        assert r.stdout.strip() == "[72]: 0x022B"
+        r = drivebus("read", pty, "2", "8", "-S", "115200 8N1", "-f", "int32-le", "-j")
+        pos = json.loads(r.stdout)
+        assert len(pos["words"]) == 2 and pos["values"][0] == (
+            (pos["words"][1] << 16 | pos["words"][0]) - (1 << 32 if pos["words"][1] & 0x8000
+                                                       else 0))
+        # poll mode: one JSON line per poll
+        r = drivebus("read", pty, "4", "0", "-S", "38400 8N2", "-i", "0.05", "-n", "3", "-j")
+        assert r.returncode == 0, r.stderr
+        lines = r.stdout.splitlines()
+        assert len(lines) == 3 and all(json.loads(x)["words"] == [862] for x in lines)
+
+
+def test_register_tool_arguments_are_checked_before_anything_is_sent(tmp_path: Path) -> None:
+    _one_error_line(drivebus("read", "sim://nowhere", "1", "0", "-f", "octal"), 2, "--format")
+    _one_error_line(drivebus("read", "tcp://", "1", "0"), 2, "no host")
+    _one_error_line(drivebus("read", "ftp://x", "1", "0"), 2, "unknown scheme")
+    _one_error_line(drivebus("write", "/dev/ttyDRIVEBUS-NONE", "1", "0", "70000"), 2,
+                    "VALUE 1", "70000")
+    _one_error_line(drivebus("read", "/dev/ttyDRIVEBUS-NONE", "300", "0"), 2, "ADDR")
+    _one_error_line(drivebus("read", "/dev/ttyDRIVEBUS-NONE", "1", "0", "-S", "9600 8X1"), 2,
+                    "9600 8X1")
+
+
+def test_version_and_readable_help() -> None:
+    r = drivebus("--version")
+    assert r.returncode == 0 and re.fullmatch(r"drivebus \d+\.\d+\.\d+\S*\n", r.stdout)
+    for cmd in ([], ["scan"], ["read"], ["move"], ["monitor"], ["status"]):
+        r = drivebus(*cmd, "--help")
+        assert r.returncode == 0, r.stderr
+        options = r.stdout.split("Options:", 1)[-1]  # every option has a readable metavar
+        assert "<bool>" not in options and "<str>" not in options and "<float>" not in options
+    r = drivebus("--help")
+    for flag in ("--debug", "--verbose", "-v", "--log-level", "--trace", "--version"):
+        assert flag in r.stdout
+    assert "-s, --speed SPEED" in drivebus("move", "--help").stdout
+    assert "-i, --interval SECONDS" in drivebus("monitor", "--help").stdout
+
+
+def test_json_on_every_command_that_prints_results(tmp_path: Path) -> None:
+    r = drivebus("move", SINGLE, "x", "3", "--json")
+    assert r.returncode == 0, r.stderr
+    op = json.loads(r.stdout)
+    assert op["done"] is True and op["position"] == pytest.approx(3.0)
+    r = drivebus("stop", SINGLE, "-j")
+    assert json.loads(r.stdout)[0]["axis"] == "x"
+    r = drivebus("check", SINGLE, "-j")
+    report = json.loads(r.stdout)
+    assert report["machine"] == "single" and report["problems"] == []
+    r = drivebus("monitor", SINGLE, "-i", "0.05", "-n", "2", "-j")
+    assert r.returncode == 0, r.stderr
+    updates = [json.loads(x) for x in r.stdout.splitlines()]
+    assert len(updates) == 2 and updates[0]["axes"][0]["axis"] == "x"
+    r = drivebus("home", SINGLE, "x", "-j")
+    assert r.returncode == 0 and json.loads(r.stdout)["done"] is True
+    r = drivebus("jog", SINGLE, "x", "5", "--for", "0.2", "-j")
+    assert r.returncode == 0 and json.loads(r.stdout)["what"].startswith("jog")
+
+
+# -- one owner of a line ---------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def serving(config: Path) -> Iterator[tuple[Proc, str]]:
+    """``drivebus serve CONFIG --port 0``: the process and its URL; SIGINT at the end."""
+    with spawn("serve", config, "--port", "0") as proc:
+        m = proc.expect(r"drivebus serve: machine \S+ on (http://127\.0\.0\.1:\d+)/", 30)
+        yield proc, m.group(1)
+        if proc.popen.poll() is None:
+            assert proc.interrupt(30) == 0
+
+
+def test_one_shot_commands_talk_to_the_serve_that_owns_the_machine() -> None:
+    with serving(SINGLE) as (proc, url):
+        r = drivebus("move", SINGLE, "x", "50")
+        assert r.returncode == 0, r.stderr
+        assert "served by a running drivebus serve" in r.stderr
+        # the same machine, not a fresh simulator: x is still where the move left it
+        assert status_json(SINGLE)["x"]["position"] == pytest.approx(50.0)
+        r = drivebus("move", SINGLE, "x", "-5", "--by", "--json")
+        assert json.loads(r.stdout)["position"] == pytest.approx(45.0)
+        r = drivebus("read", "bus", "1", "0", "2", "--server", url, "--json")
+        assert r.returncode == 0, r.stderr
+        assert json.loads(r.stdout)["words"][0] == 862  # the CL86R's model code
+        r = drivebus("move", SINGLE, "x", "1000")  # its typed error, through the service
+        assert r.returncode == 1, r.stderr  # as when the machine is opened here
+        assert r.stderr.splitlines()[-1].startswith("error: axis x: target 1000 is outside "
+                                                    "the soft limits")
+        with spawn("move", SINGLE, "x", "150", "--speed", "20") as move:
+            # the move runs in the service; Ctrl-C here cancels it there
+            move.expect(r"x: position=\S+ .*state=DiscreteMotion")
+            assert move.interrupt() == 130
+        first, second = status_json(SINGLE)["x"], status_json(SINGLE)["x"]
+        assert first["state"] == "Standstill" and first["moving"] is False
+        assert first["position"] == second["position"] < 150.0
+        r = drivebus("status", SINGLE, "--local")  # --local opens the machine here
+        assert r.returncode == 0 and "served by" not in r.stderr
+    out = proc.rest()
+    assert "every axis at rest" in out
+
+
+def test_a_serial_line_in_another_process_finds_a_running_drivebus_sim() -> None:
+    with sim_server(SINGLE):
+        code = (
+            "import anyio\n"
+            "from drivebus import Bus, LineSettings, SerialLine\n"
+            "async def main():\n"
+            "    line = SerialLine('sim://single', LineSettings.parse('115200 8N1'))\n"
+            "    async with Bus(line) as bus:\n"
+            "        print(await bus.slave(1).read_holding_registers(0, 1))\n"
+            "anyio.run(main)\n"
+        )
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           timeout=30, check=False)
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.strip() == "[862]"

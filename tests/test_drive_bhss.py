@@ -17,6 +17,7 @@ from drivebus.errors import ConfigError, DriveAlarm, LimitViolation, ModbusExcep
 from drivebus.line.rtu import frame
 from drivebus.settings import LineSettings
 from drivebus.sim import sim_bus
+from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.bhss import SimBHSS
 from drivebus.sim.wire import VirtualWire
 
@@ -36,7 +37,7 @@ async def bhss(
     """A twin at address 1 on a 115200 8N1 wire and a profile for it."""
     sim_opts = {k: options.pop(k) for k in list(options) if k in (
         "position", "home_switch", "limit_negative", "limit_positive")}
-    sim = SimBHSS(1, FAST, **sim_opts)
+    sim = SimBHSS(1, FAST, TwinSetup(**sim_opts))
     async with sim_bus([sim], FAST) as (wire, bus):
         profile = BHSSProfile(bus.slave(1), **options)
         if setup:

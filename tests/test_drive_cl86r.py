@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
+from dataclasses import replace
 
 import anyio
 import pytest
@@ -22,6 +23,7 @@ from drivebus.drives.status import DriveStatus
 from drivebus.errors import ConfigError, LimitViolation, ModbusException, NotSupported
 from drivebus.line.rtu import crc_ok
 from drivebus.sim import VirtualWire, sim_bus
+from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.cl86r import SimCL86R
 
 FAST = LineSettings.parse("115200 8N1")
@@ -273,7 +275,7 @@ async def test_emergency_stop_halts_at_once() -> None:
 
 
 async def test_speed_run_stops_at_limit_switch_and_will_not_go_on() -> None:
-    async with rig(SimCL86R(1, FAST, limit_positive=2000)) as (sim, _, profile):
+    async with rig(SimCL86R(1, FAST, TwinSetup(limit_positive=2000))) as (sim, _, profile):
         await profile.setup()
         await profile.speed_run(600, 300, 300)
         st = await wait_for(profile, lambda s: s.limit_positive and not s.moving)
@@ -301,35 +303,29 @@ async def test_move_with_pulses_per_rev_from_setup() -> None:
 
 # -- homing -------------------------------------------------------------------------------------
 
+DOG_FORWARD = TwinSetup(home_switch=2000, limit_positive=6000)  # 24: dog [2000, 2500]
+DOG_REVERSE = TwinSetup(home_switch=2000, limit_negative=-3000)  # 29: dog [2000, 2500]
 HOMING_CASES = [
-    # method, twin switches, start position, physical origin edge
-    ("positive_limit", {"limit_positive": 3000}, 0, 3000),
-    ("positive_limit", {"limit_positive": 3000}, 3400, 3000),  # starting on the limit
-    ("negative_limit", {"limit_negative": -3000}, 0, -3000),
-    ("negative_limit", {"limit_negative": -3000}, -3300, -3000),
-    # 24: home dog [2000, 2500], positive limit at 6000
-    ("home_switch_positive", {"home_switch": 2000, "home_switch_width": 500,
-                              "limit_positive": 6000}, 0, 2000),
-    ("home_switch_positive", {"home_switch": 2000, "home_switch_width": 500,
-                              "limit_positive": 6000}, 4000, 2000),  # (b) via the limit
-    ("home_switch_positive", {"home_switch": 2000, "home_switch_width": 500,
-                              "limit_positive": 6000}, 2200, 2000),  # (c) on the dog
-    ("home_switch_positive", {"home_switch": 2000}, 0, 2000),  # a cam instead of a dog
-    # 29: home dog [2000, 2500], negative limit at -3000
-    ("home_switch_negative", {"home_switch": 2000, "home_switch_width": 500,
-                              "limit_negative": -3000}, 5000, 2500),
-    ("home_switch_negative", {"home_switch": 2000, "home_switch_width": 500,
-                              "limit_negative": -3000}, 0, 2500),  # (b) via the limit
-    ("home_switch_negative", {"home_switch": 2000, "home_switch_width": 500,
-                              "limit_negative": -3000}, 2200, 2500),  # (c) on the dog
+    # method, twin switches, home dog width (None: a cam), start position, physical origin edge
+    ("positive_limit", TwinSetup(limit_positive=3000), None, 0, 3000),
+    ("positive_limit", TwinSetup(limit_positive=3000), None, 3400, 3000),  # starting on it
+    ("negative_limit", TwinSetup(limit_negative=-3000), None, 0, -3000),
+    ("negative_limit", TwinSetup(limit_negative=-3000), None, -3300, -3000),
+    ("home_switch_positive", DOG_FORWARD, 500, 0, 2000),
+    ("home_switch_positive", DOG_FORWARD, 500, 4000, 2000),  # (b) via the limit
+    ("home_switch_positive", DOG_FORWARD, 500, 2200, 2000),  # (c) on the dog
+    ("home_switch_positive", TwinSetup(home_switch=2000), None, 0, 2000),  # a cam, not a dog
+    ("home_switch_negative", DOG_REVERSE, 500, 5000, 2500),
+    ("home_switch_negative", DOG_REVERSE, 500, 0, 2500),  # (b) via the limit
+    ("home_switch_negative", DOG_REVERSE, 500, 2200, 2500),  # (c) on the dog
 ]
 
 
-@pytest.mark.parametrize(("method", "switches", "start", "edge"), HOMING_CASES)
+@pytest.mark.parametrize(("method", "switches", "width", "start", "edge"), HOMING_CASES)
 async def test_every_homing_method_finds_its_origin(
-    method: str, switches: dict[str, float], start: int, edge: float
+    method: str, switches: TwinSetup, width: float | None, start: int, edge: float
 ) -> None:
-    sim = SimCL86R(1, FAST, position=start, **switches)  # type: ignore[arg-type]
+    sim = SimCL86R(1, FAST, replace(switches, position=start), home_switch_width=width)
     async with rig(sim) as (_, _, profile):
         await profile.setup()
         await profile.home(method, speed_rpm=600, creep_rpm=120, accel_rps2=400, offset=100)
@@ -344,7 +340,7 @@ async def test_every_homing_method_finds_its_origin(
 
 
 async def test_homing_current_position_sets_the_offset_without_motion() -> None:
-    async with rig(SimCL86R(1, FAST, position=777)) as (sim, wire, profile):
+    async with rig(SimCL86R(1, FAST, TwinSetup(position=777))) as (sim, wire, profile):
         await profile.home("current_position", offset=1234)
         st = await profile.read_status()
         assert st.homed and not st.moving and st.position == 1234
@@ -353,7 +349,7 @@ async def test_homing_current_position_sets_the_offset_without_motion() -> None:
 
 
 async def test_homing_can_be_stopped() -> None:
-    async with rig(SimCL86R(1, FAST, limit_positive=1_000_000)) as (_, _, profile):
+    async with rig(SimCL86R(1, FAST, TwinSetup(limit_positive=1_000_000))) as (_, _, profile):
         await profile.home("positive_limit", speed_rpm=600, creep_rpm=60, accel_rps2=400)
         await wait_for(profile, lambda s: s.homing)
         await profile.stop()
@@ -460,7 +456,7 @@ async def test_identity() -> None:
 
 async def test_positions_at_the_32_bit_boundaries_round_trip() -> None:
     top, bottom = 2**31 - 1, -(2**31)
-    async with rig(SimCL86R(1, FAST, position=top - 1000)) as (sim, wire, profile):
+    async with rig(SimCL86R(1, FAST, TwinSetup(position=top - 1000))) as (sim, wire, profile):
         await profile.move_absolute(top, QUICK)
         assert wire.requests()[-2].data[15:19] == bytes.fromhex("7F FF FF FF")  # high first
         st = await wait_for(profile, at_rest)
@@ -480,7 +476,7 @@ async def test_positions_at_the_32_bit_boundaries_round_trip() -> None:
 
 
 async def test_negative_targets_round_trip() -> None:
-    async with rig(SimCL86R(1, FAST, position=-70000)) as (sim, _, profile):
+    async with rig(SimCL86R(1, FAST, TwinSetup(position=-70000))) as (sim, _, profile):
         st = await profile.read_status()
         assert st.position == -70000
         assert (st.raw["position_high"], st.raw["position_low"]) == (0xFFFE, 0xEE90)

@@ -12,6 +12,7 @@ from drivebus.drives.nt_family import EPR60Profile, NT86Profile
 from drivebus.errors import ConfigError, LimitViolation, ModbusException, NotSupported
 from drivebus.line.rtu import crc_ok
 from drivebus.sim import VirtualWire, sim_bus
+from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.nt_family import SimEPR60
 from nt_helpers import FAST, QUICK, idle, nt_rig, sent, wait_for
 
@@ -76,7 +77,7 @@ async def test_moves_and_int32_extremes_round_trip() -> None:
         await wait_for(profile, idle)
     # The EPR60 documents no range for 73/74 beyond int32: the extremes are reachable.
     for start, target in ((2**31 - 9000, 2**31 - 1), (-(2**31) + 9000, -(2**31))):
-        async with epr60(SimEPR60(1, position=start)) as (wire, profile, sim):
+        async with epr60(SimEPR60(1, setup=TwinSetup(position=start))) as (wire, profile, sim):
             assert (await profile.read_status()).position == start
             await profile.move_absolute(target, QUICK)
             low, high = target & 0xFFFF, (target >> 16) & 0xFFFF
@@ -98,7 +99,7 @@ async def test_moves_and_int32_extremes_round_trip() -> None:
     ],
 )
 async def test_homing_methods(method: str, sim_kw: dict[str, Any], origin: int) -> None:
-    sim = SimEPR60(1, **sim_kw)
+    sim = SimEPR60(1, setup=TwinSetup(**sim_kw))
     async with epr60(sim, home_input=5) as (wire, profile, _):
         await profile.home(method, offset=100, **HOMING)
         code = 0 if method == "limit_negative" else 1
@@ -123,11 +124,12 @@ async def test_homing_methods(method: str, sim_kw: dict[str, Any], origin: int) 
 
 
 async def test_homing_needs_opt_in_and_stop_aborts_it() -> None:
-    async with epr60(SimEPR60(1, limit_negative=-200000)) as (wire, profile, _):
+    async with epr60(SimEPR60(1, setup=TwinSetup(limit_negative=-200000))) as (wire, profile, _):
         with pytest.raises(NotSupported, match=r"EPR60 drive cannot start homing.*home_input"):
             await profile.home()
         assert not sent(wire)
-    async with epr60(SimEPR60(1, limit_negative=-200000), home_input=5) as (wire, profile, sim):
+    twin = SimEPR60(1, setup=TwinSetup(limit_negative=-200000))
+    async with epr60(twin, home_input=5) as (wire, profile, sim):
         await profile.home(**HOMING)
         await wait_for(profile, lambda s: s.moving)
         wire.clear_log()

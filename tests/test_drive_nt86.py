@@ -14,6 +14,7 @@ from drivebus.drives.status import DriveStatus
 from drivebus.errors import ConfigError, LimitViolation, ModbusException, NotSupported
 from drivebus.line.rtu import crc_ok
 from drivebus.sim import VirtualWire, sim_bus
+from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.nt_family import SimNT86
 from nt_helpers import FAST, QUICK, idle, nt_rig, sent, wait_for
 
@@ -159,19 +160,19 @@ async def test_unit_conversion_matches_hand_computed_registers_and_motion() -> N
 
 async def test_positions_round_trip_at_the_32_bit_boundaries() -> None:
     for start in (2**31 - 1, -(2**31), -1, 65536):
-        async with nt86(SimNT86(1, position=start)) as (_, profile, _):
+        async with nt86(SimNT86(1, setup=TwinSetup(position=start))) as (_, profile, _):
             st = await profile.read_status()
             assert st.position == start
     # Low word first on the wire: -2 = FF FE FF FF as registers 8 (low), 9 (high).
-    async with nt86(SimNT86(1, position=-2)) as (_, profile, _):
+    async with nt86(SimNT86(1, setup=TwinSetup(position=-2))) as (_, profile, _):
         st = await profile.read_status()
         assert (st.raw["position_low"], st.raw["position_high"]) == (0xFFFE, 0xFFFF)
     # Extreme targets of register 73/74 and the counter wrapping like the drive's.
-    async with nt86(SimNT86(1, position=-16777216 + 3000)) as (wire, profile, _):
+    async with nt86(SimNT86(1, setup=TwinSetup(position=-16777216 + 3000))) as (wire, profile, _):
         await profile.move_absolute(-16777216, QUICK)
         assert "00 00 FF 00" in sent(wire)[-2]  # -16777216 = 0xFF000000: low 0000, high FF00
         assert (await wait_for(profile, idle)).position == -16777216
-    async with nt86(SimNT86(1, position=2**31 - 1000)) as (_, profile, sim):
+    async with nt86(SimNT86(1, setup=TwinSetup(position=2**31 - 1000))) as (_, profile, sim):
         await profile.move_relative(3000, QUICK)
         st = await wait_for(profile, idle)
         assert st.position == -(2**31) + 2000 == sim.position()
@@ -223,7 +224,7 @@ async def test_emergency_stop_uses_register_78_and_stop_with_decel() -> None:
 
 
 async def test_limit_switch_stops_motion() -> None:
-    sim = SimNT86(1, limit_positive=20000, limit_negative=-20000)
+    sim = SimNT86(1, setup=TwinSetup(limit_positive=20000, limit_negative=-20000))
     async with nt86(sim) as (_, profile, _):
         await profile.speed_run(1500, 1000, 1000)
         st = await wait_for(profile, idle)
@@ -249,19 +250,21 @@ async def home_and_wait(profile: NT86Profile, method: str, **kw: Any) -> DriveSt
 
 
 @pytest.mark.parametrize(
-    ("method", "sim_kw", "origin"),
+    ("method", "setup", "options", "origin"),
     [
-        ("home_switch_positive", {"home_switch": 8000}, 8000),
-        ("home_switch_positive", {"home_switch": -3000}, -3000),  # starts on the cam
-        ("home_switch_negative", {"home_switch": -6000, "home_cam": "negative"}, -6000),
-        ("limit_positive", {"limit_positive": 12000}, 12000),
-        ("limit_negative", {"limit_negative": -9000}, -9000),
-        ("hard_stop_positive", {"hard_stop_positive": 5000, "control_mode": 1}, 5000),
-        ("hard_stop_negative", {"hard_stop_negative": -4000, "control_mode": 2}, -4000),
+        ("home_switch_positive", TwinSetup(home_switch=8000), {}, 8000),
+        ("home_switch_positive", TwinSetup(home_switch=-3000), {}, -3000),  # starts on the cam
+        ("home_switch_negative", TwinSetup(home_switch=-6000), {"home_cam": "negative"}, -6000),
+        ("limit_positive", TwinSetup(limit_positive=12000), {}, 12000),
+        ("limit_negative", TwinSetup(limit_negative=-9000), {}, -9000),
+        ("hard_stop_positive", None, {"hard_stop_positive": 5000, "control_mode": 1}, 5000),
+        ("hard_stop_negative", None, {"hard_stop_negative": -4000, "control_mode": 2}, -4000),
     ],
 )
-async def test_mechanical_homing_methods(method: str, sim_kw: dict[str, Any], origin: int) -> None:
-    sim = SimNT86(1, **sim_kw)
+async def test_mechanical_homing_methods(
+    method: str, setup: TwinSetup | None, options: dict[str, Any], origin: int
+) -> None:
+    sim = SimNT86(1, setup=setup, **options)
     async with nt86(sim) as (_, profile, _):
         if method.startswith("hard_stop"):
             await profile.slave.write_register(296, 1000)  # stall time 50 ms
@@ -274,7 +277,7 @@ async def test_mechanical_homing_methods(method: str, sim_kw: dict[str, Any], or
 
 
 async def test_homing_offset_moves_and_electrical_and_set_origin() -> None:
-    sim = SimNT86(1, home_switch=4000)
+    sim = SimNT86(1, setup=TwinSetup(home_switch=4000))
     async with nt86(sim, home_offset_moves=True) as (wire, profile, _):
         st = await home_and_wait(profile, "home_switch_positive", offset=-1500)
         assert sent(wire)[1] == "01 10 01 25 00 03 06 FA 24 FF FF 00 01 56 BF"
@@ -290,12 +293,12 @@ async def test_homing_offset_moves_and_electrical_and_set_origin() -> None:
 
 async def test_homing_limit_handling_reverse_or_stop() -> None:
     # The switch lies behind the start: the positive search runs into the positive limit.
-    kw: dict[str, Any] = {"home_switch": -5000, "home_cam": "negative", "limit_positive": 6000}
-    sim = SimNT86(1, **kw)
+    setup = TwinSetup(home_switch=-5000, limit_positive=6000)
+    sim = SimNT86(1, setup=setup, home_cam="negative")
     async with nt86(sim, home_reverse_at_limit=True) as (_, profile, _):
         st = await home_and_wait(profile, "home_switch_positive")
         assert st.homed and st.position == 0 and sim.physical_position() == -5000
-    sim = SimNT86(1, **kw)
+    sim = SimNT86(1, setup=setup, home_cam="negative")
     async with nt86(sim) as (_, profile, _):  # 295=0: stop at the limit, not homed
         st = await home_and_wait(profile, "home_switch_positive")
         assert not st.homed and st.limit_positive and not st.moving
@@ -376,7 +379,7 @@ async def test_alarm_latches_and_clears_only_by_input_or_power_cycle() -> None:
 
 
 async def test_zero_position_and_identity() -> None:
-    async with nt86(SimNT86(1, position=777)) as (_, profile, _):
+    async with nt86(SimNT86(1, setup=TwinSetup(position=777))) as (_, profile, _):
         await profile.zero_position()
         assert (await profile.read_status()).position == 0
         ident = await profile.read_identity()

@@ -35,6 +35,7 @@ from drivebus.errors import (
 from drivebus.line.rtu import frame
 from drivebus.line.serial import SerialLine  # noqa: F401  (registers the sim:// URL handler)
 from drivebus.sim import VirtualWire, sim_bus
+from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.od_drive import SimODDrive
 
 LINE = LineSettings.parse("9600 8N1")
@@ -196,16 +197,16 @@ async def _read_frame(reader: asyncio.StreamReader, n: int) -> bytes:
 async def test_manual_crc_error_example_reply_and_silent_mode() -> None:
     # The profile cannot send a bad CRC, so this one goes out on a raw port.
     bad = hx("01 03 20 00 00 00 01 4B F3")
-    for crc_reply in (True, False):
-        sim = SimODDrive(crc_reply=crc_reply)
-        async with VirtualWire(f"od-crc-{crc_reply}") as wire:
+    for crc_error_reply in (True, False):
+        sim = SimODDrive(crc_error_reply=crc_error_reply)
+        async with VirtualWire(f"od-crc-{crc_error_reply}") as wire:
             wire.attach(sim)
             reader, writer = await serial_asyncio.open_serial_connection(
                 url=wire.url, baudrate=9600
             )
             try:
                 writer.write(bad)
-                if crc_reply:
+                if crc_error_reply:
                     assert await _read_frame(reader, 5) == hx("01 83 01 80 F0")
                 else:
                     # Silence: send a good frame after the line's t3.5 (about 4 ms at 9600
@@ -246,7 +247,7 @@ async def test_drive_reported_crc_error_is_retried() -> None:
 
 
 async def test_silent_crc_error_is_a_timeout() -> None:
-    sim = SimODDrive(crc_reply=False)
+    sim = SimODDrive(crc_error_reply=False)
     async with sim_bus([sim], LINE, retries=2) as (wire, bus):
         profile = ODDriveProfile(bus.slave(1))
         sim.damage_requests(1)
@@ -368,7 +369,7 @@ async def test_save_survives_power_cycle_and_factory_reset() -> None:
 
 @pytest.mark.parametrize("position", [2**31 - 1, -(2**31), -1, -5, 0x12345678, 65535, 65536])
 async def test_position_round_trips_high_word_first(position: int) -> None:
-    sim = SimODDrive(position=position)
+    sim = SimODDrive(setup=TwinSetup(position=position))
     async with sim_bus([sim], LINE) as (wire, bus):
         profile = ODDriveProfile(bus.slave(1))
         status = await profile.read_status()
@@ -422,7 +423,8 @@ async def test_speed_and_motion_from_the_fieldbus_master() -> None:
 
 
 async def test_limit_and_home_inputs_follow_input_functions() -> None:
-    sim = SimODDrive(position=2000, home_switch=500, limit_negative=-1000, limit_positive=1000)
+    setup = TwinSetup(position=2000, home_switch=500, limit_negative=-1000, limit_positive=1000)
+    sim = SimODDrive(setup=setup)
     async with sim_bus([sim], LINE) as (_wire, bus):
         profile = ODDriveProfile(bus.slave(1))
         status = await profile.read_status()  # learns the input functions first

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -29,3 +30,31 @@ def test_example_runs(script: str, last_line: str) -> None:
     else:
         assert any(line.startswith("jogger: z stopped") for line in lines)
         assert any("monitor: y is DiscreteMotion" in line for line in lines)
+
+
+def test_http_client_example_drives_a_running_service() -> None:
+    served = subprocess.Popen(
+        [sys.executable, "-m", "drivebus.cli", "serve", str(ROOT / "configs" / "demo.toml"),
+         "--port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )
+    try:
+        assert served.stdout is not None
+        first = served.stdout.readline()
+        url = first.split(" on ", 1)[1].split("/ ", 1)[0]
+        proc = subprocess.run(
+            [sys.executable, str(ROOT / "examples" / "http_client.py"), url],
+            capture_output=True, text=True, timeout=120, cwd=ROOT,
+        )
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        lines = proc.stdout.strip().splitlines()
+        assert lines[0].startswith("machine demo: x=Standstill")
+        assert sum(line.startswith("ws: ") for line in lines) == 5
+        assert any(line.startswith("move m1 done: x at 120.00") for line in lines)
+        assert any(line.startswith("refused: 422 LimitViolation") for line in lines)
+        assert any(line.startswith("estop: ") and "x=at rest" in line for line in lines)
+        assert "the long move ended aborted" in lines
+        assert lines[-1] == "http client done: every axis at rest", proc.stdout
+    finally:
+        served.send_signal(signal.SIGTERM)
+        assert served.wait(timeout=60) == 0

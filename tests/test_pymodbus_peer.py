@@ -14,10 +14,10 @@ from contextlib import asynccontextmanager
 
 import pytest
 from pymodbus.server import ModbusSerialServer
-from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivebus import Bus, LineSettings, SerialLine
 from drivebus.errors import ModbusException
+from pymodbus_servers import server_data
 
 
 @asynccontextmanager
@@ -50,15 +50,8 @@ async def null_modem() -> AsyncIterator[tuple[str, str]]:
 
 @asynccontextmanager
 async def pymodbus_rtu_server(port: str, baud: int) -> AsyncIterator[None]:
-    devices = [
-        SimDevice(
-            id=a, simdata=[SimData(0, count=200, values=a * 1000, datatype=DataType.REGISTERS)]
-        )
-        for a in (1, 7)
-    ]
-    server = ModbusSerialServer(
-        devices, port=port, baudrate=baud, parity="N", stopbits=1
-    )
+    devices = server_data({a: [a * 1000] * 200 for a in (1, 7)})
+    server = ModbusSerialServer(devices, port=port, baudrate=baud, parity="N", stopbits=1)
     await server.serve_forever(background=True)
     try:
         yield

@@ -11,7 +11,6 @@ from functools import partial
 import anyio
 import pytest
 from pymodbus.server import ModbusTcpServer
-from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivebus import Bus, LineSettings, Priority
 from drivebus import pdu as P
@@ -29,6 +28,7 @@ from drivebus.line.tcp import ConnectionLost, LineConfigError, RtuOverTcpLine, T
 from drivebus.sim import Fault, RegisterSlave
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from drivebus.timing import timing
+from pymodbus_servers import server_data
 
 HOST = "127.0.0.1"
 FAST = LineSettings.parse("115200 8N1")
@@ -64,10 +64,7 @@ async def wait_until_down(line: TcpLine | RtuOverTcpLine) -> None:
 @pytest.fixture
 async def pymodbus_server() -> AsyncIterator[int]:
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-    device = SimDevice(
-        1, simdata=[SimData(0, values=list(range(100, 200)), datatype=DataType.REGISTERS)]
-    )
-    server = ModbusTcpServer(device, address=(HOST, 0))
+    server = ModbusTcpServer(server_data({1: range(100, 200)}), address=(HOST, 0))
     await server.serve_forever(background=True)
     try:
         yield server.transport.sockets[0].getsockname()[1]

@@ -32,6 +32,7 @@ from drivebus.line.rtu import crc_ok
 from drivebus.line.tcp import TcpLine
 from drivebus.motion import Machine
 from drivebus.sim import VirtualWire, sim_bus
+from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.nt_family import SimEPR60
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from nt_helpers import idle, wait_for
@@ -267,7 +268,7 @@ async def test_tcp_decelerating_stop_uses_the_run_deceleration() -> None:
 
 
 async def test_tcp_homing_on_the_negative_limit_with_the_default_parameters() -> None:
-    sim = SimEPR60(1, limit_negative=-6000)
+    sim = SimEPR60(1, setup=TwinSetup(limit_negative=-6000))
     async with over_tcp(sim, home_input=5) as rig:
         p = rig.profile
         await p.home("limit_negative", speed_rpm=200, creep_rpm=40, accel_rps2=100, offset=100)
@@ -342,10 +343,10 @@ async def manual_script(rig: Rig) -> None:
 
 async def test_tcp_sends_the_same_pdus_as_rtu_in_mbap_frames_for_unit_1() -> None:
     opts: dict[str, Any] = {"home_input": 5, "clear_alarm_input": 4}
-    async with over_rtu(SimEPR60(1, limit_negative=-8000), **opts) as rig:
+    async with over_rtu(SimEPR60(1, setup=TwinSetup(limit_negative=-8000)), **opts) as rig:
         await manual_script(rig)
         over_rs485 = rig.commands()
-    async with over_tcp(SimEPR60(1, limit_negative=-8000), **opts) as rig:
+    async with over_tcp(SimEPR60(1, setup=TwinSetup(limit_negative=-8000)), **opts) as rig:
         await manual_script(rig)
         over_network = rig.commands()
         adus = rig.raw()  # checked against the server's log: same PDUs, same tids

@@ -9,27 +9,20 @@ motion stops the axis before the command exits.
 
 from __future__ import annotations
 
-import errno
-import json
-import os
-import re
 import sys
 import termios
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import anyio
 import typer
 
 from drivebus import checks
-from drivebus.errors import (
-    ArgumentError,
-    ConfigError,
-    DrivebusError,
-    DriveOffline,
-    LineClosed,
-    TransactionError,
-)
+from drivebus.errors import ArgumentError, ConfigError, DrivebusError
+from drivebus.terminal import explain
+
+if TYPE_CHECKING:
+    from drivebus.service.client import ServiceClient
 
 try:  # typer vendors click from 0.2x on; before, it used click itself
     from typer._click.exceptions import UsageError
@@ -42,22 +35,103 @@ app = typer.Typer(
     "Add --debug to any command to see the traceback of an error.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,
 )
+
+_LEVELS = ("debug", "info", "warning", "error")
+
+
+def _version(value: bool) -> None:
+    if value:
+        from drivebus import __version__
+
+        typer.echo(f"drivebus {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _options(
+    verbose: Annotated[int, typer.Option(
+        "--verbose", "-v", count=True,
+        help="log more: -v warnings and progress (info), -vv everything (debug)")] = 0,
+    log_level: Annotated[str | None, typer.Option(
+        "--log-level", metavar="LEVEL", help=f"log level: {', '.join(_LEVELS)}")] = None,
+    trace: Annotated[bool, typer.Option(
+        "--trace", help="log every frame on the wire (time, direction, address, settings, "
+        "bytes, the silence before it)")] = False,
+    debug: Annotated[bool, typer.Option(
+        "--debug", help="show the traceback of an error (anywhere on the command line)")]
+    = False,
+    version: Annotated[bool, typer.Option(
+        "--version", callback=_version, is_eager=True, help="print the version and exit")]
+    = False,
+) -> None:
+    """Modbus stepper and servo drives on shared RS-485 lines and Modbus TCP."""
+    level = "error" if not verbose else "info" if verbose == 1 else "debug"
+    if log_level is not None:
+        if log_level.lower() not in _LEVELS:
+            raise ArgumentError(f"--log-level: {log_level!r} is not one of {', '.join(_LEVELS)}")
+        level = log_level.lower()
+    from drivebus.terminal import configure_logging
+
+    configure_logging(level, trace=trace)
+
 
 _SIGNED = {"ignore_unknown_options": True}
 """Let negative numbers through as arguments (``drivebus jog m.toml x -20``)."""
 
 ConfigArg = Annotated[Path, typer.Argument(help="machine file (TOML)", metavar="CONFIG")]
-AxesArg = Annotated[list[str] | None, typer.Argument(help="axes (default: all)")]
+AxesArg = Annotated[
+    list[str] | None, typer.Argument(help="axes (default: all)", metavar="[AXIS]...")
+]
+AxisArg = Annotated[str, typer.Argument(help="axis name", metavar="AXIS")]
+JsonOpt = Annotated[bool, typer.Option("--json", "-j", help="print the result as JSON")]
+TargetArg = Annotated[str, typer.Argument(
+    metavar="TARGET",
+    help="serial device or pty, sim://NAME, tcp://HOST[:PORT] or rtu+tcp://HOST:PORT")]
+SettingsOpt = Annotated[str | None, typer.Option(
+    "--settings", "-S", metavar="SETTINGS",
+    help='serial settings, e.g. "19200 8E1" (default: 19200 8E1, Modbus\'s own)')]
+FormatOpt = Annotated[str, typer.Option(
+    "--format", "-f", metavar="FORMAT",
+    help="hex, int (signed 16-bit), uint, int32-le, int32-be (low/high word first) or float")]
+TimeoutOpt = Annotated[float, typer.Option(
+    "--timeout", "-t", metavar="SECONDS", help="response timeout")]
+ServerOpt = Annotated[str | None, typer.Option(
+    "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
+    help="talk to this drivebus serve (default: the one serving CONFIG, if it runs)")]
+TokenOpt = Annotated[str | None, typer.Option(
+    "--token", metavar="TOKEN", envvar="DRIVEBUS_TOKEN",
+    help="bearer token for --server (from its token file)")]
+LocalOpt = Annotated[bool, typer.Option(
+    "--local", help="open the machine here even if a drivebus serve owns it")]
+
+
+def _owner(
+    config: Path, server: str | None, token: str | None, local: bool
+) -> ServiceClient | None:
+    """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
+    through the file), as a client; None to open the machine here."""
+    from drivebus.service.client import ServiceClient, find_service
+
+    if local:
+        return None
+    url = server or find_service(config)
+    if url is None:
+        return None
+    if server is None:
+        typer.echo(f"note: {config} is served by a running drivebus serve at {url}: "
+                   f"talking to it (--local opens the machine here)", err=True)
+    return ServiceClient(url, token=token)
 
 
 @app.command()
 def bench(
-    quick: Annotated[bool, typer.Option("--quick", help="short runs (under a minute)")] = False,
-    turnaround: Annotated[float, typer.Option(help="simulated slave turnaround, s")] = 0.001,
-    json_path: Annotated[
-        Path | None, typer.Option("--json", help="also write the results as JSON here")
-    ] = None,
+    quick: Annotated[bool, typer.Option("--quick", "-q", help="short runs")] = False,
+    turnaround: Annotated[float, typer.Option(
+        metavar="SECONDS", help="simulated slave turnaround")] = 0.001,
+    json_path: Annotated[Path | None, typer.Option(
+        "--json", metavar="FILE", help="also write the results as JSON to FILE")] = None,
 ) -> None:
     """Measure bus efficiency, stop latency, CPU per transaction and scale on simulated lines."""
     from drivebus.bench import format_table, results_json, run_bench
@@ -73,17 +147,17 @@ def bench(
 
 @app.command()
 def demo(
-    config: Annotated[
-        Path | None, typer.Argument(help="machine file (default: the built-in demo machine)")
-    ] = None,
+    config: Annotated[Path | None, typer.Argument(
+        metavar="[CONFIG]",
+        help="a simulated machine file (default: the built-in demo machine)")] = None,
 ) -> None:
-    """Run the demo job on the built-in simulator: home, group moves, a jog, a stop."""
+    """Run the demo job on the simulator: home, group moves, a jog, a stop."""
     from drivebus.demo import run_demo
 
     raise typer.Exit(anyio.run(run_demo, config))
 
 
-# -- scan ------------------------------------------------------------------------------------------
+# -- scan and the register tools -------------------------------------------------------------------
 
 
 def _announce_port(port: str) -> None:
@@ -108,39 +182,44 @@ def _announce_port(port: str) -> None:
 
 @app.command()
 def scan(
-    port: Annotated[str, typer.Argument(help="serial device, pty path, or sim://NAME")],
-    baud: Annotated[
-        str, typer.Option(help="baud rates to try, in order")
+    target: TargetArg,
+    baud: Annotated[str, typer.Option(
+        "--baud", "-b", metavar="RATES", help="baud rates to try, in order")
     ] = "9600,19200,38400,57600,115200",
-    fmt: Annotated[
-        str, typer.Option("--format", help="character formats to try, in order")
+    fmt: Annotated[str, typer.Option(
+        "--format", "-f", metavar="FORMATS", help="character formats to try, in order")
     ] = "8N1,8E1,8O1,8N2",
-    address: Annotated[str, typer.Option(help="addresses, e.g. 1-31 or 1,3,5-7")] = "1-31",
-    timeout: Annotated[float, typer.Option(help="response timeout per probe, s")] = 0.04,
-    as_json: Annotated[bool, typer.Option("--json", help="print the result as JSON")] = False,
+    address: Annotated[str, typer.Option(
+        "--address", "-a", metavar="ADDRS",
+        help="addresses (unit ids over TCP), e.g. 1-31 or 1,3,5-7")] = "1-31",
+    timeout: Annotated[float, typer.Option(
+        "--timeout", "-t", metavar="SECONDS", help="response timeout per probe")] = 0.04,
+    as_json: JsonOpt = False,
 ) -> None:
     """Find the slaves on a line: every address at every baud rate and format.
 
     All addresses are probed at one setting, then at the next, skipping addresses already
     found; a probe is one read of holding register 0 with no retries. An answering slave
-    is identified by its drive family's identity registers where it has them.
+    is identified by each drive family's own probe. Over Modbus TCP (tcp://HOST) the unit
+    ids are probed; --baud and --format do not apply.
     """
     from drivebus.app import scan as sc
+    from drivebus.app.targets import parse_target
     from drivebus.terminal import Out, run_guarded, scan_line
 
+    t = parse_target(target)
     settings = sc.scan_settings(sc.parse_bauds(baud), sc.parse_formats(fmt))
-    addresses = sc.parse_addresses(address)
+    addresses = sc.parse_addresses(address, tcp=t.kind == "tcp")
     if checks.positive("--timeout", timeout, unit="s") > 5:
         raise ArgumentError(f"--timeout: {timeout!r} s is above 5 s (a probe answers in ms)")
-    _announce_port(port)
-    target = port
-    if sc.is_pty(target) or port.startswith("sim://"):
+    _announce_port(target)
+    if t.kind == "serial" and (sc.is_pty(target) or target.startswith("sim://")):
         settings, dropped = sc.pty_usable(settings)
         if dropped:
             formats = ", ".join(dict.fromkeys(s.format for s in dropped))
             typer.echo(f"note: {target} is a pty: it cannot carry parity or 7 data bits, "
                        f"so {formats} are not probed", err=True)
-    out = Out()
+    out = Out(as_json=as_json)
     found: list[sc.Found] = []
 
     async def run() -> int:
@@ -148,10 +227,10 @@ def scan(
         return 0
 
     code = run_guarded(run)
-    if as_json:
-        typer.echo(json.dumps([f.as_dict() for f in found], indent=2))
-    elif code == 0:
-        typer.echo(f"{len(found)} slave(s) found on {port}")
+    out.result([f.as_dict() for f in found])
+    if code == 0:
+        n = len(found)
+        out.line(f"{n} slave{'' if n == 1 else 's'} found on {target}")
     if code == 0 and not found:
         typer.echo(
             "error: no slave answered: check power, wiring (A/B, termination, common), and "
@@ -162,93 +241,240 @@ def scan(
     raise typer.Exit(code)
 
 
+def _check_register_call(target: str, address: int, register: int, fmt: str) -> None:
+    """TARGET, ADDR, REG and --format checked before anything opens."""
+    from drivebus.app.registers import words_per_value
+    from drivebus.app.targets import parse_target
+
+    tcp = parse_target(target).kind == "tcp"
+    checks.whole("ADDR", address, 0 if tcp else 1, 255 if tcp else 247)
+    checks.whole("REG", register, 0, 65535)
+    words_per_value(fmt)
+
+
+def _settings(text: str | None) -> object:
+    from drivebus.settings import LineSettings
+
+    return None if text is None else LineSettings.parse(text)
+
+
+@app.command(context_settings=_SIGNED)
+def read(
+    target: TargetArg,
+    address: Annotated[int, typer.Argument(metavar="ADDR", help="slave address (unit id)")],
+    register: Annotated[int, typer.Argument(
+        metavar="REG", help="first register, 0-based as the manuals print it (mbpoll -0 -r)")],
+    count: Annotated[int, typer.Argument(metavar="[COUNT]", help="values to read")] = 1,
+    input_registers: Annotated[bool, typer.Option(
+        "--input", help="input registers (FC04) instead of holding registers (FC03)")] = False,
+    settings: SettingsOpt = None,
+    fmt: FormatOpt = "uint",
+    interval: Annotated[float | None, typer.Option(
+        "--interval", "-i", metavar="SECONDS", help="poll every SECONDS until Ctrl-C")] = None,
+    polls: Annotated[int | None, typer.Option(
+        "--count", "-n", metavar="N", help="with --interval: stop after N polls")] = None,
+    timeout: TimeoutOpt = 0.5,
+    as_json: JsonOpt = False,
+    server: Annotated[str | None, typer.Option(
+        "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
+        help="through this drivebus serve: TARGET is then one of its lines")] = None,
+    token: TokenOpt = None,
+) -> None:
+    """Read COUNT registers (or values of --format) of the slave at ADDR on TARGET."""
+    from drivebus.terminal import Out, read_registers, remote_read, run_guarded
+
+    if server is not None:
+        from drivebus.app.registers import words_per_value
+        from drivebus.service.client import ServiceClient
+
+        words_per_value(fmt)
+        client = ServiceClient(server, token=token)
+        raise typer.Exit(run_guarded(
+            lambda: remote_read(Out(as_json=as_json), client, target, address, register,
+                                count, input_registers, fmt, interval, polls),
+            interrupt_ok=interval is not None,
+        ))
+    _check_register_call(target, address, register, fmt)
+    checks.whole("COUNT", count, 1, 125)
+    wanted_settings = _settings(settings)
+    if interval is not None:
+        checks.positive("--interval", interval, unit="s")
+    if polls is not None and polls < 1:
+        raise ArgumentError(f"--count: must be at least 1 poll, not {polls}")
+    checks.positive("--timeout", timeout, unit="s")
+    out = Out(as_json=as_json)
+    raise typer.Exit(run_guarded(
+        lambda: read_registers(out, target, address, register, count, input_registers,
+                               wanted_settings, fmt, interval, polls, timeout),
+        interrupt_ok=interval is not None,
+    ))
+
+
+@app.command(context_settings=_SIGNED)
+def write(
+    target: TargetArg,
+    address: Annotated[int, typer.Argument(metavar="ADDR", help="slave address (unit id)")],
+    register: Annotated[int, typer.Argument(
+        metavar="REG", help="first register, 0-based as the manuals print it")],
+    values: Annotated[list[str], typer.Argument(
+        metavar="VALUE...", help="values to write (0x1F, -5, 1.5 with --format float)")],
+    settings: SettingsOpt = None,
+    fmt: FormatOpt = "uint",
+    timeout: TimeoutOpt = 0.5,
+    as_json: JsonOpt = False,
+    server: Annotated[str | None, typer.Option(
+        "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
+        help="through this drivebus serve: TARGET is then one of its lines")] = None,
+    token: TokenOpt = None,
+) -> None:
+    """Write VALUEs from register REG of the slave at ADDR on TARGET (one: FC06, more: FC16;
+    never retried, a write may be a command)."""
+    from drivebus.app.registers import encode
+    from drivebus.terminal import Out, remote_write, run_guarded, write_registers
+
+    if server is not None:
+        from drivebus.service.client import ServiceClient
+
+        words = encode(values, fmt)
+        client = ServiceClient(server, token=token)
+        raise typer.Exit(run_guarded(lambda: remote_write(
+            Out(as_json=as_json), client, target, address, register, words)))
+
+    _check_register_call(target, address, register, fmt)
+    encode(values, fmt)  # every value checked before the port opens
+    wanted_settings = _settings(settings)
+    checks.positive("--timeout", timeout, unit="s")
+    out = Out(as_json=as_json)
+    raise typer.Exit(run_guarded(
+        lambda: write_registers(out, target, address, register, values,
+                                wanted_settings, fmt, timeout)
+    ))
+
+
 # -- axis operations ----------------------------------------------------------------------------
 
 
 @app.command()
-def status(
-    config: ConfigArg,
-    axes: AxesArg = None,
-    as_json: Annotated[bool, typer.Option("--json", help="print the status as JSON")] = False,
-) -> None:
-    """Show the state, position, velocity, flags and alarm of the axes (exit 1 on alarm)."""
-    from drivebus.terminal import Out, run_guarded, show_status
+def status(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False,
+           server: ServerOpt = None, token: TokenOpt = None, local: LocalOpt = False) -> None:
+    """Show every axis (or the named ones): state, position, velocity, flags, alarm; an axis
+    whose drive does not answer is shown Offline with the reason (exit 1 then, and on an
+    alarm)."""
+    from drivebus.terminal import Out, remote_status, run_guarded, show_status
 
-    out = Out()
+    out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        raise typer.Exit(run_guarded(lambda: remote_status(out, owner, axes or [], as_json)))
     raise typer.Exit(run_guarded(lambda: show_status(out, config, axes or [], as_json)))
 
 
 @app.command(context_settings=_SIGNED)
 def move(
     config: ConfigArg,
-    axis: Annotated[str, typer.Argument(help="axis name")],
-    target: Annotated[float, typer.Argument(help="target position in the axis's units")],
+    axis: AxisArg,
+    target: Annotated[float, typer.Argument(
+        metavar="TARGET", help="target position in the axis's units")],
     by: Annotated[bool, typer.Option("--by", help="move by TARGET (relative)")] = False,
-    speed: Annotated[float | None, typer.Option(help="speed, units/s")] = None,
+    speed: Annotated[float | None, typer.Option(
+        "--speed", "-s", metavar="SPEED", help="speed, the axis's units/s")] = None,
+    as_json: JsonOpt = False,
+    server: ServerOpt = None,
+    token: TokenOpt = None,
+    local: LocalOpt = False,
 ) -> None:
     """Move an axis to TARGET (or by it) and wait until it is there; Ctrl-C stops it."""
-    from drivebus.terminal import Out, move_axis, run_guarded
+    from drivebus.terminal import Out, move_axis, remote_motion, run_guarded
 
     checks.finite("TARGET", target)
     if speed is not None:
         checks.positive("--speed", speed, unit="units/s")
-    out = Out()
+    out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        body: dict[str, float] = {"by" if by else "target": target}
+        if speed is not None:
+            body["speed"] = speed
+        what = f"move {'by' if by else 'to'} {target:g}"
+        raise typer.Exit(run_guarded(lambda: remote_motion(
+            out, owner, axis, what, f"/axes/{axis}/move", body)))
     raise typer.Exit(run_guarded(lambda: move_axis(out, config, axis, target, by, speed)))
 
 
 @app.command()
-def home(
-    config: ConfigArg,
-    axis: Annotated[str, typer.Argument(help="axis name")],
-) -> None:
+def home(config: ConfigArg, axis: AxisArg, as_json: JsonOpt = False, server: ServerOpt = None,
+         token: TokenOpt = None, local: LocalOpt = False) -> None:
     """Run the axis's configured homing procedure; Ctrl-C stops it."""
-    from drivebus.terminal import Out, home_axis, run_guarded
+    from drivebus.terminal import Out, home_axis, remote_motion, run_guarded
 
-    out = Out()
+    out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        raise typer.Exit(run_guarded(lambda: remote_motion(
+            out, owner, axis, "home", f"/axes/{axis}/home")))
     raise typer.Exit(run_guarded(lambda: home_axis(out, config, axis)))
 
 
 @app.command(context_settings=_SIGNED)
 def jog(
     config: ConfigArg,
-    axis: Annotated[str, typer.Argument(help="axis name")],
-    speed: Annotated[float, typer.Argument(help="speed in units/s; the sign is the direction")],
-    seconds: Annotated[
-        float | None, typer.Option("--for", help="stop after this many seconds")
-    ] = None,
+    axis: AxisArg,
+    speed: Annotated[float, typer.Argument(
+        metavar="SPEED", help="speed in the axis's units/s; the sign is the direction")],
+    seconds: Annotated[float | None, typer.Option(
+        "--for", metavar="SECONDS", help="stop after SECONDS")] = None,
+    as_json: JsonOpt = False,
+    server: ServerOpt = None,
+    token: TokenOpt = None,
+    local: LocalOpt = False,
 ) -> None:
     """Jog an axis at SPEED until Ctrl-C (or for --for seconds), then stop it."""
-    from drivebus.terminal import Out, jog_axis, run_guarded
+    from drivebus.terminal import Out, jog_axis, remote_jog, run_guarded
 
     if checks.finite("SPEED", speed) == 0:
         raise ArgumentError("SPEED: must not be 0 (units/s; its sign is the direction)")
     if seconds is not None:
         checks.positive("--for", seconds, unit="s")
-    out = Out()
+    out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        raise typer.Exit(run_guarded(lambda: remote_jog(out, owner, axis, speed, seconds),
+                                     interrupt_ok=seconds is None))
     code = run_guarded(lambda: jog_axis(out, config, axis, speed, seconds),
                        interrupt_ok=seconds is None)
     raise typer.Exit(code)
 
 
 @app.command()
-def stop(config: ConfigArg, axes: AxesArg = None) -> None:
+def stop(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False,
+         server: ServerOpt = None, token: TokenOpt = None, local: LocalOpt = False) -> None:
     """Stop the axes (all if none are named) with their decelerating stop."""
-    from drivebus.terminal import Out, run_guarded, stop_axes
+    from drivebus.terminal import Out, remote_stop, run_guarded, stop_axes
 
-    out = Out()
+    out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        raise typer.Exit(run_guarded(lambda: remote_stop(out, owner, axes or [])))
     raise typer.Exit(run_guarded(lambda: stop_axes(out, config, axes or [])))
 
 
 @app.command()
 def monitor(
     config: ConfigArg,
-    interval: Annotated[float, typer.Option(help="seconds between updates")] = 0.5,
-    count: Annotated[int | None, typer.Option(help="stop after this many updates")] = None,
+    interval: Annotated[float, typer.Option(
+        "--interval", "-i", metavar="SECONDS", help="time between updates")] = 0.5,
+    count: Annotated[int | None, typer.Option(
+        "--count", "-n", metavar="N", help="stop after N updates")] = None,
+    as_json: Annotated[bool, typer.Option(
+        "--json", "-j", help="one JSON line per update")] = False,
+    server: ServerOpt = None,
+    token: TokenOpt = None,
+    local: LocalOpt = False,
 ) -> None:
     """Watch every axis and the per-slave bus counters until Ctrl-C.
 
     On a terminal this is a live table; otherwise one line per axis and per slave at
-    every update, each prefixed with the time.
+    every update, each prefixed with the time (--json: one JSON line per update).
     """
     from drivebus.terminal import Out, run_guarded
     from drivebus.terminal import monitor as run_monitor
@@ -256,7 +482,13 @@ def monitor(
     checks.positive("--interval", interval, unit="s")
     if count is not None and count < 1:
         raise ArgumentError(f"--count: must be at least 1 update, not {count}")
-    out = Out()
+    out = Out(as_json=as_json)
+    owner = _owner(config, server, token, local)
+    if owner is not None:
+        from drivebus.terminal import remote_monitor
+
+        raise typer.Exit(run_guarded(lambda: remote_monitor(out, owner, interval, count),
+                                     interrupt_ok=True))
     raise typer.Exit(run_guarded(lambda: run_monitor(out, config, interval, count),
                                  interrupt_ok=True))
 
@@ -271,10 +503,10 @@ def sim(
     Prints one `line NAME KIND WHERE` per simulated line (WHERE is the pty path for a
     serial line, 127.0.0.1:PORT for TCP), then the slaves on it, and serves until Ctrl-C
     or SIGTERM. Point mbpoll, a PLC or pymodbus at the pty (`mbpoll -m rtu -b 115200 -P
-    none -a 1 /dev/pts/N`). A pty carries baud rate and stop bits but not parity or byte
-    size: an outside master is taken to send 8 data bits without parity, so only slaves
-    at 8N1 or 8N2 understand it (drivebus's own sim://NAME ports tell the wire directly).
-    `drivebus scan sim://NAME` in another shell finds this process's line.
+    none -a 1 /dev/pts/N`), or drivebus itself at sim://NAME (`drivebus read sim://NAME
+    ...`, `SerialLine("sim://NAME")`, a machine file's port) from another process. A pty
+    carries baud rate and stop bits but not parity or byte size: an outside master is
+    taken to send 8 data bits without parity, so only slaves at 8N1 or 8N2 understand it.
     """
     from drivebus.terminal import Out, run_guarded, serve_sim
 
@@ -283,8 +515,60 @@ def sim(
 
 
 @app.command()
-def check(config: ConfigArg) -> None:
-    """Validate a machine file and check its serial ports and adapters.
+def serve(
+    config: ConfigArg,
+    host: Annotated[str, typer.Option(
+        "--host", metavar="ADDRESS",
+        help="address to listen on (beyond loopback only with --token-file)")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(
+        "--port", "-p", metavar="PORT", help="TCP port (0: any free port)")] = 8000,
+    token_file: Annotated[Path | None, typer.Option(
+        "--token-file", metavar="FILE",
+        help="bearer tokens, one 'NAME read|command TOKEN' per line")] = None,
+    mqtt: Annotated[str | None, typer.Option(
+        "--mqtt", metavar="URL",
+        help="also bridge the machine to an MQTT broker, mqtt://HOST[:PORT] (default: the "
+        "machine file's [mqtt] url, if any)")] = None,
+    node: Annotated[str | None, typer.Option(
+        "--node", metavar="NAME", help="node name in the MQTT topics (default: the "
+        "machine's name)")] = None,
+    no_discovery: Annotated[bool, typer.Option(
+        "--no-discovery", help="publish no Home Assistant discovery over MQTT")] = False,
+    no_http: Annotated[bool, typer.Option(
+        "--no-http", help="no HTTP service: only the MQTT bridge")] = False,
+) -> None:
+    """Serve the machine over HTTP and WebSocket (a live dashboard at /, API docs at /docs),
+    and over MQTT with --mqtt (or an [mqtt] section in the machine file).
+
+    Opens the machine once and serves until Ctrl-C or SIGTERM, then stops every moving
+    axis before it exits. An axis whose drive does not answer starts Offline and is set up
+    when it answers.
+    """
+    import functools
+
+    from drivebus.config import load_config
+    from drivebus.service import run
+
+    cfg = load_config(config)
+    bridge = mqtt is not None or (cfg.mqtt is not None and cfg.mqtt.url is not None)
+    if no_http and not bridge:
+        raise ArgumentError("--no-http: with no HTTP service there must be an MQTT bridge "
+                            "(--mqtt URL, or [mqtt] url in the machine file)")
+    extra = []
+    if bridge:
+        from drivebus.mqtt import run_configured_bridge
+
+        extra.append(functools.partial(run_configured_bridge, url=mqtt, node=node,
+                                       discovery=False if no_discovery else None))
+    elif node is not None or no_discovery:
+        raise ArgumentError("--node and --no-discovery go with an MQTT bridge (--mqtt URL)")
+    raise typer.Exit(run(config, host=host, port=port, token_file=token_file,
+                         http=not no_http, extra=extra))
+
+
+@app.command()
+def check(config: ConfigArg, as_json: JsonOpt = False) -> None:
+    """Validate a machine file exactly as opening it does, and check its serial ports.
 
     A real serial port must exist and be usable; a USB-serial adapter's latency timer
     above 1 ms is reported (it caps the transaction rate). sim:// lines are reported as
@@ -292,51 +576,10 @@ def check(config: ConfigArg) -> None:
     """
     from drivebus.terminal import Out, check_config
 
-    raise typer.Exit(check_config(Out(), config))
+    raise typer.Exit(check_config(Out(as_json=as_json), config))
 
 
 # -- errors ----------------------------------------------------------------------------------------
-
-_MISSING = "the port does not exist: plug in the adapter, check the name (ls /dev/serial/by-id/)"
-_DENIED = ("add your user to the port's group (sudo usermod -aG dialout $USER) and log in "
-           "again")
-_PORT_HINTS = {
-    errno.ENOENT: _MISSING,
-    errno.ENODEV: _MISSING,
-    errno.ENXIO: _MISSING,
-    errno.EACCES: _DENIED,
-    errno.EPERM: _DENIED,
-    errno.EBUSY: "another program has the port open: close it (fuser -v PORT shows which)",
-}
-
-
-def _errno(exc: BaseException) -> int | None:
-    seen: BaseException | None = exc
-    while seen is not None:
-        code = getattr(seen, "errno", None)
-        if isinstance(code, int):
-            return code
-        seen = seen.__cause__ or seen.__context__
-    return None
-
-
-def explain(exc: BaseException) -> tuple[str, int]:
-    """The one line to print for ``exc`` (cause; what to do) and the exit status."""
-    if isinstance(exc, ConfigError | ArgumentError):
-        return f"error: {exc}", 2
-    code = _errno(exc)
-    if isinstance(exc, LineClosed | OSError) and code in _PORT_HINTS:
-        port = getattr(exc, "filename", None)
-        if port is None and (m := re.search(r"serial port '([^']+)'", str(exc))):
-            port = m.group(1)
-        return f"error: cannot open {port or 'the port'}: {os.strerror(code)}; " \
-               f"{_PORT_HINTS[code]}", 1
-    if isinstance(exc, DriveOffline | TransactionError):
-        return (f"error: {exc}; check power, wiring, address and line settings "
-                f"(`drivebus scan PORT` lists the slaves that answer)"), 1
-    if isinstance(exc, termios.error):
-        return f"error: the serial port refused the line settings: {exc.args[-1]}", 1
-    return f"error: {exc}", 1
 
 
 def _leaves(exc: BaseException) -> list[BaseException]:
@@ -384,7 +627,7 @@ def main() -> None:
     configuration error, 130 interrupted (after stopping what the command started).
     """
     debug = "--debug" in sys.argv
-    if debug:
+    if debug:  # anywhere on the command line, not only before the command
         sys.argv.remove("--debug")
     try:
         code = app(standalone_mode=False, prog_name="drivebus")
@@ -400,7 +643,7 @@ def main() -> None:
     sys.exit(code if isinstance(code, int) else 0)
 
 
-__all__ = ["app", "explain", "main"]
+__all__ = ["app", "main"]
 
 if __name__ == "__main__":
     main()

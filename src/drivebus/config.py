@@ -16,8 +16,10 @@ import math
 import os
 import tomllib
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
+from urllib.parse import unquote, urlsplit
 
 from pydantic import (
     BaseModel,
@@ -37,13 +39,17 @@ from drivebus.providers import line_provider, scheme_of
 from drivebus.settings import LineSettings
 
 __all__ = [
+    "NODE_PATTERN",
     "AxisConfig",
+    "BrokerUrl",
     "HomingConfig",
     "LineConfig",
     "MachineConfig",
+    "MqttConfig",
     "PollConfig",
     "load_config",
     "machine_config",
+    "parse_broker_url",
     "parse_config",
 ]
 
@@ -155,6 +161,8 @@ class AxisConfig(_Model):
     settings: LineSettings | None = None
     pulses_per_rev: StrictInt = Field(10000, gt=0)
     units_per_rev: StrictFloat = 1.0
+    unit: str = Field("units", min_length=1, max_length=16, pattern=r"^[^\s]+$",
+                      description="name of the user unit in messages and displays (mm, deg)")
     speed: StrictFloat = Field(10.0, gt=0, description="default speed, units/s")
     accel: StrictFloat = Field(100.0, gt=0, description="default acceleration, units/s²")
     decel: StrictFloat = Field(100.0, gt=0, description="default deceleration, units/s²")
@@ -193,12 +201,86 @@ class AxisConfig(_Model):
         return v
 
 
+NODE_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
+"""A plant node's name: one MQTT topic level (no wildcards, no slash), usable by Home
+Assistant discovery."""
+
+
+@dataclass(frozen=True)
+class BrokerUrl:
+    """Where an MQTT broker is: ``mqtt://[user[:password]@]host[:port]``."""
+
+    host: str
+    port: int = 1883
+    username: str | None = None
+    password: str | None = None
+
+    def __str__(self) -> str:
+        return f"mqtt://{self.host}:{self.port}"
+
+
+def parse_broker_url(url: object, *, error: type[ConfigError] = ConfigError) -> BrokerUrl:
+    """``mqtt://[user[:password]@]host[:port]`` (port 1883 by default) as a ``BrokerUrl``;
+    anything else is ``error`` naming the URL and the form expected."""
+    form = "expected mqtt://HOST[:PORT] (e.g. mqtt://127.0.0.1:1883)"
+    if not isinstance(url, str):
+        raise error(f"broker URL: {form}, got {url!r}")
+    parts = urlsplit(url.strip())
+    if parts.scheme != "mqtt":
+        raise error(f"broker URL {url!r}: the scheme must be mqtt:// ({form})")
+    if parts.path not in ("", "/") or parts.query or parts.fragment:
+        raise error(f"broker URL {url!r}: no path, query or fragment ({form})")
+    try:
+        port = parts.port
+    except ValueError:
+        raise error(f"broker URL {url!r}: the port must be a number 1..65535") from None
+    if not parts.hostname:
+        raise error(f"broker URL {url!r}: no host ({form})")
+    if port == 0:
+        raise error(f"broker URL {url!r}: the port must be a number 1..65535")
+    return BrokerUrl(
+        host=parts.hostname,
+        port=port or 1883,
+        username=None if parts.username is None else unquote(parts.username),
+        password=None if parts.password is None else unquote(parts.password),
+    )
+
+
+class MqttConfig(_Model):
+    """The ``[mqtt]`` section: the plant bridge of this machine (``drivebus.mqtt``)."""
+
+    url: str | None = Field(None, description="broker, mqtt://HOST[:PORT]")
+    node: Annotated[str, Field(pattern=NODE_PATTERN)] | None = Field(
+        None, description="node name in the topics (default: the machine's name)")
+    discovery: StrictBool = Field(True, description="publish Home Assistant discovery")
+    state_rate: StrictFloat = Field(
+        10.0, gt=0, le=1000, description="most axis state messages per axis per second")
+    stats_period: StrictFloat = Field(
+        5.0, gt=0, le=3600, description="seconds between line statistics messages")
+    keepalive: StrictInt = Field(5, ge=1, le=3600, description="MQTT keepalive, s")
+    reconnect_max: StrictFloat = Field(
+        10.0, gt=0, le=600, description="longest wait between reconnection attempts, s")
+
+    @field_validator("url")
+    @classmethod
+    def _url(cls, v: str | None) -> str | None:
+        if v is not None:
+            try:
+                parse_broker_url(v)
+            except ConfigError as exc:
+                raise ValueError(str(exc)) from None
+        return v
+
+
 class MachineConfig(_Model):
     """A machine: named lines and named axes on them."""
 
     name: str = "machine"
     lines: dict[str, LineConfig]
     axes: dict[Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_-]*$")], AxisConfig]
+    mqtt: MqttConfig | None = None
+    """The MQTT plant bridge's settings (used by ``python -m drivebus.mqtt`` and
+    ``drivebus serve --mqtt``); None: no ``[mqtt]`` section."""
 
     @model_validator(mode="after")
     def _consistent(self) -> MachineConfig:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from collections.abc import Awaitable, Callable
@@ -11,8 +12,9 @@ import anyio
 from rich.console import Console
 from rich.live import Live
 
-from drivebus.errors import MotionAborted
-from drivebus.motion import Machine, open_machine
+from drivebus.config import load_config
+from drivebus.errors import ConfigError, MotionAborted, NotSupported
+from drivebus.motion import Axis, Machine, open_machine
 from drivebus.motion.state import AxisState
 from drivebus.views import axes_table
 
@@ -27,43 +29,80 @@ async def _step(log: Callable[[str], None], what: str, fn: Callable[[], Awaitabl
     log(f"{what}: done in {time.monotonic() - t0:.2f} s")
 
 
+def _span(ax: Axis, fraction: float) -> float:
+    """A position ``fraction`` of the way through the axis's soft limits (or of a range
+    around where it is, without limits)."""
+    lim = ax.config.limits
+    if lim is None:
+        here = ax.position or 0.0
+        lim = (here - ax.config.speed, here + ax.config.speed)
+    return lim[0] + fraction * (lim[1] - lim[0])
+
+
+def _can(ax: Axis, procedure: str) -> bool:
+    try:
+        ax.profile.check_supported(procedure)
+    except NotSupported:
+        return False
+    return True
+
+
 async def _job(m: Machine, log: Callable[[str], None]) -> int:
-    x, y, z, r = (m.axes[n] for n in ("x", "y", "z", "r"))
-    motion = m.group("x", "y", "z", "r")
-    for ax in (x, y, z, r):
-        await ax.enable()
-    await _step(log, "home x, y, z, r in parallel", motion.home)
+    movers = [ax for ax in m.axes.values() if _can(ax, "move_absolute")]
+    if not movers:
+        drives = ", ".join(f"{n}: {a.profile.family}" for n, a in m.axes.items())
+        raise ConfigError(
+            f"the demo needs an axis whose drive makes position moves; machine "
+            f"{m.config.name}'s drives cannot ({drives})"
+        )
+    names = [ax.name for ax in movers]
+    motion = m.group(*names)
+    for ax in movers:
+        with contextlib.suppress(NotSupported):  # a drive without an enable needs none
+            await ax.enable()
+    homers = [ax for ax in movers if ax.config.homing.method is not None and _can(ax, "home")]
+    if homers:
+        together = " in parallel" if len(homers) > 1 else ""
+        await _step(log, f"home {', '.join(a.name for a in homers)}{together}",
+                    m.group(*(a.name for a in homers)).home)
     moves = 0
-    for targets in ({"x": 100.0, "y": 50.0, "z": 30.0, "r": 360.0},
-                    {"x": 250.0, "y": 120.0, "z": 60.0, "r": 0.0},
-                    {"x": 20.0, "y": 10.0, "z": 5.0, "r": 180.0}):
+    for fraction in (0.25, 0.6, 0.1):
+        targets = {ax.name: round(_span(ax, fraction), 3) for ax in movers}
         report = await motion.move_to(targets)
         moves += 1
         log(f"group move to {targets}: planned {report.duration:.2f} s, "
-            f"start skew {report.start_skew * 1000:.1f} ms")
-    async with z.jogging(+10.0):
-        log("jog z at +10 mm/s for 0.5 s")
+            f"start skew {report.start_skew * 1000:.1f} ms, "
+            f"arrival spread {report.arrival_spread * 1000:.1f} ms")
+    jogger = movers[-1]
+    speed = jogger.config.speed / 4
+    async with jogger.jogging(+speed):
+        log(f"jog {jogger.name} at +{speed:g}/s for 0.5 s")
         await anyio.sleep(0.5)
-    log(f"jog ended: z stopped at {z.position:.3f} mm")
+    log(f"jog ended: {jogger.name} stopped at {jogger.position:.3f}")
+    first = movers[0]
+    far, midway = _span(first, 0.9), _span(first, 0.5)
 
-    async def stop_x_midway() -> None:
-        async for _st in x.watch():
-            if x.position is not None and x.position > 150.0:
-                await x.stop()
+    async def stop_midway() -> None:
+        async for _st in first.watch():
+            if first.position is not None and first.position > midway:
+                await first.stop()
                 return
 
     async with anyio.create_task_group() as tg:
-        tg.start_soon(stop_x_midway)  # returns once the stop has brought x to standstill
+        tg.start_soon(stop_midway)  # returns once the stop has brought it to standstill
         try:
-            await x.move_to(380.0)
+            await first.move_to(far)
         except MotionAborted as exc:
-            log(f"x move_to(380) ended by a stop: {exc}")
-    log(f"x stopped at {x.position:.3f} mm, state {x.state}")
-    await _step(log, "x back to 0", lambda: x.move_to(0.0))
+            log(f"{first.name} move_to({far:g}) ended by a stop: {exc}")
+    log(f"{first.name} stopped at {first.position:.3f}, state {first.state}")
+    home = _span(first, 0.0) if first.config.limits is None else max(
+        first.config.limits[0], min(0.0, first.config.limits[1]))
+    await _step(log, f"{first.name} back to {home:g}", lambda: first.move_to(home))
     moves += 1
-    aux = m.axes["aux"]
-    if aux.status is not None:
-        log(f"aux ({aux.profile.family}): enabled={aux.status.enabled} alarm={aux.status.alarm}")
+    for ax in m.axes.values():
+        if ax not in movers and ax.status is not None:
+            log(f"{ax.name} ({ax.profile.family}, monitoring only): "
+                f"enabled={ax.status.enabled} alarm={ax.status.alarm}")
     return moves
 
 
@@ -81,9 +120,15 @@ async def run_demo(config: str | Path | None = None) -> int:
         else:
             print(msg, flush=True)
 
+    cfg = load_config(path)
+    real = [f"{n} ({ln.port or ln.host})" for n, ln in cfg.lines.items() if not ln.simulated]
+    if real:
+        raise ConfigError(f"{path}: the demo runs on the simulator only, and line "
+                          f"{', '.join(real)} is real: give its lines sim://NAME ports")
     t0 = time.monotonic()
-    async with open_machine(path) as m:
-        log(f"machine {m.config.name}: {len(m.axes)} axes on {len(m.buses)} lines (simulated)")
+    async with open_machine(cfg) as m:
+        log(f"machine {m.config.name}: {_count(len(m.axes), 'axis', 'axes')} on "
+            f"{_count(len(m.buses), 'line', 'lines')} (simulated)")
         if interactive:
             with Live(axes_table(m), console=console, refresh_per_second=10) as live:
 
@@ -104,8 +149,7 @@ async def run_demo(config: str | Path | None = None) -> int:
         tx = sum(b.stats.transactions for b in m.buses.values())
         util = {n: f"{b.stats.utilisation:.0%}" for n, b in m.buses.items()}
         faulted = [n for n, a in m.axes.items() if a.state is AxisState.ERROR_STOP]
-        wire = m.wires.get("rs485")
-        violations = getattr(wire, "violations", 0)
+        violations = sum(getattr(w, "violations", 0) for w in m.wires.values())
     print(
         f"summary: {moves} coordinated/point moves, {tx} transactions, {errors} errors, "
         f"line utilisation {util}, gap violations {violations}, "
@@ -113,3 +157,7 @@ async def run_demo(config: str | Path | None = None) -> int:
         flush=True,
     )
     return 1 if faulted or violations else 0
+
+
+def _count(n: int, one: str, many: str) -> str:
+    return f"{n} {one if n == 1 else many}"

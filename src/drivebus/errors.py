@@ -25,6 +25,7 @@ __all__ = [
     "NotFound",
     "NotSupported",
     "ResponseTimeout",
+    "ServiceUnreachable",
     "StateError",
     "TransactionError",
     "WrongResponder",
@@ -184,3 +185,7 @@ class LeaseHeld(DrivebusError):
     def __init__(self, message: str, *, holder: str) -> None:
         super().__init__(message)
         self.holder = holder
+
+
+class ServiceUnreachable(DrivebusError):
+    """A ``drivebus serve`` that should own the machine could not be reached."""

@@ -10,17 +10,26 @@ runs a command so that SIGINT/SIGTERM cancel it, its cleanup (stopping axes) inc
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import errno
+import functools
 import json
+import logging
 import math
+import os
+import re
 import signal
 import sys
+import termios
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import anyio
+import anyio.to_thread
 from rich.console import Console, Group
 from rich.live import Live
 from rich.progress import (
@@ -32,6 +41,9 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
+from drivebus import errors
+from drivebus.app import registers
+from drivebus.app.lifecycle import run_until_signalled
 from drivebus.app.operations import (
     Operation,
     jog_ended_by_axis,
@@ -41,8 +53,19 @@ from drivebus.app.operations import (
 from drivebus.app.operations import (
     check_config as check_machine_file,
 )
+from drivebus.app.registers import RegisterValues, open_slave
 from drivebus.app.scan import Found, scan
-from drivebus.motion import Axis, Machine
+from drivebus.app.snapshots import machine_snapshot
+from drivebus.errors import (
+    ArgumentError,
+    ConfigError,
+    DrivebusError,
+    DriveOffline,
+    LineClosed,
+    TransactionError,
+)
+from drivebus.motion import Axis, AxisState, Machine
+from drivebus.service.client import ServiceClient
 from drivebus.settings import LineSettings
 from drivebus.sim.serve import serve_simulators
 from drivebus.views import axes_table, axis_line, axis_record, slaves_table, stats_lines
@@ -63,19 +86,46 @@ __all__ = [
 ]
 
 
+def configure_logging(level: str, *, trace: bool = False) -> None:
+    """Log to stderr at ``level`` (``debug``..``error``); ``trace`` also logs every frame
+    (the ``drivebus.trace`` logger) whatever the level."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger("drivebus")
+    root.handlers[:] = [handler]
+    root.setLevel(level.upper())
+    root.propagate = False
+    logging.getLogger("drivebus.trace").setLevel(logging.DEBUG if trace else logging.WARNING)
+    if trace and root.level > logging.DEBUG:
+        root.setLevel(logging.DEBUG)
+        for name in ("drivebus.motion", "drivebus.app", "drivebus.bus", "drivebus.line",
+                     "drivebus.sim", "drivebus.drives"):
+            logging.getLogger(name).setLevel(level.upper())
+
+
 class Out:
     """Where command output goes: a rich console on a terminal, plain lines otherwise."""
 
-    def __init__(self, interactive: bool | None = None) -> None:
-        self.interactive = sys.stdout.isatty() if interactive is None else interactive
+    def __init__(self, interactive: bool | None = None, *, as_json: bool = False) -> None:
+        self.as_json = as_json
+        """Results as JSON on stdout (``--json``): no tables, no progress, no text lines."""
+        self.interactive = (sys.stdout.isatty() if interactive is None else interactive) and (
+            not as_json)
         self.console = Console(highlight=False)
 
     def line(self, text: str) -> None:
-        """One line of output."""
+        """One line of output (none with ``--json``)."""
+        if self.as_json:
+            return
         if self.interactive:
             self.console.print(text, markup=False)
         else:
             print(text, flush=True)
+
+    def result(self, data: object, *, indent: int | None = 2) -> None:
+        """A command's result as JSON (with ``--json``; one line when ``indent`` is None)."""
+        if self.as_json:
+            print(json.dumps(data, indent=indent), flush=True)
 
     def warn(self, text: str) -> None:
         """A warning on stderr."""
@@ -86,37 +136,15 @@ class Out:
 
 
 def run_guarded(fn: Callable[[], Awaitable[int]], *, interrupt_ok: bool = False) -> int:
-    """Run ``fn`` in an event loop; SIGINT/SIGTERM cancel it (its cleanup, e.g. stopping
-    moving axes, runs in full) and give exit status 128+signal, or 0 if ``interrupt_ok``
-    (commands that run until Ctrl-C). Further signals during the cleanup are ignored."""
+    """Run a command: SIGINT/SIGTERM cancel it (its cleanup, e.g. stopping moving axes,
+    runs in full) and give exit status 128+signal, or 0 if ``interrupt_ok`` (commands that
+    run until Ctrl-C); an interrupted command says so on stderr."""
 
-    async def main() -> int:
-        caught: list[int] = []
-        result = 0
-        with anyio.open_signal_receiver(signal.SIGINT, signal.SIGTERM) as signals:
-            async with anyio.create_task_group() as tg:
+    def said(sig: signal.Signals) -> None:
+        if not interrupt_ok:
+            print(f"interrupted ({sig.name})", file=sys.stderr, flush=True)
 
-                async def watch() -> None:
-                    async for sig in signals:
-                        caught.append(int(sig))
-                        tg.cancel_scope.cancel()
-                        return
-
-                async def work() -> None:
-                    nonlocal result
-                    result = await fn()
-                    tg.cancel_scope.cancel()
-
-                tg.start_soon(watch)
-                tg.start_soon(work)
-        if caught:
-            if not interrupt_ok:
-                name = signal.Signals(caught[0]).name
-                print(f"interrupted ({name})", file=sys.stderr, flush=True)
-            return 0 if interrupt_ok else 128 + caught[0]
-        return result
-
-    return anyio.run(main)
+    return run_until_signalled(fn, interrupt_ok=interrupt_ok, on_signal=said)
 
 
 def _fmt(v: float | None) -> str:
@@ -129,40 +157,89 @@ def _fmt(v: float | None) -> str:
 def found_line(f: Found) -> str:
     """One slave found by a scan, as a line."""
     detail = f" ({f.detail})" if f.detail else ""
-    return f"address {f.address} at {f.settings}: {f.family}{detail}"
+    where = f"unit {f.address}" if f.settings is None else f"address {f.address} at {f.settings}"
+    return f"{where}: {f.family}{detail}"
 
 
 async def scan_line(
     out: Out, port: str, settings: list[LineSettings], addresses: list[int], timeout: float,
     *, quiet: bool = False,
 ) -> list[Found]:
-    """Scan ``port`` with a progress bar (terminal) or a line per slave found."""
+    """Scan ``port`` (any target) with a progress bar (terminal) or a line per slave found."""
     if quiet or not out.interactive:
 
-        def report(a: int, s: LineSettings, hit: Found | None) -> None:
+        def report(a: int, s: LineSettings | None, hit: Found | None) -> None:
             if hit is not None and not quiet:
                 print(f"found {found_line(hit)}", flush=True)
 
         return await scan(port, settings, addresses, timeout=timeout, on_probe=report)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   console=out.console) as prog:
-        task = prog.add_task("scanning", total=len(settings) * len(addresses))
+        rounds = len(settings) if settings else 1
+        task = prog.add_task("scanning", total=rounds * len(addresses))
 
-        def show(a: int, s: LineSettings, hit: Found | None) -> None:
+        def show(a: int, s: LineSettings | None, hit: Found | None) -> None:
             extra = 0
             if hit is not None:
-                extra = len(settings) - settings.index(s) - 1  # not probed again
+                if s is not None:
+                    extra = len(settings) - settings.index(s) - 1  # not probed again
                 prog.console.print(f"found {found_line(hit)}", markup=False)
-            prog.update(task, advance=1 + extra, description=f"scanning {s} address {a:>3}")
+            where = "unit" if s is None else f"{s} address"
+            prog.update(task, advance=1 + extra, description=f"scanning {where} {a:>3}")
 
         return await scan(port, settings, addresses, timeout=timeout, on_probe=show)
+
+
+# -- register tools ------------------------------------------------------------------------------
+
+
+async def read_registers(
+    out: Out, target: str, address: int, register: int, count: int, input_table: bool,
+    settings: object, fmt: str, interval: float | None, polls: int | None, timeout: float,
+) -> int:
+    """Read registers once, or every ``interval`` s (``polls`` times, else until Ctrl-C)."""
+    assert settings is None or isinstance(settings, LineSettings)
+    async with open_slave(target, address, settings=settings, timeout=timeout) as slave:
+        n = 0
+        while True:
+            words, values = await registers.read_registers(
+                slave, register, count, input=input_table, fmt=fmt)
+            record = RegisterValues(target, address, register, input_table, words, fmt, values)
+            if out.as_json:
+                out.result(record.as_dict(), indent=None if interval else 2)
+            else:
+                step = registers.words_per_value(fmt)
+                stamp = f"{time.strftime('%H:%M:%S')} " if interval else ""
+                for i, v in enumerate(values):
+                    out.line(f"{stamp}[{register + i * step}]: {v}")
+            n += 1
+            if interval is None or (polls is not None and n >= polls):
+                return 0
+            await anyio.sleep(interval)
+
+
+async def write_registers(
+    out: Out, target: str, address: int, register: int, values: Sequence[str],
+    settings: object, fmt: str, timeout: float,
+) -> int:
+    """Write registers and say what went to the slave."""
+    assert settings is None or isinstance(settings, LineSettings)
+    async with open_slave(target, address, settings=settings, timeout=timeout) as slave:
+        words = await registers.write_registers(slave, register, values, fmt=fmt)
+    out.line(f"wrote {len(words)} register{'' if len(words) == 1 else 's'} from "
+             f"[{register}] of slave {address} on {target}: "
+             f"{' '.join(f'0x{w:04X}' for w in words)}")
+    out.result({"target": target, "address": address, "register": register,
+                "format": fmt, "words": words})
+    return 0
 
 
 # -- status, stop --------------------------------------------------------------------------------
 
 
 async def show_status(out: Out, config: Path, axes: Sequence[str], as_json: bool) -> int:
-    """Print the named axes' (or all axes') status; exit status 1 if any is in alarm."""
+    """Print the named axes' (or all axes') status, the unreachable ones Offline with the
+    reason (also one line on stderr each); exit status 1 if any is in alarm or Offline."""
     async with opened(config, axes, observer=True) as m:  # looking must not stop anything
         if as_json:
             print(json.dumps([axis_record(m, n) for n in m.axes], indent=2), flush=True)
@@ -171,12 +248,17 @@ async def show_status(out: Out, config: Path, axes: Sequence[str], as_json: bool
         else:
             for n in m.axes:
                 out.line(axis_line(m, n))
-        alarms = [n for n, a in m.axes.items() if a.status is not None and a.status.alarm]
-    return 1 if alarms else 0
+        for ax in m.axes.values():
+            if ax.state is AxisState.OFFLINE and ax.error is not None:
+                print(explain(ax.error)[0], file=sys.stderr, flush=True)
+        faults = [n for n, a in m.axes.items() if a.state is AxisState.OFFLINE
+                  or (a.status is not None and a.status.alarm)]
+    return 1 if faults else 0
 
 
 async def stop_axes(out: Out, config: Path, axes: Sequence[str]) -> int:
     """Stop the named axes (all if none), each with its decelerating stop."""
+    records: list[dict[str, object]] = []
     async with opened(config, axes) as m:
 
         async def stop(name: str, ax: Axis) -> None:
@@ -184,10 +266,13 @@ async def stop_axes(out: Out, config: Path, axes: Sequence[str]) -> int:
             await ax.stop()
             what = "stopped" if moving else "at standstill"
             out.line(f"{name}: {what} at position={_fmt(ax.position)} state={ax.state}")
+            records.append({"axis": name, "was_moving": moving, "position": ax.position,
+                            "state": str(ax.state)})
 
         async with anyio.create_task_group() as tg:
             for name, ax in m.axes.items():
                 tg.start_soon(stop, name, ax)
+    out.result(sorted(records, key=lambda r: str(r["axis"])))
     return 0
 
 
@@ -237,24 +322,29 @@ async def _one_axis(out: Out, config: Path, axis: str) -> AsyncIterator[_Run]:
     finally:
         if run is not None and run.op.what and not run.op.done:
             ax, op = run.axis, run.op
+            op.position, op.state = ax.position, str(ax.state)
             if ax.command_started_at >= op.started:  # the drive took a command: it moved
                 out.line(f"{ax.name}: {op.what} stopped after "
                          f"{time.monotonic() - op.started:.2f} s, "
                          f"position={_fmt(ax.position)} state={ax.state}")
+            out.result(op.as_dict())
 
 
 async def _with_progress(
     out: Out, run: _Run, what: str, start: float | None, goal: float | None,
     motion: Callable[[], Awaitable[object]],
 ) -> None:
-    """Run ``motion`` while showing its progress; a report line when it completes."""
+    """Run ``motion`` while showing its progress; a report line (``--json``: the record)
+    when it completes."""
     ax, op = run.axis, run.op
     async with anyio.create_task_group() as tg:
-        tg.start_soon(_progress, out, ax, what, start, goal)
+        if not out.as_json:
+            tg.start_soon(_progress, out, ax, what, start, goal)
         await run_operation(ax, what, motion, op)
         tg.cancel_scope.cancel()
     out.line(f"{ax.name}: {what} done in {op.seconds:.2f} s, "
              f"position={_fmt(op.position)} state={op.state}")
+    out.result(op.as_dict())
 
 
 async def move_axis(
@@ -310,9 +400,19 @@ async def jog_axis(out: Out, config: Path, axis: str, speed: float, seconds: flo
 
 
 async def monitor(out: Out, config: Path, interval: float, count: int | None) -> int:
-    """Show every axis and the per-slave bus counters until Ctrl-C (or ``count`` updates)."""
+    """Show every axis and the per-slave bus counters until Ctrl-C (or ``count`` updates);
+    with ``--json`` one JSON line per update."""
     async with opened(config, observer=True) as m:
         n = 0
+        if out.as_json:
+            while count is None or n < count:
+                snap = machine_snapshot(m).as_dict()
+                out.result({"time": time.time(), "axes": [axis_record(m, n) for n in m.axes],
+                            "lines": snap["lines"]}, indent=None)
+                n += 1
+                if count is None or n < count:
+                    await anyio.sleep(interval)
+            return 0
         if out.interactive:
             with Live(_monitor_view(m), console=out.console, refresh_per_second=8) as live:
                 while count is None or n < count:
@@ -336,6 +436,50 @@ def _monitor_view(m: Machine) -> Group:
     return Group(axes_table(m), slaves_table(m))
 
 
+# -- errors as one line ----------------------------------------------------------------------------
+
+_MISSING = "the port does not exist: plug in the adapter, check the name (ls /dev/serial/by-id/)"
+_DENIED = ("add your user to the port's group (sudo usermod -aG dialout $USER) and log in "
+           "again")
+_PORT_HINTS = {
+    errno.ENOENT: _MISSING,
+    errno.ENODEV: _MISSING,
+    errno.ENXIO: _MISSING,
+    errno.EACCES: _DENIED,
+    errno.EPERM: _DENIED,
+    errno.EBUSY: "another program has the port open: close it (fuser -v PORT shows which)",
+}
+
+
+def _errno(exc: BaseException) -> int | None:
+    seen: BaseException | None = exc
+    while seen is not None:
+        code = getattr(seen, "errno", None)
+        if isinstance(code, int):
+            return code
+        seen = seen.__cause__ or seen.__context__
+    return None
+
+
+def explain(exc: BaseException) -> tuple[str, int]:
+    """The one line to print for ``exc`` (cause; what to do) and the exit status."""
+    if isinstance(exc, ConfigError | ArgumentError):
+        return f"error: {exc}", 2
+    code = _errno(exc)
+    if isinstance(exc, LineClosed | OSError) and code in _PORT_HINTS:
+        port = getattr(exc, "filename", None)
+        if port is None and (m := re.search(r"serial port '([^']+)'", str(exc))):
+            port = m.group(1)
+        return f"error: cannot open {port or 'the port'}: {os.strerror(code)}; " \
+               f"{_PORT_HINTS[code]}", 1
+    if isinstance(exc, DriveOffline | TransactionError):
+        return (f"error: {exc}; check power, wiring, address and line settings "
+                f"(`drivebus scan PORT` lists the slaves that answer)"), 1
+    if isinstance(exc, termios.error):
+        return f"error: the serial port refused the line settings: {exc.args[-1]}", 1
+    return f"error: {exc}", 1
+
+
 # -- the standalone simulator ---------------------------------------------------------------------
 
 
@@ -351,6 +495,9 @@ async def serve_sim(out: Out, config: Path, log: bool) -> int:
 def check_config(out: Out, config: Path, sysfs: Path = Path("/sys")) -> int:
     """Validate ``config`` and report on its lines; exit status 1 if a line cannot work."""
     report = check_machine_file(config, sysfs)
+    out.result({"file": str(config), "machine": report.name, "axes": report.axes,
+                "lines": [dataclasses.asdict(ln) for ln in report.lines],
+                "problems": report.problems})
     out.line(f"{config}: valid machine {report.name!r}: {_count(report.axes, 'axis', 'axes')} "
              f"on {_count(len(report.lines), 'line', 'lines')}")
     for ln in report.lines:
@@ -370,3 +517,168 @@ def check_config(out: Out, config: Path, sysfs: Path = Path("/sys")) -> int:
 
 def _count(n: int, one: str, many: str) -> str:
     return f"{n} {one if n == 1 else many}"
+
+
+# -- through a running drivebus serve (the line's one owner) ---------------------------------------
+
+
+async def _call(fn: Callable[..., Any], *args: Any) -> Any:
+    """A blocking client request, off the event loop."""
+    return await anyio.to_thread.run_sync(functools.partial(fn, *args))
+
+
+def _remote_line(a: dict[str, Any]) -> str:
+    flags = [k for k in ("enabled", "moving", "homed", "limit_negative", "limit_positive")
+             if a.get(k)]
+    extra = ""
+    if a.get("alarm"):
+        extra = f" alarm={a.get('alarm_code')} {a.get('alarm_text', '')}".rstrip()
+    elif a.get("error"):
+        extra = f" error={a['error'].get('message')!r}"
+    return (f"{a['name']}: {a['drive']} line={a['line']} address={a['address']} "
+            f"state={a['state']} position={_fmt(a.get('position'))} "
+            f"velocity={_fmt(a.get('velocity'))} flags={','.join(flags) or '-'}{extra}")
+
+
+async def remote_status(out: Out, client: ServiceClient, axes: Sequence[str], as_json: bool
+                        ) -> int:
+    """``status`` through the service: every axis (or the named ones) as it polls them."""
+    machine = await _call(client.machine)
+    names = list(axes) or [a["name"] for a in machine["axes"]]
+    records = [await _call(client.axis, n) for n in names]
+    if as_json:
+        print(json.dumps([{"axis": r["name"], **r} for r in records], indent=2), flush=True)
+    else:
+        for r in records:
+            out.line(_remote_line(r))
+    faults = [r for r in records if r["state"] == "Offline" or r.get("alarm")]
+    return 1 if faults else 0
+
+
+async def remote_motion(out: Out, client: ServiceClient, axis: str, what: str, path: str,
+                        body: object = None) -> int:
+    """Start a motion on the service and wait for it; cancelled (Ctrl-C), cancel it."""
+    record = await _call(client.start, path, body)
+    started = shown = time.monotonic()
+    try:
+        while record.get("state") == "running":
+            await anyio.sleep(0.05)
+            record = await _call(client.request, "GET", f"/motions/{record['id']}")
+            if time.monotonic() - shown >= 0.2 and record.get("state") == "running":
+                shown = time.monotonic()
+                a = await _call(client.axis, axis)
+                out.line(f"{axis}: position={_fmt(a.get('position'))} "
+                         f"velocity={_fmt(a.get('velocity'))} state={a['state']}")
+    except BaseException:
+        with anyio.CancelScope(shield=True):
+            record = await _call(client.cancel, record["id"])
+            a = await _call(client.axis, axis)
+            out.line(f"{axis}: {what} stopped after {time.monotonic() - started:.2f} s, "
+                     f"position={_fmt(a.get('position'))} state={a['state']}")
+        raise
+    a = await _call(client.axis, axis)
+    op = {"axis": axis, "what": what, "done": record["state"] == "done",
+          "seconds": round(time.monotonic() - started, 4), "position": a.get("position"),
+          "state": a["state"], "motion": record}
+    if record["state"] != "done":
+        err = record.get("error") or {}
+        kind = getattr(errors, str(err.get("type")), DrivebusError)
+        raise kind(str(err.get("message", f"the {what} ended {record['state']}")))
+    out.line(f"{axis}: {what} done in {op['seconds']:.2f} s, "
+             f"position={_fmt(op['position'])} state={op['state']}")
+    out.result(op)
+    return 0
+
+
+async def remote_jog(out: Out, client: ServiceClient, axis: str, speed: float,
+                     seconds: float | None) -> int:
+    """Jog through the service, fed every 0.2 s (a 0.5 s watchdog); stop at the end."""
+    started = time.monotonic()
+    try:
+        with anyio.move_on_after(seconds if seconds else math.inf):
+            while True:
+                await _call(client.command, axis, "jog", {"speed": speed, "ttl": 0.5})
+                await anyio.sleep(0.2)
+    finally:
+        with anyio.CancelScope(shield=True):
+            await _call(client.command, axis, "stop")
+            a = await _call(client.axis, axis)
+            out.line(f"{axis}: jog at {speed:g}/s ended after "
+                     f"{time.monotonic() - started:.2f} s, position={_fmt(a.get('position'))} "
+                     f"state={a['state']}")
+            out.result({"axis": axis, "what": f"jog at {speed:g}", "done": True,
+                        "position": a.get("position"), "state": a["state"]})
+    return 0
+
+
+async def remote_stop(out: Out, client: ServiceClient, axes: Sequence[str]) -> int:
+    """``stop`` through the service."""
+    machine = await _call(client.machine)
+    names = list(axes) or [a["name"] for a in machine["axes"]]
+    records = []
+    for n in names:
+        await _call(client.command, n, "stop")
+        a = await _call(client.axis, n)
+        out.line(f"{n}: at standstill at position={_fmt(a.get('position'))} "
+                 f"state={a['state']}")
+        records.append({"axis": n, "position": a.get("position"), "state": a["state"]})
+    out.result(records)
+    return 0
+
+
+async def remote_monitor(out: Out, client: ServiceClient, interval: float,
+                         count: int | None) -> int:
+    """``monitor`` through the service: its axes every ``interval`` s."""
+    n = 0
+    while count is None or n < count:
+        machine = await _call(client.machine)
+        records = [await _call(client.axis, a["name"]) for a in machine["axes"]]
+        if out.as_json:
+            out.result({"time": time.time(), "axes": records, "lines": machine["lines"]},
+                       indent=None)
+        else:
+            stamp = time.strftime("%H:%M:%S")
+            for r in records:
+                out.line(f"{stamp} {_remote_line(r)}")
+        n += 1
+        if count is None or n < count:
+            await anyio.sleep(interval)
+    return 0
+
+
+async def remote_read(
+    out: Out, client: ServiceClient, line: str, address: int, register: int, count: int,
+    input_table: bool, fmt: str, interval: float | None, polls: int | None,
+) -> int:
+    """``read`` through the service's bus (line ``line``), once or every ``interval`` s."""
+    n = 0
+    words_needed = count * registers.words_per_value(fmt)
+    while True:
+        words = await _call(functools.partial(client.read, line, address, register,
+                                              words_needed, input=input_table))
+        values = registers.decode(words, fmt)
+        record = RegisterValues(f"{client.url} line {line}", address, register, input_table,
+                                words, fmt, values)
+        if out.as_json:
+            out.result(record.as_dict(), indent=None if interval else 2)
+        else:
+            step = registers.words_per_value(fmt)
+            stamp = f"{time.strftime('%H:%M:%S')} " if interval else ""
+            for i, v in enumerate(values):
+                out.line(f"{stamp}[{register + i * step}]: {v}")
+        n += 1
+        if interval is None or (polls is not None and n >= polls):
+            return 0
+        await anyio.sleep(interval)
+
+
+async def remote_write(out: Out, client: ServiceClient, line: str, address: int,
+                       register: int, words: list[int]) -> int:
+    """``write`` through the service's bus (line ``line``)."""
+    await _call(client.write, line, address, register, words)
+    out.line(f"wrote {len(words)} register{'' if len(words) == 1 else 's'} from "
+             f"[{register}] of slave {address} on line {line} of {client.url}: "
+             f"{' '.join(f'0x{w:04X}' for w in words)}")
+    out.result({"target": f"{client.url} line {line}", "address": address,
+                "register": register, "words": words})
+    return 0

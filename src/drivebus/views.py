@@ -22,8 +22,11 @@ def _settings(m: Machine, ax: Axis) -> str:
 
 
 def _alarm(ax: Axis) -> str:
+    """The drive's alarm, or why the axis is Offline or in ErrorStop."""
     st = ax.status
-    return "" if st is None or not st.alarm else f"{st.alarm_code} {st.alarm_text}".strip()
+    if st is not None and st.alarm:
+        return f"{st.alarm_code} {st.alarm_text}".strip()
+    return "" if ax.error is None else str(ax.error)
 
 
 def axes_table(m: Machine) -> Table:
@@ -93,6 +96,8 @@ def axis_record(m: Machine, name: str) -> dict[str, Any]:
         "limit_negative": None if st is None else st.limit_negative,
         "limit_positive": None if st is None else st.limit_positive,
         "alarm": None if st is None or not st.alarm else _alarm(ax),
+        "error": None if ax.error is None else {"type": type(ax.error).__name__,
+                                                "message": str(ax.error)},
         "position_pulses": None if st is None else st.position,
     }
 
@@ -103,6 +108,8 @@ def axis_line(m: Machine, name: str) -> str:
     flags = [k for k in ("enabled", "moving", "homed", "limit_negative", "limit_positive")
              if r[k]]
     alarm = f" alarm={r['alarm']}" if r["alarm"] else ""
+    if r["error"] and not r["alarm"]:
+        alarm = f" error={r['error']['message']!r}"
     return (
         f"{name}: {r['drive']} line={r['line']} address={r['address']} "
         f"settings={r['settings'].replace(' ', '-')} state={r['state']} "

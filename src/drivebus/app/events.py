@@ -17,7 +17,9 @@ from typing import Any
 
 import anyio
 
-__all__ = ["Event", "EventHub", "Subscription"]
+from drivebus.errors import ArgumentError
+
+__all__ = ["TOPICS", "Event", "EventHub", "Subscription"]
 
 TOPICS = frozenset({"axes", "lines", "motions", "errors"})
 """What a watcher can subscribe to."""
@@ -44,6 +46,22 @@ class Subscription:
         self._discrete = 0
         self._seq = itertools.count()
         self._ready = anyio.Event()
+
+    def set_topics(self, topics: Iterable[str]) -> set[str]:
+        """Watch ``topics`` from now on (``ArgumentError`` naming the topics there are);
+        waiting events of topics no longer watched are dropped. Returns the new set."""
+        wanted = set(topics)
+        unknown = wanted - TOPICS
+        if unknown:
+            raise ArgumentError(f"no topic {', '.join(sorted(unknown))} "
+                                f"(topics: {', '.join(sorted(TOPICS))})")
+        self.topics = wanted
+        for slot, event in list(self._box.items()):
+            if event.topic not in wanted:
+                del self._box[slot]
+                if isinstance(slot, int):
+                    self._discrete -= 1
+        return wanted
 
     def put(self, event: Event) -> None:
         """Take ``event`` if subscribed: replace the same key's older state, or queue it."""
@@ -74,6 +92,13 @@ class Subscription:
         if isinstance(slot, int):
             self._discrete -= 1
         return event
+
+    def drain(self) -> list[Event]:
+        """Every waiting event, oldest first, without waiting (a paced reader's batch)."""
+        events = list(self._box.values())
+        self._box.clear()
+        self._discrete = 0
+        return events
 
     def __aiter__(self) -> AsyncIterator[Event]:
         return self._iterate()

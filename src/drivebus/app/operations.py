@@ -53,8 +53,8 @@ async def first_status(m: Machine, timeout: float = 5.0) -> None:
     ones after ``timeout`` s."""
 
     async def one(ax: Axis) -> None:
-        if ax.status is not None:
-            return
+        if ax.status is not None or ax.state is AxisState.OFFLINE:
+            return  # known: polled, or did not answer when the machine opened
         async with contextlib.aclosing(ax.watch()) as statuses:
             async for _ in statuses:
                 return
@@ -76,10 +76,12 @@ async def opened(
     """The machine with only ``axes`` (all if none) and their lines, every axis polled once.
 
     An ``observer`` (status, monitor) must not touch motion it did not start: leaving it
-    stops only motions commanded through it; otherwise every moving axis is stopped.
+    stops only motions commanded through it; otherwise every moving axis is stopped. An
+    observer also shows the axes whose drive does not answer (Offline, with the reason);
+    an operation needs them all.
     """
     cfg = subset(machine_config(config), axes)
-    async with open_machine(cfg, stop_on_exit=not observer) as m:
+    async with open_machine(cfg, stop_on_exit=not observer, require_all=not observer) as m:
         await first_status(m)
         yield m
 

@@ -14,6 +14,7 @@ import os
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
+from drivebus.app.targets import parse_target
 from drivebus.bus import Bus, SlaveHandle
 from drivebus.drives.registry import FAMILIES, DriveFamily
 from drivebus.drives.status import DriveIdentity
@@ -23,7 +24,7 @@ from drivebus.errors import (
     ModbusException,
     TransactionError,
 )
-from drivebus.line.serial import SerialLine
+from drivebus.motion.lines import make_line
 from drivebus.settings import LineSettings
 
 __all__ = [
@@ -129,27 +130,30 @@ def scan_settings(bauds: Sequence[int], formats: Sequence[str]) -> list[LineSett
 
 
 async def scan(
-    port: str,
+    target: str,
     settings: Sequence[LineSettings],
     addresses: Iterable[int],
     *,
     timeout: float = 0.04,
-    on_probe: Callable[[int, LineSettings, Found | None], None] | None = None,
+    on_probe: Callable[[int, LineSettings | None, Found | None], None] | None = None,
 ) -> list[Found]:
-    """Probe ``addresses`` at each of ``settings`` on ``port``; the slaves that answered.
+    """Probe ``addresses`` at each of ``settings`` on ``target``; the slaves that answered.
 
-    All addresses at one setting, then the next setting; a found address is not probed
-    again. ``on_probe`` is called after every probe (progress displays).
+    ``target`` is a serial port, ``sim://NAME``, ``tcp://HOST[:PORT]`` (unit ids, no line
+    settings) or ``rtu+tcp://HOST:PORT``. All addresses at one setting, then the next; a
+    found address is not probed again. ``on_probe`` is called after every probe.
     """
-    if not settings:
+    t = parse_target(target)
+    tried: list[LineSettings | None] = [None] if t.kind == "tcp" else list(settings)
+    if not tried:
         raise ConfigError("nothing to scan: no line settings given")
     todo = list(dict.fromkeys(addresses))
     found: list[Found] = []
-    line = SerialLine(port, settings[0])
+    line = make_line(t.line_config(tried[0], timeout=timeout))
     async with Bus(line, timeout=timeout, retries=0) as bus:
-        for s in settings:
+        for s in tried:
             for address in list(todo):
-                hit = await probe(bus, address, s)
+                hit = await probe(bus, address, s, line_kind=t.kind)
                 if hit is not None:
                     found.append(hit)
                     todo.remove(address)
@@ -158,8 +162,10 @@ async def scan(
     return sorted(found, key=lambda f: f.address)
 
 
-def parse_addresses(text: str) -> list[int]:
-    """Parse "1-31", "1,3,5-7" into addresses (1..247); ConfigError naming the problem."""
+def parse_addresses(text: str, *, tcp: bool = False) -> list[int]:
+    """Parse "1-31", "1,3,5-7" into addresses (1..247; unit ids 0..255 with ``tcp``);
+    ConfigError naming the problem."""
+    lowest, highest = (0, 255) if tcp else (1, 247)
     out: list[int] = []
     for part in text.replace(" ", "").split(","):
         lo, sep, hi = part.partition("-")
@@ -169,8 +175,9 @@ def parse_addresses(text: str) -> list[int]:
             raise ConfigError(
                 f"--address {text!r}: expected addresses like 1-31 or 1,3,5-7"
             ) from None
-        if not 1 <= a <= b <= 247:
-            raise ConfigError(f"--address {text!r}: addresses run from 1 to 247, low-high")
+        if not lowest <= a <= b <= highest:
+            raise ConfigError(f"--address {text!r}: addresses run from {lowest} to {highest}, "
+                              f"low-high")
         out.extend(range(a, b + 1))
     return list(dict.fromkeys(out))
 

@@ -29,12 +29,14 @@ from drivebus import checks
 from drivebus.app.events import Event, EventHub
 from drivebus.app.snapshots import (
     AxisSnapshot,
+    LineSnapshot,
     MachineSnapshot,
     axis_snapshot,
     error_record,
     line_snapshot,
     machine_snapshot,
 )
+from drivebus.bus import Bus, Priority, SlaveHandle
 from drivebus.clock import monotonic
 from drivebus.config import MachineConfig
 from drivebus.errors import (
@@ -46,6 +48,7 @@ from drivebus.errors import (
 )
 from drivebus.motion import Axis, AxisState, GroupMotionError, GroupMoveReport, Machine
 from drivebus.motion.machine import open_machine
+from drivebus.motion.state import MOVING_STATES
 
 __all__ = ["Lease", "MachineSession", "MotionRecord", "MotionState"]
 
@@ -136,12 +139,14 @@ class MachineSession:
         *,
         stats_period: float = 0.5,
         stop_on_exit: bool = True,
+        require_all: bool = True,
     ) -> AsyncIterator[MachineSession]:
         """Open the machine and serve it until the block ends; then every running motion
-        is cancelled and every moving axis stopped (also when left by cancellation)."""
+        is cancelled and every moving axis stopped (also when left by cancellation).
+        ``require_all=False``: an axis whose drive does not answer starts Offline."""
         stats_period = checks.positive("stats_period", stats_period, unit="s")
         async with (
-            open_machine(config, stop_on_exit=stop_on_exit) as machine,
+            open_machine(config, stop_on_exit=stop_on_exit, require_all=require_all) as machine,
             anyio.create_task_group() as tg,
         ):
             session = cls(machine, tg, stats_period=stats_period)
@@ -424,6 +429,26 @@ class MachineSession:
         }))
         return outcome
 
+    async def stop_all(self) -> dict[str, dict[str, str] | None]:
+        """Decelerating stop of every axis that is moving (never refused by a lease): what a
+        service does before it exits. Returns the outcome of each axis it stopped (None: at
+        rest; else the typed error as data); an empty mapping if none was moving."""
+        self._jogs.clear()
+        outcome: dict[str, dict[str, str] | None] = {}
+
+        async def stop(ax: Axis) -> None:
+            try:
+                await ax.stop()
+                outcome[ax.name] = None
+            except DrivebusError as exc:
+                outcome[ax.name] = error_record(exc)
+
+        async with anyio.create_task_group() as tg:
+            for ax in self.machine.axes.values():
+                if ax.state in MOVING_STATES or (ax.status is not None and ax.status.moving):
+                    tg.start_soon(stop, ax)
+        return outcome
+
     # -- jogs held by a client --------------------------------------------------------------
 
     async def jog(
@@ -435,9 +460,15 @@ class MachineSession:
         client: str | None = None,
         accel: float | None = None,
         decel: float | None = None,
+        owner: str | None = None,
     ) -> None:
         """Jog at ``speed`` for a client: it stops ``ttl`` seconds after the last call
-        unless fed by another (the same speed feeds, another changes it; 0 stops)."""
+        unless fed by another (the same speed feeds, another changes it; 0 stops).
+
+        The jog is held by ``owner`` (default: ``client``): ``release(owner)`` stops it.
+        A front end passes one owner per connection, so that a connection that goes away
+        stops its own jogs while the lease is still checked against the client.
+        """
         ax = self.axis(axis)
         ttl = checks.positive("ttl", ttl, unit="s")
         self.authorize(client)
@@ -446,14 +477,18 @@ class MachineSession:
             await ax.stop()
             return
         await ax.jog(speed, watchdog=ttl, accel=accel, decel=decel)
-        self._jogs[axis] = client or ""
+        self._jogs[axis] = owner or client or ""
 
     async def release(self, client: str) -> None:
-        """A client went away: stop the jogs it holds and give its lease back."""
+        """A client (or a jog owner) went away: stop the jogs it holds that are still
+        running and give its lease back."""
         self.release_lease(client)
-        mine = [a for a, c in self._jogs.items() if c == client]
-        for a in mine:
+        held = [a for a, c in self._jogs.items() if c == client]
+        for a in held:
             self._jogs.pop(a, None)
+        # A jog its watchdog already ended may have been followed by another client's
+        # motion: that one is not ours to stop.
+        mine = [a for a in held if self.axis(a).state is AxisState.CONTINUOUS_MOTION]
         with anyio.CancelScope(shield=True):
             async with anyio.create_task_group() as tg:
                 for a in mine:
@@ -465,6 +500,76 @@ class MachineSession:
             await axis.stop()
         except DrivebusError as exc:
             log.error("axis %s: stop after its client left failed: %s", axis.name, exc)
+
+    # -- raw registers (commissioning, tools that talk to a running service) ----------------
+
+    def line(self, name: str) -> Bus:
+        """The bus of line ``name``; ``NotFound`` naming the lines there are."""
+        try:
+            return self.machine.buses[name]
+        except KeyError:
+            raise NotFound(
+                f"no line {name!r} in machine {self.name} (lines: "
+                f"{', '.join(self.machine.buses)})"
+            ) from None
+
+    def line_snapshot(self, name: str) -> LineSnapshot:
+        """One line as plain data (``NotFound`` if there is none)."""
+        bus = self.line(name)
+        cfg = self.machine.config.lines[name]
+        endpoint = cfg.port or f"{cfg.host}:{cfg.tcp_port}"
+        return line_snapshot(name, bus, cfg.kind, endpoint)
+
+    def _slave(self, line: str, address: int) -> SlaveHandle:
+        """The handle for ``address`` on ``line``: the axis's own (its settings and the
+        vendor's exception texts) if an axis sits there, else one at the line's settings."""
+        bus = self.line(line)
+        for ax in self.machine.axes.values():
+            if ax.config.line == line and ax.config.address == address:
+                return ax.profile.slave
+        return bus.slave(address)
+
+    async def read_registers(
+        self, line: str, address: int, register: int, count: int = 1, *, input: bool = False
+    ) -> list[int]:
+        """Read ``count`` holding (or ``input``) registers from slave ``address`` on ``line``.
+        Needs no lease. At ``Priority.POLL``, in turn with the axes' polls: a client
+        reading in a loop never starves them (nor delays a command)."""
+        address = checks.whole("address", address, 1, 247)
+        register = checks.whole("register", register, 0, 0xFFFF)
+        count = checks.whole("count", count, 1, 125)
+        if register + count > 0x10000:
+            raise ArgumentError(f"register {register} + count {count} passes 65535")
+        h = self._slave(line, address)
+        if input:
+            return await h.read_input_registers(register, count, priority=Priority.POLL)
+        return await h.read_holding_registers(register, count, priority=Priority.POLL)
+
+    async def write_registers(
+        self,
+        line: str,
+        address: int,
+        register: int,
+        values: list[int],
+        *,
+        client: str | None = None,
+    ) -> None:
+        """Write ``values`` to consecutive registers of slave ``address`` on ``line`` (one
+        value: FC06, more: FC16; address 0 broadcasts), never retried: a raw write may be
+        a command. Bypasses the axes: for commissioning; the lease applies."""
+        address = checks.whole("address", address, 0, 247)
+        register = checks.whole("register", register, 0, 0xFFFF)
+        if not isinstance(values, list | tuple) or not 1 <= len(values) <= 123:
+            raise ArgumentError("values: expected a list of 1 to 123 register values")
+        words = [checks.whole(f"values[{i}]", v, 0, 0xFFFF) for i, v in enumerate(values)]
+        if register + len(words) > 0x10000:
+            raise ArgumentError(f"register {register} + {len(words)} values passes 65535")
+        h = self._slave(line, address)
+        self.authorize(client)
+        if len(words) == 1:
+            await h.write_register(register, words[0], idempotent=False)
+        else:
+            await h.write_registers(register, words, idempotent=False)
 
     # -- event pumps ------------------------------------------------------------------------
 
@@ -486,9 +591,8 @@ class MachineSession:
 
     async def _pump_lines(self) -> None:
         while True:
-            for name, bus in self.machine.buses.items():
-                cfg = self.machine.config.lines[name]
-                snap = line_snapshot(name, bus, cfg.kind, cfg.port or f"{cfg.host}")
+            for name in self.machine.buses:
+                snap = self.line_snapshot(name)
                 self.events.publish(Event("lines", name, {"type": "line", **snap.as_dict()}))
             await anyio.sleep(self.stats_period)
 

@@ -57,6 +57,8 @@ class AxisSnapshot:
     limit_positive: bool
     limit_negative: bool
     soft_limits: tuple[float, float] | None
+    units: str
+    """The axis's user unit (``mm``, ``deg``): positions, speeds/s, accelerations/s²."""
     units_per_rev: float
     pulses_per_rev: int
     error: dict[str, str] | None
@@ -92,6 +94,7 @@ def axis_snapshot(axis: Axis) -> AxisSnapshot:
         limit_positive=bool(st and st.limit_positive),
         limit_negative=bool(st and st.limit_negative),
         soft_limits=cfg.limits,
+        units=cfg.unit,
         units_per_rev=cfg.units_per_rev,
         pulses_per_rev=cfg.pulses_per_rev,
         error=error_record(axis.error),

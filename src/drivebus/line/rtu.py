@@ -1,30 +1,39 @@
-"""RTU framing: CRC-16 and application data units (address + PDU + CRC)."""
+"""RTU framing: CRC-16 and application data units (address + PDU + CRC).
+
+The CRC is the one of "MODBUS over Serial Line" v1.02 (section 6.2.2 and its appendix B):
+CRC-16 with polynomial 0xA001 (0x8005 reflected), initial value 0xFFFF, sent low byte
+first. It is computed from a 256-entry table, one lookup per byte, as the spec's own
+table-driven form does. Built frames are cached: a poll sends the same few frames again
+and again, so each one's CRC is computed once.
+"""
 
 from __future__ import annotations
 
-__all__ = ["crc16", "crc_ok", "frame"]
+__all__ = ["crc16", "crc16_value", "crc_ok", "frame"]
+
+_POLY = 0xA001
 
 
 def _table() -> tuple[int, ...]:
-    out = []
+    table = []
     for byte in range(256):
         crc = byte
         for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-        out.append(crc)
-    return tuple(out)
+            crc = (crc >> 1) ^ _POLY if crc & 1 else crc >> 1
+        table.append(crc)
+    return tuple(table)
 
 
 _TABLE = _table()
-"""CRC-16/MODBUS (reflected polynomial 0xA001) for each byte value."""
+"""The CRC of each byte value, shifted through the register once."""
 
 _FRAMES: dict[tuple[int, bytes], bytes] = {}
-"""Frames built so far, by address and PDU: a poll sends the same few frames again and
-again, so its CRC is computed once."""
+"""Frames built so far, by address and PDU."""
 _FRAMES_MAX = 4096
 
 
-def _crc(data: bytes | bytearray | memoryview) -> int:
+def crc16_value(data: bytes | bytearray | memoryview) -> int:
+    """The Modbus CRC-16 of ``data`` as a number (e.g. 0x1241 for ``02 07``)."""
     crc = 0xFFFF
     table = _TABLE
     for b in data:
@@ -34,7 +43,7 @@ def _crc(data: bytes | bytearray | memoryview) -> int:
 
 def crc16(data: bytes | bytearray | memoryview) -> bytes:
     """The two CRC bytes of ``data`` in wire order (low byte first)."""
-    return _crc(data).to_bytes(2, "little")
+    return crc16_value(data).to_bytes(2, "little")
 
 
 def frame(address: int, pdu: bytes) -> bytes:
@@ -54,4 +63,4 @@ def frame(address: int, pdu: bytes) -> bytes:
 def crc_ok(adu: bytes | bytearray | memoryview) -> bool:
     """True if the last two bytes of ``adu`` are the CRC of the rest."""
     n = len(adu)
-    return n >= 4 and _crc(memoryview(adu)[: n - 2]) == adu[n - 2] | adu[n - 1] << 8
+    return n >= 4 and crc16_value(memoryview(adu)[: n - 2]) == adu[n - 2] | adu[n - 1] << 8

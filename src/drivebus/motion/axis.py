@@ -23,6 +23,7 @@ its volatile settings read back and set up again before the next command.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -176,6 +177,7 @@ class Axis:
         self._stop_sent_at = 0.0
         self._stop_due: str | None = None  # the actor must send a stop (and why)
         self._check_due = False  # read the volatile settings back before the next command
+        self._setup_due = False  # the drive never answered: set it up when it does
         self._homed_lost = False
         self._commanded = False
         self._jog_deadline: float | None = None
@@ -230,6 +232,51 @@ class Axis:
         """``plan`` in drive units (rpm, rev/s²)."""
         u = self.units
         return MoveParams(u.to_rpm(plan.speed), u.to_rps2(plan.accel), u.to_rps2(plan.decel))
+
+    def check_drive(self, plan: MotionPlan) -> None:
+        """``LimitViolation`` in the axis's units if its drive cannot run ``plan``: the
+        speed, acceleration or deceleration and the most the drive takes of it (found
+        from the profile's own range checks, which speak in register units)."""
+        try:
+            self.profile.check_move(self.drive_params(plan))
+        except LimitViolation as exc:
+            raise LimitViolation(f"axis {self.name}: {self._beyond_drive(plan)} "
+                                 f"(drive {self.profile.family}: {exc})") from exc
+
+    def _beyond_drive(self, plan: MotionPlan) -> str:
+        """Which of ``plan``'s values its drive cannot run, in user units, and its limit:
+        each value is searched between itself and the axis's default for it, the other
+        two held at their defaults."""
+        unit = self.config.unit
+        names = {"speed": f"{unit}/s", "accel": f"{unit}/s²", "decel": f"{unit}/s²"}
+        defaults = MotionPlan(self.config.speed, self.config.accel, self.config.decel)
+        for quantity, unit_name in names.items():
+            value = getattr(plan, quantity)
+
+            def fits(v: float, quantity: str = quantity) -> bool:
+                trial = dataclasses.replace(defaults, **{quantity: v})
+                try:
+                    self.profile.check_move(self.drive_params(trial))
+                except LimitViolation:
+                    return False
+                return True
+
+            good = getattr(defaults, quantity)
+            if fits(value) or not fits(good):
+                continue
+            lo, hi = sorted((value, good))
+            while hi / lo > 1.0001:  # the edge between a value that fits and one that does not
+                mid = (lo * hi) ** 0.5
+                if fits(mid) == (value > good):
+                    lo = mid
+                else:
+                    hi = mid
+            if value > good:
+                return (f"{quantity} {value:g} {unit_name} is beyond the {_round3(lo):g} "
+                        f"{unit_name} its drive runs at most")
+            return (f"{quantity} {value:g} {unit_name} is below the {_round3(hi):g} "
+                    f"{unit_name} its drive runs at least")
+        return "its drive cannot run this speed with these ramps"
 
     def check_limits(self, target: float) -> None:
         """LimitViolation if ``target`` lies outside the soft limits; nothing is sent."""
@@ -303,6 +350,13 @@ class Axis:
             self._last_answer = monotonic()
             self._apply(st, issued)
             await self._act()
+
+    def start_offline(self, error: DriveOffline) -> None:
+        """Begin Offline: the drive did not answer when the machine opened. The actor sets
+        it up once it answers; until then commands raise ``StateError``/``DriveOffline``."""
+        self.error = error
+        self.state = AxisState.OFFLINE
+        self._setup_due = self._check_due = True
 
     def _go_offline(self, exc: TransactionError) -> None:
         self.error = DriveOffline(
@@ -484,7 +538,13 @@ class Axis:
                 log.info("axis %s: settings check failed, trying again later: %s", self.name, exc)
 
     async def _verify_settings(self) -> None:
-        """Read back the volatile settings; set the drive up again if a reset lost them."""
+        """Read back the volatile settings; set the drive up again if a reset lost them.
+        A drive that never answered since the machine opened is set up now."""
+        if self._setup_due:
+            await self.profile.setup()
+            self._setup_due = self._check_due = False
+            log.info("axis %s: the drive answers: set up", self.name)
+            return
         self._check_due = False
         try:
             lost = await self.profile.lost_settings()
@@ -715,7 +775,7 @@ class Axis:
         self.profile.check_supported("move_absolute")
         target_p = self._pulses(target)
         params = self.drive_params(plan)
-        self.profile.check_move(params)
+        self.check_drive(plan)
         here = self.status.position if self.status is not None else None
         direction = 0 if here is None else (target_p > here) - (target_p < here)
         self._check_switch(direction)
@@ -756,7 +816,7 @@ class Axis:
         plan = self.plan(speed, accel, decel)
         self.profile.check_supported("move_relative")
         params = self.drive_params(plan)
-        self.profile.check_move(params)
+        self.check_drive(plan)
         if self.position is not None:
             self.check_limits(self.position + distance)
         direction = self._drive_direction(distance)
@@ -842,9 +902,7 @@ class Axis:
         bound = self._jog_bound(speed)
         procedure = "move_absolute" if bound is not None else "speed_run"
         self.profile.check_supported(procedure)
-        params = self.drive_params(plan)
-        if bound is not None:
-            self.profile.check_move(params)
+        self.check_drive(plan)
         m = self._motion
         if m is not None and m.kind == "jog" and self.state is AxisState.CONTINUOUS_MOTION:
             if m.speed == speed and m.plan == plan:
@@ -1098,6 +1156,11 @@ class Axis:
 
     def __repr__(self) -> str:
         return f"Axis({self.name!r}, {self.profile.family}, {self.state})"
+
+
+def _round3(v: float) -> float:
+    """``v`` to three significant digits (a limit found by a search, for a message)."""
+    return float(f"{v:.3g}")
 
 
 class _Latest:

@@ -68,7 +68,9 @@ class Machine:
                     tg.start_soon(stop, a)
 
 
-async def _make_axis(machine: Machine, name: str, cfg: AxisConfig) -> Axis:
+async def _make_axis(
+    machine: Machine, name: str, cfg: AxisConfig, *, require: bool = True
+) -> Axis:
     bus = machine.buses[cfg.line]
     fam = family(cfg.drive)
     slave = bus.slave(cfg.address, settings=cfg.settings)
@@ -84,18 +86,29 @@ async def _make_axis(machine: Machine, name: str, cfg: AxisConfig) -> Axis:
         await profile.setup()
         await axis.refresh()  # the axis starts knowing where its drive is
     except TransactionError as exc:
-        raise DriveOffline(
+        error = DriveOffline(
             f"axis {name}: the {fam.name} drive at address {cfg.address} on line "
             f"{cfg.line} does not answer: {exc}"
-        ) from exc
+        )
+        if require:
+            raise error from exc
+        log.warning("%s; the axis starts Offline", error)
+        axis.start_offline(error)
     return axis
 
 
 @asynccontextmanager
 async def open_machine(
-    config: str | Path | Mapping[str, Any] | MachineConfig, *, stop_on_exit: bool = True
+    config: str | Path | Mapping[str, Any] | MachineConfig,
+    *,
+    stop_on_exit: bool = True,
+    require_all: bool = True,
 ) -> AsyncIterator[Machine]:
     """Open every line, check every drive answers, start the axis actors.
+
+    A drive that does not answer is a ``DriveOffline``, and nothing is left open; with
+    ``require_all=False`` (a service, a status display) its axis starts Offline instead and
+    is set up when the drive answers.
 
     On exit (normal, error or cancellation) every moving axis is stopped before the
     lines close. An observer that must not touch motion it did not start (a status or
@@ -116,7 +129,7 @@ async def open_machine(
                 Bus(ln, timeout=line.timeout, retries=line.retries)
             )
         for name, axis_cfg in cfg.axes.items():
-            machine.axes[name] = await _make_axis(machine, name, axis_cfg)
+            machine.axes[name] = await _make_axis(machine, name, axis_cfg, require=require_all)
         actors = await stack.enter_async_context(ServiceTasks())
         for axis in machine.axes.values():
             actors.start_soon(axis.run, name=f"drivebus axis {axis.name}")

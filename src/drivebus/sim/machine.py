@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 from drivebus.config import AxisConfig, LineConfig, MachineConfig
 from drivebus.errors import ConfigError
-from drivebus.sim.drive import SimDrive
+from drivebus.sim.drive import SimDrive, TwinSetup
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from drivebus.sim.twins import twin_class
 from drivebus.sim.wire import VirtualWire
@@ -51,25 +51,25 @@ class SimLine:
 
 
 def make_twin(axis: AxisConfig, line: LineConfig) -> SimDrive:
-    """The simulated drive for ``axis``: its family's twin, switches and start position
-    converted from the axis's user units to pulses."""
-    cls = twin_class(axis.drive)
-    u = axis.units_per_rev / axis.pulses_per_rev
+    """The simulated drive for ``axis``: its family's twin, set up from the axis's ``sim``
+    section (switches and start position converted from user units to pulses) and given
+    that section's family options."""
+    twin = twin_class(axis.drive)
+    units_per_pulse = axis.units_per_rev / axis.pulses_per_rev
 
     def pulses(v: float | None) -> float | None:
-        return None if v is None else v / u
+        return None if v is None else v / units_per_pulse
 
-    s = axis.sim
-    kwargs = dict(
-        turnaround=s.turnaround,
-        position=round(s.position / u),
-        home_switch=pulses(s.home_switch),
-        limit_negative=pulses(s.limit_negative),
-        limit_positive=pulses(s.limit_positive),
-        **s.options,
+    sim = axis.sim
+    setup = TwinSetup(
+        turnaround=sim.turnaround,
+        position=round(sim.position / units_per_pulse),
+        home_switch=pulses(sim.home_switch),
+        limit_negative=pulses(sim.limit_negative),
+        limit_positive=pulses(sim.limit_positive),
     )
     settings = axis.settings or (line.settings if line.kind != "tcp" else None)
-    return cls(axis.address, settings, **kwargs)  # type: ignore[arg-type]
+    return twin(axis.address, settings, setup, **sim.options)
 
 
 async def start_sim_line(

@@ -18,6 +18,7 @@ and ``SimSerialServer`` (RTU over TCP; the port's fixed settings, replies per cl
 
 from __future__ import annotations
 
+import math
 import random
 from collections import deque
 from collections.abc import Awaitable, Callable
@@ -163,7 +164,8 @@ class Segment(Generic[R]):
         self._on_request = on_request
         self._rx: _Incoming[R] | None = None
         self._request_end = 0.0  # when the last request frame left the wire
-        self._busy_until = 0.0  # when the last frame of either direction did
+        self._busy_until = -math.inf  # when the last frame of either direction did (none
+        # yet: the first frame's gap is infinite)
         self._last_settings: LineSettings | None = None
         self._pending: deque[_Reply[R]] = deque()
         self._wake: anyio.Event | None = None

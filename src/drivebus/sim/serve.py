@@ -8,14 +8,14 @@ sim://NAME``) in another process reaches it. Output goes to ``echo`` (a terminal
 from __future__ import annotations
 
 import contextlib
-import os
+import math
 import sys
-import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import anyio
 
+from drivebus import runtime
 from drivebus.config import MachineConfig, load_config
 from drivebus.errors import ConfigError, DrivebusError
 from drivebus.sim.machine import SimLine, start_simulators
@@ -32,43 +32,24 @@ def _warn(text: str) -> None:
     print(f"warning: {text}", file=sys.stderr, flush=True)
 
 
-def _registry_dir() -> Path:
-    base = os.environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()
-    return Path(base) / f"drivebus-{os.getuid()}" / "sim"
-
-
 def published_sim(name: str) -> str | None:
     """The pty path a running ``drivebus sim`` serves ``sim://name`` on, if one does."""
-    try:
-        pid_text, path = (_registry_dir() / name).read_text().split("\n")[:2]
-        os.kill(int(pid_text), 0)
-    except (OSError, ValueError):
-        return None
-    return path if Path(path).exists() else None
+    found = runtime.lookup("sim", name)
+    return found[0] if found and Path(found[0]).exists() else None
 
 
 @contextlib.contextmanager
 def publish(
     sims: dict[str, SimLine], warn: Callable[[str], None] = _warn
 ) -> Iterator[None]:
-    """Record the pty path of each simulated serial line for other processes; removed on
-    exit (a line that cannot be recorded is a warning, not an error)."""
-    d = _registry_dir()
-    files = []
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-        for s in sims.values():
-            if isinstance(s.server, VirtualWire):
-                f = d / s.config.sim_name
-                f.write_text(f"{os.getpid()}\n{s.endpoint}\n")
-                files.append(f)
-    except OSError as exc:
-        warn(f"cannot publish the simulator's pty paths in {d}: {exc}")
-    try:
+    """Publish the pty path of each simulated serial line for other processes; removed on
+    exit (a line that cannot be published is a warning, not an error)."""
+    entries = {s.config.sim_name: [s.endpoint] for s in sims.values()
+               if isinstance(s.server, VirtualWire)}
+    with runtime.publish("sim", entries) as problems:
+        for p in problems:
+            warn(p)
         yield
-    finally:
-        for f in files:
-            f.unlink(missing_ok=True)
 
 
 def describe(sim: SimLine, cfg: MachineConfig) -> list[str]:
@@ -84,10 +65,15 @@ def describe(sim: SimLine, cfg: MachineConfig) -> list[str]:
 
 
 def frame_text(line: str, f: WireFrame) -> str:
-    """One frame of a wire log as a line."""
+    """One frame of a wire log as a line (the silence before it in ms, or in s when the
+    line was idle for a second or more)."""
     note = f" [{f.note}]" if f.note else ""
+    if math.isinf(f.gap):
+        gap = "none-before"  # the first frame since the wire started
+    else:
+        gap = f"{f.gap * 1000:.2f}ms" if f.gap < 1.0 else f"{f.gap:.1f}s"
     return (f"{f.start:.6f} {line} {f.direction:<7} addr={f.address} "
-            f"{str(f.settings).replace(' ', '-')} gap={f.gap * 1000:.2f}ms "
+            f"{str(f.settings).replace(' ', '-')} gap={gap} "
             f"{f.data.hex(' ')}{note}")
 
 

@@ -7,7 +7,8 @@ injected alarms and power cycles, all at once, from a mover, a stopper and a cha
 axis and a group task. The invariants (``SoakReport.violations`` lists what broke them):
 
 * every call returns or raises a ``DrivebusError`` (never another exception, never hangs);
-* no twin ever rests beyond its axis's soft limits;
+* no twin ever rests beyond its axis's soft limits (a homing searches wherever its switch
+  is: from a homing until a move has completed, the axis's rest positions are not judged);
 * a stop or emergency stop that returned left its twin at rest;
 * at the end every axis's position is its twin's.
 
@@ -19,7 +20,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import random
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -118,6 +119,11 @@ class _Soak:
         self.until = monotonic() + seconds
         self.report = SoakReport(seconds, seed, len(m.axes))
         self.twins: dict[str, SimDrive] = m.sim_drives  # type: ignore[assignment]
+        self.began = monotonic()
+        self.history: dict[str, deque[str]] = {}
+        """The last commands of each axis (for the messages of violations)."""
+        self.homing: set[str] = set()
+        """Axes a homing may have left anywhere (until a move completes)."""
 
     @property
     def running(self) -> bool:
@@ -128,9 +134,18 @@ class _Soak:
         if len(self.report.violations) < 100:
             self.report.violations.append(text)
 
-    async def call(self, what: str, fn: Callable[[], Awaitable[Any]]) -> BaseException | None:
+    async def call(
+        self, what: str, fn: Callable[[], Awaitable[Any]], axis: str | None = None
+    ) -> BaseException | None:
         """Run one command; count it and its outcome; any non-drivebus error is a violation."""
         self.report.calls[what] += 1
+        if axis is not None:
+            self.history.setdefault(axis, deque(maxlen=6)).append(
+                f"{monotonic() - self.began:.3f} {what}")
+            if what == "home":
+                # A homing searches for its switch wherever it is: soft limits do not bind
+                # it (nor a stop that ends it) until a move has taken the axis back.
+                self.homing.add(axis)
         log.debug("%s ...", what)
         try:
             with anyio.fail_after(60):
@@ -147,6 +162,8 @@ class _Soak:
             self.violation(f"{what} raised {exc!r}")
             return exc
         self.report.outcomes[f"{what}: ok"] += 1
+        if axis is not None and what.startswith(("move_to", "move_by")):
+            self.homing.discard(axis)
         return None
 
     def target(self, ax: Axis, *, outside: bool = False) -> float:
@@ -166,23 +183,23 @@ class _Soak:
                 await self.recover(name)
             elif pick < 0.35:
                 await self.call("move_to",
-                                lambda v=speed: ax.move_to(self.target(ax), speed=v))
+                                lambda v=speed: ax.move_to(self.target(ax), speed=v), name)
             elif pick < 0.45:
                 async def cancelled(v: float = speed) -> None:
                     with anyio.move_on_after(rng.uniform(0.0, 0.3)):
                         await ax.move_to(self.target(ax), speed=v)
-                await self.call("move_to (cancelled)", cancelled)
+                await self.call("move_to (cancelled)", cancelled, name)
             elif pick < 0.55:
                 distance = rng.uniform(-0.3, 0.3) * (ax.config.limits or (0, 1))[1]
                 await self.call("move_by",
-                                lambda d=distance, v=speed: ax.move_by(d, speed=v))
+                                lambda d=distance, v=speed: ax.move_by(d, speed=v), name)
             elif pick < 0.6:
                 await self.call("move_to (outside limits)",
-                                lambda: ax.move_to(self.target(ax, outside=True)))
+                                lambda: ax.move_to(self.target(ax, outside=True)), name)
             elif pick < 0.8:
                 await self.jog(ax, speed)
             elif pick < 0.85 and ax.config.homing.method is not None:
-                await self.call("home", ax.home)
+                await self.call("home", ax.home, name)
             else:
                 await anyio.sleep(rng.uniform(0.2, 1.0))  # a break: room for group moves
             await anyio.sleep(rng.uniform(0.0, 0.05))
@@ -190,7 +207,8 @@ class _Soak:
     async def jog(self, ax: Axis, speed: float) -> None:
         rng = self.rng
         sign = rng.choice((-1.0, 1.0))
-        if await self.call("jog", lambda: ax.jog(sign * speed, watchdog=0.2)) is not None:
+        if await self.call("jog", lambda: ax.jog(sign * speed, watchdog=0.2),
+                           ax.name) is not None:
             return
         for _ in range(rng.randint(0, 6)):
             await anyio.sleep(rng.uniform(0.02, 0.15))
@@ -198,7 +216,7 @@ class _Soak:
                 speed = ax.config.speed * rng.uniform(0.2, 1.0)
                 sign = rng.choice((-1.0, 1.0))
                 await self.call("jog (speed change)",
-                                lambda s=sign * speed: ax.jog(s, watchdog=0.2))
+                                lambda s=sign * speed: ax.jog(s, watchdog=0.2), ax.name)
             else:
                 ax.feed()
         if rng.random() < 0.5:
@@ -207,7 +225,7 @@ class _Soak:
 
     async def stop(self, ax: Axis, how: str) -> None:
         twin = self.twins[ax.name]
-        error = await self.call(how, ax.stop if how == "stop" else ax.halt_now)
+        error = await self.call(how, ax.stop if how == "stop" else ax.halt_now, ax.name)
         if error is None:
             self.report.stops_checked += 1
             if twin.is_moving():
@@ -272,14 +290,15 @@ class _Soak:
         while self.running:
             for name, twin in self.twins.items():
                 ax = self.m.axes[name]
-                if twin.is_moving() or ax.config.limits is None:
+                if twin.is_moving() or ax.config.limits is None or name in self.homing:
                     continue
                 self.report.rest_checks += 1
                 lo, hi = ax.config.limits
                 pos = ax.units.from_pulses(twin.position())
                 if not lo - 1e-9 <= pos <= hi + 1e-9:
                     self.violation(f"{name}: twin at rest at {pos:.4f}, beyond {lo}..{hi} "
-                                   f"({ax.state})")
+                                   f"({ax.state}; at {monotonic() - self.began:.3f} after "
+                                   f"{list(self.history.get(name, []))})")
             await anyio.sleep(0.005)
 
     async def finish(self) -> None:

@@ -27,15 +27,13 @@ from __future__ import annotations
 
 import enum
 import math
-import struct
 from collections.abc import Callable
-from dataclasses import dataclass
 
-from drivebus import pdu as P
 from drivebus.clock import monotonic
+from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive
-from drivebus.sim.slave import SlaveException
+from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
+from drivebus.sim.registers import Access, ExceptionCodes, RegisterSpec, SlaveException
 
 __all__ = ["FACTORY_SETTINGS", "SimBHSS"]
 
@@ -45,31 +43,46 @@ FACTORY_SETTINGS = LineSettings(baudrate=9600, bytesize=8, parity="N", stopbits=
 _SWITCH_BAUDS = (19200, 38400, 115200)  # SW7/SW6 = ON/OFF, OFF/ON, OFF/OFF
 _CUSTOM_BAUDS = (9600, 14400, 128000, 256000)  # 0x0014 with SW6 = SW7 = ON
 _FORMATS = ("8N1", "8N2", "8E1", "8O1")  # 0x0015
-_PPR = (400, 800, 1600, 3200, 6400, 12800, 25600, 51200,
-        1000, 2000, 4000, 5000, 8000, 10000, 20000, 40000)
-_MAX_RATE = 200_000.0  # pulses/s output cap
+_PULSES_PER_REV = (400, 800, 1600, 3200, 6400, 12800, 25600, 51200,
+                   1000, 2000, 4000, 5000, 8000, 10000, 20000, 40000)  # by 0x0011
+_MAX_PULSE_RATE = 200_000.0  # pulses/s output cap
 _MAP_END = 0x0136
 
-# Exception codes (manual Table 11).
-CRC_ERROR, COMMAND_ERROR, UNASSIGNED, OUT_OF_MAP, READ_OVERFLOW, ACCESS_ERROR, VALUE_ERROR = (
-    1, 2, 3, 4, 5, 6, 7,
+# Exception codes (manual Table 11): 01 CRC parity error (the manual's example answers a
+# bad CRC with it; its text says silence), 02 command error, 03 address unassigned inside
+# the map, 04 address outside the map, 05 more than 16 registers read, 06 access error,
+# 07 value out of range.
+_EXCEPTION_CODES = ExceptionCodes(function=2, address=3, access=6, value=7, count=5, crc=1)
+_OUTSIDE_MAP = 4
+
+
+class InputFunction(enum.IntEnum):
+    """Input function codes (0x0041-0x0047) that the twin acts on."""
+
+    ORIGIN = 1
+    FORWARD_LIMIT = 2
+    BACKWARD_LIMIT = 3
+
+
+_LIMITS = (InputFunction.FORWARD_LIMIT, InputFunction.BACKWARD_LIMIT)
+_HOMING_REFERENCE = (  # by homing mode 0x0031: the input whose edges define the origin
+    InputFunction.ORIGIN, InputFunction.ORIGIN, InputFunction.FORWARD_LIMIT,
+    InputFunction.BACKWARD_LIMIT,
 )
-# Input function codes the twin acts on.
-F_ORIGIN, F_FWD_LIMIT, F_BWD_LIMIT = 1, 2, 3
 
 
-@dataclass(frozen=True)
-class _Spec:
-    lo: int
-    hi: int
-    default: int = 0
-    access: str = "RW"  # "R", "W", "RW"
-    signed: bool = False
-    command: bool = False  # a trigger, not a stored parameter
+def _limit_towards(direction: float) -> InputFunction:
+    """The limit input function that stops motion in ``direction``."""
+    return InputFunction.FORWARD_LIMIT if direction > 0 else InputFunction.BACKWARD_LIMIT
 
 
-def _build_map() -> dict[int, _Spec]:
-    m: dict[int, _Spec] = {a: _Spec(0, 0xFFFF, access="R") for a in range(0x0000, 0x000C)}
+def _parameter(minimum: int, maximum: int, default: int = 0) -> RegisterSpec:
+    """A stored parameter: while write-through is on, a write also goes to the EEPROM."""
+    return RegisterSpec(default, minimum, maximum, stored=True)
+
+
+def _build_map() -> dict[int, RegisterSpec]:
+    m = {a: RegisterSpec(access=Access.R) for a in range(0x0000, 0x000C)}
     rows = {
         0x0010: (0, 3, 0), 0x0011: (0, 15, 8), 0x0012: (0, 1, 0), 0x0013: (0, 127, 0),
         0x0014: (0, 3, 0), 0x0015: (0, 3, 0), 0x0016: (0, 1, 0), 0x0017: (0, 1, 0),
@@ -82,20 +95,20 @@ def _build_map() -> dict[int, _Spec]:
         0x0071: (0, 1, 0), 0x0072: (0, 1, 0),
     }
     for a, (lo, hi, d) in rows.items():
-        m[a] = _Spec(lo, hi, d)
-    m[0x0023] = _Spec(-3000, 3000, 60, signed=True)
-    m[0x0027] = _Spec(0, 6, access="W", command=True)
+        m[a] = _parameter(lo, hi, d)
+    m[0x0023] = RegisterSpec(60, -3000, 3000, signed=True, stored=True)
+    m[0x0027] = RegisterSpec(0, 0, 6, access=Access.W, command=True)
     for a in (0x0028, 0x0029, 0x002A, 0x002B, 0x002C, 0x0030):
-        m[a] = _Spec(0, 1, command=True)
-    m[0x0070] = _Spec(0, 0xFFFF, command=True)
+        m[a] = RegisterSpec(0, 0, 1, command=True)
+    m[0x0070] = RegisterSpec(command=True)
     for a in range(0x0041, 0x0048):
-        m[a] = _Spec(0, 20)
+        m[a] = _parameter(0, 20)
     for a in range(0x004C, 0x004F):
-        m[a] = _Spec(0, 8)
+        m[a] = _parameter(0, 8)
     for base, lo, hi in ((0x80, 0, 16), (0x90, 0, 0xFFFF), (0xA0, 0, 0xFFFF), (0xB0, 10, 3000),
                          (0xC0, 30, 2000), (0xD0, 0, 0xFFFF), (0xE0, 0, 15), (0xF0, 0, 15)):
         for a in range(base, base + 16):
-            m[a] = _Spec(lo, hi, 0)
+            m[a] = _parameter(lo, hi)
     tuning = {
         0x0110: (0, 1, 0), 0x0111: (0, 0xFFFF, 5), 0x0112: (0, 150, 100), 0x0113: (0, 100, 50),
         0x0114: (0, 100, 40), 0x0115: (100, 500, 100), 0x0116: (0, 20000, 4000),
@@ -110,7 +123,7 @@ def _build_map() -> dict[int, _Spec]:
     tuning[0x0135] = (0, 0xFFFF, 32)
     tuning[0x0136] = (0, 0xFFFF, 320)
     for a, (lo, hi, d) in tuning.items():
-        m[a] = _Spec(lo, hi, d)
+        m[a] = _parameter(lo, hi, d)
     return m
 
 
@@ -120,7 +133,7 @@ _Handler = Callable[[float], None]
 
 def _factory_registers() -> dict[int, int]:
     """Factory values of the stored parameters (not the status or command registers)."""
-    return {a: s.default for a, s in _MAP.items() if not s.command and s.access == "RW"}
+    return {a: spec.default for a, spec in _MAP.items() if spec.stored}
 
 
 class _Home(enum.Enum):
@@ -139,29 +152,27 @@ class SimBHSS(SimDrive):
     """Simulated BHSS-100-MBUS: map, exceptions, EEPROM, ramps in ms, homing, alarms."""
 
     family = "BHSS"
+    register_map = _MAP
+    exception_codes = _EXCEPTION_CODES
+    read_functions = frozenset((READ_HOLDING,))
+    max_read = 16
 
     def __init__(
         self,
         address: int,
         settings: LineSettings | None = None,
+        setup: TwinSetup | None = None,
         *,
-        turnaround: float = 0.001,
-        position: int = 0,
-        home_switch: float | None = None,
-        limit_negative: float | None = None,
-        limit_positive: float | None = None,
         crc_error_reply: bool = True,
     ) -> None:
         settings = settings or FACTORY_SETTINGS
-        super().__init__(address, settings, turnaround=turnaround, position=position,
-                         home_switch=home_switch, limit_negative=limit_negative,
-                         limit_positive=limit_positive)
+        super().__init__(address, settings, setup)
         self.crc_error_reply = crc_error_reply
         """Answer a bad-CRC frame with exception 01 (the manual's example) or stay silent."""
         self.regs: dict[int, int] = _factory_registers()
-        self.regs[0x0043] = F_ORIGIN if home_switch is not None else 0
-        self.regs[0x0044] = F_FWD_LIMIT if limit_positive is not None else 0
-        self.regs[0x0045] = F_BWD_LIMIT if limit_negative is not None else 0
+        self.regs[0x0043] = InputFunction.ORIGIN if self.home_switch is not None else 0
+        self.regs[0x0044] = InputFunction.FORWARD_LIMIT if self.limit_positive is not None else 0
+        self.regs[0x0045] = InputFunction.BACKWARD_LIMIT if self.limit_negative is not None else 0
         self._switch_baud = self._apply_line_settings(settings)
         self.eeprom: dict[int, int] = dict(self.regs)
         self.eeprom_writes = 0
@@ -174,8 +185,8 @@ class SimBHSS(SimDrive):
         self._home_accel = 1.0
         self._latched_decel = math.inf
         self._last_dir = 0
-        self._t = 0.0  # events processed up to here
-        self._t_event = -math.inf
+        self._processed_until = 0.0  # events processed up to here
+        self._last_event = -math.inf
         self._shift = 0.0
         """Position counter minus physical position (zeroing, homing, power-up)."""
 
@@ -200,19 +211,19 @@ class SimBHSS(SimDrive):
 
     def position(self, now: float | None = None) -> int:
         """The drive's position counter (0x000A/0x000B) in whole pulses."""
-        t = monotonic() if now is None else now
+        t = time_or_present(now)
         return round(self.kin.position(t) + self._shift)
 
     def physical_position(self, now: float | None = None) -> float:
         """Where the motor physically is (the frame of the switch positions), in pulses."""
-        return self.kin.position(monotonic() if now is None else now)
+        return self.kin.position(time_or_present(now))
 
     def raise_alarm(self, code: int, now: float | None = None) -> None:
         """Latch alarm Err``code`` (1..5): the drive locks and the motor stops at once."""
         if not 1 <= code <= 5:
             raise ValueError(f"BHSS alarm codes are 1..5, not {code}")
-        t = monotonic() if now is None else now
-        self._advance(t)
+        t = time_or_present(now)
+        self.advance(t)
         super().raise_alarm(code, t)
         self._end_motion()
 
@@ -223,7 +234,7 @@ class SimBHSS(SimDrive):
 
     def power_loss(self) -> None:
         """Power off: motion and RAM values are lost."""
-        self._advance(monotonic())
+        self.advance(monotonic())
         super().power_loss()
         self._end_motion()
 
@@ -243,96 +254,48 @@ class SimBHSS(SimDrive):
 
     # -- protocol --------------------------------------------------------------------------------
 
-    def on_bad_crc(self, adu: bytes) -> bytes | None:
-        """The manual's example answers a bad CRC with exception 01 (its text says silence)."""
-        super().on_bad_crc(adu)
-        if not self.crc_error_reply or len(adu) < 2:
-            return None
-        return bytes((adu[1] | 0x80, CRC_ERROR))
-
-    def handle_pdu(self, pdu: bytes, now: float) -> bytes | None:
-        """FC03/06/16 with the BHSS's own exception codes."""
-        self.requests += 1
-        fc = pdu[0]
-        try:
-            self._advance(now)
-            if fc == P.READ_HOLDING:
-                address, count = struct.unpack_from(">HH", pdu, 1)
-                values = self.read_registers(fc, address, count, now)
-                return bytes((fc, 2 * count)) + struct.pack(f">{count}H", *values)
-            if fc == P.WRITE_SINGLE:
-                address, value = struct.unpack_from(">HH", pdu, 1)
-                self.write_registers(address, [value], now)
-                return pdu[:5]
-            if fc == P.WRITE_MULTIPLE:
-                address, count = struct.unpack_from(">HH", pdu, 1)
-                if not 1 <= count <= P.MAX_WRITE or pdu[5] != 2 * count:
-                    raise SlaveException(VALUE_ERROR)
-                values = list(struct.unpack_from(f">{count}H", pdu, 6))
-                self.write_registers(address, values, now)
-                return pdu[:5]
-            raise SlaveException(COMMAND_ERROR)
-        except SlaveException as exc:
-            return bytes((fc | 0x80, exc.code))
-
-    @staticmethod
-    def _spec(address: int) -> _Spec:
-        if address > _MAP_END:
-            raise SlaveException(OUT_OF_MAP)
-        spec = _MAP.get(address)
-        if spec is None:
-            raise SlaveException(UNASSIGNED)
-        return spec
-
-    def read_registers(self, function: int, address: int, count: int, now: float) -> list[int]:
-        """Block read: at most 16 registers, every one assigned and readable."""
-        if count > 16:
-            raise SlaveException(READ_OVERFLOW)
+    def check_count(self, count: int) -> None:
+        """More than 16 registers is exception 05; a read of none reads nothing assigned (03)."""
         if count < 1:
-            raise SlaveException(UNASSIGNED)
-        out = []
-        for a in range(address, address + count):
-            spec = self._spec(a)
-            if spec.access == "W":
-                raise SlaveException(ACCESS_ERROR)
-            out.append(self._value(a, now))
-        return out
+            raise SlaveException(self.exception_codes.address)
+        super().check_count(count)
 
-    def write_registers(self, address: int, values: list[int], now: float) -> None:
-        """Check every register first (access, range), then apply them in order."""
-        for i, raw in enumerate(values):
-            spec = self._spec(address + i)
-            if spec.access == "R":
-                raise SlaveException(ACCESS_ERROR)
-            v = raw - 0x10000 if spec.signed and raw & 0x8000 else raw
-            if not spec.lo <= v <= spec.hi:
-                raise SlaveException(VALUE_ERROR)
-            if address + i == 0x0027 and v & 3 == 3:
-                raise SlaveException(VALUE_ERROR)
-        for i, raw in enumerate(values):
-            self._store(address + i, raw, now)
+    def register(self, address: int) -> RegisterSpec:
+        """Past the end of the map is exception 04; unassigned inside it, 03."""
+        if address > _MAP_END:
+            raise SlaveException(_OUTSIDE_MAP)
+        return super().register(address)
 
-    def _store(self, a: int, raw: int, now: float) -> None:
-        spec = _MAP[a]
+    def check_word(self, address: int, word: int) -> int:
+        """Access and range; the start command also refuses mode 3 in bits 0-1."""
+        value = super().check_word(address, word)
+        if address == 0x0027 and value & 3 == 3:
+            raise SlaveException(self.exception_codes.value)
+        return value
+
+    def write_register(self, address: int, word: int, now: float) -> None:
+        """Store a parameter (with write-through on, also in the EEPROM) or run a command."""
+        spec = _MAP[address]
         if self.regs[0x0016] == 0:  # write-through on before this write
             self.eeprom_writes += 1
-            if not spec.command:
-                self.eeprom[a] = raw
+            if spec.stored:
+                self.eeprom[address] = word
         if spec.command:
-            self._command(a, raw, now)
+            self._command(address, word, now)
         else:
-            self.regs[a] = raw
+            self.regs[address] = word
 
     # -- register values ---------------------------------------------------------------------------
 
-    def _value(self, a: int, now: float) -> int:
-        if a in self.regs:
-            return self.regs[a]
-        if a == 0x0029:
+    def read_register(self, address: int, now: float) -> int:
+        """A stored parameter, the enable state, 0 for a command, or a status register."""
+        if address in self.regs:
+            return self.regs[address]
+        if address == 0x0029:
             return int(self.enabled)
-        if a in _MAP and _MAP[a].command:
+        if _MAP[address].command:
             return 0
-        return self._status_value(a, now)
+        return self._status_value(address, now)
 
     def _status_value(self, a: int, now: float) -> int:
         moving = self.is_moving(now)
@@ -467,11 +430,16 @@ class SimBHSS(SimDrive):
 
     # -- motion ------------------------------------------------------------------------------------
 
-    def _pps(self, rpm: float) -> float:
-        """Pulses/s for ``rpm`` at the resolution in 0x0011, capped at 200 kHz."""
-        return min(abs(rpm) * _PPR[self.regs[0x0011]] / 60.0, _MAX_RATE)
+    @property
+    def pulses_per_rev(self) -> int:
+        """The resolution chosen in 0x0011."""
+        return _PULSES_PER_REV[self.regs[0x0011]]
 
-    def _rate(self, pps: float, ms: int) -> float:
+    def _pps(self, rpm: float) -> float:
+        """Pulses/s for ``rpm`` (either sign) at the resolution, capped at 200 kHz."""
+        return min(self.pulse_rate(abs(rpm)), _MAX_PULSE_RATE)
+
+    def _ramp_rate(self, pps: float, ms: int) -> float:
         """Acceleration (pulses/s²) that ramps to ``pps`` in ``ms`` milliseconds."""
         return pps / max(ms / 1000.0, 0.001)
 
@@ -511,15 +479,14 @@ class SimBHSS(SimDrive):
             return
         speed = self._max_speed()
         pps = self._pps(speed)
-        acc = self._rate(pps, self.regs[0x0021])
-        dec = self._rate(pps, self.regs[0x0022])
+        acc = self._ramp_rate(pps, self.regs[0x0021])
+        dec = self._ramp_rate(pps, self.regs[0x0022])
         if v & 3 == 2:  # speed mode: the sign of 0x0023 is the direction
             if pps == 0:
                 self._stop(now, emergency=False)
                 return
             signed = math.copysign(pps, speed)
-            if self._function_active(F_FWD_LIMIT if signed > 0 else F_BWD_LIMIT,
-                                     self.kin.position(now)):
+            if self._function_active(_limit_towards(signed), self.kin.position(now)):
                 return
             self._latched_decel = dec
             self.kin.run(now, signed, acc, dec)
@@ -532,8 +499,7 @@ class SimBHSS(SimDrive):
             here = self.kin.target if self.kin.target is not None else self.kin.position(now)
             target = d - self._shift if v & 4 else here + d
             direction = 1 if target > self.kin.position(now) else -1
-            if self._function_active(F_FWD_LIMIT if direction > 0 else F_BWD_LIMIT,
-                                     self.kin.position(now)):
+            if self._function_active(_limit_towards(direction), self.kin.position(now)):
                 return
             self._latched_decel = dec
             self.kin.move_to(now, target, pps, acc, dec)
@@ -551,7 +517,7 @@ class SimBHSS(SimDrive):
             return
         mode = self.regs[0x0031]
         pps = self._pps(self.regs[0x0032])
-        self._home_accel = self._rate(pps, self.regs[0x0034])
+        self._home_accel = self._ramp_rate(pps, self.regs[0x0034])
         self._home_dir = 1.0 if mode in (0, 2) else -1.0
         self.homed = False
         self.reached = False
@@ -562,45 +528,43 @@ class SimBHSS(SimDrive):
 
     def _reference(self) -> int:
         """Input function whose edges define the origin in the present homing mode."""
-        return {0: F_ORIGIN, 1: F_ORIGIN, 2: F_FWD_LIMIT, 3: F_BWD_LIMIT}[self.regs[0x0031]]
+        return _HOMING_REFERENCE[self.regs[0x0031]]
 
     # -- lazy event processing ---------------------------------------------------------------------
 
-    def _advance(self, now: float) -> None:
+    def advance(self, now: float) -> None:
         """Run the drive's reactions (edges, limits, ends of ramps) up to ``now``."""
         for _ in range(64):
-            t_from = max(self._t, self._t_event + 1e-6)
+            t_from = max(self._processed_until, self._last_event + 1e-6)
             event = self._next_event(t_from, now)
             if event is None:
                 break
             t, handler = event
-            self._t_event = t
+            self._last_event = t
             handler(t)
-        self._t = max(self._t, now)
+        self._processed_until = max(self._processed_until, now)
 
     def _next_event(self, t0: float, t1: float) -> tuple[float, _Handler] | None:
         if t1 < t0:
             return None
         end = self.kin.end_time()
-        h = self._home
-        if h is _Home.SEARCH:
+        phase = self._home
+        if phase is _Home.SEARCH:
+            reference = self._reference()
             return self._first(
-                (self._edge(self._reference(), True, t0, t1), self._on_reference_found),
-                (self._edge(F_FWD_LIMIT, True, t0, t1)
-                 if self._reference() != F_FWD_LIMIT else None, self._on_limit_reverse),
-                (self._edge(F_BWD_LIMIT, True, t0, t1)
-                 if self._reference() != F_BWD_LIMIT else None, self._on_limit_reverse),
+                (self._edge(reference, True, t0, t1), self._on_reference_found),
+                *((self._edge(limit, True, t0, t1) if reference != limit else None,
+                   self._on_limit_reverse) for limit in _LIMITS),
             )
-        if h is _Home.BACKOFF:
+        if phase is _Home.BACKOFF:
             return self._first((self._edge(self._reference(), False, t0, t1), self._on_falling))
-        if h is _Home.CREEP:
+        if phase is _Home.CREEP:
             return self._first((self._edge(self._reference(), True, t0, t1), self._on_origin))
-        if h in (_Home.BRAKE1, _Home.BRAKE2, _Home.OFFSET):
+        if phase in (_Home.BRAKE1, _Home.BRAKE2, _Home.OFFSET):
             return (end, self._on_home_ramp_end) if end <= t1 else None
         if self.is_moving(t0):
             return self._first(
-                (self._edge(F_FWD_LIMIT, True, t0, t1), self._on_limit_stop),
-                (self._edge(F_BWD_LIMIT, True, t0, t1), self._on_limit_stop),
+                *((self._edge(limit, True, t0, t1), self._on_limit_stop) for limit in _LIMITS),
                 (end if self._move_active and end <= t1 else None, self._on_move_done),
             )
         if self._move_active:

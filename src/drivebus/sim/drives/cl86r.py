@@ -29,14 +29,16 @@ takes effect at the next power-up.
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass
 
 from drivebus.clock import monotonic
 from drivebus.errors import ConfigError
+from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive
-from drivebus.sim.slave import SlaveException
+from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
+from drivebus.sim.registers import Access, ExceptionCodes, RegisterSpec, signed16, signed32
 
 __all__ = ["SimCL86R"]
 
@@ -49,91 +51,87 @@ _AUX_RESET, _AUX_SAVE, _AUX_CLEAR, _AUX_ZERO = 1, 2, 4, 8
 _MODE_NONE, _MODE_POSITION, _MODE_SPEED, _MODE_HOMING = 0, 1, 2, 3
 
 
-@dataclass(frozen=True)
-class _Reg:
-    """One parameter register of the twin: factory value, range, RW/S, signed."""
-
-    default: int
-    lo: int
-    hi: int
-    saved: bool = False  # RW/S: stored to EEPROM on write when 0x0024 = 1
-    signed: bool = False
-    writable: bool = True
-
-
-def _table() -> dict[int, _Reg]:
-    t: dict[int, _Reg] = {
-        0x0010: _Reg(0, 0, 127, saved=True),  # manual prints 0~7 for a 7-bit mask
-        0x0011: _Reg(2, 0, 1000),
-        0x0012: _Reg(0, 0, 7, saved=True),
-        0x0020: _Reg(1, 1, 31, saved=True),
-        0x0021: _Reg(0, 0, 3, saved=True),
-        0x0022: _Reg(0, 0, 1, saved=True),
-        0x0023: _Reg(1000, 400, 51200, saved=True),
-        0x0024: _Reg(0, 0, 1, saved=True),
-        0x0025: _Reg(0, 0, 1, saved=True),
-        0x0030: _Reg(5, 2, 300),
-        0x0031: _Reg(100, 1, 2000),
-        0x0032: _Reg(100, 1, 2000),
-        0x0033: _Reg(60, -3000, 3000, signed=True),
-        0x0034: _Reg(0, 0, 0xFFFF),
-        0x0035: _Reg(5000, 0, 0xFFFF),
-        0x0036: _Reg(0, 0, 127),
-        0x0037: _Reg(0, 0, 8),
-        0x0038: _Reg(1, 0, 1),
-        0x0039: _Reg(0, 0, 1),
-        0x003A: _Reg(0, 0, 1),
-        0x0040: _Reg(0, 0, 35, saved=True),
-        0x0041: _Reg(120, 5, 3000, saved=True),
-        0x0042: _Reg(60, 5, 300, saved=True),
-        0x0043: _Reg(200, 1, 2000, saved=True),
-        0x0044: _Reg(0, 0, 0xFFFF, saved=True),
-        0x0045: _Reg(0, 0, 0xFFFF, saved=True),
-        0x0046: _Reg(60, 0, 3000),
-        0x0047: _Reg(100, 1, 2000),
-        0x0048: _Reg(100, 1, 2000),
-        0x0050: _Reg(1, 0, 1, saved=True),
-        0x0051: _Reg(0, 0, 1),
-        0x0052: _Reg(4000, 400, 65535, saved=True),
-        0x0053: _Reg(42, 0, 80, saved=True),
-        0x0054: _Reg(75, 0, 80, saved=True),
-        0x0055: _Reg(56, 0, 80, saved=True),
-        0x0056: _Reg(60, 0, 1024, saved=True),
-        0x0057: _Reg(1000, 1000, 1000, saved=True),  # "cannot be modified"
-        0x0058: _Reg(200, 200, 200, saved=True),  # "cannot be modified"
-        0x0059: _Reg(300, 0, 1000, saved=True),
-        0x005A: _Reg(400, 0, 1000, saved=True),
-        0x005B: _Reg(80, 0, 300, saved=True),
-        0x005C: _Reg(10, 1, 200, saved=True),
-        0x005D: _Reg(5, 1, 1000, saved=True),
+def _table() -> dict[int, RegisterSpec]:
+    """The parameter registers: factory value, range, RW/S (stored to the EEPROM on write
+    while 0x0024 = 1), signed."""
+    t = {
+        0x0010: RegisterSpec(0, 0, 127, stored=True),  # manual prints 0~7 for a 7-bit mask
+        0x0011: RegisterSpec(2, 0, 1000),
+        0x0012: RegisterSpec(0, 0, 7, stored=True),
+        0x0020: RegisterSpec(1, 1, 31, stored=True),
+        0x0021: RegisterSpec(0, 0, 3, stored=True),
+        0x0022: RegisterSpec(0, 0, 1, stored=True),
+        0x0023: RegisterSpec(1000, 400, 51200, stored=True),
+        0x0024: RegisterSpec(0, 0, 1, stored=True),
+        0x0025: RegisterSpec(0, 0, 1, stored=True),
+        0x0030: RegisterSpec(5, 2, 300),
+        0x0031: RegisterSpec(100, 1, 2000),
+        0x0032: RegisterSpec(100, 1, 2000),
+        0x0033: RegisterSpec(60, -3000, 3000, signed=True),
+        0x0034: RegisterSpec(0, 0, 0xFFFF),
+        0x0035: RegisterSpec(5000, 0, 0xFFFF),
+        0x0036: RegisterSpec(0, 0, 127),
+        0x0037: RegisterSpec(0, 0, 8),
+        0x0038: RegisterSpec(1, 0, 1),
+        0x0039: RegisterSpec(0, 0, 1),
+        0x003A: RegisterSpec(0, 0, 1),
+        0x0040: RegisterSpec(0, 0, 35, stored=True),
+        0x0041: RegisterSpec(120, 5, 3000, stored=True),
+        0x0042: RegisterSpec(60, 5, 300, stored=True),
+        0x0043: RegisterSpec(200, 1, 2000, stored=True),
+        0x0044: RegisterSpec(0, 0, 0xFFFF, stored=True),
+        0x0045: RegisterSpec(0, 0, 0xFFFF, stored=True),
+        0x0046: RegisterSpec(60, 0, 3000),
+        0x0047: RegisterSpec(100, 1, 2000),
+        0x0048: RegisterSpec(100, 1, 2000),
+        0x0050: RegisterSpec(1, 0, 1, stored=True),
+        0x0051: RegisterSpec(0, 0, 1),
+        0x0052: RegisterSpec(4000, 400, 65535, stored=True),
+        0x0053: RegisterSpec(42, 0, 80, stored=True),
+        0x0054: RegisterSpec(75, 0, 80, stored=True),
+        0x0055: RegisterSpec(56, 0, 80, stored=True),
+        0x0056: RegisterSpec(60, 0, 1024, stored=True),
+        0x0057: RegisterSpec(1000, 1000, 1000, stored=True),  # "cannot be modified"
+        0x0058: RegisterSpec(200, 200, 200, stored=True),  # "cannot be modified"
+        0x0059: RegisterSpec(300, 0, 1000, stored=True),
+        0x005A: RegisterSpec(400, 0, 1000, stored=True),
+        0x005B: RegisterSpec(80, 0, 300, stored=True),
+        0x005C: RegisterSpec(10, 1, 200, stored=True),
+        0x005D: RegisterSpec(5, 1, 1000, stored=True),
     }
     for i, fn in enumerate((1, 2, 3, 0, 0, 0, 0)):
-        t[0x0013 + i] = _Reg(fn, 0, 16)
+        t[0x0013 + i] = RegisterSpec(fn, 0, 16)
     for i, fn in enumerate((1, 2, 4)):
-        t[0x001A + i] = _Reg(fn, 0, 5)
+        t[0x001A + i] = RegisterSpec(fn, 0, 5)
     for n in range(16):
-        t[0x0060 + n] = _Reg(0, 0, 0xFFFF)
-        t[0x0070 + n] = _Reg(5000, 0, 0xFFFF)
-        t[0x0080 + n] = _Reg(120, 0, 3000)
-        t[0x0090 + n] = _Reg(100, 1, 2000)
-        t[0x00A0 + n] = _Reg(100, 1, 2000)
-        t[0x00B0 + n] = _Reg(120, -3000, 3000, signed=True)
-        t[0x00C0 + n] = _Reg(100, 1, 2000)
-        t[0x00D0 + n] = _Reg(100, 1, 2000)
+        t[0x0060 + n] = RegisterSpec(0, 0, 0xFFFF)
+        t[0x0070 + n] = RegisterSpec(5000, 0, 0xFFFF)
+        t[0x0080 + n] = RegisterSpec(120, 0, 3000)
+        t[0x0090 + n] = RegisterSpec(100, 1, 2000)
+        t[0x00A0 + n] = RegisterSpec(100, 1, 2000)
+        t[0x00B0 + n] = RegisterSpec(120, -3000, 3000, signed=True)
+        t[0x00C0 + n] = RegisterSpec(100, 1, 2000)
+        t[0x00D0 + n] = RegisterSpec(100, 1, 2000)
     return t
 
 
-_TABLE = _table()
+_PARAMETERS = _table()
 _MONITOR = range(0x0000, 0x000A)  # read-only, computed at read time
+_MAP = {**{a: RegisterSpec(access=Access.R) for a in _MONITOR}, **_PARAMETERS}
 
 
-def _s16(word: int) -> int:
-    return word - 0x10000 if word & 0x8000 else word
+def _factory_values() -> dict[int, int]:
+    """The parameter registers' factory values as words."""
+    return {a: spec.default & 0xFFFF for a, spec in _PARAMETERS.items()}
 
 
-def _s32(value: int) -> int:
-    value &= 0xFFFFFFFF
-    return value - (1 << 32) if value & 0x80000000 else value
+class _Edge(enum.Enum):
+    """A switch edge the drive can see (where its input is wired)."""
+
+    HOME_LOW = "home_low"  # where the home cam or dog begins
+    HOME_HIGH = "home_high"  # where the home dog ends
+    LIMIT_POSITIVE = "limit_positive"
+    LIMIT_NEGATIVE = "limit_negative"
 
 
 @dataclass(frozen=True)
@@ -143,7 +141,7 @@ class _Phase:
 
     direction: int
     fast: bool
-    events: tuple[tuple[str, str], ...]  # (switch edge name, next leg)
+    events: tuple[tuple[_Edge, str], ...]  # (switch edge, next leg)
 
 
 @dataclass
@@ -157,17 +155,16 @@ class SimCL86R(SimDrive):
     """Simulated CL86R: registers 0x0000-0x00DF, control word 0x0036, homing 17/18/24/29/35."""
 
     family = "CL86R"
+    register_map = _MAP
+    exception_codes = ExceptionCodes(crc=0x04)  # "CRC check error"
+    read_functions = frozenset((READ_HOLDING,))
 
     def __init__(
         self,
         address: int,
         settings: LineSettings | None = None,
+        setup: TwinSetup | None = None,
         *,
-        turnaround: float = 0.001,
-        position: int = 0,
-        home_switch: float | None = None,
-        limit_negative: float | None = None,
-        limit_positive: float | None = None,
         home_switch_width: float | None = None,
         crc_error_reply: bool = True,
         model: int = 862,
@@ -175,16 +172,12 @@ class SimCL86R(SimDrive):
     ) -> None:
         settings = settings or LineSettings.parse("9600 8N1")
         _check_line(settings)
-        super().__init__(
-            address, settings, turnaround=turnaround, position=position,
-            home_switch=home_switch, limit_negative=limit_negative,
-            limit_positive=limit_positive,
-        )
+        super().__init__(address, settings, setup)
         self.home_switch_width = home_switch_width
         self.crc_error_reply = crc_error_reply
         self.model = model
         self.software = software
-        self.regs = {a: r.default & 0xFFFF for a, r in _TABLE.items()}
+        self.regs = _factory_values()
         self.regs[0x0021] = _FORMATS.index(settings.format) if settings.baudrate != 9600 else 0
         self.eeprom = dict(self.regs)
         """Parameter values that survive a power cycle."""
@@ -201,11 +194,11 @@ class SimCL86R(SimDrive):
 
     def position(self, now: float | None = None) -> int:
         """The drive's 32-bit position counter (it wraps at ±2^31)."""
-        return _s32(super().position(now))
+        return signed32(super().position(now))
 
     def physical_position(self, now: float | None = None) -> float:
         """Where the axis physically is (the frame of the switch positions)."""
-        return self.kin.position(monotonic() if now is None else now) - self._shift
+        return self.kin.position(time_or_present(now)) - self._shift
 
     def _set_counter(self, t: float, value: float) -> None:
         """Redefine the position counter at ``t`` as ``value`` (the axis does not move)."""
@@ -219,8 +212,8 @@ class SimCL86R(SimDrive):
         The home switch is a cam from ``home_switch`` on, or a dog of ``home_switch_width``.
         """
         p = self.physical_position(now)
-        h, w = self.home_switch, self.home_switch_width
-        home = h is not None and p >= h and (w is None or p <= h + w)
+        start, width = self.home_switch, self.home_switch_width
+        home = start is not None and p >= start and (width is None or p <= start + width)
         neg = self.limit_negative is not None and p <= self.limit_negative
         pos = self.limit_positive is not None and p >= self.limit_positive
         return home, neg, pos
@@ -229,93 +222,105 @@ class SimCL86R(SimDrive):
         """True if some input X0..X6 is assigned DI ``function`` (1 home, 2 +limit, 3 -limit)."""
         return any(self.regs[0x0013 + i] == function for i in range(7))
 
-    def _pps(self, rpm: float) -> float:
-        """rpm -> pulses/s at the microstep setting 0x0023."""
-        return rpm * self.regs[0x0023] / 60.0
+    @property
+    def pulses_per_rev(self) -> int:
+        """The microstep setting 0x0023."""
+        return self.regs[0x0023]
 
-    def _rate(self, speed_rpm: float, ms: int) -> float:
+    def _ramp_rate(self, speed_rpm: float, ms: int) -> float:
         """pulses/s² of a ramp reaching ``speed_rpm`` in ``ms``."""
-        return self._pps(abs(speed_rpm)) / (ms / 1000.0)
+        return self.pulse_rate(abs(speed_rpm)) / (ms / 1000.0)
+
+    def _ramps(self, speed_rpm: float) -> tuple[float, float]:
+        """Acceleration and deceleration (pulses/s²) of a move at ``speed_rpm``: the ramp
+        times 0x0031/0x0032 reach it from standstill."""
+        return (self._ramp_rate(speed_rpm, self.regs[0x0031]),
+                self._ramp_rate(speed_rpm, self.regs[0x0032]))
 
     def _home_rate(self) -> float:
-        return self._rate(self.regs[0x0041], self.regs[0x0043])
+        return self._ramp_rate(self.regs[0x0041], self.regs[0x0043])
 
-    def _boundary(self, which: str | None) -> float | None:
+    def _boundary(self, which: _Edge) -> float | None:
         """Counter position of a switch edge the drive can see, or None."""
-        h, w = self.home_switch, self.home_switch_width
+        start, width = self.home_switch, self.home_switch_width
         edge: float | None = None
-        if which == "home_low" and self._wired(1):
-            edge = h
-        elif which == "home_high" and self._wired(1):
-            edge = h + w if h is not None and w is not None else None
-        elif which == "limit_positive" and self._wired(2):
+        if which is _Edge.HOME_LOW and self._wired(1):
+            edge = start
+        elif which is _Edge.HOME_HIGH and self._wired(1):
+            edge = start + width if start is not None and width is not None else None
+        elif which is _Edge.LIMIT_POSITIVE and self._wired(2):
             edge = self.limit_positive
-        elif which == "limit_negative" and self._wired(3):
+        elif which is _Edge.LIMIT_NEGATIVE and self._wired(3):
             edge = self.limit_negative
         return None if edge is None else edge + self._shift
 
     # -- registers ------------------------------------------------------------------------------
 
-    def _monitor(self, now: float) -> list[int]:
-        home, neg, pos = self.switch_states(now)
+    def _status(self, now: float) -> int:
+        """Status register 0x0003: in position, homed, moving, alarm, enabled."""
         moving = self.kin.moving(now)
-        status = (
+        return (
             (0x01 if not moving and not self.alarm_code else 0)
             | (0x02 if self.homed else 0)
             | (0x04 if moving else 0)
             | (0x08 if self.alarm_code else 0)
             | (0x10 if self.enabled else 0)
         )
+
+    def _inputs(self, now: float) -> int:
+        """Input terminals 0x0005: each input's function's level, XOR its inversion bit."""
+        home, neg, pos = self.switch_states(now)
         active = {1: home, 2: pos, 3: neg}
         inputs = 0
         for i in range(7):
             if active.get(self.regs[0x0013 + i], False):
                 inputs |= 1 << i
-        inputs ^= self.regs[0x0010] & 0x7F  # terminal state = logical level ^ inversion
-        signals = {1: bool(self.alarm_code), 2: moving, 3: self.homed,
+        return inputs ^ (self.regs[0x0010] & 0x7F)  # terminal state = logical level ^ inversion
+
+    def _outputs(self, now: float) -> int:
+        """Output terminals 0x0006: each output's function's signal, XOR its inversion bit."""
+        status = self._status(now)
+        signals = {1: bool(self.alarm_code), 2: bool(status & 0x04), 3: self.homed,
                    4: bool(status & 0x01), 5: self.enabled}
         outputs = 0
         for i in range(3):
             if signals.get(self.regs[0x001A + i], False):
                 outputs |= 1 << i
-        outputs ^= self.regs[0x0012] & 0x07
-        p = round(self.kin.position(now)) & 0xFFFFFFFF
-        rpm = round(self.kin.velocity(now) * 60.0 / self.regs[0x0023])
-        return [self.model, self.software, self.mode, status, self.alarm_code, inputs, outputs,
-                p >> 16, p & 0xFFFF, rpm & 0xFFFF]
+        return outputs ^ (self.regs[0x0012] & 0x07)
 
-    def read_registers(self, function: int, address: int, count: int, now: float) -> list[int]:
-        """FC03 only; undefined addresses are exception 02."""
-        if function != 0x03:
-            raise SlaveException(1)
-        self._advance(now)
-        monitor: list[int] | None = None
-        out = []
-        for a in range(address, address + count):
-            if a in _MONITOR:
-                monitor = monitor or self._monitor(now)
-                out.append(monitor[a])
-            elif a in _TABLE:
-                out.append(self.regs[a])
-            else:
-                raise SlaveException(2)
-        return out
+    def _monitor(self, address: int, now: float) -> int:
+        """Monitor register ``address`` (0x0000-0x0009), computed at ``now``."""
+        if address == 0x0000:
+            return self.model
+        if address == 0x0001:
+            return self.software
+        if address == 0x0002:
+            return self.mode
+        if address == 0x0003:
+            return self._status(now)
+        if address == 0x0004:
+            return self.alarm_code
+        if address == 0x0005:
+            return self._inputs(now)
+        if address == 0x0006:
+            return self._outputs(now)
+        if address in (0x0007, 0x0008):  # position counter, high word first
+            counter = round(self.kin.position(now)) & 0xFFFFFFFF
+            return counter >> 16 if address == 0x0007 else counter & 0xFFFF
+        return round(self.speed_rpm(now))  # 0x0009, signed
 
-    def write_registers(self, address: int, values: list[int], now: float) -> None:
-        """Check every value first (02 undefined/read-only, 03 out of range), then apply."""
-        self._advance(now)
-        for a, v in zip(range(address, address + len(values)), values, strict=True):
-            reg = _TABLE.get(a)
-            if reg is None or not reg.writable:
-                raise SlaveException(2)
-            value = _s16(v) if reg.signed else v
-            if not reg.lo <= value <= reg.hi:
-                raise SlaveException(3)
-        for a, v in zip(range(address, address + len(values)), values, strict=True):
-            self.regs[a] = v
-            if _TABLE[a].saved and self.regs[0x0024] == 1:
-                self.eeprom[a] = v
-            self._effect(a, v, now)
+    def read_register(self, address: int, now: float) -> int:
+        """A monitor register (computed at read time) or a parameter."""
+        if address in _MONITOR:
+            return self._monitor(address, now)
+        return self.regs[address]
+
+    def write_register(self, address: int, word: int, now: float) -> None:
+        """Store the parameter (RW/S ones also in the EEPROM while 0x0024 = 1), then act."""
+        self.regs[address] = word
+        if _MAP[address].stored and self.regs[0x0024] == 1:
+            self.eeprom[address] = word
+        self._effect(address, word, now)
 
     def _effect(self, address: int, value: int, now: float) -> None:
         if address == 0x0036:
@@ -328,18 +333,11 @@ class SimCL86R(SimDrive):
                 self._homing = None
                 self.kin.stop(now, None)  # released: the shaft is free, motion ends
 
-    def on_bad_crc(self, adu: bytes) -> bytes | None:
-        """The manual's exception 04 "CRC check error" (or silence if switched off)."""
-        super().on_bad_crc(adu)
-        if not self.crc_error_reply or len(adu) < 2:
-            return None
-        return bytes((adu[1] | 0x80, 0x04))
-
     # -- commands -------------------------------------------------------------------------------
 
     def _aux(self, value: int, now: float) -> None:
         if value & _AUX_RESET:
-            self.regs.update({a: r.default & 0xFFFF for a, r in _TABLE.items()})
+            self.regs.update(_factory_values())
             self.eeprom.update(self.regs)
         if value & _AUX_SAVE:
             self.eeprom.update(self.regs)
@@ -367,8 +365,9 @@ class SimCL86R(SimDrive):
     def _stop_rate(self, now: float) -> float:
         if self.mode == _MODE_HOMING:
             return self._home_rate()
-        ref = abs(_s16(self.regs[0x0033])) or abs(self.kin.velocity(now)) * 60 / self.regs[0x0023]
-        return self._rate(ref, self.regs[0x0032]) if ref else math.inf
+        speed = abs(signed16(self.regs[0x0033]))
+        ref = speed or abs(self.speed_rpm(now))
+        return self._ramp_rate(ref, self.regs[0x0032]) if ref else math.inf
 
     def _busy(self, word: int, now: float) -> bool:
         """True if a start must be ignored: moving, and no interrupt bit."""
@@ -377,7 +376,7 @@ class SimCL86R(SimDrive):
     def _wrap(self, now: float) -> float:
         """Keep the 32-bit position counter in range; the present position."""
         p = self.kin.position(now)
-        wrapped = _s32(round(p))
+        wrapped = signed32(round(p))
         if wrapped != round(p):
             self._set_counter(now, p + (wrapped - round(p)))
         return self.kin.position(now)
@@ -390,24 +389,21 @@ class SimCL86R(SimDrive):
         )
 
     def _start_position(self, word: int, now: float) -> None:
-        speed = abs(_s16(self.regs[0x0033]))
+        speed = abs(signed16(self.regs[0x0033]))
         if speed == 0 or self._busy(word, now):
             return
         p = self._wrap(now)
-        target = _s32((self.regs[0x0034] << 16) | self.regs[0x0035])
+        target = signed32((self.regs[0x0034] << 16) | self.regs[0x0035])
         if not word & _ABS:
             target += round(p)
         if self._blocked(target - p, now):
             return
-        self.kin.move_to(
-            now, target, self._pps(speed),
-            self._rate(speed, self.regs[0x0031]), self._rate(speed, self.regs[0x0032]),
-        )
+        self.kin.move_to(now, target, self.pulse_rate(speed), *self._ramps(speed))
         self.mode = _MODE_POSITION
         self._watch_from = now
 
     def _start_speed(self, word: int, now: float) -> None:
-        speed = _s16(self.regs[0x0033])
+        speed = signed16(self.regs[0x0033])
         changing = self.mode == _MODE_SPEED and self.kin.moving(now)
         if not changing and self._busy(word, now):
             return
@@ -417,10 +413,7 @@ class SimCL86R(SimDrive):
         if speed == 0:
             self.kin.stop(now, self._stop_rate(now))
         else:
-            self.kin.run(
-                now, self._pps(speed),
-                self._rate(speed, self.regs[0x0031]), self._rate(speed, self.regs[0x0032]),
-            )
+            self.kin.run(now, self.pulse_rate(speed), *self._ramps(speed))
         self.mode = _MODE_SPEED
         self._watch_from = now
 
@@ -432,27 +425,32 @@ class SimCL86R(SimDrive):
     def _phases(self, mode: int, now: float) -> tuple[dict[str, _Phase], str] | None:
         """The homing method's legs and the first one, from the switch state at ``now``."""
         home, neg, pos = self.switch_states(now)
-        lo, hi, lp, ln = "home_low", "home_high", "limit_positive", "limit_negative"
         if mode == 18:  # origin: falling edge of the positive limit
-            p = {"fast": _Phase(+1, True, ((lp, "creep"),)),
-                 "creep": _Phase(-1, False, ((lp, "done"),))}
-            return p, "creep" if pos and self._wired(2) else "fast"
+            legs = {"fast": _Phase(+1, True, ((_Edge.LIMIT_POSITIVE, "creep"),)),
+                    "creep": _Phase(-1, False, ((_Edge.LIMIT_POSITIVE, "done"),))}
+            return legs, "creep" if pos and self._wired(2) else "fast"
         if mode == 17:  # origin: falling edge of the negative limit
-            p = {"fast": _Phase(-1, True, ((ln, "creep"),)),
-                 "creep": _Phase(+1, False, ((ln, "done"),))}
-            return p, "creep" if neg and self._wired(3) else "fast"
+            legs = {"fast": _Phase(-1, True, ((_Edge.LIMIT_NEGATIVE, "creep"),)),
+                    "creep": _Phase(+1, False, ((_Edge.LIMIT_NEGATIVE, "done"),))}
+            return legs, "creep" if neg and self._wired(3) else "fast"
         if mode == 24:  # origin: HW rising edge approached forward (lower edge)
-            p = {"fast": _Phase(+1, True, ((lo, "back"), (lp, "reverse"))),
-                 "back": _Phase(-1, False, ((lo, "final"),)),
-                 "reverse": _Phase(-1, True, ((hi, "back"),)),
-                 "final": _Phase(+1, False, ((lo, "done"),))}
-            return p, "back" if home and self._wired(1) else "fast"
+            legs = {
+                "fast": _Phase(+1, True, ((_Edge.HOME_LOW, "back"),
+                                          (_Edge.LIMIT_POSITIVE, "reverse"))),
+                "back": _Phase(-1, False, ((_Edge.HOME_LOW, "final"),)),
+                "reverse": _Phase(-1, True, ((_Edge.HOME_HIGH, "back"),)),
+                "final": _Phase(+1, False, ((_Edge.HOME_LOW, "done"),)),
+            }
+            return legs, "back" if home and self._wired(1) else "fast"
         if mode == 29:  # origin: HW rising edge approached in reverse (upper edge)
-            p = {"fast": _Phase(-1, True, ((hi, "back"), (ln, "reverse"))),
-                 "back": _Phase(+1, False, ((hi, "final"),)),
-                 "reverse": _Phase(+1, True, ((lo, "back"),)),
-                 "final": _Phase(-1, False, ((hi, "done"),))}
-            return p, "back" if home and self._wired(1) else "fast"
+            legs = {
+                "fast": _Phase(-1, True, ((_Edge.HOME_HIGH, "back"),
+                                          (_Edge.LIMIT_NEGATIVE, "reverse"))),
+                "back": _Phase(+1, False, ((_Edge.HOME_HIGH, "final"),)),
+                "reverse": _Phase(+1, True, ((_Edge.HOME_LOW, "back"),)),
+                "final": _Phase(-1, False, ((_Edge.HOME_HIGH, "done"),)),
+            }
+            return legs, "back" if home and self._wired(1) else "fast"
         return None
 
     def _start_homing(self, word: int, now: float) -> None:
@@ -479,7 +477,7 @@ class SimCL86R(SimDrive):
         rate = self._home_rate()
         speed = self.regs[0x0041] if phase.fast else self.regs[0x0042]
         v = self.kin.velocity(t)
-        self.kin.run(t, phase.direction * self._pps(speed), rate, rate)
+        self.kin.run(t, phase.direction * self.pulse_rate(speed), rate, rate)
         t_dir = t + abs(v) / rate if v * phase.direction < 0 else t
         self._homing.phase, self._homing.t_dir = name, t_dir
 
@@ -488,7 +486,7 @@ class SimCL86R(SimDrive):
         assert self._homing is not None
         phase = self._homing.phases[self._homing.phase]
         events = list(phase.events)
-        ahead = "limit_positive" if phase.direction > 0 else "limit_negative"
+        ahead = _Edge.LIMIT_POSITIVE if phase.direction > 0 else _Edge.LIMIT_NEGATIVE
         if all(name != ahead for name, _ in events):
             events.append((ahead, "abort"))
         t_from = self._homing.t_dir + 1e-9
@@ -524,8 +522,8 @@ class SimCL86R(SimDrive):
     def _limit_hit(self, now: float) -> float | None:
         """When a position/speed move first ran into an active limit since its start."""
         hits = []
-        for boundary, direction in ((self._boundary("limit_positive"), 1),
-                                    (self._boundary("limit_negative"), -1)):
+        for boundary, direction in ((self._boundary(_Edge.LIMIT_POSITIVE), 1),
+                                    (self._boundary(_Edge.LIMIT_NEGATIVE), -1)):
             if boundary is None:
                 continue
             t0 = self._watch_from
@@ -539,7 +537,7 @@ class SimCL86R(SimDrive):
                 t0 = tc + 1e-6
         return min(hits) if hits else None
 
-    def _advance(self, now: float) -> None:
+    def advance(self, now: float) -> None:
         """Bring homing legs and limit stops up to ``now`` (state is computed lazily)."""
         if self._homing is not None:
             self._advance_homing(now)
@@ -555,8 +553,8 @@ class SimCL86R(SimDrive):
 
     def raise_alarm(self, code: int, now: float | None = None) -> None:
         """Latch error ``code`` (1 overcurrent, 2 overvoltage, 4 position error)."""
-        t = monotonic() if now is None else now
-        self._advance(t)
+        t = time_or_present(now)
+        self.advance(t)
         self._homing = None
         super().raise_alarm(code, t)
 
@@ -569,7 +567,7 @@ class SimCL86R(SimDrive):
         now = monotonic()
         self.regs = dict(self.eeprom)
         for a in (0x0036, 0x0037, 0x0038):
-            self.regs[a] = _TABLE[a].default
+            self.regs[a] = _PARAMETERS[a].default
         if self.settings.baudrate != 9600:
             self.settings = LineSettings.parse(
                 _FORMATS[self.regs[0x0021]], baudrate=self.settings.baudrate

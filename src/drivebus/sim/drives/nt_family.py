@@ -22,35 +22,24 @@ manuals are silent are marked "assumption".
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Generator, Mapping
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
-from drivebus import pdu as P
 from drivebus.clock import monotonic
 from drivebus.errors import ConfigError
+from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive
-from drivebus.sim.slave import SlaveException
+from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
+from drivebus.sim.registers import Access, RegisterSpec, SlaveException, signed32
 
 __all__ = ["SimEPR60", "SimNT86"]
 
-# Status register 1 bits.
+# Status register 1 bits, by the manual's names: enabled, alarm, in position, moving, homed,
+# ready, at speed, brake released, positive limit, negative limit, powered, torque (stall).
 ENA, ALM, INPOS, MOV, HOME, RDY, ARRSPD, CLAMP, PL, NL, POW, TC = (1 << b for b in range(12))
 
 _NT86_BAUDS = (9600, 19200, 38400, 115200)
-
-
-@dataclass(frozen=True)
-class _Word:
-    """One register of the twin's map: default, allowed range and access."""
-
-    default: int = 0
-    lo: int = 0
-    hi: int = 0xFFFF
-    access: Literal["RW", "R", "W", "-"] = "RW"
-    """RW; R read-only; W reads back 0 (command registers that clear themselves);
-    "-" reserved: reads 0, writes are refused."""
 
 
 @dataclass(frozen=True)
@@ -66,94 +55,125 @@ class _Wait:
 Program = Generator[_Wait, tuple[str, float], None]
 
 
-def _pair_words(value: int) -> tuple[int, int]:
+PairRanges = dict[int, tuple[int, int]]
+"""The documented range of each 32-bit value, by the address of its low word."""
+
+
+def _words_low_first(value: int) -> tuple[int, int]:
+    """A 32-bit value as (low word, high word): the NT family's order."""
     u = value & 0xFFFFFFFF
     return u & 0xFFFF, u >> 16
 
 
-def _signed32(value: int) -> int:
-    u = value & 0xFFFFFFFF
-    return u - (1 << 32) if u & 0x80000000 else u
+_READ_ONLY = RegisterSpec(access=Access.R)
+_RESERVED = _READ_ONLY  # "-" in the map: reads 0, writes are refused like a read-only one
 
 
-def _nt_common_map() -> tuple[dict[int, _Word], dict[int, tuple[int, int]]]:
+def _nt_common_map() -> tuple[dict[int, RegisterSpec], PairRanges]:
     """Registers 0-158 that the NT86 and EPR60 manuals share (defaults and ranges)."""
-    w: dict[int, _Word] = {a: _Word(access="R") for a in (*range(0, 6), *range(8, 16), 29)}
-    w.update({6: _Word(access="W", hi=0x3F), 7: _Word(access="W", hi=0x3F)})
-    w[16] = _Word(access="W", hi=1)
-    w.update({17: _Word(0, 0, 1), 18: _Word(0, 0, 6, "W"), 19: _Word(0, 0, 2)})
-    w.update({20: _Word(0, 0, 22), 21: _Word(0, 0, 1), 22: _Word(0, 0, 2), 23: _Word(0, 0, 1)})
-    w.update({25: _Word(3000, 0, 6000), 26: _Word(50, 0, 100), 27: _Word(500, 10, 65535)})
-    w.update({28: _Word(128, 1, 512), 30: _Word(0, 0, 1), 31: _Word(access="R")})
-    w.update({32: _Word(access="R"), 33: _Word(1000, 100, 10000), 34: _Word(1, 1, 10)})
-    w.update({35: _Word(200, 0, 1000), 36: _Word(1000, 200, 10000), 37: _Word(200, 0, 2000)})
-    w.update({38: _Word(256, 0, 1024), 39: _Word(0, 0, 1, "W"), 40: _Word(4000, 256, 65535)})
-    w.update({41: _Word(2000, 100, 65535), 42: _Word(10, 1), 43: _Word(50, 1), 44: _Word(100, 1)})
-    w.update({45: _Word(4000, 0, 5000), 46: _Word(50, 0, 100), 47: _Word(200, 10, 5000)})
-    w.update({48: _Word(600, 10, 5000), 49: _Word(0, 0, 500), 50: _Word(3000), 51: _Word(1000)})
-    w.update({52: _Word(0), 53: _Word(800), 54: _Word(600), 55: _Word(512, 0, 1024)})
-    w.update({56: _Word(0), 57: _Word(0), 58: _Word(5000, 10, 5000), 59: _Word(2000, 10, 5000)})
+    w = {a: _READ_ONLY for a in (*range(0, 6), *range(8, 16), 29)}
+    w.update({
+        6: RegisterSpec(maximum=0x3F, command=True), 7: RegisterSpec(maximum=0x3F, command=True),
+    })
+    w[16] = RegisterSpec(maximum=1, command=True)
+    w.update({
+        17: RegisterSpec(0, 0, 1), 18: RegisterSpec(0, 0, 6, command=True),
+        19: RegisterSpec(0, 0, 2), 20: RegisterSpec(0, 0, 22), 21: RegisterSpec(0, 0, 1),
+        22: RegisterSpec(0, 0, 2), 23: RegisterSpec(0, 0, 1), 25: RegisterSpec(3000, 0, 6000),
+        26: RegisterSpec(50, 0, 100), 27: RegisterSpec(500, 10, 65535),
+        28: RegisterSpec(128, 1, 512), 30: RegisterSpec(0, 0, 1), 31: _READ_ONLY, 32: _READ_ONLY,
+        33: RegisterSpec(1000, 100, 10000), 34: RegisterSpec(1, 1, 10),
+        35: RegisterSpec(200, 0, 1000), 36: RegisterSpec(1000, 200, 10000),
+        37: RegisterSpec(200, 0, 2000), 38: RegisterSpec(256, 0, 1024),
+        39: RegisterSpec(0, 0, 1, command=True), 40: RegisterSpec(4000, 256, 65535),
+        41: RegisterSpec(2000, 100, 65535), 42: RegisterSpec(10, 1), 43: RegisterSpec(50, 1),
+        44: RegisterSpec(100, 1), 45: RegisterSpec(4000, 0, 5000), 46: RegisterSpec(50, 0, 100),
+        47: RegisterSpec(200, 10, 5000), 48: RegisterSpec(600, 10, 5000),
+        49: RegisterSpec(0, 0, 500), 50: RegisterSpec(3000), 51: RegisterSpec(1000),
+        52: RegisterSpec(0), 53: RegisterSpec(800), 54: RegisterSpec(600),
+        55: RegisterSpec(512, 0, 1024), 56: RegisterSpec(0), 57: RegisterSpec(0),
+        58: RegisterSpec(5000, 10, 5000), 59: RegisterSpec(2000, 10, 5000),
+    })
     for n, default in enumerate((0, 1, 4, 7, 12, 11)):  # IN1-IN6: function + polarity bit 5
-        w[60 + n] = _Word(default, 0, 0x3F)
-    w.update({66: _Word(1, 0, 0x1F), 67: _Word(4, 0, 0x1F), 68: _Word(0, 0, 3)})
-    w.update({69: _Word(access="R"), 70: _Word(200, 10, 1000), 71: _Word(200, 10, 1000)})
-    w.update({72: _Word(600, 0, 3000), 73: _Word(2000), 74: _Word(0)})
-    w.update({75: _Word(100, 10, 1000), 76: _Word(100, 10, 1000), 77: _Word(600, 0, 3000)})
-    w.update({78: _Word(500, 10, 1000), 84: _Word(0, 0, 1), 85: _Word(0, 0, 1, "W")})
-    w.update({88: _Word(0, 0, 1), 89: _Word(50, 0, 500), 90: _Word(0, 0, 1, "W")})
-    w.update({91: _Word(0, 0, 1, "W"), 92: _Word(access="-")})
-    w.update({a: _Word(access="R") for a in (93, 94, 95, 104, 121)})
-    w.update({100: _Word(200), 101: _Word(1000, 0, 3000), 102: _Word(1, 0, 0x1F)})
-    w.update({103: _Word(4, 0, 0x1F), 122: _Word(100, 100, 110)})
+        w[60 + n] = RegisterSpec(default, 0, 0x3F)
+    w.update({
+        66: RegisterSpec(1, 0, 0x1F), 67: RegisterSpec(4, 0, 0x1F), 68: RegisterSpec(0, 0, 3),
+        69: _READ_ONLY, 70: RegisterSpec(200, 10, 1000), 71: RegisterSpec(200, 10, 1000),
+        72: RegisterSpec(600, 0, 3000), 73: RegisterSpec(2000), 74: RegisterSpec(0),
+        75: RegisterSpec(100, 10, 1000), 76: RegisterSpec(100, 10, 1000),
+        77: RegisterSpec(600, 0, 3000), 78: RegisterSpec(500, 10, 1000), 84: RegisterSpec(0, 0, 1),
+        85: RegisterSpec(0, 0, 1, command=True), 88: RegisterSpec(0, 0, 1),
+        89: RegisterSpec(50, 0, 500), 90: RegisterSpec(0, 0, 1, command=True),
+        91: RegisterSpec(0, 0, 1, command=True), 92: _RESERVED,
+    })
+    w.update({a: _READ_ONLY for a in (93, 94, 95, 104, 121)})
+    w.update({
+        100: RegisterSpec(200), 101: RegisterSpec(1000, 0, 3000), 102: RegisterSpec(1, 0, 0x1F),
+        103: RegisterSpec(4, 0, 0x1F), 122: RegisterSpec(100, 100, 110),
+    })
     for k in range(16):  # speed table 105-120, position table 125-156
-        w[105 + k] = _Word(100 * k, 0, 3000)
-        w[125 + 2 * k] = _Word(0)
-        w[126 + 2 * k] = _Word(0)
-    w.update({157: _Word(1000, 1), 158: _Word(15000)})
+        w[105 + k] = RegisterSpec(100 * k, 0, 3000)
+        w[125 + 2 * k] = RegisterSpec(0)
+        w[126 + 2 * k] = RegisterSpec(0)
+    w.update({157: RegisterSpec(1000, 1), 158: RegisterSpec(15000)})
     pairs = {73: (-16777216, 16777216)}
     pairs.update({125 + 2 * k: (-16777216, 16777216) for k in range(16)})
     return w, pairs
 
 
-def _nt86_map() -> tuple[dict[int, _Word], dict[int, tuple[int, int]]]:
+def _nt86_map() -> tuple[dict[int, RegisterSpec], PairRanges]:
     """The NT86 manual's map: the common block plus 24, 79-83, 214-298."""
     w, pairs = _nt_common_map()
-    w[24] = _Word(4000, 200, 65535)
-    w.update({a: _Word(0) for a in range(79, 84)})  # summary-only legacy homing block
-    w.update({214: _Word(4000), 215: _Word(0, 0, 0xF), 216: _Word(access="R")})
-    w.update({217: _Word(access="R"), 218: _Word(5)})
-    w.update({221: _Word(0, 0, 2), 222: _Word(16, 1, 16), 223: _Word(0, 0, 1)})
+    w[24] = RegisterSpec(4000, 200, 65535)
+    w.update({a: RegisterSpec(0) for a in range(79, 84)})  # summary-only legacy homing block
+    w.update({
+        214: RegisterSpec(4000), 215: RegisterSpec(0, 0, 0xF), 216: _READ_ONLY, 217: _READ_ONLY,
+        218: RegisterSpec(5), 221: RegisterSpec(0, 0, 2), 222: RegisterSpec(16, 1, 16),
+        223: RegisterSpec(0, 0, 1),
+    })
     for n in range(16):  # multi-segment: speed, accel/decel, wait
-        w.update({224 + 3 * n: _Word(100, 0, 3000), 225 + 3 * n: _Word(100, 1, 2000)})
-        w[226 + 3 * n] = _Word(100)
-    w.update({272: _Word(0, 0, 1650), 273: _Word(10, 0, 2000), 274: _Word(50, 0, 1000)})
-    w.update({275: _Word(0, 0, 1000), 276: _Word(100, 0, 3000)})
-    w.update({a: _Word(access="R") for a in (277, 278, 279)})
-    w.update({a: _Word(0) for a in (280, 281, 282)})  # comms error counters, write resets
-    w.update({287: _Word(1, 0, 6), 288: _Word(0, 0, 5), 289: _Word(50, 0, 1000)})
-    w.update({290: _Word(10, 0, 1000), 291: _Word(200, 1, 1000), 292: _Word(access="-")})
-    w.update({293: _Word(0), 294: _Word(0), 295: _Word(0, 0, 3), 296: _Word(5000, 1000)})
-    w.update({297: _Word(5, 1, 1000), 298: _Word(1000, 1, 6000)})
+        w.update({224 + 3 * n: RegisterSpec(100, 0, 3000), 225 + 3 * n: RegisterSpec(100, 1, 2000)})
+        w[226 + 3 * n] = RegisterSpec(100)
+    w.update({
+        272: RegisterSpec(0, 0, 1650), 273: RegisterSpec(10, 0, 2000),
+        274: RegisterSpec(50, 0, 1000), 275: RegisterSpec(0, 0, 1000),
+        276: RegisterSpec(100, 0, 3000),
+    })
+    w.update({a: _READ_ONLY for a in (277, 278, 279)})
+    w.update({a: RegisterSpec(0) for a in (280, 281, 282)})  # comms error counters, write resets
+    w.update({
+        287: RegisterSpec(1, 0, 6), 288: RegisterSpec(0, 0, 5), 289: RegisterSpec(50, 0, 1000),
+        290: RegisterSpec(10, 0, 1000), 291: RegisterSpec(200, 1, 1000), 292: _RESERVED,
+        293: RegisterSpec(0), 294: RegisterSpec(0), 295: RegisterSpec(0, 0, 3),
+        296: RegisterSpec(5000, 1000), 297: RegisterSpec(5, 1, 1000),
+        298: RegisterSpec(1000, 1, 6000),
+    })
     pairs.update({214: (0, 0xFFFFF), 293: (-1048576, 1048576)})
     return w, pairs
 
 
-def _epr60_map() -> tuple[dict[int, _Word], dict[int, tuple[int, int]]]:
+def _epr60_map() -> tuple[dict[int, RegisterSpec], PairRanges]:
     """The EPR60 manual's map: the common block with its own 20, 77, 79-83, 96/97, 170-212."""
     w, pairs = _nt_common_map()
-    w.update({20: _Word(0, 0, 11), 77: _Word(100, 0, 3000)})
-    w.update({79: _Word(0, 0, 1), 80: _Word(200, 0, 600), 81: _Word(40, 0, 600)})
-    w.update({82: _Word(100, 0, 1000), 83: _Word(100, 0, 1000)})
-    w.update({96: _Word(4000), 97: _Word(0)})
+    w.update({
+        20: RegisterSpec(0, 0, 11), 77: RegisterSpec(100, 0, 3000), 79: RegisterSpec(0, 0, 1),
+        80: RegisterSpec(200, 0, 600), 81: RegisterSpec(40, 0, 600),
+        82: RegisterSpec(100, 0, 1000), 83: RegisterSpec(100, 0, 1000), 96: RegisterSpec(4000),
+        97: RegisterSpec(0),
+    })
     for a, default in zip(
         range(170, 181), (192, 168, 0, 192, 168, 0, 1, 255, 255, 255, 0), strict=True
     ):
-        w[a] = _Word(default, 0, 255)
+        w[a] = RegisterSpec(default, 0, 255)
     # 190-212: named in the summary only, values undocumented: stored, no effect.
-    w.update({a: _Word(0) for a in (190, 191, 192, *range(200, 210), 212)})
+    w.update({a: RegisterSpec(0) for a in (190, 191, 192, *range(200, 210), 212)})
     pairs[73] = (-(1 << 31), (1 << 31) - 1)  # no documented range besides int32
     pairs[96] = (200, 65535)
     return w, pairs
+
+
+_NT86_MAP, _NT86_PAIRS = _nt86_map()
+_EPR60_MAP, _EPR60_PAIRS = _epr60_map()
 
 
 class SimNT86(SimDrive):
@@ -171,17 +191,16 @@ class SimNT86(SimDrive):
     family: ClassVar[str] = "NT86"
     drive_id: ClassVar[int] = 86  # assumption: registers 93/94 formats are undocumented
     drive_version: ClassVar[int] = 100
+    register_map: ClassVar[Mapping[int, RegisterSpec]] = _NT86_MAP
+    pair_ranges: ClassVar[PairRanges] = _NT86_PAIRS
+    read_functions = frozenset((READ_HOLDING,))
 
     def __init__(
         self,
         address: int,
         settings: LineSettings | None = None,
+        setup: TwinSetup | None = None,
         *,
-        turnaround: float = 0.001,
-        position: int = 0,
-        home_switch: float | None = None,
-        limit_negative: float | None = None,
-        limit_positive: float | None = None,
         home_cam: Literal["positive", "negative"] = "positive",
         hard_stop_negative: float | None = None,
         hard_stop_positive: float | None = None,
@@ -189,22 +208,13 @@ class SimNT86(SimDrive):
     ) -> None:
         settings = settings or LineSettings.parse("115200 8N1")
         self._check_line(address, settings)
-        super().__init__(
-            address,
-            settings,
-            turnaround=turnaround,
-            position=position,
-            home_switch=home_switch,
-            limit_negative=limit_negative,
-            limit_positive=limit_positive,
-        )
+        super().__init__(address, settings, setup)
         if home_cam not in ("positive", "negative"):
             raise ConfigError(f"home_cam must be 'positive' or 'negative', not {home_cam!r}")
         self.home_cam = home_cam
         self.hard_stop_negative = hard_stop_negative
         self.hard_stop_positive = hard_stop_positive
-        self.spec, self.pairs = self._register_map()
-        self.params: dict[int, int] = {a: s.default for a, s in self.spec.items()}
+        self.params: dict[int, int] = {a: s.default for a, s in self.register_map.items()}
         self.params[22] = control_mode
         self.flash: dict[int, int] = dict(self.params)
         self._inputs = 0
@@ -223,8 +233,8 @@ class SimNT86(SimDrive):
         self._crc_base = 0
         self._clear_trigger = True
         self.enabled = not self._function_active(4, 0.0)
-        self._get = self._getters()
-        self._act = self._actions()
+        self._register_getters = self._getters()
+        self._write_actions = self._actions()
 
     # -- configuration ---------------------------------------------------------------------
 
@@ -239,9 +249,6 @@ class SimNT86(SimDrive):
                 f"{', '.join(map(str, _NT86_BAUDS))} baud (DIP switches SW6/SW7)"
             )
 
-    def _register_map(self) -> tuple[dict[int, _Word], dict[int, tuple[int, int]]]:
-        return _nt86_map()
-
     # -- helpers ---------------------------------------------------------------------------
 
     @property
@@ -249,26 +256,20 @@ class SimNT86(SimDrive):
         """Microstep setting (register 24)."""
         return self.params[24]
 
-    def _pps(self, rpm: float) -> float:
-        return rpm * self.pulses_per_rev / 60.0
-
-    def _pps2(self, rps2: float) -> float:
-        return rps2 * self.pulses_per_rev
-
-    def _pair(self, low: int) -> int:
+    def _pair_value(self, low: int) -> int:
         value = self.params[low] | (self.params[low + 1] << 16)
-        lo, _ = self.pairs[low]
-        return _signed32(value) if lo < 0 else value
+        minimum, _ = self.pair_ranges[low]
+        return signed32(value) if minimum < 0 else value
 
-    def _phys(self, t: float) -> float:
+    def _physical(self, t: float) -> float:
         return self.kin.position(t)
 
     def counter(self, t: float) -> int:
         """Position register 8/9 at ``t`` (signed 32-bit, wraps like the drive's counter)."""
-        return _signed32(round(self._phys(t) + self._offset))
+        return signed32(round(self._physical(t) + self._offset))
 
     def _set_counter(self, t: float, value: int) -> None:
-        self._offset = value - self._phys(t)
+        self._offset = value - self._physical(t)
 
     def switch_states(self, now: float) -> tuple[bool, bool, bool]:
         """(home, limit negative, limit positive); the home cam side is ``home_cam``."""
@@ -301,28 +302,28 @@ class SimNT86(SimDrive):
 
     def position(self, now: float | None = None) -> int:
         """The drive's position counter (register 8/9) in pulses."""
-        t = monotonic() if now is None else now
-        self._advance(t)
+        t = time_or_present(now)
+        self.advance(t)
         return self.counter(t)
 
     def physical_position(self, now: float | None = None) -> int:
         """The motor's position in the switch positions' frame, in whole pulses."""
-        t = monotonic() if now is None else now
-        self._advance(t)
-        return round(self._phys(t))
+        t = time_or_present(now)
+        self.advance(t)
+        return round(self._physical(t))
 
     def is_moving(self, now: float | None = None) -> bool:
         """True while the motor turns or a homing runs (status bit MOV)."""
-        t = monotonic() if now is None else now
-        self._advance(t)
-        return self._mov(t)
+        t = time_or_present(now)
+        self.advance(t)
+        return self._moving(t)
 
     def set_input(self, n: int, conducting: bool, now: float | None = None) -> None:
         """Drive physical input IN n (1-5; IN6 follows the home switch)."""
         if not 1 <= n <= 5:
             raise ConfigError(f"IN{n}: the twin drives IN1..IN5 (IN6 is the home switch)")
-        t = monotonic() if now is None else now
-        self._advance(t)
+        t = time_or_present(now)
+        self.advance(t)
         before = self._functions(t)
         self._inputs = (
             (self._inputs | (1 << (n - 1))) if conducting else (self._inputs & ~(1 << (n - 1)))
@@ -337,8 +338,8 @@ class SimNT86(SimDrive):
         """
         if not 0 < code <= 0x1FF:
             raise ConfigError(f"alarm code 0x{code:X}: register 0 has bits 0-8")
-        t = monotonic() if now is None else now
-        self._advance(t)
+        t = time_or_present(now)
+        self.advance(t)
         self._abort_program(t)
         self._jog = None
         super().raise_alarm(self.alarm_code | code, t)
@@ -346,7 +347,7 @@ class SimNT86(SimDrive):
     def power_loss(self) -> None:
         """Power cut: silent until restored; motion is lost."""
         t = monotonic()
-        self._advance(t)
+        self.advance(t)
         self._abort_program(t)
         self._jog = None
         super().power_loss()
@@ -365,40 +366,24 @@ class SimNT86(SimDrive):
 
     # -- Modbus hooks ----------------------------------------------------------------------
 
-    def read_registers(self, function: int, address: int, count: int, now: float) -> list[int]:
-        """FC03 only (FC04 is exception 01); unmapped addresses are exception 02."""
-        if function != P.READ_HOLDING:
-            raise SlaveException(1)
-        self._advance(now)
-        return [self._read_word(a, now) for a in range(address, address + count)]
+    def read_register(self, address: int, now: float) -> int:
+        """A computed register, 0 for a command register, else the stored parameter."""
+        getter = self._register_getters.get(address)
+        if getter is not None:
+            return getter(now)
+        return 0 if self.register_map[address].command else self.params[address]
 
-    def write_registers(self, address: int, values: list[int], now: float) -> None:
-        """Validate the whole write (02/03), then apply it register by register."""
-        self._advance(now)
+    def check_write(self, address: int, values: list[int]) -> None:
+        """Every register's access and range (02/03), then the range of each 32-bit value
+        written whole (03)."""
+        super().check_write(address, values)
         addresses = range(address, address + len(values))
-        for a, v in zip(addresses, values, strict=True):
-            spec = self.spec.get(a)
-            if spec is None or spec.access in ("R", "-"):
-                raise SlaveException(2)
-            if not spec.lo <= v <= spec.hi:
-                raise SlaveException(3)
-        for low, (lo, hi) in self.pairs.items():
+        for low, (minimum, maximum) in self.pair_ranges.items():
             if low in addresses and low + 1 in addresses:
                 raw = values[low - address] | (values[low + 1 - address] << 16)
-                value = _signed32(raw) if lo < 0 else raw
-                if not lo <= value <= hi:
-                    raise SlaveException(3)
-        for a, v in zip(addresses, values, strict=True):
-            self._write_word(a, v, now)
-
-    def _read_word(self, a: int, t: float) -> int:
-        getter = self._get.get(a)
-        if getter is not None:
-            return getter(t) & 0xFFFF
-        spec = self.spec.get(a)
-        if spec is None:
-            raise SlaveException(2)
-        return 0 if spec.access in ("W", "-") else self.params[a]
+                value = signed32(raw) if minimum < 0 else raw
+                if not minimum <= value <= maximum:
+                    raise SlaveException(self.exception_codes.value)
 
     def _getters(self) -> dict[int, Callable[[float], int]]:
         return {
@@ -406,8 +391,8 @@ class SimNT86(SimDrive):
             1: self._status,
             2: self._input_mask,
             3: self._outputs,
-            8: lambda t: _pair_words(self.counter(t))[0],
-            9: lambda t: _pair_words(self.counter(t))[1],
+            8: lambda t: _words_low_first(self.counter(t))[0],
+            9: lambda t: _words_low_first(self.counter(t))[1],
             10: self._speed_rpm,
             11: lambda t: 48,  # bus voltage (the manual's unit is unclear)
             29: lambda t: self.counter(t),
@@ -416,16 +401,17 @@ class SimNT86(SimDrive):
             281: lambda t: self.crc_errors - self._crc_base,
         }
 
-    def _write_word(self, a: int, v: int, t: float) -> None:
-        old = self.params.get(a, 0)
-        before = self._functions(t) if 60 <= a <= 65 else None
-        if self.spec[a].access != "W":
-            self.params[a] = v
+    def write_register(self, address: int, word: int, now: float) -> None:
+        """Store the parameter (a command register keeps nothing), then act on the write."""
+        old = self.params.get(address, 0)
+        before = self._functions(now) if 60 <= address <= 65 else None
+        if not self.register_map[address].command:
+            self.params[address] = word
         if before is not None:  # an input's function or polarity changed
-            self._functions_changed(before, t)
-        action = self._act.get(a)
+            self._functions_changed(before, now)
+        action = self._write_actions.get(address)
         if action is not None:
-            action(v, old, t)
+            action(word, old, now)
 
     def _actions(self) -> dict[int, Callable[[int, int, float], None]]:
         acts: dict[int, Callable[[int, int, float], None]] = {
@@ -442,12 +428,12 @@ class SimNT86(SimDrive):
 
     # -- status ----------------------------------------------------------------------------
 
-    def _mov(self, t: float) -> bool:
+    def _moving(self, t: float) -> bool:
         return self.kin.moving(t) or self._program_kind == "homing"
 
     def _status(self, t: float) -> int:
         _, neg, pos = self.switch_states(t)
-        moving = self._mov(t)
+        moving = self._moving(t)
         s = POW
         if self.enabled:
             s |= ENA | CLAMP
@@ -467,7 +453,7 @@ class SimNT86(SimDrive):
         return self._cmd_speed > 0 and abs(v - self._cmd_speed) < 1e-6 * self._cmd_speed
 
     def _speed_rpm(self, t: float) -> int:
-        rpm = round(self.kin.velocity(t) * 60.0 / self.pulses_per_rev)
+        rpm = round(self.speed_rpm(t))
         return max(-32768, min(32767, rpm))
 
     def _outputs(self, t: float) -> int:
@@ -497,7 +483,7 @@ class SimNT86(SimDrive):
 
     def _check_can_start(self, t: float) -> None:
         """A start is refused (04) while moving, disabled or in alarm."""
-        if self._mov(t) or not self.enabled or self.alarm_code:
+        if self._moving(t) or not self.enabled or self.alarm_code:
             raise SlaveException(4)
 
     def _command(self, code: int, t: float) -> None:
@@ -518,7 +504,7 @@ class SimNT86(SimDrive):
         self._abort_program(t)
         self._jog = None
         self._estopping = True
-        self.kin.stop(t, self._pps2(self.params[78]))
+        self.kin.stop(t, self.pulse_acceleration(self.params[78]))
 
     def _decel_stop(self, t: float) -> None:
         decel = self._stop_decel
@@ -532,10 +518,11 @@ class SimNT86(SimDrive):
         return (direction > 0 and pos) or (direction < 0 and neg)
 
     def _start_move(self, code: int, t: float) -> None:
-        speed = self._pps(self.params[72])
-        accel, decel = self._pps2(self.params[70]), self._pps2(self.params[71])
-        value = self._pair(73)
-        here = self._phys(t)
+        speed = self.pulse_rate(self.params[72])
+        accel = self.pulse_acceleration(self.params[70])
+        decel = self.pulse_acceleration(self.params[71])
+        value = self._pair_value(73)
+        here = self._physical(t)
         if self.params[84] == 0:
             target = here + (abs(value) if code == 1 else -abs(value))
         else:
@@ -548,8 +535,9 @@ class SimNT86(SimDrive):
         self._run_program(self._watch_limits(), "motion", t)
 
     def _start_jog(self, direction: int, t: float) -> None:
-        speed = self._pps(self.params[77])
-        accel, decel = self._pps2(self.params[75]), self._pps2(self.params[76])
+        speed = self.pulse_rate(self.params[77])
+        accel = self.pulse_acceleration(self.params[75])
+        decel = self.pulse_acceleration(self.params[76])
         if self._blocked_by_limit(direction, t):
             return
         self._estopping = False
@@ -562,13 +550,13 @@ class SimNT86(SimDrive):
         """77 takes effect at once during a jog (manual 3.2.2), with the latched ramps."""
         if self._jog is not None and self.kin.moving(t):
             direction, accel, decel = self._jog
-            self._cmd_speed = self._pps(v)
+            self._cmd_speed = self.pulse_rate(v)
             self.kin.run(t, direction * self._cmd_speed, accel, decel)
 
     def _on_estop_decel(self, v: int, old: int, t: float) -> None:
         """78 applies even to an emergency stop in progress (manual 3.2.1)."""
         if self._estopping and self.kin.moving(t):
-            self.kin.stop(t, self._pps2(v))
+            self.kin.stop(t, self.pulse_acceleration(v))
 
     def _save(self) -> None:
         self.flash = dict(self.params)
@@ -576,7 +564,7 @@ class SimNT86(SimDrive):
     def _factory_reset(self, t: float) -> None:
         before = self._functions(t)
         control = self.params[22]
-        self.params = {a: s.default for a, s in self.spec.items()}
+        self.params = {a: s.default for a, s in self.register_map.items()}
         self.params[22] = control  # keeps the twin's wiring choice
         self._functions_changed(before, t)
 
@@ -610,7 +598,7 @@ class SimNT86(SimDrive):
             self._start_homing(4 if mode == 1 else 5, t, clear_trigger=False)
 
     def _may_start(self, t: float) -> bool:
-        return not self._mov(t) and self.enabled and not self.alarm_code
+        return not self._moving(t) and self.enabled and not self.alarm_code
 
     # -- programs --------------------------------------------------------------------------
 
@@ -628,7 +616,7 @@ class SimNT86(SimDrive):
         self._program, self._program_kind, self._wait = None, "", None
         self._stalled = False
 
-    def _advance(self, now: float) -> None:
+    def advance(self, now: float) -> None:
         """Process the running program's events up to ``now``, in time order."""
         for _ in range(1000):  # a program takes a handful of steps; never spin forever
             if self._program is None or self._wait is None:
@@ -686,7 +674,7 @@ class SimNT86(SimDrive):
         if name == "rest":
             return
         self._jog = None
-        self.kin.stop(t, self._pps2(self.params[78]))
+        self.kin.stop(t, self.pulse_acceleration(self.params[78]))
         yield _Wait(rest=True)
 
     # -- homing (NT86: 287-298) ------------------------------------------------------------
@@ -709,11 +697,11 @@ class SimNT86(SimDrive):
         self._estopping = False
         self._clear_trigger = clear_trigger
         if mode == 6:
-            self._set_counter(t, self._pair(293))
+            self._set_counter(t, self._pair_value(293))
             self.homed = True
             self.params[287] = 0
             return
-        self._stop_decel = self._pps2(self.params[291])
+        self._stop_decel = self.pulse_acceleration(self.params[291])
         program = self._home_electrical() if mode == 5 else self._home_mechanical(t)
         self._run_program(program, "homing", t)
 
@@ -732,12 +720,12 @@ class SimNT86(SimDrive):
     def _home_electrical(self) -> Program:
         """287=5: move to the absolute position 293/294 at speed 289 (accel 291)."""
         t = self._wait_from
-        target = self._pair(293) - self._offset
-        speed, acc = self._pps(self.params[289]), self._pps2(self.params[291])
+        target = self._pair_value(293) - self._offset
+        speed, acc = self.pulse_rate(self.params[289]), self.pulse_acceleration(self.params[291])
         if speed > 0 and acc > 0:
             self.kin.move_to(t, target, speed, acc, acc)
             _, t = yield _Wait(rest=True)
-        self._homing_done(t, self._pair(293))
+        self._homing_done(t, self._pair_value(293))
 
     def _signal(self, method: int) -> float | None:
         return {
@@ -756,17 +744,18 @@ class SimNT86(SimDrive):
         to its rising edge (the origin); 288=4/5: creep into the hard stop (manual 3.1.2)."""
         method, handling = self.params[288], self.params[295]
         d = 1 if method in (0, 2, 4) else -1
-        fast, slow = self._pps(self.params[289]), self._pps(self.params[290])
-        acc = self._pps2(self.params[291])
+        fast, slow = self.pulse_rate(self.params[289]), self.pulse_rate(self.params[290])
+        acc = self.pulse_acceleration(self.params[291])
         if method in (4, 5):
             t = yield from self._hard_stop(d, slow, acc)
         else:
-            t = yield from self._switch_search(method, d, fast, slow, acc, handling)
-            if t is None:
+            found = yield from self._switch_search(method, d, fast, slow, acc, handling)
+            if found is None:
                 return  # stopped at a limit (295=0/1): wait for a new trigger
-        offset = self._pair(293)
+            t = found
+        offset = self._pair_value(293)
         if handling in (1, 3) and offset:
-            self.kin.move_to(t, self._phys(t) + offset, max(fast, 1.0), acc, acc)
+            self.kin.move_to(t, self._physical(t) + offset, max(fast, 1.0), acc, acc)
             _, t = yield _Wait(rest=True)
         self._homing_done(t, offset)
 
@@ -846,18 +835,17 @@ class SimEPR60(SimNT86):
     family: ClassVar[str] = "EPR60"
     drive_id: ClassVar[int] = 60
     drive_version: ClassVar[int] = 100
+    register_map = _EPR60_MAP
+    pair_ranges = _EPR60_PAIRS
 
     @classmethod
     def _check_line(cls, address: int, settings: LineSettings) -> None:
         """Any unit id 1-247 and any serial settings (the real drive is on Ethernet)."""
 
-    def _register_map(self) -> tuple[dict[int, _Word], dict[int, tuple[int, int]]]:
-        return _epr60_map()
-
     @property
     def pulses_per_rev(self) -> int:
         """Microstep setting (registers 96/97)."""
-        return max(self._pair(96), 1)
+        return max(self._pair_value(96), 1)
 
     def _getters(self) -> dict[int, Callable[[float], int]]:
         g = super()._getters()
@@ -875,7 +863,7 @@ class SimEPR60(SimNT86):
         """Leaving homing mode 1 while homing runs aborts it (decelerating at 82)."""
         if v != 1 and self._program_kind == "homing":
             self._abort_program(t)
-            self.kin.stop(t, self._pps2(self.params[82]))
+            self.kin.stop(t, self.pulse_acceleration(self.params[82]))
 
     def _homing_aborted(self) -> None:
         pass  # no trigger register to clear
@@ -885,15 +873,15 @@ class SimEPR60(SimNT86):
             self.homed = False
             self._jog = None
             self._estopping = False
-            self._stop_decel = self._pps2(self.params[82])
+            self._stop_decel = self.pulse_acceleration(self.params[82])
             self._run_program(self._home_limit(), "homing", t)
 
     def _home_limit(self) -> Program:
         t = self._wait_from
         d = 1 if self.params[79] == 1 else -1
         edge = self.limit_positive if d > 0 else self.limit_negative
-        fast, slow = self._pps(self.params[80]), self._pps(self.params[81])
-        acc = self._pps2(self.params[82])
+        fast, slow = self.pulse_rate(self.params[80]), self.pulse_rate(self.params[81])
+        acc = self.pulse_acceleration(self.params[82])
         if edge is None:
             self.kin.run(t, d * fast, acc, acc)
             yield _Wait()  # no limit switch: runs until stopped
@@ -909,6 +897,6 @@ class SimEPR60(SimNT86):
         self.kin.hold(t, edge)
         offset = self.params[83]
         if offset and slow > 0 and acc > 0:
-            self.kin.move_to(t, self._phys(t) - d * offset, slow, acc, acc)
+            self.kin.move_to(t, self._physical(t) - d * offset, slow, acc, acc)
             _, t = yield _Wait(rest=True)
         self._homing_done(t, 0)

@@ -1,0 +1,131 @@
+"""Commands as they arrive over MQTT: the payload parsed and checked before anything runs.
+
+A command's body is a JSON object (an empty payload is ``{}``) whose keys depend on the
+verb; ``id`` (a string or a number) is echoed in every reply. Anything that cannot be
+taken as asked (not UTF-8, not JSON, NaN or infinity, not an object, an unknown verb or
+key, a value of the wrong type) is an ``ArgumentError`` naming the problem: the bridge
+answers it with a ``failed`` reply, never with silence.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from drivebus import checks
+from drivebus.errors import ArgumentError
+
+__all__ = ["MAX_PAYLOAD", "MAX_TTL", "VERBS", "Command", "parse_command", "peek_id"]
+
+MAX_PAYLOAD = 16 * 1024
+"""Longest command payload taken, bytes."""
+
+MAX_TTL = 10.0
+"""Longest jog watchdog, s: a jog over MQTT must be fed at least this often."""
+
+_NUMBERS: dict[str, tuple[str, ...]] = {
+    "move": ("target", "by", "speed", "accel", "decel"),
+    "home": (),
+    "jog": ("speed", "ttl", "accel", "decel"),
+    "stop": ("decel",),
+    "halt": (),
+    "enable": (),
+    "disable": (),
+    "reset": (),
+}
+"""Each verb's keys (all numbers) besides ``id``."""
+
+VERBS = tuple(_NUMBERS)
+"""The axis command verbs."""
+
+Id = str | int | float | None
+
+
+@dataclass(frozen=True)
+class Command:
+    """One parsed axis command."""
+
+    verb: str
+    axis: str
+    id: Id = None
+    args: dict[str, float] = field(default_factory=dict)
+    """The verb's numeric arguments that were given, each finite."""
+
+
+def _reject_constant(name: str) -> Any:
+    raise ArgumentError(f"payload: {name} is not a finite number (JSON has no {name})")
+
+
+def _load(payload: bytes) -> Any:
+    """The payload as JSON data (an empty payload is an empty object)."""
+    if len(payload) > MAX_PAYLOAD:
+        raise ArgumentError(f"payload: {len(payload)} bytes, at most {MAX_PAYLOAD} are taken")
+    try:
+        text = payload.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ArgumentError(f"payload: not UTF-8 text (byte {exc.start})") from None
+    if not text.strip():
+        return {}
+    try:
+        return json.loads(text, parse_constant=_reject_constant)
+    except json.JSONDecodeError as exc:
+        raise ArgumentError(f"payload: not JSON ({exc.msg} at line {exc.lineno} column "
+                            f"{exc.colno}): {text[:80]!r}") from None
+    except RecursionError:
+        raise ArgumentError("payload: JSON nested too deeply") from None
+
+
+def _id(data: dict[str, Any]) -> Id:
+    v = data.get("id")
+    if v is None or (isinstance(v, str | int) and not isinstance(v, bool)):
+        return v
+    if isinstance(v, float) and math.isfinite(v):
+        return v
+    raise ArgumentError(f"id: expected a string or a number, got {v!r}")
+
+
+def peek_id(payload: bytes) -> Id:
+    """The ``id`` of a payload if it has a usable one, read leniently (a reply to a bad
+    command echoes it whenever it can be found)."""
+    if len(payload) > MAX_PAYLOAD:
+        return None
+    try:
+        data = json.loads(payload.decode("utf-8"))
+        return _id(data) if isinstance(data, dict) else None
+    except (ValueError, RecursionError, ArgumentError):
+        return None
+
+
+def parse_command(axis: str, verb: str, payload: bytes) -> Command:
+    """The command ``verb`` for ``axis`` from its payload; ``ArgumentError`` naming what
+    is wrong."""
+    if verb not in _NUMBERS:
+        raise ArgumentError(f"unknown verb {verb!r} (verbs: {', '.join(VERBS)})")
+    data = _load(payload)
+    if not isinstance(data, dict):
+        raise ArgumentError(f"payload: expected a JSON object, got {type(data).__name__} "
+                            f"{data!r:.60}")
+    cid = _id(data)
+    allowed = _NUMBERS[verb]
+    unknown = sorted(k for k in data if k != "id" and k not in allowed)
+    if unknown:
+        keys = ", ".join(("id", *allowed))
+        raise ArgumentError(f"{verb}: unknown key {', '.join(map(repr, unknown))} "
+                            f"(keys: {keys})")
+    args = {k: checks.finite(k, data[k]) for k in allowed if data.get(k) is not None}
+    if verb == "move" and ("target" in args) == ("by" in args):
+        raise ArgumentError("move: give exactly one of 'target' and 'by'")
+    if verb == "jog":
+        if "speed" not in args:
+            raise ArgumentError("jog: 'speed' is required (units/s, signed; 0 stops)")
+        ttl = checks.positive("ttl", args.get("ttl", 1.0), unit="s")
+        if ttl > MAX_TTL:
+            raise ArgumentError(f"ttl: {ttl:g} s is above {MAX_TTL:g} s: a jog over MQTT "
+                                f"must be fed at least that often")
+        args["ttl"] = ttl
+    for k in ("speed", "accel", "decel"):
+        if k in args and not (verb == "jog" and k == "speed"):
+            checks.positive(k, args[k])
+    return Command(verb, axis, cid, args)

@@ -1,0 +1,346 @@
+"""The HTTP API over one ``MachineSession``: routes, authentication, the dashboard's files.
+
+``create_app(session, tokens)`` builds the FastAPI application; ``drivebus.service.runner``
+serves it with uvicorn. Every route is a thin mapping onto the session: the session
+checks arguments, states and the lease and raises typed errors, which
+``drivebus.service.problems`` turns into problem+json answers.
+"""
+
+# No ``from __future__ import annotations`` here: FastAPI reads the annotations at runtime.
+
+import itertools
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any
+
+import anyio
+from fastapi import APIRouter, Depends, FastAPI, Header, Request, Response
+from fastapi.responses import FileResponse
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from fastapi.staticfiles import StaticFiles
+
+from drivebus.app import MachineSession
+from drivebus.service import problems
+from drivebus.service.auth import Principal, TokenStore, require_command
+from drivebus.service.encoding import EventEncoder
+from drivebus.service.fanout import Fanout
+from drivebus.service.models import (
+    GroupMoveRequest,
+    JogRequest,
+    LeaseRequest,
+    MoveRequest,
+    ReadRequest,
+    StopRequest,
+    WriteRequest,
+)
+
+__all__ = ["STATIC", "ServiceState", "create_app"]
+
+STATIC = Path(__file__).resolve().parent / "static"
+"""The dashboard's files (shipped as package data)."""
+
+_bearer = HTTPBearer(auto_error=False, description="a token from the service's token file")
+
+
+@dataclass
+class ServiceState:
+    """What the routes share: the session, the tokens, one JSON encoder for events."""
+
+    session: MachineSession
+    tokens: TokenStore
+    encoder: EventEncoder = field(default_factory=EventEncoder)
+    connections: itertools.count = field(default_factory=lambda: itertools.count(1))
+    fanout: Fanout = field(init=False)
+    """The session's events to the WebSocket connections (run by the app's lifespan)."""
+
+    def __post_init__(self) -> None:
+        self.fanout = Fanout(self.session.events)
+
+
+def _state(request: Request) -> ServiceState:
+    state: ServiceState = request.app.state.drivebus
+    return state
+
+
+def _session(request: Request) -> MachineSession:
+    return _state(request).session
+
+
+def _reader(
+    request: Request,
+    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
+    x_drivebus_client: Annotated[str | None, Header(
+        description="the client's name when the service runs without tokens")] = None,
+) -> Principal:
+    token = None if credentials is None else credentials.credentials
+    return _state(request).tokens.authenticate(token, x_drivebus_client)
+
+
+def _commander(principal: Annotated[Principal, Depends(_reader)]) -> Principal:
+    return require_command(principal)
+
+
+Session = Annotated[MachineSession, Depends(_session)]
+Reader = Annotated[Principal, Depends(_reader)]
+Commander = Annotated[Principal, Depends(_commander)]
+
+_ERRORS: dict[int | str, dict[str, Any]] = {
+    status: {"description": text, "content": {problems.PROBLEM: {}}}
+    for status, text in (
+        (401, "no or unknown bearer token"),
+        (403, "the token's scope does not allow this"),
+        (404, "no such axis, line or motion"),
+        (409, "StateError, or LeaseHeld naming the holder"),
+        (422, "ArgumentError, LimitViolation, or an invalid request body"),
+        (501, "NotSupported by this drive"),
+        (503, "DriveOffline"),
+    )
+}
+
+router = APIRouter(prefix="/api", responses=_ERRORS)
+
+
+def _lease(session: MachineSession) -> dict[str, Any]:
+    lease = session.lease
+    if lease is None:
+        return {"holder": None, "remaining": None}
+    return {"holder": lease.holder, "remaining": round(lease.remaining, 3)}
+
+
+def _accepted(response: Response, record_id: str) -> None:
+    response.headers["Location"] = f"/api/motions/{record_id}"
+
+
+# -- looking ----------------------------------------------------------------------------------
+
+
+@router.get("/machine", tags=["machine"])
+async def get_machine(session: Session, _: Reader) -> dict[str, Any]:
+    """The machine: its name, lines (kind, settings, utilisation, counters), axes
+    (drive, state, position, ...) and who holds the command lease."""
+    data = session.snapshot().as_dict()
+    data["lease"] = _lease(session)
+    return data
+
+
+@router.get("/client", tags=["machine"])
+async def get_client(request: Request, who: Reader) -> dict[str, Any]:
+    """Who the caller is to this service: its name and scope, and whether tokens are on."""
+    state = _state(request)
+    return {"client": who.name, "scope": who.scope, "tokens": state.tokens.enabled,
+            "machine": state.session.name}
+
+
+@router.get("/axes", tags=["axes"])
+async def get_axes(session: Session, _: Reader) -> list[dict[str, Any]]:
+    """Every axis as last polled."""
+    return [session.axis_snapshot(n).as_dict() for n in session.machine.axes]
+
+
+@router.get("/axes/{name}", tags=["axes"])
+async def get_axis(name: str, session: Session, _: Reader) -> dict[str, Any]:
+    """One axis: state, position, velocity, enabled, homed, alarm code and text, limit
+    switches, soft limits, units."""
+    return session.axis_snapshot(name).as_dict()
+
+
+@router.get("/lines/{line}", tags=["lines"])
+async def get_line(line: str, session: Session, _: Reader) -> dict[str, Any]:
+    """One line: kind, endpoint, settings, utilisation and per-slave counters."""
+    return session.line_snapshot(line).as_dict()
+
+
+# -- motions with an id -----------------------------------------------------------------------
+
+
+@router.post("/axes/{name}/move", status_code=202, tags=["motions"])
+async def move(
+    name: str, body: MoveRequest, session: Session, who: Commander, response: Response
+) -> dict[str, Any]:
+    """Start a move; ``202`` once the axis accepted it, with ``Location`` of its motion."""
+    rec = await session.start_move(name, target=body.target, by=body.by, speed=body.speed,
+                                   accel=body.accel, decel=body.decel, client=who.name)
+    _accepted(response, rec.id)
+    return rec.as_dict()
+
+
+@router.post("/axes/{name}/home", status_code=202, tags=["motions"])
+async def home(name: str, session: Session, who: Commander, response: Response
+               ) -> dict[str, Any]:
+    """Start the axis's homing procedure; ``202`` once accepted."""
+    rec = await session.start_home(name, client=who.name)
+    _accepted(response, rec.id)
+    return rec.as_dict()
+
+
+@router.post("/machine/group-move", status_code=202, tags=["motions"])
+async def group_move(body: GroupMoveRequest, session: Session, who: Commander,
+                     response: Response) -> dict[str, Any]:
+    """Start a coordinated move: the axes arrive at their targets together."""
+    rec = await session.start_group_move(body.targets, client=who.name)
+    _accepted(response, rec.id)
+    return rec.as_dict()
+
+
+@router.get("/motions", tags=["motions"])
+async def get_motions(session: Session, _: Reader) -> list[dict[str, Any]]:
+    """The motions still known, oldest first."""
+    return [r.as_dict() for r in session.motions()]
+
+
+@router.get("/motions/{motion_id}", tags=["motions"])
+async def get_motion(motion_id: str, session: Session, _: Reader) -> dict[str, Any]:
+    """A motion: ``running``, ``done``, ``aborted`` or ``failed`` (with the typed error)."""
+    return session.motion(motion_id).as_dict()
+
+
+@router.delete("/motions/{motion_id}", tags=["motions"])
+async def cancel_motion(motion_id: str, session: Session, who: Commander) -> dict[str, Any]:
+    """Cancel a motion: its axes stop; returns once they are at rest."""
+    return (await session.cancel_motion(motion_id, client=who.name)).as_dict()
+
+
+# -- direct commands --------------------------------------------------------------------------
+
+
+@router.post("/axes/{name}/stop", tags=["axes"])
+async def stop(name: str, session: Session, who: Commander,
+               body: StopRequest | None = None) -> dict[str, Any]:
+    """Decelerating stop; returns at rest."""
+    await session.stop(name, decel=None if body is None else body.decel, client=who.name)
+    return session.axis_snapshot(name).as_dict()
+
+
+@router.post("/axes/{name}/halt", tags=["axes"])
+async def halt(name: str, session: Session, who: Commander) -> dict[str, Any]:
+    """Emergency stop of one axis (never refused by the lease); returns at rest."""
+    await session.halt(name, client=who.name)
+    return session.axis_snapshot(name).as_dict()
+
+
+@router.post("/axes/{name}/enable", tags=["axes"])
+async def enable(name: str, session: Session, who: Commander) -> dict[str, Any]:
+    """Energise the motor."""
+    await session.enable(name, client=who.name)
+    return session.axis_snapshot(name).as_dict()
+
+
+@router.post("/axes/{name}/disable", tags=["axes"])
+async def disable(name: str, session: Session, who: Commander) -> dict[str, Any]:
+    """De-energise the motor (at rest)."""
+    await session.disable(name, client=who.name)
+    return session.axis_snapshot(name).as_dict()
+
+
+@router.post("/axes/{name}/reset", tags=["axes"])
+async def reset(name: str, session: Session, who: Commander) -> dict[str, Any]:
+    """Leave ErrorStop (clear the drive's alarm if it has one)."""
+    await session.reset(name, client=who.name)
+    return session.axis_snapshot(name).as_dict()
+
+
+@router.post("/axes/{name}/jog", tags=["axes"])
+async def jog(name: str, body: JogRequest, session: Session, who: Commander
+              ) -> dict[str, Any]:
+    """Jog at ``speed`` until ``ttl`` seconds after the last such request (repeat it to
+    keep jogging; speed 0 stops). The WebSocket's ``jog`` message does the same."""
+    await session.jog(name, body.speed, ttl=body.ttl, accel=body.accel, decel=body.decel,
+                      client=who.name)
+    return {"axis": name, "speed": body.speed, "ttl": body.ttl}
+
+
+@router.post("/estop", tags=["machine"])
+async def estop(session: Session, _: Reader) -> dict[str, Any]:
+    """Emergency-stop every axis at once. Never queued behind other requests, never
+    refused by the lease, allowed to every authenticated client (read scope too);
+    returns when every axis is at rest, with each axis's outcome (null: at rest)."""
+    return {"axes": await session.estop()}
+
+
+# -- the command lease ------------------------------------------------------------------------
+
+
+@router.get("/lease", tags=["lease"])
+async def get_lease(session: Session, _: Reader) -> dict[str, Any]:
+    """Who holds the command lease (``holder`` null: nobody) and for how much longer."""
+    return _lease(session)
+
+
+@router.post("/lease", tags=["lease"])
+async def take_lease(session: Session, who: Commander, body: LeaseRequest | None = None
+                     ) -> dict[str, Any]:
+    """Take or renew the command lease: commands from other clients get ``409 LeaseHeld``
+    until it expires or is given back (the e-stop excepted)."""
+    session.acquire_lease(who.name, 30.0 if body is None else body.ttl)
+    return _lease(session)
+
+
+@router.delete("/lease", tags=["lease"])
+async def give_back_lease(session: Session, who: Commander) -> dict[str, Any]:
+    """Give the lease back (nothing happens if the caller does not hold it)."""
+    session.release_lease(who.name)
+    return _lease(session)
+
+
+# -- raw registers ----------------------------------------------------------------------------
+
+
+@router.post("/lines/{line}/read", tags=["lines"])
+async def read_registers(line: str, body: ReadRequest, session: Session, _: Reader
+                         ) -> dict[str, Any]:
+    """Read holding (or input) registers of a slave on the line, between the axes' polls."""
+    words = await session.read_registers(line, body.address, body.first, body.count,
+                                         input=body.input)
+    return {"line": line, "address": body.address, "register": body.first, "words": words}
+
+
+@router.post("/lines/{line}/write", tags=["lines"])
+async def write_registers(line: str, body: WriteRequest, session: Session, who: Commander
+                          ) -> dict[str, Any]:
+    """Write registers of a slave on the line (FC06 for one value, FC16 for more; never
+    retried). Bypasses the axes: for commissioning."""
+    await session.write_registers(line, body.address, body.first, body.values,
+                                  client=who.name)
+    return {"line": line, "address": body.address, "register": body.first,
+            "written": len(body.values)}
+
+
+# -- the application --------------------------------------------------------------------------
+
+
+def create_app(session: MachineSession, tokens: TokenStore | None = None) -> FastAPI:
+    """The service's ASGI application over ``session`` (no tokens: no authentication)."""
+    from drivebus.service.ws import websocket_endpoint
+
+    tokens = tokens or TokenStore()
+    state = ServiceState(session, tokens)
+
+    @asynccontextmanager
+    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        async with anyio.create_task_group() as tg:
+            await tg.start(state.fanout.run, name="drivebus service: websocket fan-out")
+            yield
+            tg.cancel_scope.cancel()
+
+    app = FastAPI(
+        lifespan=lifespan,
+        title=f"drivebus: machine {session.name}",
+        version="1",
+        description="Modbus drives on shared lines: axes, motions, e-stop, leases, raw "
+                    "registers; live updates on the WebSocket /api/ws.",
+        docs_url="/docs",
+        redoc_url=None,
+    )
+    app.state.drivebus = state
+    problems.install(app)
+    app.include_router(router)
+    app.add_api_websocket_route("/api/ws", websocket_endpoint)
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+
+    @app.get("/", include_in_schema=False)
+    async def dashboard() -> FileResponse:
+        return FileResponse(STATIC / "index.html")
+
+    return app
