@@ -12,8 +12,12 @@ async def test_a_30_s_soak_keeps_every_invariant() -> None:
     assert report.violations == []
     calls = report.calls
     for what in ("move_to", "move_by", "jog", "stop", "halt_now", "group move_to",
-                 "power cycle", "alarm", "move_to (cancelled)", "move_to (outside limits)"):
+                 "move_to (cancelled)", "move_to (outside limits)"):
         assert calls[what] > 0, what
+    assert report.faults["power cycle"] > 0 and report.faults["alarm"] > 0
+    assert report.outcomes["move_to (cancelled): timed out"] > 0
     assert report.stops_checked > 50 and report.rest_checks > 1000
     assert report.outcomes["move_to (outside limits): LimitViolation"] > 0
     assert report.outcomes["move_to: ok"] > 0 and report.outcomes["stop: ok"] > 0
+    # every call ended one way: returned, raised a typed error, timed out or was cancelled
+    assert sum(report.outcomes.values()) == sum(calls.values())

@@ -22,7 +22,9 @@ MIXED = {
 
 async def test_mixed_settings_line_keeps_every_silence() -> None:
     slaves = [RegisterSlave(a, s, initial=[(0, a * 100)]) for a, s in MIXED.items()]
-    async with sim_bus(slaves, LineSettings.parse("115200 8N1")) as (wire, bus):
+    # A generous timeout: a reply late by a loaded machine must not be retried (the test
+    # counts frames); the silences it checks do not depend on the timeout.
+    async with sim_bus(slaves, LineSettings.parse("115200 8N1"), timeout=1.0) as (wire, bus):
         handles = {a: bus.slave(a, settings=s) for a, s in MIXED.items()}
         # A deterministic but irregular order: runs of one slave and switches between all.
         order = [a for a in itertools.islice(itertools.cycle([1, 2, 2, 3, 4, 4, 4, 1, 3]), 2000)]

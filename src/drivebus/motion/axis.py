@@ -23,6 +23,7 @@ its volatile settings read back and set up again before the next command.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
@@ -57,6 +58,7 @@ from drivebus.errors import (
 )
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.motion.units import Units
+from drivebus.timing import timing
 
 __all__ = ["Axis", "MotionPlan"]
 
@@ -67,6 +69,9 @@ _STOP_TIMEOUT = 30.0
 
 _RESET_GAP = 0.5
 """A silence between two answered polls longer than this may have hidden a power cycle."""
+
+_WRITE_REPLY_BYTES = 8
+"""An RTU reply to a register write (function 06 or 16): address, function, 4 bytes, CRC."""
 
 
 @dataclass(frozen=True)
@@ -176,6 +181,7 @@ class Axis:
         self._rest_waits: list[_RestWait] = []
         self._stop_sent_at = 0.0
         self._stop_due: str | None = None  # the actor must send a stop (and why)
+        self._poll_at = math.inf  # poll no later than this (a stop's expected rest)
         self._check_due = False  # read the volatile settings back before the next command
         self._setup_due = False  # the drive never answered: set it up when it does
         self._homed_lost = False
@@ -326,18 +332,34 @@ class Axis:
         while True:
             fast = self.state in MOVING_STATES or self._waiters > 0 or self._motion is not None
             period = poll.moving if fast else poll.idle
-            next_poll = min(next_poll, monotonic() + period)
-            delay = next_poll - monotonic()
-            if delay > 0:  # a poll already due needs no cancel scope
-                with anyio.move_on_after(delay):
-                    await self._poke.wait()
-            else:
-                await anyio.lowlevel.checkpoint()
-            self._poke = anyio.Event()
-            issued = monotonic()
-            next_poll = issued + period
+            now = monotonic()
+            next_poll = min(next_poll, now + period)
+            priority = Priority.COMMAND if self._rest_waits else Priority.POLL
+            quiet: contextlib.AbstractAsyncContextManager[None] = contextlib.nullcontext()
+            if self._rest_waits and now < self._poll_at <= now + period:
+                # A stop's drive should come to rest within this period: a poll before
+                # then would only see it still moving. The next one goes out right then,
+                # the line kept quiet for it from half a period before (other slaves'
+                # transactions would delay it; only stops go ahead of it).
+                next_poll = self._poll_at
+                await anyio.sleep(max(0.0, self._poll_at - period / 2 - now))
+                quiet, priority = self.profile.slave.bus.hold(), Priority.EMERGENCY
             try:
-                st = await self.profile.read_status(priority=Priority.POLL)
+                async with quiet:
+                    delay = next_poll - monotonic()
+                    if delay > 0:  # a poll already due needs no cancel scope
+                        with anyio.move_on_after(delay):
+                            await self._poke.wait()
+                    else:
+                        await anyio.lowlevel.checkpoint()
+                    self._poke = anyio.Event()
+                    issued = monotonic()
+                    next_poll = issued + period
+                    if issued >= self._poll_at:
+                        self._poll_at = math.inf
+                    # A stop waits on this poll to tell it the drive is at rest: it goes
+                    # ahead of the other axes' routine polls.
+                    st = await self.profile.read_status(priority=priority)
             except TransactionError as exc:
                 fails += 1
                 self._check_due = True  # it may be a power cycle
@@ -1036,7 +1058,31 @@ class Axis:
                 raise (self.error or DriveOffline(f"axis {self.name} is offline")) from exc
             raise
         self._stop_sent_at = after = monotonic()
+        if not emergency:
+            self._poll_when_at_rest(after, m, decel_rps2)
         await self._wait_rest(after, by)
+
+    def _poll_when_at_rest(self, stopped: float, m: _Motion | None,
+                           decel_rps2: float | None) -> None:
+        """Have the actor poll when a stop sent at ``stopped`` should have brought the
+        drive to rest (from its speed and the deceleration), not a poll period later."""
+        st = self.status
+        speed = None
+        if st is not None and st.velocity_rpm is not None:
+            speed = abs(self.units.from_rpm(st.velocity_rpm))
+        elif m is not None and m.plan is not None:
+            speed = m.plan.speed
+        decel = (self.units.from_rps2(decel_rps2) if decel_rps2 is not None
+                 else m.plan.decel if m is not None and m.plan is not None
+                 else self.config.decel)
+        if speed and decel > 0:
+            # The drive brakes from when the stop request arrived: one reply (8 bytes on
+            # RTU, a write's echo) before ``stopped``, when its reply had come in.
+            slave = self.profile.slave
+            settings = slave.settings or slave.bus.line.settings
+            reply = timing(settings).frame_time(_WRITE_REPLY_BYTES) if settings else 0.0
+            self._poll_at = stopped - reply + speed / decel
+            self._poke_now()
 
     async def _wait_rest(self, after: float, what: str) -> DriveStatus:
         """Wait for a status polled after ``after`` that shows the drive at rest."""

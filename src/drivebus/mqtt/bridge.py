@@ -215,6 +215,8 @@ class Bridge:
         self.outbox = Outbox()
         self.connections = 0
         """Successful connections so far."""
+        self.acknowledged: dict[str, bytes] = {}
+        """Per retained topic, the last payload the broker acknowledged (QoS 1)."""
         self._up = False
         self._up_event = anyio.Event()
         self._queues = {name: _AxisQueue() for name in session.machine.axes}
@@ -369,6 +371,8 @@ class Bridge:
         try:
             await client.publish(msg.topic, msg.payload, qos=msg.qos, retain=msg.retain,
                                  properties=msg.properties)
+            if msg.retain and msg.qos:
+                self.acknowledged[msg.topic] = msg.payload
         except aiomqtt.MqttError:
             if msg.reply:
                 self.outbox.reply(msg, first=True)  # not sent: it goes after reconnecting

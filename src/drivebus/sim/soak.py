@@ -51,7 +51,11 @@ class SoakReport:
     calls: Counter[str] = field(default_factory=Counter)
     """Calls per command."""
     outcomes: Counter[str] = field(default_factory=Counter)
-    """``command: outcome`` counts (``ok`` or the error's type name)."""
+    """``command: outcome`` counts: ``ok``, the error's type name, ``timed out`` (a call the
+    soak gave up on through a cancel scope of its own, as a user would) or ``cancelled``
+    (running when the soak ended)."""
+    faults: Counter[str] = field(default_factory=Counter)
+    """Faults injected into the twins: ``power cycle`` and ``alarm``."""
     violations: list[str] = field(default_factory=list)
     stops_checked: int = 0
     """Stops after which the twin was checked at rest."""
@@ -66,6 +70,7 @@ class SoakReport:
             "axes": self.axes,
             "calls": dict(self.calls),
             "outcomes": dict(self.outcomes),
+            "faults": dict(self.faults),
             "violations": list(self.violations),
             "stops_checked": self.stops_checked,
             "rest_checks": self.rest_checks,
@@ -135,36 +140,50 @@ class _Soak:
             self.report.violations.append(text)
 
     async def call(
-        self, what: str, fn: Callable[[], Awaitable[Any]], axis: str | None = None
+        self, what: str, fn: Callable[[], Awaitable[bool | None]], axis: str | None = None
     ) -> BaseException | None:
-        """Run one command; count it and its outcome; any non-drivebus error is a violation."""
+        """Run one command; count it and its outcome; any non-drivebus error is a violation.
+        ``fn`` returns False when it gave up on the command (a timeout of its own)."""
         self.report.calls[what] += 1
         if axis is not None:
-            self.history.setdefault(axis, deque(maxlen=6)).append(
-                f"{monotonic() - self.began:.3f} {what}")
+            self._note(axis, what)
             if what == "home":
                 # A homing searches for its switch wherever it is: soft limits do not bind
                 # it (nor a stop that ends it) until a move has taken the axis back.
                 self.homing.add(axis)
         log.debug("%s ...", what)
+        outcome = "ok"
         try:
             with anyio.fail_after(60):
-                await fn()
+                if await fn() is False:
+                    outcome = "timed out"
         except DrivebusError as exc:
             cause = exc.__cause__ if isinstance(exc, GroupMotionError) else None
             why = f" ({type(cause).__name__})" if isinstance(cause, DrivebusError) else ""
-            self.report.outcomes[f"{what}: {type(exc).__name__}{why}"] += 1
+            outcome = f"{type(exc).__name__}{why}"
             return exc
+        except anyio.get_cancelled_exc_class():
+            outcome = "cancelled"  # by the soak, as a user would
+            raise
         except TimeoutError:
+            outcome = "hung"
             self.violation(f"{what} hung for 60 s")
             return None
         except Exception as exc:  # the invariant: nothing but DrivebusError
+            outcome = repr(exc)
             self.violation(f"{what} raised {exc!r}")
             return exc
-        self.report.outcomes[f"{what}: ok"] += 1
-        if axis is not None and what.startswith(("move_to", "move_by")):
-            self.homing.discard(axis)
+        finally:
+            self.report.outcomes[f"{what}: {outcome}"] += 1
+            if axis is not None:
+                self._note(axis, f"{what} -> {outcome}")
+        if axis is not None and outcome == "ok" and what.startswith(("move_to", "move_by")):
+            self.homing.discard(axis)  # a move that completed took the axis back in
         return None
+
+    def _note(self, axis: str, text: str) -> None:
+        self.history.setdefault(axis, deque(maxlen=10)).append(
+            f"{monotonic() - self.began:.3f} {text}")
 
     def target(self, ax: Axis, *, outside: bool = False) -> float:
         lo, hi = ax.config.limits or (-_LIMIT, _LIMIT)
@@ -185,9 +204,10 @@ class _Soak:
                 await self.call("move_to",
                                 lambda v=speed: ax.move_to(self.target(ax), speed=v), name)
             elif pick < 0.45:
-                async def cancelled(v: float = speed) -> None:
-                    with anyio.move_on_after(rng.uniform(0.0, 0.3)):
+                async def cancelled(v: float = speed) -> bool:
+                    with anyio.move_on_after(rng.uniform(0.0, 0.3)) as scope:
                         await ax.move_to(self.target(ax), speed=v)
+                    return not scope.cancelled_caught
                 await self.call("move_to (cancelled)", cancelled, name)
             elif pick < 0.55:
                 distance = rng.uniform(-0.3, 0.3) * (ax.config.limits or (0, 1))[1]
@@ -250,7 +270,8 @@ class _Soak:
 
     async def power_cycle(self, name: str, off: float) -> None:
         twin = self.twins[name]
-        self.report.calls["power cycle"] += 1
+        self.report.faults["power cycle"] += 1
+        self._note(name, f"power off for {off:.2f} s")
         twin.power_loss()
         await anyio.sleep(off)
         twin.power_restore()
@@ -263,7 +284,8 @@ class _Soak:
             if not self.running:
                 return
             if rng.random() < 0.5:
-                self.report.calls["alarm"] += 1
+                self.report.faults["alarm"] += 1
+                self._note(name, "alarm raised")
                 twin.raise_alarm(4)
             else:
                 # Off for longer than the idle poll period: a drive needs time to boot,
