@@ -33,6 +33,7 @@ from drivebus.app.scan import scan_settings
 from drivebus.cli import _fail, app, explain
 from drivebus.config import load_config
 from drivebus.errors import ConfigError, DriveOffline, LineClosed
+from drivebus.line.rtu import frame
 from drivebus.settings import LineSettings
 from drivebus.sim.machine import start_simulators
 from drivebus.terminal import Out, check_config, scan_line
@@ -623,6 +624,25 @@ def test_read_and_write_agree_with_mbpoll_on_a_drivebus_sim() -> None:
         assert r.returncode == 0, r.stderr
         lines = r.stdout.splitlines()
         assert len(lines) == 3 and all(json.loads(x)["words"] == [862] for x in lines)
+
+
+def test_trace_logs_every_frame_as_the_wire_carried_it() -> None:
+    with sim_server(DEMO) as (_, ends):
+        pty = ends["rs485"]
+        r = drivebus("--trace", "read", pty, "4", "0", "2", "-S", "38400 8N2")
+        assert r.returncode == 0, r.stderr
+        frames = [x for x in r.stderr.splitlines() if x.startswith("DEBUG drivebus.trace:")]
+        assert len(frames) == 2, r.stderr
+        tx, rx = frames
+        # the request and the reply, with their CRCs, as mbpoll would see them on the wire
+        request = frame(4, bytes.fromhex("03 0000 0002"))  # FC03, register 0, count 2
+        assert "38400 8N2 tx slave 4" in tx and tx.endswith(request.hex(" "))
+        words = [int(w.split(": ")[1]) for w in r.stdout.splitlines()]
+        reply = bytes((3, 4)) + b"".join(w.to_bytes(2, "big") for w in words)
+        assert "rx slave 4 after" in rx and rx.endswith(frame(4, reply).hex(" "))
+        # without --trace, no frame is logged
+        r = drivebus("read", pty, "4", "0", "2", "-S", "38400 8N2")
+        assert r.returncode == 0 and "drivebus.trace" not in r.stderr
 
 
 def test_register_tool_arguments_are_checked_before_anything_is_sent(tmp_path: Path) -> None:

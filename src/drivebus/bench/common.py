@@ -414,13 +414,20 @@ def _cell(v: Figure | None) -> str:
 
 def format_table(results: Sequence[BenchResult]) -> str:
     """The results as plain-text tables, one per scenario: a column per figure, the
-    targets in the row under the names, and ``!`` after a figure that misses its target."""
+    targets in the row under the names, and ``!`` after a figure that misses its target;
+    a row's ``note`` goes under the table as ``note=...``."""
     blocks: dict[str, list[BenchResult]] = {}
     for r in results:
         blocks.setdefault(r.scenario, []).append(r)
     out: list[str] = []
-    for scenario, rows in blocks.items():
-        names = list(dict.fromkeys(k for r in rows for k in r.figures))
+    for scenario, all_rows in blocks.items():
+        out.append(f"\n== {scenario}")
+        notes = [f"  {r.case}: note={r.figures['note']}" for r in all_rows if "note" in r.figures]
+        rows = [r for r in all_rows if any(k != "note" for k in r.figures)]
+        if not rows:
+            out.extend(notes)
+            continue
+        names = list(dict.fromkeys(k for r in rows for k in r.figures if k != "note"))
         targets: dict[str, Target] = {}
         for r in rows:
             for k, t in r.targets.items():
@@ -436,8 +443,8 @@ def format_table(results: Sequence[BenchResult]) -> str:
                 cells.append(cell)
             table.append(cells)
         widths = [max(len(row[i]) for row in table) for i in range(len(table[0]))]
-        out.append(f"\n== {scenario}")
         for row in table:
             out.append("  " + "  ".join(c.ljust(w) if i == 0 else c.rjust(w)
                                          for i, (c, w) in enumerate(zip(row, widths, strict=True))))
+        out.extend(notes)
     return "\n".join(out)

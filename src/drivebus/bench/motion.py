@@ -19,7 +19,7 @@ from pathlib import Path
 
 import anyio
 
-from drivebus.bench.common import BenchOptions, BenchResult, Scenario
+from drivebus.bench.common import BenchOptions, BenchResult, Scenario, at_most
 from drivebus.errors import MotionAborted
 from drivebus.motion import Axis, AxisState, Machine, open_machine
 from drivebus.sim.soak import run_soak
@@ -71,8 +71,7 @@ async def _stops(m: Machine, name: str, runs: int) -> BenchResult:
         "rest_max_ms": max(to_rest) * 1000,
         "return_median_ms": statistics.median(returned) * 1000,
         "return_max_ms": max(returned) * 1000,
-        "target_ms": target * 1000,
-    })
+    }, {"rest_max_ms": at_most(target * 1000), "return_median_ms": at_most(target * 1000)})
 
 
 async def _jogs(m: Machine, name: str) -> BenchResult:
@@ -93,8 +92,8 @@ async def _jogs(m: Machine, name: str) -> BenchResult:
         await _at_rest(ax)
         over.append(max(0.0, ax.units.from_pulses(twin.position()) - hi))
     return BenchResult("motion", f"jog overshoot {name} ({ax.profile.family})", {
-        "overshoot_steady": over[0], "overshoot_speed_change": over[1], "target": 0.0,
-    })
+        "overshoot_steady": over[0], "overshoot_speed_change": over[1],
+    }, {"overshoot_steady": at_most(0.0), "overshoot_speed_change": at_most(0.0)})
 
 
 _MIXES = (
@@ -123,16 +122,16 @@ async def _groups(m: Machine) -> BenchResult:
         "spread_median_ms": statistics.median(spreads) * 1000,
         "spread_max_ms": max(spreads) * 1000,
         "start_skew_median_ms": statistics.median(skews) * 1000,
-        "target_ms": min(m.axes[n].config.poll.moving for n in _KINDS) * 1000,
-    })
+    }, {"spread_max_ms": at_most(min(m.axes[n].config.poll.moving for n in _KINDS) * 1000)})
 
 
 @contextlib.contextmanager
 def _quiet_axes() -> Iterator[None]:
-    """Keep the axes' warnings off the bench's output (errors still show)."""
+    """Keep the axes' logs off the bench's output: the soak's injected alarms, power cycles
+    and expired watchdogs are logged by the hundred; its report judges them."""
     logger = logging.getLogger("drivebus")
     before = logger.level
-    logger.setLevel(logging.ERROR)
+    logger.setLevel(logging.CRITICAL)
     try:
         yield
     finally:
@@ -164,8 +163,7 @@ async def run(opts: BenchOptions) -> list[BenchResult]:
         "power_cycles": report.faults["power cycle"],
         "alarms": report.faults["alarm"],
         "violations": len(report.violations),
-        "target_violations": 0,
-    }))
+    }, {"violations": at_most(0)}))
     return results
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import heapq
 import itertools
+import logging
 import math
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -28,10 +29,14 @@ from drivebus.errors import (
     TransactionError,
     WrongResponder,
 )
-from drivebus.line.base import Line, SendWithdrawn
+from drivebus.line.base import Exchange, Line, SendWithdrawn
+from drivebus.line.rtu import frame
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.tasks import ServiceTasks
+
+trace = logging.getLogger("drivebus.trace")
+"""Every frame of every bus at DEBUG (``drivebus --trace``): off unless enabled."""
 
 __all__ = ["Bus", "Priority"]
 
@@ -131,6 +136,7 @@ class Bus:
     async def __aenter__(self) -> Bus:
         await self.line.open()
         self.stats = BusStats()
+        self._traced_end = 0.0  # the end of the last traced exchange (its silence for --trace)
         self._open = True
         self._tg = ServiceTasks()
         await self._tg.__aenter__()
@@ -449,6 +455,8 @@ class Bus:
                 req.future.set_exception(exc)
             raise
         except LineNoise as exc:
+            if trace.isEnabledFor(logging.DEBUG):
+                self._trace_failure(req, exc)
             noise.noted(monotonic())
             if exc.sent:
                 self.stats.transactions += 1
@@ -464,6 +472,8 @@ class Bus:
             self._retry_or_fail(req, exc, retry=False)
             return
         except TransactionError as exc:
+            if trace.isEnabledFor(logging.DEBUG):
+                self._trace_failure(req, exc)
             noise.reset()
             req.sent = req.sent or not isinstance(exc, LineConfigError)
             self.stats.transactions += 1
@@ -486,6 +496,8 @@ class Bus:
             if not req.future.done():
                 req.future.set_exception(err)
             raise err from exc
+        if trace.isEnabledFor(logging.DEBUG):
+            self._trace_exchange(req, ex)
         noise.reset()
         self.stats.transactions += 1
         self.stats.wire_time += ex.wire_time
@@ -497,6 +509,37 @@ class Bus:
                 st.exceptions += 1
         if not req.future.done():
             req.future.set_result(ex.reply)
+
+    def _frame_hex(self, unit: int, pdu: bytes) -> str:
+        """The bytes of a frame as on the wire (RTU: with its CRC; TCP: unit and PDU)."""
+        if self.line.settings is None:
+            return f"unit {unit}: {pdu.hex(' ')}"
+        return frame(unit, pdu).hex(" ")
+
+    def _trace_exchange(self, req: _Request, ex: Exchange) -> None:
+        """Log a completed transaction's request and reply on ``drivebus.trace``."""
+        h = req.handle
+        at = h.settings or self.line.settings
+        fmt = f" {at}" if at is not None else ""
+        silence = ""  # on an RTU line, the silence since the previous traced frame ended
+        if self._traced_end and self.line.settings is not None:
+            silence = f" after {(ex.tx_start - self._traced_end) * 1e3:.3f} ms silence"
+        trace.debug("%.6f %s%s tx slave %d%s: %s", ex.tx_start, self.line.name, fmt,
+                    h.address, silence, self._frame_hex(h.address, req.pdu))
+        if req.expect is None:
+            trace.debug("%.6f %s%s -- broadcast, no reply", ex.tx_end, self.line.name, fmt)
+        else:
+            trace.debug("%.6f %s%s rx slave %d after %.3f ms: %s", ex.rx_end, self.line.name,
+                        fmt, h.address, (ex.rx_end - ex.tx_end) * 1e3,
+                        self._frame_hex(h.address, ex.reply))
+        self._traced_end = ex.rx_end
+
+    def _trace_failure(self, req: _Request, exc: TransactionError) -> None:
+        """Log a transaction that failed on ``drivebus.trace``."""
+        h = req.handle
+        trace.debug("%.6f %s tx slave %d %s: %s: %s", monotonic(), self.line.name, h.address,
+                    self._frame_hex(h.address, req.pdu), type(exc).__name__, exc)
+        self._traced_end = monotonic()
 
     def _retry_or_fail(self, req: _Request, exc: TransactionError, *, retry: bool) -> None:
         """Queue ``req`` again if it may be retried and has retries left, else fail it."""
