@@ -200,22 +200,35 @@ async def read_registers(
     """Read registers once, or every ``interval`` s (``polls`` times, else until Ctrl-C)."""
     assert settings is None or isinstance(settings, LineSettings)
     async with open_slave(target, address, settings=settings, timeout=timeout) as slave:
-        n = 0
-        while True:
+
+        async def read() -> RegisterValues:
             words, values = await registers.read_registers(
                 slave, register, count, input=input_table, fmt=fmt)
-            record = RegisterValues(target, address, register, input_table, words, fmt, values)
-            if out.as_json:
-                out.result(record.as_dict(), indent=None if interval else 2)
-            else:
-                step = registers.words_per_value(fmt)
-                stamp = f"{time.strftime('%H:%M:%S')} " if interval else ""
-                for i, v in enumerate(values):
-                    out.line(f"{stamp}[{register + i * step}]: {v}")
-            n += 1
-            if interval is None or (polls is not None and n >= polls):
-                return 0
-            await anyio.sleep(interval)
+            return RegisterValues(target, address, register, input_table, words, fmt, values)
+
+        return await _poll_registers(out, read, interval, polls)
+
+
+async def _poll_registers(
+    out: Out, read: Callable[[], Awaitable[RegisterValues]], interval: float | None,
+    polls: int | None,
+) -> int:
+    """Print what ``read`` returns once, or every ``interval`` s (``polls`` times, else
+    until Ctrl-C); exit status 0."""
+    n = 0
+    while True:
+        record = await read()
+        if out.as_json:
+            out.result(record.as_dict(), indent=None if interval else 2)
+        else:
+            step = registers.words_per_value(record.format)
+            stamp = f"{time.strftime('%H:%M:%S')} " if interval else ""
+            for i, v in enumerate(record.values):
+                out.line(f"{stamp}[{record.register + i * step}]: {v}")
+        n += 1
+        if interval is None or (polls is not None and n >= polls):
+            return 0
+        await anyio.sleep(interval)
 
 
 async def write_registers(
@@ -651,25 +664,15 @@ async def remote_read(
     input_table: bool, fmt: str, interval: float | None, polls: int | None,
 ) -> int:
     """``read`` through the service's bus (line ``line``), once or every ``interval`` s."""
-    n = 0
     words_needed = count * registers.words_per_value(fmt)
-    while True:
+
+    async def read() -> RegisterValues:
         words = await _call(functools.partial(client.read, line, address, register,
                                               words_needed, input=input_table))
-        values = registers.decode(words, fmt)
-        record = RegisterValues(f"{client.url} line {line}", address, register, input_table,
-                                words, fmt, values)
-        if out.as_json:
-            out.result(record.as_dict(), indent=None if interval else 2)
-        else:
-            step = registers.words_per_value(fmt)
-            stamp = f"{time.strftime('%H:%M:%S')} " if interval else ""
-            for i, v in enumerate(values):
-                out.line(f"{stamp}[{register + i * step}]: {v}")
-        n += 1
-        if interval is None or (polls is not None and n >= polls):
-            return 0
-        await anyio.sleep(interval)
+        return RegisterValues(f"{client.url} line {line}", address, register, input_table,
+                              words, fmt, registers.decode(words, fmt))
+
+    return await _poll_registers(out, read, interval, polls)
 
 
 async def remote_write(out: Out, client: ServiceClient, line: str, address: int,

@@ -426,25 +426,17 @@ class Bus:
         h = req.handle
         st = self.stats.slave(h.address)
         try:
-            if withdrawable:
-                ex = await self.line.transact(
-                    h.address,
-                    req.pdu,
-                    expect=req.expect,
-                    settings=h.settings,
-                    timeout=h.timeout,
-                    quiet_by=noise.deadline(req),
-                    withdrawable=True,  # type: ignore[call-arg]  # waits_for_silence lines
-                )
-            else:
-                ex = await self.line.transact(
-                    h.address,
-                    req.pdu,
-                    expect=req.expect,
-                    settings=h.settings,
-                    timeout=h.timeout,
-                    quiet_by=noise.deadline(req),
-                )
+            # Only lines that declare waits_for_silence take the withdrawable keyword.
+            extra = {"withdrawable": True} if withdrawable else {}
+            ex = await self.line.transact(
+                h.address,
+                req.pdu,
+                expect=req.expect,
+                settings=h.settings,
+                timeout=h.timeout,
+                quiet_by=noise.deadline(req),
+                **extra,
+            )
         except SendWithdrawn:
             # Taken back before its frame went out: it keeps its place (same seq) and the
             # owner plans again (a more urgent request, a hold, or bytes on the line).
