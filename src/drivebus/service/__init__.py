@@ -6,28 +6,23 @@ never the other way round). ``create_app`` is the FastAPI application over a ses
 session, and stop every moving axis before they end.
 """
 
-from drivebus.service.api import create_app
-from drivebus.service.auth import AuthError, Principal, TokenStore
-from drivebus.service.runner import (
-    Service,
-    SiblingTask,
-    check_host,
-    is_loopback,
-    open_service,
-    run,
-    serve,
-)
+import importlib
+from typing import Any
 
-__all__ = [
-    "AuthError",
-    "Principal",
-    "Service",
-    "SiblingTask",
-    "TokenStore",
-    "check_host",
-    "create_app",
-    "is_loopback",
-    "open_service",
-    "run",
-    "serve",
-]
+_HOMES = {
+    "create_app": "api",
+    "AuthError": "auth", "Principal": "auth", "TokenStore": "auth",
+    "Service": "runner", "SiblingTask": "runner", "check_host": "runner",
+    "is_loopback": "runner", "open_service": "runner", "run": "runner", "serve": "runner",
+}
+"""Where each public name lives: imported on first use, so that ``drivebus.service.client``
+(used by every one-shot CLI command) does not load FastAPI and uvicorn."""
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{home}"), name)
