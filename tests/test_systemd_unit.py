@@ -8,8 +8,11 @@ exposure) where systemd-analyze is installed.
 from __future__ import annotations
 
 import configparser
+import os
 import re
 import shutil
+import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -82,12 +85,37 @@ def test_restart_policy_and_watchdog_agree() -> None:
     assert one("Service", "Restart") == "on-failure"
     assert one("Service", "RestartSec")
     assert int(one("Unit", "StartLimitBurst")) > 1
-    kind = one("Service", "Type")
-    if kind == "notify":  # a service that notifies feeds the watchdog
-        assert one("Service", "WatchdogSec")
-    else:  # drivebus serve does not notify (yet): no watchdog it could never feed
-        assert kind == "exec"
-        assert values("Service", "WatchdogSec") == []
+    # drivebus serve notifies and feeds the watchdog (test below): the unit relies on both
+    assert one("Service", "Type") == "notify" and one("Service", "NotifyAccess") == "main"
+    assert one("Service", "WatchdogSec")
+
+
+def test_serve_notifies_systemd_and_feeds_its_watchdog(tmp_path: Path) -> None:
+    """`drivebus serve` under a notify socket, as systemd starts it: READY=1 once it
+    serves, WATCHDOG=1 every WATCHDOG_USEC/2, STOPPING=1 on SIGTERM, then exit 0."""
+    address = str(tmp_path / "notify")
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
+        sock.bind(address)
+        sock.settimeout(30)
+        env = {**os.environ, "NOTIFY_SOCKET": address, "WATCHDOG_USEC": "200000"}
+        env.pop("WATCHDOG_PID", None)
+        drivebus = Path(sys.executable).with_name("drivebus")
+        proc = subprocess.Popen([str(drivebus), "serve", str(ROOT / "configs" / "demo.toml"),
+                                 "--port", "0"], env=env, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL)
+        try:
+            messages = [sock.recv(4096).decode()]
+            assert messages[0].startswith("READY=1\nSTATUS=serving demo on http://127.0.0.1:")
+            while sum(m == "WATCHDOG=1" for m in messages) < 3:  # fed, again and again
+                messages.append(sock.recv(4096).decode())
+            proc.send_signal(signal.SIGTERM)
+            while not messages[-1].startswith("STOPPING=1"):
+                messages.append(sock.recv(4096).decode())
+            assert proc.wait(timeout=30) == 0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
 
 
 def _unit_for_systemd(tmp_path: Path) -> Path:

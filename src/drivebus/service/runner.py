@@ -29,6 +29,7 @@ from drivebus import runtime
 from drivebus.app import MachineSession
 from drivebus.config import MachineConfig
 from drivebus.errors import ConfigError
+from drivebus.service import systemd
 from drivebus.service.api import create_app
 from drivebus.service.auth import TokenStore
 
@@ -277,7 +278,16 @@ async def serve(
                     say(f"drivebus serve: warning: {p}")
                 say(f"drivebus serve: machine {service.session.name} {where}; "
                     f"Ctrl-C or SIGTERM stops it")
-                await anyio.sleep_forever()
+                systemd.notify(f"READY=1\nSTATUS=serving {service.session.name} {where}")
+                try:
+                    period = systemd.watchdog_period()
+                    if period is None:
+                        await anyio.sleep_forever()
+                    else:  # fed from the event loop: a hung loop is restarted by systemd
+                        await systemd.feed_watchdog(period)
+                finally:
+                    # the shutdown begins: stopping the axes may take up to TimeoutStopSec
+                    systemd.notify("STOPPING=1\nSTATUS=stopping every moving axis")
     finally:
         if service is not None:
             say(report(service))
