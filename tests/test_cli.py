@@ -654,6 +654,11 @@ def test_register_tool_arguments_are_checked_before_anything_is_sent(tmp_path: P
     _one_error_line(drivebus("read", "/dev/ttyDRIVEBUS-NONE", "300", "0"), 2, "ADDR")
     _one_error_line(drivebus("read", "/dev/ttyDRIVEBUS-NONE", "1", "0", "-S", "9600 8X1"), 2,
                     "9600 8X1")
+    # through a service too: checked here, before the (unreachable) service is asked
+    for args, needle in ((["0"], "COUNT"), (["1", "-i", "-1"], "--interval"),
+                         (["1", "-i", "0.1", "-n", "0"], "--count")):
+        _one_error_line(drivebus("read", "--server", "http://127.0.0.1:9", "rs485", "1", "0",
+                                 *args), 2, needle)
 
 
 def test_version_and_readable_help() -> None:

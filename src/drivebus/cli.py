@@ -281,13 +281,19 @@ def read(
     token: TokenOpt = None,
 ) -> None:
     """Read COUNT registers (or values of --format) of the slave at ADDR on TARGET."""
+    from drivebus.app.registers import words_per_value
     from drivebus.terminal import Out, read_registers, remote_read, run_guarded
 
+    # The poll's own arguments, checked whoever reads (this process or a service).
+    words_per_value(fmt)
+    checks.whole("COUNT", count, 1, 125)
+    if interval is not None:
+        checks.positive("--interval", interval, unit="s")
+    if polls is not None and polls < 1:
+        raise ArgumentError(f"--count: must be at least 1 poll, not {polls}")
     if server is not None:
-        from drivebus.app.registers import words_per_value
         from drivebus.service.client import ServiceClient
 
-        words_per_value(fmt)
         client = ServiceClient(server, token=token)
         raise typer.Exit(run_guarded(
             lambda: remote_read(Out(as_json=as_json), client, target, address, register,
@@ -295,12 +301,7 @@ def read(
             interrupt_ok=interval is not None,
         ))
     _check_register_call(target, address, register, fmt)
-    checks.whole("COUNT", count, 1, 125)
     wanted_settings = _settings(settings)
-    if interval is not None:
-        checks.positive("--interval", interval, unit="s")
-    if polls is not None and polls < 1:
-        raise ArgumentError(f"--count: must be at least 1 poll, not {polls}")
     checks.positive("--timeout", timeout, unit="s")
     out = Out(as_json=as_json)
     raise typer.Exit(run_guarded(
