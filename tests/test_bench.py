@@ -29,6 +29,9 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
         if r.scenario == "efficiency":  # measured on the wire of the slaves' own process
             assert 0 < r.figures["efficiency"] <= 1.0, r
             assert 0 < r.figures["efficiency_in_process"] <= 1.0, r
+            # the bare master beside it, on the same slaves: a floor, not a target
+            assert 0 < r.figures["floor_efficiency"] <= 1.0, r
+            assert r.figures["floor_violations"] == 0, r
         if r.scenario == "scale":
             assert r.figures["transactions"] > 0 and r.figures["moves"] > 0, r
         assert set(r.targets) <= set(r.figures), r  # every target sits beside its figure

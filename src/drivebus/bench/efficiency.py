@@ -6,12 +6,21 @@ master's event loop or CPU time. The same run with the simulator in the master's
 is the second column (``efficiency_in_process``). The stages split the silence between a
 reply and the next request: the reply reaching the master, the master's own lateness, and
 the request reaching the wire.
+
+Beside drivebus, the same slaves are polled by a bare master (``bare_poll``: a precise
+timer for t3.5 after the reply's last byte, one write, one read wake-up per reply, no
+drivebus layers): its efficiency and gap are the floor that this machine, its pty and
+the simulator's process allow any asyncio master, which only a faster machine lowers.
 """
 
 from __future__ import annotations
 
+import asyncio
+import os
 import time
 from collections.abc import Sequence
+
+import serial
 
 from drivebus.bench.common import (
     MIXED_PTY,
@@ -30,11 +39,14 @@ from drivebus.bench.common import (
     wire_figures,
 )
 from drivebus.bus import Bus
+from drivebus.clock import PreciseTimer
+from drivebus.line.rtu import frame
 from drivebus.line.serial import SerialLine
 from drivebus.settings import LineSettings
 from drivebus.sim.wire import VirtualWire
+from drivebus.timing import switch_silence
 
-__all__ = ["EFFICIENCY_TARGET", "GAP_EXCESS_TARGET_US", "SCENARIO", "efficiency"]
+__all__ = ["EFFICIENCY_TARGET", "GAP_EXCESS_TARGET_US", "SCENARIO", "bare_poll", "efficiency"]
 
 EFFICIENCY_TARGET = 0.97
 GAP_EXCESS_TARGET_US = 150.0
@@ -55,6 +67,58 @@ async def _poll(line: SerialLine, settings: Sequence[LineSettings], n: int, seco
         return time.process_time() - c0, exchanges
 
 
+async def bare_poll(path: str, settings: Sequence[LineSettings], n: int, seconds: float) -> int:
+    """The least an asyncio master does for the same polling: slaves 1..``n`` read in turn,
+    each request written ``switch_silence`` after the last reply byte arrived (precise
+    timer), the reply read by its known length; no scheduler, no retries, no checks. The
+    replies received (a reply missing for 0.1 s is skipped)."""
+    loop = asyncio.get_running_loop()
+    port = serial.serial_for_url(path, baudrate=settings[0].baudrate,
+                                 stopbits=settings[0].stopbits, timeout=0)
+    fd = port.fileno()
+    timer = PreciseTimer()
+    reply_length = 3 + 2 * REGISTERS + 2
+    requests = [frame(a, bytes([3, 0, 0, 0, REGISTERS])) for a in range(1, n + 1)]
+    buf = bytearray()
+    last_rx = time.monotonic()
+    waiter: asyncio.Future[None] = loop.create_future()
+
+    def readable() -> None:
+        nonlocal last_rx
+        buf.extend(os.read(fd, 1024))
+        last_rx = time.monotonic()
+        if len(buf) >= reply_length and not waiter.done():
+            waiter.set_result(None)
+
+    loop.add_reader(fd, readable)
+    try:
+        replies = 0
+        current = settings[0]
+        deadline = time.monotonic() + seconds
+        a = 0
+        while time.monotonic() < deadline:
+            target = settings[a % len(settings)]
+            if target is not current:
+                port._baudrate, port._stopbits = target.baudrate, target.stopbits
+                port._reconfigure_port()  # one tcsetattr, as SerialLine does
+            await timer.sleep_until(last_rx + switch_silence(current, target))
+            current = target
+            buf.clear()
+            waiter = loop.create_future()
+            os.write(fd, requests[a])
+            try:
+                await asyncio.wait_for(waiter, 0.1)
+                replies += 1
+            except TimeoutError:
+                last_rx = time.monotonic()
+            a = (a + 1) % n
+        return replies
+    finally:
+        loop.remove_reader(fd)
+        timer.close()
+        port.close()
+
+
 async def efficiency(
     label: str, settings: Sequence[LineSettings], n: int, seconds: float, turnaround: float
 ) -> BenchResult:
@@ -64,6 +128,9 @@ async def efficiency(
         cpu, exchanges = await _poll(SerialLine(sim.paths[0], settings[0]), settings, n,
                                      seconds, sim.clear)
         frames = next(iter((await sim.logs()).values()))
+        await sim.clear()
+        await bare_poll(sim.paths[0], settings, n, seconds)
+        floor = wire_figures(next(iter((await sim.logs()).values())), turnaround)
     fig = wire_figures(frames, turnaround)
     stages = stage_figures(frames, exchanges)
     async with VirtualWire(f"bench-eff-{label}-{n}") as wire:
@@ -90,6 +157,9 @@ async def efficiency(
             "request_to_wire_us": stages.request_to_wire_us,
             "master_cpu_us_per_tx": cpu / max(fig.transactions, 1) * 1e6,
             "efficiency_in_process": in_process.efficiency,
+            "floor_efficiency": floor.efficiency,
+            "floor_gap_excess_us": floor.gap_median_us,
+            "floor_violations": floor.violations,
         },
         {
             "efficiency": at_least(EFFICIENCY_TARGET),
