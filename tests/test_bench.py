@@ -31,6 +31,7 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
             assert 0 < r.figures["efficiency_in_process"] <= 1.0, r
             # the bare master beside it, on the same slaves: a floor, not a target
             assert 0 < r.figures["floor_efficiency"] <= 1.0, r
+            assert 0 < r.figures["floor_thread_efficiency"] <= 1.0, r
             assert r.figures["floor_violations"] == 0, r
         if r.scenario == "scale":
             assert r.figures["transactions"] > 0 and r.figures["moves"] > 0, r

@@ -11,15 +11,20 @@ Beside drivebus, the same slaves are polled by a bare master (``bare_poll``: a p
 timer for t3.5 after the reply's last byte, one write, one read wake-up per reply, no
 drivebus layers): its efficiency and gap are the floor that this machine, its pty and
 the simulator's process allow any asyncio master, which only a faster machine lowers.
+The same bare master as a blocking loop in a thread of its own (``bare_poll_thread``)
+shows what a dedicated I/O thread per line could reach at best.
 """
 
 from __future__ import annotations
 
 import asyncio
 import os
+import select
 import time
 from collections.abc import Sequence
 
+import anyio
+import anyio.to_thread
 import serial
 
 from drivebus.bench.common import (
@@ -46,7 +51,8 @@ from drivebus.settings import LineSettings
 from drivebus.sim.wire import VirtualWire
 from drivebus.timing import switch_silence
 
-__all__ = ["EFFICIENCY_TARGET", "GAP_EXCESS_TARGET_US", "SCENARIO", "bare_poll", "efficiency"]
+__all__ = ["EFFICIENCY_TARGET", "GAP_EXCESS_TARGET_US", "SCENARIO", "bare_poll", "bare_poll_thread",
+           "efficiency"]
 
 EFFICIENCY_TARGET = 0.97
 GAP_EXCESS_TARGET_US = 150.0
@@ -67,45 +73,58 @@ async def _poll(line: SerialLine, settings: Sequence[LineSettings], n: int, seco
         return time.process_time() - c0, exchanges
 
 
+class _BareMaster:
+    """What both bare masters share: the port, the requests and the settings switch."""
+
+    def __init__(self, path: str, settings: Sequence[LineSettings], n: int) -> None:
+        self.settings = settings
+        self.port = serial.serial_for_url(path, baudrate=settings[0].baudrate,
+                                          stopbits=settings[0].stopbits, timeout=0)
+        self.fd = self.port.fileno()
+        self.requests = [frame(a, bytes([3, 0, 0, 0, REGISTERS])) for a in range(1, n + 1)]
+        self.reply_length = 3 + 2 * REGISTERS + 2
+        self.current = settings[0]
+
+    def switch(self, a: int) -> float:
+        """Set the port for slave ``a`` (0-based); the silence its request needs."""
+        target = self.settings[a % len(self.settings)]
+        silence = switch_silence(self.current, target)
+        if target is not self.current:
+            port = self.port
+            port._baudrate, port._stopbits = target.baudrate, target.stopbits
+            port._reconfigure_port()  # one tcsetattr, as SerialLine does
+            self.current = target
+        return silence
+
+
 async def bare_poll(path: str, settings: Sequence[LineSettings], n: int, seconds: float) -> int:
     """The least an asyncio master does for the same polling: slaves 1..``n`` read in turn,
     each request written ``switch_silence`` after the last reply byte arrived (precise
     timer), the reply read by its known length; no scheduler, no retries, no checks. The
     replies received (a reply missing for 0.1 s is skipped)."""
     loop = asyncio.get_running_loop()
-    port = serial.serial_for_url(path, baudrate=settings[0].baudrate,
-                                 stopbits=settings[0].stopbits, timeout=0)
-    fd = port.fileno()
+    m = _BareMaster(path, settings, n)
     timer = PreciseTimer()
-    reply_length = 3 + 2 * REGISTERS + 2
-    requests = [frame(a, bytes([3, 0, 0, 0, REGISTERS])) for a in range(1, n + 1)]
     buf = bytearray()
     last_rx = time.monotonic()
     waiter: asyncio.Future[None] = loop.create_future()
 
     def readable() -> None:
         nonlocal last_rx
-        buf.extend(os.read(fd, 1024))
+        buf.extend(os.read(m.fd, 1024))
         last_rx = time.monotonic()
-        if len(buf) >= reply_length and not waiter.done():
+        if len(buf) >= m.reply_length and not waiter.done():
             waiter.set_result(None)
 
-    loop.add_reader(fd, readable)
+    loop.add_reader(m.fd, readable)
     try:
-        replies = 0
-        current = settings[0]
+        replies = a = 0
         deadline = time.monotonic() + seconds
-        a = 0
         while time.monotonic() < deadline:
-            target = settings[a % len(settings)]
-            if target is not current:
-                port._baudrate, port._stopbits = target.baudrate, target.stopbits
-                port._reconfigure_port()  # one tcsetattr, as SerialLine does
-            await timer.sleep_until(last_rx + switch_silence(current, target))
-            current = target
+            await timer.sleep_until(last_rx + m.switch(a))
             buf.clear()
             waiter = loop.create_future()
-            os.write(fd, requests[a])
+            os.write(m.fd, m.requests[a])
             try:
                 await asyncio.wait_for(waiter, 0.1)
                 replies += 1
@@ -114,9 +133,38 @@ async def bare_poll(path: str, settings: Sequence[LineSettings], n: int, seconds
             a = (a + 1) % n
         return replies
     finally:
-        loop.remove_reader(fd)
+        loop.remove_reader(m.fd)
         timer.close()
-        port.close()
+        m.port.close()
+
+
+def bare_poll_thread(path: str, settings: Sequence[LineSettings], n: int, seconds: float) -> int:
+    """``bare_poll`` as a blocking loop for a thread of its own (what a dedicated I/O
+    thread per line could do at best): ``select`` waits for the silence and the reply."""
+    m = _BareMaster(path, settings, n)
+    try:
+        replies = a = 0
+        last_rx = time.monotonic()
+        deadline = last_rx + seconds
+        while time.monotonic() < deadline:
+            due = last_rx + m.switch(a)
+            while (left := due - time.monotonic()) > 0:
+                select.select([], [], [], left)
+            os.write(m.fd, m.requests[a])
+            got = 0
+            give_up = time.monotonic() + 0.1
+            while got < m.reply_length and (left := give_up - time.monotonic()) > 0:
+                if select.select([m.fd], [], [], left)[0]:
+                    got += len(os.read(m.fd, 1024))
+                    last_rx = time.monotonic()
+            if got >= m.reply_length:
+                replies += 1
+            else:
+                last_rx = time.monotonic()
+            a = (a + 1) % n
+        return replies
+    finally:
+        m.port.close()
 
 
 async def efficiency(
@@ -131,6 +179,9 @@ async def efficiency(
         await sim.clear()
         await bare_poll(sim.paths[0], settings, n, seconds)
         floor = wire_figures(next(iter((await sim.logs()).values())), turnaround)
+        await sim.clear()
+        await anyio.to_thread.run_sync(bare_poll_thread, sim.paths[0], settings, n, seconds)
+        floor_thread = wire_figures(next(iter((await sim.logs()).values())), turnaround)
     fig = wire_figures(frames, turnaround)
     stages = stage_figures(frames, exchanges)
     async with VirtualWire(f"bench-eff-{label}-{n}") as wire:
@@ -159,7 +210,9 @@ async def efficiency(
             "efficiency_in_process": in_process.efficiency,
             "floor_efficiency": floor.efficiency,
             "floor_gap_excess_us": floor.gap_median_us,
-            "floor_violations": floor.violations,
+            "floor_thread_efficiency": floor_thread.efficiency,
+            "floor_thread_gap_excess_us": floor_thread.gap_median_us,
+            "floor_violations": floor.violations + floor_thread.violations,
         },
         {
             "efficiency": at_least(EFFICIENCY_TARGET),
