@@ -24,7 +24,6 @@ its volatile settings read back and set up again before the next command.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import logging
 import math
 from collections.abc import AsyncIterator, Awaitable, Callable
@@ -56,6 +55,7 @@ from drivebus.errors import (
     StateError,
     TransactionError,
 )
+from drivebus.motion.envelope import Envelope, MotionPlan
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.motion.units import Units
 from drivebus.timing import timing
@@ -72,25 +72,6 @@ _RESET_GAP = 0.5
 
 _WRITE_REPLY_BYTES = 8
 """An RTU reply to a register write (function 06 or 16): address, function, 4 bytes, CRC."""
-
-
-@dataclass(frozen=True)
-class MotionPlan:
-    """Speed and ramps of one motion in user units (units/s, units/s²)."""
-
-    speed: float
-    accel: float
-    decel: float
-
-    def duration(self, distance: float) -> float:
-        """Time a trapezoidal move of ``distance`` takes (triangular if it is short)."""
-        d = abs(distance)
-        v, a, b = self.speed, self.accel, self.decel
-        ramp = v * v / (2 * a) + v * v / (2 * b)
-        if d >= ramp:
-            return d / v + v / (2 * a) + v / (2 * b)
-        vp = math.sqrt(2 * d * a * b / (a + b))
-        return vp / a + vp / b
 
 
 MotionKind = Literal["move", "home", "jog"]
@@ -163,6 +144,8 @@ class Axis:
         self.config = config
         self.profile = profile
         self.units = Units(config.pulses_per_rev, config.units_per_rev)
+        self.envelope = Envelope(name, config, profile, self.units)
+        """What the axis may ask of its drive: plans, limits, pulses (checks only)."""
         self.state: AxisState = AxisState.STANDSTILL
         self.status: DriveStatus | None = None
         self.error: DrivebusError | None = None
@@ -217,110 +200,25 @@ class Axis:
         st = self.status
         return st is not None and st.homed and not self._homed_lost
 
+    # -- limits (the envelope's checks, as the axis's own) --------------------------------------
+
     def plan(
         self, speed: float | None = None, accel: float | None = None, decel: float | None = None
     ) -> MotionPlan:
-        """The axis's defaults with any of them overridden; checked (ArgumentError,
-        LimitViolation beyond max_speed). Values are magnitudes: > 0."""
-        c = self.config
-        p = MotionPlan(
-            checks.positive("speed", speed, unit="units/s") if speed is not None else c.speed,
-            checks.positive("accel", accel, unit="units/s²") if accel is not None else c.accel,
-            checks.positive("decel", decel, unit="units/s²") if decel is not None else c.decel,
-        )
-        if c.max_speed is not None and p.speed > c.max_speed:
-            raise LimitViolation(
-                f"axis {self.name}: speed {p.speed:g} exceeds max_speed {c.max_speed:g} units/s"
-            )
-        return p
+        """The axis's defaults with any of them overridden, checked (``Envelope.plan``)."""
+        return self.envelope.plan(speed, accel, decel)
 
     def drive_params(self, plan: MotionPlan) -> MoveParams:
         """``plan`` in drive units (rpm, rev/s²)."""
-        u = self.units
-        return MoveParams(u.to_rpm(plan.speed), u.to_rps2(plan.accel), u.to_rps2(plan.decel))
+        return self.envelope.drive_params(plan)
 
     def check_drive(self, plan: MotionPlan) -> None:
-        """``LimitViolation`` in the axis's units if its drive cannot run ``plan``: the
-        speed, acceleration or deceleration and the most the drive takes of it (found
-        from the profile's own range checks, which speak in register units)."""
-        try:
-            self.profile.check_move(self.drive_params(plan))
-        except LimitViolation as exc:
-            raise LimitViolation(f"axis {self.name}: {self._beyond_drive(plan)} "
-                                 f"(drive {self.profile.family}: {exc})") from exc
-
-    def _beyond_drive(self, plan: MotionPlan) -> str:
-        """Which of ``plan``'s values its drive cannot run, in user units, and its limit:
-        each value is searched between itself and the axis's default for it, the other
-        two held at their defaults."""
-        unit = self.config.unit
-        names = {"speed": f"{unit}/s", "accel": f"{unit}/s²", "decel": f"{unit}/s²"}
-        defaults = MotionPlan(self.config.speed, self.config.accel, self.config.decel)
-        for quantity, unit_name in names.items():
-            value = getattr(plan, quantity)
-
-            def fits(v: float, quantity: str = quantity) -> bool:
-                trial = dataclasses.replace(defaults, **{quantity: v})
-                try:
-                    self.profile.check_move(self.drive_params(trial))
-                except LimitViolation:
-                    return False
-                return True
-
-            good = getattr(defaults, quantity)
-            if fits(value) or not fits(good):
-                continue
-            lo, hi = sorted((value, good))
-            while hi / lo > 1.0001:  # the edge between a value that fits and one that does not
-                mid = (lo * hi) ** 0.5
-                if fits(mid) == (value > good):
-                    lo = mid
-                else:
-                    hi = mid
-            if value > good:
-                return (f"{quantity} {value:g} {unit_name} is beyond the {_round3(lo):g} "
-                        f"{unit_name} its drive runs at most")
-            return (f"{quantity} {value:g} {unit_name} is below the {_round3(hi):g} "
-                    f"{unit_name} its drive runs at least")
-        return "its drive cannot run this speed with these ramps"
+        """``LimitViolation`` in the axis's units if its drive cannot run ``plan``."""
+        self.envelope.check_drive(plan)
 
     def check_limits(self, target: float) -> None:
         """LimitViolation if ``target`` lies outside the soft limits; nothing is sent."""
-        lim = self.config.limits
-        if lim is not None and not lim[0] <= target <= lim[1]:
-            raise LimitViolation(
-                f"axis {self.name}: target {target:g} is outside the soft limits "
-                f"{lim[0]:g}..{lim[1]:g}"
-            )
-
-    def _pulses(self, target: float) -> int:
-        """``target`` (user units, within the soft limits) as pulses that stay within them."""
-        p = self.units.to_pulses(target)
-        lim = self.config.limits
-        if lim is None:
-            return p
-        for candidate in (p, p - 1, p + 1):
-            if lim[0] <= self.units.from_pulses(candidate) <= lim[1]:
-                return candidate
-        return p  # a limit range narrower than one pulse: nothing better exists
-
-    def _drive_direction(self, user_direction: float) -> int:
-        """The pulse direction of a motion in user direction ``user_direction``."""
-        if user_direction == 0:
-            return 0
-        return 1 if (user_direction > 0) == (self.units.units_per_rev > 0) else -1
-
-    def _check_switch(self, direction: int, status: DriveStatus | None = None) -> None:
-        """LimitViolation if a hardware limit switch is active in drive ``direction``."""
-        st = status or self.status
-        if st is None or direction == 0:
-            return
-        if (direction > 0 and st.limit_positive) or (direction < 0 and st.limit_negative):
-            side = "positive" if direction > 0 else "negative"
-            raise LimitViolation(
-                f"axis {self.name}: the {side} limit switch is active; only motion away "
-                f"from it is allowed"
-            )
+        self.envelope.check_limits(target)
 
     # -- the actor ------------------------------------------------------------------------------
 
@@ -771,9 +669,6 @@ class Axis:
 
     # -- motion commands -------------------------------------------------------------------------
 
-    def _timeout(self, plan: MotionPlan, distance: float) -> float:
-        return plan.duration(distance) * 1.5 + 1.0 + 4 * self.config.poll.moving
-
     async def move_to(
         self,
         target: float,
@@ -795,12 +690,12 @@ class Axis:
         plan = self.plan(speed, accel, decel)
         self.check_limits(target)
         self.profile.check_supported("move_absolute")
-        target_p = self._pulses(target)
+        target_p = self.envelope.pulses(target)
         params = self.drive_params(plan)
         self.check_drive(plan)
         here = self.status.position if self.status is not None else None
         direction = 0 if here is None else (target_p > here) - (target_p < here)
-        self._check_switch(direction)
+        self.envelope.check_switch(direction, self.status)
         m = self._begin("move", f"move to {target:g}", AxisState.DISCRETE_MOTION,
                         direction=direction, accepted=accepted)
         m.target, m.plan = target_p, plan
@@ -814,14 +709,14 @@ class Axis:
                 m.start = st.position
                 if st.position is not None:
                     m.direction = (target_p > st.position) - (target_p < st.position)
-                self._check_switch(m.direction, st)
+                self.envelope.check_switch(m.direction, st)
             await prepare()
             if ready is not None:
                 await ready()
             await self._commit(m, self.profile.start_absolute, prepare=prepare)
 
         distance = self.units.from_pulses(target_p - (m.start or 0))
-        await self._run_motion(m, io, timeout=self._timeout(plan, distance))
+        await self._run_motion(m, io, timeout=self.envelope.motion_timeout(plan, distance))
 
     async def move_by(
         self,
@@ -841,8 +736,8 @@ class Axis:
         self.check_drive(plan)
         if self.position is not None:
             self.check_limits(self.position + distance)
-        direction = self._drive_direction(distance)
-        self._check_switch(direction)
+        direction = self.envelope.drive_direction(distance)
+        self.envelope.check_switch(direction, self.status)
         m = self._begin("move", f"move by {distance:g}", AxisState.DISCRETE_MOTION,
                         direction=direction, accepted=accepted)
         m.plan = plan
@@ -851,12 +746,12 @@ class Axis:
             st = await self.refresh()
             start = st.position or 0
             self.check_limits(self.units.from_pulses(start) + distance)
-            self._check_switch(direction, st)
-            target = self._pulses(self.units.from_pulses(start) + distance)
+            self.envelope.check_switch(direction, st)
+            target = self.envelope.pulses(self.units.from_pulses(start) + distance)
             m.start, m.target = start, target
             await self._commit(m, lambda: self.profile.move_relative(target - start, params))
 
-        await self._run_motion(m, io, timeout=self._timeout(plan, distance))
+        await self._run_motion(m, io, timeout=self.envelope.motion_timeout(plan, distance))
 
     async def home(self, *, accepted: Callable[[], object] | None = None) -> None:
         """Run the configured homing procedure; return when the drive reports homed
@@ -876,25 +771,6 @@ class Axis:
             )))
 
         await self._run_motion(m, io, timeout=h.timeout)
-
-    def _jog_bound(self, speed: float) -> int | None:
-        """Pulses of the soft limit a jog at ``speed`` runs towards (None: no limits)."""
-        lim = self.config.limits
-        if lim is None:
-            return None
-        return self._pulses(lim[1] if speed > 0 else lim[0])
-
-    def _check_jog_room(self, speed: float) -> None:
-        """LimitViolation if a jog at ``speed`` has no room before a limit (nothing sent)."""
-        self._check_switch(self._drive_direction(speed))
-        lim, pos = self.config.limits, self.position
-        if lim is not None and pos is not None and (
-            (speed > 0 and pos >= lim[1]) or (speed < 0 and pos <= lim[0])
-        ):
-            raise LimitViolation(
-                f"axis {self.name}: at the soft limit ({pos:.4f}), cannot jog "
-                f"{'up' if speed > 0 else 'down'} (limits {lim[0]:g}..{lim[1]:g})"
-            )
 
     async def jog(
         self,
@@ -920,8 +796,8 @@ class Axis:
             await self.stop()
             return
         plan = self.plan(abs(speed), accel, decel)
-        self._check_jog_room(speed)
-        bound = self._jog_bound(speed)
+        self.envelope.check_jog_room(speed, self.status)
+        bound = self.envelope.jog_bound(speed)
         procedure = "move_absolute" if bound is not None else "speed_run"
         self.profile.check_supported(procedure)
         self.check_drive(plan)
@@ -933,7 +809,7 @@ class Axis:
             await self._change_jog(m, speed, plan, bound, watchdog)
             return
         m = self._begin("jog", f"jog at {speed:g}", AxisState.CONTINUOUS_MOTION,
-                        direction=self._drive_direction(speed))
+                        direction=self.envelope.drive_direction(speed))
         m.speed, m.plan, m.target = speed, plan, bound
         await self._run_motion(m, lambda: self._start_jog(m), timeout=None, wait=False)
         self._arm_watchdog(watchdog)
@@ -959,7 +835,7 @@ class Axis:
         watchdog: float | None,
     ) -> None:
         """A running jog at a new speed or direction (a stop first where the drive needs it)."""
-        direction = self._drive_direction(speed)
+        direction = self.envelope.drive_direction(speed)
 
         async def io() -> None:
             if bound is None and direction == m.direction:
@@ -971,7 +847,7 @@ class Axis:
                 await self.profile.stop(None)
                 after = self._stop_sent_at = monotonic()
                 st = await self._wait_rest(after, f"the {m.what}'s change of speed")
-                self._check_switch(direction, st)
+                self.envelope.check_switch(direction, st)
                 m.start, m.seen_motion, m.accepted_at = st.position, False, None
                 m.restarting = False
                 m.direction, m.target = direction, bound
@@ -1202,11 +1078,6 @@ class Axis:
 
     def __repr__(self) -> str:
         return f"Axis({self.name!r}, {self.profile.family}, {self.state})"
-
-
-def _round3(v: float) -> float:
-    """``v`` to three significant digits (a limit found by a search, for a message)."""
-    return float(f"{v:.3g}")
 
 
 class _Latest:
