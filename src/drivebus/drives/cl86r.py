@@ -38,6 +38,7 @@ from drivebus.drives.base import (
     DriveOptions,
     DriveProfile,
     HomingParams,
+    HomingSwitches,
     MoveParams,
     ramp_time_quantized,
 )
@@ -402,6 +403,10 @@ class CL86RProfile(DriveProfile):
         The drive has no mode-select register: the mode follows the control-word bit.
         """
         await self.write(MICROSTEP, self.pulses_per_rev)
+        await self.learn()
+
+    async def learn(self) -> None:
+        """The input levels and functions (0x0010.., read only): where the switches are."""
         words = await self.slave.read_holding_registers(DI_LEVEL.address, 10)
         self._di_invert = words[0]
         self._di_functions = tuple(words[3:10])
@@ -561,6 +566,16 @@ class CL86RProfile(DriveProfile):
             f"home with method {method!r}",
             "it documents " + ", ".join(f"{k} ({v})" for k, v in HOMING_MODES.items()),
         )
+
+    def homing_switches(self, method: str | None) -> HomingSwitches:
+        """17/18 home on the negative/positive limit switch; 24/29 search the home switch
+        positive/negative and reverse at the limit switch in that direction (CiA 402)."""
+        mode = self.homing_mode(method)
+        on = {17: -1, 18: 1}.get(mode)
+        if on is not None:
+            return HomingSwitches(homes_on=frozenset({on}))
+        reverse = {24: 1, 29: -1}.get(mode)
+        return HomingSwitches(reverses_at=frozenset({reverse} if reverse else ()))
 
     async def start_homing(self, params: HomingParams) -> None:
         """Write the origin offset (0x0044/45), mode and speeds (0x0040-0x0043), 0x0036 = 0x0010.
