@@ -41,7 +41,8 @@ if TYPE_CHECKING:
     from drivebus.motion.machine import Machine
 
 __all__ = [
-    "FORMAT", "TABLES", "AxisTrace", "Column", "LineLoad", "LineTrace", "Recording", "Sample",
+    "FORMAT", "TABLES", "Arrival", "AxisTrace", "Column", "LineLoad", "LineTrace", "Recording",
+    "Sample",
     "Table",
 ]
 
@@ -113,6 +114,20 @@ class LineLoad:
     """Transactions per second."""
     latency: list[float | None]
     """Mean reply latency, seconds (None: no reply in the bin)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Arrival:
+    """One move: when it started, when its plan had it arrive, when a poll saw it there
+    (seconds since the recording started; ``observed`` None: it did not arrive)."""
+
+    axis: str
+    what: str
+    started: float
+    planned: float | None
+    observed: float | None
+    outcome: str
+    """``in_position``, or how it ended otherwise (``aborted``, ``error``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -265,6 +280,27 @@ class Recording:
     def events(self) -> list[MotionEvent]:
         """Every axis's events, in time order."""
         return sorted((e for t in self.axes.values() for e in t.events), key=lambda e: e.time)
+
+    def arrivals(self) -> list[Arrival]:
+        """Every move started while recording, with its planned and observed arrival (a
+        group move: one per axis, planned to arrive together)."""
+        out: list[Arrival] = []
+        t0 = self.started
+        for trace in self.axes.values():
+            started: MotionEvent | None = None
+            for e in trace.events:
+                if e.kind == "started" and e.planned_end is not None:
+                    started = e
+                elif started is not None and e.kind in ("in_position", "aborted", "error"):
+                    out.append(Arrival(
+                        trace.name, started.what, started.time - t0,
+                        None if started.planned_end is None else started.planned_end - t0,
+                        e.time - t0 if e.kind == "in_position" else None, e.kind))
+                    started = None
+            if started is not None:
+                out.append(Arrival(trace.name, started.what, started.time - t0,
+                                   (started.planned_end or t0) - t0, None, "running"))
+        return sorted(out, key=lambda a: a.started)
 
     def line_load(self, line: str, bin: float = 0.1) -> LineLoad:
         """``line``'s utilisation, transactions/s and mean reply latency per ``bin`` s."""
