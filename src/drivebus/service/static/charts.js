@@ -72,9 +72,11 @@ const DrivebusCharts = (() => {
     ctx.restore();
   }
 
-  function make(el, id, opts, data, extra) {
-    const chart = { id, extra, paused: false };
+  // onZoom(chart): called when the user drags across the chart to zoom in.
+  function make(el, id, opts, data, extra, onZoom) {
+    const chart = { id, extra };
     opts.hooks = { draw: [(u) => overlay(u, chart.extra)] };
+    if (onZoom) opts.hooks.setSelect = [(u) => { if (u.select.width > 0) onZoom(chart); }];
     opts.width = opts.width || Math.max(300, el.clientWidth || 800);
     chart.u = new uPlot(opts, data, el);
     chart.set = (d, ex, keepX) => {
@@ -88,7 +90,7 @@ const DrivebusCharts = (() => {
 
   // One axis: data = [t, position, velocity, target]; extra = {states, marks}.
   function axisChart(el, { id, name, unit, height = 230, time = false, sync = "drivebus",
-                           data = [[], [], [], []], extra = {} }) {
+                           data = [[], [], [], []], extra = {}, onZoom }) {
     const opts = {
       title: `${name} (${unit})`, height,
       cursor: { sync: { key: sync }, drag: { x: true, y: false } },
@@ -110,12 +112,12 @@ const DrivebusCharts = (() => {
           dash: [8, 5], value: (u, v) => (v == null ? "–" : v.toFixed(3)) },
       ],
     };
-    return make(el, id || `axis-${name}`, opts, data, extra);
+    return make(el, id || `axis-${name}`, opts, data, extra, onZoom);
   }
 
   // One line: data = [t, utilisation %, transactions/s, latency ms].
   function lineChart(el, { id, name, height = 200, time = false, sync = "drivebus",
-                           data = [[], [], [], []], extra = {} }) {
+                           data = [[], [], [], []], extra = {}, onZoom }) {
     const opts = {
       title: `line ${name}`, height,
       cursor: { sync: { key: sync }, drag: { x: true, y: false } },
@@ -138,7 +140,7 @@ const DrivebusCharts = (() => {
           value: (u, v) => (v == null ? "–" : v.toFixed(2)) },
       ],
     };
-    return make(el, id || `line-${name}`, opts, data, extra);
+    return make(el, id || `line-${name}`, opts, data, extra, onZoom);
   }
 
   // Runs of equal states: [[t0, t1, state], ...] from parallel arrays.
