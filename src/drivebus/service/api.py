@@ -367,6 +367,17 @@ async def recording_jsonl(rec_id: str, session: Session, _: Reader) -> Response:
 # -- the application --------------------------------------------------------------------------
 
 
+_LOCAL_ONLY = ("default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' "
+               "'unsafe-inline'; img-src 'self' data:; font-src 'self' data:; "
+               "worker-src 'self' blob:; connect-src 'self'")
+"""The API docs' content security policy: nothing but this service (air-gapped plants)."""
+
+
+def _local_only(page: HTMLResponse) -> HTMLResponse:
+    page.headers["Content-Security-Policy"] = _LOCAL_ONLY
+    return page
+
+
 def create_app(session: MachineSession, tokens: TokenStore | None = None) -> FastAPI:
     """The service's ASGI application over ``session`` (no tokens: no authentication)."""
     from drivebus.service.ws import websocket_endpoint
@@ -402,21 +413,23 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
 
     @app.get("/docs", include_in_schema=False)
     async def swagger_ui() -> HTMLResponse:
-        return get_swagger_ui_html(
+        return _local_only(get_swagger_ui_html(
             openapi_url=app.openapi_url or "/openapi.json", title=f"{app.title}: API",
             swagger_js_url="/static/vendor/swagger-ui/swagger-ui-bundle.js",
             swagger_css_url="/static/vendor/swagger-ui/swagger-ui.css",
             swagger_favicon_url="/static/vendor/swagger-ui/favicon-32x32.png",
             swagger_ui_parameters={"validatorUrl": None},
-        )
+        ))
 
     @app.get("/redoc", include_in_schema=False)
     async def redoc() -> HTMLResponse:
-        return get_redoc_html(
+        # ReDoc's sidebar shows a Redocly logo from its CDN: the policy keeps it off the
+        # network (the image hides itself when it does not load).
+        return _local_only(get_redoc_html(
             openapi_url=app.openapi_url or "/openapi.json", title=f"{app.title}: API",
             redoc_js_url="/static/vendor/redoc/redoc.standalone.js",
             redoc_favicon_url="/static/vendor/swagger-ui/favicon-32x32.png",
             with_google_fonts=False,
-        )
+        ))
 
     return app

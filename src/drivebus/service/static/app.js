@@ -327,6 +327,7 @@ function addAxisChart(name, msg) {
   $("charts").append(div);
   DrivebusCharts.axisChart(div, { name, unit: msg.units, time: true, height: 210,
                                   onZoom: () => pause(true) });
+  DrivebusCharts.fit();  // the grid has re-flowed: every chart to its cell's width
 }
 
 function markMotion(msg) {
@@ -350,6 +351,7 @@ function onLineChart(msg) {
     $("line-charts").append(div);
     DrivebusCharts.lineChart(div, { name: msg.name, time: true, height: 180,
                                     onZoom: () => pause(true) });
+    DrivebusCharts.fit();
   }
   const last = s.last;
   s.last = msg;

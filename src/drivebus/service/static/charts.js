@@ -77,7 +77,7 @@ const DrivebusCharts = (() => {
     const chart = { id, extra };
     opts.hooks = { draw: [(u) => overlay(u, chart.extra)] };
     if (onZoom) opts.hooks.setSelect = [(u) => { if (u.select.width > 0) onZoom(chart); }];
-    opts.width = opts.width || Math.max(300, el.clientWidth || 800);
+    opts.width = opts.width || Math.max(300, (el.clientWidth || 808) - 8);
     chart.u = new uPlot(opts, data, el);
     chart.set = (d, ex, keepX) => {
       chart.extra = ex || chart.extra;
@@ -162,7 +162,8 @@ const DrivebusCharts = (() => {
     for (const chart of registry.values()) {
       const el = chart.u.root.parentElement;
       if (!container || container.contains(el)) {
-        chart.u.setSize({ width: Math.max(300, el.clientWidth), height: chart.u.height });
+        const width = Math.max(300, el.clientWidth - 8);
+        if (width !== chart.u.width) chart.u.setSize({ width, height: chart.u.height });
       }
     }
   }
