@@ -26,6 +26,9 @@ import pytest
 from drivebus import AxisState, errors, open_machine
 from drivebus.errors import ArgumentError, GroupMotionError, LimitViolation, MotionTimeout
 from drivebus.motion import Axis, Machine
+from mqtt_helpers import bridged, running_broker
+from service_rig import running
+from service_rig import until as service_until
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "configs" / "demo.toml"
@@ -231,6 +234,25 @@ def test_viewing_commands_send_zero_writes(tmp_path: Path) -> None:
             assert " tx slave " in out, name  # it did talk to the drives
 
 
+async def test_service_get_routes_and_mqtt_telemetry_send_zero_writes(tmp_path: Path) -> None:
+    """Every GET route of the service, and the MQTT bridge publishing telemetry (to a
+    real Mosquitto), on the demo machine: its wires carry reads only."""
+    async with running() as (svc, client):
+        for path in ("/api/machine", "/api/axes", "/api/lines/rs485", "/api/lines/eth",
+                     "/api/motions", "/api/lease", "/api/client", "/"):
+            assert (await client.get(path)).status_code == 200, path
+        for name in svc.session.machine.axes:
+            assert (await client.get(f"/api/axes/{name}")).status_code == 200
+        await service_until(svc, lambda: all(
+            a.status is not None for a in svc.session.machine.axes.values()))
+        assert writes_on_wires(svc.session.machine) == []
+    for broker in running_broker(tmp_path):
+        async with bridged(DEMO, broker.url, state_rate=50.0) as (session, _):
+            async with broker.watch("drivebus/demo/axes/+/state") as sub:
+                await sub.until(lambda lines: len(lines) >= len(session.machine.axes))
+            assert writes_on_wires(session.machine) == []
+
+
 # -- 3. reset right after a limit stop ----------------------------------------------------------
 
 
@@ -265,7 +287,7 @@ async def test_group_report_counts_only_moving_axes_beside_the_twins() -> None:
         ends = {n: m.sim_drives[n].kin.end_time() for n in ("x", "y")}
         twins_spread = max(ends.values()) - min(ends.values())
         assert set(report.planned_arrivals) == {"x", "y"} == set(report.observed_arrivals)
-        assert 0 < report.observed_resolution
+        assert report.observed_resolution > 0
         # The plan predicts the twins' spread to within the start replies' wire time;
         # the polls see it to within their windows.
         assert abs(report.planned_arrival_spread - twins_spread) < 0.01

@@ -18,6 +18,7 @@ import anyio
 import typer
 
 from drivebus import checks
+from drivebus.cli_record import record
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
 from drivebus.terminal import explain
 
@@ -565,6 +566,9 @@ def serve(
         raise ArgumentError("--node and --no-discovery go with an MQTT bridge (--mqtt URL)")
     raise typer.Exit(run(config, host=host, port=port, token_file=token_file,
                          http=not no_http, extra=extra))
+
+
+app.command()(record)  # drivebus record: in its own module
 
 
 @app.command()

@@ -27,6 +27,7 @@ import anyio.abc
 
 from drivebus import checks
 from drivebus.app.events import Event, EventHub
+from drivebus.app.recordings import Recordings
 from drivebus.app.snapshots import (
     AxisSnapshot,
     LineSnapshot,
@@ -133,6 +134,8 @@ class MachineSession:
         self._ids = itertools.count(1)
         self._lease: Lease | None = None
         self._jogs: dict[str, str] = {}  # axis -> client whose jog it is
+        self.recordings = Recordings(machine)
+        """Recordings clients started (the dashboard's Record button)."""
 
     @classmethod
     @asynccontextmanager
@@ -159,6 +162,7 @@ class MachineSession:
             try:
                 yield session
             finally:
+                session.recordings.close()
                 tg.cancel_scope.cancel()
 
     # -- looking --------------------------------------------------------------------------

@@ -51,6 +51,11 @@ class BusStats:
     """Seconds the line carried frames (request and reply bytes)."""
     transactions: int = 0
     """Attempts that went on the wire, successful or not."""
+    replies: int = 0
+    """Replies received (exception replies included; broadcasts have none)."""
+    reply_time: float = 0.0
+    """Seconds from each request's last byte to its reply's last byte, added up: with
+    ``replies``, the mean reply latency over any interval."""
 
     def slave(self, address: int) -> SlaveStats:
         """The counters of ``address`` (created on first use)."""

@@ -16,6 +16,7 @@ __all__ = [
     "LeaseRequest",
     "MoveRequest",
     "ReadRequest",
+    "RecordingRequest",
     "StopRequest",
     "WriteRequest",
 ]
@@ -85,6 +86,12 @@ class LeaseRequest(_Body):
     """Take (or renew) the command lease for ``ttl`` seconds."""
 
     ttl: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 30.0
+
+
+class RecordingRequest(_Body):
+    """Record these axes (and their lines); none given: every axis."""
+
+    axes: list[str] | None = None
 
 
 class ReadRequest(_Body):
