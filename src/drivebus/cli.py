@@ -133,17 +133,24 @@ def bench(
         metavar="SECONDS", help="simulated slave turnaround")] = 0.001,
     json_path: Annotated[Path | None, typer.Option(
         "--json", metavar="FILE", help="also write the results as JSON to FILE")] = None,
+    plots: Annotated[Path | None, typer.Option(
+        metavar="DIR", help="write the motion scenario's plots here (an HTML report of "
+        "its group moves, and a PNG with matplotlib)")] = Path("bench-plots"),
+    no_plots: Annotated[bool, typer.Option("--no-plots", help="draw no plots")] = False,
 ) -> None:
     """Measure bus efficiency, stop latency, CPU per transaction and scale on simulated lines."""
     from drivebus.bench import format_table, results_json, run_bench
 
     if not 0 <= checks.finite("--turnaround", turnaround) <= 1:
         raise ArgumentError(f"--turnaround: {turnaround!r} s is outside 0..1 s")
-    results = anyio.run(lambda: run_bench(quick=quick, turnaround=turnaround))
+    draw = None if no_plots else plots
+    results = anyio.run(lambda: run_bench(quick=quick, turnaround=turnaround, plots=draw))
     typer.echo(format_table(results))
     if json_path is not None:
         json_path.write_text(results_json(results))
         typer.echo(f"\nresults written to {json_path}")
+    if draw is not None:
+        typer.echo(f"motion plots written to {draw}/")
 
 
 @app.command()

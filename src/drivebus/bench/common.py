@@ -15,6 +15,7 @@ import time
 from collections.abc import Awaitable, Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
 
@@ -82,6 +83,9 @@ class BenchOptions:
     """Length of each timed run."""
     turnaround: float = 0.001
     """Simulated slaves' turnaround (request end to reply start)."""
+    plots: Path | None = None
+    """Where the motion scenario writes its plots (an HTML report of its group moves,
+    and a PNG where matplotlib is installed); None: none."""
 
 
 @dataclass(frozen=True)
