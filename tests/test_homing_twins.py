@@ -390,6 +390,10 @@ async def test_limit_methods_home_on_their_limit_switch(
     assert run.first_direction == (d if start == 0 else -d)
     # Every family's limit methods end on the switch's inner edge (EPR60: with 83 = 0).
     assert_homed_at(run, sim, f, LIMIT * d * f.rev)
+    # On that edge the switch still reads active where the origin is its rising edge
+    # (NT86 2/3, BHSS 2/3, EPR60 with 83 = 0); the CL86R's is the falling edge (17/18).
+    on_limit = run.status.limit_positive if d > 0 else run.status.limit_negative
+    assert on_limit == (family != "CL86R")
     assert_within_limits(run, f)
 
 
