@@ -13,18 +13,21 @@ the twin makes a documented choice:
 * motion starts are ignored while the motor is released or an alarm is latched; an alarm
   stops the motor at once and clears only with 0x0037 = 0x0004;
 * a limit input stops a position or speed move (0x0025: 0 = decelerate, 1 = at once) and
-  a start towards an active limit is ignored; a limit not used by the homing method in
-  progress aborts homing;
+  a start towards an active limit is ignored; while homing, a limit the manual's
+  sequence does not name (any but 18's P-OT, 17's N-OT, and the one 24/29 reverse at
+  in their search) stops the motor the same way and homing fails (``homing_failed``):
+  the manual does not say what the drive does there;
 * homing ends on the origin edge with a decelerating stop; the position at the edge
   becomes the origin offset (0x0044/0x0045, CiA-402 reading); mode 35 just sets it;
 * the position counter is 32-bit: it wraps from 2^31-1 to -2^31;
 * a frame with a bad CRC is answered with exception 04 (the manual's "CRC check error").
 
-The home switch is a cam on the positive side of ``home_switch`` (as in ``SimDrive``) or,
-with ``home_switch_width``, a dog covering ``[home_switch, home_switch + width]``; modes 29
-and 24(b) need a dog. Baud rate is the DIP-switch setting (``settings``; factory default
-taken as all switches ON = 9600, fixed 8N1); at 19200 and up the format is 0x0021, which
-takes effect at the next power-up.
+The home switch is a cam from ``home_switch`` on the side the homing mode searches
+towards (29 negative, else positive; ``home_cam`` names the side instead) or, with
+``home_switch_width``, a dog covering ``[home_switch, home_switch + width]``; 24(b) and
+29(b), homing via the limit, need a dog behind the start. Baud rate is the DIP-switch
+setting (``settings``; factory default taken as all switches ON = 9600, fixed 8N1); at
+19200 and up the format is 0x0021, which takes effect at the next power-up.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from drivebus.clock import monotonic
 from drivebus.errors import ConfigError
 from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
+from drivebus.sim.drive import HomeCam, SimDrive, Span, TwinSetup, time_or_present
 from drivebus.sim.registers import Access, ExceptionCodes, RegisterSpec, signed16, signed32
 
 __all__ = ["SimCL86R"]
@@ -125,23 +128,26 @@ def _factory_values() -> dict[int, int]:
     return {a: spec.default & 0xFFFF for a, spec in _PARAMETERS.items()}
 
 
-class _Edge(enum.Enum):
-    """A switch edge the drive can see (where its input is wired)."""
+class _Signal(enum.IntEnum):
+    """A switch input, by its DI function code (the drive sees it where it is wired)."""
 
-    HOME_LOW = "home_low"  # where the home cam or dog begins
-    HOME_HIGH = "home_high"  # where the home dog ends
-    LIMIT_POSITIVE = "limit_positive"
-    LIMIT_NEGATIVE = "limit_negative"
+    HOME = 1
+    LIMIT_POSITIVE = 2
+    LIMIT_NEGATIVE = 3
+
+
+_H, _P, _N = _Signal.HOME, _Signal.LIMIT_POSITIVE, _Signal.LIMIT_NEGATIVE
 
 
 @dataclass(frozen=True)
 class _Phase:
-    """One leg of a homing method: run in ``direction`` at high or creep speed until an
-    edge at one of ``events``' positions, then go to the named phase (or "done")."""
+    """One leg of a homing method: run in ``direction`` at high or creep speed until one
+    of ``events``' switches turns active (rising) or inactive, then go to the named leg
+    (or "done")."""
 
     direction: int
     fast: bool
-    events: tuple[tuple[_Edge, str], ...]  # (switch edge, next leg)
+    events: tuple[tuple[_Signal, bool, str], ...]  # (switch, rising, next leg)
 
 
 @dataclass
@@ -166,6 +172,7 @@ class SimCL86R(SimDrive):
         setup: TwinSetup | None = None,
         *,
         home_switch_width: float | None = None,
+        home_cam: HomeCam | None = None,
         crc_error_reply: bool = True,
         model: int = 862,
         software: int = 100,
@@ -173,7 +180,7 @@ class SimCL86R(SimDrive):
         settings = settings or LineSettings.parse("9600 8N1")
         _check_line(settings)
         super().__init__(address, settings, setup)
-        self.home_switch_width = home_switch_width
+        self.set_home_shape(home_cam, home_switch_width)
         self.crc_error_reply = crc_error_reply
         self.model = model
         self.software = software
@@ -207,16 +214,12 @@ class SimCL86R(SimDrive):
         self._shift += value - old
 
     def switch_states(self, now: float) -> tuple[bool, bool, bool]:
-        """(home, limit negative, limit positive) at the physical position.
+        """(home, limit negative, limit positive) at the physical position."""
+        return self.switches_at(self.physical_position(now))
 
-        The home switch is a cam from ``home_switch`` on, or a dog of ``home_switch_width``.
-        """
-        p = self.physical_position(now)
-        start, width = self.home_switch, self.home_switch_width
-        home = start is not None and p >= start and (width is None or p <= start + width)
-        neg = self.limit_negative is not None and p <= self.limit_negative
-        pos = self.limit_positive is not None and p >= self.limit_positive
-        return home, neg, pos
+    def home_side(self) -> int:
+        """The default home cam side: negative for mode 29, else positive."""
+        return -1 if self.regs[0x0040] == 29 else 1
 
     def _wired(self, function: int) -> bool:
         """True if some input X0..X6 is assigned DI ``function`` (1 home, 2 +limit, 3 -limit)."""
@@ -240,18 +243,19 @@ class SimCL86R(SimDrive):
     def _home_rate(self) -> float:
         return self._ramp_rate(self.regs[0x0041], self.regs[0x0043])
 
-    def _boundary(self, which: _Edge) -> float | None:
-        """Counter position of a switch edge the drive can see, or None."""
-        start, width = self.home_switch, self.home_switch_width
-        edge: float | None = None
-        if which is _Edge.HOME_LOW and self._wired(1):
-            edge = start
-        elif which is _Edge.HOME_HIGH and self._wired(1):
-            edge = start + width if start is not None and width is not None else None
-        elif which is _Edge.LIMIT_POSITIVE and self._wired(2):
-            edge = self.limit_positive
-        elif which is _Edge.LIMIT_NEGATIVE and self._wired(3):
-            edge = self.limit_negative
+    def _span(self, signal: _Signal) -> Span | None:
+        """Where ``signal``'s switch is active (physical), if the drive can see it."""
+        if not self._wired(signal):
+            return None
+        if signal is _H:
+            return self.home_span()
+        return self.limit_span(1 if signal is _P else -1)
+
+    def _boundary(self, signal: _Signal, direction: int, rising: bool) -> float | None:
+        """Counter position where a motor travelling in ``direction`` sees ``signal``
+        turn active (``rising``) or inactive; None if it cannot."""
+        span = self._span(signal)
+        edge = None if span is None else span.edge(direction, rising)
         return None if edge is None else edge + self._shift
 
     # -- registers ------------------------------------------------------------------------------
@@ -423,34 +427,27 @@ class SimCL86R(SimDrive):
         return (self.regs[0x0044] << 16) | self.regs[0x0045]
 
     def _phases(self, mode: int, now: float) -> tuple[dict[str, _Phase], str] | None:
-        """The homing method's legs and the first one, from the switch state at ``now``."""
+        """The homing method's legs (manual 6.3) and the first one, from the switch state
+        at ``now``."""
         home, neg, pos = self.switch_states(now)
-        if mode == 18:  # origin: falling edge of the positive limit
-            legs = {"fast": _Phase(+1, True, ((_Edge.LIMIT_POSITIVE, "creep"),)),
-                    "creep": _Phase(-1, False, ((_Edge.LIMIT_POSITIVE, "done"),))}
-            return legs, "creep" if pos and self._wired(2) else "fast"
-        if mode == 17:  # origin: falling edge of the negative limit
-            legs = {"fast": _Phase(-1, True, ((_Edge.LIMIT_NEGATIVE, "creep"),)),
-                    "creep": _Phase(+1, False, ((_Edge.LIMIT_NEGATIVE, "done"),))}
-            return legs, "creep" if neg and self._wired(3) else "fast"
-        if mode == 24:  # origin: HW rising edge approached forward (lower edge)
+        if mode in (17, 18):  # origin: the falling edge of N-OT (17) or P-OT (18)
+            d, limit = (1, _P) if mode == 18 else (-1, _N)
+            legs = {"fast": _Phase(d, True, ((limit, True, "creep"),)),
+                    "creep": _Phase(-d, False, ((limit, False, "done"),))}
+            on = (pos if d > 0 else neg) and self._wired(limit)
+            return legs, "creep" if on else "fast"
+        if mode in (24, 29):  # origin: HW's rising edge, met searching forward (24) or back
+            d, limit = (1, _P) if mode == 24 else (-1, _N)
             legs = {
-                "fast": _Phase(+1, True, ((_Edge.HOME_LOW, "back"),
-                                          (_Edge.LIMIT_POSITIVE, "reverse"))),
-                "back": _Phase(-1, False, ((_Edge.HOME_LOW, "final"),)),
-                "reverse": _Phase(-1, True, ((_Edge.HOME_HIGH, "back"),)),
-                "final": _Phase(+1, False, ((_Edge.HOME_LOW, "done"),)),
+                # (a) fast to HW's rising edge; (b) the limit first: reverse at high speed
+                "fast": _Phase(d, True, ((_H, True, "back"), (limit, True, "reverse"))),
+                # (b) at HW's rising edge slow down, going on the same way
+                "reverse": _Phase(-d, True, ((_H, True, "back"),)),
+                # (a, b, and c: HW active at the start) slowly to HW's falling edge
+                "back": _Phase(-d, False, ((_H, False, "final"),)),
+                "final": _Phase(d, False, ((_H, True, "done"),)),
             }
-            return legs, "back" if home and self._wired(1) else "fast"
-        if mode == 29:  # origin: HW rising edge approached in reverse (upper edge)
-            legs = {
-                "fast": _Phase(-1, True, ((_Edge.HOME_HIGH, "back"),
-                                          (_Edge.LIMIT_NEGATIVE, "reverse"))),
-                "back": _Phase(+1, False, ((_Edge.HOME_HIGH, "final"),)),
-                "reverse": _Phase(+1, True, ((_Edge.HOME_LOW, "back"),)),
-                "final": _Phase(-1, False, ((_Edge.HOME_HIGH, "done"),)),
-            }
-            return legs, "back" if home and self._wired(1) else "fast"
+            return legs, "back" if home and self._wired(_H) else "fast"
         return None
 
     def _start_homing(self, word: int, now: float) -> None:
@@ -460,6 +457,7 @@ class SimCL86R(SimDrive):
         self._wrap(now)
         self.mode = _MODE_HOMING
         self.homed = False
+        self.homing_failed = False
         if mode == 35:
             self._set_counter(now, self._offset())
             self.homed = True
@@ -482,17 +480,24 @@ class SimCL86R(SimDrive):
         self._homing.phase, self._homing.t_dir = name, t_dir
 
     def _next_edge(self, now: float) -> tuple[float, str] | None:
-        """The first edge the current leg waits for (or a limit that aborts it) up to ``now``."""
+        """The first edge the current leg waits for (or a limit that aborts it) up to ``now``;
+        a limit ahead that is already active when the leg sets off counts at once."""
         assert self._homing is not None
         phase = self._homing.phases[self._homing.phase]
+        d = phase.direction
+        ahead = _P if d > 0 else _N
         events = list(phase.events)
-        ahead = _Edge.LIMIT_POSITIVE if phase.direction > 0 else _Edge.LIMIT_NEGATIVE
-        if all(name != ahead for name, _ in events):
-            events.append((ahead, "abort"))
+        if all(sig is not ahead or not rising for sig, rising, _ in events):
+            events.append((ahead, True, "abort"))
         t_from = self._homing.t_dir + 1e-9
         best: tuple[float, str] | None = None
-        for name, nxt in events:
-            boundary = self._boundary(name)
+        for sig, rising, nxt in events:
+            span = self._span(sig)
+            if sig is ahead and rising and span is not None and span.active(
+                self.physical_position(t_from)
+            ):
+                return t_from, nxt
+            boundary = self._boundary(sig, d, rising)
             if boundary is None:
                 continue
             tc = self.kin.crossing(boundary, t_from, now)
@@ -516,14 +521,15 @@ class SimCL86R(SimDrive):
             elif nxt == "abort":
                 self.kin.stop(tc, self._stop_rate(tc) if self.regs[0x0025] == 0 else None)
                 self._homing = None
+                self.homing_failed = True
             else:
                 self._enter(nxt, tc)
 
     def _limit_hit(self, now: float) -> float | None:
         """When a position/speed move first ran into an active limit since its start."""
         hits = []
-        for boundary, direction in ((self._boundary(_Edge.LIMIT_POSITIVE), 1),
-                                    (self._boundary(_Edge.LIMIT_NEGATIVE), -1)):
+        for boundary, direction in ((self._boundary(_P, 1, True), 1),
+                                    (self._boundary(_N, -1, True), -1)):
             if boundary is None:
                 continue
             t0 = self._watch_from
