@@ -18,6 +18,8 @@ import anyio
 import typer
 
 from drivebus import checks
+from drivebus.commissioning import commission as commission_command
+from drivebus.commissioning import params_app
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
 from drivebus.terminal import explain
 
@@ -110,19 +112,10 @@ LocalOpt = Annotated[bool, typer.Option(
 def _owner(
     config: Path, server: str | None, token: str | None, local: bool
 ) -> ServiceClient | None:
-    """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
-    through the file), as a client; None to open the machine here."""
-    from drivebus.service.client import ServiceClient, find_service
+    """The ``drivebus serve`` that owns ``config``'s machine, as a client (or None)."""
+    from drivebus.terminal import service_owner
 
-    if local:
-        return None
-    url = server or find_service(config)
-    if url is None:
-        return None
-    if server is None:
-        typer.echo(f"note: {config} is served by a running drivebus serve at {url}: "
-                   f"talking to it (--local opens the machine here)", err=True)
-    return ServiceClient(url, token=token)
+    return service_owner(config, server, token, local)
 
 
 @app.command()
@@ -578,6 +571,12 @@ def check(config: ConfigArg, as_json: JsonOpt = False) -> None:
     from drivebus.terminal import Out, check_config
 
     raise typer.Exit(check_config(Out(as_json=as_json), config))
+
+
+# -- commissioning (drivebus.commissioning) -------------------------------------------------------
+
+app.add_typer(params_app, name="params")
+app.command(name="commission")(commission_command)
 
 
 # -- errors ----------------------------------------------------------------------------------------

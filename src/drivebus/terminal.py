@@ -81,6 +81,7 @@ __all__ = [
     "run_guarded",
     "scan_line",
     "serve_sim",
+    "service_owner",
     "show_status",
     "stop_axes",
 ]
@@ -533,6 +534,24 @@ def _count(n: int, one: str, many: str) -> str:
 
 
 # -- through a running drivebus serve (the line's one owner) ---------------------------------------
+
+
+def service_owner(
+    config: Path, server: str | None, token: str | None, local: bool
+) -> ServiceClient | None:
+    """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
+    through the file), as a client; None to open the machine here."""
+    from drivebus.service.client import find_service
+
+    if local:
+        return None
+    url = server or find_service(config)
+    if url is None:
+        return None
+    if server is None:
+        print(f"note: {config} is served by a running drivebus serve at {url}: talking to "
+              f"it (--local opens the machine here)", file=sys.stderr, flush=True)
+    return ServiceClient(url, token=token)
 
 
 async def _call(fn: Callable[..., Any], *args: Any) -> Any:

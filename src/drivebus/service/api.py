@@ -31,6 +31,7 @@ from drivebus.service.models import (
     JogRequest,
     LeaseRequest,
     MoveRequest,
+    ParametersRequest,
     ReadRequest,
     StopRequest,
     WriteRequest,
@@ -282,6 +283,28 @@ async def give_back_lease(session: Session, who: Commander) -> dict[str, Any]:
     """Give the lease back (nothing happens if the caller does not hold it)."""
     session.release_lease(who.name)
     return _lease(session)
+
+
+# -- drive parameters -------------------------------------------------------------------------
+
+
+@router.get("/axes/{name}/parameters", tags=["axes"])
+async def get_parameters(name: str, session: Session, _: Reader) -> dict[str, Any]:
+    """Every documented parameter of the axis's drive: value, unit, register, whether a
+    save stores it (reads only: nothing is written to the drive)."""
+    return (await session.read_parameters(name)).as_dict()
+
+
+@router.put("/axes/{name}/parameters", tags=["axes"])
+async def put_parameters(name: str, body: ParametersRequest, session: Session,
+                         who: Commander) -> dict[str, Any]:
+    """Write the given parameters that differ from the drive's, all range-checked before
+    the first write; with ``save`` the drive stores them once at the end. Refused while
+    the axis moves."""
+    report = await session.load_parameters(
+        name, body.values, save=body.save, dry_run=body.dry_run,
+        include_comms=body.include_comms, client=who.name)
+    return report.as_dict()
 
 
 # -- raw registers ----------------------------------------------------------------------------
