@@ -206,12 +206,15 @@ def scan(
     if checks.positive("--timeout", timeout, unit="s") > 5:
         raise ArgumentError(f"--timeout: {timeout!r} s is above 5 s (a probe answers in ms)")
     _announce_port(target)
-    if t.kind == "serial" and (sc.is_pty(target) or target.startswith("sim://")):
+    if t.kind == "serial" and sc.is_pty(target):  # sim://NAME carries the format itself
         settings, dropped = sc.pty_usable(settings)
         if dropped:
             formats = ", ".join(dict.fromkeys(s.format for s in dropped))
             typer.echo(f"note: {target} is a pty: it cannot carry parity or 7 data bits, "
-                       f"so {formats} are not probed", err=True)
+                       f"so {formats} are not probed (sim://NAME carries them)", err=True)
+        if not settings:
+            raise ArgumentError(f"--format: a pty cannot carry {formats}: nothing left to "
+                                f"probe on {target} (scan the simulator's sim://NAME)")
     out = Out(as_json=as_json)
     found: list[sc.Found] = []
 

@@ -72,6 +72,7 @@ from drivebus.views import axes_table, axis_line, axis_record, slaves_table, sta
 
 __all__ = [
     "Out",
+    "announce_sim_lines",
     "check_config",
     "found_line",
     "home_axis",
@@ -536,6 +537,28 @@ def _count(n: int, one: str, many: str) -> str:
 # -- through a running drivebus serve (the line's one owner) ---------------------------------------
 
 
+def announce_sim_lines(config: Path) -> None:
+    """Say on stderr, for each ``sim://`` line of ``config``, whether opening the machine
+    here reaches a running ``drivebus sim`` or starts a private simulator."""
+    from drivebus.config import load_config
+    from drivebus.sim.serve import published
+
+    try:
+        cfg = load_config(config)
+    except ConfigError:
+        return  # the command itself says what is wrong with the file
+    for ln in cfg.lines.values():
+        if not ln.simulated:
+            continue
+        found = published(ln.sim_name)
+        if found is not None:
+            note = f"reaching the running drivebus sim on {found.where}"
+        else:
+            note = ("no drivebus sim serves it: starting a private simulator (its drives "
+                    "start afresh; `drivebus sim CONFIG` keeps them between commands)")
+        print(f"note: {ln.port or ln.host}: {note}", file=sys.stderr, flush=True)
+
+
 def service_owner(
     config: Path, server: str | None, token: str | None, local: bool
 ) -> ServiceClient | None:
@@ -543,10 +566,9 @@ def service_owner(
     through the file), as a client; None to open the machine here."""
     from drivebus.service.client import find_service
 
-    if local:
-        return None
-    url = server or find_service(config)
+    url = None if local else server or find_service(config)
     if url is None:
+        announce_sim_lines(config)
         return None
     if server is None:
         print(f"note: {config} is served by a running drivebus serve at {url}: talking to "

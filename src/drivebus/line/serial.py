@@ -135,7 +135,11 @@ class SerialLine(Line):
         if not rate_matches(s.baudrate, actual):
             port.close()
             raise ConfigError(self._cannot_run(s, f"its driver set {actual} baud"))
-        transport = _Transport(loop, rx, port)
+        try:  # the transport sets the port non-blocking: a second tcsetattr
+            transport = _Transport(loop, rx, port)
+        except (ValueError, termios.error) as exc:  # (a pty refuses parity here)
+            port.close()
+            raise ConfigError(self._cannot_run(s, exc)) from exc
         self._serial = port
         self._fd = port.fileno()
         rx.pending_bytes = functools.partial(read_waiting, self._fd)
@@ -168,6 +172,10 @@ class SerialLine(Line):
         self._serial = None
 
     def _cannot_run(self, s: LineSettings, why: object) -> str:
+        if s.parity != "N" and os.path.realpath(self.port).startswith("/dev/pts/"):
+            return (f"serial port {self.port!r} cannot run {s} ({why}): it is a pty, which "
+                    f"cannot carry parity; reach a drivebus sim by its sim://NAME instead "
+                    f"(its format channel carries the parity)")
         return (f"serial port {self.port!r} cannot run {s} ({why}): use a baud rate and "
                 f"format that the adapter and the drives support")
 

@@ -144,6 +144,11 @@ class VirtualWire(SegmentView):
         """Side channel from the sim port class: the byte size and parity it configured."""
         self._format = (int(bytesize), str(parity))
 
+    def forget_format(self) -> None:
+        """The master that told the format is gone: an outside master (mbpoll, a PLC) is
+        taken to send 8 data bits without parity again."""
+        self._format = None
+
     def observed_settings(self) -> LineSettings:
         """The line settings the master's port has right now."""
         attrs = termios.tcgetattr(self._master_fd)  # the slave side's termios
