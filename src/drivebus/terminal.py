@@ -124,10 +124,14 @@ class Out:
         else:
             print(text, flush=True)
 
+    results: int = 0
+    """Results printed as JSON in this process (a failure then adds no JSON of its own)."""
+
     def result(self, data: object, *, indent: int | None = 2) -> None:
         """A command's result as JSON (with ``--json``; one line when ``indent`` is None)."""
         if self.as_json:
             print(json.dumps(data, indent=indent), flush=True)
+            Out.results += 1
 
     def warn(self, text: str) -> None:
         """A warning on stderr."""
@@ -239,10 +243,12 @@ async def write_registers(
 ) -> int:
     """Write registers and say what went to the slave."""
     assert settings is None or isinstance(settings, LineSettings)
-    async with open_slave(target, address, settings=settings, timeout=timeout) as slave:
+    async with open_slave(target, address, settings=settings, timeout=timeout,
+                          broadcast=True) as slave:
         words = await registers.write_registers(slave, register, values, fmt=fmt)
+    whom = "every slave (broadcast, no reply)" if address == 0 else f"slave {address}"
     out.line(f"wrote {len(words)} register{'' if len(words) == 1 else 's'} from "
-             f"[{register}] of slave {address} on {target}: "
+             f"[{register}] of {whom} on {target}: "
              f"{' '.join(f'0x{w:04X}' for w in words)}")
     out.result({"target": target, "address": address, "register": register,
                 "format": fmt, "words": words})
@@ -330,10 +336,14 @@ async def _one_axis(out: Out, config: Path, axis: str) -> AsyncIterator[_Run]:
     """Open the machine with just ``axis``; once it is closed again (every moving axis
     stopped and at standstill), report where an operation that did not complete left it."""
     run: _Run | None = None
+    failure: BaseException | None = None
     try:
         async with opened(config, [axis]) as m:
             run = _Run(m.axes[axis], Operation(axis, ""))
             yield run
+    except BaseException as exc:
+        failure = exc
+        raise
     finally:
         if run is not None and run.op.what and not run.op.done:
             ax, op = run.axis, run.op
@@ -342,7 +352,13 @@ async def _one_axis(out: Out, config: Path, axis: str) -> AsyncIterator[_Run]:
                 out.line(f"{ax.name}: {op.what} stopped after "
                          f"{time.monotonic() - op.started:.2f} s, "
                          f"position={_fmt(ax.position)} state={ax.state}")
-            out.result(op.as_dict())
+            record = op.as_dict()
+            if failure is not None:
+                text, status = explain(failure)
+                record["error"] = {"type": type(failure).__name__,
+                                   "message": text.removeprefix("error: "),
+                                   "exit_status": status}
+            out.result(record)
 
 
 async def _with_progress(
@@ -371,6 +387,10 @@ async def move_axis(
         start = ax.position
         goal = (start or 0.0) + target if by else target
         what = f"move {'by' if by else 'to'} {target:g}"
+        try:
+            ax.check_limits(goal)  # a target beyond the soft limits is a bad argument
+        except errors.LimitViolation as exc:
+            raise ArgumentError(f"TARGET: {exc}") from None
 
         async def motion() -> None:
             if by:
@@ -487,6 +507,11 @@ def explain(exc: BaseException) -> tuple[str, int]:
             port = m.group(1)
         return f"error: cannot open {port or 'the port'}: {os.strerror(code)}; " \
                f"{_PORT_HINTS[code]}", 1
+    if isinstance(exc, errors.ModbusException):
+        return (f"error: {exc}; the slave answered, refusing the request: check the register "
+                f"address, count and value against the drive's manual"), 1
+    if isinstance(exc, errors.PartialWrite):
+        return f"error: {exc}", 1
     if isinstance(exc, DriveOffline | TransactionError):
         return (f"error: {exc}; check power, wiring, address and line settings "
                 f"(`drivebus scan PORT` lists the slaves that answer)"), 1
@@ -507,12 +532,21 @@ async def serve_sim(out: Out, config: Path, log: bool) -> int:
 # -- check ---------------------------------------------------------------------------------------
 
 
-def check_config(out: Out, config: Path, sysfs: Path = Path("/sys")) -> int:
-    """Validate ``config`` and report on its lines; exit status 1 if a line cannot work."""
+def check_config(out: Out, config: Path, sysfs: Path = Path("/sys"), *,
+                 probe: bool = False) -> int:
+    """Validate ``config`` and report on its lines (and, with ``probe``, on its drives);
+    exit status 1 if a line or a drive cannot work."""
+    from drivebus.app.commission import probe_axes
+
     report = check_machine_file(config, sysfs)
+    probes = []
+    if probe and not report.problems:
+        announce_sim_lines(config)
+        probes = anyio.run(probe_axes, config)
+    problems = report.problems + [f"axis {p.axis}: {p.problem}" for p in probes if not p.ok]
     out.result({"file": str(config), "machine": report.name, "axes": report.axes,
                 "lines": [dataclasses.asdict(ln) for ln in report.lines],
-                "problems": report.problems})
+                "drives": [p.as_dict() for p in probes], "problems": problems})
     out.line(f"{config}: valid machine {report.name!r}: {_count(report.axes, 'axis', 'axes')} "
              f"on {_count(len(report.lines), 'line', 'lines')}")
     for ln in report.lines:
@@ -525,9 +559,13 @@ def check_config(out: Out, config: Path, sysfs: Path = Path("/sys")) -> int:
             out.line(f"line {ln.name}: {ln.kind} {ln.where}: {on}")
         for w in ln.warnings:
             out.warn(f"line {ln.name}: {w}")
-    for p in report.problems:
+    for pr in probes:
+        if pr.ok:
+            out.line(f"axis {pr.axis}: {pr.family} answers at address {pr.address}"
+                     f"{f' at {pr.settings}' if pr.settings else ''} ({pr.identity})")
+    for p in problems:
         print(f"error: {p}", file=sys.stderr, flush=True)
-    return 1 if report.problems else 0
+    return 1 if problems else 0
 
 
 def _count(n: int, one: str, many: str) -> str:

@@ -27,7 +27,7 @@ from drivebus.errors import ArgumentError, ConfigError, DriveOffline, StateError
 from drivebus.motion.lines import make_line
 from drivebus.settings import LineSettings
 
-__all__ = ["CommissionReport", "commission"]
+__all__ = ["AxisProbe", "CommissionReport", "commission", "probe_axes"]
 
 
 @dataclass
@@ -169,3 +169,79 @@ def _not_there(name: str, r: CommissionReport, old: Found | None, note: str) -> 
                 f"power-cycled? {note})")
     return (f"the {name} does not answer at {where}, nor at address {r.address} at "
             f"{r.settings}: check its power and its switches ({note})")
+
+
+@dataclass
+class AxisProbe:
+    """What ``check --probe`` found for one axis: whether its drive answers where the
+    machine file says, and if not, where a drive of its family answers instead."""
+
+    axis: str
+    family: str
+    address: int
+    settings: str | None
+    ok: bool
+    identity: str = ""
+    problem: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready data."""
+        return {"axis": self.axis, "family": self.family, "address": self.address,
+                "settings": self.settings, "ok": self.ok, "identity": self.identity,
+                "problem": self.problem}
+
+
+async def probe_axes(config: Any, *, timeout: float = 0.1) -> list[AxisProbe]:
+    """Read each configured drive's identity where the machine file puts it (reads only);
+    for a drive that is not there, look for one of its family at the other addresses at
+    the configured settings and at its other settings at the configured address."""
+    from contextlib import AsyncExitStack
+
+    from drivebus.config import machine_config
+    from drivebus.motion.lines import open_line
+
+    cfg = machine_config(config)
+    out: list[AxisProbe] = []
+    async with AsyncExitStack() as stack:
+        for name, line_cfg in cfg.lines.items():
+            axes = {n: a for n, a in cfg.axes.items() if a.line == name}
+            if not axes:
+                continue
+            line, _ = await open_line(cfg, name, stack)
+            bus = await stack.enter_async_context(Bus(line, timeout=timeout, retries=1))
+            for n, ax in axes.items():
+                out.append(await _probe_axis(bus, n, ax, line_cfg.kind))
+    return out
+
+
+async def _probe_axis(bus: Bus, name: str, ax: Any, kind: str) -> AxisProbe:
+    fam = family(ax.drive)
+    settings = ax.settings or (bus.line.settings if kind != "tcp" else None)
+    rec = AxisProbe(name, fam.name, ax.address, None if settings is None else str(settings),
+                    False)
+    hit = await probe(bus, ax.address, settings, line_kind=kind)
+    if hit is not None and hit.family == fam.name:
+        rec.ok, rec.identity = True, hit.detail or hit.family
+        return rec
+    here = f"address {ax.address}" + (f" at {settings}" if settings else "")
+    if hit is not None:
+        rec.problem = f"a {hit.family} answers at {here}, not a {fam.name}"
+        return rec
+    others: list[tuple[int, LineSettings | None]] = []
+    if kind != "tcp" and settings is not None:
+        others += [(ax.address, LineSettings.parse(f, baudrate=b))
+                   for b in (fam.profile.baud_rates or (settings.baudrate,))
+                   for f in (fam.profile.line_formats or (settings.format,))]
+    others += [(a, settings) for a in fam.profile.addresses if a != ax.address][:31]
+    for a, s in others:
+        if (a, s) == (ax.address, settings):
+            continue
+        found = await probe(bus, a, s, line_kind=kind)
+        if found is not None and found.family == fam.name:
+            where = f"address {a}" + (f" at {s}" if s else "")
+            rec.problem = (f"no drive answers at {here}; a {fam.name} answers at {where}: "
+                           f"fix the machine file's address/settings (or the drive's)")
+            return rec
+    rec.problem = (f"no {fam.name} answers at {here}, nor at its other settings or "
+                   f"addresses: check power, wiring and termination")
+    return rec
