@@ -251,9 +251,11 @@ def plan_load(
                           f"{profile.family}")
     params = {p.key: p for p in profile.parameters()}
     problems = []
-    for key, v in wanted.values.items():
+    for key, p in params.items():  # the manual's order
+        if key not in wanted.values:
+            continue
         try:
-            params[key].register.check(v)
+            p.register.check(wanted.values[key])
         except LimitViolation as exc:
             problems.append(f"{key}: {exc}")
     if problems:
@@ -314,12 +316,14 @@ async def load_parameters(
             try:
                 await profile.write_parameter_value(w.parameter, w.new)
             except DrivebusError as exc:
-                left = [x.parameter.key for x in report.writes
-                        if x.parameter.key not in report.written]
+                keys = [x.parameter.key for x in report.writes]
+                left = keys[keys.index(w.parameter.key) + 1 :]
                 done = ", ".join(report.written) or "nothing"
                 raise PartialWrite(
                     f"the load stopped at {w.parameter.key}: {exc}; written before it: "
-                    f"{done}; not written: {', '.join(left)}",
+                    f"{done}; {w.parameter.key} itself may or may not have been taken "
+                    f"(`drivebus params diff` shows it); not written: "
+                    f"{', '.join(left) or 'nothing'}; nothing was saved",
                     written=list(report.written),
                 ) from exc
             report.written.append(w.parameter.key)

@@ -142,9 +142,7 @@ def line_snapshot(name: str, bus: Bus, kind: str, endpoint: str) -> LineSnapshot
         retries=total.retries,
         timeouts=total.timeouts,
         last_error=last,
-        slaves={
-            a: {k: v for k, v in asdict(s).items()} for a, s in sorted(stats.slaves.items())
-        },
+        slaves={a: s.as_dict() for a, s in sorted(stats.slaves.items())},
     )
 
 

@@ -497,6 +497,7 @@ class Bus:
             st.broadcasts += 1
         else:
             st.transactions += 1
+            st.latency.add(ex.rx_end - ex.tx_end)
             if ex.reply and ex.reply[0] & 0x80:
                 st.exceptions += 1
         if not req.future.done():

@@ -22,7 +22,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.staticfiles import StaticFiles
 
 from drivebus.app import MachineSession
-from drivebus.service import problems
+from drivebus.service import metrics, problems
 from drivebus.service.auth import Principal, TokenStore, require_command
 from drivebus.service.encoding import EventEncoder
 from drivebus.service.fanout import Fanout
@@ -359,6 +359,9 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     app.state.drivebus = state
     problems.install(app)
     app.include_router(router)
+    root = APIRouter()
+    metrics.install(root, _reader)  # GET /metrics, for Prometheus
+    app.include_router(root)
     app.add_api_websocket_route("/api/ws", websocket_endpoint)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 
