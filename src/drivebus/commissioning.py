@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from drivebus.errors import ArgumentError, ConfigError
+from drivebus.errors import ArgumentError, ConfigError, LimitViolation
 
 if TYPE_CHECKING:
     from drivebus.app.params import Difference, ParameterSet
@@ -277,6 +277,8 @@ def load(
                 await load_parameters(profile, wanted, save=save, dry_run=dry_run,
                                       include_comms=include_comms, report=report,
                                       on_write=None if dry_run else said)
+        except LimitViolation as exc:  # a value of the file out of range: a bad file
+            raise ConfigError(f"{file}: {exc}") from None
         except BaseException:
             if report.written:
                 _note(f"written before the load stopped: {', '.join(report.written)}")

@@ -23,7 +23,13 @@ from drivebus.app.targets import parse_target
 from drivebus.bus import Bus
 from drivebus.drives.base import DriveProfile
 from drivebus.drives.registry import family
-from drivebus.errors import ArgumentError, ConfigError, DriveOffline, StateError
+from drivebus.errors import (
+    ArgumentError,
+    ConfigError,
+    DriveOffline,
+    NotSupported,
+    StateError,
+)
 from drivebus.motion.lines import make_line
 from drivebus.settings import LineSettings
 
@@ -93,8 +99,11 @@ async def commission(
         raise ArgumentError(f"--to-address: the {fam.name} drive has addresses "
                             f"{fam.profile.addresses.start}..{fam.profile.addresses.stop - 1}, "
                             f"not {new_address}")
-    if problem := fam.profile.settings_problem(new_settings):
+    if to_settings is not None and (problem := fam.profile.settings_problem(to_settings)):
         raise ArgumentError(f"--to-settings: {problem}")
+    if fam.profile.comms_writes is DriveProfile.comms_writes:  # nothing to write: say how
+        raise NotSupported(f"the {fam.name} drive cannot change its address or line settings "
+                           f"over Modbus: {fam.profile.comms_note}")
     report = CommissionReport(fam.name, target, address, settings, new_address, new_settings)
     line = make_line(t.line_config(settings, timeout=timeout))
     async with Bus(line, timeout=timeout, retries=1) as bus:
