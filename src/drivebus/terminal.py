@@ -555,6 +555,8 @@ def check_config(out: Out, config: Path, sysfs: Path = Path("/sys"), *,
             out.line(f"line {ln.name}: simulated ({ln.where}, {ln.kind}): {on}")
         elif ln.kind == "serial":
             out.line(f"line {ln.name}: serial port {ln.where} at {ln.settings}: {on}")
+            if ln.adapter is not None:
+                out.line(f"line {ln.name}: {_adapter_text(ln.adapter)}")
         else:
             out.line(f"line {ln.name}: {ln.kind} {ln.where}: {on}")
         for w in ln.warnings:
@@ -566,6 +568,22 @@ def check_config(out: Out, config: Path, sysfs: Path = Path("/sys"), *,
     for p in problems:
         print(f"error: {p}", file=sys.stderr, flush=True)
     return 1 if problems else 0
+
+
+def _adapter_text(a: dict[str, Any]) -> str:
+    """One line about a port's adapter and what the line reaches with it."""
+    parts = [f"adapter driver {a['driver'] or 'unknown'}"]
+    timer = a["latency_timer_ms"]
+    if timer is not None:
+        parts.append(f"latency timer {timer} ms")
+    parts.append("RS-485 mode on (RTS drives the transmitter)" if a["rs485_mode"]
+                 else "RS-485 mode off (the adapter switches by itself)")
+    parts.append("local echo expected" if a["local_echo"] else "no local echo")
+    reach = (f"a 4-register poll is {a['poll_wire_ms']:.2f} ms on the wire: the line reaches "
+             f"about {a['efficiency_low_latency']:.0%} of its capacity with a 1 ms timer")
+    if timer is not None and timer > 1:
+        reach += f", {a['efficiency_at_timer']:.0%} with {timer} ms"
+    return "; ".join(parts) + "; " + reach
 
 
 def _count(n: int, one: str, many: str) -> str:

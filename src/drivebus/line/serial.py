@@ -46,6 +46,21 @@ class _Transport(serial_asyncio.SerialTransport):
             self._protocol.data_received(data)
 
 
+def _ask_low_latency(port: serial.Serial) -> bool:
+    """Ask the port for low-latency mode (``ASYNC_LOW_LATENCY`` through TIOCSSERIAL, which
+    ftdi_sio turns into a 1 ms latency timer instead of its default 16 ms, and other USB
+    serial drivers into prompt delivery): True if it took it. Ports that refuse it (a pty,
+    a driver without the ioctl, no permission) go on as they are, silently."""
+    ask = getattr(port, "set_low_latency_mode", None)
+    if ask is None:
+        return False
+    try:
+        ask(True)
+    except (ValueError, OSError, termios.error):
+        return False
+    return True
+
+
 class SerialLine(Line):
     """An RS-485 line on a serial port (a device, a pty, or ``sim://NAME``).
 
@@ -83,6 +98,8 @@ class SerialLine(Line):
         self._fd = -1
         self._garbage_closed = 0  # counted by receivers of earlier openings
         self._canon: dict[int, tuple[LineSettings, LineSettings]] = {}
+        self.low_latency: bool | None = None
+        """Whether the port took low-latency mode when it opened (None: not opened yet)."""
 
     def _canonical(self, settings: LineSettings | None) -> LineSettings:
         """One object per distinct setting: every slave handle has its own (equal) settings
@@ -140,6 +157,7 @@ class SerialLine(Line):
         except (ValueError, termios.error) as exc:  # (a pty refuses parity here)
             port.close()
             raise ConfigError(self._cannot_run(s, exc)) from exc
+        self.low_latency = _ask_low_latency(port)
         self._serial = port
         self._fd = port.fileno()
         rx.pending_bytes = functools.partial(read_waiting, self._fd)

@@ -99,7 +99,7 @@ def serial_class_for_url(url: str) -> tuple[str, type[PosixSerial]]:
     from drivebus.sim.serve import published
     from drivebus.sim.wire import lookup_wire
 
-    name = url.split("://", 1)[1].strip("/")
+    name = url.split("://", 1)[1].partition("?")[0].strip("/")
     try:
         wire = lookup_wire(name)
     except KeyError:

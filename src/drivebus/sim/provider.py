@@ -19,8 +19,9 @@ import logging
 import serial
 
 from drivebus.config import AxisConfig, MachineConfig
+from drivebus.errors import ConfigError
 from drivebus.providers import ProvidedLine
-from drivebus.sim.machine import start_sim_line
+from drivebus.sim.machine import adapter_options, start_sim_line
 from drivebus.sim.serve import published
 from drivebus.sim.twins import TWINS
 
@@ -47,6 +48,12 @@ class SimLineProvider:
     def problems(self, config: MachineConfig) -> list[str]:
         """Twin options, positions and switches of the simulated axes that cannot work."""
         out = []
+        for lname, ln in config.lines.items():
+            if ln.scheme == self.scheme and ln.kind == "serial":
+                try:
+                    adapter_options(ln)
+                except ConfigError as exc:
+                    out.append(f"lines.{lname}.port: {exc}")
         for name, ax in config.axes.items():
             line = config.lines.get(ax.line)
             if line is None or line.scheme != self.scheme or ax.sim.absent:
