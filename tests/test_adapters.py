@@ -129,3 +129,14 @@ async def test_simulated_local_echo_and_bad_adapter_options() -> None:
         parse_config(_machine("sim://adapter-bad?latency=soon").model_dump())
     with pytest.raises(ConfigError, match=r"no option 'baud'"):
         parse_config(_machine("sim://adapter-bad?baud=9600").model_dump())
+
+
+async def test_the_bench_shows_what_a_16_ms_timer_costs() -> None:
+    from drivebus.bench import run_bench
+
+    rows = await run_bench(quick=True, only={"adapter"})
+    assert [r.case.split(", ")[1] for r in rows] == ["no timer", "1 ms timer", "16 ms timer"]
+    slow = rows[2].figures
+    # the slaves' own wire counts the replies: at most one per 16 ms tick
+    assert isinstance(slow["transactions_per_s"], float)
+    assert slow["transactions_per_s"] <= 1 / 0.016 * 1.02
