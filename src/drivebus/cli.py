@@ -539,10 +539,11 @@ def sim(
     Prints one `line NAME KIND WHERE` per simulated line (WHERE is the pty path for a
     serial line, 127.0.0.1:PORT for TCP), then the slaves on it, and serves until Ctrl-C
     or SIGTERM. Point mbpoll, a PLC or pymodbus at the pty (`mbpoll -m rtu -b 115200 -P
-    none -a 1 /dev/pts/N`), or drivebus itself at sim://NAME (`drivebus read sim://NAME
-    ...`, `SerialLine("sim://NAME")`, a machine file's port) from another process. A pty
-    carries baud rate and stop bits but not parity or byte size: an outside master is
-    taken to send 8 data bits without parity, so only slaves at 8N1 or 8N2 understand it.
+    none -a 1 /dev/pts/N`): a pty carries baud rate and stop bits but not parity or byte
+    size, so such a master reaches only the slaves at 8N1 or 8N2. drivebus in another
+    process reaches every slave by sim://NAME (a machine file's sim:// line, `drivebus
+    status CONFIG`, `read`/`scan sim://NAME`, `SerialLine("sim://NAME")`): the line's
+    format channel carries the parity, and the command says it reached this simulator.
     """
     from drivebus.terminal import Out, run_guarded, serve_sim
 
