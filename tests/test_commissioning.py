@@ -124,7 +124,7 @@ def test_params_dump_diff_load_on_a_running_sim_agree_with_mbpoll(tmp_path: Path
 
 
 def test_a_machine_file_reaches_the_running_sim_and_says_so(tmp_path: Path) -> None:
-    r = drivebus("status", SINGLE)
+    r = drivebus("status", SINGLE, "-v")  # said on a terminal; in a pipe with -v
     assert r.returncode == 0 and "starting a private simulator" in r.stderr
     with sim_server(DEMO):
         r = drivebus("move", DEMO, "x", "97.6")

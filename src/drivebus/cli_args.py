@@ -26,8 +26,16 @@ __all__ = ["CommandLine", "hoist_global_options", "parse_command_line"]
 
 _FLAGS = frozenset({"--trace", "--verbose"})
 _WITH_VALUE = frozenset({"--log-level"})
-_NUMBER = re.compile(r"^-(\d|\.\d)")
-"""A negative number, an argument of ``jog`` or ``move`` (``-20``), not an option."""
+
+
+def _is_number(token: str) -> bool:
+    """A negative number (``-20``, ``-inf``: an argument of ``jog`` or ``move``, checked by
+    the command), not an option."""
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
 
 
 def _is_global(token: str) -> bool:
@@ -101,7 +109,7 @@ def parse_command_line(group: Any, args: Sequence[str]) -> CommandLine:
         if skip:
             skip = False
             continue
-        if not tok.startswith("-") or tok == "-" or _NUMBER.match(tok):
+        if not tok.startswith("-") or tok == "-" or _is_number(tok):
             continue
         name = tok.split("=", 1)[0] if tok.startswith("--") else tok[:2]
         if name not in known:

@@ -595,7 +595,8 @@ def _count(n: int, one: str, many: str) -> str:
 
 def announce_sim_lines(config: Path) -> None:
     """Say on stderr, for each ``sim://`` line of ``config``, whether opening the machine
-    here reaches a running ``drivebus sim`` or starts a private simulator."""
+    here reaches a running ``drivebus sim`` (always) or starts a private simulator (on a
+    terminal; logged at INFO otherwise, which ``-v`` shows)."""
     from drivebus.config import load_config
     from drivebus.sim.serve import published
 
@@ -607,12 +608,17 @@ def announce_sim_lines(config: Path) -> None:
         if not ln.simulated:
             continue
         found = published(ln.sim_name)
+        where = ln.port or ln.host
         if found is not None:
-            note = f"reaching the running drivebus sim on {found.where}"
+            print(f"note: {where}: reaching the running drivebus sim on {found.where}",
+                  file=sys.stderr, flush=True)
+            continue
+        note = (f"{where}: no drivebus sim serves it: starting a private simulator (its "
+                f"drives start afresh; `drivebus sim CONFIG` keeps them between commands)")
+        if sys.stderr.isatty():  # at a terminal; scripts and pipes see it with -v
+            print(f"note: {note}", file=sys.stderr, flush=True)
         else:
-            note = ("no drivebus sim serves it: starting a private simulator (its drives "
-                    "start afresh; `drivebus sim CONFIG` keeps them between commands)")
-        print(f"note: {ln.port or ln.host}: {note}", file=sys.stderr, flush=True)
+            logging.getLogger("drivebus.sim").info(note)
 
 
 def service_owner(

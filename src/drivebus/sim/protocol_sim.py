@@ -106,7 +106,7 @@ def serial_class_for_url(url: str) -> tuple[str, type[PosixSerial]]:
         found = published(name)
         if found is None or found.kind != "serial":
             raise serial.SerialException(
-                f"no simulated serial line named {name!r} is running (start it with "
+                f"no simulated line named {name!r} is running (a serial one; start it with "
                 f"`drivebus sim CONFIG`, or open a machine whose line is sim://{name})"
             ) from None
         if found.channel is None:
