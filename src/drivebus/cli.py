@@ -20,6 +20,7 @@ import typer
 import typer.main
 
 from drivebus import checks
+from drivebus.cli_args import LocalOpt, ServerOpt, TokenOpt
 from drivebus.commissioning import commission as commission_command
 from drivebus.commissioning import params_app
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
@@ -109,14 +110,6 @@ FormatOpt = Annotated[str, typer.Option(
     help="hex, int (signed 16-bit), uint, int32-le, int32-be (low/high word first) or float")]
 TimeoutOpt = Annotated[float, typer.Option(
     "--timeout", "-t", metavar="SECONDS", help="response timeout")]
-ServerOpt = Annotated[str | None, typer.Option(
-    "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
-    help="talk to this drivebus serve (default: the one serving CONFIG, if it runs)")]
-TokenOpt = Annotated[str | None, typer.Option(
-    "--token", metavar="TOKEN", envvar="DRIVEBUS_TOKEN",
-    help="bearer token for --server (from its token file)")]
-LocalOpt = Annotated[bool, typer.Option(
-    "--local", help="open the machine here even if a drivebus serve owns it")]
 
 
 def _owner(

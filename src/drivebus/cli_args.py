@@ -13,7 +13,9 @@ import difflib
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
+
+import typer
 
 try:  # typer vendors click from 0.2x on; before, it used click itself
     from typer._click.core import Context
@@ -22,7 +24,24 @@ except ImportError:  # pragma: no cover
     from click import Context  # type: ignore[assignment]
     from click.exceptions import UsageError  # type: ignore[assignment]
 
-__all__ = ["CommandLine", "hoist_global_options", "parse_command_line"]
+__all__ = [
+    "CommandLine",
+    "LocalOpt",
+    "ServerOpt",
+    "TokenOpt",
+    "hoist_global_options",
+    "parse_command_line",
+]
+
+ServerOpt = Annotated[str | None, typer.Option(
+    "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
+    help="talk to this drivebus serve (default: the one serving CONFIG, if it runs)")]
+"""The option of every command that may go through a running ``drivebus serve``."""
+TokenOpt = Annotated[str | None, typer.Option(
+    "--token", metavar="TOKEN", envvar="DRIVEBUS_TOKEN",
+    help="bearer token for --server (from its token file)")]
+LocalOpt = Annotated[bool, typer.Option(
+    "--local", help="open the machine here even if a drivebus serve owns it")]
 
 _FLAGS = frozenset({"--trace", "--verbose"})
 _WITH_VALUE = frozenset({"--log-level"})

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from drivebus.cli_args import LocalOpt, ServerOpt, TokenOpt
 from drivebus.errors import ArgumentError, ConfigError, LimitViolation
 
 if TYPE_CHECKING:
@@ -36,14 +37,6 @@ JsonOpt = Annotated[bool, typer.Option("--json", "-j", help="print the result as
 MachineOpt = Annotated[Path | None, typer.Option(
     "--machine", "-m", metavar="CONFIG",
     help="the machine file (default: the one the parameter file names)")]
-ServerOpt = Annotated[str | None, typer.Option(
-    "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
-    help="talk to this drivebus serve (default: the one serving the machine, if it runs)")]
-TokenOpt = Annotated[str | None, typer.Option(
-    "--token", metavar="TOKEN", envvar="DRIVEBUS_TOKEN",
-    help="bearer token for --server (from its token file)")]
-LocalOpt = Annotated[bool, typer.Option(
-    "--local", help="open the drive's line here even if a drivebus serve owns it")]
 
 
 def _owner(config: Path, server: str | None, token: str | None, local: bool
