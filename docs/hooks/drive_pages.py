@@ -1,12 +1,15 @@
-"""mkdocs hook: each drive family's page is filled from its profile's own declarations.
+"""The drive families' pages, generated from the profiles' own declarations.
 
-A page that holds the line ``<!-- drive-family: NAME -->`` gets, in its place, what the
-code of family NAME (``drivebus.drives.registry.FAMILIES``) declares: link, addresses,
-line kinds, baud rates and formats, pulses/rev, homing methods, the ``drive_options``
-with their types, ranges and defaults, which procedures it supports and why not, the
-vendor's exception codes and the register map. ``<!-- drive-families -->`` becomes the
-table of every family. Nothing here is typed by hand, so the pages cannot drift from the
-code; a family without a page, or a page naming an unknown family, fails the build.
+Each family's page (``docs/drives/<family>.md``) and the families table of
+``docs/drives/index.md`` are what the code of the family (``drivebus.drives.registry.
+FAMILIES``) declares: link, addresses, line kinds, baud rates and formats, pulses/rev,
+homing methods, the ``drive_options`` with their types, ranges and defaults, which
+procedures it supports and why not, its parameters (``drivebus params``), how it takes a
+new address or line settings, the vendor's exception codes and the register map. The
+pages are generated and committed (``python docs/hooks/drive_pages.py`` writes them), so
+the repository holds them as a user reads them; as an mkdocs hook this module fails the
+build while a page differs from what the code declares (``tests/test_docs.py`` checks
+the same), or while a registered family has no page.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import inspect
 import re
 import textwrap
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 from typing import Any
 
 from mkdocs.config.defaults import MkDocsConfig
@@ -30,9 +34,12 @@ from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.registry import FAMILIES, DriveFamily
 from drivebus.errors import NotSupported
 
-_MARK = re.compile(r"^<!--\s*drive-family:\s*(\S+)\s*-->\s*$", re.MULTILINE)
+_MARK = re.compile(r"^<!--\s*drive-family:\s*(\S+)[^>]*-->\s*$", re.MULTILINE)
 _TABLE_MARK = "<!-- drive-families -->"
+_TABLE_END = "<!-- /drive-families -->"
 _PAGE = "drives/{slug}.md"
+_DOCS = Path(__file__).resolve().parents[1]
+_NOTE = "generated from the profile by `python docs/hooks/drive_pages.py`; do not edit"
 
 _LINK = {"rtu": "Modbus RTU", "tcp": "Modbus TCP"}
 _KINDS = {
@@ -67,11 +74,9 @@ def on_files(files: Files, config: MkDocsConfig) -> Files:
 
 
 def on_page_markdown(markdown: str, page: Page, config: MkDocsConfig, files: Files) -> str:
-    """Replace the markers with the generated sections."""
-    if _TABLE_MARK in markdown:
-        markdown = markdown.replace(_TABLE_MARK, families_table())
-
-    def fill(match: re.Match[str]) -> str:
+    """Check that a drive page is what the code declares (it is committed generated)."""
+    match = _MARK.search(markdown)
+    if match is not None:
         name = match.group(1)
         family = FAMILIES.get(name)
         if family is None:
@@ -80,9 +85,39 @@ def on_page_markdown(markdown: str, page: Page, config: MkDocsConfig, files: Fil
                 f"known: {', '.join(FAMILIES)}"
             )
         _seen.add(name)
-        return family_page(family)
+        if markdown != page_text(family):
+            raise PluginError(f"drive_pages: docs/{page.file.src_path} is not what the "
+                              f"{name} profile declares: run python docs/hooks/drive_pages.py")
+    if _TABLE_MARK in markdown and markdown != index_text(markdown):
+        raise PluginError("drive_pages: docs/drives/index.md's families table is stale: run "
+                          "python docs/hooks/drive_pages.py")
+    return markdown
 
-    return _MARK.sub(fill, markdown)
+
+def page_text(family: DriveFamily) -> str:
+    """The whole page of ``family``, as committed."""
+    return (f"# {family.name}\n\n<!-- drive-family: {family.name} ({_NOTE}) -->\n\n"
+            f"{family_page(family)}\n")
+
+
+def index_text(current: str) -> str:
+    """``docs/drives/index.md`` with the families table between its markers renewed."""
+    head, _, rest = current.partition(_TABLE_MARK)
+    _, _, tail = rest.partition(_TABLE_END)
+    return f"{head}{_TABLE_MARK}\n{families_table()}\n{_TABLE_END}{tail}"
+
+
+def write_pages(docs: Path = _DOCS) -> list[Path]:
+    """Write every family's page and the families table; the files that changed."""
+    changed = []
+    index = docs / "drives" / "index.md"
+    pages = {index: index_text(index.read_text())}
+    pages.update({docs / _PAGE.format(slug=slug(n)): page_text(f) for n, f in FAMILIES.items()})
+    for path, text in pages.items():
+        if not path.exists() or path.read_text() != text:
+            path.write_text(text)
+            changed.append(path)
+    return changed
 
 
 def on_post_build(config: MkDocsConfig) -> None:
@@ -122,6 +157,8 @@ def family_page(family: DriveFamily) -> str:
         _options(p),
         _procedures(family),
         _limits(p),
+        _parameters(p),
+        _commissioning(p),
         _exceptions(p),
         _registers(family),
     ]
@@ -285,7 +322,8 @@ def procedures(family: DriveFamily) -> list[tuple[str, str]]:
         except NotSupported as exc:
             out.append((proc, str(exc)))
         else:
-            out.append((proc, ""))
+            why = profile.save_problem() if proc == "save_parameters" else None
+            out.append((proc, why or ""))
     return out
 
 
@@ -391,6 +429,40 @@ def _render(node: ast.expr, local: dict[str, ast.expr | None], module: dict[str,
     return "…"
 
 
+def _parameters(p: type[DriveProfile]) -> str:
+    params = p.parameters()
+    if not params:
+        return ""
+    rows = ["| Key | Name | Where | Range | Unit | Kept |", "|---|---|---|---|---|---|"]
+    for prm in params:
+        kept = "saved" if prm.stored else "volatile"
+        if prm.comms:
+            kept += ", address/line (only with `--include-comms`)"
+        rows.append(f"| `{prm.key}` | {_cell(prm.name)} | {prm.location} | "
+                    f"{prm.register.lo}..{prm.register.hi} | {prm.unit or '-'} | {kept} |")
+    wt = p.write_through
+    how = "`--save` makes the drive store them once at the end (its save command)."
+    if p.saves_by_write_through and wt is not None:
+        how = (f"The drive has no save command: with `--save` each value is stored as it is "
+               f"written, with {_cell(wt.register.name)} ({_address(wt.register)}) = "
+               f"{wt.on} for the load; without it that switch is {wt.off} (RAM only).")
+    elif wt is not None:
+        how += (f" {_cell(wt.register.name)} ({_address(wt.register)}) is kept at {wt.off} "
+                f"during a load, so no write wears the EEPROM on its own.")
+    return ("## Parameters\n\nWhat `drivebus params dump` backs up and `params load` "
+            "restores (only what differs, in this order, every value checked against its "
+            f"range before the first write). {how}\n\n" + "\n".join(rows))
+
+
+def _commissioning(p: type[DriveProfile]) -> str:
+    if not p.comms_note:
+        return ""
+    can = p.comms_writes is not DriveProfile.comms_writes
+    verb = ("`drivebus commission` writes them" if can else
+            "`drivebus commission` cannot change them")
+    return f"## Address and line settings\n\n{verb}: {_cell(p.comms_note)}."
+
+
 def _exceptions(p: type[DriveProfile]) -> str:
     if not p.exception_texts:
         return ""
@@ -465,9 +537,22 @@ def _cell(text: str) -> str:
     return " ".join(text.split()).replace("|", "\\|")
 
 
+_SOURCES = re.compile(r"\s*\((?:[^()]*?)`?shared/(?:seeds|drives)/[^()]*\)|"
+                      r"`?shared/(?:seeds|drives)/[^\s`),]*`?")
+
+
+def _no_build_paths(text: str) -> str:
+    """``text`` without the paths of the manuals' copies in drivebus's own build
+    environment (a user has the vendor's manual, not those files)."""
+    return _SOURCES.sub(lambda m: "" if m.group(0).lstrip().startswith("(") else
+                        "the vendor's manual", text)
+
+
 def _rst_to_md(doc: str) -> str:
-    """A docstring as markdown: dedented, ``literal`` as `literal`, bullets kept."""
-    lines = inspect.cleandoc(re.sub(r"``([^`]+)``", r"`\1`", doc)).splitlines()
+    """A docstring as markdown: dedented, ``literal`` as `literal`, bullets kept, no
+    build-environment paths."""
+    doc = _no_build_paths(re.sub(r"``([^`]+)``", r"`\1`", doc))
+    lines = inspect.cleandoc(doc).splitlines()
     out: list[str] = []
     for line in lines:
         bullet = re.match(r"[*-] ", line)
@@ -475,3 +560,8 @@ def _rst_to_md(doc: str) -> str:
             out.append("")  # markdown needs a blank line before a list
         out.append(line)
     return "\n".join(out)
+
+
+if __name__ == "__main__":
+    for written in write_pages():
+        print(f"wrote {written.relative_to(_DOCS.parent)}")

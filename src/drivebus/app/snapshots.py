@@ -158,9 +158,7 @@ def line_snapshot(name: str, bus: Bus, kind: str, endpoint: str) -> LineSnapshot
         replies=stats.replies,
         reply_time=stats.reply_time,
         timestamp=monotonic(),
-        slaves={
-            a: {k: v for k, v in asdict(s).items()} for a, s in sorted(stats.slaves.items())
-        },
+        slaves={a: s.as_dict() for a, s in sorted(stats.slaves.items())},
     )
 
 

@@ -531,6 +531,7 @@ class Bus:
             st.transactions += 1
             self.stats.replies += 1
             self.stats.reply_time += ex.rx_end - ex.tx_end
+            st.latency.add(ex.rx_end - ex.tx_end)
             if ex.reply and ex.reply[0] & 0x80:
                 st.exceptions += 1
                 outcome = "exception"

@@ -40,6 +40,8 @@ from drivebus.drives.base import (
     HomingParams,
     HomingSwitches,
     MoveParams,
+    Parameter,
+    WriteThrough,
     ramp_time_quantized,
 )
 from drivebus.drives.registers import Access, Register, WordOrder
@@ -305,6 +307,66 @@ def _alarm_text(code: int) -> str:
     return "; ".join(parts)
 
 
+# -- parameters (``drivebus params``), in the manual's order (chapter 4) --------------------------
+# The path tables 0x0060-0x00DF are left out (not used by drivebus); 0x0024 is the
+# write-through switch itself (``CL86RProfile.write_through``). RW/S registers are kept in
+# EEPROM by a save (0x0037 = 0x0002); the plain RW ones (IO functions, motion, JOG) too, the
+# manual says, but it marks them RW, not RW/S: they are listed as stored as well (?).
+
+_CURRENTS = (
+    ("base_current", Register("base (holding) current", 0x0053, unit="0.1 A", minimum=0,
+                              maximum=80)),
+    ("closed_loop_current", Register("closed-loop running current", 0x0054, unit="0.1 A",
+                                     minimum=0, maximum=80)),
+    ("open_loop_current", Register("open-loop running current", 0x0055, unit="0.1 A",
+                                   minimum=0, maximum=80)),
+    ("command_filter", Register("command filter time", 0x0056, unit="×50 µs", minimum=0,
+                                maximum=1024)),
+    ("current_kp", Register("current proportional gain", 0x0057, minimum=1000,
+                            maximum=1000)),
+    ("current_ki", Register("current integral gain", 0x0058, minimum=200, maximum=200)),
+    ("position_kp", Register("position-loop P gain", 0x0059, minimum=0, maximum=1000)),
+    ("speed_kp", Register("speed P gain", 0x005A, minimum=0, maximum=1000)),
+    ("speed_feed_forward", Register("speed feed-forward gain", 0x005B, minimum=0,
+                                    maximum=300)),
+)
+
+CL86R_PARAMETERS: tuple[Parameter, ...] = (
+    Parameter("di_level", DI_LEVEL),
+    Parameter("di_filter", DI_FILTER),
+    Parameter("do_level", DO_LEVEL),
+    *(Parameter(f"x{i}_function", r) for i, r in enumerate(DI_FUNCTIONS)),
+    *(Parameter(f"y{i}_function", r) for i, r in enumerate(DO_FUNCTIONS)),
+    Parameter("slave_address", SLAVE_ADDRESS, comms=True),
+    Parameter("data_format", DATA_FORMAT, comms=True),
+    Parameter("direction", DIRECTION),
+    Parameter("microstep", MICROSTEP),
+    Parameter("limit_stop", LIMIT_STOP),
+    Parameter("start_speed", START_SPEED),
+    Parameter("accel_time", ACCEL_TIME),
+    Parameter("decel_time", DECEL_TIME),
+    Parameter("max_speed", MAX_SPEED),
+    Parameter("target", TARGET),
+    Parameter("path_trigger_mode", PATH_TRIGGER_MODE),
+    Parameter("path_absolute", PATH_ABSOLUTE),
+    Parameter("homing_mode", HOME_MODE),
+    Parameter("homing_speed", HOME_SPEED),
+    Parameter("homing_creep", HOME_CREEP),
+    Parameter("homing_ramp", HOME_RAMP),
+    Parameter("home_offset", HOME_OFFSET),
+    Parameter("jog_speed", JOG_SPEED),
+    Parameter("jog_accel", JOG_ACCEL),
+    Parameter("jog_decel", JOG_DECEL),
+    Parameter("loop_mode", LOOP_MODE),
+    Parameter("encoder_lines", ENCODER_LINES),
+    Parameter("following_error", FOLLOWING_ERROR),
+    *(Parameter(k, r) for k, r in _CURRENTS),
+    Parameter("in_position_window", IN_POSITION_WINDOW),
+    Parameter("in_position_time", IN_POSITION_TIME),
+)
+"""The CL86R's parameters (manual chapter 4), in address order."""
+
+
 class CL86ROptions(DriveOptions):
     """The CL86R's options (see ``CL86RProfile``)."""
 
@@ -329,6 +391,13 @@ class CL86RProfile(DriveProfile):
     """
 
     family: ClassVar[str] = "CL86R"
+    parameter_list = CL86R_PARAMETERS
+    write_through = WriteThrough(AUTO_SAVE, on=1, off=0)
+    comms_note = (
+        "its baud rate is set by DIP switches SW6/SW7 (9600 is always 8N1); the address "
+        "comes from register 0x0020 (1-31) only when SW1-SW5 are all ON, the format from "
+        "0x0021 at 19200 baud and up; both take effect after a save and a power cycle"
+    )
     word_order: ClassVar[WordOrder] = WordOrder.HIGH_FIRST
     exception_texts: ClassVar[dict[int, str]] = {
         1: "illegal function code",
@@ -604,6 +673,26 @@ class CL86RProfile(DriveProfile):
         await self.write(
             AUX_CONTROL, int(Aux.ZERO_POSITION), priority=Priority.COMMAND, idempotent=False
         )
+
+    def comms_writes(
+        self, address: int | None, settings: LineSettings | None, current: LineSettings | None
+    ) -> list[tuple[Register, int]]:
+        """0x0020 (address 1-31, used with SW1-SW5 all ON) and 0x0021 (format, at 19200 up);
+        the baud rate is the DIP switches'."""
+        writes: list[tuple[Register, int]] = []
+        if address is not None:
+            SLAVE_ADDRESS.check(address)
+            writes.append((SLAVE_ADDRESS, address))
+        if settings is not None:
+            if current is not None and settings.baudrate != current.baudrate:
+                raise self.unsupported(
+                    f"change its baud rate to {settings.baudrate}",
+                    "the baud rate is set by DIP switches SW6/SW7 only")
+            if settings.baudrate == 9600 and settings.format != "8N1":
+                raise self.unsupported(f"talk {settings.format} at 9600 baud",
+                                       "at 9600 baud it talks 8N1 only")
+            writes.append((DATA_FORMAT, DATA_FORMATS[settings.format]))
+        return writes
 
     async def save_parameters(self) -> None:
         """Store the parameters in EEPROM: 0x0037 = 0x0002."""

@@ -23,7 +23,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.staticfiles import StaticFiles
 
 from drivebus.app import MachineSession
-from drivebus.service import problems
+from drivebus.service import metrics, problems
 from drivebus.service.auth import Principal, TokenStore, require_command
 from drivebus.service.encoding import EventEncoder
 from drivebus.service.fanout import Fanout
@@ -32,6 +32,7 @@ from drivebus.service.models import (
     JogRequest,
     LeaseRequest,
     MoveRequest,
+    ParametersRequest,
     ReadRequest,
     RecordingRequest,
     StopRequest,
@@ -286,6 +287,28 @@ async def give_back_lease(session: Session, who: Commander) -> dict[str, Any]:
     return _lease(session)
 
 
+# -- drive parameters -------------------------------------------------------------------------
+
+
+@router.get("/axes/{name}/parameters", tags=["axes"])
+async def get_parameters(name: str, session: Session, _: Reader) -> dict[str, Any]:
+    """Every documented parameter of the axis's drive: value, unit, register, whether a
+    save stores it (reads only: nothing is written to the drive)."""
+    return (await session.read_parameters(name)).as_dict()
+
+
+@router.put("/axes/{name}/parameters", tags=["axes"])
+async def put_parameters(name: str, body: ParametersRequest, session: Session,
+                         who: Commander) -> dict[str, Any]:
+    """Write the given parameters that differ from the drive's, all range-checked before
+    the first write; with ``save`` the drive stores them once at the end. Refused while
+    the axis moves."""
+    report = await session.load_parameters(
+        name, body.values, save=body.save, dry_run=body.dry_run,
+        include_comms=body.include_comms, client=who.name)
+    return report.as_dict()
+
+
 # -- raw registers ----------------------------------------------------------------------------
 
 
@@ -404,6 +427,9 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     app.state.drivebus = state
     problems.install(app)
     app.include_router(router)
+    root = APIRouter()
+    metrics.install(root, _reader)  # GET /metrics, for Prometheus
+    app.include_router(root)
     app.add_api_websocket_route("/api/ws", websocket_endpoint)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 

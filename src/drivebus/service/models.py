@@ -119,3 +119,14 @@ class WriteRequest(_Body):
         extra="forbid", strict=True,
         json_schema_extra={"examples": [{"address": 3, "register": 18, "values": [1]}]},
     )
+
+
+class ParametersRequest(_Body):
+    """``PUT /api/axes/{name}/parameters``: values by parameter key (as
+    ``GET .../parameters`` names them); only those that differ are written."""
+
+    values: Annotated[dict[str, int], Field(min_length=1)]
+    save: bool = Field(False, description="store them in the drive's EEPROM once at the end")
+    dry_run: bool = Field(False, description="only say what would be written")
+    include_comms: bool = Field(
+        False, description="also write the drive's address and line settings parameters")

@@ -158,7 +158,10 @@ class _Homing:
 
 
 class SimCL86R(SimDrive):
-    """Simulated CL86R: registers 0x0000-0x00DF, control word 0x0036, homing 17/18/24/29/35."""
+    """Simulated CL86R: registers 0x0000-0x00DF, control word 0x0036, homing 17/18/24/29/35.
+
+    ``soft_address``: DIP switches SW1-SW5 all ON, so the address is register 0x0020's
+    (saved, taken at power-up), as ``drivebus commission`` sets it."""
 
     family = "CL86R"
     register_map = _MAP
@@ -176,6 +179,7 @@ class SimCL86R(SimDrive):
         crc_error_reply: bool = True,
         model: int = 862,
         software: int = 100,
+        soft_address: bool = False,
     ) -> None:
         settings = settings or LineSettings.parse("9600 8N1")
         _check_line(settings)
@@ -186,6 +190,10 @@ class SimCL86R(SimDrive):
         self.software = software
         self.regs = _factory_values()
         self.regs[0x0021] = _FORMATS.index(settings.format) if settings.baudrate != 9600 else 0
+        self.soft_address = soft_address
+        """DIP switches SW1-SW5 all ON: the address is 0x0020's, taken at power-up."""
+        if soft_address:
+            self.regs[0x0020] = address
         self.eeprom = dict(self.regs)
         """Parameter values that survive a power cycle."""
         self.enabled = self.regs[0x0038] == 1
@@ -567,7 +575,8 @@ class SimCL86R(SimDrive):
     def power_restore(self) -> None:
         """Power-up: EEPROM values come back, the position counter starts at 0.
 
-        A format written to 0x0021 (and saved) takes effect now, at 19200 baud and up.
+        A format written to 0x0021 (and saved) takes effect now, at 19200 baud and up; with
+        ``soft_address`` the address saved in 0x0020 too.
         """
         super().power_restore()
         now = monotonic()
@@ -578,6 +587,8 @@ class SimCL86R(SimDrive):
             self.settings = LineSettings.parse(
                 _FORMATS[self.regs[0x0021]], baudrate=self.settings.baudrate
             )
+        if self.soft_address:
+            self.address = self.regs[0x0020]
         self.kin.hold(now)
         self._set_counter(now, 0)  # the counter starts at 0; the axis has not moved
         self.enabled = True
