@@ -253,6 +253,29 @@ async def test_service_get_routes_and_mqtt_telemetry_send_zero_writes(tmp_path: 
             assert writes_on_wires(session.machine) == []
 
 
+async def test_setup_comes_with_the_first_command_and_says_what_it_changes(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A technician set the NT86's pulses/rev (register 24) to 8000: looking keeps it;
+    the first command (here an explicit setup) writes 4000 and says so."""
+    cfg = machine_for("NT86", sim={"position": 5.0})
+    async with open_machine(cfg) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        twin.params[24] = 8000
+        async for _ in x.watch():  # a poll after the change: still only reads
+            break
+        assert twin.params[24] == 8000 and writes_on_wires(m) == []
+        with caplog.at_level(logging.WARNING, logger="drivebus"):
+            changes = await x.setup()
+        assert twin.params[24] == 4000
+        assert any("(24) = 8000, not 4000" in c for c in changes), changes
+        assert x.setup_changes == changes
+        assert any("8000" in r.getMessage() and r.levelno == logging.WARNING
+                   for r in caplog.records)
+        await x.move_by(2.0)  # set up already: no second setup before the move
+        assert twin_position(m) == pytest.approx(7.0, abs=0.01)
+
+
 # -- 3. reset right after a limit stop ----------------------------------------------------------
 
 

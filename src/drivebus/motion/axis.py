@@ -585,11 +585,10 @@ class Axis:
         """Set the drive up for commands now (the first command does it otherwise): the
         settings it changed, as in ``setup_changes``. Only at rest."""
         await self._settle("set the drive up")
+        self._setup_due = True  # the command lane sets the drive up before ``io``
 
         async def io() -> None:
             self._at_rest_or_raise("set the drive up")
-            self._setup_due = True
-            await self._verify_settings()
 
         await self._exclusive(io)
         return list(self.setup_changes)
