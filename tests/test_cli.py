@@ -44,12 +44,6 @@ SINGLE = ROOT / "configs" / "single.toml"
 CLI = [sys.executable, "-m", "drivebus.cli"]
 
 
-@pytest.fixture(autouse=True)
-def _private_runtime_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """``drivebus sim`` publishes its pty paths here: keep tests apart from a user's sims."""
-    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "run"))
-
-
 def drivebus(*args: str | Path, timeout: float = 30) -> subprocess.CompletedProcess[str]:
     """Run ``drivebus ARGS`` to completion (stdout is a pipe: plain output)."""
     return subprocess.run(
