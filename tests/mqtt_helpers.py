@@ -30,6 +30,7 @@ from drivebus.app import MachineSession
 from drivebus.config import parse_broker_url
 from drivebus.mqtt import Bridge, BridgeOptions
 from drivebus.mqtt.bridge import NO_DELAY
+from ports import reserve_port
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "configs" / "demo.toml"
@@ -52,19 +53,15 @@ def require_tools() -> tuple[str, str, str]:
     return tools[0], tools[1], tools[2]  # type: ignore[return-value]
 
 
-def free_port() -> int:
-    """A loopback TCP port nobody listens on (now)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 class Broker:
-    """A Mosquitto broker of the test's own on 127.0.0.1 (persistence off)."""
+    """A Mosquitto broker of the test's own on 127.0.0.1 (persistence off), on a port it
+    holds from its creation to ``close`` (tests/ports.py): the same port after a restart,
+    and nobody else's meanwhile."""
 
     def __init__(self, directory: Path) -> None:
         self.exe, self.pub_exe, self.sub_exe = require_tools()
-        self.port = free_port()
+        self._held = reserve_port()
+        self.port = int(self._held.getsockname()[1])
         self.conf = directory / "mosquitto.conf"
         self.conf.write_text(
             f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
@@ -100,6 +97,11 @@ class Broker:
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait()
+
+    def close(self) -> None:
+        """Kill it and let its port go."""
+        self.kill()
+        self._held.close()
 
     def freeze(self) -> None:
         """SIGSTOP it: a hung broker (connections stay open, nothing is answered)."""
@@ -172,11 +174,11 @@ class LineReader:
 def running_broker(directory: Path) -> Iterator[Broker]:
     """A started broker, killed when the generator closes (for fixtures)."""
     b = Broker(directory)
-    b.start()
     try:
+        b.start()
         yield b
     finally:
-        b.kill()
+        b.close()
 
 
 async def until(pred: Callable[[], Any], timeout: float = 60) -> Any:

@@ -365,6 +365,7 @@ async def settle_any(ax: Axis) -> None:
                 return
 
 
+@pytest.mark.serial  # bounds the twins' arrival spread within a poll period: load stretches it
 async def test_a_group_arrives_within_a_poll_period_for_any_mix_of_distances() -> None:
     """RS-485 (three drive kinds at three settings) and TCP mixed; long, short, very short
     and rotary moves. Arrival is the twins' own: the end of their planned motion."""

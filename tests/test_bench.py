@@ -18,18 +18,18 @@ BUILT_IN = {
 }
 
 
-async def test_quick_bench_runs_every_scenario_without_gap_violations(tmp_path: Path) -> None:
-    results = await run_bench(quick=True, seconds=0.15, plots=tmp_path / "plots")
-    # the motion scenario drew its group moves: a self-contained report and a picture
-    html = (tmp_path / "plots" / "motion-group-moves.html").read_text()
-    assert "uPlot" in html and "http://" not in html.replace("http://www.w3.org", "")
-    for axis in ("\"x\"", "\"y\"", "\"z\"", "\"r\""):
-        assert axis in html
-    assert (tmp_path / "plots" / "motion-group-moves.png").stat().st_size > 10_000
+MOTION = "motion"
+"""The motion scenario (a minute of real-time moves on the twins, judged by the twins and
+asserting no figure) runs beside other tests; the rest of the bench runs alone."""
+
+
+@pytest.mark.serial  # it measures, and load thins the flooded line's noise in its 0.3 s
+async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
     found = [s.name for s in scenarios()]
-    assert set(found) >= BUILT_IN
-    # every scenario module found gave rows, in the declared order
-    assert list(dict.fromkeys(r.scenario for r in results)) == found
+    assert set(found) >= BUILT_IN | {MOTION}
+    results = await run_bench(quick=True, seconds=0.15, only=set(found) - {MOTION})
+    # every other scenario module found gave rows, in the declared order
+    assert list(dict.fromkeys(r.scenario for r in results)) == [n for n in found if n != MOTION]
     for r in results:
         if r.scenario in ("efficiency", "scale"):
             assert r.figures["violations"] == 0, r
@@ -62,15 +62,6 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations(tmp_path: 
         assert row["violations"] == 0 and 0 < row["efficiency"] <= 1.0
         assert row["updates"] > 0 and row["jog_feeds"] > 0  # 50 watched, one commanded
         assert {"drop_points", "update_p50_ms", "update_p99_ms"} <= set(row)
-    motion = {r.case: r.figures for r in results if r.scenario == "motion"}
-    for kind in ("x (NT86)", "y (BHSS)", "z (CL86R)", "r (EPR60)"):
-        assert motion[f"stop to rest {kind}"]["stops"] == 4
-        jog = motion[f"jog overshoot {kind}"]
-        assert jog["overshoot_steady"] == 0 and jog["overshoot_speed_change"] == 0
-    soak = next(f for case, f in motion.items() if case.startswith("soak"))
-    assert soak["violations"] == 0 and soak["calls"] > 0
-    assert (soak["ok"] + soak["typed_errors"] + soak["timed_out"] + soak["cancelled"]
-            == soak["calls"])
     stop = next(r for r in results if r.scenario == "stop latency")
     assert stop.figures["stops"] == 20
     table = format_table(results)
@@ -80,6 +71,28 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations(tmp_path: 
     eff = next(r for r in rows if r["scenario"] == "efficiency")
     assert eff["targets"]["efficiency"] == {"op": ">=", "value": 0.97}
     assert isinstance(eff["missed"], list)
+
+
+async def test_quick_bench_motion_keeps_the_axis_guarantees(tmp_path: Path) -> None:
+    results = await run_bench(quick=True, seconds=0.15, only={MOTION}, plots=tmp_path / "plots")
+    # the motion scenario drew its group moves: a self-contained report and a picture
+    html = (tmp_path / "plots" / "motion-group-moves.html").read_text()
+    assert "uPlot" in html and "http://" not in html.replace("http://www.w3.org", "")
+    for axis in ("\"x\"", "\"y\"", "\"z\"", "\"r\""):
+        assert axis in html
+    assert (tmp_path / "plots" / "motion-group-moves.png").stat().st_size > 10_000
+    assert results and {r.scenario for r in results} == {MOTION}
+    for r in results:
+        assert set(r.targets) <= set(r.figures), r  # every target sits beside its figure
+    motion = {r.case: r.figures for r in results}
+    for kind in ("x (NT86)", "y (BHSS)", "z (CL86R)", "r (EPR60)"):
+        assert motion[f"stop to rest {kind}"]["stops"] == 4
+        jog = motion[f"jog overshoot {kind}"]
+        assert jog["overshoot_steady"] == 0 and jog["overshoot_speed_change"] == 0
+    soak = next(f for case, f in motion.items() if case.startswith("soak"))
+    assert soak["violations"] == 0 and soak["calls"] > 0
+    assert (soak["ok"] + soak["typed_errors"] + soak["timed_out"] + soak["cancelled"]
+            == soak["calls"])
 
 
 async def test_scenarios_can_be_chosen_by_name() -> None:

@@ -169,6 +169,7 @@ async def test_bad_arguments_are_refused_before_the_wire() -> None:
         assert wire.request_count == 0
 
 
+@pytest.mark.serial  # bounds wire time against wall time: load stretches it
 async def test_stats_and_utilisation() -> None:
     s = LineSettings.parse("19200 8E1")
     async with sim_bus([RegisterSlave(1, s)], s) as (_wire, bus):

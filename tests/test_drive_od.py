@@ -33,7 +33,7 @@ from drivebus.errors import (
     ResponseTimeout,
 )
 from drivebus.line.rtu import frame
-from drivebus.line.serial import SerialLine  # noqa: F401  (registers the sim:// URL handler)
+from drivebus.providers import line_provider
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.od_drive import SimODDrive
@@ -196,6 +196,7 @@ async def _read_frame(reader: asyncio.StreamReader, n: int) -> bytes:
 
 async def test_manual_crc_error_example_reply_and_silent_mode() -> None:
     # The profile cannot send a bad CRC, so this one goes out on a raw port.
+    line_provider("sim")  # teaches pyserial sim://NAME, as a SerialLine does when it opens
     bad = hx("01 03 20 00 00 00 01 4B F3")
     for crc_error_reply in (True, False):
         sim = SimODDrive(crc_error_reply=crc_error_reply)

@@ -176,6 +176,7 @@ async def test_power_loss_makes_the_axis_offline_and_it_comes_back() -> None:
         assert sim.position() == 200
 
 
+@pytest.mark.serial  # bounds arrivals within a poll period plus the start skew: load stretches it
 async def test_group_arrives_together_and_reports_start_skew() -> None:
     async with open_machine(machine(3)) as m:
         g = m.group("a1", "a2", "a3")
@@ -295,6 +296,7 @@ def test_shipped_configs_validate(name: str) -> None:
     assert cfg.axes
 
 
+@pytest.mark.serial  # bounds the start skew (20 ms): load stretches it
 async def test_group_prepares_every_axis_then_starts_them_back_to_back() -> None:
     async with open_machine(machine(3)) as m:
         wire = m.wires["rs485"]

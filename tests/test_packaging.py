@@ -8,6 +8,7 @@ import subprocess
 import sys
 import tomllib
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -17,15 +18,17 @@ import drivebus
 ROOT = Path(__file__).resolve().parent.parent
 
 
-@pytest.fixture(scope="module")
-def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A wheel built from the work tree by pip, as `pip install .` builds it."""
-    out = tmp_path_factory.mktemp("wheel")
+def build_wheel(out: Path) -> None:
+    """A wheel built from the work tree into ``out`` by pip, as `pip install .` builds it."""
     subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(out), str(ROOT)],
         check=True, timeout=300, capture_output=True,
     )
-    (found,) = out.glob("drivebus-*.whl")
+
+
+@pytest.fixture(scope="session")
+def wheel(built_once: Callable[[str, Callable[[Path], None]], Path]) -> Path:
+    (found,) = built_once("wheel", build_wheel).glob("drivebus-*.whl")
     return found
 
 

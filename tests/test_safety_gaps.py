@@ -315,7 +315,7 @@ async def test_group_report_counts_only_moving_axes_beside_the_twins() -> None:
         # the polls see it to within their windows.
         assert abs(report.planned_arrival_spread - twins_spread) < 0.01
         assert abs(report.observed_arrival_spread - twins_spread) <= (
-            report.observed_resolution + 0.002
+            report.observed_resolution + 1e-6
         )
         assert report.arrival_spread == report.observed_arrival_spread
         assert report.start_skew < report.duration

@@ -28,6 +28,7 @@ from drivebus.line.tcp import ConnectionLost, LineConfigError, RtuOverTcpLine, T
 from drivebus.sim import Fault, RegisterSlave
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from drivebus.timing import timing
+from ports import reserved_port
 from pymodbus_servers import server_data
 
 HOST = "127.0.0.1"
@@ -40,12 +41,6 @@ def read_pdu(address: int, count: int) -> bytes:
 
 def words(reply: bytes) -> list[int]:
     return list(struct.unpack(f">{reply[1] // 2}H", reply[2:]))
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind((HOST, 0))
-        return s.getsockname()[1]
 
 
 async def wait_until_down(line: TcpLine | RtuOverTcpLine) -> None:
@@ -99,8 +94,9 @@ async def test_raw_transact_returns_exchange(pymodbus_server: int) -> None:
 
 
 async def test_open_failure_names_host_port_and_cause() -> None:
-    port = free_port()
-    with pytest.raises(LineClosed, match=rf"127\.0\.0\.1:{port}.*ConnectionRefused"):
+    with reserved_port() as port, pytest.raises(
+        LineClosed, match=rf"127\.0\.0\.1:{port}.*ConnectionRefused"
+    ):
         await TcpLine(HOST, port).open()
 
 
@@ -225,51 +221,51 @@ async def test_unknown_unit_gets_gateway_exception() -> None:
 
 async def test_network_drop_backoff_and_recovery() -> None:
     slave = RegisterSlave(1, initial=[(0, 99)])
-    async with SimTcpServer([slave]) as srv:
-        port = srv.port
-        line = TcpLine(HOST, port, reconnect_delay=0.05, reconnect_delay_max=0.2)
-        await line.open()
-        await line.transact(1, read_pdu(0, 1), expect=P.response_length)
-    try:
-        await wait_until_down(line)  # the server and its connections are gone
-        with pytest.raises(ConnectionLost, match="ConnectionRefused"):
-            await line.transact(1, read_pdu(0, 1), expect=P.response_length)
-        with pytest.raises(ConnectionLost, match="next reconnect attempt in"):
-            await line.transact(1, read_pdu(0, 1), expect=P.response_length)
-        assert line.stats.failed_connects == 1  # backing off: no second attempt yet
+    with reserved_port() as port:  # the server's again after the drop, nobody else's
         async with SimTcpServer([slave], port=port):
-            await anyio.sleep(max(0.0, line.reconnect_at - monotonic()))
-            ex = await line.transact(1, read_pdu(0, 1), expect=P.response_length)
-            assert words(ex.reply) == [99]
-    finally:
-        await line.close()
+            line = TcpLine(HOST, port, reconnect_delay=0.05, reconnect_delay_max=0.2)
+            await line.open()
+            await line.transact(1, read_pdu(0, 1), expect=P.response_length)
+        try:
+            await wait_until_down(line)  # the server and its connections are gone
+            with pytest.raises(ConnectionLost, match="ConnectionRefused"):
+                await line.transact(1, read_pdu(0, 1), expect=P.response_length)
+            with pytest.raises(ConnectionLost, match="next reconnect attempt in"):
+                await line.transact(1, read_pdu(0, 1), expect=P.response_length)
+            assert line.stats.failed_connects == 1  # backing off: no second attempt yet
+            async with SimTcpServer([slave], port=port):
+                await anyio.sleep(max(0.0, line.reconnect_at - monotonic()))
+                ex = await line.transact(1, read_pdu(0, 1), expect=P.response_length)
+                assert words(ex.reply) == [99]
+        finally:
+            await line.close()
     with pytest.raises(LineClosed, match="closed"):
         await line.transact(1, read_pdu(0, 1), expect=P.response_length)
 
 
 async def test_queued_requests_fail_cleanly_while_down_and_bus_recovers() -> None:
     slave = RegisterSlave(1, initial=[(0, 1)])
-    port = free_port()  # nobody listens yet: the device is off
-    line = TcpLine(HOST, port, reconnect_delay=0.05, connect_on_open=False)
-    async with Bus(line, timeout=0.2) as bus:
-        d = bus.slave(1)
-        errors: list[BaseException] = []
+    with reserved_port() as port:  # nobody listens yet: the device is off
+        line = TcpLine(HOST, port, reconnect_delay=0.05, connect_on_open=False)
+        async with Bus(line, timeout=0.2) as bus:
+            d = bus.slave(1)
+            errors: list[BaseException] = []
 
-        async def one() -> None:
-            try:
-                await d.read_holding_registers(0, 1)
-            except ConnectionLost as exc:
-                errors.append(exc)
+            async def one() -> None:
+                try:
+                    await d.read_holding_registers(0, 1)
+                except ConnectionLost as exc:
+                    errors.append(exc)
 
-        with anyio.fail_after(2):
-            async with anyio.create_task_group() as tg:
-                for _ in range(5):
-                    tg.start_soon(one)
-        assert len(errors) == 5
-        assert bus.is_open
-        async with SimTcpServer([slave], port=port):
-            await anyio.sleep(max(0.0, line.reconnect_at - monotonic()))
-            assert await d.read_holding_registers(0, 1) == [1]
+            with anyio.fail_after(2):
+                async with anyio.create_task_group() as tg:
+                    for _ in range(5):
+                        tg.start_soon(one)
+            assert len(errors) == 5
+            assert bus.is_open
+            async with SimTcpServer([slave], port=port):
+                await anyio.sleep(max(0.0, line.reconnect_at - monotonic()))
+                assert await d.read_holding_registers(0, 1) == [1]
 
 
 # -- more than one request in flight ---------------------------------------------------------

@@ -36,6 +36,7 @@ from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.nt_family import SimEPR60
 from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from nt_helpers import idle, wait_for
+from ports import reserved_port
 
 HOST = "127.0.0.1"
 FAST = LineSettings.parse("115200 8N1")
@@ -558,10 +559,10 @@ async def test_server_gone_makes_the_axis_offline_and_it_reconnects_when_back() 
     """The peer closes and stops listening mid-move: polls fail (connect refused, backoff),
     the axis goes Offline; when a server listens again on the port the line reconnects."""
     twin = SimEPR60(1)
-    with anyio.fail_after(20):
+    # the port stays the server's while it is gone, nobody else's (tests/ports.py)
+    with anyio.fail_after(20), reserved_port(HOST) as port:
         async with anyio.create_task_group() as servers:
-            first = await start_server(servers, twin)
-            port = first.server.port
+            first = await start_server(servers, twin, port)
             async with open_machine(tcp_machine(HOST, tcp_port=port)) as m:
                 x, line = m.axes["r"], m.buses["eth"].line
                 assert isinstance(line, TcpLine) and not m.sim_drives

@@ -171,7 +171,10 @@ class Axis:
         self.arrived_at = 0.0
         """When the poll that showed the last move complete was sent (for arrival spread)."""
         self.arrived_after = 0.0
-        """When the poll before that one was sent: the move ended between the two."""
+        """When the poll before that one was sent (it saw the drive still on its way)."""
+        self.arrived_by = 0.0
+        """When the reply of the poll that showed the move complete came in: the move
+        ended between ``arrived_after`` and this."""
         self._status_issued = 0.0  # when the poll behind ``status`` was sent
         self._last_answer = 0.0  # when the drive last answered a poll
         self._poke = anyio.Event()
@@ -402,6 +405,7 @@ class Axis:
                 self.moves_done += 1
                 self.arrived_at = issued
                 self.arrived_after = max(prev_issued, m.accepted_at or 0.0)
+                self.arrived_by = max(st.timestamp or issued, issued)
                 self._end_motion(m, None, AxisState.STANDSTILL)
             return  # at the target, still settling
         if m.kind == "jog" and m.target is not None and at:

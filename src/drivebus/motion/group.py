@@ -52,8 +52,8 @@ class GroupMoveReport:
     Only the axes that moved count in the skew and the spreads (an axis already at its
     target arrives at once and says nothing of the others). The planned arrivals follow
     from the accepted starts and the plans; the observed ones from the first poll that
-    saw each axis in position and the poll before it (which saw it still on its way): each
-    is the middle of that window, so known only to within ``observed_resolution``. The
+    saw each axis in position (up to its reply) and the poll before it (which saw it still
+    on its way, from when it was sent): each is the middle of that window, so known only to within ``observed_resolution``. The
     drives themselves may arrive much closer together than the observed spread can show.
     """
 
@@ -405,7 +405,7 @@ class AxisGroup:
 
         async def move_and_note(axis: Axis) -> None:
             await move(axis)
-            arrived[axis.name] = (axis.arrived_after, axis.arrived_at)
+            arrived[axis.name] = (axis.arrived_after, axis.arrived_by)
 
         await self._each([self.axes[n] for n in targets], move_and_note, also=gate.open)
         report = self._report(total, plans, offsets, distances, arrived)

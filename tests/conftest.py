@@ -1,0 +1,62 @@
+"""What every test shares: a private runtime directory, builds made once per run, and the
+``serial`` marker.
+
+``make test`` runs the suite in two pytest invocations: every test not marked ``serial``
+on several xdist workers at once (``-n``; most tests wait on simulated wires, motors and
+subprocesses, not on the CPU), then the ``serial`` ones alone, one after the other.
+
+Mark a test ``@pytest.mark.serial`` (a module: ``pytestmark = pytest.mark.serial``) only
+when it must run alone: when it asserts something the machine's load changes (a duration
+bound such as a start skew or an arrival spread, a count against wall time) or measures
+(the bench). A test that shares something with others is not serial: give it its own
+(port 0, or ``ports.reserved_port()`` for a port chosen before its server listens;
+``tmp_path``; a ``sim://`` name of its own; ``$XDG_RUNTIME_DIR`` is already its own). An
+expensive build several tests read (the docs site, the wheel) is made once per run with
+the ``built_once`` fixture. Plain ``pytest`` (no ``-n``) runs everything in one process.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+Build = Callable[[Path], None]
+"""Fills the directory it is given (see ``built_once``)."""
+
+
+@pytest.fixture(autouse=True)
+def _private_runtime_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``drivebus sim`` publishes its pty paths and ``drivebus serve`` its URL under
+    ``$XDG_RUNTIME_DIR`` (``drivebus.runtime``), where one-shot commands and ``sim://``
+    lines of other processes find them: each test gets its own, so that tests running at
+    once (and a user's own sims and services) never find each other's."""
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(tmp_path / "run"))
+
+
+@pytest.fixture(scope="session")
+def built_once(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, Build], Path]:
+    """``built_once(name, build)``: the directory ``name`` that ``build`` fills, built once
+    per test run and shared by every xdist worker. The first to ask builds it under a file
+    lock, the others wait for that build and read it; a build that fails leaves nothing,
+    so the next to ask tries again (and fails the same way, in its own test)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the run's directory, above each worker's own
+
+    def once(name: str, build: Build) -> Path:
+        out, done = root / name, root / f"{name}.built"
+        with (root / f"{name}.lock").open("w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+            if not done.exists():
+                shutil.rmtree(out, ignore_errors=True)
+                out.mkdir()
+                build(out)
+                done.touch()
+        return out
+
+    return once
