@@ -53,8 +53,9 @@ class GroupMoveReport:
     target arrives at once and says nothing of the others). The planned arrivals follow
     from the accepted starts and the plans; the observed ones from the first poll that
     saw each axis in position (up to its reply) and the poll before it (which saw it still
-    on its way, from when it was sent): each is the middle of that window, so known only to within ``observed_resolution``. The
-    drives themselves may arrive much closer together than the observed spread can show.
+    on its way, from when it was sent): each is the middle of that window, so known only
+    to within ``observed_resolution``. The drives themselves may arrive much closer
+    together than the observed spread can show.
     """
 
     duration: float
