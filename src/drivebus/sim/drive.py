@@ -44,6 +44,10 @@ class TwinSetup:
     """The positive limit switch is active at and above this position."""
 
 
+_ON_EDGE = 1e-6
+"""Pulses within which a position counts as on a switch's end (float rounding)."""
+
+
 @dataclass(frozen=True)
 class Span:
     """Where a switch is active on the axis: from ``lo`` to ``hi``, ends included (physical
@@ -53,8 +57,9 @@ class Span:
     hi: float = math.inf
 
     def active(self, p: float) -> bool:
-        """The switch is active at position ``p``."""
-        return self.lo <= p <= self.hi
+        """The switch is active at position ``p`` (a motor planned to stop on an end, and
+        off it by a float's rounding only, is on it)."""
+        return self.lo - _ON_EDGE <= p <= self.hi + _ON_EDGE
 
     def edge(self, direction: float, rising: bool) -> float | None:
         """Where a motor travelling in ``direction`` sees the switch turn active (``rising``)
