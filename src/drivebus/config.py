@@ -29,6 +29,7 @@ from pydantic import (
     StrictFloat,
     StrictInt,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -185,11 +186,14 @@ class AxisConfig(_Model):
 
     @field_validator("drive")
     @classmethod
-    def _known_drive(cls, v: str) -> str:
-        from drivebus.drives.registry import family
+    def _known_drive(cls, v: str, info: ValidationInfo) -> str:
+        """A family name, or a description file (relative to the machine file), as the
+        family's canonical reference (see ``drivebus.drives.registry``)."""
+        from drivebus.drives.registry import resolve_drive
 
+        base = (info.context or {}).get("base")
         try:
-            return family(v).name
+            return resolve_drive(v, base)
         except ConfigError as exc:
             raise ValueError(str(exc)) from None
 
@@ -276,11 +280,28 @@ class MachineConfig(_Model):
     """A machine: named lines and named axes on them."""
 
     name: str = "machine"
+    drives_path: list[str] = Field(
+        default_factory=list,
+        description="directories of drive descriptions (relative to the machine file)")
     lines: dict[str, LineConfig]
     axes: dict[Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_-]*$")], AxisConfig]
     mqtt: MqttConfig | None = None
     """The MQTT plant bridge's settings (used by ``python -m drivebus.mqtt`` and
     ``drivebus serve --mqtt``); None: no ``[mqtt]`` section."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _drives_path(cls, data: Any, info: ValidationInfo) -> Any:
+        """Make ``drives_path``'s descriptions known before the axes name them."""
+        from drivebus.drives.registry import add_drives_path
+
+        paths = data.get("drives_path") if isinstance(data, dict) else None
+        if isinstance(paths, list):
+            base = Path((info.context or {}).get("base") or ".")
+            for p in paths:
+                if isinstance(p, str):
+                    add_drives_path(base / Path(p).expanduser())
+        return data
 
     @model_validator(mode="after")
     def _consistent(self) -> MachineConfig:
@@ -358,11 +379,15 @@ def _speed_problems(ax: AxisConfig) -> list[str]:
             for key, v in speeds.items() if v > ax.max_speed]
 
 
-def parse_config(data: dict[str, Any], source: str = "config") -> MachineConfig:
+def parse_config(
+    data: dict[str, Any], source: str = "config", *, base: str | Path | None = None
+) -> MachineConfig:
     """Validate a config mapping, cross-checks included; ``ConfigError`` names ``source``,
-    each key path, the value and what is allowed."""
+    each key path, the value and what is allowed. Description files an axis names
+    (``drive = "drives/x.toml"``) are relative to ``base`` (the machine file's directory;
+    by default the working directory)."""
     try:
-        return MachineConfig.model_validate(data)
+        return MachineConfig.model_validate(data, context={"base": str(base or ".")})
     except ValidationError as exc:
         problems = "; ".join(validation_problems(exc, model=MachineConfig))
         raise ConfigError(f"{source}: {problems}") from None
@@ -383,7 +408,7 @@ def load_config(path: str | Path) -> MachineConfig:
         raise ConfigError(f"{p}: cannot read the config file: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
-    return parse_config(data, str(p))
+    return parse_config(data, str(p), base=p.parent)
 
 
 def machine_config(config: str | Path | Mapping[str, Any] | MachineConfig) -> MachineConfig:

@@ -13,6 +13,7 @@ above uses it like any hand-written profile.
 
 from __future__ import annotations
 
+import inspect
 import math
 import re
 from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
@@ -185,8 +186,9 @@ class DescribedProfile(DriveProfile):
             return problem
         for rule in cls.description.link.format_rules:
             if settings.baudrate in rule.baud_rates and settings.format not in rule.formats:
-                return rule.why or (f"the {cls.family} drive runs {', '.join(rule.formats)} "
-                                    f"only at {settings.baudrate} baud")
+                why = f" ({rule.why})" if rule.why else ""
+                return (f"the {cls.family} drive runs {'/'.join(rule.formats)} only at "
+                        f"{settings.baudrate} baud{why}")
         return None
 
     def check_supported(self, procedure: str) -> None:
@@ -1050,5 +1052,27 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "_identity_plan": ident,
         "_extra_plans": extras,
     }
+    attrs["__init__"] = _init_with_signature(d)
     name = re.sub(r"\W", "_", d.family) + "Profile"
     return type(name, (DescribedProfile,), attrs)
+
+
+def _init_with_signature(d: Description) -> Callable[..., None]:
+    """A constructor whose signature lists the description's options with their defaults
+    (what ``inspect`` and the docs show), calling ``DescribedProfile.__init__``."""
+
+    def __init__(self: DescribedProfile, slave: SlaveHandle, **kwargs: Any) -> None:
+        DescribedProfile.__init__(self, slave, **kwargs)
+
+    kw = inspect.Parameter.KEYWORD_ONLY
+    params = [
+        inspect.Parameter("self", inspect.Parameter.POSITIONAL_OR_KEYWORD),
+        inspect.Parameter("slave", inspect.Parameter.POSITIONAL_OR_KEYWORD,
+                          annotation=SlaveHandle),
+        inspect.Parameter("pulses_per_rev", kw, default=d.units.pulses_per_rev.default,
+                          annotation=int),
+        *(inspect.Parameter(k, kw, default=o.default) for k, o in d.options.items()),
+    ]
+    __init__.__signature__ = inspect.Signature(params, return_annotation=None)  # type: ignore[attr-defined]
+    __init__.__doc__ = f"The {d.family} profile on ``slave``; options as its description says."
+    return __init__
