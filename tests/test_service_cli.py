@@ -69,11 +69,14 @@ class Served:
             self.p.wait(timeout=10)
 
 
-def wait_for(client: httpx.Client, axis: str, state: str) -> dict[str, object]:
-    """Poll GET /api/axes/AXIS until its state is ``state`` (bounded)."""
+def wait_for(
+    client: httpx.Client, axis: str, state: str, *, moving: bool = False
+) -> dict[str, object]:
+    """Poll GET /api/axes/AXIS until its state is ``state`` (and, with ``moving``, its
+    drive is seen moving: the first command sets the drive up before it starts it)."""
     for _ in range(500):
         snap = client.get(f"/api/axes/{axis}").json()
-        if snap["state"] == state:
+        if snap["state"] == state and (snap.get("moving") or not moving):
             return dict(snap)
         time.sleep(0.02)
     raise AssertionError(f"axis {axis} never reached {state}")
@@ -89,9 +92,9 @@ def test_sigterm_stops_every_moving_axis_before_the_service_exits() -> None:
                                ).status_code == 202
             assert client.post("/api/axes/z/jog", json={"speed": 2.0, "ttl": 10.0}
                                ).status_code == 200
-            wait_for(client, "x", "DiscreteMotion")
-            wait_for(client, "r", "DiscreteMotion")
-            wait_for(client, "z", "ContinuousMotion")
+            wait_for(client, "x", "DiscreteMotion", moving=True)
+            wait_for(client, "r", "DiscreteMotion", moving=True)
+            wait_for(client, "z", "ContinuousMotion", moving=True)
             code, rest, err = served.end(signal.SIGTERM)
         assert code == 0, err[-3000:]
         assert rest[0] == "drivebus serve: SIGTERM: stopping", rest

@@ -72,7 +72,9 @@ async def _job(m: Machine, log: Callable[[str], None]) -> int:
         moves += 1
         log(f"group move to {targets}: planned {report.duration:.2f} s, "
             f"start skew {report.start_skew * 1000:.1f} ms, "
-            f"arrival spread {report.arrival_spread * 1000:.1f} ms")
+            f"arrival spread planned {report.planned_arrival_spread * 1000:.1f} ms, "
+            f"observed {report.observed_arrival_spread * 1000:.0f} ms "
+            f"(polls every {report.observed_resolution * 1000:.0f} ms)")
     jogger = movers[-1]
     speed = jogger.config.speed / 4
     async with jogger.jogging(+speed):

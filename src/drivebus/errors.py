@@ -13,6 +13,7 @@ __all__ = [
     "DriveOffline",
     "DrivebusError",
     "FrameError",
+    "GroupMotionError",
     "LeaseHeld",
     "LimitViolation",
     "LineClosed",
@@ -172,6 +173,15 @@ class MotionAborted(DrivebusError):
 
 class MotionError(DrivebusError):
     """The drive stopped or refused a motion without an alarm (e.g. stopped short)."""
+
+
+class GroupMotionError(DrivebusError):
+    """One axis of a group failed; the others were stopped. ``axis`` names the culprit
+    (the failure itself is the ``__cause__``)."""
+
+    def __init__(self, message: str, *, axis: str) -> None:
+        super().__init__(message)
+        self.axis = axis
 
 
 class NotFound(DrivebusError, LookupError):

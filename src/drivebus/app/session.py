@@ -113,6 +113,9 @@ def _report(report: GroupMoveReport) -> dict[str, Any]:
         "duration": report.duration,
         "start_skew": report.start_skew,
         "arrival_spread": report.arrival_spread,
+        "planned_arrival_spread": report.planned_arrival_spread,
+        "observed_arrival_spread": report.observed_arrival_spread,
+        "observed_resolution": report.observed_resolution,
     }
 
 

@@ -28,6 +28,7 @@ __all__ = [
     "DriveOptions",
     "DriveProfile",
     "HomingParams",
+    "HomingSwitches",
     "MoveParams",
     "describe_values",
     "ramp_time_quantized",
@@ -78,6 +79,17 @@ class HomingParams:
     creep_rpm: float = 10.0
     accel_rps2: float = 10.0
     offset: int = 0
+
+
+@dataclass(frozen=True)
+class HomingSwitches:
+    """Which limit switches a homing method may meet, as directions (+1 the positive
+    switch, -1 the negative one): those it homes on, and those where the drive reverses
+    and carries on searching. Any other limit switch met while homing, or a reversal
+    switch met again or driven past, is a limit violation the axis stops at once."""
+
+    homes_on: frozenset[int] = frozenset()
+    reverses_at: frozenset[int] = frozenset()
 
 
 @dataclass(frozen=True)
@@ -364,8 +376,20 @@ class DriveProfile:
 
     # -- procedures ---------------------------------------------------------------------------
 
+    async def learn(self) -> None:
+        """Read what decoding the status needs (input functions, control mode): reads
+        only, never a write. An axis calls it when it opens; a viewing command never
+        goes further."""
+
     async def setup(self) -> None:
-        """One-time configuration when an axis takes the drive over (no motion)."""
+        """Configure the drive for commands (no motion): the writes an axis makes before
+        the first command it is given, never for viewing. It learns too."""
+        await self.learn()
+
+    def homing_switches(self, method: str | None) -> HomingSwitches:
+        """The limit switches homing with ``method`` (None: the default) homes on or
+        reverses at (by default none: any limit switch met while homing stops it)."""
+        return HomingSwitches()
 
     async def read_status(self, *, priority: Priority = Priority.POLL) -> DriveStatus:
         """Poll the drive's status into a ``DriveStatus``."""

@@ -23,6 +23,7 @@ from drivebus.drives.base import (
     DriveOptions,
     DriveProfile,
     HomingParams,
+    HomingSwitches,
     MoveParams,
     ramp_time_quantized,
 )
@@ -306,6 +307,10 @@ class BHSSProfile(DriveProfile):
             await self.write(Regs.START_SPEED, self.start_speed_rpm)
         for index, function in sorted(self.inputs.items()):
             await self.write(_input_function_register(index), function)
+        await self.learn()
+
+    async def learn(self) -> None:
+        """Which inputs are the limit switches (0x0050.., read only)."""
         await self._load_limit_bits()
 
     def volatile_settings(self) -> list[tuple[Register, int]]:
@@ -482,6 +487,17 @@ class BHSSProfile(DriveProfile):
     async def emergency_stop(self) -> None:
         """Emergency stop without ramp: 0x0028 = 1."""
         await self.write(Regs.STOP, 1, priority=Priority.EMERGENCY, idempotent=False)
+
+    def homing_switches(self, method: str | None) -> HomingSwitches:
+        """Modes 2/3 home on the forward/backward limit; modes 0/1 search the origin
+        forward/backward and reverse at the limit switch in that direction (L1184)."""
+        mode = _HOMING_MODES.get(method or self.homing_methods[0])
+        side = {0: 1, 1: -1, 2: 1, 3: -1}.get(mode if mode is not None else -1)
+        if side is None:
+            return HomingSwitches()
+        if mode in (2, 3):
+            return HomingSwitches(homes_on=frozenset({side}))
+        return HomingSwitches(reverses_at=frozenset({side}))
 
     async def start_homing(self, params: HomingParams) -> None:
         """Write mode, speeds, ramp and offset (0x0031..0x0036), then 0x0030 = 1.

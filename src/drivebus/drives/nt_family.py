@@ -28,7 +28,13 @@ from pydantic import Field, StrictBool, StrictFloat, StrictInt, model_validator
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveOptions, DriveProfile, HomingParams, MoveParams
+from drivebus.drives.base import (
+    DriveOptions,
+    DriveProfile,
+    HomingParams,
+    HomingSwitches,
+    MoveParams,
+)
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation, StateError
@@ -359,12 +365,28 @@ class NT86Profile(DriveProfile):
         await self.write(r.command, CMD_IDLE)  # the manual's FC06 example frame
         await self.write(r.app_mode, 0)
         await self.write(r.microstep, self.pulses_per_rev)
-        self.closed_loop = await self.read(r.control_mode) != 0
+        await self.learn()
         if self.enable_input is not None:
             await self._assign_input(self.enable_input, FUNC_OFFLINE)
         if self.clear_alarm_input is not None:
             await self._assign_input(self.clear_alarm_input, FUNC_CLEAR_FAULT)
         self._jog_command = None
+
+    async def learn(self) -> None:
+        """The control mode (22): closed loop reports in-position (a read only)."""
+        self.closed_loop = await self.read(self.regs.control_mode) != 0
+
+    def homing_switches(self, method: str | None) -> HomingSwitches:
+        """288=2/3 home on the limit switch; 288=0/1 reverse at the limit switch in the
+        search direction when 295 = 2/3 (``home_reverse_at_limit``), else stop there."""
+        m = self.homing_methods[0] if method is None else method
+        on = {"limit_positive": 1, "limit_negative": -1}.get(m)
+        if on is not None:
+            return HomingSwitches(homes_on=frozenset({on}))
+        search = {"home_switch_positive": 1, "home_switch_negative": -1}.get(m)
+        if search is not None and self.home_reverse_at_limit:
+            return HomingSwitches(reverses_at=frozenset({search}))
+        return HomingSwitches()
 
     def volatile_settings(self) -> list[tuple[Register, int]]:
         """17=0, 20 (0, or 1 while an EPR60 homes) and pulses/rev: a power cycle reloads

@@ -481,6 +481,10 @@ class ODDriveProfile(DriveProfile):
         ppr = lookup_name("pulses_per_rev")
         if await self.read_object(ppr.index, ppr.sub) != self.pulses_per_rev:
             await self.write_object(ppr.index, ppr.sub, self.pulses_per_rev)
+        await self.learn()
+
+    async def learn(self) -> None:
+        """Which inputs are origin and limit switches (2022h.1-5, read only)."""
         await self.read_input_functions()
 
     async def lost_settings(self, *, priority: Priority = Priority.COMMAND) -> list[str]:

@@ -38,7 +38,7 @@ from drivebus import checks
 from drivebus.bus import Priority
 from drivebus.clock import monotonic
 from drivebus.config import AxisConfig
-from drivebus.drives.base import DriveProfile, HomingParams, MoveParams
+from drivebus.drives.base import DriveProfile, HomingParams, HomingSwitches, MoveParams
 from drivebus.drives.status import DriveStatus
 from drivebus.errors import (
     ArgumentError,
@@ -69,6 +69,11 @@ _STOP_TIMEOUT = 30.0
 
 _RESET_GAP = 0.5
 """A silence between two answered polls longer than this may have hidden a power cycle."""
+
+_COMMANDED_MOTION = frozenset(
+    {AxisState.HOMING, AxisState.DISCRETE_MOTION, AxisState.CONTINUOUS_MOTION}
+)
+"""States of a motion under way (Stopping is a motion ending: at-rest commands wait)."""
 
 _WRITE_REPLY_BYTES = 8
 """An RTU reply to a register write (function 06 or 16): address, function, 4 bytes, CRC."""
@@ -101,6 +106,15 @@ class _Motion:
     seen_motion: bool = False
     restarting: bool = False
     """A jog being stopped and started again (new speed or direction): rest is no end."""
+    switches: HomingSwitches = field(default_factory=HomingSwitches)
+    """A homing's limit switches: those it homes on, those where the drive reverses."""
+    overrun: float = 0.0
+    """How far (pulses) a homing may run on into a switch it reverses at: its braking
+    distance and one poll's travel."""
+    switch_seen: dict[int, int] = field(default_factory=dict)
+    """A homing's reversal switches seen active, by side, with the position first seen."""
+    switch_left: set[int] = field(default_factory=set)
+    """The reversal switches a homing has reversed away from (met again: a violation)."""
     io: anyio.CancelScope | None = None
     """Its command I/O while that runs: a stop cancels it."""
     io_done: anyio.Event | None = None
@@ -155,6 +169,8 @@ class Axis:
         """When the drive last accepted a motion's start command (for start skew)."""
         self.arrived_at = 0.0
         """When the poll that showed the last move complete was sent (for arrival spread)."""
+        self.arrived_after = 0.0
+        """When the poll before that one was sent: the move ended between the two."""
         self._status_issued = 0.0  # when the poll behind ``status`` was sent
         self._last_answer = 0.0  # when the drive last answered a poll
         self._poke = anyio.Event()
@@ -166,7 +182,11 @@ class Axis:
         self._stop_due: str | None = None  # the actor must send a stop (and why)
         self._poll_at = math.inf  # poll no later than this (a stop's expected rest)
         self._check_due = False  # read the volatile settings back before the next command
-        self._setup_due = False  # the drive never answered: set it up when it does
+        self._setup_due = True  # set the drive up before the first command, never to look
+        self._learn_due = False  # the drive did not answer at open: learn when it does
+        self.setup_changes: list[str] = []
+        """What the last setup changed on the drive ("name (register) = was, not wanted"):
+        a setting the drive held (pulses/rev, microstep, ...) that setup overwrote."""
         self._homed_lost = False
         self._commanded = False
         self._jog_deadline: float | None = None
@@ -276,7 +296,7 @@ class Axis:
         it up once it answers; until then commands raise ``StateError``/``DriveOffline``."""
         self.error = error
         self.state = AxisState.OFFLINE
-        self._setup_due = self._check_due = True
+        self._learn_due = True
 
     def _go_offline(self, exc: TransactionError) -> None:
         self.error = DriveOffline(
@@ -297,7 +317,7 @@ class Axis:
         """Take a polled status: decide motions, state and waiting stops (no I/O)."""
         if issued < self._status_issued:
             return  # an older read that finished late
-        prev = self.status
+        prev, prev_issued = self.status, self._status_issued
         if self.state is AxisState.OFFLINE:
             log.info("axis %s: drive answers again", self.name)
             self.error = None
@@ -328,7 +348,7 @@ class Axis:
                 self._stop_due = "drive alarm"
         elif m is not None:
             if m.accepted_at is not None and not m.restarting and issued > m.accepted_at:
-                self._judge(m, st, issued)
+                self._judge(m, st, issued, prev_issued)
         elif self.state is AxisState.ERROR_STOP:
             pass  # only reset() leaves it
         elif not st.enabled and not st.moving:
@@ -347,17 +367,15 @@ class Axis:
                 self._rest_waits.remove(w)
         self._publish()
 
-    def _judge(self, m: _Motion, st: DriveStatus, issued: float) -> None:
+    def _judge(self, m: _Motion, st: DriveStatus, issued: float, prev_issued: float) -> None:
         """Decide from a status polled after ``m`` started: done, failed, or going on."""
+        if m.kind == "home":
+            self._judge_homing(m, st, issued)
+            return
         if st.moving:
             m.seen_motion = True
-            if m.kind != "home" and self._switch_ahead(st, m.direction):
+            if self._switch_ahead(st, m.direction):
                 self._limit_hit(m, st)
-            return
-        if m.kind == "home":
-            if st.homed and not st.homing:
-                self._homed_lost = False
-                self._end_motion(m, None, AxisState.STANDSTILL)
             return
         tol = self.config.in_position_tolerance
         at = m.target is None or st.position is None or abs(st.position - m.target) <= tol
@@ -368,6 +386,7 @@ class Axis:
             if st.in_position:
                 self.moves_done += 1
                 self.arrived_at = issued
+                self.arrived_after = max(prev_issued, m.accepted_at or 0.0)
                 self._end_motion(m, None, AxisState.STANDSTILL)
             return  # at the target, still settling
         if m.kind == "jog" and m.target is not None and at:
@@ -398,19 +417,56 @@ class Axis:
                 f"axis {self.name}: the drive stopped at {here}, short of the {m.what}"
             ), AxisState.STANDSTILL)
 
+    def _judge_homing(self, m: _Motion, st: DriveStatus, issued: float) -> None:
+        """A homing is done when the drive reports homed at rest. A limit switch met while
+        homing stops it at once (LimitViolation, ErrorStop) unless the method homes on it;
+        one where the drive reverses (or that was active at the start) may be run into by
+        the braking distance, and not met again once left (the home switch is missing)."""
+        if st.moving:
+            m.seen_motion = True
+        elif st.homed and not st.homing:
+            self._homed_lost = False
+            self._end_motion(m, None, AxisState.STANDSTILL)
+            return
+        position = st.position or 0
+        for side, active in ((1, st.limit_positive), (-1, st.limit_negative)):
+            if side in m.switches.homes_on:
+                continue
+            if not active:
+                if side in m.switch_seen:
+                    m.switch_left.add(side)
+                continue
+            if side in m.switch_left:
+                why = "met again after leaving it: no home switch was found"
+            elif side in m.switches.reverses_at or side in m.switch_seen:
+                first = m.switch_seen.setdefault(side, position)
+                if (position - first) * side <= m.overrun:
+                    if st.moving or m.seen_motion or issued <= (m.accepted_at or 0.0) + max(
+                        0.25, 5 * self.config.poll.moving
+                    ):
+                        continue  # braking, reversing, or not yet started
+                    why = "the drive did not start the homing"
+                else:
+                    why = "the drive ran on into it instead of reversing"
+            else:
+                why = "the homing method does not use it"
+            self._limit_hit(m, st, side=side, why=why)
+            return
+
     @staticmethod
     def _switch_ahead(st: DriveStatus, direction: int) -> bool:
         return (direction > 0 and st.limit_positive) or (direction < 0 and st.limit_negative)
 
-    def _limit_hit(self, m: _Motion, st: DriveStatus) -> None:
-        side = "positive" if m.direction > 0 else "negative"
+    def _limit_hit(self, m: _Motion, st: DriveStatus, *, side: int = 0, why: str = "") -> None:
+        name = "positive" if (side or m.direction) > 0 else "negative"
+        because = f" ({why})" if why else ""
         self.error = LimitViolation(
-            f"axis {self.name}: the {side} limit switch was reached at "
-            f"{self.units.from_pulses(st.position or 0):.4f} during the {m.what}; reset() "
-            f"the axis, then only motion away from the switch is allowed"
+            f"axis {self.name}: the {name} limit switch was reached at "
+            f"{self.units.from_pulses(st.position or 0):.4f} during the {m.what}{because}; "
+            f"reset() the axis, then only motion away from the switch is allowed"
         )
         self._end_motion(m, self.error, AxisState.ERROR_STOP)
-        self._stop_due = f"{side} limit switch"
+        self._stop_due = f"{name} limit switch"
 
     def _end_motion(self, m: _Motion, error: BaseException | None, state: AxisState | None) -> None:
         """Decide ``m``'s outcome; the axis goes to ``state`` (None: leave it).
@@ -444,8 +500,18 @@ class Axis:
             log.warning("axis %s: stopping: %s", self.name, reason)
             await self._stop_now(reason)
         st = self.status
+        if self._learn_due and not self._lane.locked():
+            try:
+                async with self._lane:
+                    await self.profile.learn()
+                    self._learn_due = False
+                    log.info("axis %s: the drive answers", self.name)
+            except TransactionError as exc:
+                log.info("axis %s: reading the drive failed, trying again later: %s",
+                         self.name, exc)
         if (
             self._check_due
+            and not self._setup_due
             and self._motion is None
             and not self._lane.locked()
             and st is not None
@@ -453,18 +519,13 @@ class Axis:
         ):
             try:
                 async with self._lane:
-                    await self._verify_settings()
+                    await self._check_settings()
             except TransactionError as exc:
                 log.info("axis %s: settings check failed, trying again later: %s", self.name, exc)
 
-    async def _verify_settings(self) -> None:
-        """Read back the volatile settings; set the drive up again if a reset lost them.
-        A drive that never answered since the machine opened is set up now."""
-        if self._setup_due:
-            await self.profile.setup()
-            self._setup_due = self._check_due = False
-            log.info("axis %s: the drive answers: set up", self.name)
-            return
+    async def _check_settings(self) -> None:
+        """Read back the volatile settings (reads only): if a reset lost them, the drive is
+        set up again before the next command, and its position is no longer homed."""
         self._check_due = False
         try:
             lost = await self.profile.lost_settings()
@@ -472,11 +533,44 @@ class Axis:
             self._check_due = True
             raise
         if lost:
-            log.warning("axis %s: the drive was reset (%s): setting it up again; its position "
-                        "is no longer homed", self.name, "; ".join(lost))
-            await self.profile.setup()
-            self._homed_lost = True
+            log.warning("axis %s: the drive was reset (%s): it is set up again before the "
+                        "next command; its position is no longer homed",
+                        self.name, "; ".join(lost))
+            self._setup_due = self._homed_lost = True
             self._publish()
+
+    async def _verify_settings(self) -> None:
+        """Before a command: set the drive up if it is not (the first command, or a reset
+        lost its settings), else check it still holds them."""
+        if not self._setup_due:
+            await self._check_settings()
+        if self._setup_due:
+            await self._set_up()
+
+    async def _set_up(self) -> None:
+        """Write the profile's setup; a setting the drive held that it changes is logged
+        (warning) and kept in ``setup_changes``."""
+        changes = await self.profile.lost_settings()
+        if changes:
+            log.warning("axis %s: setting up the %s drive changes %s", self.name,
+                        self.profile.family, "; ".join(changes))
+        await self.profile.setup()
+        self.setup_changes = changes
+        self._setup_due = self._check_due = self._learn_due = False
+        log.info("axis %s: the %s drive is set up for commands", self.name, self.profile.family)
+
+    async def setup(self) -> list[str]:
+        """Set the drive up for commands now (the first command does it otherwise): the
+        settings it changed, as in ``setup_changes``. Only at rest."""
+        await self._settle("set the drive up")
+
+        async def io() -> None:
+            self._at_rest_or_raise("set the drive up")
+            self._setup_due = True
+            await self._verify_settings()
+
+        await self._exclusive(io)
+        return list(self.setup_changes)
 
     def _publish(self) -> None:
         if self.status is not None:
@@ -500,7 +594,7 @@ class Axis:
                 motion.io, motion.io_done = scope, done
             try:
                 with scope:
-                    if self._check_due:
+                    if self._check_due or self._setup_due:
                         await self._verify_settings()
                     await io()
             finally:
@@ -569,8 +663,11 @@ class Axis:
                     await m.finished.wait()
             except TimeoutError:
                 st = self.status
+                where = "unknown" if st is None or st.position is None else (
+                    f"{self.units.from_pulses(st.position):.4f} {self.config.unit}"
+                )
                 last = "" if st is None else (
-                    f" (last status: position {st.position}, moving={st.moving}, "
+                    f" (last status: position {where}, moving={st.moving}, "
                     f"in_position={st.in_position}, homed={st.homed})"
                 )
                 raise MotionTimeout(
@@ -613,7 +710,7 @@ class Axis:
         prepared (a poll failed meanwhile), check its settings and ``prepare`` it again
         first. After a lost reply, read back before deciding: a start is never sent twice
         unless the drive shows it did not act on the first."""
-        if prepare is not None and self._check_due:
+        if prepare is not None and (self._check_due or self._setup_due):
             await self._verify_settings()
             await prepare()
         before = self.status
@@ -686,7 +783,7 @@ class Axis:
         ``accepted()`` is called once every check has passed and the axis has taken the
         move (a service answers "running" then; a refusal raises before it).
         """
-        target = checks.finite("target", target)
+        target = checks.finite(f"axis {self.name}: target", target)
         plan = self.plan(speed, accel, decel)
         self.check_limits(target)
         self.profile.check_supported("move_absolute")
@@ -729,7 +826,7 @@ class Axis:
     ) -> None:
         """Move by ``distance`` (user units) from the present position (``accepted``: as
         for ``move_to``)."""
-        distance = checks.finite("distance", distance)
+        distance = checks.finite(f"axis {self.name}: distance", distance)
         plan = self.plan(speed, accel, decel)
         self.profile.check_supported("move_relative")
         params = self.drive_params(plan)
@@ -758,8 +855,18 @@ class Axis:
         (``accepted``: as for ``move_to``)."""
         h = self.config.homing
         self.profile.check_supported("home")
+        switches = self.profile.homing_switches(h.method)
         m = self._begin("home", "homing", AxisState.HOMING, accepted=accepted)
         u = self.units
+        m.switches = switches
+        # A reversing drive brakes into its switch, seen up to two polls late.
+        travel = h.speed * h.speed / (2 * h.accel) + h.speed * 2 * self.config.poll.moving
+        m.overrun = abs(u.to_pulses(travel)) + self.config.in_position_tolerance
+        st = self.status
+        if st is not None:  # a switch active at the start: the drive may turn away from it
+            here = st.position or 0
+            m.switch_seen = {side: here for side, on in ((1, st.limit_positive),
+                                                         (-1, st.limit_negative)) if on}
 
         async def io() -> None:
             await self._commit(m, lambda: self.profile.start_homing(HomingParams(
@@ -780,18 +887,20 @@ class Axis:
         decel: float | None = None,
         watchdog: float | None = 1.0,
     ) -> None:
-        """Run at ``speed`` units/s (sign = direction) until ``stop()``; returns once running.
+        """Run at ``speed`` units/s (sign = direction) until ``stop()`` or until the
+        watchdog expires; returns once running.
 
-        With soft limits the jog is a position move to the limit in its direction, so it
-        comes to rest on the limit at the latest. With a ``watchdog`` the application must
-        call ``jog`` (or ``feed``) again within that many seconds, or the actor stops the
-        axis. Called again while jogging with the same values it feeds the watchdog; with
+        The ``watchdog`` is on by default: the application must call ``jog`` (or ``feed``)
+        again within ``watchdog`` seconds (1 s by default), or the actor stops the axis and
+        logs a warning. ``watchdog=None`` jogs until ``stop()`` (``jogging()`` does that,
+        and stops on leaving its block). With soft limits the jog is a position move to
+        the limit in its direction, so it comes to rest on the limit at the latest. Called again while jogging with the same values it feeds the watchdog; with
         another speed or direction it changes the jog (towards a limit: by a stop and a new
         start, the drives cannot retarget a position move while it runs).
         """
-        speed = checks.finite("speed", speed)
+        speed = checks.finite(f"axis {self.name}: speed", speed)
         if watchdog is not None:
-            watchdog = checks.positive("watchdog", watchdog, unit="s")
+            watchdog = checks.positive(f"axis {self.name}: watchdog", watchdog, unit="s")
         if speed == 0:
             await self.stop()
             return
@@ -896,7 +1005,8 @@ class Axis:
         """
         decel_rps2 = None
         if decel is not None:
-            decel_rps2 = self.units.to_rps2(checks.positive("decel", decel, unit="units/s²"))
+            decel_rps2 = self.units.to_rps2(checks.positive(f"axis {self.name}: decel", decel,
+                                                           unit="units/s²"))
         await self._halt(emergency=False, decel_rps2=decel_rps2)
 
     async def halt_now(self) -> None:
@@ -991,6 +1101,19 @@ class Axis:
         ):
             raise StateError(f"axis {self.name}: stop before you {what} ({self.state})")
 
+    async def _settle(self, what: str) -> None:
+        """Before a command that needs the drive at rest: ``StateError`` if a motion is
+        under way; else decide on a status polled from now on, not a stale one. A drive
+        still braking from a stop (Stopping, ErrorStop) is waited for, bounded."""
+        if self._motion is not None or self.state in _COMMANDED_MOTION:
+            self._at_rest_or_raise(what)
+        if self.state is AxisState.OFFLINE:
+            return
+        st = self.status
+        if st is None or st.moving or self.state is AxisState.STOPPING:
+            await self._wait_rest(monotonic(), what)
+        self._at_rest_or_raise(what)
+
     async def enable(self) -> None:
         """Energise the motor (no-op if the drive already reports it enabled)."""
 
@@ -1006,8 +1129,8 @@ class Axis:
 
     async def disable(self) -> None:
         """De-energise the motor (only at rest)."""
-        self._at_rest_or_raise("disable the motor")
         self.profile.check_supported("disable")
+        await self._settle("disable the motor")
 
         async def io() -> None:
             self._at_rest_or_raise("disable the motor")
@@ -1022,8 +1145,10 @@ class Axis:
 
         After a limit switch stopped the axis, only motion away from it is allowed.
         ``DriveAlarm`` if the alarm stays; ``NotSupported`` if the drive cannot clear it.
+        A drive still braking from the stop that put the axis into ErrorStop is waited
+        for (bounded); the decision is made on a status polled after the call.
         """
-        self._at_rest_or_raise("reset the axis")
+        await self._settle("reset the axis")
 
         async def io() -> None:
             self._at_rest_or_raise("reset the axis")
@@ -1052,10 +1177,10 @@ class Axis:
 
     async def zero_position(self) -> None:
         """Make the present position zero (at rest)."""
+        self.profile.check_supported("zero_position")
+        await self._settle("zero the position")
         if self.state is not AxisState.STANDSTILL:
             raise StateError(f"axis {self.name}: cannot zero the position in state {self.state}")
-        self._at_rest_or_raise("zero the position")
-        self.profile.check_supported("zero_position")
 
         async def io() -> None:
             self._at_rest_or_raise("zero the position")

@@ -58,14 +58,20 @@ class Envelope:
         """The axis's defaults with any of them overridden; checked (ArgumentError,
         LimitViolation beyond max_speed). Values are magnitudes: > 0."""
         c = self.config
+
+        def given(name: str, value: float | None, default: float, unit: str) -> float:
+            if value is None:
+                return default
+            return checks.positive(f"axis {self.name}: {name}", value, unit=f"{c.unit}{unit}")
+
         p = MotionPlan(
-            checks.positive("speed", speed, unit="units/s") if speed is not None else c.speed,
-            checks.positive("accel", accel, unit="units/s²") if accel is not None else c.accel,
-            checks.positive("decel", decel, unit="units/s²") if decel is not None else c.decel,
+            given("speed", speed, c.speed, "/s"),
+            given("accel", accel, c.accel, "/s²"),
+            given("decel", decel, c.decel, "/s²"),
         )
         if c.max_speed is not None and p.speed > c.max_speed:
             raise LimitViolation(
-                f"axis {self.name}: speed {p.speed:g} exceeds max_speed {c.max_speed:g} units/s"
+                f"axis {self.name}: speed {p.speed:g} exceeds max_speed {c.max_speed:g} {c.unit}/s"
             )
         return p
 

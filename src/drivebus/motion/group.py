@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
 from contextlib import AsyncExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import anyio
 import anyio.lowlevel
@@ -23,7 +23,7 @@ import anyio.lowlevel
 from drivebus import checks
 from drivebus.bus import Bus
 from drivebus.clock import monotonic
-from drivebus.errors import ArgumentError, DrivebusError, LimitViolation
+from drivebus.errors import ArgumentError, DrivebusError, GroupMotionError, LimitViolation
 from drivebus.motion.axis import Axis, MotionPlan
 from drivebus.settings import LineSettings
 from drivebus.timing import switch_silence, timing
@@ -45,28 +45,42 @@ _NETWORK_DELAY = 0.0003
 """Assumed delay of a start command on a Modbus TCP line, seconds."""
 
 
-class GroupMotionError(DrivebusError):
-    """One axis of a group failed; the others were stopped. ``axis`` names the culprit."""
-
-    def __init__(self, message: str, *, axis: str) -> None:
-        super().__init__(message)
-        self.axis = axis
-
-
 @dataclass(frozen=True)
 class GroupMoveReport:
-    """What a synchronised move planned, how tightly the axes started and arrived."""
+    """What a synchronised move planned, how tightly the axes started and arrived.
+
+    Only the axes that moved count in the skew and the spreads (an axis already at its
+    target arrives at once and says nothing of the others). The planned arrivals follow
+    from the accepted starts and the plans; the observed ones from the first poll that
+    saw each axis in position and the poll before it (which saw it still on its way): each
+    is the middle of that window, so known only to within ``observed_resolution``. The
+    drives themselves may arrive much closer together than the observed spread can show.
+    """
 
     duration: float
     """Planned time from the first start to the common arrival, seconds."""
     start_skew: float
-    """Time between the first and the last axis's start command being accepted, seconds."""
+    """Time between the first and the last moving axis's start being accepted, seconds."""
     plans: dict[str, MotionPlan]
-    arrival_spread: float = 0.0
-    """Time between the first and the last axis seen arrived by its polls, seconds (each
-    is known to within its poll period)."""
+    observed_arrival_spread: float = 0.0
+    """Time between the first and the last moving axis seen in position by its polls,
+    seconds (each known to within ``observed_resolution``)."""
     start_offsets: dict[str, float] | None = None
     """Each axis's predicted start delay behind the first start, seconds."""
+    planned_arrival_spread: float = 0.0
+    """Spread of the moving axes' planned arrivals (accepted start + plan), seconds."""
+    observed_resolution: float = 0.0
+    """The widest window between the poll that saw an axis arrived and the one before it,
+    seconds: how finely the observed arrivals (and their spread) are known."""
+    planned_arrivals: dict[str, float] = field(default_factory=dict)
+    """Each moving axis's planned arrival, seconds after the first accepted start."""
+    observed_arrivals: dict[str, float] = field(default_factory=dict)
+    """Each moving axis's arrival as its polls saw it, seconds after the first start."""
+
+    @property
+    def arrival_spread(self) -> float:
+        """The observed arrival spread (``observed_arrival_spread``), seconds."""
+        return self.observed_arrival_spread
 
 
 def synchronise(
@@ -260,7 +274,7 @@ class AxisGroup:
             )
         if not values:
             raise ArgumentError(f"{what}: no axes given")
-        checked = {n: checks.finite(f"{what}[{n!r}]", v) for n, v in values.items()}
+        checked = {n: checks.finite(f"axis {n}: {what} {n!r}", v) for n, v in values.items()}
         for n in checked:
             self.axes[n].check_free("group move")
         return checked
@@ -387,18 +401,49 @@ class AxisGroup:
             await axis.move_to(targets[axis.name], speed=p.speed, accel=p.accel, decel=p.decel,
                                ready=lambda: gate.ready(axis.name))
 
-        arrived: dict[str, float] = {}
+        arrived: dict[str, tuple[float, float]] = {}
 
         async def move_and_note(axis: Axis) -> None:
             await move(axis)
-            arrived[axis.name] = axis.arrived_at
+            arrived[axis.name] = (axis.arrived_after, axis.arrived_at)
 
         await self._each([self.axes[n] for n in targets], move_and_note, also=gate.open)
-        times = [self.axes[n].command_started_at for n in targets]
-        spread = max(arrived.values()) - min(arrived.values()) if arrived else 0.0
-        report = GroupMoveReport(total, max(times) - min(times), plans, spread, offsets)
+        report = self._report(total, plans, offsets, distances, arrived)
         self.last_report = report
         return report
+
+    def _report(
+        self,
+        total: float,
+        plans: dict[str, MotionPlan],
+        offsets: dict[str, float],
+        distances: Mapping[str, float],
+        arrived: Mapping[str, tuple[float, float]],
+    ) -> GroupMoveReport:
+        """The figures of a finished group move, from the axes that moved."""
+        moved = [n for n in distances if distances[n] != 0 and n in arrived]
+        if not moved:
+            return GroupMoveReport(total, 0.0, plans, 0.0, offsets)
+        started = {n: self.axes[n].command_started_at for n in moved}
+        t0 = min(started.values())
+        planned = {n: started[n] - t0 + plans[n].duration(distances[n]) for n in moved}
+        observed = {n: (arrived[n][0] + arrived[n][1]) / 2 - t0 for n in moved}
+
+        def spread(values: Iterable[float]) -> float:
+            v = list(values)
+            return max(v) - min(v)
+
+        return GroupMoveReport(
+            total,
+            spread(started.values()),
+            plans,
+            spread(observed.values()),
+            offsets,
+            planned_arrival_spread=spread(planned.values()),
+            observed_resolution=max(arrived[n][1] - arrived[n][0] for n in moved),
+            planned_arrivals=planned,
+            observed_arrivals=observed,
+        )
 
     async def home(self) -> None:
         """Home every axis of the group in parallel."""

@@ -83,7 +83,7 @@ async def _make_axis(
     axis = Axis(name, cfg, profile)
     try:
         await profile.read_status()
-        await profile.setup()
+        await profile.learn()  # reads only: the drive is set up by the first command
         await axis.refresh()  # the axis starts knowing where its drive is
     except TransactionError as exc:
         error = DriveOffline(

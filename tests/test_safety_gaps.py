@@ -1,0 +1,338 @@
+"""Issue 21's safety gaps, judged by the simulated twins and the wire.
+
+Homing never runs through a limit switch (the axis stops it at once, ErrorStop and
+``LimitViolation`` naming the switch, the twin at rest within its braking distance);
+viewing never writes to a drive (the wire log and ``--trace``); ``reset()`` straight after
+a limit stop decides on a fresh status; a group move reports its planned and observed
+arrivals from the axes that moved; errors name their axis and speak in its units.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import re
+import signal
+import subprocess
+import sys
+from itertools import count
+from pathlib import Path
+from typing import Any
+
+import anyio
+import pytest
+
+from drivebus import AxisState, errors, open_machine
+from drivebus.errors import ArgumentError, GroupMotionError, LimitViolation, MotionTimeout
+from drivebus.motion import Axis, Machine
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMO = ROOT / "configs" / "demo.toml"
+CLI = [sys.executable, "-m", "drivebus.cli"]
+_names = count()
+
+# Per family: line settings and units that let homing run fast on the simulator.
+FAMILIES: dict[str, dict[str, Any]] = {
+    "NT86": {"settings": "115200 8N1", "pulses_per_rev": 4000, "units_per_rev": 10.0},
+    "BHSS": {"settings": "115200 8N1", "pulses_per_rev": 1000, "units_per_rev": 5.0},
+    "CL86R": {"settings": "115200 8N1", "pulses_per_rev": 1000, "units_per_rev": 4.0},
+    "EPR60": {"pulses_per_rev": 4000, "units_per_rev": 10.0},
+}
+
+
+def machine_for(drive: str, **axis: Any) -> dict[str, Any]:
+    """A one-axis machine (axis ``x``) on its own simulated line."""
+    name = f"safety-{drive.lower()}-{next(_names)}"
+    line: dict[str, Any] = (
+        {"kind": "tcp", "host": f"sim://{name}"} if drive == "EPR60"
+        else {"port": f"sim://{name}", "settings": "115200 8N1", "timeout": 0.1}
+    )
+    cfg: dict[str, Any] = {"line": "l", "address": 1, "drive": drive, "unit": "mm",
+                           "speed": 100.0, "accel": 2000.0, "decel": 2000.0,
+                           **FAMILIES[drive], **axis}
+    return {"name": name, "lines": {"l": line}, "axes": {"x": cfg}}
+
+
+async def at_rest(ax: Axis, timeout: float = 10.0) -> None:
+    """Until the axis's actor has polled the drive at rest outside any motion."""
+    with anyio.fail_after(timeout):
+        async for st in ax.watch():
+            if not st.moving and ax.state not in (
+                AxisState.HOMING, AxisState.DISCRETE_MOTION, AxisState.CONTINUOUS_MOTION,
+                AxisState.STOPPING,
+            ):
+                return
+
+
+def twin_position(m: Machine, name: str = "x") -> float:
+    """Where the simulated drive is, in the axis's units."""
+    return m.axes[name].units.from_pulses(m.sim_drives[name].position())
+
+
+# -- 1. homing never runs through a limit switch ------------------------------------------------
+
+HOMING_CASES = [
+    # (drive, homing method, drive options): no home switch anywhere
+    ("NT86", "home_switch_negative", {}),
+    ("NT86", "home_switch_positive", {}),
+    ("NT86", "home_switch_negative", {"home_reverse_at_limit": True}),
+    ("NT86", "home_switch_positive", {"home_reverse_at_limit": True}),
+    ("BHSS", "forward_limit_origin", {}),
+    ("BHSS", "backward_limit_origin", {}),
+    ("CL86R", "home_switch_positive", {}),
+    ("CL86R", "home_switch_negative", {}),
+]
+
+
+@pytest.mark.parametrize(("drive", "method", "options"), HOMING_CASES)
+async def test_homing_toward_a_missing_home_switch_ends_at_a_limit_switch(
+    drive: str, method: str, options: dict[str, Any]
+) -> None:
+    speed, accel = 60.0, 1000.0
+    cfg = machine_for(
+        drive, drive_options=options,
+        homing={"method": method, "speed": speed, "creep": 10.0, "accel": accel, "timeout": 20.0},
+        sim={"position": 50.0, "limit_negative": 20.0, "limit_positive": 80.0},
+    )
+    async with open_machine(cfg) as m:
+        x = m.axes["x"]
+        with pytest.raises(LimitViolation) as err:
+            await x.home()
+        assert x.state is AxisState.ERROR_STOP
+        found = re.search(r"the (positive|negative) limit switch", str(err.value))
+        assert found, err.value
+        assert "axis x" in str(err.value)
+        await at_rest(x)
+        twin = m.sim_drives["x"]
+        assert not twin.is_moving()
+        # Braking from the homing speed, plus up to three polls before the stop left.
+        bound = speed * speed / (2 * min(accel, x.config.decel)) + 3 * speed * 0.02 + 0.5
+        p = twin_position(m)
+        if found.group(1) == "positive":
+            assert 80.0 - 0.5 <= p <= 80.0 + bound, p
+        else:
+            assert 20.0 - bound <= p <= 20.0 + 0.5, p
+
+
+@pytest.mark.parametrize(("drive", "method", "side"), [
+    ("NT86", "home_switch_negative", "positive"),
+    ("BHSS", "backward_limit", "positive"),
+    ("CL86R", "negative_limit", "positive"),
+    ("EPR60", "limit_negative", "positive"),
+])
+async def test_homing_started_on_the_far_switch_leaves_it_and_homes(
+    drive: str, method: str, side: str
+) -> None:
+    """A switch active at the start that the drive moves away from is no violation."""
+    cfg = machine_for(
+        drive, drive_options={"home_input": 5} if drive == "EPR60" else {},
+        homing={"method": method, "speed": 60.0, "creep": 10.0, "accel": 1000.0},
+        sim={"position": 81.0, "home_switch": 40.0 if drive == "NT86" else None,
+             "limit_negative": 20.0, "limit_positive": 80.0},
+    )
+    async with open_machine(cfg) as m:
+        x = m.axes["x"]
+        assert x.status is not None and x.status.limit_positive
+        await x.home()
+        assert x.state is AxisState.STANDSTILL and x.homed
+        assert twin_position(m) < 80.0
+
+
+async def test_the_homing_method_limit_switch_is_not_a_violation() -> None:
+    cfg = machine_for("CL86R", homing={"method": "negative_limit", "speed": 40.0,
+                                       "creep": 8.0, "accel": 1000.0},
+                      sim={"position": 30.0, "limit_negative": 20.0, "limit_positive": 80.0})
+    async with open_machine(cfg) as m:
+        await m.axes["x"].home()
+        x = m.axes["x"]
+        assert x.homed and x.state is AxisState.STANDSTILL and x.error is None
+
+
+# -- 2. viewing never writes ------------------------------------------------------------------
+
+
+def writes_on_wires(m: Machine) -> list[str]:
+    """Every request on the machine's simulated wires that writes (FC05/06/15/16)."""
+    out: list[str] = []
+    for wire in m.wires.values():
+        for f in list(wire.log):
+            data = getattr(f, "data", None)
+            if data is not None:
+                if f.direction == "request" and len(data) > 1 and data[1] in (5, 6, 15, 16):
+                    out.append(data.hex(" "))
+            elif f.pdu and f.pdu[0] in (5, 6, 15, 16):
+                out.append(f.pdu.hex(" "))
+    return out
+
+
+async def test_opening_and_watching_a_machine_writes_nothing() -> None:
+    async with open_machine(DEMO, stop_on_exit=False) as m:
+        for ax in m.axes.values():
+            seen = 0
+            with anyio.fail_after(10):
+                async for _ in ax.watch():
+                    seen += 1
+                    if seen >= 3:
+                        break
+        assert writes_on_wires(m) == []
+        # The first command sets the drive up: the writes come with it, not before.
+        x = m.axes["x"]
+        await x.move_by(1.0)
+        assert writes_on_wires(m)
+
+
+def traced_writes(output: str) -> list[str]:
+    """Write requests in ``--trace`` output (RTU frames and TCP PDUs)."""
+    out = []
+    for line in output.splitlines():
+        if " tx slave " not in line:
+            continue
+        frame = line.rsplit(": ", 1)[-1].split()
+        code = frame[0] if "unit " in line else frame[1] if len(frame) > 1 else ""
+        if code in ("05", "06", "0f", "10"):
+            out.append(line)
+    return out
+
+
+def test_viewing_commands_send_zero_writes(tmp_path: Path) -> None:
+    """status, monitor, check, read and scan, each with --trace; read and scan on the
+    line of a running ``drivebus sim`` (every drive kind of the demo answers on it)."""
+    env = {**os.environ, "XDG_RUNTIME_DIR": str(tmp_path / "run")}
+
+    def drivebus(*args: str) -> str:
+        r = subprocess.run([*CLI, "--trace", *args], capture_output=True, text=True,
+                           timeout=120, env=env, cwd=ROOT, check=False)
+        out = r.stdout + r.stderr
+        assert r.returncode == 0, out[-3000:]
+        return out
+
+    sim = subprocess.Popen([*CLI, "sim", str(DEMO)], stdout=subprocess.PIPE,
+                           stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT)
+    try:
+        assert sim.stdout is not None
+        for line in sim.stdout:  # its banner lists the lines, then says it simulates
+            if line.startswith("simulating machine"):
+                break
+        outputs = {
+            "status": drivebus("status", str(DEMO), "--local"),
+            "monitor": drivebus("monitor", str(DEMO), "--local", "-n", "2", "-i", "0.1"),
+            "check": drivebus("check", str(DEMO)),
+            "read": drivebus("read", "sim://demo-rs485", "4", "0", "10", "-S", "38400 8N2"),
+            "scan": drivebus("scan", "sim://demo-rs485", "-b", "115200", "-f", "8N1",
+                             "-a", "1-3"),
+        }
+    finally:
+        sim.send_signal(signal.SIGINT)
+        sim.wait(20)
+    for name, out in outputs.items():
+        assert traced_writes(out) == [], (name, out[-3000:])
+        if name != "check":
+            assert " tx slave " in out, name  # it did talk to the drives
+
+
+# -- 3. reset right after a limit stop ----------------------------------------------------------
+
+
+@pytest.mark.parametrize("drive", ["NT86", "BHSS", "CL86R", "EPR60"])
+async def test_reset_straight_after_a_limit_stop_then_a_move_away_lands(drive: str) -> None:
+    cfg = machine_for(drive, sim={"position": 0.0, "limit_negative": -50.0,
+                                  "limit_positive": 30.0})
+    async with open_machine(cfg) as m:
+        x = m.axes["x"]
+        with pytest.raises(LimitViolation):
+            await x.move_to(60.0)
+        assert x.state is AxisState.ERROR_STOP
+        await x.reset()  # at once: the last poll may still say "moving"
+        assert x.state is AxisState.STANDSTILL
+        assert not m.sim_drives["x"].is_moving()
+        await x.move_to(10.0)
+        assert twin_position(m) == pytest.approx(10.0, abs=0.01)
+        assert x.state is AxisState.STANDSTILL
+
+
+# -- 4. group figures ---------------------------------------------------------------------------
+
+
+async def test_group_report_counts_only_moving_axes_beside_the_twins() -> None:
+    async with open_machine(DEMO) as m:
+        x, y, z = (m.axes[n] for n in "xyz")
+        still = z.position
+        assert still is not None
+        report = await m.group("x", "y", "z").move_to(
+            {"x": (x.position or 0) + 40.0, "y": (y.position or 0) + 20.0, "z": still}
+        )
+        ends = {n: m.sim_drives[n].kin.end_time() for n in ("x", "y")}
+        twins_spread = max(ends.values()) - min(ends.values())
+        assert set(report.planned_arrivals) == {"x", "y"} == set(report.observed_arrivals)
+        assert 0 < report.observed_resolution
+        # The plan predicts the twins' spread to within the start replies' wire time;
+        # the polls see it to within their windows.
+        assert abs(report.planned_arrival_spread - twins_spread) < 0.01
+        assert abs(report.observed_arrival_spread - twins_spread) <= (
+            report.observed_resolution + 0.002
+        )
+        assert report.arrival_spread == report.observed_arrival_spread
+        assert report.start_skew < report.duration
+
+
+# -- 5. errors that say enough ------------------------------------------------------------------
+
+
+def test_group_motion_error_is_a_drivebus_error() -> None:
+    assert errors.GroupMotionError is GroupMotionError
+    assert issubclass(GroupMotionError, errors.DrivebusError)
+
+
+async def test_argument_errors_name_the_axis() -> None:
+    async with open_machine(DEMO) as m:
+        x = m.axes["x"]
+        calls = [
+            lambda: x.move_to(math.nan),
+            lambda: x.move_to(10.0, speed=math.inf),
+            lambda: x.move_to(10.0, accel=-1.0),
+            lambda: x.move_by(math.inf),
+            lambda: x.move_by(1.0, decel=0.0),
+            lambda: x.jog(math.nan),
+            lambda: x.jog(5.0, watchdog=-1.0),
+            lambda: x.stop(decel=math.nan),
+            lambda: m.group("x", "y").move_to({"x": math.nan, "y": 1.0}),
+            lambda: m.group("x", "y").move_by({"x": 1.0, "y": math.inf}),
+        ]
+        for call in calls:
+            with pytest.raises(ArgumentError, match=r"axis [xy]\b"):
+                await call()
+        assert x.state is AxisState.STANDSTILL
+
+
+async def test_motion_timeout_speaks_in_the_axis_units() -> None:
+    cfg = machine_for("NT86", homing={"method": "home_switch_positive", "speed": 5.0,
+                                      "creep": 1.0, "accel": 100.0, "timeout": 0.3},
+                      sim={"position": 12.5, "home_switch": 500.0})
+    async with open_machine(cfg) as m:
+        with pytest.raises(MotionTimeout) as err:
+            await m.axes["x"].home()
+        text = str(err.value)
+        where = re.search(r"position (-?[\d.]+) mm", text)
+        assert where, text
+        assert 12.0 < float(where.group(1)) < 14.0
+
+
+# -- 6. the jog watchdog is said --------------------------------------------------------------
+
+
+async def test_jog_default_watchdog_is_documented_and_logged(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    doc = Axis.jog.__doc__ or ""
+    assert "watchdog" in doc and "1 s" in doc
+    readme = (ROOT / "README.md").read_text()
+    assert "watchdog=1.0" in readme and "by default" in readme
+    async with open_machine(DEMO) as m:
+        x = m.axes["x"]
+        with caplog.at_level(logging.WARNING, logger="drivebus"):
+            await x.jog(5.0, watchdog=0.2)  # a short one; the default is 1 s
+            await at_rest(x)
+        assert any("watchdog" in r.getMessage() and r.levelno == logging.WARNING
+                   for r in caplog.records)
+        assert not m.sim_drives["x"].is_moving()
