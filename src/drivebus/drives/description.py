@@ -254,6 +254,7 @@ TWIN_MEANINGS = {
     "home_switch": "the home switch is active",
     "at_speed": "a speed run reached its speed",
     "ready": "powered and ready (always set)",
+    "jogging": "a speed run (jog) is under way",
     "position": "the position counter (pulses)",
     "velocity": "the present speed",
     "command_velocity": "the speed of the running motion",

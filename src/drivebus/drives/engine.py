@@ -25,7 +25,13 @@ from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, creat
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveOptions, DriveProfile, HomingParams, MoveParams
+from drivebus.drives.base import (
+    DriveOptions,
+    DriveProfile,
+    HomingParams,
+    HomingSwitches,
+    MoveParams,
+)
 from drivebus.drives.description import PROCEDURES, Description, Procedure, Reg, Step
 from drivebus.drives.expr import Expr, ExprError, Unknown
 from drivebus.drives.registers import Register, WordOrder
@@ -607,7 +613,7 @@ class DescribedProfile(DriveProfile):
         self._learned = True
 
     async def setup(self) -> None:
-        """The description's ``setup`` writes, then ``learn``."""
+        """The description's ``setup`` writes (before the first command), then ``learn``."""
         proc = self.description.procedures.get("setup")
         if proc is not None and proc.unsupported is None:
             await self._run("setup", {})
@@ -648,6 +654,11 @@ class DescribedProfile(DriveProfile):
         s = d.status
         scope = self._scope(None, values)
         scope["words"] = Attrs("words", dict(raw_words or {}))
+        if s.track:  # state trackers first: the fields see this poll's state
+            updates = {k: e(scope) for k, e in s.track.items()}
+            self.state.update(updates)
+            scope = self._scope(None, values)
+            scope["words"] = Attrs("words", dict(raw_words or {}))
 
         def flag(e: Expr | None) -> bool:
             return bool(e(scope)) if e is not None else False
@@ -678,9 +689,6 @@ class DescribedProfile(DriveProfile):
             raw=raw,
             timestamp=monotonic(),
         )
-        if s.track:
-            updates = {k: e(scope) for k, e in s.track.items()}
-            self.state.update(updates)
         return st
 
     def alarm_text(self, code: int) -> str:
@@ -858,6 +866,17 @@ class DescribedProfile(DriveProfile):
                                for n, m in h.methods.items())
         raise self.unsupported(f"home with method {method!r}", "it documents " + documented)
 
+    def homing_switches(self, method: str | None) -> HomingSwitches:
+        """The limit switches homing with ``method`` homes on or reverses at: the method's
+        ``homes_on``/``reverses_at`` (+1/-1) where it gives them, else its CiA 402
+        method's (17/18 home on a limit switch; 23-30 reverse at the one ahead)."""
+        _, m = self._home_method(method)
+        extras = m.extras
+        if "homes_on" in extras or "reverses_at" in extras:
+            return HomingSwitches(frozenset(extras.get("homes_on", ())),
+                                  frozenset(extras.get("reverses_at", ())))
+        return cia402_homing_switches(m.cia402)
+
     def _home_attrs(self, args: Mapping[str, Any]) -> Attrs:
         name, m = self._home_method(args.get("method"))
         return Attrs("home", {"name": name, "method": name, "code": m.code,
@@ -894,6 +913,19 @@ class DescribedProfile(DriveProfile):
         call.__name__ = name
         call.__doc__ = d.procedures[name].doc or f"The {d.family} procedure {name}."
         return call
+
+
+def cia402_homing_switches(method: int | None) -> HomingSwitches:
+    """The limit switches CiA 402 homing method ``method`` homes on or reverses at."""
+    if method in (1, 17):
+        return HomingSwitches(homes_on=frozenset({-1}))
+    if method in (2, 18):
+        return HomingSwitches(homes_on=frozenset({1}))
+    if method in (7, 8, 9, 10, 23, 24, 25, 26):
+        return HomingSwitches(reverses_at=frozenset({1}))
+    if method in (11, 12, 13, 14, 27, 28, 29, 30):
+        return HomingSwitches(reverses_at=frozenset({-1}))
+    return HomingSwitches()
 
 
 def _consecutive(items: Sequence[_Item]) -> list[list[_Item]]:

@@ -45,9 +45,11 @@ class Kind(enum.Enum):
 
 
 _POSITION = {"pulses": 1.0, "pulse": 1.0, "counts": 1.0, "inc": 1.0, "steps": 1.0}
-_SPEED = {"rpm": 1.0, "r/min": 1.0, "rps": 60.0, "r/s": 60.0}  # rpm per unit
+_SPEED = {"rpm": 1.0, "r/min": 1.0, "rev/min": 1.0, "rps": 60.0, "r/s": 60.0,
+          "rev/s": 60.0}  # rpm per unit
 _SPEED_PULSES = ("pulses/s", "pps", "counts/s", "inc/s")
-_ACCEL = {"r/s²": 1.0, "r/s^2": 1.0, "rps2": 1.0, "rev/s²": 1.0, "rpm/s": 1 / 60}  # r/s² per unit
+_ACCEL = {"r/s²": 1.0, "r/s^2": 1.0, "rps2": 1.0, "rps/s": 1.0, "rev/s²": 1.0, "rev/s/s": 1.0,
+          "r/s/s": 1.0, "rpm/s": 1 / 60}  # r/s² per unit
 _ACCEL_PULSES = ("pulses/s²", "pulses/s^2", "pps2", "counts/s²", "inc/s²")
 _TIME = {"ms": 0.001, "s": 1.0}
 
@@ -145,7 +147,7 @@ class UnitCodec:
 
     # -- physical <-> register units ------------------------------------------------------
 
-    def _factor(self, ppr: int) -> float:
+    def factor(self, ppr: int) -> float:
         """Drive units (pulses, rpm, r/s²) per register unit before ``scale``."""
         u = self.unit
         if self.kind is Kind.POSITION:
@@ -183,11 +185,11 @@ class UnitCodec:
             return self._ramp_raw(reg, float(value), ref_rpm)
         if self.kind is Kind.PLAIN or self.kind is Kind.NAMED:
             return reg.check(value)  # type: ignore[arg-type]
-        raw = round(value / self._factor(ppr) / self.scale)
+        raw = round(value / self.factor(ppr) / self.scale)
         try:
             return reg.check(raw)
         except LimitViolation as exc:
-            if self.scale == 1.0 and self._factor(ppr) == 1.0:
+            if self.scale == 1.0 and self.factor(ppr) == 1.0:
                 raise
             raise LimitViolation(f"{exc} ({value:g} {self.drive_unit} is {raw})") from None
 
@@ -222,7 +224,7 @@ class UnitCodec:
             if ref is None:
                 return math.nan
             return math.inf if seconds <= 0 else abs(ref) / 60.0 / seconds
-        v = raw * self.scale * self._factor(ppr)
+        v = raw * self.scale * self.factor(ppr)
         if self.kind is Kind.POSITION and v == int(v):
             return int(v)
         return float(v)

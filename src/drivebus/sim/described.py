@@ -293,6 +293,7 @@ class DescribedDrive(SimDrive):
             "homed": self.homed, "homing": self._homing is not None, "alarm": alarm,
             "no_alarm": not alarm, "limit_positive": pos, "limit_negative": neg,
             "home_switch": home, "at_speed": bool(at_speed), "ready": True,
+            "jogging": moving and self.motion == "speed",
         }
 
     # -- reads --------------------------------------------------------------------------------
@@ -309,33 +310,39 @@ class DescribedDrive(SimDrive):
         return words[address]
 
     def _computed(self, reg: Reg, index: int | None, now: float) -> int:
+        """The value of a register that shows the drive's state: from what it means, with
+        the bits that have meanings set or cleared by the state."""
         means = reg.d.means
         if means == "position":
             counter = signed32(round(self.kin.position(now)))
-            return _clamp(reg, round(counter / reg.codec.scale))
-        if means in ("velocity", "command_velocity"):
+            value = _clamp(reg, round(counter / reg.codec.scale))
+        elif means in ("velocity", "command_velocity"):
             rpm = self.speed_rpm(now)
             if reg.codec.kind is Kind.SPEED:
-                return _clamp(reg, round(rpm / reg.codec._factor(self.pulses_per_rev)
-                                         / reg.codec.scale))
-            return _clamp(reg, round(rpm))
-        if means == "alarm_code":
-            return self.alarm_code
-        if means == "motion":
-            return reg.d.values.get(self.motion or "none", 0)
-        if means == "inputs":
-            return self._io_word("inputs", now)
-        if means == "outputs":
-            return self._io_word("outputs", now)
-        if means == "constant":
-            return self._raw(reg, index)
-        signals = self._signals(now)
-        value = self._raw(reg, index) if reg.d.access != "R" else 0
-        for b in reg.d.bits.values():
-            if b.means is None:
-                continue
-            if b.means in signals:
-                value = value | b.mask if signals[b.means] else value & ~b.mask
+                value = _clamp(reg, round(rpm / reg.codec.factor(self.pulses_per_rev)
+                                          / reg.codec.scale))
+            else:
+                value = _clamp(reg, round(rpm))
+        elif means == "alarm_code":
+            value = self.alarm_code
+        elif means == "motion":
+            value = reg.d.values.get(self.motion or "none", 0)
+        elif means == "inputs":
+            value = self._io_word("inputs", now)
+        elif means == "outputs":
+            value = self._io_word("outputs", now)
+        elif means is None and reg.d.access == "R":
+            value = 0
+        else:
+            value = self._raw(reg, index)
+        bits = [b for b in reg.d.bits.values() if b.means is not None]
+        if bits:
+            signals = self._signals(now)
+            for b in bits:
+                if signals.get(b.means or "", False):
+                    value |= b.mask
+                else:
+                    value &= ~b.mask
         return value
 
     def _io_word(self, which: str, now: float) -> int:
@@ -558,7 +565,9 @@ class DescribedDrive(SimDrive):
         code = self._param(trig, "method", now, value)
         h = self.description.homing
         method = None
-        if h is not None:
+        if h is not None and isinstance(code, str):
+            method = h.methods.get(code)
+        elif h is not None:
             method = next((m for m in h.methods.values()
                            if m.code is not None and code is not None and m.code == int(code)),
                           None)
