@@ -1,0 +1,401 @@
+"""Drive descriptions: the format's checks, where descriptions come from, the command
+engine and the generic twin built from the same file, and described drives in a machine
+with the seed drives (a group move, an e-stop, soft limits, the stop race)."""
+
+from __future__ import annotations
+
+import textwrap
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+import anyio
+import pytest
+
+from drivebus import LineSettings, open_machine
+from drivebus.config import load_config, parse_config
+from drivebus.drives.base import MoveParams
+from drivebus.drives.description import Description, load_description, parse_description
+from drivebus.drives.engine import DescribedProfile, profile_class
+from drivebus.drives.registry import ENV_PATH, family, resolve_drive
+from drivebus.drives.status import DriveStatus
+from drivebus.errors import (
+    ConfigError,
+    LimitViolation,
+    ModbusException,
+    MotionAborted,
+    NotSupported,
+)
+from drivebus.sim import VirtualWire, sim_bus
+from drivebus.sim.described import DescribedDrive, described_twin
+from drivebus.sim.drive import TwinSetup
+
+ROOT = Path(__file__).resolve().parents[1]
+MOONS = ROOT / "configs" / "drives" / "moons_stf.toml"
+FAST = LineSettings.parse("115200 8N1")
+QUICK = MoveParams(600, 100, 100)
+
+MINIMAL = """
+[drive]
+family = "TESTDRIVE"
+
+[units.pulses_per_rev]
+default = 1000
+
+[registers.status]
+address = 0
+access = "R"
+bits.ENABLED = { bit = 0, means = "enabled" }
+bits.MOVING = { bit = 1, means = "moving" }
+
+[registers.enable]
+address = 1
+
+[status]
+enabled = "status.ENABLED"
+moving = "status.MOVING"
+
+[procedures.enable]
+steps = [{ write = { enable = 1 } }]
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "drive.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text), encoding="utf-8")
+    return p
+
+
+# -- the format's checks: each mistake is one ConfigError naming file, key path and problem --
+
+BAD: list[tuple[str, str, tuple[str, ...]]] = [
+    ("toml", MINIMAL + "\n[drive\n", ("not valid TOML",)),
+    ("unknown key", MINIMAL.replace("address = 1", "adress = 1"),
+     ("registers.enable.adress", "unknown key")),
+    ("missing", MINIMAL.replace("[units.pulses_per_rev]\ndefault = 1000\n", ""),
+     ("units", "Field required")),
+    ("expression", MINIMAL.replace("enable = 1 }", "enable = '1 +' }"),
+     ("procedures.enable.steps[0].write.enable", "not an expression")),
+    ("no register", MINIMAL.replace("write = { enable = 1 }", "write = { enabel = 1 }"),
+     ("procedures.enable.steps[0].write", "no register 'enabel'")),
+    ("unknown name", MINIMAL.replace("enable = 1 }", "enable = 'ON' }"),
+     ("procedures.enable.steps[0].write.enable", "'ON'", "no register, constant, option")),
+    ("no option", MINIMAL.replace("enable = 1 }", "enable = 'option.on' }"),
+     ("procedures.enable.steps[0].write.enable", "no option 'on'")),
+    ("no bit", MINIMAL.replace('"status.MOVING"', '"status.RUNNING"'),
+     ("status.moving", "register status has no bit or value 'RUNNING'")),
+    ("overlap", MINIMAL + "\n[registers.other]\naddress = 1\n",
+     ("registers.other.address", "address 1 (0x0001) is also register enable")),
+    ("32-bit overlap", MINIMAL.replace("address = 1", "address = 0x10") +
+     "\n[registers.pos]\naddress = 0x0F\nwords = 2\n",
+     ("registers.pos.address", "address 16 (0x0010) is also register enable")),
+    ("two actions", MINIMAL.replace("write = { enable = 1 }",
+                                    "write = { enable = 1 }, read = ['status']"),
+     ("procedures.enable.steps[0]", "exactly one of")),
+    ("range", MINIMAL.replace("address = 1", "address = 1\nmin = 5\nmax = 2"),
+     ("registers.enable", "min 5 is above max 2")),
+    ("width", MINIMAL.replace("address = 1", "address = 1\nmax = 70000"),
+     ("registers.enable", "does not fit 16 unsigned bits")),
+    ("bit width", MINIMAL.replace("bit = 1,", "bit = 16,"),
+     ("registers.status", "beyond the register's 16 bits")),
+    ("ramp", MINIMAL + "\n[registers.acc]\naddress = 2\nunit = 'ms'\nramp = 'enable'\n",
+     ("registers.acc.ramp", "register enable holds no speed")),
+    ("learn writes", MINIMAL + "\n[procedures.learn]\nsteps = [{ write = { enable = 1 } }]\n",
+     ("procedures.learn.steps[0]", "learn only reads")),
+    ("meaning", MINIMAL.replace('means = "moving"', 'means = "spinning"'),
+     ("registers.status.bits.MOVING", "unknown meaning 'spinning'")),
+    ("twin action", MINIMAL + "\n[[twin.on_write]]\nregister = 'enable'\ndo = 'enable'\n"
+     "speed = '3'\n", ("twin.on_write[0].speed", "action enable takes no parameters")),
+    ("twin register", MINIMAL + "\n[[twin.on_write]]\nregister = 'enabel'\ndo = 'enable'\n",
+     ("twin.on_write[0].register", "no register 'enabel'")),
+    ("table", MINIMAL + "\n[registers.t]\naddress = 8\ncount = 4\n"
+     "[procedures.x]\nsteps = [{ write = { t = 1 } }]\n",
+     ("procedures.x.steps[0].write", "register t is a table")),
+    ("state", MINIMAL.replace('moving = "status.MOVING"', 'moving = "state.busy"'),
+     ("status.moving", "no state variable 'busy'")),
+    ("identify", MINIMAL + "\n[identify]\nread = ['status']\n",
+     ("identify", "needs 'read'", "'match'")),
+    ("addresses", MINIMAL + "\n[link]\naddresses = '31..1'\n",
+     ("link", "addresses 31..1")),
+    ("procedure", MINIMAL + "\n[procedures.stop]\nsteps = []\n",
+     ("procedures.stop", "needs steps")),
+    ("call", MINIMAL + "\n[procedures.stop]\nsteps = [{ call = 'halt' }]\n",
+     ("procedures.stop.steps[0].call", "no procedure 'halt'")),
+]
+
+
+@pytest.mark.parametrize(("mistake", "text", "needles"), BAD, ids=[b[0] for b in BAD])
+def test_each_mistake_is_a_config_error_naming_file_key_and_problem(
+    tmp_path: Path, mistake: str, text: str, needles: tuple[str, ...]
+) -> None:
+    path = write(tmp_path, text)
+    with pytest.raises(ConfigError) as err:
+        load_description(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}:"), message
+    for needle in needles:
+        assert needle in message, (needle, message)
+
+
+def test_a_minimal_description_loads_and_a_missing_file_is_named(tmp_path: Path) -> None:
+    d = load_description(write(tmp_path, MINIMAL))
+    assert d.family == "TESTDRIVE" and set(d.regs) == {"status", "enable"}
+    with pytest.raises(ConfigError, match=r"nowhere\.toml: no such drive description"):
+        load_description(tmp_path / "nowhere.toml")
+
+
+def test_the_shipped_descriptions_load() -> None:
+    for path in (*(ROOT / "src/drivebus/drives/descriptions").glob("*.toml"),
+                 *(ROOT / "configs/drives").glob("*.toml")):
+        d = load_description(path)
+        assert d.family and d.regs, path
+
+
+# -- where descriptions come from -----------------------------------------------------------
+
+
+def test_a_machine_file_names_a_description_beside_it(tmp_path: Path) -> None:
+    (tmp_path / "drives").mkdir()
+    drive = write(tmp_path / "drives", MINIMAL, "test_drive.toml")
+    machine = write(tmp_path, """
+        [lines.bus]
+        port = "sim://desc-beside"
+        [axes.a]
+        line = "bus"
+        address = 1
+        drive = "drives/test_drive.toml"
+    """, "machine.toml")
+    cfg = load_config(machine)
+    assert cfg.axes["a"].drive == str(drive.resolve())
+    assert family(cfg.axes["a"].drive).name == "TESTDRIVE"
+    broken = write(tmp_path, 'x = 1\n[axes.a]\ndrive = "drives/none.toml"\nline="bus"\n'
+                             'address=1\n[lines.bus]\nport="sim://x"\n', "broken.toml")
+    with pytest.raises(ConfigError, match=r"axes\.a\.drive: .*none\.toml: no such drive"):
+        load_config(broken)
+
+
+def test_a_directory_from_the_environment_and_a_machine_setting(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    envdir = tmp_path / "env"
+    envdir.mkdir()
+    write(envdir, MINIMAL.replace("TESTDRIVE", "ENVDRIVE"), "env_drive.toml")
+    monkeypatch.setenv(ENV_PATH, str(envdir))
+    assert resolve_drive("envdrive") == str((envdir / "env_drive.toml").resolve())
+    setdir = tmp_path / "machine" / "mydrives"
+    setdir.mkdir(parents=True)
+    write(setdir, MINIMAL.replace("TESTDRIVE", "SETDRIVE"), "set_drive.toml")
+    cfg = parse_config({
+        "drives_path": ["mydrives"],
+        "lines": {"bus": {"port": "sim://desc-setting"}},
+        "axes": {"a": {"line": "bus", "address": 1, "drive": "SETDRIVE"}},
+    }, base=tmp_path / "machine")
+    assert family(cfg.axes["a"].drive).name == "SETDRIVE"
+    with pytest.raises(ConfigError, match=r"unknown drive 'NODRIVE': known drives are .*"):
+        resolve_drive("NODRIVE")
+
+
+def test_a_package_ships_descriptions_through_an_entry_point(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A real installed distribution (a dist-info with entry_points.txt on sys.path)."""
+    pkg = tmp_path / "vendor_drives"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("", encoding="utf-8")
+    write(pkg, MINIMAL.replace("TESTDRIVE", "PLUGINDRIVE"), "plugin_drive.toml")
+    info = tmp_path / "vendor_drives-1.0.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: vendor-drives\n"
+                                   "Version: 1.0\n", encoding="utf-8")
+    (info / "entry_points.txt").write_text("[drivebus.drives]\nvendor = vendor_drives\n",
+                                           encoding="utf-8")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert family("PLUGINDRIVE").spec is not None
+    assert resolve_drive("plugindrive").endswith("plugin_drive.toml")
+
+
+# -- the engine on the generic twin (the MOONS' STF description) --------------------------
+
+DESC: Description = load_description(MOONS)
+Profile = profile_class(DESC)
+Twin = described_twin(DESC)
+
+
+def hexframes(wire: VirtualWire) -> list[str]:
+    return [f.data.hex(" ").upper() for f in wire.requests()]
+
+
+@asynccontextmanager
+async def rig(twin: DescribedDrive | None = None, **options: object
+              ) -> AsyncIterator[tuple[DescribedDrive, VirtualWire, DescribedProfile]]:
+    twin = twin or Twin(1, FAST)
+    async with sim_bus([twin], FAST) as (wire, bus):
+        yield twin, wire, Profile(bus.slave(1), **options)  # type: ignore[arg-type]
+
+
+async def wait_for(profile: DescribedProfile, cond: Callable[[DriveStatus], bool],
+                   timeout: float = 5.0) -> DriveStatus:
+    with anyio.fail_after(timeout):
+        while True:
+            st = await profile.read_status()
+            if cond(st):
+                return st
+            await anyio.sleep(0.005)
+
+
+def at_rest(st: DriveStatus) -> bool:
+    return st.in_position and not st.moving
+
+
+async def test_procedures_write_what_the_description_says() -> None:
+    async with rig() as (_, wire, profile):
+        await profile.enable()
+        await profile.move_relative(-3200, MoveParams(120, 10, 20))
+        await profile.emergency_stop()
+        await profile.zero_position()
+        # ME 0x9F; AC = 10 r/s² = 60 (1/6 rps/s), DE = 120, VE = 2 rps = 480 (1/240 rps),
+        # DI = -3200 high word first, in one FC16; FL 0x66; SK 0xE1; SP/EP with param 0.
+        assert hexframes(wire) == [
+            "01 06 00 7C 00 9F 08 7A",
+            "01 10 00 1B 00 05 0A 00 3C 00 78 01 E0 FF FF F3 80 26 96",
+            "01 06 00 7C 00 66 C8 38",
+            "01 06 00 7C 00 E1 88 5A",
+            "01 10 00 7D 00 02 04 00 00 00 00 35 12",
+            "01 06 00 7C 00 A5 88 69",
+            "01 10 00 7D 00 02 04 00 00 00 00 35 12",
+            "01 06 00 7C 00 98 49 B8",
+        ]
+
+
+async def test_moves_runs_stops_and_the_status_decoding() -> None:
+    async with rig() as (twin, _, profile):
+        await profile.setup()
+        st = await profile.read_status()
+        assert not st.enabled and st.in_position and st.position == 0
+        await profile.enable()
+        await profile.move_relative(5000, QUICK)
+        moving = await profile.read_status()
+        assert moving.moving and not moving.in_position and moving.enabled
+        st = await wait_for(profile, at_rest)
+        assert st.position == 5000 == twin.position()
+        await profile.move_absolute(-2000, QUICK)
+        st = await wait_for(profile, at_rest)
+        assert st.position == -2000 == twin.position()
+        await profile.speed_run(-300, 200, 200)
+        st = await wait_for(profile, lambda s: s.velocity_rpm == -300.0)
+        assert st.moving and st.raw["status"] & 0x20  # JOGGING
+        await profile.stop(decel_rps2=50)
+        assert twin.regs[28] == 300  # DE: 50 r/s² in 1/6 rps/s
+        st = await wait_for(profile, lambda s: not s.moving)
+        assert st.velocity_rpm == 0 and st.position == twin.position()
+
+
+async def test_nothing_is_sent_when_a_value_is_out_of_range() -> None:
+    async with rig() as (_, wire, profile):
+        with pytest.raises(LimitViolation, match=r"velocity \(VE\).*1\.\.19200"):
+            await profile.move_relative(1000, MoveParams(5000, 100, 100))
+        with pytest.raises(LimitViolation, match=r"acceleration \(AC\)"):
+            await profile.move_relative(1000, MoveParams(60, 0.01, 100))
+        with pytest.raises(LimitViolation, match=r"velocity \(VE\).*0\.001 rpm is 0"):
+            await profile.move_relative(1000, MoveParams(0.001, 100, 100))
+        with pytest.raises(LimitViolation, match="distance"):
+            await profile.move_absolute(2**31, QUICK)
+        assert wire.requests() == []
+
+
+async def test_homing_alarms_and_what_it_cannot_do() -> None:
+    twin = Twin(1, FAST, TwinSetup(position=-3000, home_switch=2000))
+    async with rig(twin) as (_, _, profile):
+        await profile.enable()
+        await profile.home(speed_rpm=300, creep_rpm=60, accel_rps2=200)
+        assert (await profile.read_status()).homing
+        st = await wait_for(profile, lambda s: s.homed and not s.moving)
+        assert not st.homing and abs(twin.physical_position() - 2000) < 400
+        twin.raise_alarm(0x0080)
+        st = await profile.read_status()
+        assert st.alarm and st.alarm_code == 0x80 and "over current" in st.alarm_text
+        await profile.move_relative(1000, QUICK)  # nothing starts with an alarm
+        assert not (await profile.read_status()).moving
+        await profile.clear_alarm()
+        assert not (await profile.read_status()).alarm
+        with pytest.raises(NotSupported, match=r"MOONS-STF drive cannot save parameters.*opcode"):
+            await profile.save_parameters()
+        with pytest.raises(NotSupported, match=r"method 'index'.*home_switch_positive"):
+            await profile.home("index")
+
+
+async def test_the_twin_answers_only_what_the_description_documents() -> None:
+    async with rig() as (_, _, profile):
+        slave = profile.slave
+        with pytest.raises(ModbusException) as exc:
+            await slave.read_holding_registers(200, 1)  # no register there
+        assert exc.value.code == 2 and exc.value.text == "illegal data address"
+        with pytest.raises(ModbusException) as exc:
+            await slave.write_register(1, 5)  # the status code is read-only
+        assert exc.value.code == 2
+        with pytest.raises(ModbusException) as exc:
+            await slave.write_register(29, 0)  # VE is 1..19200
+        assert exc.value.code == 3 and exc.value.text == "illegal data value"
+        with pytest.raises(ModbusException) as exc:
+            await slave.read_holding_registers(124, 1)  # the opcode register is write-only
+        assert exc.value.code == 2
+
+
+async def test_a_power_cycle_loses_the_volatile_setup_and_setup_restores_it() -> None:
+    async with rig(pulses_per_rev=4000) as (twin, _, profile):
+        await profile.setup()
+        assert twin.regs[52] == 4000 and await profile.lost_settings() == []
+        twin.power_loss()
+        twin.power_restore()
+        lost = await profile.lost_settings()
+        assert lost and "electronic gearing" in lost[0] and "not 4000" in lost[0]
+        assert not (await profile.read_status()).enabled  # the drive powers up disabled
+        await profile.setup()
+        assert await profile.lost_settings() == []
+
+
+# -- described drives in a machine with the seed drives -----------------------------------
+
+
+async def test_a_group_move_and_an_emergency_stop_with_seed_and_described_drives() -> None:
+    async with open_machine(ROOT / "configs" / "mixed.toml") as m:
+        for a in m.axes.values():
+            await a.enable()
+        await m.group("x", "z", "m").move_to({"x": 40.0, "z": 12.0, "m": 30.0})
+        assert m.sim_drives["m"].position() == 30.0 / 5.0 * 20000
+        assert m.sim_drives["x"].position() == 16000 and m.sim_drives["z"].position() == 3000
+        for a in m.axes.values():
+            await a.jog(4.0, watchdog=None)  # towards the soft limit, moving
+        assert all(t.is_moving() for t in m.sim_drives.values())
+        async with anyio.create_task_group() as tg:
+            for a in m.axes.values():
+                tg.start_soon(a.halt_now)
+        for name, twin in m.sim_drives.items():
+            assert not twin.is_moving(), name
+
+
+async def test_soft_limits_and_the_stop_race_hold_for_a_described_drive() -> None:
+    async with open_machine(ROOT / "configs" / "mixed.toml") as m:
+        axis, wire = m.axes["m"], m.wires["rs485"]
+        await axis.enable()
+        sent = len(wire.requests())
+        with pytest.raises(LimitViolation):
+            await axis.move_to(500.0)  # beyond limits = [-10, 300]
+        assert [f for f in wire.requests()[sent:] if f.address == 5 and f.data[1] != 3] == []
+
+        async def move() -> None:
+            with pytest.raises(MotionAborted):
+                await axis.move_to(200.0)
+
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(move)
+            await anyio.sleep(0.05)
+            await axis.stop()
+        twin = m.sim_drives["m"]
+        assert not twin.is_moving() and 0 < twin.position() < 200.0 / 5.0 * 20000
+
+
+def test_parse_description_names_its_source() -> None:
+    with pytest.raises(ConfigError, match=r"^memory: units: Field required"):
+        parse_description({"drive": {"family": "X"}, "registers": {"a": {"address": 1}}},
+                          "memory")
