@@ -4,6 +4,8 @@ with the seed drives (a group move, an e-stop, soft limits, the stop race)."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import textwrap
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
@@ -399,3 +401,48 @@ def test_parse_description_names_its_source() -> None:
     with pytest.raises(ConfigError, match=r"^memory: units: Field required"):
         parse_description({"drive": {"family": "X"}, "registers": {"a": {"address": 1}}},
                           "memory")
+
+
+# -- drivebus drive check / doc / try ------------------------------------------------------
+
+
+def cli(*args: str | Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    """Run ``drivebus ARGS`` as a user does."""
+    return subprocess.run([sys.executable, "-m", "drivebus.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=timeout, check=False,
+                          cwd=ROOT)
+
+
+def test_drive_check_prints_what_was_understood_and_names_mistakes(tmp_path: Path) -> None:
+    done = cli("drive", "check", MOONS)
+    assert done.returncode == 0, done.stderr
+    assert "MOONS-STF (command engine)" in done.stdout
+    assert "status poll: FC03 0 (0x0000) ×11" in done.stdout
+    assert "save_parameters        cannot: its Modbus register table has no save" in done.stdout
+    bad = write(tmp_path, MINIMAL.replace("write = { enable = 1 }", "write = { enabel = 1 }"))
+    done = cli("drive", "check", bad)
+    assert done.returncode == 2 and done.stdout == ""
+    assert f"{bad}: procedures.enable.steps[0].write: no register 'enabel'" in done.stderr
+
+
+def test_drive_doc_renders_the_reference_page() -> None:
+    done = cli("drive", "doc", MOONS)
+    assert done.returncode == 0, done.stderr
+    for heading in ("# MOONS-STF", "## At a glance", "## `drive_options`", "## Procedures",
+                    "## Registers", "## Procedure steps", "## Behaviour (the simulated twin)"):
+        assert heading in done.stdout, heading
+    assert "| 0x007C (124) | command opcode |" in done.stdout
+
+
+def test_drive_try_runs_green_and_catches_a_wrong_description(tmp_path: Path) -> None:
+    done = cli("drive", "try", MOONS)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "12 passed, 0 failed, 0 skipped" in done.stdout
+    # A description that writes the wrong sign: the twin moves the other way.
+    wrong = MOONS.read_text(encoding="utf-8").replace(
+        'speed = { value = "speed", nonzero = true }, distance = "distance" }',
+        'speed = { value = "speed", nonzero = true }, distance = "-distance" }')
+    done = cli("drive", "try", write(tmp_path, wrong, "moons_wrong.toml"))
+    assert done.returncode == 1
+    line = next(x for x in done.stdout.splitlines() if x.strip().startswith("move relative"))
+    assert "FAIL" in line and "the twin is at" in line
