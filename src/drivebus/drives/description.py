@@ -313,6 +313,9 @@ class RegisterDef(_Model):
     access: Literal["R", "W", "RW"] = "RW"
     eeprom: bool = False
     volatile: bool = False
+    parameter: bool | None = Field(None, description="a documented setting `drivebus "
+                                   "params` backs up (default: RW, not volatile, no meaning)")
+    comms: bool = Field(False, description="sets the drive's address or line settings")
     means: str | None = None
     bits: dict[str, Annotated[BitDef, BeforeValidator(_bit)]] = {}
     count: int = Field(1, ge=1, le=4096)
@@ -507,6 +510,23 @@ class AlarmsDef(_Model):
     texts: Annotated[dict[int, str], IntKeyed] = {}
     unknown: T = Template.parse("alarm code {code}")
     clears: Annotated[dict[int, Literal["command", "power_cycle", "supply"]], IntKeyed] = {}
+
+
+class WriteThroughDef(_Model):
+    """A switch that makes every Modbus write an EEPROM write while it holds ``on``."""
+
+    reg: str = Field(alias="register")
+    on: int
+    off: int
+
+
+class EepromDef(_Model):
+    """``[eeprom]``: how the drive stores its settings."""
+
+    write_through: WriteThroughDef | None = None
+    saves_by_write_through: bool = Field(
+        False, description="no save command: a value is stored only when written with the "
+        "write-through switch on")
 
 
 class SignalDef(_Model):
@@ -716,7 +736,9 @@ class TwinDef(_Model):
     on_write: list[Trigger] = []
     starts: E = Expr.parse("enabled and not alarm")
     limits: LimitsDef = LimitsDef()
-    eeprom_write_through: E = Expr.parse(False)
+    eeprom_write_through: E | None = Field(
+        None, description="when a write to an `eeprom` register is stored (default: the "
+        "[eeprom] write-through switch holds its `on` value)")
     enabled: E = Expr.parse(True)
     decel: E | None = Field(None, description="an alarm or a disable: None = at once")
 
@@ -742,6 +764,7 @@ class Description(_Model):
     alarms: AlarmsDef | None = None
     homing: HomingDef | None = None
     signals: dict[Annotated[str, Field(pattern=_KEY)], SignalDef] = {}
+    eeprom: EepromDef = EepromDef()
     procedures: dict[Annotated[str, Field(pattern=_KEY)], Procedure] = {}
     twin: TwinDef = TwinDef()
 
@@ -761,6 +784,19 @@ class Description(_Model):
     def family(self) -> str:
         """The family name."""
         return self.drive.family
+
+    def parameter_regs(self) -> list[tuple[Reg, int | None]]:
+        """The documented settings (register, table index) ``drivebus params`` backs up,
+        in address order: each register's ``parameter`` flag, else every read/write
+        register that is not volatile and shows no state."""
+        out = []
+        for reg in self.regs.values():
+            d = reg.d
+            wanted = d.parameter if d.parameter is not None else (
+                d.access == "RW" and not d.volatile and d.means is None)
+            if wanted:
+                out += [(reg, i) for i in (reg.indices if reg.array else [None])]
+        return sorted(out, key=lambda ri: ri[0].at(ri[1]).address)
 
     def procedure_what(self, name: str) -> str:
         """How a NotSupported error says procedure ``name``."""
@@ -842,6 +878,8 @@ class _Checker:
             self._reg_key("link.format_register", d.link.format_register)
         if d.link.baud_register is not None:
             self._reg_key("link.baud_register", d.link.baud_register)
+        if d.eeprom.write_through is not None:
+            self._reg_key("eeprom.write_through.register", d.eeprom.write_through.reg)
         yield from self.out
 
     # -- registers --------------------------------------------------------------------------

@@ -47,6 +47,11 @@ from drivebus.errors import (
     StateError,
 )
 
+try:  # the parameter list of ``drivebus params`` (added beside this work; additive here)
+    from drivebus.drives.base import Parameter, WriteThrough  # type: ignore[attr-defined]
+except ImportError:  # pragma: no cover - before the params work is merged
+    Parameter = WriteThrough = None
+
 __all__ = ["DescribedProfile", "ReadPlan", "plan_reads", "profile_class"]
 
 _PRIORITY = {"emergency": Priority.EMERGENCY, "command": Priority.COMMAND,
@@ -1085,8 +1090,28 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "_extra_plans": extras,
     }
     attrs["__init__"] = _init_with_signature(d)
+    attrs.update(_parameter_attrs(d))
     name = re.sub(r"\W", "_", d.family) + "Profile"
     return type(name, (DescribedProfile,), attrs)
+
+
+def _parameter_attrs(d: Description) -> dict[str, Any]:
+    """``parameter_list``/``write_through``/``saves_by_write_through`` of the profile class,
+    from the description's registers (where ``DriveProfile.parameters()`` exists)."""
+    if Parameter is None:
+        return {}
+    params = []
+    for reg, index in d.parameter_regs():
+        key = reg.key if index is None else f"{reg.key}_{index}"
+        params.append(Parameter(key, reg.at(index), stored=not reg.d.volatile,
+                                comms=reg.d.comms))
+    wt = d.eeprom.write_through
+    return {
+        "parameter_list": tuple(params),
+        "write_through": None if wt is None else WriteThrough(d.regs[wt.reg].register,
+                                                               wt.on, wt.off),
+        "saves_by_write_through": d.eeprom.saves_by_write_through,
+    }
 
 
 def _init_with_signature(d: Description) -> Callable[..., None]:

@@ -392,7 +392,7 @@ class DescribedDrive(SimDrive):
         self.check_write(address, values)
         before = dict(self.regs)
         touched: list[tuple[Reg, int | None]] = []
-        write_through = bool(self._eval(self.description.twin.eeprom_write_through, now))
+        write_through = self._write_through(now)
         for offset, word in enumerate(values):
             a = address + offset
             self.regs[a] = word
@@ -408,6 +408,14 @@ class DescribedDrive(SimDrive):
         except SlaveException:
             self.regs = before
             raise
+
+    def _write_through(self, now: float) -> bool:
+        """True while a write to an ``eeprom`` register is stored."""
+        d = self.description
+        if d.twin.eeprom_write_through is not None:
+            return bool(self._eval(d.twin.eeprom_write_through, now))
+        wt = d.eeprom.write_through
+        return wt is not None and self._raw(d.regs[wt.reg], None) == wt.on
 
     def write_register(self, address: int, word: int, now: float) -> None:
         """One word (FC06): as a write of one register."""
