@@ -78,6 +78,7 @@ from drivebus.drives.cia402 import (
     decode_command,
     transition,
 )
+from drivebus.sim.drive import time_or_present
 from drivebus.sim.kinematics import Kinematics
 from drivebus.sim.registers import ExceptionCodes, SlaveException, signed32
 
@@ -239,8 +240,9 @@ class Cia402Device:
         retained: Iterable[str] = (),
         codes: ExceptionCodes | None = None,
         kin: Kinematics | None = None,
-        now: float = 0.0,
+        now: float | None = None,
     ) -> None:
+        now = time_or_present(now)
         self.setup = setup or Cia402Setup()
         self.codes = codes or ExceptionCodes()
         """The exception codes a refusal raises (``SlaveException``)."""
@@ -331,33 +333,49 @@ class Cia402Device:
 
     # -- what tests and twins look at ----------------------------------------------------------
 
-    def position(self, now: float) -> float:
+    def position(self, now: float | None = None) -> float:
         """The position counter (increments) at ``now``."""
+        now = time_or_present(now)
         self.advance(now)
         return self.kin.position(now)
 
-    def velocity(self, now: float) -> float:
+    def velocity(self, now: float | None = None) -> float:
         """The velocity in increments/s at ``now``."""
+        now = time_or_present(now)
         self.advance(now)
         return self.kin.velocity(now)
 
-    def is_moving(self, now: float) -> bool:
+    def is_moving(self, now: float | None = None) -> bool:
         """True while the motor turns."""
+        now = time_or_present(now)
         self.advance(now)
         return self.kin.moving(now)
 
-    def physical_position(self, now: float) -> float:
+    def physical_position(self, now: float | None = None) -> float:
         """Where the axis physically is (the frame of the switch positions)."""
-        return self.kin.position(now) - self._shift
+        now = time_or_present(now)
+        self.advance(now)
+        return self._physical(now)
 
-    def state_at(self, now: float) -> State:
+    def state_at(self, now: float | None = None) -> State:
         """The state machine's state at ``now``."""
+        now = time_or_present(now)
         self.advance(now)
         return self.state
 
-    def switch_states(self, now: float) -> tuple[bool, bool, bool]:
+    def switch_states(self, now: float | None = None) -> tuple[bool, bool, bool]:
         """(home, limit negative, limit positive) at ``now``."""
-        p = self.physical_position(now)
+        now = time_or_present(now)
+        self.advance(now)
+        return self._switches(now)
+
+    def _physical(self, now: float) -> float:
+        """The physical position on the motion planned so far (no events run)."""
+        return self.kin.position(now) - self._shift
+
+    def _switches(self, now: float) -> tuple[bool, bool, bool]:
+        """The switches on the motion planned so far (no events run)."""
+        p = self._physical(now)
         s = self.setup
         if s.home_switch is None:
             home = False
@@ -369,20 +387,22 @@ class Cia402Device:
         pos = s.limit_positive is not None and p >= s.limit_positive
         return home, neg, pos
 
-    def digital_inputs(self, now: float) -> int:
+    def digital_inputs(self, now: float | None = None) -> int:
         """Digital inputs (60FDh): negative limit, positive limit, home switch."""
-        home, neg, pos = self.switch_states(now)
+        now = time_or_present(now)
+        home, neg, pos = self._switches(now)
         return ((DigitalInput.NEGATIVE_LIMIT if neg else 0)
                 | (DigitalInput.POSITIVE_LIMIT if pos else 0)
                 | (DigitalInput.HOME_SWITCH if home else 0))
 
-    def statusword(self, now: float) -> int:
+    def statusword(self, now: float | None = None) -> int:
         """The statusword (6041h) at ``now``."""
+        now = time_or_present(now)
         self.advance(now)
         word = self.state.bits | Statusword.VOLTAGE_ENABLED | Statusword.REMOTE
         if self.state in (State.READY_TO_SWITCH_ON, State.SWITCHED_ON, State.OPERATION_ENABLED):
             word |= Statusword.QUICK_STOP
-        _, neg, pos = self.switch_states(now)
+        _, neg, pos = self._switches(now)
         if neg or pos:
             word |= Statusword.INTERNAL_LIMIT_ACTIVE
         moving = self.kin.moving(now)
@@ -400,23 +420,26 @@ class Cia402Device:
 
     # -- faults and power ----------------------------------------------------------------------
 
-    def raise_fault(self, code: int, now: float) -> None:
+    def raise_fault(self, code: int, now: float | None = None) -> None:
         """A fault with error code ``code`` (603Fh): Fault reaction active while the motor
         stops on the quick stop deceleration, then Fault."""
+        now = time_or_present(now)
         self.advance(now)
         self.error_code = code & 0xFFFF
         self._end_motion(now, self._rate("quick_stop_deceleration"))
         self.state = State.FAULT_REACTION_ACTIVE
 
-    def power_loss(self, now: float) -> None:
+    def power_loss(self, now: float | None = None) -> None:
         """The power is cut: the motor stops at once; nothing is kept but retained objects
         (and the position, with an absolute encoder)."""
+        now = time_or_present(now)
         self.advance(now)
         self._end_motion(now, None)
         self.powered = False
 
-    def power_restore(self, now: float) -> None:
+    def power_restore(self, now: float | None = None) -> None:
         """Power-up: Not ready to switch on for the boot time, then Switch on disabled."""
+        now = time_or_present(now)
         self.powered = True
         self.values = {**self.factory, **self._saved}
         if not self.setup.absolute_encoder:
@@ -661,7 +684,7 @@ class Cia402Device:
 
     def _blocked(self, direction: float, now: float) -> bool:
         """True if a limit switch in ``direction`` is active: the drive will not go on."""
-        _, neg, pos = self.switch_states(now)
+        _, neg, pos = self._switches(now)
         return (direction > 0 and pos) or (direction < 0 and neg)
 
     def _into_limit(self, now: float) -> bool:
@@ -753,7 +776,7 @@ class Cia402Device:
         edge = self._home_edge(method)
         watches = [self._watch("limit", e, now) for e in self._limit_edges() if e != edge]
         if method.signal is HomeSignal.INDEX_PULSE:
-            index = _Edge(self._next_index(self.physical_position(now), f), 0, "index pulse")
+            index = _Edge(self._next_index(self._physical(now), f), 0, "index pulse")
             watches.append(_Watch("index", index, -f))
             self._homing = _Homing(method, f, watches, final=True, t_from=now)
             self._run_leg(now)
@@ -778,14 +801,14 @@ class Cia402Device:
     def _watch(self, kind: Literal["home", "limit"], edge: _Edge, now: float) -> _Watch:
         """Watch ``edge`` from ``now``: the axis is on its active side where the switch is
         active (edges included), else on the other."""
-        p = self.physical_position(now)
+        p = self._physical(now)
         active = (p - edge.position) * edge.active_side >= 0
         return _Watch(kind, edge, edge.active_side if active else -edge.active_side)
 
     def _side(self, method: HomingMethod, now: float) -> int | None:
         """On which side (+1/-1) of the homing edge the drive believes it is, from its
         inputs and the method's assumptions (None: it cannot tell, it searches)."""
-        home, neg, pos = self.switch_states(now)
+        home, neg, pos = self._switches(now)
         if method.signal is HomeSignal.NEGATIVE_LIMIT:
             return -1 if neg else +1
         if method.signal is HomeSignal.POSITIVE_LIMIT:
@@ -864,7 +887,7 @@ class Cia402Device:
         """The home position (physical) was passed at ``tc``: it reads the home offset; the
         axis comes to rest on the homing acceleration."""
         self.kin.stop(tc, self._rate("homing_acceleration"))
-        past = self.physical_position(tc) - home
+        past = self._physical(tc) - home
         self._set_counter(tc, self.values["home_offset"] + past)
         self.homed = True
         self._homing = None
