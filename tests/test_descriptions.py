@@ -27,6 +27,7 @@ from drivebus.errors import (
     ModbusException,
     MotionAborted,
     NotSupported,
+    StateError,
 )
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.described import DescribedDrive, described_twin
@@ -363,9 +364,10 @@ async def test_a_group_move_and_an_emergency_stop_with_seed_and_described_drives
     async with open_machine(ROOT / "configs" / "mixed.toml") as m:
         for a in m.axes.values():
             await a.enable()
-        await m.group("x", "z", "m").move_to({"x": 40.0, "z": 12.0, "m": 30.0})
+        await m.group("x", "z", "m", "s").move_to({"x": 40.0, "z": 12.0, "m": 30.0, "s": 25.0})
         assert m.sim_drives["m"].position() == 30.0 / 5.0 * 20000
         assert m.sim_drives["x"].position() == 16000 and m.sim_drives["z"].position() == 3000
+        assert m.sim_drives["s"].position() == 25000
         for a in m.axes.values():
             await a.jog(4.0, watchdog=None)  # towards the soft limit, moving
         assert all(t.is_moving() for t in m.sim_drives.values())
@@ -446,3 +448,141 @@ def test_drive_try_runs_green_and_catches_a_wrong_description(tmp_path: Path) ->
     assert done.returncode == 1
     line = next(x for x in done.stdout.splitlines() if x.strip().startswith("move relative"))
     assert "FAIL" in line and "the twin is at" in line
+
+
+# -- the CiA 402 engine (the Kinco FD description) on the CiA 402 twin ---------------------
+
+KINCO = ROOT / "configs" / "drives" / "kinco_fd.toml"
+KDESC = load_description(KINCO)
+KProfile = profile_class(KDESC)
+KTwin = described_twin(KDESC)
+
+
+def controlwords(wire: VirtualWire) -> list[int]:
+    """The values written to the controlword (0x3100) in order."""
+    return [int.from_bytes(f.data[4:6], "big") for f in wire.requests()
+            if f.data[1] == 6 and f.data[2:4] == b"\x31\x00"]
+
+
+@asynccontextmanager
+async def kinco(setup: TwinSetup | None = None) -> AsyncIterator[
+        tuple[DescribedDrive, VirtualWire, DescribedProfile]]:
+    twin = KTwin(1, FAST, setup)
+    async with sim_bus([twin], FAST) as (wire, bus):
+        yield twin, wire, KProfile(bus.slave(1))  # type: ignore[arg-type]
+
+
+async def test_cia402_state_machine_and_the_set_point_handshake_frames() -> None:
+    async with kinco() as (twin, wire, profile):
+        assert not (await profile.read_status()).enabled
+        await profile.enable()
+        assert controlwords(wire) == [0x06, 0x07, 0x0F]  # shutdown, switch on, enable
+        assert (await profile.read_status()).enabled and twin.enabled
+        wire.clear_log()
+        await profile.move_absolute(20000, MoveParams(600, 100, 100))
+        frames = [f for f in hexframes(wire) if not f.startswith("01 03")]  # the writes
+        assert frames[0].startswith("01 06 35 00 00 01")  # modes of operation: PP
+        # 600 rpm at 10000 increments = 100000 pulses/s = 1638400 DEC, low word first
+        assert any(f.startswith("01 10 4A 00 00 02 04 00 00 00 19") for f in frames)
+        assert any(f.startswith("01 10 40 00 00 02 04 4E 20 00 00") for f in frames)  # 20000
+        assert controlwords(wire) == [0x3F, 0x2F]  # the manual's 0x2F/0x3F pair
+        st = await wait_for(profile, at_rest)
+        assert st.position == 20000 == twin.position()
+        await profile.move_relative(-5000, MoveParams(600, 100, 100))
+        st = await wait_for(profile, at_rest)
+        assert st.position == 15000 == twin.position()
+
+
+async def test_cia402_speed_run_halt_quick_stop_fault_and_power_cycle() -> None:
+    async with kinco() as (twin, wire, profile):
+        await profile.enable()
+        await profile.speed_run(-300, 200, 200)
+        st = await wait_for(profile, lambda s: s.velocity_rpm is not None
+                            and abs(s.velocity_rpm + 300) < 0.5)
+        assert st.moving and twin.speed_rpm() == pytest.approx(-300, abs=0.5)
+        await profile.stop(decel_rps2=50)
+        assert controlwords(wire)[-1] == 0x10F  # halt
+        await wait_for(profile, lambda s: not s.moving)
+        assert not twin.is_moving()
+        await profile.speed_run(300, 200, 200)
+        await wait_for(profile, lambda s: s.moving)
+        await profile.emergency_stop()
+        assert controlwords(wire)[-1] == 0x02  # quick stop
+        st = await wait_for(profile, lambda s: not s.moving)
+        assert not st.enabled and not twin.is_moving()
+        await profile.enable()
+        twin.raise_alarm(0x2310)
+        st = await wait_for(profile, lambda s: s.alarm)
+        assert not st.enabled
+        await profile.clear_alarm()
+        assert not (await profile.read_status()).alarm
+        await profile.enable()
+        twin.power_loss()
+        twin.power_restore()
+        st = await profile.read_status()
+        assert not st.enabled and st.position == 0
+        await profile.enable()
+        assert (await profile.read_status()).enabled
+
+
+async def test_cia402_homing_on_a_limit_switch_and_on_the_home_switch() -> None:
+    setup = TwinSetup(position=20000, home_switch=5000, limit_negative=-30000,
+                      limit_positive=60000)
+    async with kinco(setup) as (twin, _, profile):
+        await profile.enable()
+        await profile.home("negative_limit", speed_rpm=300, creep_rpm=60, accel_rps2=200,
+                           offset=100)
+        assert (await profile.read_status()).homing
+        st = await wait_for(profile, lambda s: s.homed and not s.moving)
+        assert abs(twin.physical_position() + 30000) < 200 and not st.homing
+        await profile.home("home_switch_forward", speed_rpm=300, creep_rpm=60, accel_rps2=200)
+        st = await wait_for(profile, lambda s: s.homed and not s.moving, timeout=10)
+        assert abs(twin.physical_position() - 5000) < 200
+        with pytest.raises(NotSupported, match="method 'index'"):
+            await profile.home("index")
+
+
+async def test_cia402_refuses_a_move_while_not_enabled_and_before_any_frame() -> None:
+    async with kinco() as (_, wire, profile):
+        with pytest.raises(StateError, match="not Operation enabled: enable it first"):
+            await profile.move_absolute(1000, QUICK)
+        assert all(f.data[1] == 3 for f in wire.requests())  # it only read
+        n = len(wire.requests())
+        with pytest.raises(LimitViolation, match="Target_Position"):
+            await profile.move_absolute(2**31, QUICK)
+        assert len(wire.requests()) == n
+
+
+CIA_RULE = """
+[drive]
+family = "RULEDRIVE"
+engine = "cia402"
+
+[link]
+word_order = "high_first"
+
+[units.pulses_per_rev]
+default = 4000
+
+[cia402]
+# an object's register: its index minus 0x6000, times 8, plus twice its sub-index
+address_rule = "(index - 0x6000) * 8 + 2 * sub"
+objects = ["6040", "6041", "6060", "6061", "6064", "606C", "607A", "6081", "6083", "6084",
+           "6098", "6099:01", "6099:02", "609A", "607C", "60FD", "60FF", "603F"]
+velocity = { unit = "rpm" }
+acceleration = { unit = "rps/s" }
+
+[homing.methods]
+positive_limit = { cia402 = 18 }
+current_position = { cia402 = 37 }
+"""
+
+
+async def test_a_cia402_drive_placed_by_an_address_rule_runs_its_trial(tmp_path: Path) -> None:
+    from drivebus.sim.trial import try_description
+
+    d = load_description(write(tmp_path, CIA_RULE))
+    assert d.objects["controlword"].register.address == 0x40 * 8
+    assert d.objects["homing_speed_zero"].register.address == 0x99 * 8 + 4
+    steps = await try_description(d)
+    assert [s.name for s in steps if s.failed] == [], steps

@@ -86,6 +86,9 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
     r.lines.append("  status poll: " + ", ".join(
         f"FC03 {start} (0x{start:04X}) ×{count}" for start, count in plan.blocks))
     s = d.status
+    if d.drive.engine == "cia402":
+        _cia402_lines(fam, r)
+        return r
     for name in ("enabled", "moving", "in_position", "homed", "homing", "alarm",
                  "alarm_code", "limit_positive", "limit_negative", "position", "velocity"):
         e = getattr(s, name)
@@ -130,6 +133,44 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         regs_t = sorted({t.reg for t in d.twin.on_write})
         r.lines.append(f"  twin: {len(d.twin.on_write)} triggers on {', '.join(regs_t)}")
     return r
+
+
+def _cia402_lines(fam: DriveFamily, r: DescriptionReport) -> None:
+    """The CiA 402 engine's part: objects, what the engine can do with them."""
+    from drivebus.bus import Bus
+    from drivebus.errors import NotSupported
+    from drivebus.line import SerialLine
+    from drivebus.settings import LineSettings
+
+    d = fam.spec
+    assert d is not None
+    r.lines.append("  CiA 402 objects:")
+    for name, reg in sorted(d.objects.items(), key=lambda nr: nr[1].register.address):
+        x = reg.register
+        how = reg.codec.describe()
+        r.lines.append(f"    {name:<28} {x.address:5d} (0x{x.address:04X}) "
+                       f"{16 * x.words}-bit{' signed' if x.signed else ''}"
+                       + (f", {how}" if how else ""))
+    for needed in ("modes_of_operation", "target_position", "profile_velocity",
+                   "profile_acceleration", "profile_deceleration", "velocity_actual_value",
+                   "position_actual_value", "target_velocity", "homing_method"):
+        if needed not in d.objects:
+            r.warnings.append(f"no register for the object {needed}")
+    profile = fam.profile(Bus(SerialLine("/dev/null", LineSettings())).slave(
+        max(min(fam.profile.addresses), 1)))
+    r.lines.append("  procedures (engine's, or the description's own where it gives one):")
+    for name in _PROCEDURES:
+        try:
+            profile.check_supported(name)
+        except NotSupported as exc:
+            r.lines.append(f"    {name:<22} cannot: {str(exc).split(': ', 1)[-1]}")
+        else:
+            own = " (the description's)" if name in d.procedures else ""
+            r.lines.append(f"    {name:<22} yes{own}")
+    if d.homing is not None:
+        r.lines.append("  homing methods: " + ", ".join(
+            f"{n} (CiA 402 {m.cia402 if m.cia402 is not None else m.code})"
+            for n, m in d.homing.methods.items()))
 
 
 def doc_page(fam: DriveFamily) -> str:

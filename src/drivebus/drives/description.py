@@ -743,6 +743,53 @@ class TwinDef(_Model):
     decel: E | None = Field(None, description="an alarm or a disable: None = at once")
 
 
+# -- the CiA 402 engine ---------------------------------------------------------------
+
+
+class ObjectUnit(_Model):
+    """How the registers of one kind of CiA 402 object hold their values."""
+
+    unit: str
+    scale: Scale = 1.0
+
+
+class Cia402Def(_Model):
+    """``[cia402]``: how a CiA 402 drive maps its objects and runs its state machine."""
+
+    address_rule: E | None = Field(None, description="the address of an object from its "
+                                   "`index` and `sub` (for the objects listed in `objects`)")
+    objects: list[str] = Field([], description="objects whose registers the rule places")
+    position: ObjectUnit = ObjectUnit(unit="pulses")
+    velocity: ObjectUnit = ObjectUnit(unit="pulses/s")
+    acceleration: ObjectUnit = ObjectUnit(unit="pulses/s²")
+    emergency_stop: Literal["quick_stop", "halt"] = "quick_stop"
+    change_set_immediately: bool = Field(False, description="a new move replaces a running "
+                                         "one at once (controlword bit 5)")
+    timeout: float = Field(1.0, gt=0, le=30, description="s, for a state change or a "
+                           "set-point acknowledge")
+
+
+def object_name(ref: str) -> str | None:
+    """The CiA 402 object ``ref`` names: an object name, or its index (``6040``,
+    ``0x6040``, ``6040h``) with an optional sub-index (``6099:01``, ``6099.1``)."""
+    from drivebus.drives.cia402 import OBJECTS
+
+    if ref in OBJECTS:
+        return ref
+    text = ref.strip().lower().removeprefix("0x")
+    index_s, _, sub_s = text.replace(".", ":").partition(":")
+    index_s = index_s.removesuffix("h")
+    try:
+        index = int(index_s, 16)
+        sub = int(sub_s.removesuffix("h"), 16) if sub_s else 0
+    except ValueError:
+        return None
+    for name, info in OBJECTS.items():
+        if info.index == index and info.subindex == sub:
+            return name
+    return None
+
+
 # -- the whole description ---------------------------------------------------------------
 
 
@@ -753,7 +800,7 @@ class Description(_Model):
     drive: DriveInfo
     identify: Identify | None = None
     link: Link = Link()
-    registers: dict[Annotated[str, Field(pattern=_KEY)], RegisterDef] = Field(min_length=1)
+    registers: dict[Annotated[str, Field(pattern=_KEY)], RegisterDef] = {}
     constants: dict[Annotated[str, Field(pattern=_KEY)], int] = {}
     state: dict[Annotated[str, Field(pattern=_KEY)], int | float | bool | str | None] = {}
     options: dict[Annotated[str, Field(pattern=_KEY)], OptionDef] = {}
@@ -765,6 +812,7 @@ class Description(_Model):
     homing: HomingDef | None = None
     signals: dict[Annotated[str, Field(pattern=_KEY)], SignalDef] = {}
     eeprom: EepromDef = EepromDef()
+    cia402: Cia402Def | None = None
     procedures: dict[Annotated[str, Field(pattern=_KEY)], Procedure] = {}
     twin: TwinDef = TwinDef()
 
@@ -772,12 +820,50 @@ class Description(_Model):
 
     @cached_property
     def regs(self) -> dict[str, Reg]:
-        """Every register, by key."""
+        """Every register, by key (with those a CiA 402 address rule places)."""
         out = {}
-        for key, d in self.registers.items():
+        for key, d in {**self.registers, **self._generated()}.items():
             codec = UnitCodec.make(d.unit, d.scale, d.ramp, d.table, d.values)
             order = WordOrder(d.order) if d.order else self.link.order
             out[key] = Reg(key, d, codec, order)
+        return out
+
+    @cached_property
+    def objects(self) -> dict[str, Reg]:
+        """The registers of the CiA 402 objects, by object name."""
+        out: dict[str, Reg] = {}
+        for reg in self.regs.values():
+            if reg.d.object is not None:
+                name = object_name(reg.d.object)
+                if name is not None:
+                    out[name] = reg
+        return out
+
+    def _generated(self) -> dict[str, RegisterDef]:
+        """Registers for the objects ``[cia402]`` places by its address rule."""
+        from drivebus.drives.cia402 import OBJECTS
+
+        c = self.cia402
+        if c is None or c.address_rule is None:
+            return {}
+        taken = {object_name(d.object) for d in self.registers.values() if d.object}
+        out: dict[str, RegisterDef] = {}
+        for ref in c.objects:
+            name = object_name(ref)
+            if name is None or name in taken or name in self.registers:
+                continue
+            info = OBJECTS[name]
+            try:
+                address = int(c.address_rule({"index": info.index, "sub": info.subindex}))
+            except (ExprError, TypeError, ValueError):
+                continue  # reported by the checks
+            kind = _object_kind(name)
+            unit = getattr(c, kind) if kind else None
+            out[name] = RegisterDef(
+                address=address, words=2 if info.bits > 16 else 1, signed=info.signed,
+                access="RW" if info.writable else "R", object=name,
+                unit=unit.unit if unit else "", scale=unit.scale if unit else 1.0,
+                name=info.text)
         return out
 
     @property
@@ -880,11 +966,14 @@ class _Checker:
             self._reg_key("link.baud_register", d.link.baud_register)
         if d.eeprom.write_through is not None:
             self._reg_key("eeprom.write_through.register", d.eeprom.write_through.reg)
+        self._cia402()
         yield from self.out
 
     # -- registers --------------------------------------------------------------------------
 
     def _registers(self) -> None:
+        if not self.regs:
+            self.out.append("registers: none given (a description needs at least one)")
         owner: dict[int, str] = {}
         for key, reg in self.regs.items():
             where = f"registers.{key}"
@@ -917,6 +1006,33 @@ class _Checker:
                                     f"register {owner[a]}")
                     break
                 owner[a] = key
+
+    def _cia402(self) -> None:
+        d = self.d
+        for key, r in d.registers.items():
+            if r.object is not None and object_name(r.object) is None:
+                self.out.append(f"registers.{key}.object: {r.object!r} is not a CiA 402 "
+                                f"object drivebus knows (see drivebus.drives.cia402.OBJECTS)")
+        c = d.cia402
+        if c is not None:
+            for i, ref in enumerate(c.objects):
+                if object_name(ref) is None:
+                    self.out.append(f"cia402.objects[{i}]: {ref!r} is not a CiA 402 object")
+            if c.objects and c.address_rule is None:
+                self.out.append("cia402.objects: needs address_rule (how an object's index "
+                                "and sub-index give its address)")
+            if c.address_rule is not None:
+                unknown = c.address_rule.names - {"index", "sub"} - set(FUNCTIONS)
+                if unknown:
+                    self.out.append(f"cia402.address_rule: {c.address_rule.source!r} may use "
+                                    f"only index and sub, not {', '.join(sorted(unknown))}")
+        if d.drive.engine == "cia402":
+            for needed in ("controlword", "statusword"):
+                if needed not in d.objects:
+                    self.out.append(f"registers: the CiA 402 engine needs the {needed} "
+                                    f"(a register with object = \"{needed}\")")
+        elif c is not None:
+            self.out.append("cia402: only for drive.engine = \"cia402\"")
 
     def _units(self) -> None:
         ppr = self.d.units.pulses_per_rev
@@ -1094,6 +1210,19 @@ class _Checker:
                     self.out.append(f"{where}.{field}: action {trig.do} takes "
                                     f"{', '.join(allowed) or 'no parameters'}")
                 self._names(f"{where}.{field}", e, names)
+
+
+def _object_kind(name: str) -> str | None:
+    """Which of ``[cia402]``'s units an object's registers take."""
+    if name in ("position_actual_value", "target_position", "home_offset"):
+        return "position"
+    if name in ("velocity_actual_value", "profile_velocity", "target_velocity",
+                "homing_speed_search", "homing_speed_zero"):
+        return "velocity"
+    if name in ("profile_acceleration", "profile_deceleration", "quick_stop_deceleration",
+                "homing_acceleration"):
+        return "acceleration"
+    return None
 
 
 def _width_lo(d: RegisterDef) -> int:

@@ -1089,10 +1089,17 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "_identity_plan": ident,
         "_extra_plans": extras,
     }
-    attrs["__init__"] = _init_with_signature(d)
     attrs.update(_parameter_attrs(d))
+    base: type[DescribedProfile] = DescribedProfile
+    if d.drive.engine == "cia402":
+        from drivebus.drives.cia402_engine import Cia402Profile, cia402_attrs
+
+        base = Cia402Profile
+        attrs.update(cia402_attrs(d))
     name = re.sub(r"\W", "_", d.family) + "Profile"
-    return type(name, (DescribedProfile,), attrs)
+    cls = type(name, (base,), attrs)
+    cls.__init__ = _init_with_signature(d, base)  # type: ignore[method-assign]
+    return cls
 
 
 def _parameter_attrs(d: Description) -> dict[str, Any]:
@@ -1114,12 +1121,12 @@ def _parameter_attrs(d: Description) -> dict[str, Any]:
     }
 
 
-def _init_with_signature(d: Description) -> Callable[..., None]:
+def _init_with_signature(d: Description, base: type[DescribedProfile]) -> Callable[..., None]:
     """A constructor whose signature lists the description's options with their defaults
     (what ``inspect`` and the docs show), calling ``DescribedProfile.__init__``."""
 
     def __init__(self: DescribedProfile, slave: SlaveHandle, **kwargs: Any) -> None:
-        DescribedProfile.__init__(self, slave, **kwargs)
+        base.__init__(self, slave, **kwargs)
 
     kw = inspect.Parameter.KEYWORD_ONLY
     params = [

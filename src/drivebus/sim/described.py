@@ -26,18 +26,20 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from drivebus.clock import monotonic
-from drivebus.drives.description import Description, Reg, Trigger
+from drivebus.drives.cia402 import OBJECTS, HomeSignal, HomeSwitch, State, homing_method
+from drivebus.drives.description import Description, Reg, Trigger, object_name
 from drivebus.drives.expr import Expr, ExprError, Unknown
 from drivebus.drives.registers import Access
 from drivebus.drives.units import Kind
 from drivebus.drives.values import Attrs, RegValue, Table, reg_value
-from drivebus.errors import ConfigError
+from drivebus.errors import ArgumentError, ConfigError
 from drivebus.pdu import READ_HOLDING, READ_INPUT
 from drivebus.settings import LineSettings
+from drivebus.sim.cia402_device import Cia402Device, Cia402Setup
 from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
 from drivebus.sim.registers import ExceptionCodes, RegisterSpec, SlaveException, signed32
 
-__all__ = ["DescribedDrive", "described_twin"]
+__all__ = ["DescribedCia402Drive", "DescribedDrive", "described_twin"]
 
 _COMPUTED = {"position", "velocity", "command_velocity", "alarm_code", "motion", "inputs",
              "outputs"}
@@ -76,35 +78,58 @@ class _Homing:
 
 def _search_phases(method: int, home: bool, neg: bool, pos: bool
                    ) -> tuple[dict[str, _Phase], str] | None:
-    """The legs of CiA 402 homing method ``method`` and the first leg, given the switch
-    states (home, negative limit, positive limit) at the start."""
-    if method == 18:
-        legs = {"fast": _Phase(+1, True, (("limit_positive", "creep"),)),
-                "creep": _Phase(-1, False, (("limit_positive", "done"),))}
-        return legs, "creep" if pos else "fast"
-    if method == 17:
+    """The legs of CiA 402 homing method ``method`` (``drivebus.drives.cia402``) and the
+    first leg, given the switch states (home, negative limit, positive limit) at the start.
+
+    The origin is the method's edge crossed in its final direction at the creep speed: a
+    limit switch's edge (where it becomes inactive), or the home switch's lower or upper
+    edge. The search runs at the fast speed in the method's initial direction (for a home
+    switch that is a cam, where the switch's state says), reverses at the method's
+    reversal limit switch, and backs off the edge to cross it again at the creep speed.
+    Index pulses are not modelled (methods 1-14 home as 17-30); a home switch active on
+    the negative side of its edge (5, 6, 21, 22) is not modelled either (None).
+    """
+    try:
+        m = homing_method(method)
+    except ArgumentError:
+        return None
+    if m.signal is HomeSignal.NEGATIVE_LIMIT:
         legs = {"fast": _Phase(-1, True, (("limit_negative", "creep"),)),
                 "creep": _Phase(+1, False, (("limit_negative", "done"),))}
         return legs, "creep" if neg else "fast"
-    if method in (19, 20, 23, 24, 25, 26):
-        # the origin is where the home switch's cam or dog begins, approached forward
-        legs = {
-            "fast": _Phase(+1, True, (("home_low", "back"), ("limit_positive", "reverse"))),
-            "back": _Phase(-1, False, (("home_low", "final"),)),
-            "reverse": _Phase(-1, True, (("home_high", "back"),)),
-            "final": _Phase(+1, False, (("home_low", "done"),)),
-        }
-        return legs, "back" if home else "fast"
-    if method in (21, 22, 27, 28, 29, 30):
-        # the origin is where the dog ends, approached in reverse
-        legs = {
-            "fast": _Phase(-1, True, (("home_high", "back"), ("limit_negative", "reverse"))),
-            "back": _Phase(+1, False, (("home_high", "final"),)),
-            "reverse": _Phase(+1, True, (("home_low", "back"),)),
-            "final": _Phase(-1, False, (("home_high", "done"),)),
-        }
-        return legs, "back" if home else "fast"
-    return None
+    if m.signal is HomeSignal.POSITIVE_LIMIT:
+        legs = {"fast": _Phase(+1, True, (("limit_positive", "creep"),)),
+                "creep": _Phase(-1, False, (("limit_positive", "done"),))}
+        return legs, "creep" if pos else "fast"
+    if m.signal is not HomeSignal.HOME_SWITCH or m.home_switch is HomeSwitch.NEGATIVE:
+        return None
+    edge = "home_high" if m.home_switch is HomeSwitch.UPPER_EDGE else "home_low"
+    f = m.final_direction
+    # Crossing the edge moving f enters the switch (lower edge moving up, upper moving down)
+    # or leaves it; entering needs a back-off to cross it again at the creep speed.
+    entering = (edge == "home_low") == (f > 0)
+    final = _Phase(f, False, ((edge, "done"),))
+    legs: dict[str, _Phase] = {"final": final}
+    if entering:
+        legs["back"] = _Phase(-f, False, ((edge, "final"),))
+        on_switch = "back"
+    else:
+        on_switch = "final"
+    initial = m.initial_direction
+    if m.home_switch is HomeSwitch.POSITIVE:  # a cam active above its edge
+        if not home:
+            legs["fast"] = _Phase(+1, True, (("home_low", on_switch),))
+            return legs, "fast"
+        if f < 0:
+            return legs, "final"  # leave the cam downwards at the creep speed
+        legs["off"] = _Phase(-1, True, (("home_low", "final"),))
+        return legs, "off"
+    first_edge = "home_low" if initial > 0 else "home_high"
+    other_edge = "home_high" if initial > 0 else "home_low"
+    ahead = "limit_positive" if initial > 0 else "limit_negative"
+    legs["fast"] = _Phase(initial, True, ((first_edge, on_switch), (ahead, "reverse")))
+    legs["reverse"] = _Phase(-initial, True, ((other_edge, on_switch),))
+    return legs, on_switch if home else "fast"
 
 
 class DescribedDrive(SimDrive):
@@ -880,4 +905,174 @@ def described_twin(d: Description) -> type[DescribedDrive]:
         "_triggers": {k: tuple(v) for k, v in triggers.items()},
     }
     name = "Sim" + "".join(c if c.isalnum() else "_" for c in d.family)
-    return type(name, (DescribedDrive,), attrs)
+    base: type[DescribedDrive] = DescribedDrive
+    if d.drive.engine == "cia402":
+        base = DescribedCia402Drive
+        attrs["_objects"] = dict(d.objects)
+    return type(name, (base,), attrs)
+
+
+class DescribedCia402Drive(DescribedDrive):
+    """A twin of a CiA 402 description: the registers mapped to CiA 402 objects are the
+    simulated device's (``Cia402Device``: state machine, profile position and velocity,
+    homing, on this twin's kinematics); the others are plain registers as in any twin."""
+
+    _objects: ClassVar[dict[str, Reg]]
+
+    def __init__(
+        self,
+        address: int,
+        settings: LineSettings | None = None,
+        setup: TwinSetup | None = None,
+        *,
+        home_switch_width: float | None = None,
+        crc_error_reply: bool = True,
+        **constants: int,
+    ) -> None:
+        super().__init__(address, settings, setup, home_switch_width=home_switch_width,
+                         crc_error_reply=crc_error_reply, **constants)
+        d = self.description
+        s = setup or TwinSetup()
+        ppr = self.pulses_per_rev
+        methods = frozenset(m.cia402 for m in (d.homing.methods.values() if d.homing else [])
+                            if m.cia402 is not None) or None
+        self.device = Cia402Device(
+            Cia402Setup(
+                position=s.position, home_switch=s.home_switch,
+                home_switch_width=home_switch_width, limit_negative=s.limit_negative,
+                limit_positive=s.limit_positive, increments_per_rev=ppr,
+                velocity_unit=_pulses_per_raw(d, "velocity", ppr),
+                acceleration_unit=_pulses_per_raw(d, "acceleration", ppr),
+                **({"homing_methods": methods} if methods else {}),
+            ),
+            defaults={name: reg.default_at(None) for name, reg in self._objects.items()
+                      if reg.d.default and OBJECTS[name].writable},
+            codes=self.exception_codes, kin=self.kin, now=0.0,
+        )
+
+    # -- the device's state as a twin shows it ------------------------------------------------
+
+    @property  # type: ignore[override]
+    def enabled(self) -> bool:
+        """Operation enabled."""
+        device = getattr(self, "device", None)
+        return device is not None and device.state_at() is State.OPERATION_ENABLED
+
+    @enabled.setter
+    def enabled(self, value: bool) -> None:
+        pass  # the state machine decides
+
+    @property  # type: ignore[override]
+    def alarm_code(self) -> int:
+        """The device's error code while it is in a fault."""
+        device = getattr(self, "device", None)
+        if device is None:
+            return 0
+        state = device.state_at()
+        return device.error_code if state in (State.FAULT, State.FAULT_REACTION_ACTIVE) else 0
+
+    @alarm_code.setter
+    def alarm_code(self, value: int) -> None:
+        device = getattr(self, "device", None)
+        if device is not None and value == 0:
+            device.error_code = 0
+
+    def position(self, now: float | None = None) -> int:
+        return signed32(round(self.device.position(time_or_present(now))))
+
+    def physical_position(self, now: float | None = None) -> float:
+        return self.device.physical_position(time_or_present(now))
+
+    def switch_states(self, now: float) -> tuple[bool, bool, bool]:
+        return self.device.switch_states(now)
+
+    def is_moving(self, now: float | None = None) -> bool:
+        return self.device.is_moving(time_or_present(now))
+
+    def velocity(self, now: float | None = None) -> float:
+        return self.device.velocity(time_or_present(now))
+
+    def advance(self, now: float) -> None:
+        self.device.advance(now)
+
+    def raise_alarm(self, code: int, now: float | None = None) -> None:
+        """A fault with error code ``code``."""
+        self.device.raise_fault(code, time_or_present(now))
+
+    def power_loss(self) -> None:
+        super().power_loss()
+        self.device.power_loss(monotonic())
+
+    def power_restore(self) -> None:
+        SimDrive.power_restore(self)
+        self.regs = dict(self.eeprom)
+        self.device.power_restore(monotonic())
+
+    # -- registers ---------------------------------------------------------------------------
+
+    def _object_at(self, address: int) -> str | None:
+        w = self._words.get(address)
+        if w is None or w.reg.d.object is None:
+            return None
+        return object_name(w.reg.d.object)
+
+    def read_register(self, address: int, now: float) -> int:
+        name = self._object_at(address)
+        if name is None:
+            return super().read_register(address, now)
+        reg = self._words[address].reg
+        words: dict[int, int] = {}
+        self._store(words, reg, None, self.device.read(name, now))
+        return words[address]
+
+    def write_registers(self, address: int, values: list[int], now: float) -> None:
+        """Plain registers as in any twin; objects checked whole, then written in address
+        order (a 32-bit object needs both its words in the request or stored)."""
+        self.check_write(address, values)
+        written = dict(zip(range(address, address + len(values)), values, strict=True))
+        objects: list[tuple[str, int]] = []
+        plain: list[tuple[int, int]] = []
+        seen: set[str] = set()
+        for a, word in written.items():
+            name = self._object_at(a)
+            if name is None:
+                plain.append((a, word))
+                continue
+            if name in seen:
+                continue
+            seen.add(name)
+            reg = self._words[a].reg
+            objects.append((name, self._raw(reg, None, {**self.regs, **written})))
+        for name, value in objects:
+            self.device.check(name, value)
+        if plain:
+            start = plain[0][0]
+            if [a for a, _ in plain] == list(range(start, start + len(plain))):
+                super().write_registers(start, [w for _, w in plain], now)
+            else:
+                for a, w in plain:
+                    super().write_registers(a, [w], now)
+        for a, word in written.items():
+            if self._object_at(a) is not None:
+                self.regs[a] = word
+        for name, value in objects:
+            self.device.write(name, value, now)
+
+
+def _pulses_per_raw(d: Description, kind: str, ppr: int) -> float:
+    """Pulses/s (or /s²) of one raw unit of the description's velocity (acceleration)
+    objects."""
+    names = ("profile_velocity", "target_velocity", "velocity_actual_value",
+             "homing_speed_search") if kind == "velocity" else (
+        "profile_acceleration", "profile_deceleration", "homing_acceleration")
+    for name in names:
+        reg = d.objects.get(name)
+        if reg is None:
+            continue
+        v = float(reg.codec.to_physical(1, ppr=ppr))
+        if reg.codec.kind is Kind.SPEED:
+            return v * ppr / 60.0
+        if reg.codec.kind is Kind.ACCEL:
+            return v * ppr
+        return v
+    return 1.0

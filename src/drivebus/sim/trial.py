@@ -214,6 +214,8 @@ async def try_description(d: Description, *, address: int | None = None) -> list
             p = move()
             assert d.homing is not None
             name, method = next(iter(d.homing.methods.items()))
+            if not (await profile.read_status()).enabled:  # a quick stop may disable it
+                await profile.enable()
             where, origin = _origin(method.cia402, ppr, twin.physical_position())
             await profile.home(speed_rpm=min(p.speed_rpm, 120.0),
                                creep_rpm=max(min(p.speed_rpm, 120.0) / 4, 1.0),
