@@ -4,6 +4,7 @@ with the seed drives (a group move, an e-stop, soft limits, the stop race)."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import textwrap
@@ -586,3 +587,14 @@ async def test_a_cia402_drive_placed_by_an_address_rule_runs_its_trial(tmp_path:
     assert d.objects["homing_speed_zero"].register.address == 0x99 * 8 + 4
     steps = await try_description(d)
     assert [s.name for s in steps if s.failed] == [], steps
+
+
+async def test_the_guides_example_description_passes_its_trial(tmp_path: Path) -> None:
+    from drivebus.sim.trial import try_description
+
+    guide = (ROOT / "docs" / "guide" / "add-your-drive.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```toml\n(.*?)```", guide, re.S)
+    (example,) = [b for b in blocks if 'family = "ACME-ST"' in b]
+    steps = await try_description(load_description(write(tmp_path, example, "acme.toml")))
+    assert [s.name for s in steps if s.failed] == [], steps
+    assert {s.name for s in steps if s.result == "pass"} >= {"move absolute", "stop"}
