@@ -598,3 +598,125 @@ async def test_the_guides_example_description_passes_its_trial(tmp_path: Path) -
     steps = await try_description(load_description(write(tmp_path, example, "acme.toml")))
     assert [s.name for s in steps if s.failed] == [], steps
     assert {s.name for s in steps if s.result == "pass"} >= {"move absolute", "stop"}
+
+
+MEANINGS_ONLY = """
+[drive]
+family = "MEANINGS"
+
+[link]
+functions = [3, 4, 16]        # no FC06: single registers go as FC16
+
+[units.pulses_per_rev]
+default = 2000
+
+[constants]
+GO_ABS = 1
+GO_REL = 2
+HALT = 3
+
+[registers.status]
+address = 0
+input = true                  # read with FC04
+access = "R"
+bits.READY = { bit = 0, means = "enabled" }
+bits.BUSY = { bit = 1, means = "moving" }
+bits.FAULT = { bit = 2, means = "alarm" }
+bits.AT_TARGET = { bit = 3, means = "in_position" }
+
+[registers.actual]
+address = 2
+input = true
+access = "R"
+words = 2
+signed = true
+order = "low_first"
+unit = "pulses"
+means = "position"
+
+[registers.speed]
+address = 10
+unit = "rps"
+scale = "1/100"
+min = 1
+max = 5000
+default = 100
+
+[registers.ramp]
+address = 11
+unit = "ms"
+ramp = 1000                   # ms per 1000 rpm
+min = 10
+max = 10000
+default = 500
+
+[registers.target]
+address = 12
+words = 2
+signed = true
+unit = "pulses"
+
+[registers.go]
+address = 14
+volatile = true
+
+[procedures.move_absolute]
+steps = [
+  { write = { speed = "speed", ramp = "accel", target = "target" }, block = true },
+  { write = { go = "GO_ABS" }, start = true, idempotent = false },
+]
+
+[procedures.move_relative]
+steps = [
+  { write = { speed = "speed", ramp = "accel", target = "distance" }, block = true },
+  { write = { go = "GO_REL" }, idempotent = false },
+]
+
+[procedures.stop]
+steps = [{ write = { go = "HALT" } }]
+
+[[twin.on_write]]
+register = "go"
+when = "value == HALT"
+do = "stop"
+decel = "ramp"
+
+[[twin.on_write]]
+register = "go"
+when = "value == GO_ABS"
+do = "move_absolute"
+target = "target"
+speed = "speed"
+accel = "ramp"
+decel = "ramp"
+
+[[twin.on_write]]
+register = "go"
+when = "value == GO_REL"
+do = "move_relative"
+distance = "target"
+speed = "speed"
+accel = "ramp"
+decel = "ramp"
+"""
+
+
+async def test_status_decodes_from_meanings_input_registers_and_fc16_only(
+    tmp_path: Path
+) -> None:
+    from drivebus.sim.trial import try_description
+
+    d = load_description(write(tmp_path, MEANINGS_ONLY))
+    assert str(d.status_exprs["in_position"]) == "(status.AT_TARGET) and not (status.BUSY)"
+    twin = described_twin(d)(1, FAST)
+    async with sim_bus([twin], FAST) as (wire, bus):
+        profile = profile_class(d)(bus.slave(1))
+        await profile.move_relative(3000, MoveParams(600, 50, 50))
+        st = await wait_for(profile, at_rest)  # type: ignore[arg-type]
+        assert st.position == 3000 == twin.position() and st.enabled
+        functions = {f.data[1] for f in wire.requests()}
+        assert functions == {4, 16}  # status and position by FC04, every write by FC16
+        # 600 rpm = 10 rps = 1000 in 1/100 rps; 50 rev/s² = 333 ms per 1000 rpm
+        assert twin.regs[10] == 1000 and twin.regs[11] == 333
+    steps = await try_description(d)
+    assert [s.name for s in steps if s.failed] == [], steps

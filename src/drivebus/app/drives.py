@@ -84,15 +84,18 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         + (f"; tables {', '.join(tables)}" if tables else ""))
     plan = p._status_plan  # type: ignore[attr-defined]
     r.lines.append("  status poll: " + ", ".join(
-        f"FC03 {start} (0x{start:04X}) ×{count}" for start, count in plan.blocks))
+        [f"FC03 {start} (0x{start:04X}) ×{count}" for start, count in plan.blocks]
+        + [f"FC04 {start} (0x{start:04X}) ×{count}" for start, count in plan.input_blocks]))
     s = d.status
     if d.drive.engine == "cia402":
         _cia402_lines(fam, r)
         return r
+    derived = d.status_exprs
     for name in ("enabled", "moving", "in_position", "homed", "homing", "alarm",
                  "alarm_code", "limit_positive", "limit_negative", "position", "velocity"):
-        e = getattr(s, name)
-        r.lines.append(f"    {name:<15} {e if e is not None else '-'}")
+        e = derived.get(name)
+        how = "" if getattr(s, name) is not None or e is None else "   (from the meanings)"
+        r.lines.append(f"    {name:<15} {e if e is not None else '-'}{how}")
         if e is None and name in ("enabled", "moving", "in_position", "alarm", "position"):
             r.warnings.append(f"status.{name} is not decoded: the axis will take it as "
                               f"{'0' if name == 'position' else 'false'}")

@@ -311,6 +311,7 @@ class RegisterDef(_Model):
     default: int = 0
     defaults: list[int] = Field([], description="a table's defaults, entry by entry")
     access: Literal["R", "W", "RW"] = "RW"
+    input: bool = Field(False, description="an input register (read with FC04, read-only)")
     eeprom: bool = False
     volatile: bool = False
     parameter: bool | None = Field(None, description="a documented setting `drivebus "
@@ -339,6 +340,8 @@ class RegisterDef(_Model):
             raise ValueError(f"min {self.min} is above max {self.max}")
         if self.table and self.values:
             raise ValueError("give a table or named values, not both")
+        if self.input and self.access != "R":
+            raise ValueError("an input register is read-only: access = \"R\"")
         if self.defaults and len(self.defaults) != self.count:
             raise ValueError(f"defaults: {len(self.defaults)} values for {self.count} entries")
         bits = 16 * self.words
@@ -871,6 +874,67 @@ class Description(_Model):
         """The family name."""
         return self.drive.family
 
+    @cached_property
+    def status_exprs(self) -> dict[str, Expr]:
+        """How each ``DriveStatus`` field decodes: ``[status]``'s expression, else one made
+        from what the polled registers and bits *mean* (``means``), else ``enabled`` is
+        taken as true (a drive that does not report it) and the others are absent."""
+        s = self.status
+        out: dict[str, Expr] = {}
+        bits: dict[str, list[str]] = {}
+        regs: dict[str, list[str]] = {}
+        for reg in self.regs.values():
+            if reg.d.access == "W" or reg.array:
+                continue
+            if reg.d.means:
+                regs.setdefault(reg.d.means, []).append(reg.key)
+            for name, b in reg.d.bits.items():
+                if b.means:
+                    bits.setdefault(b.means, []).append(f"{reg.key}.{name}")
+
+        def any_of(pos: str, neg: str | None = None) -> str | None:
+            terms = list(bits.get(pos, []))
+            if neg is not None:
+                terms += [f"not {t}" for t in bits.get(neg, [])]
+            return " or ".join(terms) or None
+
+        derived: dict[str, str | None] = {
+            "enabled": any_of("enabled", "disabled"),
+            "moving": any_of("moving", "at_rest") or any_of("jogging"),
+            "homed": any_of("homed"),
+            "homing": any_of("homing"),
+            "alarm": " or ".join(filter(None, [any_of("alarm", "no_alarm")] + [
+                f"{k} != 0" for k in regs.get("alarm_code", [])])) or None,
+            "alarm_code": (regs.get("alarm_code") or [None])[0],
+            "position": (regs.get("position") or [None])[0],
+            "velocity": (regs.get("velocity") or [None])[0],
+        }
+        for side in ("limit_positive", "limit_negative"):
+            io = self.inputs
+            if io is not None and (side in io.codes or side in io.bits):
+                derived[side] = f"input.{side}"
+            else:
+                derived[side] = any_of(side)
+        moving = s.moving.source if s.moving is not None else derived["moving"]
+        alarm = s.alarm.source if s.alarm is not None else derived["alarm"]
+        reached = any_of("in_position")
+        if reached and moving:
+            derived["in_position"] = f"({reached}) and not ({moving})"
+        elif reached:
+            derived["in_position"] = reached
+        elif moving:
+            derived["in_position"] = f"not ({moving})" + (f" and not ({alarm})" if alarm else "")
+        else:
+            derived["in_position"] = None
+        for field, text in derived.items():
+            given = getattr(s, field)
+            if given is not None:
+                out[field] = given
+            elif text is not None:
+                out[field] = Expr.parse(text)
+        out.setdefault("enabled", Expr.parse(True))
+        return out
+
     def parameter_regs(self) -> list[tuple[Reg, int | None]]:
         """The documented settings (register, table index) ``drivebus params`` backs up,
         in address order: each register's ``parameter`` flag, else every read/write
@@ -997,15 +1061,16 @@ class _Checker:
                     d.max > _width_hi(d)):
                 self.out.append(f"{where}: range {lo}..{hi} does not fit {16 * d.words} "
                                 f"{'signed' if d.signed else 'unsigned'} bits")
+            space = 1 << 16 if d.input else 0  # input registers are an address space apart
             for a in reg.addresses():
                 if a > 0xFFFF:
                     self.out.append(f"{where}: its words reach address {a}, beyond 65535")
                     break
-                if a in owner and owner[a] != key:
+                if space + a in owner and owner[space + a] != key:
                     self.out.append(f"{where}.address: address {a} (0x{a:04X}) is also "
-                                    f"register {owner[a]}")
+                                    f"register {owner[space + a]}")
                     break
-                owner[a] = key
+                owner[space + a] = key
 
     def _cia402(self) -> None:
         d = self.d
@@ -1026,6 +1091,10 @@ class _Checker:
                 if unknown:
                     self.out.append(f"cia402.address_rule: {c.address_rule.source!r} may use "
                                     f"only index and sub, not {', '.join(sorted(unknown))}")
+        if 3 not in d.link.functions and any(not r.d.input for r in self.regs.values()):
+            self.out.append("link.functions: holding registers need function code 3")
+        if 4 not in d.link.functions and any(r.d.input for r in self.regs.values()):
+            self.out.append("link.functions: input registers need function code 4")
         if d.drive.engine == "cia402":
             for needed in ("controlword", "statusword"):
                 if needed not in d.objects:

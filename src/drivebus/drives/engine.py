@@ -60,6 +60,8 @@ _DEFAULT_PRIORITY = {
     "learn": Priority.CONFIG, "setup": Priority.CONFIG, "save_parameters": Priority.CONFIG,
     "stop": Priority.EMERGENCY, "emergency_stop": Priority.EMERGENCY,
 }
+INPUT = 1 << 16
+"""Where input registers' words sit in a read's words (``INPUT + address``)."""
 _TARGET = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[(.+)\])?")
 _MAX_DEPTH = 8
 
@@ -75,6 +77,8 @@ class ReadPlan:
     """(first address, count) per FC03."""
     regs: tuple[tuple[Reg, int | None], ...]
     """(register, table index) read, each decoded from the blocks' words."""
+    input_blocks: tuple[tuple[int, int], ...] = ()
+    """(first address, count) per FC04, for input registers."""
 
 
 def plan_reads(
@@ -84,17 +88,24 @@ def plan_reads(
     """Cover ``targets`` (and the address ``spans`` given whole) with as few reads as
     ``max_read`` registers per read and gaps of at most ``max_hole`` allow."""
     wanted: set[int] = set()
+    inputs: set[int] = set()
     regs = []
     for reg, index in targets:
         r = reg.at(index) if reg.array else reg.register
-        wanted.add(r.address)
+        space = inputs if reg.d.input else wanted
+        space.add(r.address)
         if r.words == 2:
-            wanted.add(r.low_address if r.low_address is not None else r.address + 1)
+            space.add(r.low_address if r.low_address is not None else r.address + 1)
         regs.append((reg, index))
     for first, last in spans:
         wanted.update(range(first, last + 1))
+    return ReadPlan(_blocks(wanted, max_read, max_hole), tuple(regs),
+                    _blocks(inputs, max_read, max_hole))
+
+
+def _blocks(addresses: set[int], max_read: int, max_hole: int) -> tuple[tuple[int, int], ...]:
     blocks: list[tuple[int, int]] = []
-    for a in sorted(wanted):
+    for a in sorted(addresses):
         if blocks:
             start, count = blocks[-1]
             end = start + count  # next address after the block
@@ -102,7 +113,7 @@ def plan_reads(
                 blocks[-1] = (start, a - start + 1)
                 continue
         blocks.append((a, 1))
-    return ReadPlan(tuple(blocks), tuple(regs))
+    return tuple(blocks)
 
 
 # -- evaluation contexts -----------------------------------------------------------------
@@ -464,9 +475,28 @@ class DescribedProfile(DriveProfile):
         last = self.last.get(ref)
         return None if last is None else float(last)
 
+    async def write(self, reg: Register, value: int, *, priority: Priority = Priority.CONFIG,
+                    idempotent: bool = True) -> None:
+        """Write one register with the function codes the drive serves (FC06 where it has
+        it, else FC16; a 32-bit value in one FC16, or word by word without FC16)."""
+        fcs = self.description.link.functions
+        words = reg.encode(value)
+        if len(words) == 1 and 6 not in fcs:
+            await self.slave.write_registers(reg.address, words, priority=priority,
+                                             idempotent=idempotent)
+            return
+        if len(words) == 2 and 16 not in fcs:
+            low = reg.low_address if reg.low_address is not None else reg.address + 1
+            for address, word in sorted(((reg.address, words[0]), (low, words[1]))):
+                await self.slave.write_register(address, word, priority=priority,
+                                                idempotent=idempotent)
+            return
+        await super().write(reg, value, priority=priority, idempotent=idempotent)
+
     async def _write(self, step: Step, run: _Run, prio: Priority) -> None:
         items = self._items(step, run)
-        block = step.block is not None and bool(step.block(self._scope(run)))
+        block = step.block is not None and bool(step.block(self._scope(run))) and \
+            16 in self.description.link.functions
         idem = step.idempotent
         if block:
             for group in _consecutive(items):
@@ -554,10 +584,15 @@ class DescribedProfile(DriveProfile):
         return await self._poll_values(plan, prio)
 
     async def _read_words(self, plan: ReadPlan, prio: Priority) -> dict[int, int]:
+        """The words of ``plan``: holding registers by address, input registers by
+        ``INPUT + address``."""
         words: dict[int, int] = {}
         for start, count in plan.blocks:
             got = await self.slave.read_holding_registers(start, count, priority=prio)
             words.update(zip(range(start, start + count), got, strict=True))
+        for start, count in plan.input_blocks:
+            got = await self.slave.read_input_registers(start, count, priority=prio)
+            words.update(zip(range(INPUT + start, INPUT + start + count), got, strict=True))
         return words
 
     async def _poll_values(self, plan: ReadPlan, prio: Priority,
@@ -587,11 +622,12 @@ class DescribedProfile(DriveProfile):
                     out: dict[str, Any], tables: dict[str, dict[int, Any]],
                     raw_words: dict[str, list[int]] | None) -> None:
         r = reg.at(index)
+        base = INPUT if reg.d.input else 0
         if r.words == 2:
             low = r.low_address if r.low_address is not None else r.address + 1
-            ws = [words[r.address], words[low]]
+            ws = [words[base + r.address], words[base + low]]
         else:
-            ws = [words[r.address]]
+            ws = [words[base + r.address]]
         raw = r.decode(ws)
         ref = None
         if reg.codec.kind is Kind.RAMP and isinstance(reg.codec.ramp, str):
@@ -657,6 +693,7 @@ class DescribedProfile(DriveProfile):
         """A ``DriveStatus`` from the polled register values."""
         d = self.description
         s = d.status
+        fields = d.status_exprs
         scope = self._scope(None, values)
         scope["words"] = Attrs("words", dict(raw_words or {}))
         if s.track:  # state trackers first: the fields see this poll's state
@@ -665,36 +702,38 @@ class DescribedProfile(DriveProfile):
             scope = self._scope(None, values)
             scope["words"] = Attrs("words", dict(raw_words or {}))
 
-        def flag(e: Expr | None) -> bool:
+        def flag(name: str) -> bool:
+            e = fields.get(name)
             return bool(e(scope)) if e is not None else False
 
-        alarm = flag(s.alarm)
+        alarm = flag("alarm")
         code = None
         text = ""
-        if alarm and s.alarm_code is not None:
-            code = int(s.alarm_code(scope))
+        if alarm and "alarm_code" in fields:
+            code = int(fields["alarm_code"](scope))
             text = self.alarm_text(code) if code else ""
-        position = _physical(s.position, scope, d, "position") if s.position else None
-        velocity = _physical(s.velocity, scope, d, "velocity") if s.velocity else None
+        position = _physical(fields["position"], scope, d, "position") \
+            if "position" in fields else None
+        velocity = _physical(fields["velocity"], scope, d, "velocity") \
+            if "velocity" in fields else None
         raw = {k: int(e(scope)) for k, e in s.raw.items()} if s.raw else {
             k: int(v) for k, v in values.items() if isinstance(v, int)}
-        st = DriveStatus(
-            enabled=flag(s.enabled),
-            moving=flag(s.moving),
-            in_position=flag(s.in_position),
-            homed=flag(s.homed),
+        return DriveStatus(
+            enabled=flag("enabled"),
+            moving=flag("moving"),
+            in_position=flag("in_position"),
+            homed=flag("homed"),
             alarm=alarm,
             alarm_code=code,
             alarm_text=text,
-            limit_positive=flag(s.limit_positive),
-            limit_negative=flag(s.limit_negative),
-            homing=flag(s.homing),
+            limit_positive=flag("limit_positive"),
+            limit_negative=flag("limit_negative"),
+            homing=flag("homing"),
             position=None if position is None else int(position),
             velocity_rpm=None if velocity is None else float(velocity),
             raw=raw,
             timestamp=monotonic(),
         )
-        return st
 
     def alarm_text(self, code: int) -> str:
         """The description's text for alarm code ``code`` (flags: each bit's text)."""
@@ -1006,14 +1045,13 @@ def _status_plan(d: Description) -> ReadPlan:
     items: list[str | list[str]] = list(s.poll)
     if not items:
         names: set[str] = set()
-        for e in (s.enabled, s.moving, s.in_position, s.homed, s.homing, s.alarm, s.alarm_code,
-                  s.limit_positive, s.limit_negative, s.position, s.velocity,
-                  *s.raw.values()):
-            if e is not None:
-                names |= e.names
+        for e in (*d.status_exprs.values(), *s.raw.values(), *s.track.values()):
+            names |= e.names
         for io in (d.inputs,):
             if io is not None and {"input"} & names:
                 names.add(io.state)
+                if io.invert is not None:
+                    names.add(io.invert)
         learned = _learned_keys(d)
         items = sorted(n for n in names if n in d.regs and n not in learned)
     return _plan(d, items, link.max_read, link.max_hole)

@@ -138,6 +138,8 @@ class DescribedDrive(SimDrive):
     description: ClassVar[Description]
     _words: ClassVar[dict[int, _Word]]
     _pairs: ClassVar[dict[int, tuple[Reg, int | None]]]
+    _input_specs: ClassVar[dict[int, RegisterSpec]]
+    _input_words: ClassVar[dict[int, _Word]]
     _triggers: ClassVar[dict[str, tuple[Trigger, ...]]]
 
     def __init__(
@@ -208,6 +210,8 @@ class DescribedDrive(SimDrive):
     def _factory_words(self) -> dict[int, int]:
         words: dict[int, int] = {}
         for reg in self.description.regs.values():
+            if reg.d.input:
+                continue  # input registers are another address space: computed or fixed
             for index in (reg.indices if reg.array else [None]):
                 self._store(words, reg, index, reg.default_at(index))
         return words
@@ -227,6 +231,8 @@ class DescribedDrive(SimDrive):
             words[r.address], words[low_addr] = hi, lo
 
     def _raw(self, reg: Reg, index: int | None, words: Mapping[int, int] | None = None) -> int:
+        if reg.d.input:
+            return reg.default_at(index)
         r = reg.at(index)
         w = self.regs if words is None else words
         if r.words == 1:
@@ -322,6 +328,22 @@ class DescribedDrive(SimDrive):
         }
 
     # -- reads --------------------------------------------------------------------------------
+
+    def read_registers(self, function: int, address: int, count: int, now: float) -> list[int]:
+        """Holding registers (FC03), or the description's input registers (FC04)."""
+        if function != READ_INPUT:
+            return super().read_registers(function, address, count, now)
+        out = []
+        for a in range(address, address + count):
+            w = self._input_words.get(a)
+            if w is None:
+                raise SlaveException(self.exception_codes.address)
+            raw = self._computed(w.reg, w.index, now) if _computed(w.reg) else \
+                w.reg.default_at(w.index)
+            words: dict[int, int] = {}
+            self._store(words, w.reg, w.index, raw)
+            out.append(words[a])
+        return out
 
     def read_register(self, address: int, now: float) -> int:
         """A stored word, or one computed now for registers that show the drive's state."""
@@ -857,12 +879,15 @@ class _Scope(Mapping[str, Any]):
 # -- the twin class of a description -------------------------------------------------------
 
 
-def _map(d: Description) -> tuple[dict[int, RegisterSpec], dict[int, _Word],
-                                  dict[int, tuple[Reg, int | None]]]:
+def _map(d: Description, *, inputs: bool = False
+         ) -> tuple[dict[int, RegisterSpec], dict[int, _Word], dict[int, tuple[Reg, int | None]]]:
+    """The twin's map of holding registers (or of input registers)."""
     specs: dict[int, RegisterSpec] = {}
     words: dict[int, _Word] = {}
     pairs: dict[int, tuple[Reg, int | None]] = {}
     for reg in d.regs.values():
+        if reg.d.input != inputs:
+            continue
         access = Access(reg.d.access)
         for index in (reg.indices if reg.array else [None]):
             r = reg.at(index)
@@ -884,6 +909,7 @@ def _map(d: Description) -> tuple[dict[int, RegisterSpec], dict[int, _Word],
 def described_twin(d: Description) -> type[DescribedDrive]:
     """The twin class of description ``d``."""
     specs, words, pairs = _map(d)
+    input_specs, input_words, _ = _map(d, inputs=True)
     r = d.link.refusals
     codes = ExceptionCodes(function=r.function, address=r.address, access=r.access,
                            value=r.value, count=r.count, crc=r.crc)
@@ -902,6 +928,8 @@ def described_twin(d: Description) -> type[DescribedDrive]:
         "max_read": d.link.max_read,
         "_words": words,
         "_pairs": pairs,
+        "_input_specs": input_specs,
+        "_input_words": input_words,
         "_triggers": {k: tuple(v) for k, v in triggers.items()},
     }
     name = "Sim" + "".join(c if c.isalnum() else "_" for c in d.family)
