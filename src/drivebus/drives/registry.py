@@ -44,6 +44,7 @@ __all__ = [
     "add_drives_path",
     "all_families",
     "builtin_description",
+    "drive_label",
     "family",
     "family_from_description",
     "is_file_reference",
@@ -251,6 +252,18 @@ def family(name: str) -> DriveFamily:
     if is_file_reference(name):
         return _from_file(Path(name).expanduser())
     return _search(name)[1]
+
+
+def drive_label(ref: str) -> str:
+    """How to name drive ``ref`` to a person: its family, and the file it is described in
+    when it is one outside the package (``MOONS-STF (drives/moons_stf.toml)``)."""
+    if not is_file_reference(ref):
+        return ref
+    try:
+        fam = family(ref)
+    except ConfigError:
+        return ref
+    return f"{fam.name} ({os.path.relpath(ref) if os.path.isabs(ref) else ref})"
 
 
 def all_families() -> list[DriveFamily]:
