@@ -296,7 +296,11 @@ class DescribedProfile(DriveProfile):
         dry = _Run(name, dict(args), True, prio, depth, home=home)
         self._dry(proc, dry)
         run = _Run(name, dict(args), False, prio, depth, home=home)
-        await self._steps(proc.steps, run)
+        try:
+            await self._steps(proc.steps, run)
+        except Unknown as exc:
+            raise ConfigError(f"{self.family}: procedure {name} uses what it has not read "
+                              f"({exc}): read it in a step before") from None
         return run.result
 
     def _priority(self, name: str, proc: Procedure) -> Priority:
@@ -682,11 +686,15 @@ class DescribedProfile(DriveProfile):
             await self.learn()
         raw_words: dict[str, list[int]] = {}
         values = await self._poll_values(self._status_plan, priority, raw_words)
-        for when, plan in self._extra_plans:
-            if when(self._scope(None, values)):
-                values.update(await self._poll_values(plan, priority, raw_words))
-        await self._read_due_signals(priority)
-        return self.decode_status(values, raw_words)
+        try:
+            for when, plan in self._extra_plans:
+                if when(self._scope(None, values)):
+                    values.update(await self._poll_values(plan, priority, raw_words))
+            await self._read_due_signals(priority)
+            return self.decode_status(values, raw_words)
+        except Unknown as exc:
+            raise ConfigError(f"{self.family}: its status decoding uses what the poll does "
+                              f"not read ({exc}): add it to [status] poll") from None
 
     def decode_status(self, values: Mapping[str, Any],
                       raw_words: Mapping[str, list[int]] | None = None) -> DriveStatus:

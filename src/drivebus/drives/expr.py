@@ -21,11 +21,14 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from drivebus.errors import ConfigError
+
 __all__ = ["FUNCTIONS", "Expr", "ExprError", "Template", "Unknown"]
 
 
-class ExprError(ValueError):
-    """An expression or template that cannot be parsed, or uses what is not allowed."""
+class ExprError(ConfigError):
+    """An expression or template that cannot be parsed, uses what is not allowed, or fails
+    when it is evaluated (a description's mistake: a ``ConfigError``)."""
 
 
 class Unknown(LookupError):
