@@ -39,7 +39,7 @@ from drivebus.sim.cia402_device import Cia402Device, Cia402Setup
 from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
 from drivebus.sim.registers import ExceptionCodes, RegisterSpec, SlaveException, signed32
 
-__all__ = ["DescribedCia402Drive", "DescribedDrive", "described_twin"]
+__all__ = ["DescribedCia402Drive", "DescribedDrive", "described_twin", "twin_of"]
 
 _COMPUTED = {"position", "velocity", "command_velocity", "alarm_code", "motion", "inputs",
              "outputs"}
@@ -1104,3 +1104,15 @@ def _pulses_per_raw(d: Description, kind: str, ppr: int) -> float:
             return v * ppr
         return v
     return 1.0
+
+
+_described: dict[int, tuple[Description, type[DescribedDrive]]] = {}
+
+
+def twin_of(d: Description) -> type[DescribedDrive]:
+    """The twin class of description ``d`` (one class per description, made once)."""
+    cached = _described.get(id(d))
+    if cached is None or cached[0] is not d:
+        cached = (d, described_twin(d))
+        _described[id(d)] = cached
+    return cached[1]

@@ -21,9 +21,9 @@ from drivebus.drives.engine import profile_class
 from drivebus.drives.status import DriveStatus
 from drivebus.errors import DrivebusError, LimitViolation, NotSupported
 from drivebus.settings import LineSettings
+from drivebus.sim.described import twin_of
 from drivebus.sim.drive import TwinSetup
 from drivebus.sim.harness import sim_bus
-from drivebus.sim.twins import twin_of
 
 __all__ = ["TrialStep", "format_trial", "try_description"]
 

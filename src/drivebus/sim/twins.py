@@ -7,11 +7,11 @@ profile is still code has a twin of its own here.
 
 from __future__ import annotations
 
-from drivebus.drives.description import Description
 from drivebus.drives.registry import FAMILIES, family
 from drivebus.errors import ConfigError
-from drivebus.sim.described import DescribedDrive, described_twin
+from drivebus.sim.described import twin_of
 from drivebus.sim.drive import SimDrive
+from drivebus.sim.drives import cl86r as _cl86r  # noqa: F401  (SimCL86R's home module)
 from drivebus.sim.drives.bhss import SimBHSS
 from drivebus.sim.drives.nt_family import SimEPR60, SimNT86
 from drivebus.sim.drives.od_drive import SimODDrive
@@ -25,17 +25,6 @@ _CODED: dict[str, type[SimDrive]] = {
     "OD2000": SimODDrive,
 }
 """The twins written as code, by the family's registry name."""
-
-_described: dict[int, tuple[Description, type[DescribedDrive]]] = {}
-
-
-def twin_of(d: Description) -> type[DescribedDrive]:
-    """The twin class of description ``d`` (one class per description)."""
-    cached = _described.get(id(d))
-    if cached is None or cached[0] is not d:
-        cached = (d, described_twin(d))
-        _described[id(d)] = cached
-    return cached[1]
 
 
 TWINS: dict[str, type[SimDrive]] = {

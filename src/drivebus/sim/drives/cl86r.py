@@ -7,9 +7,10 @@ section (``drivebus/drives/descriptions/cl86r.toml``).
 from __future__ import annotations
 
 from drivebus.drives.registry import builtin_description
-from drivebus.sim.twins import twin_of
+from drivebus.sim.described import twin_of
 
 __all__ = ["SimCL86R"]
 
 SimCL86R = twin_of(builtin_description("CL86R"))
 """The simulated CL86R (``drivebus.sim.described.DescribedDrive`` on its description)."""
+SimCL86R.__module__ = __name__  # its public home
