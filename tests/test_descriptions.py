@@ -720,3 +720,35 @@ async def test_status_decodes_from_meanings_input_registers_and_fc16_only(
         assert twin.regs[10] == 1000 and twin.regs[11] == 333
     steps = await try_description(d)
     assert [s.name for s in steps if s.failed] == [], steps
+
+
+async def test_an_axis_sets_a_described_drive_up_again_after_a_power_cycle() -> None:
+    from drivebus.motion.state import AxisState
+
+    config = {
+        "lines": {"bus": {"port": "sim://desc-power", "settings": "115200 8N1",
+                          "timeout": 0.05, "retries": 0}},
+        "axes": {"m": {"line": "bus", "address": 5, "drive": str(MOONS),
+                       "pulses_per_rev": 4000, "poll": {"moving": 0.01, "idle": 0.02,
+                                                       "offline_after": 2}}},
+    }
+
+    async def state_becomes(axis: object, cond: Callable[[AxisState], bool]) -> None:
+        with anyio.fail_after(5):
+            while True:
+                if cond(axis.state):  # type: ignore[attr-defined]
+                    return
+                await anyio.sleep(0.01)  # the axis's own polls decide
+
+    async with open_machine(config) as m:
+        axis, twin = m.axes["m"], m.sim_drives["m"]
+        await axis.enable()
+        assert twin.regs[52] == 4000  # set up with the first command
+        twin.power_loss()
+        await state_becomes(axis, lambda s: s is AxisState.OFFLINE)
+        twin.power_restore()
+        await state_becomes(axis, lambda s: s is not AxisState.OFFLINE)
+        assert twin.regs[52] == 20000  # the drive forgot it
+        await axis.enable()  # the next command sets it up again
+        assert twin.regs[52] == 4000
+        assert any("electronic gearing" in c for c in axis.setup_changes)
