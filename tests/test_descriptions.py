@@ -752,3 +752,36 @@ async def test_an_axis_sets_a_described_drive_up_again_after_a_power_cycle() -> 
         await axis.enable()  # the next command sets it up again
         assert twin.regs[52] == 4000
         assert any("electronic gearing" in c for c in axis.setup_changes)
+
+
+async def test_a_limit_check_refuses_before_any_frame_and_tables_take_names(
+    tmp_path: Path
+) -> None:
+    text = MEANINGS_ONLY.replace('''[procedures.move_absolute]
+steps = [''', '''[registers.terminal]
+address = 20
+count = 3
+names = ["PU", "DR", "X0"]
+values = { none = 0, origin = 1, limit = 2 }
+
+[procedures.assign]
+params = ["terminal", "function"]
+steps = [{ write = { "terminal[terminal]" = "function" } }]
+
+[procedures.move_absolute]
+steps = [
+  { check = "abs(speed) * pulses_per_rev / 60 <= 50000", error = "limit", '''
+        '''message = "{abs(speed)} rpm is above the 50 kHz pulse output at '''
+        '''{pulses_per_rev} pulses/rev" },''')
+    d = load_description(write(tmp_path, text))
+    twin = described_twin(d)(1, FAST)
+    async with sim_bus([twin], FAST) as (wire, bus):
+        profile = profile_class(d)(bus.slave(1))
+        with pytest.raises(LimitViolation,
+                           match="2000 rpm is above the 50 kHz pulse output at 2000 pulses"):
+            await profile.move_absolute(100, MoveParams(2000, 50, 50))
+        assert wire.requests() == []
+        await profile.assign("X0", "origin")  # type: ignore[attr-defined]
+        assert twin.regs[22] == 1
+        with pytest.raises(LimitViolation, match="no entry 'X9'"):
+            await profile.assign("X9", "origin")  # type: ignore[attr-defined]

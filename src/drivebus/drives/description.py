@@ -322,6 +322,7 @@ class RegisterDef(_Model):
     count: int = Field(1, ge=1, le=4096)
     stride: int = Field(1, ge=1, le=4096)
     first: int = Field(0, ge=0, description="index of the table's first entry")
+    names: list[str] = Field([], description="a table's entries by name (TABLE['X0'])")
     object: str | None = Field(None, description="CiA 402 object, '6040' or '607A:00'")
     doc: str = ""
 
@@ -342,6 +343,8 @@ class RegisterDef(_Model):
             raise ValueError("give a table or named values, not both")
         if self.input and self.access != "R":
             raise ValueError("an input register is read-only: access = \"R\"")
+        if self.names and len(self.names) != self.count:
+            raise ValueError(f"names: {len(self.names)} names for {self.count} entries")
         if self.defaults and len(self.defaults) != self.count:
             raise ValueError(f"defaults: {len(self.defaults)} values for {self.count} entries")
         bits = 16 * self.words
@@ -376,10 +379,15 @@ class Reg:
         """The indices of a table's entries."""
         return range(self.d.first, self.d.first + self.d.count)
 
-    def at(self, index: int | None = None) -> Register:
-        """The codec register (of entry ``index`` of a table); ``LimitViolation`` naming
-        the table and its indices if ``index`` is not one."""
+    def at(self, index: int | str | None = None) -> Register:
+        """The codec register (of entry ``index`` of a table, a number or one of its
+        ``names``); ``LimitViolation`` naming the table and its indices if it is not one."""
         d = self.d
+        if isinstance(index, str) and self.array:
+            if index not in d.names:
+                shown = ", ".join(d.names) or f"{d.first}..{d.first + d.count - 1}"
+                raise LimitViolation(f"{self.name}: no entry {index!r} (it has {shown})")
+            index = d.first + d.names.index(index)
         if self.array:
             if index is None or isinstance(index, bool) or index not in self.indices:
                 lo, hi = self.indices.start, self.indices.stop - 1
@@ -610,7 +618,7 @@ class Step(_Model):
     pulse: bool = Field(False, description="modify: toggle, then toggle back")
     timeout: E = Expr.parse(5.0)
     every: float = Field(0.005, gt=0, le=10)
-    error: Literal["alarm", "state", "motion"] = "state"
+    error: Literal["alarm", "state", "motion", "limit"] = "state"
     message: T | None = None
 
     @model_validator(mode="after")

@@ -324,6 +324,10 @@ class DescribedProfile(DriveProfile):
                     self._dry(sub, _Run(step.call, args, True, run.priority, run.depth + 1))
                 elif step.action == "fail":
                     break  # raised for real by the run
+                elif step.action == "check" and step.error == "limit":
+                    assert step.check is not None
+                    if not step.check(self._scope(run)):  # Unknown: not known before I/O
+                        self._fail_check(step, run)
                 elif step.action in ("read", "wait", "modify", "check"):
                     break  # what follows depends on the drive's answers
                 elif step.action == "set":
@@ -402,6 +406,8 @@ class DescribedProfile(DriveProfile):
             raise DriveAlarm(msg, code=code, text=alarm_text)
         if step.error == "motion":
             raise MotionError(msg)
+        if step.error == "limit":
+            raise LimitViolation(text)
         raise StateError(msg)
 
     def _alarm_of(self, scope: Mapping[str, Any]) -> tuple[int | None, str]:
@@ -424,6 +430,8 @@ class DescribedProfile(DriveProfile):
             index = Expr.parse(m.group(2))(scope)
             if isinstance(index, float) and index == int(index):
                 index = int(index)
+            if isinstance(index, str) and index in reg.d.names:
+                index = reg.d.first + reg.d.names.index(index)
         reg.at(index)  # LimitViolation for an index outside the table
         return reg, index
 

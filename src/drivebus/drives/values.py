@@ -63,9 +63,11 @@ class Table:
         self._reg = reg
         self._values = dict(values)
 
-    def __getitem__(self, index: int) -> Any:
+    def __getitem__(self, index: int | str) -> Any:
+        if isinstance(index, str) and index in self._reg.d.names:
+            index = self._reg.d.first + self._reg.d.names.index(index)
         try:
-            return self._values[index]
+            return self._values[index]  # type: ignore[index]
         except KeyError:
             raise Unknown(f"{self._reg.key}[{index}] was not read") from None
 
