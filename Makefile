@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-install lint docs bench clean
+.PHONY: demo test test-install lint docs bench pictures clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -32,6 +32,11 @@ docs: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/drivebus bench
+
+# The README's pictures (docs/img/report.png, docs/img/dashboard.png), in headless Chromium.
+pictures: $(STAMP)
+	-@sh .ci/ensure-chromium
+	$(BIN)/python tests/make_pictures.py
 
 clean:
 	rm -rf $(VENV) build site src/*.egg-info .pytest_cache

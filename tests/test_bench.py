@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -17,8 +18,14 @@ BUILT_IN = {
 }
 
 
-async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
-    results = await run_bench(quick=True, seconds=0.15)
+async def test_quick_bench_runs_every_scenario_without_gap_violations(tmp_path: Path) -> None:
+    results = await run_bench(quick=True, seconds=0.15, plots=tmp_path / "plots")
+    # the motion scenario drew its group moves: a self-contained report and a picture
+    html = (tmp_path / "plots" / "motion-group-moves.html").read_text()
+    assert "uPlot" in html and "http://" not in html.replace("http://www.w3.org", "")
+    for axis in ("\"x\"", "\"y\"", "\"z\"", "\"r\""):
+        assert axis in html
+    assert (tmp_path / "plots" / "motion-group-moves.png").stat().st_size > 10_000
     found = [s.name for s in scenarios()]
     assert set(found) >= BUILT_IN
     # every scenario module found gave rows, in the declared order

@@ -149,3 +149,26 @@ def test_guide_programs_run_as_written(where: str, code: str, tmp_path: Path) ->
         [sys.executable, str(script)], cwd=ROOT, capture_output=True, text=True, timeout=90
     )
     assert done.returncode == 0, f"{where}:\n{done.stdout}\n{done.stderr}"
+
+
+def test_drive_pages_are_committed_as_the_profiles_declare_them() -> None:
+    """docs/drives/*.md hold the generated pages (no placeholder), current with the code,
+    consistent with the procedures, and cite no path of drivebus's build environment."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("drive_pages",
+                                                  ROOT / "docs/hooks/drive_pages.py")
+    assert spec is not None and spec.loader is not None
+    pages = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(pages)
+    index = (ROOT / "docs/drives/index.md").read_text()
+    assert index == pages.index_text(index), "run python docs/hooks/drive_pages.py"
+    for name, fam in FAMILIES.items():
+        text = (ROOT / "docs/drives" / f"{name.lower()}.md").read_text()
+        assert text == pages.page_text(fam), f"{name}: run python docs/hooks/drive_pages.py"
+        assert "## Parameters" in text and "shared/" not in text and "/work/" not in text
+        for p in fam.profile.parameters():
+            assert f"| `{p.key}` |" in text
+    bhss = (ROOT / "docs/drives/bhss.md").read_text()
+    assert "| save parameters | yes |" not in bhss  # it raises NotSupported by default
+    assert "| save parameters | no: the BHSS drive has no save command" in bhss

@@ -292,13 +292,15 @@ async def test_homing_offset_moves_and_electrical_and_set_origin() -> None:
 
 
 async def test_homing_limit_handling_reverse_or_stop() -> None:
-    # The switch lies behind the start: the positive search runs into the positive limit.
+    # The switch (a dog over [-5000, -4500]) lies behind the start: the positive search
+    # runs into the positive limit (manual 3.1.2 ③). Reversed, the search passes the dog
+    # to its falling edge at -5000, then creeps forward to its rising edge there.
     setup = TwinSetup(home_switch=-5000, limit_positive=6000)
-    sim = SimNT86(1, setup=setup, home_cam="negative")
+    sim = SimNT86(1, setup=setup, home_switch_width=500)
     async with nt86(sim, home_reverse_at_limit=True) as (_, profile, _):
         st = await home_and_wait(profile, "home_switch_positive")
         assert st.homed and st.position == 0 and sim.physical_position() == -5000
-    sim = SimNT86(1, setup=setup, home_cam="negative")
+    sim = SimNT86(1, setup=setup, home_switch_width=500)
     async with nt86(sim) as (_, profile, _):  # 295=0: stop at the limit, not homed
         st = await home_and_wait(profile, "home_switch_positive")
         assert not st.homed and st.limit_positive and not st.moving

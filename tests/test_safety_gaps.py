@@ -26,6 +26,9 @@ import pytest
 from drivebus import AxisState, errors, open_machine
 from drivebus.errors import ArgumentError, GroupMotionError, LimitViolation, MotionTimeout
 from drivebus.motion import Axis, Machine
+from mqtt_helpers import bridged, running_broker
+from service_rig import running
+from service_rig import until as service_until
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "configs" / "demo.toml"
@@ -231,6 +234,48 @@ def test_viewing_commands_send_zero_writes(tmp_path: Path) -> None:
             assert " tx slave " in out, name  # it did talk to the drives
 
 
+async def test_service_get_routes_and_mqtt_telemetry_send_zero_writes(tmp_path: Path) -> None:
+    """Every GET route of the service, and the MQTT bridge publishing telemetry (to a
+    real Mosquitto), on the demo machine: its wires carry reads only."""
+    async with running() as (svc, client):
+        for path in ("/api/machine", "/api/axes", "/api/lines/rs485", "/api/lines/eth",
+                     "/api/motions", "/api/lease", "/api/client", "/"):
+            assert (await client.get(path)).status_code == 200, path
+        for name in svc.session.machine.axes:
+            assert (await client.get(f"/api/axes/{name}")).status_code == 200
+        await service_until(svc, lambda: all(
+            a.status is not None for a in svc.session.machine.axes.values()))
+        assert writes_on_wires(svc.session.machine) == []
+    for broker in running_broker(tmp_path):
+        async with bridged(DEMO, broker.url, state_rate=50.0) as (session, _):
+            async with broker.watch("drivebus/demo/axes/+/state") as sub:
+                await sub.until(lambda lines: len(lines) >= len(session.machine.axes))
+            assert writes_on_wires(session.machine) == []
+
+
+async def test_setup_comes_with_the_first_command_and_says_what_it_changes(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A technician set the NT86's pulses/rev (register 24) to 8000: looking keeps it;
+    the first command (here an explicit setup) writes 4000 and says so."""
+    cfg = machine_for("NT86", sim={"position": 5.0})
+    async with open_machine(cfg) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        twin.params[24] = 8000
+        async for _ in x.watch():  # a poll after the change: still only reads
+            break
+        assert twin.params[24] == 8000 and writes_on_wires(m) == []
+        with caplog.at_level(logging.WARNING, logger="drivebus"):
+            changes = await x.setup()
+        assert twin.params[24] == 4000
+        assert any("(24) = 8000, not 4000" in c for c in changes), changes
+        assert x.setup_changes == changes
+        assert any("8000" in r.getMessage() and r.levelno == logging.WARNING
+                   for r in caplog.records)
+        await x.move_by(2.0)  # set up already: no second setup before the move
+        assert twin_position(m) == pytest.approx(7.0, abs=0.01)
+
+
 # -- 3. reset right after a limit stop ----------------------------------------------------------
 
 
@@ -265,7 +310,7 @@ async def test_group_report_counts_only_moving_axes_beside_the_twins() -> None:
         ends = {n: m.sim_drives[n].kin.end_time() for n in ("x", "y")}
         twins_spread = max(ends.values()) - min(ends.values())
         assert set(report.planned_arrivals) == {"x", "y"} == set(report.observed_arrivals)
-        assert 0 < report.observed_resolution
+        assert report.observed_resolution > 0
         # The plan predicts the twins' spread to within the start replies' wire time;
         # the polls see it to within their windows.
         assert abs(report.planned_arrival_spread - twins_spread) < 0.01

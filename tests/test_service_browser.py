@@ -4,13 +4,12 @@ browser's blocking calls never stall it), judged by the simulated twins.
 
 ``make test`` installs chromium and chromium-driver when they are missing
 (``.ci/ensure-chromium``); without them this test is skipped and says why. The page's
-screenshot is saved to ``tests/artifacts/dashboard.png`` (ignored by git).
+screenshots are saved under ``tests/artifacts/`` (ignored by git).
 """
 
 from __future__ import annotations
 
-import shutil
-import tempfile
+import bisect
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -18,51 +17,22 @@ from pathlib import Path
 import pytest
 from anyio.from_thread import BlockingPortal, start_blocking_portal
 
+from browser_rig import chromium, needs_chromium, screenshot, wait, webdriver
 from drivebus import AxisState
 from drivebus.service import Service, TokenStore
-from service_rig import ROOT, TOKENS, running, token_file, until
+from service_rig import TOKENS, running, token_file, until
 
-webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed")
-from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
-from selenium.webdriver.common.by import By  # noqa: E402
-from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
+ActionChains = pytest.importorskip("selenium.webdriver.common.action_chains").ActionChains
+By = pytest.importorskip("selenium.webdriver.common.by").By
 
-CHROMIUM = shutil.which("chromium")
-CHROMEDRIVER = shutil.which("chromedriver")
-ARTIFACTS = ROOT / "tests" / "artifacts"
-
-pytestmark = pytest.mark.skipif(
-    CHROMIUM is None or CHROMEDRIVER is None,
-    reason="needs Debian's chromium and chromium-driver: `sh .ci/ensure-chromium` as root "
-           "(make test runs it) or `apt-get install chromium chromium-driver`",
-)
+pytestmark = needs_chromium
 
 
 @pytest.fixture
 def browser() -> Iterator[webdriver.Chrome]:
     """Headless Chromium with a fresh profile, through Debian's chromedriver."""
-    assert CHROMIUM is not None and CHROMEDRIVER is not None
-    with tempfile.TemporaryDirectory(prefix="drivebus-chromium-") as profile:
-        options = webdriver.ChromeOptions()
-        options.binary_location = CHROMIUM
-        for arg in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                    "--no-first-run", "--disable-background-networking",
-                    "--disable-component-update", "--disable-sync",
-                    "--disable-dev-shm-usage", f"--user-data-dir={profile}",
-                    "--window-size=1280,1100"):
-            options.add_argument(arg)
-        driver = webdriver.Chrome(options=options,
-                                  service=webdriver.ChromeService(executable_path=CHROMEDRIVER))
-        try:
-            yield driver
-        finally:
-            driver.quit()
-
-
-def wait(driver: webdriver.Chrome, check: Callable[[webdriver.Chrome], object],
-         message: str) -> None:
-    """Wait for a condition on the page (a hang guard of 20 s, not a figure)."""
-    WebDriverWait(driver, 20, poll_frequency=0.05).until(check, message)
+    with chromium() as driver:
+        yield driver
 
 
 def text(driver: webdriver.Chrome, element_id: str) -> str:
@@ -153,11 +123,7 @@ def test_the_dashboard_shows_live_positions_jogs_and_estops(browser: webdriver.C
         wait(browser, lambda d: "e-stop done" in text(d, "events"), "no e-stop on the page")
         wait(browser, lambda d: text(d, "state-x") != "DiscreteMotion", "x still moving")
 
-        ARTIFACTS.mkdir(exist_ok=True)
-        shot = ARTIFACTS / "dashboard.png"
-        assert browser.save_screenshot(str(shot))
-        print(f"dashboard screenshot: {shot}")
-        assert shot.stat().st_size > 10_000
+        screenshot(browser, "dashboard")
 
 
 def test_the_dashboard_asks_for_a_token_when_the_service_has_them(
@@ -177,3 +143,65 @@ def test_the_dashboard_asks_for_a_token_when_the_service_has_them(
         wait(browser, lambda d: text(d, "conn") == "live", "the token did not let it in")
         assert text(browser, "who") == "viewer (read)"
         wait(browser, lambda d: text(d, "pos-x") == "12.000", "no live axes")
+
+
+def test_the_dashboard_charts_what_the_service_recorded() -> None:
+    """Every point the page plots for an axis is a status the service recorded, at the
+    same poll time, with the same position; the Record button gives the report."""
+    with (
+        chromium(height=1700) as browser,
+        start_blocking_portal() as portal,
+        portal.wrap_async_context_manager(running()) as (svc, client),
+    ):
+        m = Machine(portal, svc)
+        browser.get(f"{svc.url}/")
+        wait(browser, lambda d: text(d, "conn") == "live", "the page never went live")
+        browser.find_element(By.ID, "record").click()
+        wait(browser, lambda d: d.find_element(By.ID, "record").get_attribute("data-id"),
+             "the Record button started no recording")
+        rec_id = str(browser.find_element(By.ID, "record").get_attribute("data-id"))
+        portal.call(lambda: client.post("/api/machine/group-move", json={
+            "targets": {"x": 150.0, "y": 60.0, "z": 40.0, "r": 270.0}}))
+        plotted = "return DrivebusCharts.registry.get('axis-x').data()[0].length"
+        seen = int(browser.execute_script(plotted))
+
+        def drawn_moving(d: webdriver.Chrome) -> bool:
+            return int(d.execute_script(plotted)) >= seen + 8 and text(d, "state-x") == (
+                "DiscreteMotion")
+
+        wait(browser, drawn_moving, "the chart of x did not follow the move")
+        screenshot(browser, "dashboard-move")
+        m.until(lambda: m.at_rest("x", "y", "z", "r"), "the group move did not end")
+        wait(browser, lambda d: text(d, "state-x") == "Standstill", "the page missed the end")
+        browser.find_element(By.ID, "record").click()
+        wait(browser, lambda d: d.find_element(By.ID, "report-link").get_attribute("data-id")
+             == rec_id, "no report was downloaded")
+        assert str(browser.find_element(By.ID, "report-link").get_attribute(
+            "href")).startswith("blob:")
+        rec = m.now(lambda: svc.session.recordings.get(rec_id).recording)
+        offset = float(browser.execute_script("return state.clockOffset"))
+        for name in ("x", "y", "r"):
+            t, position, velocity, target = browser.execute_script(
+                f"return DrivebusCharts.registry.get('axis-{name}').data()")
+            samples = list(rec.axes[name].samples)  # type: ignore[attr-defined]
+            times = [s.time for s in samples]
+            matched = 0
+            for i, x in enumerate(t):
+                # the page plots poll time + (wall - monotonic): at 1.8e9 s a double
+                # keeps ~0.3 µs, and polls are milliseconds apart
+                when = x - offset
+                if not rec.started <= when <= rec.stopped:  # type: ignore[attr-defined]
+                    continue
+                k = min(range(max(0, bisect.bisect_left(times, when) - 1),
+                              min(len(times), bisect.bisect_left(times, when) + 1)),
+                        key=lambda j: abs(times[j] - when))
+                s = samples[k]
+                assert abs(s.time - when) < 2e-6, f"{name}: plotted a point at {when} " \
+                    f"no poll was at (nearest {s.time})"
+                assert (position[i], velocity[i], target[i]) == (
+                    s.position, s.velocity, s.target), (name, i)
+                matched += 1
+            assert matched >= 5, f"{name}: only {matched} plotted points in the recording"
+        # the report the button fetched is the recording's, served by the service
+        html = portal.call(lambda: client.get(f"/api/recordings/{rec_id}/report"))
+        assert html.status_code == 200 and "DRIVEBUS_REPORT" in html.text

@@ -1,12 +1,15 @@
-"""mkdocs hook: each drive family's page is filled from its profile's own declarations.
+"""The drive families' pages, generated from the profiles' own declarations.
 
-A page that holds the line ``<!-- drive-family: NAME -->`` gets, in its place, what the
-code of family NAME (``drivebus.drives.registry.FAMILIES``) declares: link, addresses,
-line kinds, baud rates and formats, pulses/rev, homing methods, the ``drive_options``
-with their types, ranges and defaults, which procedures it supports and why not, the
-vendor's exception codes and the register map. ``<!-- drive-families -->`` becomes the
-table of every family. Nothing here is typed by hand, so the pages cannot drift from the
-code; a family without a page, or a page naming an unknown family, fails the build.
+Each family's page (``docs/drives/<family>.md``) and the families table of
+``docs/drives/index.md`` are what the code of the family (``drivebus.drives.registry.
+FAMILIES``) declares: link, addresses, line kinds, baud rates and formats, pulses/rev,
+homing methods, the ``drive_options`` with their types, ranges and defaults, which
+procedures it supports and why not, its parameters (``drivebus params``), how it takes a
+new address or line settings, the vendor's exception codes and the register map. The
+pages are generated and committed (``python docs/hooks/drive_pages.py`` writes them), so
+the repository holds them as a user reads them; as an mkdocs hook this module fails the
+build while a page differs from what the code declares (``tests/test_docs.py`` checks
+the same), or while a registered family has no page.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import inspect
 import re
 import textwrap
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 from typing import Any
 
 from mkdocs.config.defaults import MkDocsConfig
@@ -28,9 +32,11 @@ from drivebus.drives.base import DriveProfile
 from drivebus.drives.pages import (
     at_a_glance,
     cell,
+    commissioning_section,
     exceptions_section,
     families_table,
     options_section,
+    parameters_section,
     procedures_section,
     register_address,
     registers_table,
@@ -42,9 +48,12 @@ from drivebus.drives.pages import (
 from drivebus.drives.registers import Register
 from drivebus.drives.registry import FAMILIES, DriveFamily
 
-_MARK = re.compile(r"^<!--\s*drive-family:\s*(\S+)\s*-->\s*$", re.MULTILINE)
+_MARK = re.compile(r"^<!--\s*drive-family:\s*(\S+)[^>]*-->\s*$", re.MULTILINE)
 _TABLE_MARK = "<!-- drive-families -->"
+_TABLE_END = "<!-- /drive-families -->"
 _PAGE = "drives/{slug}.md"
+_DOCS = Path(__file__).resolve().parents[1]
+_NOTE = "generated from the profile by `python docs/hooks/drive_pages.py`; do not edit"
 
 _seen: set[str] = set()
 
@@ -65,11 +74,9 @@ def on_files(files: Files, config: MkDocsConfig) -> Files:
 
 
 def on_page_markdown(markdown: str, page: Page, config: MkDocsConfig, files: Files) -> str:
-    """Replace the markers with the generated sections."""
-    if _TABLE_MARK in markdown:
-        markdown = markdown.replace(_TABLE_MARK, families_table(FAMILIES.values()))
-
-    def fill(match: re.Match[str]) -> str:
+    """Check that a drive page is what the code declares (it is committed generated)."""
+    match = _MARK.search(markdown)
+    if match is not None:
         name = match.group(1)
         family = FAMILIES.get(name)
         if family is None:
@@ -78,9 +85,39 @@ def on_page_markdown(markdown: str, page: Page, config: MkDocsConfig, files: Fil
                 f"known: {', '.join(FAMILIES)}"
             )
         _seen.add(name)
-        return family_page(family)
+        if markdown != page_text(family):
+            raise PluginError(f"drive_pages: docs/{page.file.src_path} is not what the "
+                              f"{name} profile declares: run python docs/hooks/drive_pages.py")
+    if _TABLE_MARK in markdown and markdown != index_text(markdown):
+        raise PluginError("drive_pages: docs/drives/index.md's families table is stale: run "
+                          "python docs/hooks/drive_pages.py")
+    return markdown
 
-    return _MARK.sub(fill, markdown)
+
+def page_text(family: DriveFamily) -> str:
+    """The whole page of ``family``, as committed."""
+    return (f"# {family.name}\n\n<!-- drive-family: {family.name} ({_NOTE}) -->\n\n"
+            f"{family_page(family)}\n")
+
+
+def index_text(current: str) -> str:
+    """``docs/drives/index.md`` with the families table between its markers renewed."""
+    head, _, rest = current.partition(_TABLE_MARK)
+    _, _, tail = rest.partition(_TABLE_END)
+    return f"{head}{_TABLE_MARK}\n{families_table(FAMILIES.values())}\n{_TABLE_END}{tail}"
+
+
+def write_pages(docs: Path = _DOCS) -> list[Path]:
+    """Write every family's page and the families table; the files that changed."""
+    changed = []
+    index = docs / "drives" / "index.md"
+    pages = {index: index_text(index.read_text())}
+    pages.update({docs / _PAGE.format(slug=slug(n)): page_text(f) for n, f in FAMILIES.items()})
+    for path, text in pages.items():
+        if not path.exists() or path.read_text() != text:
+            path.write_text(text)
+            changed.append(path)
+    return changed
 
 
 def on_post_build(config: MkDocsConfig) -> None:
@@ -108,6 +145,8 @@ def family_page(family: DriveFamily) -> str:
         options_section(p),
         procedures_section(family),
         _limits(p),
+        parameters_section(p),
+        commissioning_section(p),
         exceptions_section(p),
         _registers(family),
     ]
@@ -259,9 +298,22 @@ def _registers(family: DriveFamily) -> str:
         "print them), with the ranges every write is checked against:")
 
 
+_SOURCES = re.compile(r"\s*\((?:[^()]*?)`?shared/(?:seeds|drives)/[^()]*\)|"
+                      r"`?shared/(?:seeds|drives)/[^\s`),]*`?")
+
+
+def _no_build_paths(text: str) -> str:
+    """``text`` without the paths of the manuals' copies in drivebus's own build
+    environment (a user has the vendor's manual, not those files)."""
+    return _SOURCES.sub(lambda m: "" if m.group(0).lstrip().startswith("(") else
+                        "the vendor's manual", text)
+
+
 def _rst_to_md(doc: str) -> str:
-    """A docstring as markdown: dedented, ``literal`` as `literal`, bullets kept."""
-    lines = inspect.cleandoc(re.sub(r"``([^`]+)``", r"`\1`", doc)).splitlines()
+    """A docstring as markdown: dedented, ``literal`` as `literal`, bullets kept, no
+    build-environment paths."""
+    doc = _no_build_paths(re.sub(r"``([^`]+)``", r"`\1`", doc))
+    lines = inspect.cleandoc(doc).splitlines()
     out: list[str] = []
     for line in lines:
         bullet = re.match(r"[*-] ", line)
@@ -269,3 +321,8 @@ def _rst_to_md(doc: str) -> str:
             out.append("")  # markdown needs a blank line before a list
         out.append(line)
     return "\n".join(out)
+
+
+if __name__ == "__main__":
+    for written in write_pages():
+        print(f"wrote {written.relative_to(_DOCS.parent)}")

@@ -4,7 +4,15 @@ from drivebus import errors
 from drivebus.bus import Bus, BusStats, Priority, SlaveHandle, SlaveStats
 from drivebus.drives import DriveStatus
 from drivebus.line import Exchange, Line, RtuOverTcpLine, SerialLine, TcpLine
-from drivebus.motion import Axis, AxisGroup, AxisState, Machine, open_machine
+from drivebus.motion import (
+    Axis,
+    AxisGroup,
+    AxisState,
+    Machine,
+    MotionEvent,
+    Recording,
+    open_machine,
+)
 from drivebus.settings import LineSettings
 
 __all__ = [
@@ -18,7 +26,9 @@ __all__ = [
     "Line",
     "LineSettings",
     "Machine",
+    "MotionEvent",
     "Priority",
+    "Recording",
     "RtuOverTcpLine",
     "SerialLine",
     "SlaveHandle",

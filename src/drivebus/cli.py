@@ -9,6 +9,7 @@ motion stops the axis before the command exits.
 
 from __future__ import annotations
 
+import json
 import sys
 import termios
 from pathlib import Path
@@ -16,8 +17,13 @@ from typing import TYPE_CHECKING, Annotated, NoReturn
 
 import anyio
 import typer
+import typer.main
 
 from drivebus import checks
+from drivebus.cli_args import LocalOpt, ServerOpt, TokenOpt
+from drivebus.cli_record import record
+from drivebus.commissioning import commission as commission_command
+from drivebus.commissioning import params_app
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
 from drivebus.terminal import explain
 
@@ -32,7 +38,9 @@ except ImportError:  # pragma: no cover
 app = typer.Typer(
     name="drivebus",
     help="Modbus stepper and servo drives on shared RS-485 lines and Modbus TCP. "
-    "Add --debug to any command to see the traceback of an error.",
+    "Global options (--trace, -v, --log-level, --debug) go before or after the command. "
+    "Exit status: 0 done, 1 a runtime failure (a port, a drive, a motion), 2 a usage, "
+    "argument or configuration error, 130 interrupted.",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
@@ -96,37 +104,26 @@ TargetArg = Annotated[str, typer.Argument(
 SettingsOpt = Annotated[str | None, typer.Option(
     "--settings", "-S", metavar="SETTINGS",
     help='serial settings, e.g. "19200 8E1" (default: 19200 8E1, Modbus\'s own)')]
+BaudOpt = Annotated[int | None, typer.Option(
+    "--baud", "-b", metavar="RATE", help="baud rate (as mbpoll -b; instead of --settings)")]
+ParityOpt = Annotated[str | None, typer.Option(
+    "--parity", "-P", metavar="PARITY", help="none, even or odd (as mbpoll -P; default even)")]
+StopOpt = Annotated[int | None, typer.Option(
+    "--stopbits", "-s", metavar="1|2", help="stop bits (as mbpoll -s; default 1)")]
 FormatOpt = Annotated[str, typer.Option(
     "--format", "-f", metavar="FORMAT",
     help="hex, int (signed 16-bit), uint, int32-le, int32-be (low/high word first) or float")]
 TimeoutOpt = Annotated[float, typer.Option(
     "--timeout", "-t", metavar="SECONDS", help="response timeout")]
-ServerOpt = Annotated[str | None, typer.Option(
-    "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
-    help="talk to this drivebus serve (default: the one serving CONFIG, if it runs)")]
-TokenOpt = Annotated[str | None, typer.Option(
-    "--token", metavar="TOKEN", envvar="DRIVEBUS_TOKEN",
-    help="bearer token for --server (from its token file)")]
-LocalOpt = Annotated[bool, typer.Option(
-    "--local", help="open the machine here even if a drivebus serve owns it")]
 
 
 def _owner(
     config: Path, server: str | None, token: str | None, local: bool
 ) -> ServiceClient | None:
-    """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
-    through the file), as a client; None to open the machine here."""
-    from drivebus.service.client import ServiceClient, find_service
+    """The ``drivebus serve`` that owns ``config``'s machine, as a client (or None)."""
+    from drivebus.terminal import service_owner
 
-    if local:
-        return None
-    url = server or find_service(config)
-    if url is None:
-        return None
-    if server is None:
-        typer.echo(f"note: {config} is served by a running drivebus serve at {url}: "
-                   f"talking to it (--local opens the machine here)", err=True)
-    return ServiceClient(url, token=token)
+    return service_owner(config, server, token, local)
 
 
 @app.command()
@@ -136,17 +133,24 @@ def bench(
         metavar="SECONDS", help="simulated slave turnaround")] = 0.001,
     json_path: Annotated[Path | None, typer.Option(
         "--json", metavar="FILE", help="also write the results as JSON to FILE")] = None,
+    plots: Annotated[Path | None, typer.Option(
+        metavar="DIR", help="write the motion scenario's plots here (an HTML report of "
+        "its group moves, and a PNG with matplotlib)")] = Path("bench-plots"),
+    no_plots: Annotated[bool, typer.Option("--no-plots", help="draw no plots")] = False,
 ) -> None:
     """Measure bus efficiency, stop latency, CPU per transaction and scale on simulated lines."""
     from drivebus.bench import format_table, results_json, run_bench
 
     if not 0 <= checks.finite("--turnaround", turnaround) <= 1:
         raise ArgumentError(f"--turnaround: {turnaround!r} s is outside 0..1 s")
-    results = anyio.run(lambda: run_bench(quick=quick, turnaround=turnaround))
+    draw = None if no_plots else plots
+    results = anyio.run(lambda: run_bench(quick=quick, turnaround=turnaround, plots=draw))
     typer.echo(format_table(results))
     if json_path is not None:
         json_path.write_text(results_json(results))
         typer.echo(f"\nresults written to {json_path}")
+    if draw is not None:
+        typer.echo(f"motion plots written to {draw}/")
 
 
 @app.command()
@@ -198,6 +202,9 @@ def scan(
         help="addresses (unit ids over TCP), e.g. 1-31 or 1,3,5-7")] = "1-31",
     timeout: Annotated[float, typer.Option(
         "--timeout", "-t", metavar="SECONDS", help="response timeout per probe")] = 0.04,
+    one: Annotated[str | None, typer.Option(
+        "--settings", "-S", metavar="SETTINGS",
+        help='one setting only, e.g. "19200 8E1" (as read and write take it)')] = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Find the slaves on a line: every address at every baud rate and format.
@@ -209,20 +216,27 @@ def scan(
     """
     from drivebus.app import scan as sc
     from drivebus.app.targets import parse_target
+    from drivebus.settings import LineSettings
     from drivebus.terminal import Out, run_guarded, scan_line
 
     t = parse_target(target)
+    if one is not None:
+        only = LineSettings.parse(one)
+        baud, fmt = str(only.baudrate), only.format
     settings = sc.scan_settings(sc.parse_bauds(baud), sc.parse_formats(fmt))
     addresses = sc.parse_addresses(address, tcp=t.kind == "tcp")
     if checks.positive("--timeout", timeout, unit="s") > 5:
         raise ArgumentError(f"--timeout: {timeout!r} s is above 5 s (a probe answers in ms)")
     _announce_port(target)
-    if t.kind == "serial" and (sc.is_pty(target) or target.startswith("sim://")):
+    if t.kind == "serial" and sc.is_pty(target):  # sim://NAME carries the format itself
         settings, dropped = sc.pty_usable(settings)
         if dropped:
             formats = ", ".join(dict.fromkeys(s.format for s in dropped))
             typer.echo(f"note: {target} is a pty: it cannot carry parity or 7 data bits, "
-                       f"so {formats} are not probed", err=True)
+                       f"so {formats} are not probed (sim://NAME carries them)", err=True)
+        if not settings:
+            raise ArgumentError(f"--format: a pty cannot carry {formats}: nothing left to "
+                                f"probe on {target} (scan the simulator's sim://NAME)")
     out = Out(as_json=as_json)
     found: list[sc.Found] = []
 
@@ -245,21 +259,37 @@ def scan(
     raise typer.Exit(code)
 
 
-def _check_register_call(target: str, address: int, register: int, fmt: str) -> None:
-    """TARGET, ADDR, REG and --format checked before anything opens."""
+def _check_register_call(target: str, address: int, register: int, fmt: str, *,
+                         broadcast: bool = False) -> None:
+    """TARGET, ADDR, REG and --format checked before anything opens (``broadcast``: a
+    write may go to address 0, every slave)."""
     from drivebus.app.registers import words_per_value
     from drivebus.app.targets import parse_target
 
     tcp = parse_target(target).kind == "tcp"
-    checks.whole("ADDR", address, 0 if tcp else 1, 255 if tcp else 247)
+    checks.whole("ADDR", address, 0 if tcp or broadcast else 1, 255 if tcp else 247)
     checks.whole("REG", register, 0, 65535)
     words_per_value(fmt)
 
 
-def _settings(text: str | None) -> object:
+def _settings(text: str | None, baud: int | None = None, parity: str | None = None,
+              stopbits: int | None = None) -> object:
+    """The line settings of ``-S "19200 8E1"``, or of mbpoll's ``-b``/``-P``/``-s``."""
     from drivebus.settings import LineSettings
 
-    return None if text is None else LineSettings.parse(text)
+    split = [n for n, v in (("--baud", baud), ("--parity", parity), ("--stopbits", stopbits))
+             if v is not None]
+    if text is not None:
+        if split:
+            raise ArgumentError(f"--settings and {', '.join(split)}: give one or the other")
+        return LineSettings.parse(text)
+    if not split:
+        return None
+    letter = {"none": "N", "n": "N", "even": "E", "e": "E", "odd": "O", "o": "O"}.get(
+        (parity or "even").lower())
+    if letter is None:
+        raise ArgumentError(f"--parity: {parity!r} is not none, even or odd")
+    return LineSettings.parse(f"{baud or 19200} 8{letter}{stopbits or 1}")
 
 
 @app.command(context_settings=_SIGNED)
@@ -272,6 +302,9 @@ def read(
     input_registers: Annotated[bool, typer.Option(
         "--input", help="input registers (FC04) instead of holding registers (FC03)")] = False,
     settings: SettingsOpt = None,
+    baud: BaudOpt = None,
+    parity: ParityOpt = None,
+    stopbits: StopOpt = None,
     fmt: FormatOpt = "uint",
     interval: Annotated[float | None, typer.Option(
         "--interval", "-i", metavar="SECONDS", help="poll every SECONDS until Ctrl-C")] = None,
@@ -305,7 +338,7 @@ def read(
             interrupt_ok=interval is not None,
         ))
     _check_register_call(target, address, register, fmt)
-    wanted_settings = _settings(settings)
+    wanted_settings = _settings(settings, baud, parity, stopbits)
     checks.positive("--timeout", timeout, unit="s")
     out = Out(as_json=as_json)
     raise typer.Exit(run_guarded(
@@ -324,6 +357,9 @@ def write(
     values: Annotated[list[str], typer.Argument(
         metavar="VALUE...", help="values to write (0x1F, -5, 1.5 with --format float)")],
     settings: SettingsOpt = None,
+    baud: BaudOpt = None,
+    parity: ParityOpt = None,
+    stopbits: StopOpt = None,
     fmt: FormatOpt = "uint",
     timeout: TimeoutOpt = 0.5,
     as_json: JsonOpt = False,
@@ -333,7 +369,7 @@ def write(
     token: TokenOpt = None,
 ) -> None:
     """Write VALUEs from register REG of the slave at ADDR on TARGET (one: FC06, more: FC16;
-    never retried, a write may be a command)."""
+    never retried, a write may be a command). ADDR 0 broadcasts to every slave (no reply)."""
     from drivebus.app.registers import encode
     from drivebus.terminal import Out, remote_write, run_guarded, write_registers
 
@@ -345,9 +381,9 @@ def write(
         raise typer.Exit(run_guarded(lambda: remote_write(
             Out(as_json=as_json), client, target, address, register, words)))
 
-    _check_register_call(target, address, register, fmt)
+    _check_register_call(target, address, register, fmt, broadcast=True)
     encode(values, fmt)  # every value checked before the port opens
-    wanted_settings = _settings(settings)
+    wanted_settings = _settings(settings, baud, parity, stopbits)
     checks.positive("--timeout", timeout, unit="s")
     out = Out(as_json=as_json)
     raise typer.Exit(run_guarded(
@@ -508,10 +544,11 @@ def sim(
     Prints one `line NAME KIND WHERE` per simulated line (WHERE is the pty path for a
     serial line, 127.0.0.1:PORT for TCP), then the slaves on it, and serves until Ctrl-C
     or SIGTERM. Point mbpoll, a PLC or pymodbus at the pty (`mbpoll -m rtu -b 115200 -P
-    none -a 1 /dev/pts/N`), or drivebus itself at sim://NAME (`drivebus read sim://NAME
-    ...`, `SerialLine("sim://NAME")`, a machine file's port) from another process. A pty
-    carries baud rate and stop bits but not parity or byte size: an outside master is
-    taken to send 8 data bits without parity, so only slaves at 8N1 or 8N2 understand it.
+    none -a 1 /dev/pts/N`): a pty carries baud rate and stop bits but not parity or byte
+    size, so such a master reaches only the slaves at 8N1 or 8N2. drivebus in another
+    process reaches every slave by sim://NAME (a machine file's sim:// line, `drivebus
+    status CONFIG`, `read`/`scan sim://NAME`, `SerialLine("sim://NAME")`): the line's
+    format channel carries the parity, and the command says it reached this simulator.
     """
     from drivebus.terminal import Out, run_guarded, serve_sim
 
@@ -571,17 +608,29 @@ def serve(
                          http=not no_http, extra=extra))
 
 
+app.command()(record)  # drivebus record: in its own module
+
+
 @app.command()
-def check(config: ConfigArg, as_json: JsonOpt = False) -> None:
+def check(config: ConfigArg, as_json: JsonOpt = False, probe: Annotated[bool, typer.Option(
+        "--probe", help="also read each drive's identity where the file puts it (reads "
+        "only) and report a wrong address or settings")] = False) -> None:
     """Validate a machine file exactly as opening it does, and check its serial ports.
 
-    A real serial port must exist and be usable; a USB-serial adapter's latency timer
-    above 1 ms is reported (it caps the transaction rate). sim:// lines are reported as
-    simulated. Exit status 1 if a line cannot work, 2 if the file is invalid.
+    A real serial port must exist and be usable; a USB-serial adapter is reported (its
+    driver, latency timer and what it lets the line reach). sim:// lines are reported as
+    simulated. With --probe each drive is asked who it is. Exit status 1 if a line or a
+    drive cannot work, 2 if the file is invalid.
     """
     from drivebus.terminal import Out, check_config
 
-    raise typer.Exit(check_config(Out(as_json=as_json), config))
+    raise typer.Exit(check_config(Out(as_json=as_json), config, probe=probe))
+
+
+# -- commissioning (drivebus.commissioning) -------------------------------------------------------
+
+app.add_typer(params_app, name="params")
+app.command(name="commission")(commission_command)
 
 
 # -- errors ----------------------------------------------------------------------------------------
@@ -631,11 +680,17 @@ def main() -> None:
     Exit status: 0 done, 1 a runtime failure (a port, a drive, a motion), 2 a usage or
     configuration error, 130 interrupted (after stopping what the command started).
     """
+    from drivebus.cli_args import hoist_global_options, parse_command_line
+
     debug = "--debug" in sys.argv
     if debug:  # anywhere on the command line, not only before the command
         sys.argv.remove("--debug")
+    args = hoist_global_options(sys.argv[1:])  # --trace, -v, --log-level: anywhere too
+    as_json = False
     try:
-        code = app(standalone_mode=False, prog_name="drivebus")
+        line = parse_command_line(typer.main.get_command(app), args)
+        as_json = line.json
+        code = app(args=args, standalone_mode=False, prog_name="drivebus")
     except UsageError as exc:
         if debug:
             raise
@@ -644,8 +699,24 @@ def main() -> None:
         typer.echo("interrupted", err=True)
         sys.exit(130)
     except (Exception, BaseExceptionGroup) as exc:
+        if as_json and not debug:
+            _json_error(exc)
         _fail(exc, debug)
     sys.exit(code if isinstance(code, int) else 0)
+
+
+def _json_error(exc: BaseException) -> None:
+    """With ``--json``, a failure is a JSON object on stdout too (unless the command
+    already printed its result there)."""
+    from drivebus.terminal import Out
+
+    if Out.results:
+        return
+    leaves = _leaves(exc)
+    errors = [{"type": type(e).__name__, "message": _explain_any(e)[0].removeprefix("error: "),
+               "exit_status": _explain_any(e)[1]} for e in leaves]
+    print(json.dumps({"error": errors[0], **({"errors": errors} if len(errors) > 1 else {})},
+                     indent=2), flush=True)
 
 
 __all__ = ["app", "main"]

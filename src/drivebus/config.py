@@ -107,9 +107,16 @@ class LineConfig(_Model):
 
     @property
     def sim_name(self) -> str:
-        """The NAME of ``SCHEME://NAME``."""
+        """The NAME of ``SCHEME://NAME[?OPTIONS]``."""
         address = self.port or self.host or ""
-        return address.split("://", 1)[1] if "://" in address else ""
+        return address.split("://", 1)[1].partition("?")[0] if "://" in address else ""
+
+    @property
+    def sim_options(self) -> dict[str, str]:
+        """The OPTIONS of ``SCHEME://NAME?KEY=VALUE&...`` (the provider checks them)."""
+        address = self.port or self.host or ""
+        query = address.partition("?")[2]
+        return dict(part.partition("=")[::2] for part in query.split("&") if part)
 
 
 class HomingConfig(_Model):

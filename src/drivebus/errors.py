@@ -25,6 +25,7 @@ __all__ = [
     "MotionTimeout",
     "NotFound",
     "NotSupported",
+    "PartialWrite",
     "ResponseTimeout",
     "ServiceUnreachable",
     "StateError",
@@ -140,6 +141,15 @@ BusClosed = LineClosed
 
 class NotSupported(DrivebusError):
     """The drive cannot do this over its bus; the message names drive and function."""
+
+
+class PartialWrite(DrivebusError):
+    """A series of writes (a parameter load) stopped part-way: ``written`` names what the
+    drive took before it stopped, in order; the message says what was not written."""
+
+    def __init__(self, message: str, *, written: list[str]) -> None:
+        super().__init__(message)
+        self.written = written
 
 
 class DriveAlarm(DrivebusError):

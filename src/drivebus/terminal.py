@@ -72,6 +72,7 @@ from drivebus.views import axes_table, axis_line, axis_record, slaves_table, sta
 
 __all__ = [
     "Out",
+    "announce_sim_lines",
     "check_config",
     "found_line",
     "home_axis",
@@ -81,6 +82,7 @@ __all__ = [
     "run_guarded",
     "scan_line",
     "serve_sim",
+    "service_owner",
     "show_status",
     "stop_axes",
 ]
@@ -122,10 +124,14 @@ class Out:
         else:
             print(text, flush=True)
 
+    results: int = 0
+    """Results printed as JSON in this process (a failure then adds no JSON of its own)."""
+
     def result(self, data: object, *, indent: int | None = 2) -> None:
         """A command's result as JSON (with ``--json``; one line when ``indent`` is None)."""
         if self.as_json:
             print(json.dumps(data, indent=indent), flush=True)
+            Out.results += 1
 
     def warn(self, text: str) -> None:
         """A warning on stderr."""
@@ -237,10 +243,12 @@ async def write_registers(
 ) -> int:
     """Write registers and say what went to the slave."""
     assert settings is None or isinstance(settings, LineSettings)
-    async with open_slave(target, address, settings=settings, timeout=timeout) as slave:
+    async with open_slave(target, address, settings=settings, timeout=timeout,
+                          broadcast=True) as slave:
         words = await registers.write_registers(slave, register, values, fmt=fmt)
+    whom = "every slave (broadcast, no reply)" if address == 0 else f"slave {address}"
     out.line(f"wrote {len(words)} register{'' if len(words) == 1 else 's'} from "
-             f"[{register}] of slave {address} on {target}: "
+             f"[{register}] of {whom} on {target}: "
              f"{' '.join(f'0x{w:04X}' for w in words)}")
     out.result({"target": target, "address": address, "register": register,
                 "format": fmt, "words": words})
@@ -328,10 +336,14 @@ async def _one_axis(out: Out, config: Path, axis: str) -> AsyncIterator[_Run]:
     """Open the machine with just ``axis``; once it is closed again (every moving axis
     stopped and at standstill), report where an operation that did not complete left it."""
     run: _Run | None = None
+    failure: BaseException | None = None
     try:
         async with opened(config, [axis]) as m:
             run = _Run(m.axes[axis], Operation(axis, ""))
             yield run
+    except BaseException as exc:
+        failure = exc
+        raise
     finally:
         if run is not None and run.op.what and not run.op.done:
             ax, op = run.axis, run.op
@@ -340,7 +352,13 @@ async def _one_axis(out: Out, config: Path, axis: str) -> AsyncIterator[_Run]:
                 out.line(f"{ax.name}: {op.what} stopped after "
                          f"{time.monotonic() - op.started:.2f} s, "
                          f"position={_fmt(ax.position)} state={ax.state}")
-            out.result(op.as_dict())
+            record = op.as_dict()
+            if failure is not None:
+                text, status = explain(failure)
+                record["error"] = {"type": type(failure).__name__,
+                                   "message": text.removeprefix("error: "),
+                                   "exit_status": status}
+            out.result(record)
 
 
 async def _with_progress(
@@ -369,6 +387,10 @@ async def move_axis(
         start = ax.position
         goal = (start or 0.0) + target if by else target
         what = f"move {'by' if by else 'to'} {target:g}"
+        try:
+            ax.check_limits(goal)  # a target beyond the soft limits is a bad argument
+        except errors.LimitViolation as exc:
+            raise ArgumentError(f"TARGET: {exc}") from None
 
         async def motion() -> None:
             if by:
@@ -485,6 +507,11 @@ def explain(exc: BaseException) -> tuple[str, int]:
             port = m.group(1)
         return f"error: cannot open {port or 'the port'}: {os.strerror(code)}; " \
                f"{_PORT_HINTS[code]}", 1
+    if isinstance(exc, errors.ModbusException):
+        return (f"error: {exc}; the slave answered, refusing the request: check the register "
+                f"address, count and value against the drive's manual"), 1
+    if isinstance(exc, errors.PartialWrite):
+        return f"error: {exc}", 1
     if isinstance(exc, DriveOffline | TransactionError):
         return (f"error: {exc}; check power, wiring, address and line settings "
                 f"(`drivebus scan PORT` lists the slaves that answer)"), 1
@@ -505,12 +532,21 @@ async def serve_sim(out: Out, config: Path, log: bool) -> int:
 # -- check ---------------------------------------------------------------------------------------
 
 
-def check_config(out: Out, config: Path, sysfs: Path = Path("/sys")) -> int:
-    """Validate ``config`` and report on its lines; exit status 1 if a line cannot work."""
+def check_config(out: Out, config: Path, sysfs: Path = Path("/sys"), *,
+                 probe: bool = False) -> int:
+    """Validate ``config`` and report on its lines (and, with ``probe``, on its drives);
+    exit status 1 if a line or a drive cannot work."""
+    from drivebus.app.commission import probe_axes
+
     report = check_machine_file(config, sysfs)
+    probes = []
+    if probe and not report.problems:
+        announce_sim_lines(config)
+        probes = anyio.run(probe_axes, config)
+    problems = report.problems + [f"axis {p.axis}: {p.problem}" for p in probes if not p.ok]
     out.result({"file": str(config), "machine": report.name, "axes": report.axes,
                 "lines": [dataclasses.asdict(ln) for ln in report.lines],
-                "problems": report.problems})
+                "drives": [p.as_dict() for p in probes], "problems": problems})
     out.line(f"{config}: valid machine {report.name!r}: {_count(report.axes, 'axis', 'axes')} "
              f"on {_count(len(report.lines), 'line', 'lines')}")
     for ln in report.lines:
@@ -519,13 +555,35 @@ def check_config(out: Out, config: Path, sysfs: Path = Path("/sys")) -> int:
             out.line(f"line {ln.name}: simulated ({ln.where}, {ln.kind}): {on}")
         elif ln.kind == "serial":
             out.line(f"line {ln.name}: serial port {ln.where} at {ln.settings}: {on}")
+            if ln.adapter is not None:
+                out.line(f"line {ln.name}: {_adapter_text(ln.adapter)}")
         else:
             out.line(f"line {ln.name}: {ln.kind} {ln.where}: {on}")
         for w in ln.warnings:
             out.warn(f"line {ln.name}: {w}")
-    for p in report.problems:
+    for pr in probes:
+        if pr.ok:
+            out.line(f"axis {pr.axis}: {pr.family} answers at address {pr.address}"
+                     f"{f' at {pr.settings}' if pr.settings else ''} ({pr.identity})")
+    for p in problems:
         print(f"error: {p}", file=sys.stderr, flush=True)
-    return 1 if report.problems else 0
+    return 1 if problems else 0
+
+
+def _adapter_text(a: dict[str, Any]) -> str:
+    """One line about a port's adapter and what the line reaches with it."""
+    parts = [f"adapter driver {a['driver'] or 'unknown'}"]
+    timer = a["latency_timer_ms"]
+    if timer is not None:
+        parts.append(f"latency timer {timer} ms")
+    parts.append("RS-485 mode on (RTS drives the transmitter)" if a["rs485_mode"]
+                 else "RS-485 mode off (the adapter switches by itself)")
+    parts.append("local echo expected" if a["local_echo"] else "no local echo")
+    reach = (f"a 4-register poll is {a['poll_wire_ms']:.2f} ms on the wire: the line reaches "
+             f"about {a['efficiency_low_latency']:.0%} of its capacity with a 1 ms timer")
+    if timer is not None and timer > 1:
+        reach += f", {a['efficiency_at_timer']:.0%} with {timer} ms"
+    return "; ".join(parts) + "; " + reach
 
 
 def _count(n: int, one: str, many: str) -> str:
@@ -533,6 +591,51 @@ def _count(n: int, one: str, many: str) -> str:
 
 
 # -- through a running drivebus serve (the line's one owner) ---------------------------------------
+
+
+def announce_sim_lines(config: Path) -> None:
+    """Say on stderr, for each ``sim://`` line of ``config``, whether opening the machine
+    here reaches a running ``drivebus sim`` (always) or starts a private simulator (on a
+    terminal; logged at INFO otherwise, which ``-v`` shows)."""
+    from drivebus.config import load_config
+    from drivebus.sim.serve import published
+
+    try:
+        cfg = load_config(config)
+    except ConfigError:
+        return  # the command itself says what is wrong with the file
+    for ln in cfg.lines.values():
+        if not ln.simulated:
+            continue
+        found = published(ln.sim_name)
+        where = ln.port or ln.host
+        if found is not None:
+            print(f"note: {where}: reaching the running drivebus sim on {found.where}",
+                  file=sys.stderr, flush=True)
+            continue
+        note = (f"{where}: no drivebus sim serves it: starting a private simulator (its "
+                f"drives start afresh; `drivebus sim CONFIG` keeps them between commands)")
+        if sys.stderr.isatty():  # at a terminal; scripts and pipes see it with -v
+            print(f"note: {note}", file=sys.stderr, flush=True)
+        else:
+            logging.getLogger("drivebus.sim").info(note)
+
+
+def service_owner(
+    config: Path, server: str | None, token: str | None, local: bool
+) -> ServiceClient | None:
+    """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
+    through the file), as a client; None to open the machine here."""
+    from drivebus.service.client import find_service
+
+    url = None if local else server or find_service(config)
+    if url is None:
+        announce_sim_lines(config)
+        return None
+    if server is None:
+        print(f"note: {config} is served by a running drivebus serve at {url}: talking to "
+              f"it (--local opens the machine here)", file=sys.stderr, flush=True)
+    return ServiceClient(url, token=token)
 
 
 async def _call(fn: Callable[..., Any], *args: Any) -> Any:

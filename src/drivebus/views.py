@@ -55,14 +55,16 @@ def axes_table(m: Machine) -> Table:
 
 
 def slaves_table(m: Machine) -> Table:
-    """Per-slave bus counters of every line: transactions, retries, timeouts, CRC errors,
-    exceptions and the last error."""
+    """Per-slave bus counters of every line: transactions, reply latency (p50/p99 of the
+    last replies), retries, timeouts, CRC errors, exceptions and the last error."""
     t = Table(title="bus statistics per slave", expand=False)
-    for col in ("line", "slave", "axis", "tx", "retries", "timeouts", "crc", "exc", "last error"):
+    for col in ("line", "slave", "axis", "tx", "p50", "p99", "retries", "timeouts", "crc",
+                "exc", "last error"):
         t.add_column(col)
     for line, address, axis, s in _slave_rows(m):
         t.add_row(
-            line, str(address), axis, str(s.transactions), str(s.retries), str(s.timeouts),
+            line, str(address), axis, str(s.transactions), _ms(s.latency.quantile(0.5)),
+            _ms(s.latency.quantile(0.99)), str(s.retries), str(s.timeouts),
             str(s.crc_errors), str(s.exceptions), s.last_error[:60],
         )
     return t
@@ -123,6 +125,12 @@ def stats_lines(m: Machine) -> list[str]:
     return [
         f"line {line} slave {address}{f' ({axis})' if axis else ''}: tx={s.transactions} "
         f"retries={s.retries} timeouts={s.timeouts} crc={s.crc_errors} "
-        f"exceptions={s.exceptions}" + (f" last_error={s.last_error!r}" if s.last_error else "")
+        f"exceptions={s.exceptions} latency_p50={_ms(s.latency.quantile(0.5))} "
+        f"latency_p99={_ms(s.latency.quantile(0.99))}"
+        + (f" last_error={s.last_error!r}" if s.last_error else "")
         for line, address, axis, s in _slave_rows(m)
     ]
+
+
+def _ms(seconds: float | None) -> str:
+    return "-" if seconds is None else f"{seconds * 1e3:.2f}ms"

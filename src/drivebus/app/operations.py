@@ -15,11 +15,12 @@ from typing import Any
 
 import anyio
 
-from drivebus.app.doctor import check_serial_port
+from drivebus.app.doctor import Adapter, check_serial_port, poll_efficiency
 from drivebus.config import MachineConfig, load_config, machine_config
 from drivebus.drives.registry import drive_label
 from drivebus.errors import ConfigError, DriveOffline
 from drivebus.motion import Axis, AxisState, Machine, open_machine
+from drivebus.settings import LineSettings
 
 __all__ = [
     "ConfigReport",
@@ -144,6 +145,9 @@ class LineReport:
     axes: list[str]
     problems: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    adapter: dict[str, Any] | None = None
+    """A real serial port's adapter: driver, latency timer, RS-485 mode, local echo, and
+    the fraction of the line a 4-register poll can use with it."""
 
 
 @dataclass
@@ -177,5 +181,24 @@ def check_config(config: str | Path, sysfs: Path = Path("/sys")) -> ConfigReport
             assert ln.port is not None
             port = check_serial_port(ln.port, sysfs)
             report.problems, report.warnings = port.problems, port.warnings
+            if port.adapter is not None:
+                report.adapter = _adapter_record(port.adapter, ln.settings, ln.rs485,
+                                                 ln.local_echo)
         lines.append(report)
     return ConfigReport(cfg.name, len(cfg.axes), lines)
+
+
+def _adapter_record(adapter: Adapter, settings: LineSettings, rs485: bool, echo: bool
+                    ) -> dict[str, Any]:
+    """What ``check`` says about a port's adapter, as plain data."""
+    lt = adapter.latency_timer_ms
+    wire, best = poll_efficiency(settings, 0.0)
+    record: dict[str, Any] = {
+        "driver": adapter.driver, "latency_timer_ms": lt, "rs485_mode": rs485,
+        "local_echo": echo, "poll_wire_ms": round(wire * 1e3, 3),
+        "efficiency_low_latency": round(poll_efficiency(settings, 0.001)[1], 3),
+        "efficiency_best": round(best, 3),
+    }
+    if lt is not None:
+        record["efficiency_at_timer"] = round(poll_efficiency(settings, lt / 1000)[1], 3)
+    return record

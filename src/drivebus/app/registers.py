@@ -142,10 +142,12 @@ async def open_slave(
     settings: LineSettings | None = None,
     timeout: float = 0.5,
     retries: int = 1,
+    broadcast: bool = False,
 ) -> AsyncIterator[SlaveHandle]:
-    """A slave handle on ``target`` for the block (the line is opened and closed here)."""
+    """A slave handle on ``target`` for the block (the line is opened and closed here);
+    ``broadcast``: address 0 (every slave, no reply) is allowed."""
     t = parse_target(target) if isinstance(target, str) else target
-    address = checks.whole("ADDR", address, 0 if t.kind == "tcp" else 1,
+    address = checks.whole("ADDR", address, 0 if t.kind == "tcp" or broadcast else 1,
                            255 if t.kind == "tcp" else 247)
     config = t.line_config(settings, timeout=timeout, retries=retries)
     async with AsyncExitStack() as stack:

@@ -27,6 +27,8 @@ import anyio.abc
 
 from drivebus import checks
 from drivebus.app.events import Event, EventHub
+from drivebus.app.params import LoadReport, ParameterSet, load_parameters, read_parameters
+from drivebus.app.recordings import Recordings
 from drivebus.app.snapshots import (
     AxisSnapshot,
     LineSnapshot,
@@ -45,6 +47,7 @@ from drivebus.errors import (
     LeaseHeld,
     MotionAborted,
     NotFound,
+    StateError,
 )
 from drivebus.motion import Axis, AxisState, GroupMotionError, GroupMoveReport, Machine
 from drivebus.motion.machine import open_machine
@@ -133,6 +136,8 @@ class MachineSession:
         self._ids = itertools.count(1)
         self._lease: Lease | None = None
         self._jogs: dict[str, str] = {}  # axis -> client whose jog it is
+        self.recordings = Recordings(machine)
+        """Recordings clients started (the dashboard's Record button)."""
 
     @classmethod
     @asynccontextmanager
@@ -159,6 +164,7 @@ class MachineSession:
             try:
                 yield session
             finally:
+                session.recordings.close()
                 tg.cancel_scope.cancel()
 
     # -- looking --------------------------------------------------------------------------
@@ -503,6 +509,31 @@ class MachineSession:
             await axis.stop()
         except DrivebusError as exc:
             log.error("axis %s: stop after its client left failed: %s", axis.name, exc)
+
+    # -- drive parameters (backup, compare, restore) ------------------------------------------
+
+    async def read_parameters(self, axis: str) -> ParameterSet:
+        """Every documented parameter of ``axis``'s drive, read between its polls (reads
+        only: a viewing operation)."""
+        ax = self.axis(axis)
+        about = {"machine": self.name, "axis": axis, "line": ax.config.line,
+                 "address": ax.config.address}
+        return await read_parameters(ax.profile, about=about)
+
+    async def load_parameters(
+        self, axis: str, values: Mapping[str, int], *, save: bool = False,
+        dry_run: bool = False, include_comms: bool = False, client: str | None = None,
+    ) -> LoadReport:
+        """Write the parameters of ``values`` that differ from the drive's (``load_parameters``
+        of ``drivebus.app.params``); refused while the axis moves, and by the lease."""
+        ax = self.axis(axis)
+        wanted = ParameterSet.from_mapping(ax.profile.family, values)
+        if not dry_run:
+            self.authorize(client)
+            if ax.state in MOVING_STATES:
+                raise StateError(f"axis {axis} is {ax.state}: parameters are loaded at rest")
+        return await load_parameters(ax.profile, wanted, save=save, dry_run=dry_run,
+                                     include_comms=include_comms)
 
     # -- raw registers (commissioning, tools that talk to a running service) ----------------
 

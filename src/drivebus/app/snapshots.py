@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from drivebus.bus import Bus
+from drivebus.clock import monotonic
 from drivebus.errors import DrivebusError
 from drivebus.motion import Axis, Machine
 
@@ -57,6 +58,8 @@ class AxisSnapshot:
     limit_positive: bool
     limit_negative: bool
     soft_limits: tuple[float, float] | None
+    target: float | None
+    """The target of the motion under way, in user units (None: none)."""
     units: str
     """The axis's user unit (``mm``, ``deg``): positions, speeds/s, accelerations/s²."""
     units_per_rev: float
@@ -94,6 +97,7 @@ def axis_snapshot(axis: Axis) -> AxisSnapshot:
         limit_positive=bool(st and st.limit_positive),
         limit_negative=bool(st and st.limit_negative),
         soft_limits=cfg.limits,
+        target=_finite(axis.target),
         units=cfg.unit,
         units_per_rev=cfg.units_per_rev,
         pulses_per_rev=cfg.pulses_per_rev,
@@ -116,6 +120,14 @@ class LineSnapshot:
     retries: int
     timeouts: int
     last_error: str
+    wire_time: float
+    """Seconds the line carried frames since it opened: with ``timestamp``, a client
+    gets the utilisation over any interval from two snapshots."""
+    replies: int
+    reply_time: float
+    """Sum of reply latencies, seconds: over ``replies``, the mean latency."""
+    timestamp: float
+    """When this was taken (monotonic s, the clock of the axes' ``timestamp``)."""
     slaves: dict[int, dict[str, Any]] = field(default_factory=dict)
     """Per-slave counters by address."""
 
@@ -142,9 +154,11 @@ def line_snapshot(name: str, bus: Bus, kind: str, endpoint: str) -> LineSnapshot
         retries=total.retries,
         timeouts=total.timeouts,
         last_error=last,
-        slaves={
-            a: {k: v for k, v in asdict(s).items()} for a, s in sorted(stats.slaves.items())
-        },
+        wire_time=stats.wire_time,
+        replies=stats.replies,
+        reply_time=stats.reply_time,
+        timestamp=monotonic(),
+        slaves={a: s.as_dict() for a, s in sorted(stats.slaves.items())},
     )
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 from collections.abc import Collection
+from pathlib import Path
 
 from drivebus.bench.common import (
     BenchOptions,
@@ -67,11 +68,13 @@ async def run_bench(
     turnaround: float = 0.001,
     seconds: float | None = None,
     only: Collection[str] | None = None,
+    plots: Path | None = None,
 ) -> list[BenchResult]:
     """Run every scenario (or those named in ``only``); ``quick`` shortens them, ``seconds``
-    sets each timed run's length."""
+    sets each timed run's length; ``plots`` is where the motion scenario draws its moves."""
     opts = BenchOptions(
-        quick=quick, seconds=seconds or (0.6 if quick else 3.0), turnaround=turnaround
+        quick=quick, seconds=seconds or (0.6 if quick else 3.0), turnaround=turnaround,
+        plots=plots,
     )
     chosen = scenarios()
     if only is not None:

@@ -15,6 +15,7 @@ import time
 from collections.abc import Awaitable, Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
 
@@ -82,6 +83,9 @@ class BenchOptions:
     """Length of each timed run."""
     turnaround: float = 0.001
     """Simulated slaves' turnaround (request end to reply start)."""
+    plots: Path | None = None
+    """Where the motion scenario writes its plots (an HTML report of its group moves,
+    and a PNG where matplotlib is installed); None: none."""
 
 
 @dataclass(frozen=True)
@@ -362,12 +366,14 @@ class SimProcess(ChildProcess):
     @classmethod
     def slaves(
         cls, n: int, settings: Sequence[LineSettings], turnaround: float, *, lines: int = 1,
-        strict: bool = True,
+        strict: bool = True, adapter_latency: float = 0.0,
     ) -> SimProcess:
         """``lines`` wires, each with slaves 1..``n`` (settings taken in turn); not
-        ``strict``: they answer frames sent without the silence too."""
+        ``strict``: they answer frames sent without the silence too; ``adapter_latency``:
+        the master's adapter holds each reply until its latency timer ticks."""
         return cls("--slaves", str(n), "--settings", ",".join(str(s) for s in settings),
                    "--turnaround", repr(turnaround), "--lines", str(lines),
+                   "--adapter-latency", repr(adapter_latency),
                    *(() if strict else ("--lenient",)))
 
     async def babble(self, mode: str) -> int:

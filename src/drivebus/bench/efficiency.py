@@ -13,6 +13,10 @@ drivebus layers): its efficiency and gap are the floor that this machine, its pt
 the simulator's process allow any asyncio master, which only a faster machine lowers.
 The same bare master as a blocking loop in a thread of its own (``bare_poll_thread``)
 shows what a dedicated I/O thread per line could reach at best.
+
+``efficiency_recording`` is the first run again with what a recording hangs on the bus (a
+``Bus.observe`` observer filling a bounded ring, as ``Machine.record`` does);
+``recording_cost_points`` is what that costs, in points of efficiency.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import asyncio
 import os
 import select
 import time
+from collections import deque
 from collections.abc import Sequence
 
 import anyio
@@ -43,7 +48,7 @@ from drivebus.bench.common import (
     stage_figures,
     wire_figures,
 )
-from drivebus.bus import Bus
+from drivebus.bus import Bus, Transaction
 from drivebus.clock import PreciseTimer
 from drivebus.line.rtu import frame
 from drivebus.line.serial import SerialLine
@@ -61,8 +66,11 @@ REGISTERS = 4
 
 
 async def _poll(line: SerialLine, settings: Sequence[LineSettings], n: int, seconds: float,
-                clear: object) -> tuple[float, list]:
+                clear: object, *, recording: bool = False) -> tuple[float, list]:
     async with Bus(line) as bus:
+        if recording:  # what a Recording hangs on a bus: an observer filling a ring
+            ring: deque[Transaction] = deque(maxlen=500_000)
+            bus.observe(ring.append)
         handles = [bus.slave(a, settings=settings[(a - 1) % len(settings)])
                    for a in range(1, n + 1)]
         await poll_until(handles, time.monotonic() + 0.2, registers=REGISTERS)  # warm-up
@@ -177,6 +185,10 @@ async def efficiency(
                                      seconds, sim.clear)
         frames = next(iter((await sim.logs()).values()))
         await sim.clear()
+        await _poll(SerialLine(sim.paths[0], settings[0]), settings, n, seconds, sim.clear,
+                    recording=True)
+        recorded = wire_figures(next(iter((await sim.logs()).values())), turnaround)
+        await sim.clear()
         await bare_poll(sim.paths[0], settings, n, seconds)
         floor = wire_figures(next(iter((await sim.logs()).values())), turnaround)
         await sim.clear()
@@ -208,6 +220,8 @@ async def efficiency(
             "request_to_wire_us": stages.request_to_wire_us,
             "master_cpu_us_per_tx": cpu / max(fig.transactions, 1) * 1e6,
             "efficiency_in_process": in_process.efficiency,
+            "efficiency_recording": recorded.efficiency,
+            "recording_cost_points": (fig.efficiency - recorded.efficiency) * 100,
             "floor_efficiency": floor.efficiency,
             "floor_gap_excess_us": floor.gap_median_us,
             "floor_thread_efficiency": floor_thread.efficiency,
@@ -219,6 +233,7 @@ async def efficiency(
             "gap_excess_median_us": at_most(GAP_EXCESS_TARGET_US),
             "violations": at_most(0),
             "efficiency_in_process": at_least(EFFICIENCY_TARGET),
+            "recording_cost_points": at_most(1.0),
         },
     )
 

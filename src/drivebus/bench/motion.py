@@ -20,11 +20,14 @@ from pathlib import Path
 import anyio
 
 from drivebus.bench.common import BenchOptions, BenchResult, Scenario, at_most
-from drivebus.errors import MotionAborted
+from drivebus.errors import ConfigError, MotionAborted
 from drivebus.motion import Axis, AxisState, Machine, open_machine
+from drivebus.motion.recording import Recording
 from drivebus.sim.soak import run_soak
 
 __all__ = ["SCENARIO"]
+
+log = logging.getLogger(__name__)
 
 DEMO = Path(__file__).resolve().parents[3] / "configs" / "demo.toml"
 _KINDS = ("x", "y", "z", "r")  # NT86, BHSS, CL86R, EPR60 (aux, the OD2000, cannot move)
@@ -106,23 +109,41 @@ _MIXES = (
 )
 
 
-async def _groups(m: Machine) -> BenchResult:
-    """Group moves of mixed distances (short, very short, rotary; RS-485 and TCP)."""
+async def _groups(m: Machine, plots: Path | None) -> BenchResult:
+    """Group moves of mixed distances (short, very short, rotary; RS-485 and TCP),
+    recorded and drawn into ``plots`` when given."""
     spreads: list[float] = []
     skews: list[float] = []
-    for targets in _MIXES:
-        before = {n: m.sim_drives[n].position() for n in targets}
-        report = await m.group(*targets).move_to(targets)
-        moved = [n for n in targets if m.sim_drives[n].position() != before[n]]
-        ends = [m.sim_drives[n].kin.end_time() for n in moved]
-        spreads.append(max(ends) - min(ends) if ends else 0.0)
-        skews.append(report.start_skew)
+    async with m.record(axes=_KINDS) as rec:
+        for targets in _MIXES:
+            before = {n: m.sim_drives[n].position() for n in targets}
+            report = await m.group(*targets).move_to(targets)
+            moved = [n for n in targets if m.sim_drives[n].position() != before[n]]
+            ends = [m.sim_drives[n].kin.end_time() for n in moved]
+            spreads.append(max(ends) - min(ends) if ends else 0.0)
+            skews.append(report.start_skew)
+    if plots is not None:
+        _draw(rec, plots)
     return BenchResult("motion", "group arrival (4 drive kinds)", {
         "moves": len(spreads),
         "spread_median_ms": statistics.median(spreads) * 1000,
         "spread_max_ms": max(spreads) * 1000,
         "start_skew_median_ms": statistics.median(skews) * 1000,
     }, {"spread_max_ms": at_most(min(m.axes[n].config.poll.moving for n in _KINDS) * 1000)})
+
+
+def _draw(rec: Recording, plots: Path) -> None:
+    """The group moves' recording as an HTML report (and a PNG with matplotlib)."""
+    from drivebus.service.report import report_html, report_png
+
+    plots.mkdir(parents=True, exist_ok=True)
+    html = plots / "motion-group-moves.html"
+    html.write_text(report_html(rec, title="drivebus bench: group moves of 4 drive kinds"),
+                    encoding="utf-8")
+    try:
+        report_png(rec, plots / "motion-group-moves.png")
+    except ConfigError as exc:  # matplotlib is an optional extra
+        log.warning("bench: no PNG of the group moves: %s", exc)
 
 
 @contextlib.contextmanager
@@ -146,7 +167,7 @@ async def run(opts: BenchOptions) -> list[BenchResult]:
             results.append(await _stops(m, name, 4 if opts.quick else 20))
         for name in _KINDS:
             results.append(await _jogs(m, name))
-        results.append(await _groups(m))
+        results.append(await _groups(m, opts.plots))
     seconds = min(20.0, 40 * opts.seconds) if opts.quick else 600.0
     with _quiet_axes():  # the soak's injected alarms and expired watchdogs, logged by the hundred
         report = await run_soak(seconds, seed=20261124, name="bench-soak")

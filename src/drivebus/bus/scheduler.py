@@ -7,7 +7,7 @@ import heapq
 import itertools
 import logging
 import math
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from types import TracebackType
@@ -15,6 +15,7 @@ from types import TracebackType
 import anyio
 
 from drivebus import checks
+from drivebus.bus.observe import Outcome, Transaction, TransactionObserver
 from drivebus.bus.priority import Priority
 from drivebus.bus.slave import SlaveHandle
 from drivebus.bus.stats import BusStats
@@ -130,6 +131,7 @@ class Bus:
         self._tg: ServiceTasks | None = None
         self._open = False
         self._handles: dict[int, SlaveHandle] = {}
+        self._observers: list[TransactionObserver] = []
 
     # -- life cycle ------------------------------------------------------------------------
 
@@ -163,6 +165,30 @@ class Bus:
     def is_open(self) -> bool:
         """True between entering and leaving the ``async with``."""
         return self._open
+
+    def observe(self, observer: TransactionObserver) -> Callable[[], None]:
+        """Call ``observer`` with every transaction's outcome from now on (it must be
+        quick and must not raise); returns the function that ends it."""
+        self._observers.append(observer)
+
+        def end() -> None:
+            if observer in self._observers:
+                self._observers.remove(observer)
+
+        return end
+
+    def _tell(self, req: _Request, outcome: Outcome, ex: Exchange | None = None) -> None:
+        """Tell the observers how an attempt of ``req`` ended."""
+        if ex is None:
+            now = monotonic()
+            tx = Transaction(req.handle.address, req.pdu[0] if req.pdu else 0, req.priority,
+                             now, now, 0.0, None, outcome)
+        else:
+            tx = Transaction(req.handle.address, req.pdu[0] if req.pdu else 0, req.priority,
+                             ex.tx_start, ex.rx_end, ex.wire_time,
+                             None if req.expect is None else ex.rx_end - ex.tx_end, outcome)
+        for observer in self._observers:
+            observer(tx)
 
     def slave(
         self,
@@ -459,6 +485,8 @@ class Bus:
             req.sent = exc.sent
             st.line_noise += 1
             st.last_error = str(exc)
+            if self._observers:
+                self._tell(req, "noise")
             # Not retried: noise that outlasted the timeout (and, for a drowned reply, the
             # longest frame's wire time) would only hold the caller for another timeout.
             self._retry_or_fail(req, exc, retry=False)
@@ -480,6 +508,8 @@ class Bus:
                 pass  # refused before it reached the wire; not a wire error
             else:
                 st.crc_errors += 1
+            if self._observers:
+                self._tell(req, _outcome(exc))
             self._retry_or_fail(req, exc, retry=not isinstance(exc, LineConfigError))
             return
         except (OSError, ValueError) as exc:
@@ -493,12 +523,20 @@ class Bus:
         noise.reset()
         self.stats.transactions += 1
         self.stats.wire_time += ex.wire_time
+        outcome: Outcome = "ok"
         if req.expect is None:
             st.broadcasts += 1
+            outcome = "broadcast"
         else:
             st.transactions += 1
+            self.stats.replies += 1
+            self.stats.reply_time += ex.rx_end - ex.tx_end
+            st.latency.add(ex.rx_end - ex.tx_end)
             if ex.reply and ex.reply[0] & 0x80:
                 st.exceptions += 1
+                outcome = "exception"
+        if self._observers:
+            self._tell(req, outcome, ex)
         if not req.future.done():
             req.future.set_result(ex.reply)
 
@@ -544,3 +582,16 @@ class Bus:
             self._wake_owner()
         else:
             req.future.set_exception(exc)
+
+
+def _outcome(exc: TransactionError) -> Outcome:
+    """The observers' name for a failed attempt."""
+    if isinstance(exc, ResponseTimeout):
+        return "timeout"
+    if isinstance(exc, WrongResponder):
+        return "wrong_responder"
+    if isinstance(exc, ConnectionLost):
+        return "connection"
+    if isinstance(exc, LineConfigError):
+        return "refused"
+    return "crc"

@@ -1,12 +1,79 @@
-"""Counters per slave and line utilisation, kept by the bus scheduler."""
+"""Counters per slave and line utilisation, kept by the bus scheduler.
+
+Each slave's reply latency (from the end of the request to the end of its reply: the
+slave's turnaround, the reply's wire time and whatever an adapter holds it) is kept twice:
+the last ``LATENCY_WINDOW`` replies for percentiles (``p50``/``p99``), and a cumulative
+histogram over ``LATENCY_BUCKETS`` for monitoring systems (Prometheus).
+"""
 
 from __future__ import annotations
 
+import bisect
+from collections import deque
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 from drivebus.clock import monotonic
 
-__all__ = ["BusStats", "SlaveStats"]
+__all__ = ["LATENCY_BUCKETS", "LATENCY_WINDOW", "BusStats", "Latency", "SlaveStats"]
+
+LATENCY_WINDOW = 1000
+"""Replies kept per slave for the latency percentiles."""
+
+LATENCY_BUCKETS: tuple[float, ...] = (
+    0.0005, 0.001, 0.002, 0.003, 0.005, 0.0075, 0.01, 0.015, 0.02, 0.03, 0.05, 0.1, 0.25,
+    0.5, 1.0,
+)
+"""Upper bounds (s) of the latency histogram's buckets (and +Inf)."""
+
+
+class Latency:
+    """One slave's reply latencies: a window of the last ones and a cumulative histogram."""
+
+    __slots__ = ("buckets", "count", "sum", "window")
+
+    def __init__(self) -> None:
+        self.window: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self.buckets = [0] * (len(LATENCY_BUCKETS) + 1)
+        """Replies per bucket (not cumulative); the last one is beyond the largest bound."""
+        self.count = 0
+        self.sum = 0.0
+
+    def add(self, seconds: float) -> None:
+        """Record one reply's latency."""
+        self.window.append(seconds)
+        self.buckets[bisect.bisect_left(LATENCY_BUCKETS, seconds)] += 1
+        self.count += 1
+        self.sum += seconds
+
+    def quantile(self, q: float) -> float | None:
+        """The ``q`` quantile (0..1) of the window, None before the first reply."""
+        if not self.window:
+            return None
+        ordered = sorted(self.window)
+        return ordered[min(len(ordered) - 1, round(q * (len(ordered) - 1)))]
+
+    def merge(self, other: Latency) -> None:
+        """Add ``other``'s replies (a line's total)."""
+        self.window.extend(other.window)
+        self.buckets = [a + b for a, b in zip(self.buckets, other.buckets, strict=True)]
+        self.count += other.count
+        self.sum += other.sum
+
+    def cumulative(self) -> list[tuple[float, int]]:
+        """(upper bound, replies at or below it), the last bound being +Inf."""
+        out, n = [], 0
+        for bound, k in zip((*LATENCY_BUCKETS, float("inf")), self.buckets, strict=True):
+            n += k
+            out.append((bound, n))
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        """p50/p99 of the window (ms) and the totals, as plain data."""
+        p50, p99 = self.quantile(0.5), self.quantile(0.99)
+        return {"p50_ms": None if p50 is None else round(p50 * 1e3, 3),
+                "p99_ms": None if p99 is None else round(p99 * 1e3, 3),
+                "window": len(self.window), "count": self.count}
 
 
 @dataclass
@@ -28,6 +95,15 @@ class SlaveStats:
     sent) or drowned their reply (``LineNoise``)."""
     broadcasts: int = 0
     last_error: str = ""
+    latency: Latency = field(default_factory=Latency, repr=False, compare=False)
+    """Reply latencies (see the module's docstring)."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """The counters and the latency summary as plain data."""
+        d: dict[str, Any] = {f.name: getattr(self, f.name) for f in fields(self)
+                             if f.name != "latency"}
+        d["latency"] = self.latency.summary()
+        return d
 
     @property
     def errors(self) -> int:
@@ -51,6 +127,11 @@ class BusStats:
     """Seconds the line carried frames (request and reply bytes)."""
     transactions: int = 0
     """Attempts that went on the wire, successful or not."""
+    replies: int = 0
+    """Replies received (exception replies included; broadcasts have none)."""
+    reply_time: float = 0.0
+    """Seconds from each request's last byte to its reply's last byte, added up: with
+    ``replies``, the mean reply latency over any interval."""
 
     def slave(self, address: int) -> SlaveStats:
         """The counters of ``address`` (created on first use)."""
@@ -68,8 +149,10 @@ class BusStats:
     def total(self) -> SlaveStats:
         """All slaves' counters added up."""
         t = SlaveStats()
-        counters = [f.name for f in fields(SlaveStats) if f.name != "last_error"]
+        counters = [f.name for f in fields(SlaveStats) if f.name not in ("last_error",
+                                                                          "latency")]
         for s in self.slaves.values():
             for name in counters:
                 setattr(t, name, getattr(t, name) + getattr(s, name))
+            t.latency.merge(s.latency)
         return t

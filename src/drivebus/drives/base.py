@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.checks import validation_problems
-from drivebus.drives.registers import Register, WordOrder
+from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, FrameError, ModbusException, NotSupported
 from drivebus.settings import LineSettings
@@ -30,6 +30,8 @@ __all__ = [
     "HomingParams",
     "HomingSwitches",
     "MoveParams",
+    "Parameter",
+    "WriteThrough",
     "describe_values",
     "ramp_time_quantized",
 ]
@@ -113,6 +115,56 @@ def ramp_time_quantized(params: MoveParams) -> MoveParams:
 
 
 
+@dataclass(frozen=True)
+class Parameter:
+    """A documented, readable drive parameter: what ``drivebus params`` backs up, compares
+    and restores. ``key`` names it in a parameter file; ``register`` says where it is, its
+    unit, width and range (a load is range-checked against it before the first write)."""
+
+    key: str
+    register: Register
+    stored: bool = True
+    """Kept across a power cycle once saved (EEPROM or flash); False: volatile, RAM only."""
+    comms: bool = False
+    """Sets the drive's own address or line settings (after a power cycle): a load writes
+    it only when asked; ``drivebus commission`` is the tool for it."""
+    where: str = ""
+    """The manual's notation of where it is, if not its register address (``2005h.0``)."""
+
+    @property
+    def location(self) -> str:
+        """Where the parameter is, as the manual writes it: ``35 (0x0023)`` or ``2005h.0``."""
+        if self.where:
+            return self.where
+        a = self.register.address
+        return f"{a} (0x{a:04X})"
+
+    @property
+    def name(self) -> str:
+        """The manual's name of the parameter."""
+        return self.register.name
+
+    @property
+    def unit(self) -> str:
+        """Its unit ("" when it has none)."""
+        return self.register.unit
+
+    @property
+    def writable(self) -> bool:
+        """True unless the drive only lets it be read."""
+        return self.register.access is not Access.R
+
+
+@dataclass(frozen=True)
+class WriteThrough:
+    """A drive's switch that makes every Modbus write an EEPROM write while it holds ``on``
+    (``off``: writes go to RAM only). A parameter load turns it off for its writes."""
+
+    register: Register
+    on: int
+    off: int
+
+
 class DriveProfile:
     """Base of the drive-family profiles; unsupported procedures raise ``NotSupported``."""
 
@@ -141,6 +193,77 @@ class DriveProfile:
 
     standard_frames: ClassVar[bool] = True
     """Speaks standard Modbus frames (a scan finds it by a plain register read first)."""
+
+    # -- parameters (``drivebus params``): data, in the manual's order --------------------------
+
+    parameter_list: ClassVar[tuple[Parameter, ...]] = ()
+    """The drive's documented readable parameters (commands and status excluded)."""
+    write_through: ClassVar[WriteThrough | None] = None
+    """The drive's EEPROM write-through switch, if it has one."""
+    saves_by_write_through: ClassVar[bool] = False
+    """The drive has no save command: a value is stored only when written with write-through
+    on (``save_parameters`` then cannot store values written before)."""
+
+    @classmethod
+    def parameters(cls) -> tuple[Parameter, ...]:
+        """The drive's documented readable parameters, in the manual's order."""
+        return cls.parameter_list
+
+    async def read_parameter_values(
+        self, params: Sequence[Parameter], *, priority: Priority = Priority.CONFIG
+    ) -> list[int]:
+        """The values of ``params`` (reads only: registers side by side in one read, at
+        most 16 words, the smallest limit among the drives)."""
+        values: list[int] = []
+        i = 0
+        while i < len(params):
+            first = params[i].register
+            group = [first]
+            end = first.address + first.words
+            if first.contiguous:
+                for p in params[i + 1 :]:
+                    r = p.register
+                    if not r.contiguous or r.address != end or end + r.words - first.address > 16:
+                        break
+                    group.append(r)
+                    end += r.words
+            if len(group) == 1:
+                values.append(await self.read(first, priority=priority))
+            else:
+                words = await self.slave.read_holding_registers(
+                    first.address, end - first.address, priority=priority
+                )
+                for r in group:
+                    values.append(r.decode(words[r.address - first.address :][: r.words]))
+            i += len(group)
+        return values
+
+    async def write_parameter_value(
+        self, param: Parameter, value: int, *, priority: Priority = Priority.CONFIG
+    ) -> None:
+        """Write one parameter (range-checked by its register)."""
+        await self.write(param.register, value, priority=priority)
+
+    def save_problem(self) -> str | None:
+        """Why ``save_parameters`` cannot store the parameters now, or None (no I/O)."""
+        try:
+            self.check_supported("save_parameters")
+        except NotSupported as exc:
+            return str(exc)
+        return None
+
+    # -- commissioning (``drivebus commission``): the drive's own address and line settings --
+
+    comms_note: ClassVar[str] = ""
+    """How the drive takes a new address or line settings (switches, a power cycle)."""
+
+    def comms_writes(
+        self, address: int | None, settings: LineSettings | None, current: LineSettings | None
+    ) -> list[tuple[Register, int]]:
+        """The register writes that give the drive ``address`` and ``settings`` (None: keep),
+        talking at ``current`` now; ``NotSupported`` saying how it is done instead."""
+        raise self.unsupported("change its address or line settings",
+                               self.comms_note or "the manual documents no register for them")
 
     def __init__(self, slave: SlaveHandle, *, pulses_per_rev: int = 10000) -> None:
         self.slave = slave

@@ -25,11 +25,14 @@ from drivebus.drives.base import (
     HomingParams,
     HomingSwitches,
     MoveParams,
+    Parameter,
+    WriteThrough,
     ramp_time_quantized,
 )
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation
+from drivebus.settings import LineSettings
 
 __all__ = [
     "ALARM_TEXTS",
@@ -173,6 +176,63 @@ _STATUS_BLOCK = (0x0003, 9)  # drive mode .. position low word, gap-free
 _MAX_PULSE_RATE = 200_000  # the drive's pulse output cap (L438-L439)
 
 
+# -- parameters (``drivebus params``), in the manual's order (Table 10) ---------------------------
+# The multi-position (PT) tables 0x0080-0x00F0 are left out (not used by drivebus); 0x0016
+# is the write-through switch itself (``BHSSProfile.write_through``).
+
+_OUTPUT_FUNCTIONS = tuple(
+    Register(f"Y{i} output function", 0x004C + i, minimum=0, maximum=8) for i in range(3)
+)
+_TUNING = (
+    ("encoder_lines", Register("encoder resolution", 0x0110, minimum=0, maximum=1)),
+    ("closed_loop_current", Register("closed-loop current", 0x0112, unit="%", minimum=0,
+                                     maximum=150)),
+    ("open_loop_current", Register("open-loop current", 0x0113, unit="%", minimum=0,
+                                   maximum=100)),
+    ("lock_current", Register("lock current", 0x0114, unit="%", minimum=0, maximum=100)),
+    ("lock_current_delay", Register("lock current delay", 0x0115, minimum=100, maximum=500)),
+    ("deviation_alarm", Register("position deviation alarm threshold", 0x0116, minimum=0,
+                                 maximum=20000)),
+    ("in_position_window", Register("position-reached threshold", 0x0117, minimum=1,
+                                    maximum=4000)),
+    ("speed_smoothing", Register("speed smoothing", 0x0118, minimum=0, maximum=1024)),
+)
+_BAUD_CODES = (9600, 14400, 128000, 256000)  # 0x0014, used with SW6 = SW7 = ON
+_FORMAT_CODES = ("8N1", "8N2", "8E1", "8O1")  # 0x0015
+
+BHSS_PARAMETERS: tuple[Parameter, ...] = (
+    Parameter("pulse_polarity", Regs.PULSE_POLARITY),
+    Parameter("microstep", Regs.MICROSTEP),
+    Parameter("loop_mode", Regs.LOOP_MODE),
+    Parameter("custom_node", Regs.NODE_CUSTOM, comms=True),
+    Parameter("custom_baud", Regs.BAUD_CUSTOM, comms=True),
+    Parameter("data_format", Regs.DATA_FORMAT, comms=True),
+    Parameter("limit_stop", Regs.LIMIT_STOP),
+    Parameter("control_source", Regs.CONTROL_SOURCE),
+    Parameter("start_speed", Regs.START_SPEED),
+    Parameter("accel_time", Regs.ACCEL_TIME),
+    Parameter("decel_time", Regs.DECEL_TIME),
+    Parameter("max_speed", Regs.MAX_SPEED),
+    Parameter("distance", Regs.DISTANCE),
+    Parameter("io_absolute", Regs.IO_ABSOLUTE),
+    Parameter("homing_mode", Regs.HOME_MODE),
+    Parameter("homing_speed", Regs.HOME_SPEED),
+    Parameter("homing_creep", Regs.HOME_CREEP),
+    Parameter("homing_ramp", Regs.HOME_RAMP),
+    Parameter("home_offset_positive", Regs.HOME_OFFSET_POS),
+    Parameter("home_offset_negative", Regs.HOME_OFFSET_NEG),
+    Parameter("input_invert", Regs.INPUT_INVERT),
+    *(Parameter(f"{t.lower()}_function", Register(f"{t} input function",
+                                                  Regs.INPUT_FUNCTION_BASE + i,
+                                                  minimum=0, maximum=20))
+      for i, t in enumerate(INPUT_TERMINALS)),
+    Parameter("output_invert", Regs.OUTPUT_INVERT),
+    *(Parameter(f"y{i}_function", r) for i, r in enumerate(_OUTPUT_FUNCTIONS)),
+    *(Parameter(k, r) for k, r in _TUNING),
+)
+"""The BHSS's parameters (manual Table 10), in address order."""
+
+
 _Terminal = Literal[INPUT_TERMINALS]  # type: ignore[valid-type]
 _InputFunction = Literal[tuple(INPUT_FUNCTIONS)]  # type: ignore[valid-type]
 
@@ -225,6 +285,15 @@ class BHSSProfile(DriveProfile):
     addresses = range(1, 128)  # 1-31 by DIP switch, 32-127 in register 0x0013
     baud_rates = (9600, 14400, 19200, 38400, 115200, 128000, 256000)  # switches, or 0x0014
     line_formats = ("8N1", "8N2", "8E1", "8O1")  # register 0x0015
+    parameter_list = BHSS_PARAMETERS
+    write_through = WriteThrough(Regs.EEPROM_UPDATE, on=0, off=1)
+    saves_by_write_through = True
+    comms_note = (
+        "addresses 32-127 come from register 0x0013 when DIP switches SW1-SW5 are all OFF "
+        "(1-31 are set by the switches); baud rates 9600, 14400, 128000 and 256000 from "
+        "0x0014 when SW6 = SW7 = ON (19200, 38400, 115200 by the switches); the format "
+        "from 0x0015; all take effect after a power cycle"
+    )
 
     def __init__(
         self,
@@ -540,6 +609,39 @@ class BHSSProfile(DriveProfile):
         """0x002B = 1: the drive's factory parameters (line settings apply after power-up)."""
         await self.write(Regs.FACTORY_RESET, 1, priority=Priority.COMMAND, idempotent=False)
         self._limit_bits = None
+
+    def save_problem(self) -> str | None:
+        """Without write-through the drive cannot store what was written before."""
+        if self.eeprom_write_through:
+            return None
+        return (f"the {self.family} drive has no save command: it stores a value only when "
+                f"it is written while register 0x0016 is 0 (write-through)")
+
+    def comms_writes(
+        self, address: int | None, settings: LineSettings | None, current: LineSettings | None
+    ) -> list[tuple[Register, int]]:
+        """0x0013 (addresses 32-127), 0x0014 (9600/14400/128000/256000), 0x0015 (format)."""
+        writes: list[tuple[Register, int]] = []
+        if address is not None:
+            if not 32 <= address <= 127:
+                raise self.unsupported(
+                    f"take address {address} from a register",
+                    "addresses 1-31 are set by DIP switches SW1-SW5; 0x0013 gives 32-127 "
+                    "with all five OFF")
+            writes.append((Regs.NODE_CUSTOM, address))
+        if settings is not None:
+            if current is None or settings.baudrate != current.baudrate:
+                if settings.baudrate not in _BAUD_CODES:
+                    raise self.unsupported(
+                        f"take {settings.baudrate} baud from a register",
+                        "19200, 38400 and 115200 are set by DIP switches SW6/SW7; 0x0014 "
+                        f"gives {', '.join(map(str, _BAUD_CODES))} with SW6 = SW7 = ON")
+                writes.append((Regs.BAUD_CUSTOM, _BAUD_CODES.index(settings.baudrate)))
+            if settings.format not in _FORMAT_CODES:
+                raise self.unsupported(f"talk {settings.format}",
+                                       f"0x0015 gives {', '.join(_FORMAT_CODES)}")
+            writes.append((Regs.DATA_FORMAT, _FORMAT_CODES.index(settings.format)))
+        return writes
 
     async def save_parameters(self) -> None:
         """Nothing to do with EEPROM write-through on; otherwise ``NotSupported``."""

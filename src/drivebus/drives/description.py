@@ -189,8 +189,14 @@ class Link(_Model):
     formats: list[Annotated[str, Field(pattern=_FORMAT)]] = []
     format_rules: list[FormatRule] = []
     factory: str | None = Field(None, description="line settings out of the box: '9600 8N1'")
-    format_register: str | None = None
-    baud_register: str | None = None
+    format_register: str | None = Field(None, description="the register that sets its line "
+                                        "format (its named values: '8N1' = 0, ...)")
+    baud_register: str | None = Field(None, description="the register that sets its baud "
+                                      "rate (its named values: '9600' = 0, ...)")
+    address_register: str | None = Field(None, description="the register that sets its "
+                                         "address (`drivebus commission`)")
+    comms_note: str = Field("", description="how it takes a new address or line settings "
+                            "(switches, a save, a power cycle)")
     functions: list[Literal[3, 4, 6, 16]] = [3, 6, 16]
     max_read: int = Field(125, ge=1, le=125)
     max_write: int = Field(123, ge=1, le=123)
@@ -314,8 +320,10 @@ class RegisterDef(_Model):
     input: bool = Field(False, description="an input register (read with FC04, read-only)")
     eeprom: bool = False
     volatile: bool = False
-    parameter: bool | None = Field(None, description="a documented setting `drivebus "
-                                   "params` backs up (default: RW, not volatile, no meaning)")
+    parameter: bool | str | None = Field(
+        None, description="a documented setting `drivebus params` backs up (default: RW, "
+        "not volatile, no meaning, not the write-through switch); a string is its key in a "
+        "parameter file (a table's with {i}, the entry's index, or {name}, its name)")
     comms: bool = Field(False, description="sets the drive's address or line settings")
     means: str | None = None
     bits: dict[str, Annotated[BitDef, BeforeValidator(_bit)]] = {}
@@ -333,6 +341,18 @@ class RegisterDef(_Model):
             raise ValueError(f"unknown meaning {v!r} (known: {', '.join(TWIN_MEANINGS)})")
         return v
 
+    def _check_parameter_key(self, key: str) -> None:
+        fields = set(re.findall(r"{(\w*)}", key))
+        if self.count > 1 and not fields & {"i", "name"}:
+            raise ValueError(f"parameter {key!r}: a table's key needs {{i}} or {{name}} "
+                             "(each entry has its own key)")
+        if fields - ({"i", "name"} if self.count > 1 else set()):
+            raise ValueError(f"parameter {key!r}: only a table's key takes {{i}} or {{name}}")
+        if "name" in fields and not self.names:
+            raise ValueError(f"parameter {key!r}: {{name}} needs the table's names")
+        if not re.fullmatch(r"[A-Za-z_][\w{}]*", key):
+            raise ValueError(f"parameter {key!r}: a key is a name (letters, digits, _)")
+
     @model_validator(mode="after")
     def _check(self) -> RegisterDef:
         if self.low_address is not None and self.words != 2:
@@ -347,6 +367,8 @@ class RegisterDef(_Model):
             raise ValueError(f"names: {len(self.names)} names for {self.count} entries")
         if self.defaults and len(self.defaults) != self.count:
             raise ValueError(f"defaults: {len(self.defaults)} values for {self.count} entries")
+        if isinstance(self.parameter, str):
+            self._check_parameter_key(self.parameter)
         bits = 16 * self.words
         for name, b in self.bits.items():
             if b.bit + b.width > bits:
@@ -943,18 +965,33 @@ class Description(_Model):
         out.setdefault("enabled", Expr.parse(True))
         return out
 
-    def parameter_regs(self) -> list[tuple[Reg, int | None]]:
-        """The documented settings (register, table index) ``drivebus params`` backs up,
-        in address order: each register's ``parameter`` flag, else every read/write
-        register that is not volatile and shows no state."""
+    def parameter_regs(self) -> list[tuple[str, Reg, int | None]]:
+        """The documented settings (key, register, table index) ``drivebus params`` backs
+        up, in address order: each register's ``parameter`` flag or key, else every
+        read/write register that is not volatile, shows no state and is not the EEPROM
+        write-through switch."""
+        wt = self.eeprom.write_through
         out = []
-        for reg in self.regs.values():
+        for key, reg in self.regs.items():
             d = reg.d
             wanted = d.parameter if d.parameter is not None else (
-                d.access == "RW" and not d.volatile and d.means is None)
-            if wanted:
-                out += [(reg, i) for i in (reg.indices if reg.array else [None])]
-        return sorted(out, key=lambda ri: ri[0].at(ri[1]).address)
+                d.access == "RW" and not d.volatile and d.means is None
+                and (wt is None or wt.reg != key))
+            if wanted is False:
+                continue
+            for i in reg.indices if reg.array else [None]:
+                out.append((self._parameter_key(key, reg, i), reg, i))
+        return sorted(out, key=lambda kri: kri[1].at(kri[2]).address)
+
+    @staticmethod
+    def _parameter_key(key: str, reg: Reg, index: int | None) -> str:
+        given = reg.d.parameter if isinstance(reg.d.parameter, str) else None
+        if index is None:
+            return given or key
+        name = reg.d.names[index - reg.d.first] if reg.d.names else str(index)
+        if given is None:
+            return f"{key}_{index}"
+        return given.format(i=index, name=name)
 
     def procedure_what(self, name: str) -> str:
         """How a NotSupported error says procedure ``name``."""
@@ -1036,10 +1073,22 @@ class _Checker:
             self._reg_key("link.format_register", d.link.format_register)
         if d.link.baud_register is not None:
             self._reg_key("link.baud_register", d.link.baud_register)
+        if d.link.address_register is not None:
+            self._reg_key("link.address_register", d.link.address_register)
         if d.eeprom.write_through is not None:
             self._reg_key("eeprom.write_through.register", d.eeprom.write_through.reg)
         self._cia402()
+        self._parameters()
         yield from self.out
+
+    def _parameters(self) -> None:
+        seen: dict[str, str] = {}
+        for pkey, reg, index in self.d.parameter_regs():
+            where = reg.key if index is None else f"{reg.key}[{index}]"
+            other = seen.setdefault(pkey, where)
+            if other != where:
+                self.out.append(f"registers.{reg.key}.parameter: key {pkey!r} is also "
+                                f"registers.{other}'s")
 
     # -- registers --------------------------------------------------------------------------
 

@@ -31,6 +31,8 @@ from drivebus.drives.base import (
     HomingParams,
     HomingSwitches,
     MoveParams,
+    Parameter,
+    WriteThrough,
 )
 from drivebus.drives.description import PROCEDURES, Description, Procedure, Reg, Step
 from drivebus.drives.expr import Expr, ExprError, Unknown
@@ -46,11 +48,6 @@ from drivebus.errors import (
     NotSupported,
     StateError,
 )
-
-try:  # the parameter list of ``drivebus params`` (added beside this work; additive here)
-    from drivebus.drives.base import Parameter, WriteThrough  # type: ignore[attr-defined]
-except ImportError:  # pragma: no cover - before the params work is merged
-    Parameter = WriteThrough = None
 
 __all__ = ["DescribedProfile", "ReadPlan", "plan_reads", "profile_class"]
 
@@ -1158,12 +1155,10 @@ def profile_class(d: Description) -> type[DescribedProfile]:
 
 def _parameter_attrs(d: Description) -> dict[str, Any]:
     """``parameter_list``/``write_through``/``saves_by_write_through`` of the profile class,
-    from the description's registers (where ``DriveProfile.parameters()`` exists)."""
-    if Parameter is None:
-        return {}
+    from the description's registers; ``comms_note`` and, where a register sets the
+    address or the line, ``comms_writes`` (``drivebus commission``)."""
     params = []
-    for reg, index in d.parameter_regs():
-        key = reg.key if index is None else f"{reg.key}_{index}"
+    for key, reg, index in d.parameter_regs():
         params.append(Parameter(key, reg.at(index), stored=not reg.d.volatile,
                                 comms=reg.d.comms))
     wt = d.eeprom.write_through
@@ -1172,7 +1167,57 @@ def _parameter_attrs(d: Description) -> dict[str, Any]:
         "write_through": None if wt is None else WriteThrough(d.regs[wt.reg].register,
                                                                wt.on, wt.off),
         "saves_by_write_through": d.eeprom.saves_by_write_through,
+        "comms_note": d.link.comms_note,
+        **({"comms_writes": _comms_writes} if any(
+            (d.link.address_register, d.link.format_register, d.link.baud_register)) else {}),
     }
+
+
+def _comms_writes(
+    self: DescribedProfile, address: int | None, settings: Any, current: Any
+) -> list[tuple[Register, int]]:
+    """The writes that give the drive ``address`` and line ``settings`` (None: keep): its
+    ``[link]`` address, baud and format registers; ``NotSupported`` for what no register
+    sets (saying how it is done, ``comms_note``) or what its format rules forbid."""
+    link = self.description.link
+    regs = self.description.regs
+    how = link.comms_note or "the manual documents no register for it"
+    writes: list[tuple[Register, int]] = []
+    if address is not None:
+        if link.address_register is None:
+            raise self.unsupported(f"change its address to {address}", how)
+        reg = regs[link.address_register].register
+        reg.check(address)
+        writes.append((reg, address))
+    if settings is None:
+        return writes
+    baud_changes = current is None or settings.baudrate != current.baudrate
+    if baud_changes and link.baud_register is not None:
+        writes.append(_named_value(self, link.baud_register, str(settings.baudrate),
+                                   f"run {settings.baudrate} baud"))
+    elif baud_changes and current is not None:
+        raise self.unsupported(f"change its baud rate to {settings.baudrate}", how)
+    for rule in link.format_rules:
+        if settings.baudrate in rule.baud_rates and settings.format not in rule.formats:
+            raise self.unsupported(f"talk {settings.format} at {settings.baudrate} baud",
+                                   rule.why or f"it talks {'/'.join(rule.formats)} there")
+    if link.format_register is not None:
+        writes.append(_named_value(self, link.format_register, settings.format,
+                                   f"talk {settings.format}"))
+    elif link.format_register is None and current is not None and \
+            settings.format != current.format:
+        raise self.unsupported(f"change its line format to {settings.format}", how)
+    return writes
+
+
+def _named_value(self: DescribedProfile, key: str, name: str, what: str
+                 ) -> tuple[Register, int]:
+    """(register, value) of register ``key``'s value named ``name`` ('8N2', '38400')."""
+    reg = self.description.regs[key]
+    if name not in reg.d.values:
+        raise self.unsupported(what, f"{reg.register.name} has no value for {name} "
+                               f"(it takes {', '.join(reg.d.values)})")
+    return reg.register, reg.d.values[name]
 
 
 def _init_with_signature(d: Description, base: type[DescribedProfile]) -> Callable[..., None]:

@@ -34,6 +34,7 @@ from drivebus.drives.base import (
     HomingParams,
     HomingSwitches,
     MoveParams,
+    Parameter,
 )
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
@@ -230,6 +231,62 @@ EPR60_HOME_SLOW = _u16("homing slow speed", 81, "rpm", 0, 600)
 EPR60_HOME_ACCEL = _u16("homing acceleration", 82, "r/s²", 0, 1000)
 EPR60_HOME_OFFSET = _u16("offset after homing", 83, "pulses", 0, 1000)
 
+# -- parameters (``drivebus params``), in the manuals' order --------------------------------------
+# Every RW parameter is kept in flash by 90=1 (NT86 manual L955, EPR60 L957); none of them is
+# a command (18, 85, 90, the homing trigger 287 and the latches 6/7/16 are left out).
+
+_MOTOR_TYPE = _u16("motor type", 21, lo=0, hi=1)
+_DIRECTION = _u16("direction invert", 23, lo=0, hi=1)
+_RUN_CURRENT = _u16("open-loop run current", 25, "mA", 0, 6000)
+_STANDBY_CURRENT = _u16("standby current", 26, "%", 0, 100)
+_STANDBY_DELAY = _u16("standby delay", 27, "ms", 10, 65535)
+_FILTER = _u16("command filter time", 28, "×50 µs", 1, 512)
+NT86_STALL_TIME = _u16("stall-homing detect time", 296, "×50 µs", 1000, 65535)
+NT86_STALL_SPEED = _u16("stall-homing speed threshold", 297, "rpm", 1, 1000)
+NT86_STALL_CURRENT = _u16("stall-homing current threshold", 298, "mA", 1, 6000)
+
+
+def _nt_parameters(regs: NTRegisterMap, homing: tuple[tuple[str, Register], ...]
+                   ) -> tuple[Parameter, ...]:
+    """The parameters both NT-family manuals document, with ``regs``'s own registers."""
+    early = sorted(
+        [("command_source", regs.command_source), ("application_mode", regs.app_mode),
+         ("motor_type", _MOTOR_TYPE), ("control_mode", regs.control_mode),
+         ("direction_invert", _DIRECTION), ("run_current", _RUN_CURRENT),
+         ("standby_current", _STANDBY_CURRENT), ("standby_delay", _STANDBY_DELAY),
+         ("command_filter", _FILTER), ("pulses_per_rev", regs.microstep)],
+        key=lambda kr: kr[1].address,
+    )
+    inputs = [(f"in{n}_setting", r) for n, r in enumerate(regs.input_config, start=1)]
+    motion = [
+        ("move_accel", regs.move_accel), ("move_decel", regs.move_decel),
+        ("move_speed", regs.move_speed), ("move_target", regs.move_target),
+        ("jog_accel", regs.jog_accel), ("jog_decel", regs.jog_decel),
+        ("jog_speed", regs.jog_speed), ("estop_decel", regs.estop_decel),
+        ("absolute_mode", regs.position_mode),
+    ]
+    rows = [*early, *inputs, *motion, *homing]
+    rows.sort(key=lambda kr: kr[1].address)
+    return tuple(Parameter(k, r) for k, r in rows)
+
+
+NT86_PARAMETERS = _nt_parameters(NT86_MAP, (
+    ("homing_method", NT86_HOME_METHOD), ("homing_speed", NT86_HOME_FAST),
+    ("homing_creep", NT86_HOME_SLOW), ("homing_accel", NT86_HOME_ACCEL),
+    ("home_offset", NT86_HOME_OFFSET), ("home_handling", NT86_HOME_HANDLING),
+    ("stall_time", NT86_STALL_TIME), ("stall_speed", NT86_STALL_SPEED),
+    ("stall_current", NT86_STALL_CURRENT),
+))
+"""The NT86's parameters (manual chapter 2), in address order."""
+
+EPR60_PARAMETERS = _nt_parameters(EPR60_MAP, (
+    ("homing_mode", EPR60_HOME_MODE), ("homing_speed", EPR60_HOME_FAST),
+    ("homing_creep", EPR60_HOME_SLOW), ("homing_accel", EPR60_HOME_ACCEL),
+    ("home_offset", EPR60_HOME_OFFSET),
+))
+"""The EPR60's parameters (manual chapter 3), in address order."""
+
+
 _NT_EXCEPTIONS = {
     1: "ILLEGAL_FUNCTION: function code not supported (the drive knows FC03, FC06, FC16)",
     2: "ILLEGAL_DATA_ADD: register address not valid (unmapped, reserved or read-only)",
@@ -321,6 +378,9 @@ class NT86Profile(DriveProfile):
     )
     regs: ClassVar[NTRegisterMap] = NT86_MAP
     options: ClassVar[type[DriveOptions]] = NT86Options
+    parameter_list = NT86_PARAMETERS
+    comms_note = ("its address and baud rate are set by DIP switches SW1-SW5 and SW6/SW7 "
+                  "(8N1 only); the manual documents no register for them")
     pulses_per_rev_allowed = range(NT86_MAP.microstep.lo, NT86_MAP.microstep.hi + 1)
     addresses = range(1, 32)  # DIP switches SW1-SW5
     baud_rates = (9600, 19200, 38400, 115200)  # DIP switches SW6/SW7
@@ -805,6 +865,9 @@ class EPR60Profile(NT86Profile):
     homing_methods: ClassVar[tuple[str, ...]] = ("limit_negative", "limit_positive")
     regs: ClassVar[NTRegisterMap] = EPR60_MAP
     options: ClassVar[type[DriveOptions]] = EPR60Options
+    parameter_list = EPR60_PARAMETERS
+    comms_note = ("it is a Modbus TCP drive: its IP address is registers 170-180, set with "
+                  "the vendor's tool (drivebus commission is for RS-485 drives)")
     pulses_per_rev_allowed = range(EPR60_MAP.microstep.lo, EPR60_MAP.microstep.hi + 1)
     addresses = range(1, 248)  # the Modbus TCP unit id (the manual's examples use 1)
     line_kinds = frozenset({"tcp", "rtu-over-tcp"})  # an Ethernet port only

@@ -34,7 +34,7 @@ from typing import ClassVar
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
-from drivebus.drives.base import DriveProfile
+from drivebus.drives.base import DriveProfile, Parameter
 from drivebus.drives.registers import Access, Register, WordOrder, join_words
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, FrameError, ModbusException
@@ -264,6 +264,20 @@ FN_ORIGIN, FN_LIMIT_POSITIVE, FN_LIMIT_NEGATIVE = 1, 2, 4
 SAVE_BIT, RESTORE_BIT = 0x01, 0x02
 
 
+_NOT_PARAMETERS = frozenset({"position_command_low", "speed_limit", "position_error",
+                             *(f"fault_list_{n}" for n in range(1, 10))})
+"""Readable RW objects that are no settings: the position counter (a write clears it),
+the present speed limit, the live position error and the fault log."""
+
+OD_PARAMETERS: tuple[Parameter, ...] = tuple(
+    Parameter(o.name, o.register, stored=o.saved, where=o.label)
+    for o in OBJECTS
+    if o.readable and o.writable and o.name not in _NOT_PARAMETERS and o.saved
+)
+"""The OD2000's settings (its "S" objects that can be read and written), in index order;
+``Parameter.register.address`` is the object's index (``lookup_name(key)`` has its sub)."""
+
+
 def lookup(index: int, sub: int = 0) -> ODObject:
     """The object ``index.sub``; ``ConfigError`` naming it if the manual has no such entry."""
     obj = BY_KEY.get((index, sub))
@@ -296,6 +310,9 @@ class ODDriveProfile(DriveProfile):
     # stopping are the fieldbus master's.
     unsupported_reason: ClassVar[str] = WHY_NO_MOTION
     default_settings: ClassVar[LineSettings] = DEFAULT_SETTINGS
+    parameter_list = OD_PARAMETERS
+    comms_note = ("its serial address is fixed at 1 and its line at 9600 8N1; 2000h/2001h "
+                  "set the EtherCAT address")
 
     pulses_per_rev_allowed = range(lookup_name("pulses_per_rev").register.lo,
                                    lookup_name("pulses_per_rev").register.hi + 1)
@@ -470,6 +487,22 @@ class ODDriveProfile(DriveProfile):
         """Write an object by its name in ``BY_NAME``, range-checked."""
         obj = lookup_name(name)
         await self.write_object(obj.index, obj.sub, value, priority=priority)
+
+    async def read_parameter_values(
+        self, params: Sequence[Parameter], *, priority: Priority = Priority.CONFIG
+    ) -> list[int]:
+        """Each parameter by its object (index and sub-index), one read each."""
+        values = []
+        for p in params:
+            obj = lookup_name(p.key)
+            values.append(await self.read_object(obj.index, obj.sub, priority=priority))
+        return values
+
+    async def write_parameter_value(
+        self, param: Parameter, value: int, *, priority: Priority = Priority.CONFIG
+    ) -> None:
+        """Write the parameter's object, range-checked."""
+        await self.write_parameter(param.key, value, priority=priority)
 
     # -- set-up, status, identity -----------------------------------------------------------
 

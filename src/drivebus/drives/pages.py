@@ -27,11 +27,13 @@ from drivebus.settings import LineSettings
 __all__ = [
     "at_a_glance",
     "cell",
+    "commissioning_section",
     "description_sections",
     "exceptions_section",
     "families_table",
     "family_page",
     "options_section",
+    "parameters_section",
     "procedures",
     "procedures_section",
     "register_address",
@@ -96,6 +98,8 @@ def description_sections(family: DriveFamily) -> list[str]:
         options_section(p),
         procedures_section(family),
         _unsupported(d),
+        parameters_section(p),
+        commissioning_section(p),
         exceptions_section(p),
         _status(d),
         _homing(d),
@@ -263,7 +267,8 @@ def procedures(family: DriveFamily) -> list[tuple[str, str]]:
         except NotSupported as exc:
             out.append((proc, str(exc)))
         else:
-            out.append((proc, ""))
+            why = profile.save_problem() if proc == "save_parameters" else None
+            out.append((proc, why or ""))
     return out
 
 
@@ -303,6 +308,42 @@ def exceptions_section(p: type[DriveProfile]) -> str:
     return ("## Modbus exception codes\n\n`ModbusException` carries the code and this "
             "text (the vendor's own meaning where it redefines the standard codes):\n\n"
             + "\n".join(rows))
+
+
+def parameters_section(p: type[DriveProfile]) -> str:
+    """The parameters ``drivebus params`` backs up and restores, and how they are kept."""
+    params = p.parameters()
+    if not params:
+        return ""
+    rows = ["| Key | Name | Where | Range | Unit | Kept |", "|---|---|---|---|---|---|"]
+    for prm in params:
+        kept = "saved" if prm.stored else "volatile"
+        if prm.comms:
+            kept += ", address/line (only with `--include-comms`)"
+        rows.append(f"| `{prm.key}` | {cell(prm.name)} | {prm.location} | "
+                    f"{prm.register.lo}..{prm.register.hi} | {prm.unit or '-'} | {kept} |")
+    wt = p.write_through
+    how = "`--save` makes the drive store them once at the end (its save command)."
+    if p.saves_by_write_through and wt is not None:
+        how = (f"The drive has no save command: with `--save` each value is stored as it is "
+               f"written, with {cell(wt.register.name)} ({register_address(wt.register)}) = "
+               f"{wt.on} for the load; without it that switch is {wt.off} (RAM only).")
+    elif wt is not None:
+        how += (f" {cell(wt.register.name)} ({register_address(wt.register)}) is kept at "
+                f"{wt.off} during a load, so no write wears the EEPROM on its own.")
+    return ("## Parameters\n\nWhat `drivebus params dump` backs up and `params load` "
+            "restores (only what differs, in this order, every value checked against its "
+            f"range before the first write). {how}\n\n" + "\n".join(rows))
+
+
+def commissioning_section(p: type[DriveProfile]) -> str:
+    """How the drive takes a new address or line settings (``drivebus commission``)."""
+    if not p.comms_note:
+        return ""
+    can = p.comms_writes is not DriveProfile.comms_writes
+    verb = ("`drivebus commission` writes them" if can else
+            "`drivebus commission` cannot change them")
+    return f"## Address and line settings\n\n{verb}: {cell(p.comms_note)}."
 
 
 def _status(d: Description) -> str:
@@ -370,18 +411,20 @@ def register_address(reg: Register) -> str:
 
 def registers_table(regs: Iterable[tuple[str, Register, str]], intro: str) -> str:
     """The registers as a table."""
-    rows = ["| Address | Name | Width | Range | Unit | Access | Notes |",
-            "|---|---|---|---|---|---|---|"]
-    n = 0
+    regs = list(regs)
+    if not regs:
+        return ""
+    with_notes = any(notes for _, _, notes in regs)
+    rows = ["| Address | Name | Width | Range | Unit | Access |" + (" Notes |" if with_notes
+                                                                    else ""),
+            "|---|---|---|---|---|---|" + ("---|" if with_notes else "")]
     for label, r, notes in regs:
-        n += 1
         width = "16 bit" if r.words == 1 else f"32 bit, {ORDER[r.order]}"
         if r.signed:
             width += ", signed"
         rows.append(f"| {label} | {cell(r.name)} | {width} | {r.lo}..{r.hi} | "
-                    f"{r.unit or '-'} | {ACCESS[r.access]} | {cell(notes) or '-'} |")
-    if not n:
-        return ""
+                    f"{r.unit or '-'} | {ACCESS[r.access]} |"
+                    + (f" {cell(notes) or '-'} |" if with_notes else ""))
     return "## Registers\n\n" + intro + "\n\n" + "\n".join(rows)
 
 

@@ -46,6 +46,21 @@ class _Transport(serial_asyncio.SerialTransport):
             self._protocol.data_received(data)
 
 
+def _ask_low_latency(port: serial.Serial) -> bool:
+    """Ask the port for low-latency mode (``ASYNC_LOW_LATENCY`` through TIOCSSERIAL, which
+    ftdi_sio turns into a 1 ms latency timer instead of its default 16 ms, and other USB
+    serial drivers into prompt delivery): True if it took it. Ports that refuse it (a pty,
+    a driver without the ioctl, no permission) go on as they are, silently."""
+    ask = getattr(port, "set_low_latency_mode", None)
+    if ask is None:
+        return False
+    try:
+        ask(True)
+    except (ValueError, OSError, termios.error):
+        return False
+    return True
+
+
 class SerialLine(Line):
     """An RS-485 line on a serial port (a device, a pty, or ``sim://NAME``).
 
@@ -83,6 +98,8 @@ class SerialLine(Line):
         self._fd = -1
         self._garbage_closed = 0  # counted by receivers of earlier openings
         self._canon: dict[int, tuple[LineSettings, LineSettings]] = {}
+        self.low_latency: bool | None = None
+        """Whether the port took low-latency mode when it opened (None: not opened yet)."""
 
     def _canonical(self, settings: LineSettings | None) -> LineSettings:
         """One object per distinct setting: every slave handle has its own (equal) settings
@@ -135,7 +152,12 @@ class SerialLine(Line):
         if not rate_matches(s.baudrate, actual):
             port.close()
             raise ConfigError(self._cannot_run(s, f"its driver set {actual} baud"))
-        transport = _Transport(loop, rx, port)
+        try:  # the transport sets the port non-blocking: a second tcsetattr
+            transport = _Transport(loop, rx, port)
+        except (ValueError, termios.error) as exc:  # (a pty refuses parity here)
+            port.close()
+            raise ConfigError(self._cannot_run(s, exc)) from exc
+        self.low_latency = _ask_low_latency(port)
         self._serial = port
         self._fd = port.fileno()
         rx.pending_bytes = functools.partial(read_waiting, self._fd)
@@ -168,6 +190,10 @@ class SerialLine(Line):
         self._serial = None
 
     def _cannot_run(self, s: LineSettings, why: object) -> str:
+        if s.parity != "N" and os.path.realpath(self.port).startswith("/dev/pts/"):
+            return (f"serial port {self.port!r} cannot run {s} ({why}): it is a pty, which "
+                    f"cannot carry parity; reach a drivebus sim by its sim://NAME instead "
+                    f"(its format channel carries the parity)")
         return (f"serial port {self.port!r} cannot run {s} ({why}): use a baud rate and "
                 f"format that the adapter and the drives support")
 

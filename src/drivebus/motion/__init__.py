@@ -1,8 +1,10 @@
 """The motion layer: axis actors, groups, the machine."""
 
 from drivebus.motion.axis import Axis, MotionPlan
+from drivebus.motion.events import MotionEvent
 from drivebus.motion.group import AxisGroup, GroupMotionError, GroupMoveReport
 from drivebus.motion.machine import Machine, open_machine
+from drivebus.motion.recording import Recording
 from drivebus.motion.state import AxisState
 from drivebus.motion.units import Units
 
@@ -13,7 +15,9 @@ __all__ = [
     "GroupMotionError",
     "GroupMoveReport",
     "Machine",
+    "MotionEvent",
     "MotionPlan",
+    "Recording",
     "Units",
     "open_machine",
 ]

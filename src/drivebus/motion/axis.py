@@ -56,6 +56,7 @@ from drivebus.errors import (
     TransactionError,
 )
 from drivebus.motion.envelope import Envelope, MotionPlan
+from drivebus.motion.events import AxisListener, MotionEvent, MotionEventKind
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.motion.units import Units
 from drivebus.timing import timing
@@ -192,6 +193,7 @@ class Axis:
         self._jog_deadline: float | None = None
         self._watchdog_period: float | None = None
         self._watchers: list[_Latest] = []
+        self._listeners: list[AxisListener] = []
 
     # -- reading -----------------------------------------------------------------------------
 
@@ -213,6 +215,13 @@ class Axis:
         if st is None or st.velocity_rpm is None:
             return None
         return self.units.from_rpm(st.velocity_rpm) * (1 if self.units.units_per_rev > 0 else -1)
+
+    @property
+    def target(self) -> float | None:
+        """The target of the motion under way in user units (None: none, or a jog with
+        no soft limit ahead)."""
+        m = self._motion
+        return None if m is None or m.target is None else self.units.from_pulses(m.target)
 
     @property
     def homed(self) -> bool:
@@ -307,6 +316,8 @@ class Axis:
         log.warning("%s", self.error)
         if self._motion is not None:
             self._end_motion(self._motion, self.error, None)
+        else:
+            self._note("error", "offline", detail=str(self.error))
         for w in self._rest_waits:
             w.error = self.error
             w.event.set()
@@ -343,6 +354,8 @@ class Axis:
             )
             if m is not None:
                 self._end_motion(m, self.error, None)
+            else:
+                self._note("error", "drive alarm", detail=str(self.error))
             self.state = AxisState.ERROR_STOP
             if st.moving:
                 self._stop_due = "drive alarm"
@@ -365,6 +378,8 @@ class Axis:
             for w in [w for w in self._rest_waits if issued > w.after]:
                 w.event.set()
                 self._rest_waits.remove(w)
+        for listener in self._listeners:
+            listener(st)
         self._publish()
 
     def _judge(self, m: _Motion, st: DriveStatus, issued: float, prev_issued: float) -> None:
@@ -478,6 +493,13 @@ class Axis:
             self._check_due = True
         if not m.over:
             log.debug("axis %s: %s ends: %s", self.name, m.what, error or "done")
+            if self._listeners:
+                kind: MotionEventKind = (
+                    "error" if error is not None and not isinstance(error, MotionAborted)
+                    else "aborted" if error is not None
+                    else "in_position" if m.kind == "move" else "done")
+                self._note(kind, m.what, m=m, detail="" if error is None else str(error),
+                           at=self.arrived_at if kind == "in_position" else None)
         m.finish(error)
         if self._motion is m:
             self._motion = None
@@ -563,14 +585,37 @@ class Axis:
         """Set the drive up for commands now (the first command does it otherwise): the
         settings it changed, as in ``setup_changes``. Only at rest."""
         await self._settle("set the drive up")
+        self._setup_due = True  # the command lane sets the drive up before ``io``
 
         async def io() -> None:
             self._at_rest_or_raise("set the drive up")
-            self._setup_due = True
-            await self._verify_settings()
 
         await self._exclusive(io)
         return list(self.setup_changes)
+
+    def listen(self, listener: AxisListener) -> Callable[[], None]:
+        """Call ``listener`` with every status polled and every ``MotionEvent`` from now
+        on (quick, never raising: it runs in the actor); returns the function that ends it.
+        It adds no bus traffic."""
+        self._listeners.append(listener)
+
+        def end() -> None:
+            if listener in self._listeners:
+                self._listeners.remove(listener)
+
+        return end
+
+    def _note(self, kind: MotionEventKind, what: str, *, m: _Motion | None = None,
+              detail: str = "", at: float | None = None, planned_end: float | None = None
+              ) -> None:
+        """Tell the listeners a motion event (nothing is built when nobody listens)."""
+        if not self._listeners:
+            return
+        target = None if m is None or m.target is None else self.units.from_pulses(m.target)
+        event = MotionEvent(self.name, kind, monotonic() if at is None else at, what,
+                            target, planned_end, detail)
+        for listener in self._listeners:
+            listener(event)
 
     def _publish(self) -> None:
         if self.status is not None:
@@ -624,6 +669,7 @@ class Axis:
         self._motion = m
         self.state = state
         self._jog_deadline = None
+        self._note("accepted", what)
         if accepted is not None:
             accepted()
         return m
@@ -730,6 +776,12 @@ class Axis:
                 await start()
         m.accepted_at = self.command_started_at = monotonic()
         log.debug("axis %s: %s started (target %s pulses)", self.name, m.what, m.target)
+        if self._listeners:
+            planned = None
+            if m.plan is not None and m.target is not None and m.start is not None:
+                distance = abs(self.units.from_pulses(m.target - m.start))
+                planned = m.accepted_at + m.plan.duration(distance)
+            self._note("started", m.what, m=m, at=m.accepted_at, planned_end=planned)
         self._commanded = True
         self._poke_now()
 
@@ -740,6 +792,7 @@ class Axis:
         cancelled; errors are logged (the caller is already failing).
         """
         m = self._motion
+        self._note("stop", "stop", m=m, detail=reason)
         if m is not None:
             running = m.io is not None
             self._end_motion(m, error or MotionAborted(
@@ -894,7 +947,9 @@ class Axis:
         again within ``watchdog`` seconds (1 s by default), or the actor stops the axis and
         logs a warning. ``watchdog=None`` jogs until ``stop()`` (``jogging()`` does that,
         and stops on leaving its block). With soft limits the jog is a position move to
-        the limit in its direction, so it comes to rest on the limit at the latest. Called again while jogging with the same values it feeds the watchdog; with
+        the limit in its direction, so it comes to rest on the limit at the latest.
+
+        Called again while jogging with the same values it feeds the watchdog; with
         another speed or direction it changes the jog (towards a limit: by a stop and a new
         start, the drives cannot retarget a position move while it runs).
         """
@@ -1018,6 +1073,7 @@ class Axis:
         log.debug("axis %s: %s in state %s", self.name, by, self.state)
         offline = self.state is AxisState.OFFLINE
         m = self._motion
+        self._note("stop", by, m=m)
         running = m is not None and m.io is not None
         if m is not None:
             self._end_motion(m, MotionAborted(f"axis {self.name}: the {m.what} was aborted by "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import AsyncIterator, Mapping
+from collections.abc import AsyncIterator, Iterable, Mapping
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
@@ -19,6 +19,7 @@ from drivebus.errors import ConfigError, DrivebusError, DriveOffline, Transactio
 from drivebus.motion.axis import Axis
 from drivebus.motion.group import AxisGroup
 from drivebus.motion.lines import open_line
+from drivebus.motion.recording import Recording
 from drivebus.motion.state import MOVING_STATES
 from drivebus.tasks import ServiceTasks
 
@@ -48,6 +49,22 @@ class Machine:
         if missing:
             raise ConfigError(f"no axis {', '.join(missing)} (axes: {', '.join(self.axes)})")
         return AxisGroup([self.axes[n] for n in (names or tuple(self.axes))])
+
+    def record(
+        self,
+        axes: Iterable[str] | None = None,
+        *,
+        bus: bool = True,
+        max_samples: int = 100_000,
+        max_events: int = 10_000,
+        max_transactions: int = 500_000,
+    ) -> Recording:
+        """A recording of ``axes`` (all if None) and, with ``bus``, of their lines'
+        transactions: ``async with machine.record(axes=["x"]) as rec:``. It only listens
+        (no bus traffic); memory is bounded by the ``max_*`` rings (``Recording``).
+        ``ConfigError`` names an unknown axis."""
+        return Recording(self, axes, bus=bus, max_samples=max_samples,
+                         max_events=max_events, max_transactions=max_transactions)
 
     async def stop_all(self, *, only_commanded: bool = False) -> None:
         """Stop every moving axis (or only those this machine set moving), in parallel.

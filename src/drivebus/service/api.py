@@ -17,12 +17,13 @@ from typing import Annotated, Any
 
 import anyio
 from fastapi import APIRouter, Depends, FastAPI, Header, Request, Response
-from fastapi.responses import FileResponse
+from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
+from fastapi.responses import FileResponse, HTMLResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.staticfiles import StaticFiles
 
 from drivebus.app import MachineSession
-from drivebus.service import problems
+from drivebus.service import metrics, problems
 from drivebus.service.auth import Principal, TokenStore, require_command
 from drivebus.service.encoding import EventEncoder
 from drivebus.service.fanout import Fanout
@@ -31,7 +32,9 @@ from drivebus.service.models import (
     JogRequest,
     LeaseRequest,
     MoveRequest,
+    ParametersRequest,
     ReadRequest,
+    RecordingRequest,
     StopRequest,
     WriteRequest,
 )
@@ -284,6 +287,28 @@ async def give_back_lease(session: Session, who: Commander) -> dict[str, Any]:
     return _lease(session)
 
 
+# -- drive parameters -------------------------------------------------------------------------
+
+
+@router.get("/axes/{name}/parameters", tags=["axes"])
+async def get_parameters(name: str, session: Session, _: Reader) -> dict[str, Any]:
+    """Every documented parameter of the axis's drive: value, unit, register, whether a
+    save stores it (reads only: nothing is written to the drive)."""
+    return (await session.read_parameters(name)).as_dict()
+
+
+@router.put("/axes/{name}/parameters", tags=["axes"])
+async def put_parameters(name: str, body: ParametersRequest, session: Session,
+                         who: Commander) -> dict[str, Any]:
+    """Write the given parameters that differ from the drive's, all range-checked before
+    the first write; with ``save`` the drive stores them once at the end. Refused while
+    the axis moves."""
+    report = await session.load_parameters(
+        name, body.values, save=body.save, dry_run=body.dry_run,
+        include_comms=body.include_comms, client=who.name)
+    return report.as_dict()
+
+
 # -- raw registers ----------------------------------------------------------------------------
 
 
@@ -307,7 +332,73 @@ async def write_registers(line: str, body: WriteRequest, session: Session, who: 
             "written": len(body.values)}
 
 
+# -- recordings -------------------------------------------------------------------------------
+
+
+@router.post("/recordings", status_code=201, tags=["recordings"])
+async def start_recording(session: Session, who: Reader, response: Response,
+                          body: RecordingRequest | None = None) -> dict[str, Any]:
+    """Start recording the axes (all, or ``axes``) and their lines: every polled sample,
+    motion event and transaction, with no extra bus traffic. Any client may record."""
+    rec = session.recordings.start(None if body is None else body.axes, client=who.name)
+    response.headers["Location"] = f"/api/recordings/{rec.id}"
+    return rec.as_dict()
+
+
+@router.get("/recordings", tags=["recordings"])
+async def get_recordings(session: Session, _: Reader) -> list[dict[str, Any]]:
+    """The recordings kept, oldest first (running or stopped)."""
+    return [r.as_dict() for r in session.recordings.all()]
+
+
+@router.get("/recordings/{rec_id}", tags=["recordings"])
+async def get_recording(rec_id: str, session: Session, _: Reader) -> dict[str, Any]:
+    """One recording: running or not, its duration and how much it holds."""
+    return session.recordings.get(rec_id).as_dict()
+
+
+@router.post("/recordings/{rec_id}/stop", tags=["recordings"])
+async def stop_recording(rec_id: str, session: Session, _: Reader) -> dict[str, Any]:
+    """Stop a recording; what it recorded is kept."""
+    return session.recordings.stop(rec_id).as_dict()
+
+
+def _download(name: str) -> dict[str, str]:
+    return {"Content-Disposition": f'attachment; filename="{name}"'}
+
+
+@router.get("/recordings/{rec_id}/report", tags=["recordings"], response_class=HTMLResponse)
+async def recording_report(rec_id: str, session: Session, _: Reader) -> HTMLResponse:
+    """The recording as one self-contained HTML report (charts per axis and line; it
+    opens with no network), as a download."""
+    from drivebus.service.report import report_html
+
+    record = session.recordings.get(rec_id)
+    return HTMLResponse(report_html(record.recording), headers=_download(
+        f"drivebus-{session.name}-{record.id}.html"))
+
+
+@router.get("/recordings/{rec_id}/jsonl", tags=["recordings"])
+async def recording_jsonl(rec_id: str, session: Session, _: Reader) -> Response:
+    """The whole recording as JSON lines (a header with the units, then samples, events
+    and transactions), as a download; ``drivebus.Recording.from_jsonl`` reads it."""
+    record = session.recordings.get(rec_id)
+    return Response(record.recording.to_jsonl(), media_type="application/x-ndjson",
+                    headers=_download(f"drivebus-{session.name}-{record.id}.jsonl"))
+
+
 # -- the application --------------------------------------------------------------------------
+
+
+_LOCAL_ONLY = ("default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' "
+               "'unsafe-inline'; img-src 'self' data:; font-src 'self' data:; "
+               "worker-src 'self' blob:; connect-src 'self'")
+"""The API docs' content security policy: nothing but this service (air-gapped plants)."""
+
+
+def _local_only(page: HTMLResponse) -> HTMLResponse:
+    page.headers["Content-Security-Policy"] = _LOCAL_ONLY
+    return page
 
 
 def create_app(session: MachineSession, tokens: TokenStore | None = None) -> FastAPI:
@@ -330,17 +421,41 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
         version="1",
         description="Modbus drives on shared lines: axes, motions, e-stop, leases, raw "
                     "registers; live updates on the WebSocket /api/ws.",
-        docs_url="/docs",
+        docs_url=None,  # served below from the package's own copies: no CDN
         redoc_url=None,
     )
     app.state.drivebus = state
     problems.install(app)
     app.include_router(router)
+    root = APIRouter()
+    metrics.install(root, _reader)  # GET /metrics, for Prometheus
+    app.include_router(root)
     app.add_api_websocket_route("/api/ws", websocket_endpoint)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 
     @app.get("/", include_in_schema=False)
     async def dashboard() -> FileResponse:
         return FileResponse(STATIC / "index.html")
+
+    @app.get("/docs", include_in_schema=False)
+    async def swagger_ui() -> HTMLResponse:
+        return _local_only(get_swagger_ui_html(
+            openapi_url=app.openapi_url or "/openapi.json", title=f"{app.title}: API",
+            swagger_js_url="/static/vendor/swagger-ui/swagger-ui-bundle.js",
+            swagger_css_url="/static/vendor/swagger-ui/swagger-ui.css",
+            swagger_favicon_url="/static/vendor/swagger-ui/favicon-32x32.png",
+            swagger_ui_parameters={"validatorUrl": None},
+        ))
+
+    @app.get("/redoc", include_in_schema=False)
+    async def redoc() -> HTMLResponse:
+        # ReDoc's sidebar shows a Redocly logo from its CDN: the policy keeps it off the
+        # network (the image hides itself when it does not load).
+        return _local_only(get_redoc_html(
+            openapi_url=app.openapi_url or "/openapi.json", title=f"{app.title}: API",
+            redoc_js_url="/static/vendor/redoc/redoc.standalone.js",
+            redoc_favicon_url="/static/vendor/swagger-ui/favicon-32x32.png",
+            with_google_fonts=False,
+        ))
 
     return app

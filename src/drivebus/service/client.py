@@ -127,3 +127,18 @@ class ServiceClient:
         """Raw register write through the service's bus."""
         self.request("POST", f"/lines/{line}/write",
                      {"address": address, "register": register, "values": values})
+
+    # -- drive parameters ------------------------------------------------------------------------
+
+    def parameters(self, axis: str) -> dict[str, Any]:
+        """``GET /api/axes/AXIS/parameters``."""
+        result: dict[str, Any] = self.request("GET", f"/axes/{axis}/parameters")
+        return result
+
+    def load_parameters(self, axis: str, values: dict[str, int], *, save: bool = False,
+                        dry_run: bool = False, include_comms: bool = False) -> dict[str, Any]:
+        """``PUT /api/axes/AXIS/parameters``: the load's report."""
+        result: dict[str, Any] = self.request("PUT", f"/axes/{axis}/parameters", {
+            "values": values, "save": save, "dry_run": dry_run,
+            "include_comms": include_comms})
+        return result

@@ -16,6 +16,7 @@ __all__ = [
     "LeaseRequest",
     "MoveRequest",
     "ReadRequest",
+    "RecordingRequest",
     "StopRequest",
     "WriteRequest",
 ]
@@ -87,6 +88,12 @@ class LeaseRequest(_Body):
     ttl: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] = 30.0
 
 
+class RecordingRequest(_Body):
+    """Record these axes (and their lines); none given: every axis."""
+
+    axes: list[str] | None = None
+
+
 class ReadRequest(_Body):
     """Read ``count`` holding (or ``input``) registers from slave ``address``."""
 
@@ -112,3 +119,14 @@ class WriteRequest(_Body):
         extra="forbid", strict=True,
         json_schema_extra={"examples": [{"address": 3, "register": 18, "values": [1]}]},
     )
+
+
+class ParametersRequest(_Body):
+    """``PUT /api/axes/{name}/parameters``: values by parameter key (as
+    ``GET .../parameters`` names them); only those that differ are written."""
+
+    values: Annotated[dict[str, int], Field(min_length=1)]
+    save: bool = Field(False, description="store them in the drive's EEPROM once at the end")
+    dry_run: bool = Field(False, description="only say what would be written")
+    include_comms: bool = Field(
+        False, description="also write the drive's address and line settings parameters")

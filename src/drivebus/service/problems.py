@@ -32,6 +32,7 @@ from drivebus.errors import (
     MotionTimeout,
     NotFound,
     NotSupported,
+    PartialWrite,
     ResponseTimeout,
     StateError,
     TransactionError,
@@ -61,6 +62,7 @@ _STATUS: tuple[tuple[type[DrivebusError], int], ...] = (
     (ResponseTimeout, 504),
     (MotionTimeout, 504),
     (ModbusException, 502),
+    (PartialWrite, 502),
     (TransactionError, 502),
 )
 """The first match wins: a typed error's HTTP status (anything else: 500)."""

@@ -18,7 +18,9 @@ reply carries back):
   this connection queued before them are dropped.
 - ``{"ping": ...}``: answered by ``{"type": "pong"}``.
 
-The service sends ``{"type": "hello", ...}`` once authenticated, then updates of the
+The service sends ``{"type": "hello", ...}`` once authenticated (with ``"clock"``: the
+service's monotonic and wall-clock time at that moment, to place the axes' and lines'
+``timestamp`` on a clock), then updates of the
 subscribed topics: ``{"type": "axis", "axis": NAME, "state": ..., "position": ...,
 "velocity": ..., ...}`` for every axis as it is polled (the fields of ``GET
 /api/axes/NAME``), ``{"type": "line", ...}``, ``{"type": "motion", "event": "started" |
@@ -34,6 +36,7 @@ client that fell behind further is told ``{"type": "lost", "count": N}``.
 
 import json
 import logging
+import time
 from typing import Annotated, Any
 
 import anyio
@@ -43,6 +46,7 @@ from fastapi import WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from drivebus.app import Event, Subscription
+from drivebus.clock import monotonic
 from drivebus.errors import ArgumentError, DrivebusError, MotionAborted
 from drivebus.service.api import ServiceState
 from drivebus.service.auth import AuthError, Principal, bearer_token, require_command
@@ -340,6 +344,7 @@ async def websocket_endpoint(ws: WebSocket) -> None:
                     "type": "hello", "machine": session.name, "client": principal.name,
                     "scope": principal.scope, "connection": conn.id,
                     "axes": list(session.machine.axes), "lines": list(session.machine.buses),
+                    "clock": {"monotonic": monotonic(), "wall": time.time()},
                 }))
                 tg.start_soon(conn.pump_events)
                 tg.start_soon(conn.run_jogs, jobs)

@@ -16,6 +16,13 @@ line format, starts the position counter at 0 and forgets the homed state.
 Homing follows the CiA 402 method each of the description's methods names (``cia402``):
 17/18 (limit switches), 19-30 (home switch, with a dog of ``home_switch_width`` or a
 cam), 33-37 (the present position); the position at the origin edge becomes the offset.
+The home cam covers the side the method in use searches towards (``home_cam`` names the
+side instead). A limit switch the method does not reverse on stops the motor as the
+description's ``[twin] limits`` say, and the homing fails (``homing_failed``).
+
+With ``soft_address`` (where ``[link] address_register`` names the register), the twin's
+address is that register's saved value from the next power-up on, as ``drivebus
+commission`` sets it.
 """
 
 from __future__ import annotations
@@ -26,8 +33,16 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from drivebus.clock import monotonic
-from drivebus.drives.cia402 import OBJECTS, HomeSignal, HomeSwitch, State, homing_method
+from drivebus.drives.cia402 import (
+    OBJECTS,
+    HomeSignal,
+    HomeSwitch,
+    HomingMethod,
+    State,
+    homing_method,
+)
 from drivebus.drives.description import Description, Reg, Trigger, object_name
+from drivebus.drives.description import HomingMethod as MethodDef
 from drivebus.drives.expr import Expr, ExprError, Unknown
 from drivebus.drives.registers import Access
 from drivebus.drives.units import Kind
@@ -36,7 +51,7 @@ from drivebus.errors import ArgumentError, ConfigError
 from drivebus.pdu import READ_HOLDING, READ_INPUT
 from drivebus.settings import LineSettings
 from drivebus.sim.cia402_device import Cia402Device, Cia402Setup
-from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
+from drivebus.sim.drive import HomeCam, SimDrive, Span, TwinSetup, time_or_present
 from drivebus.sim.registers import ExceptionCodes, RegisterSpec, SlaveException, signed32
 
 __all__ = ["DescribedCia402Drive", "DescribedDrive", "described_twin", "twin_of"]
@@ -86,8 +101,7 @@ def _search_phases(method: int, home: bool, neg: bool, pos: bool
     edge. The search runs at the fast speed in the method's initial direction (for a home
     switch that is a cam, where the switch's state says), reverses at the method's
     reversal limit switch, and backs off the edge to cross it again at the creep speed.
-    Index pulses are not modelled (methods 1-14 home as 17-30); a home switch active on
-    the negative side of its edge (5, 6, 21, 22) is not modelled either (None).
+    Index pulses are not modelled (methods 1-14 home as 17-30).
     """
     try:
         m = homing_method(method)
@@ -101,9 +115,10 @@ def _search_phases(method: int, home: bool, neg: bool, pos: bool
         legs = {"fast": _Phase(+1, True, (("limit_positive", "creep"),)),
                 "creep": _Phase(-1, False, (("limit_positive", "done"),))}
         return legs, "creep" if pos else "fast"
-    if m.signal is not HomeSignal.HOME_SWITCH or m.home_switch is HomeSwitch.NEGATIVE:
+    if m.signal is not HomeSignal.HOME_SWITCH:
         return None
-    edge = "home_high" if m.home_switch is HomeSwitch.UPPER_EDGE else "home_low"
+    edge = "home_high" if m.home_switch in (HomeSwitch.UPPER_EDGE, HomeSwitch.NEGATIVE) \
+        else "home_low"
     f = m.final_direction
     # Crossing the edge moving f enters the switch (lower edge moving up, upper moving down)
     # or leaves it; entering needs a back-off to cross it again at the creep speed.
@@ -116,13 +131,14 @@ def _search_phases(method: int, home: bool, neg: bool, pos: bool
     else:
         on_switch = "final"
     initial = m.initial_direction
-    if m.home_switch is HomeSwitch.POSITIVE:  # a cam active above its edge
+    if m.home_switch in (HomeSwitch.POSITIVE, HomeSwitch.NEGATIVE):  # a cam on one side
+        side = 1 if m.home_switch is HomeSwitch.POSITIVE else -1
         if not home:
-            legs["fast"] = _Phase(+1, True, (("home_low", on_switch),))
+            legs["fast"] = _Phase(side, True, ((edge, on_switch),))
             return legs, "fast"
-        if f < 0:
-            return legs, "final"  # leave the cam downwards at the creep speed
-        legs["off"] = _Phase(-1, True, (("home_low", "final"),))
+        if f == -side:
+            return legs, "final"  # leave the cam at the creep speed
+        legs["off"] = _Phase(-side, True, ((edge, "final"),))
         return legs, "off"
     first_edge = "home_low" if initial > 0 else "home_high"
     other_edge = "home_high" if initial > 0 else "home_low"
@@ -149,7 +165,9 @@ class DescribedDrive(SimDrive):
         setup: TwinSetup | None = None,
         *,
         home_switch_width: float | None = None,
+        home_cam: HomeCam | None = None,
         crc_error_reply: bool = True,
+        soft_address: bool = False,
         **constants: int,
     ) -> None:
         d = self.description
@@ -158,18 +176,24 @@ class DescribedDrive(SimDrive):
         if settings is not None and d.link.protocol == "rtu":
             self._check_line(settings)
         super().__init__(address, settings, setup)
-        self.home_switch_width = home_switch_width
+        self.set_home_shape(home_cam, home_switch_width)
         self.crc_error_reply = crc_error_reply
+        if soft_address and d.link.address_register is None:
+            raise ConfigError(f"the simulated {d.family} has no soft_address: its description "
+                              "names no [link] address_register")
+        self.soft_address = soft_address
+        """The address is the address register's saved value, taken at power-up."""
         self.factory = self._factory_words()
         for key, value in constants.items():
             reg = d.regs.get(key)
             if reg is None or reg.d.means != "constant":
-                known = [k for k, r in d.regs.items() if r.d.means == "constant"]
                 raise ConfigError(f"the simulated {d.family} has no option {key!r} (options: "
-                                  f"home_switch_width, crc_error_reply"
-                                  f"{''.join(', ' + k for k in known)})")
+                                  f"{', '.join(self.twin_options())})")
             self._store(self.factory, reg, None, int(value))
         self.regs: dict[int, int] = dict(self.factory)
+        if soft_address:
+            assert d.link.address_register is not None
+            self._store(self.regs, d.regs[d.link.address_register], None, address)
         self._apply_format_register(initial=True)
         self.eeprom: dict[int, int] = dict(self.regs)
         """Register words that survive a power cycle."""
@@ -189,8 +213,10 @@ class DescribedDrive(SimDrive):
     @classmethod
     def twin_options(cls) -> list[str]:
         """The keyword options this twin takes (a machine file's ``sim.options``)."""
-        consts = [k for k, r in cls.description.regs.items() if r.d.means == "constant"]
-        return ["home_switch_width", "crc_error_reply", *consts]
+        d = cls.description
+        consts = [k for k, r in d.regs.items() if r.d.means == "constant"]
+        soft = ["soft_address"] if d.link.address_register is not None else []
+        return ["home_switch_width", "home_cam", "crc_error_reply", *soft, *consts]
 
     def _check_line(self, settings: LineSettings) -> None:
         d = self.description
@@ -277,14 +303,21 @@ class DescribedDrive(SimDrive):
     # -- switches ----------------------------------------------------------------------------
 
     def switch_states(self, now: float) -> tuple[bool, bool, bool]:
-        """(home, limit negative, limit positive) at the physical position; the home switch
-        is a cam from ``home_switch`` on, or a dog of ``home_switch_width``."""
-        p = self.physical_position(now)
-        start, width = self.home_switch, self.home_switch_width
-        home = start is not None and p >= start and (width is None or p <= start + width)
-        neg = self.limit_negative is not None and p <= self.limit_negative
-        pos = self.limit_positive is not None and p >= self.limit_positive
-        return home, neg, pos
+        """(home, limit negative, limit positive) at the physical position."""
+        return self.switches_at(self.physical_position(now))
+
+    def home_side(self) -> int:
+        """The side a home cam covers when ``home_cam`` does not say: the side the homing
+        method in the drive's registers searches towards (+1 if none)."""
+        try:
+            m = _cia402_method(self._method_def(self._method_code(monotonic())))
+        except ExprError:  # the method depends on a write being made: the default side
+            m = None
+        if m is None or m.home_switch is HomeSwitch.POSITIVE:
+            return 1
+        if m.home_switch is HomeSwitch.NEGATIVE:
+            return -1
+        return m.initial_direction or 1
 
     def _wired(self, signal: str) -> bool:
         """True if an input carries ``signal`` (home_switch, limit_positive, ...)."""
@@ -299,19 +332,23 @@ class DescribedDrive(SimDrive):
         code = io.codes[signal]
         return any(self._raw(reg, i) == code for i in reg.indices)
 
+    def _span(self, edge: str) -> Span | None:
+        """Where the switch of ``edge`` is active (physical), if the drive can see it."""
+        signal = "home_switch" if edge.startswith("home") else edge
+        if not self._wired(signal):
+            return None
+        if signal == "home_switch":
+            return self.home_span()
+        return self.limit_span(1 if signal == "limit_positive" else -1)
+
     def _boundary(self, edge: str) -> float | None:
-        """Counter position of a switch edge the drive can see, or None."""
-        start, width = self.home_switch, self.home_switch_width
-        pos: float | None = None
-        if edge == "home_low" and self._wired("home_switch"):
-            pos = start
-        elif edge == "home_high" and self._wired("home_switch"):
-            pos = start + width if start is not None and width is not None else None
-        elif edge == "limit_positive" and self._wired("limit_positive"):
-            pos = self.limit_positive
-        elif edge == "limit_negative" and self._wired("limit_negative"):
-            pos = self.limit_negative
-        return None if pos is None else pos + self._shift
+        """Counter position of a switch edge the drive can see, or None (an edge at
+        infinity: a cam's or a limit's outer end)."""
+        span = self._span(edge)
+        if span is None:
+            return None
+        pos = span.hi if edge in ("home_high", "limit_negative") else span.lo
+        return pos + self._shift if math.isfinite(pos) else None
 
     def _signals(self, now: float) -> dict[str, bool]:
         home, neg, pos = self.switch_states(now)
@@ -616,16 +653,23 @@ class DescribedDrive(SimDrive):
 
     # -- homing --------------------------------------------------------------------------------
 
-    def _home(self, trig: Trigger, value: Any, now: float) -> None:
-        code = self._param(trig, "method", now, value)
+    def _method_code(self, now: float) -> Any:
+        """The homing method the drive's home trigger names now (its register's value)."""
+        trig = next((t for ts in self._triggers.values() for t in ts if t.do == "home"), None)
+        return None if trig is None else self._param(trig, "method", now, None)
+
+    def _method_def(self, code: Any) -> MethodDef | None:
+        """The description's homing method of ``code`` (a name or the drive's number)."""
         h = self.description.homing
-        method = None
-        if h is not None and isinstance(code, str):
-            method = h.methods.get(code)
-        elif h is not None:
-            method = next((m for m in h.methods.values()
-                           if m.code is not None and code is not None and m.code == int(code)),
-                          None)
+        if h is None or code is None:
+            return None
+        if isinstance(code, str):
+            return h.methods.get(code)
+        return next((m for m in h.methods.values() if m.code is not None and
+                     m.code == int(code)), None)
+
+    def _home(self, trig: Trigger, value: Any, now: float) -> None:
+        method = self._method_def(self._param(trig, "method", now, value))
         if method is None:
             return  # not a documented method: the drive does nothing
         ppr = self.pulses_per_rev
@@ -636,6 +680,7 @@ class DescribedDrive(SimDrive):
         self._wrap(now)
         self.motion = trig.motion or "homing"
         self.homed = False
+        self.homing_failed = False
         number = method.cia402
         if method.behaviour == "set" or number in (33, 34, 35, 37):
             self._set_counter(now, offset)
@@ -670,12 +715,17 @@ class DescribedDrive(SimDrive):
         ahead = "limit_positive" if phase.direction > 0 else "limit_negative"
         if all(name != ahead for name, _ in events):
             events.append((ahead, "abort"))
+        t_from = h.t_dir + 1e-9
         best: tuple[float, str] | None = None
         for name, nxt in events:
+            span = self._span(name)
+            if name == ahead and span is not None and t_from <= now and \
+                    span.active(self.physical_position(t_from)):
+                return t_from, nxt  # the limit ahead is active as the leg sets off
             boundary = self._boundary(name)
             if boundary is None:
                 continue
-            tc = self.kin.crossing(boundary, h.t_dir + 1e-9, now)
+            tc = self.kin.crossing(boundary, t_from, now)
             if tc is not None and (best is None or tc < best[0]):
                 best = (tc, nxt)
         return best
@@ -697,6 +747,7 @@ class DescribedDrive(SimDrive):
             elif nxt == "abort":
                 self.kin.stop(tc, self._limit_rate(tc))
                 self._homing = None
+                self.homing_failed = True
             else:
                 self._enter(nxt, tc)
 
@@ -762,6 +813,10 @@ class DescribedDrive(SimDrive):
                 for index in (reg.indices if reg.array else [None]):
                     self._store(self.regs, reg, index, reg.default_at(index))
         self._apply_format_register(initial=False)
+        if self.soft_address:
+            key = self.description.link.address_register
+            assert key is not None
+            self.address = self._raw(self.description.regs[key], None)
         self.kin.hold(now)
         self._set_counter(now, 0)
         self.alarm_code = 0
@@ -788,6 +843,16 @@ class DescribedDrive(SimDrive):
         fmt = names.get(self._raw(reg, None))
         if fmt is not None and fmt in allowed:
             self.settings = LineSettings.parse(fmt, baudrate=self.settings.baudrate)
+
+
+def _cia402_method(method: MethodDef | None) -> HomingMethod | None:
+    """The CiA 402 method a description's homing method behaves as, if any."""
+    if method is None or method.cia402 is None:
+        return None
+    try:
+        return homing_method(method.cia402)
+    except ArgumentError:
+        return None
 
 
 def _formats_at(d: Description, baud: int) -> list[str]:
@@ -946,6 +1011,11 @@ class DescribedCia402Drive(DescribedDrive):
     homing, on this twin's kinematics); the others are plain registers as in any twin."""
 
     _objects: ClassVar[dict[str, Reg]]
+
+    @classmethod
+    def twin_options(cls) -> list[str]:
+        """The keyword options this twin takes (the device has no home cam side option)."""
+        return [o for o in super().twin_options() if o not in ("home_cam", "soft_address")]
 
     def __init__(
         self,

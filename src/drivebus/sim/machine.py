@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass, field
+from typing import Any
 
 from drivebus.config import AxisConfig, LineConfig, MachineConfig
 from drivebus.errors import ConfigError
@@ -18,7 +19,14 @@ from drivebus.sim.tcp import SimSerialServer, SimTcpServer
 from drivebus.sim.twins import twin_class
 from drivebus.sim.wire import VirtualWire
 
-__all__ = ["SimLine", "make_twin", "start_sim_line", "start_simulators"]
+__all__ = [
+    "ADAPTER_OPTIONS",
+    "SimLine",
+    "adapter_options",
+    "make_twin",
+    "start_sim_line",
+    "start_simulators",
+]
 
 SimServer = VirtualWire | SimSerialServer | SimTcpServer
 
@@ -72,6 +80,36 @@ def make_twin(axis: AxisConfig, line: LineConfig) -> SimDrive:
     return twin(axis.address, settings, setup, **sim.options)
 
 
+ADAPTER_OPTIONS = ("latency", "echo")
+"""What a ``sim://NAME?...`` serial line may say about the master's simulated adapter:
+``latency`` (its latency timer, e.g. ``16ms`` or ``0.016``) and ``echo`` (it hears its own
+transmitter: ``true``/``false``)."""
+
+
+def adapter_options(line: LineConfig) -> dict[str, Any]:
+    """The wire's keyword options from the line's ``sim://NAME?latency=16ms&echo=true``;
+    ``ConfigError`` naming a bad one."""
+    out: dict[str, Any] = {}
+    for key, text in line.sim_options.items():
+        if key == "latency":
+            try:
+                seconds = float(text[:-2]) / 1000 if text.endswith("ms") else float(text)
+            except ValueError:
+                seconds = -1.0
+            if not 0 <= seconds <= 1:
+                raise ConfigError(f"sim://{line.sim_name}?latency={text}: a latency timer is "
+                                  f"0..1 s (e.g. 16ms)")
+            out["adapter_latency"] = seconds
+        elif key == "echo":
+            if text not in ("true", "false", "1", "0"):
+                raise ConfigError(f"sim://{line.sim_name}?echo={text}: true or false")
+            out["echo"] = text in ("true", "1")
+        else:
+            raise ConfigError(f"sim://{line.sim_name}: no option {key!r} (it has "
+                              f"{', '.join(ADAPTER_OPTIONS)})")
+    return out
+
+
 async def start_sim_line(
     config: MachineConfig, name: str, stack: contextlib.AsyncExitStack
 ) -> SimLine:
@@ -88,7 +126,8 @@ async def start_sim_line(
                               f"{exc}") from exc
     server: SimServer
     if line.kind == "serial":
-        wire = await stack.enter_async_context(VirtualWire(line.sim_name))
+        adapter = adapter_options(line)
+        wire = await stack.enter_async_context(VirtualWire(line.sim_name, **adapter))
         for t in twins.values():
             wire.attach(t)
         server = wire

@@ -20,7 +20,8 @@ bookkeeping (both processes read the same CLOCK_MONOTONIC):
   (answer: JSON ``{"noise_bytes": n}``, all wires' noise so far).
 
 ``--lenient``: slaves answer frames sent without the t3.5 silence (the violation is
-only logged), as many real slaves do.
+only logged), as many real slaves do. ``--adapter-latency SECONDS``: the master's USB
+adapter holds each reply until its latency timer ticks (FTDI's default: 0.016).
 
 Without the in-process side channel the wire cannot observe parity or byte size: keep to
 8N1/8N2 (a pty carries baud rate and stop bits only).
@@ -101,12 +102,14 @@ async def _answer(
 
 
 async def _serve_slaves(
-    slaves: int, settings: Sequence[LineSettings], turnaround: float, lines: int, strict: bool
+    slaves: int, settings: Sequence[LineSettings], turnaround: float, lines: int, strict: bool,
+    adapter_latency: float = 0.0,
 ) -> None:
     async with contextlib.AsyncExitStack() as stack:
         wires: dict[str, VirtualWire] = {}
         for i in range(lines):
-            wire = await stack.enter_async_context(VirtualWire(f"process-{i}", strict=strict))
+            wire = await stack.enter_async_context(VirtualWire(
+                f"process-{i}", strict=strict, adapter_latency=adapter_latency))
             for a in range(1, slaves + 1):
                 s = settings[(a - 1) % len(settings)]
                 wire.attach(RegisterSlave(a, s, size=64, turnaround=turnaround))
@@ -140,6 +143,8 @@ def main(argv: list[str] | None = None) -> None:
                    help="serve this machine file's sim:// lines instead")
     p.add_argument("--lenient", action="store_true",
                    help="slaves answer frames sent without the t3.5 silence")
+    p.add_argument("--adapter-latency", type=float, default=0.0,
+                   help="the master's adapter holds replies until its timer ticks (s)")
     a = p.parse_args(argv)
     if a.machine is not None:
         from drivebus.config import machine_config
@@ -149,7 +154,8 @@ def main(argv: list[str] | None = None) -> None:
         anyio.run(_serve_machine, cfg)
         return
     settings = [LineSettings.parse(s.strip()) for s in a.settings.split(",")]
-    anyio.run(_serve_slaves, a.slaves, settings, a.turnaround, a.lines, not a.lenient)
+    anyio.run(_serve_slaves, a.slaves, settings, a.turnaround, a.lines, not a.lenient,
+              a.adapter_latency)
 
 
 if __name__ == "__main__":

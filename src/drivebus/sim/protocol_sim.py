@@ -13,6 +13,7 @@ then sets the nearest one, as such an adapter's driver does) or formats
 from __future__ import annotations
 
 import errno
+import socket
 import termios
 
 import serial
@@ -42,25 +43,73 @@ class _SimPort(PosixSerial):
             self.wire.note_format(bytesize, parity)
 
 
+class _RemoteSimPort(PosixSerial):
+    """A POSIX serial port on the pty of a ``drivebus sim`` in another process: the byte
+    size and parity go to its wire through the line's format channel (a Unix socket),
+    answered before the port is used, so the next frame is judged at that format."""
+
+    channel = ""  # set per line by serial_class_for_url
+    _told: tuple[int, str] | None = None
+    _sock: socket.socket | None = None
+
+    def _reconfigure_port(self, force_update: bool = False) -> None:
+        bytesize, parity = self._bytesize, self._parity
+        self._bytesize, self._parity = serial.EIGHTBITS, serial.PARITY_NONE
+        try:
+            super()._reconfigure_port(force_update)
+        finally:
+            self._bytesize, self._parity = bytesize, parity
+        if (bytesize, parity) != self._told:
+            self._tell(int(bytesize), str(parity))
+
+    def _tell(self, bytesize: int, parity: str) -> None:
+        try:
+            if self._sock is None:
+                sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                sock.settimeout(2.0)
+                sock.connect(self.channel)
+                self._sock = sock
+            self._sock.sendall(f"F {bytesize} {parity}\n".encode())
+            answer = self._sock.recv(16)
+        except OSError as exc:
+            raise serial.SerialException(
+                f"the simulated line's format channel {self.channel} does not answer: {exc}"
+            ) from exc
+        if answer != b"ok\n":
+            raise serial.SerialException(f"the simulated line refused format {bytesize}"
+                                         f"{parity}: {answer!r}")
+        self._told = (bytesize, parity)
+
+    def close(self) -> None:
+        """Close the pty and the format channel (the wire forgets the format)."""
+        super().close()
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+            self._told = None
+
+
 def serial_class_for_url(url: str) -> tuple[str, type[PosixSerial]]:
     """Resolve ``sim://NAME`` to the wire's pty path and a port class bound to the wire.
 
     A wire of this process is used with its format side channel; else the pty of a running
-    ``drivebus sim`` in another process (published by ``drivebus.sim.serve``), as a plain
-    port: parity and byte size do not cross a pty, so keep to 8N1/8N2 there.
+    ``drivebus sim`` in another process (published by ``drivebus.sim.serve``), whose
+    format channel (a Unix socket) carries the parity and byte size a pty cannot.
     """
-    from drivebus.sim.serve import published_sim
+    from drivebus.sim.serve import published
     from drivebus.sim.wire import lookup_wire
 
-    name = url.split("://", 1)[1].strip("/")
+    name = url.split("://", 1)[1].partition("?")[0].strip("/")
     try:
         wire = lookup_wire(name)
     except KeyError:
-        path = published_sim(name)
-        if path is None:
+        found = published(name)
+        if found is None or found.kind != "serial":
             raise serial.SerialException(
-                f"no simulated line named {name!r} is running (start it with "
+                f"no simulated line named {name!r} is running (a serial one; start it with "
                 f"`drivebus sim CONFIG`, or open a machine whose line is sim://{name})"
             ) from None
-        return path, PosixSerial
+        if found.channel is None:
+            return found.where, PosixSerial
+        return found.where, type("RemoteSimPort", (_RemoteSimPort,), {"channel": found.channel})
     return wire.slave_path, type("SimPort", (_SimPort,), {"wire": wire})

@@ -1,5 +1,9 @@
 """The simulator as a line provider: it serves a machine file's ``sim://NAME`` lines.
 
+A line whose ``sim://NAME`` a running ``drivebus sim`` serves (in another process) is
+reached there, its drives as that simulator has them; only when none runs is a private
+simulator started for the machine, its twins afresh.
+
 ``open_machine`` finds it by the ``sim`` scheme (an entry point of the package, see
 ``drivebus.providers``), never by importing it. Loading it also teaches pyserial the
 ``sim://NAME`` URL (``drivebus.sim.protocol_sim``), so ``SerialLine("sim://NAME")`` reaches a
@@ -10,16 +14,20 @@ from __future__ import annotations
 
 import contextlib
 import inspect
+import logging
 
 import serial
 
 from drivebus.config import AxisConfig, MachineConfig
 from drivebus.errors import ConfigError
 from drivebus.providers import ProvidedLine
-from drivebus.sim.machine import start_sim_line
+from drivebus.sim.machine import adapter_options, start_sim_line
+from drivebus.sim.serve import published
 from drivebus.sim.twins import twin_class
 
 __all__ = ["SimLineProvider"]
+
+log = logging.getLogger(__name__)
 
 if "drivebus.sim" not in serial.protocol_handler_packages:
     serial.protocol_handler_packages.append("drivebus.sim")  # sim://NAME, protocol_sim.py
@@ -40,6 +48,12 @@ class SimLineProvider:
     def problems(self, config: MachineConfig) -> list[str]:
         """Twin options, positions and switches of the simulated axes that cannot work."""
         out = []
+        for lname, ln in config.lines.items():
+            if ln.scheme == self.scheme and ln.kind == "serial":
+                try:
+                    adapter_options(ln)
+                except ConfigError as exc:
+                    out.append(f"lines.{lname}.port: {exc}")
         for name, ax in config.axes.items():
             line = config.lines.get(ax.line)
             if line is None or line.scheme != self.scheme or ax.sim.absent:
@@ -50,7 +64,19 @@ class SimLineProvider:
     async def open(
         self, config: MachineConfig, line: str, stack: contextlib.AsyncExitStack
     ) -> ProvidedLine:
-        """Start the simulator of line ``line``; it runs until ``stack`` closes."""
+        """Reach the ``drivebus sim`` that serves line ``line`` if one runs (its drives, as
+        it left them: no twins here), else start a private simulator of the line (a twin
+        per axis, afresh) that runs until ``stack`` closes."""
+        cfg = config.lines[line]
+        running = published(cfg.sim_name)
+        if running is not None and (running.kind == "serial") == (cfg.kind == "serial"):
+            log.info("%s: reaching the running drivebus sim on %s", cfg.port or cfg.host,
+                     running.where)
+            if running.kind == "serial":  # sim://NAME: the port class finds the pty
+                return ProvidedLine(cfg, {}, None)
+            host, port = running.host_port
+            return ProvidedLine(cfg.model_copy(update={"host": host, "tcp_port": port}), {},
+                                None)
         sim = await start_sim_line(config, line, stack)
         return ProvidedLine(sim.master_config(), dict(sim.twins), sim.server)
 

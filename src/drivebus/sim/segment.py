@@ -177,6 +177,14 @@ class Segment(Generic[R]):
         """Put ``slave`` on the segment; its address must be free."""
         return add_slave(self.slaves, slave, self.where)
 
+    def slave_at(self, address: int) -> SimSlave | None:
+        """The slave that answers at ``address`` now (a drive that took a new address at
+        power-up answers at that one, not at the one it was attached with)."""
+        sl = self.slaves.get(address)
+        if sl is not None and sl.address == address:
+            return sl
+        return next((x for x in self.slaves.values() if x.address == address), None)
+
     # -- the master's bytes -----------------------------------------------------------------
 
     def feed(self, data: bytes, now: float, settings: LineSettings, route: R) -> None:
@@ -217,7 +225,7 @@ class Segment(Generic[R]):
         ``split_frames``: all of them)."""
         if len(rx) < 2:
             return None
-        slave = self.slaves.get(rx[0])
+        slave = self.slave_at(rx[0])
         if slave is not None and slave.powered:
             length = slave.request_length(bytes(rx[1:]))
         else:
@@ -255,7 +263,7 @@ class Segment(Generic[R]):
         if address == 0:
             targets = [sl for sl in self.slaves.values() if sl.powered]
         else:
-            sl = self.slaves.get(address)
+            sl = self.slave_at(address)
             targets = [sl] if sl is not None and sl.powered else []
             if not targets and not note:
                 note = "no slave"

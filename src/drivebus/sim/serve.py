@@ -1,19 +1,30 @@
 """Serving a machine's simulated lines to outside masters (``drivebus sim``).
 
-The simulators run in this process; each simulated serial line's pty path is published in
-a per-user runtime directory, so that ``SerialLine("sim://NAME")`` (and ``drivebus scan
-sim://NAME``) in another process reaches it. Output goes to ``echo`` (a terminal's print).
+The simulators run in this process; each simulated line is published in a per-user
+runtime directory under its ``sim://`` name: a serial line's pty path and its format
+channel, a TCP line's loopback address. So ``SerialLine("sim://NAME")``, ``drivebus scan
+sim://NAME`` and a machine file's ``sim://NAME`` line in another process reach it.
+
+A pty carries baud rate and stop bits but not parity or byte size, so a drivebus master in
+another process tells the wire the format it set through the line's format channel (a
+Unix socket: ``F 8 E`` answered by ``ok``) before its next frame; outside masters (mbpoll,
+a PLC) are taken to send 8 data bits without parity. Output goes to ``echo``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import sys
+import tempfile
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import anyio
+import anyio.abc
+import anyio.streams.buffered
 
 from drivebus import runtime
 from drivebus.config import MachineConfig, load_config
@@ -21,7 +32,15 @@ from drivebus.errors import ConfigError, DrivebusError
 from drivebus.sim.machine import SimLine, start_simulators
 from drivebus.sim.wire import VirtualWire, WireFrame
 
-__all__ = ["describe", "frame_text", "publish", "published_sim", "serve_simulators"]
+__all__ = [
+    "PublishedSim",
+    "describe",
+    "frame_text",
+    "publish",
+    "published",
+    "published_sim",
+    "serve_simulators",
+]
 
 
 def _say(text: str) -> None:
@@ -32,20 +51,93 @@ def _warn(text: str) -> None:
     print(f"warning: {text}", file=sys.stderr, flush=True)
 
 
+@dataclass(frozen=True)
+class PublishedSim:
+    """Where a running ``drivebus sim`` serves one ``sim://`` line."""
+
+    kind: str
+    """"serial" (a pty) or "tcp" (a loopback TCP port: Modbus TCP or RTU over TCP)."""
+    where: str
+    """The pty path, or ``127.0.0.1:PORT``."""
+    channel: str | None = None
+    """A serial line's format channel (a Unix socket path), if it has one."""
+
+    @property
+    def host_port(self) -> tuple[str, int]:
+        """A TCP line's host and port."""
+        host, _, port = self.where.rpartition(":")
+        return host, int(port)
+
+
+def published(name: str) -> PublishedSim | None:
+    """Where a running ``drivebus sim`` serves ``sim://name``, if one does."""
+    found = runtime.lookup("sim", name)
+    if not found:
+        return None
+    if found[0].startswith("tcp "):
+        return PublishedSim("tcp", found[0].removeprefix("tcp "))
+    if not Path(found[0]).exists():
+        return None
+    channel = found[1] if len(found) > 1 and Path(found[1]).exists() else None
+    return PublishedSim("serial", found[0], channel)
+
+
 def published_sim(name: str) -> str | None:
     """The pty path a running ``drivebus sim`` serves ``sim://name`` on, if one does."""
-    found = runtime.lookup("sim", name)
-    return found[0] if found and Path(found[0]).exists() else None
+    found = published(name)
+    return found.where if found is not None and found.kind == "serial" else None
+
+
+def _channel_path(name: str) -> Path:
+    """A short path (Unix socket paths are limited to 107 bytes) unique to this user's
+    runtime directory and the line's name."""
+    key = f"{runtime.runtime_dir('sim')}/{name}".encode()
+    return Path(tempfile.gettempdir()) / f"drivebus-{hashlib.sha256(key).hexdigest()[:20]}.sock"
+
+
+async def _serve_format_channel(wire: VirtualWire, path: Path) -> None:
+    """Answer the format messages of masters in other processes until cancelled."""
+
+    async def client(stream: anyio.abc.SocketStream) -> None:
+        buffered = anyio.streams.buffered.BufferedByteReceiveStream(stream)
+        try:
+            async with stream:
+                while True:
+                    line = await buffered.receive_until(b"\n", 64)
+                    parts = line.decode(errors="replace").split()
+                    if len(parts) == 3 and parts[0] == "F" and parts[1].isdigit():
+                        wire.note_format(int(parts[1]), parts[2])
+                        await stream.send(b"ok\n")
+                    else:
+                        await stream.send(b"error\n")
+        except (anyio.EndOfStream, anyio.IncompleteRead, anyio.DelimiterNotFound,
+                anyio.BrokenResourceError, anyio.ClosedResourceError):
+            pass  # the master closed its port (or sent junk): the channel ends
+        finally:
+            wire.forget_format()
+
+    await anyio.Path(path).unlink(missing_ok=True)
+    listener = await anyio.create_unix_listener(path)
+    try:
+        await listener.serve(client)
+    finally:
+        with anyio.CancelScope(shield=True):
+            await anyio.Path(path).unlink(missing_ok=True)
 
 
 @contextlib.contextmanager
 def publish(
     sims: dict[str, SimLine], warn: Callable[[str], None] = _warn
 ) -> Iterator[None]:
-    """Publish the pty path of each simulated serial line for other processes; removed on
-    exit (a line that cannot be published is a warning, not an error)."""
-    entries = {s.config.sim_name: [s.endpoint] for s in sims.values()
-               if isinstance(s.server, VirtualWire)}
+    """Publish where each simulated line is served (a serial line's pty path and format
+    channel, a TCP line's address) for other processes; removed on exit (a line that
+    cannot be published is a warning, not an error)."""
+    entries: dict[str, list[str]] = {}
+    for s in sims.values():
+        if isinstance(s.server, VirtualWire):
+            entries[s.config.sim_name] = [s.endpoint, str(_channel_path(s.config.sim_name))]
+        else:
+            entries[s.config.sim_name] = [f"tcp {s.endpoint}"]
     with runtime.publish("sim", entries) as problems:
         for p in problems:
             warn(p)
@@ -97,10 +189,10 @@ async def serve_simulators(
     """Serve the ``sim://`` lines of ``config`` (a twin per axis) until cancelled."""
     cfg = load_config(config)
     for ln in cfg.lines.values():
-        if ln.simulated and ln.kind == "serial" and (path := published_sim(ln.sim_name)):
+        if ln.simulated and (other := published(ln.sim_name)):
             raise DrivebusError(
-                f"{ln.port} is already served by another drivebus sim, on {path}: use that "
-                f"one, or stop it first"
+                f"{ln.port or ln.host} is already served by another drivebus sim, on "
+                f"{other.where}: use that one, or stop it first"
             )
     async with contextlib.AsyncExitStack() as stack:
         sims = await start_simulators(cfg, stack)
@@ -113,6 +205,10 @@ async def serve_simulators(
             echo(f"simulating machine {cfg.name}: Ctrl-C or SIGTERM ends it")
             try:
                 async with anyio.create_task_group() as tg:
+                    for s in sims.values():
+                        if isinstance(s.server, VirtualWire):
+                            tg.start_soon(_serve_format_channel, s.server,
+                                          _channel_path(s.config.sim_name))
                     if log:
                         for s in sims.values():
                             if isinstance(s.server, VirtualWire):

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import os
 import termios
 import tty
@@ -61,10 +62,15 @@ class VirtualWire(SegmentView):
         log_size: int = 200_000,
         adapter_bauds: Collection[int] | None = None,
         adapter_formats: Collection[str] | None = None,
+        adapter_latency: float = 0.0,
     ) -> None:
         self.name = name
         self.echo = echo
         """Send every master byte back, as adapters that hear their own transmitter do."""
+        self.adapter_latency = adapter_latency
+        """The master's simulated USB adapter holds received bytes until its latency timer
+        ticks (every ``adapter_latency`` s; FTDI's default is 16 ms), as ftdi_sio does
+        unless the port is in low-latency mode; 0: bytes pass at once."""
         self.adapter_bauds = tuple(sorted(adapter_bauds)) if adapter_bauds else None
         """The baud rates the master's simulated adapter can generate (None: any). Asked for
         another one, its driver runs (and reports) the nearest, as USB adapters' drivers do."""
@@ -144,6 +150,11 @@ class VirtualWire(SegmentView):
         """Side channel from the sim port class: the byte size and parity it configured."""
         self._format = (int(bytesize), str(parity))
 
+    def forget_format(self) -> None:
+        """The master that told the format is gone: an outside master (mbpoll, a PLC) is
+        taken to send 8 data bits without parity again."""
+        self._format = None
+
     def observed_settings(self) -> LineSettings:
         """The line settings the master's port has right now."""
         attrs = termios.tcgetattr(self._master_fd)  # the slave side's termios
@@ -176,6 +187,10 @@ class VirtualWire(SegmentView):
         self.segment.feed(data, now, self.observed_settings(), None)
 
     async def _to_master(self, data: bytes, _route: None) -> None:
+        if self.adapter_latency > 0:  # held in the adapter until its timer's next tick
+            now = monotonic()
+            await anyio.sleep(math.ceil(now / self.adapter_latency) * self.adapter_latency
+                              - now)
         try:
             os.write(self._master_fd, data)
         except OSError:

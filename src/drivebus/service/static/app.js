@@ -2,20 +2,28 @@
 // Jog buttons are hold-to-run: pointer down starts a jog with a short TTL and feeds it
 // over the WebSocket while held; release, leaving the button or losing the connection
 // stops feeding (and sends speed 0), so the service's watchdog stops the axis anyway.
+// Charts (charts.js on uPlot, served from the package): per axis position, velocity and
+// target in its own units with its state as a band, per line transactions/s,
+// utilisation and reply latency; times are the service's poll times on the wall clock.
 "use strict";
 
 const JOG_TTL = 0.5;        // s: the axis stops this long after the last feed
 const JOG_FEED = 150;       // ms between feeds while a jog button is held
-const PLOT_WINDOW = 30;     // s of position history in the plot
+const KEEP = 600;           // s of history kept (the widest window)
+const DRAW_EVERY = 250;     // ms between chart redraws
 const MAX_RATE = 20;        // axis/line updates per second: plenty for eyes and the plot
-const COLORS = ["#58a6ff", "#3fb950", "#d29922", "#f778ba", "#a5d6ff", "#ff7b72", "#bc8cff"];
 
 const state = {
   token: sessionStorage.getItem("drivebus-token") || "",
   ws: null,
   live: false,
   axes: new Map(),      // name -> last axis message
-  history: new Map(),   // name -> [[t, position], ...]
+  series: new Map(),    // axis name -> {t, position, velocity, target, state, marks}
+  lineSeries: new Map(),  // line name -> {t, utilisation, rate, latency, last}
+  clockOffset: null,    // wall - monotonic of the service (from hello)
+  window: 30,           // s shown
+  paused: false,
+  recording: null,      // id of the recording this page started
   jogs: new Map(),      // name -> release() of its held jog button
   scope: "command",
 };
@@ -100,6 +108,7 @@ function handle(msg) {
   switch (msg.type) {
     case "hello":
       state.scope = msg.scope;
+      if (msg.clock) state.clockOffset = msg.clock.wall - msg.clock.monotonic;
       $("machine").textContent = msg.machine;
       $("who").textContent = `${msg.client} (${msg.scope})`;
       $("login").hidden = true;
@@ -113,6 +122,7 @@ function handle(msg) {
       onLine(msg);
       break;
     case "motion":
+      markMotion(msg);
       note(`${msg.kind} ${msg.id} of ${msg.axes.join(", ")}: ${msg.event}` +
            (msg.error ? ` (${msg.error.type}: ${msg.error.message})` : ""), msg.event);
       break;
@@ -239,8 +249,7 @@ function onAxis(msg) {
   const name = msg.axis;
   if (!state.axes.has(name)) {
     addRow(name, msg);
-    state.history.set(name, []);
-    drawLegend();
+    addAxisChart(name, msg);
   }
   state.axes.set(name, msg);
   const st = $(`state-${name}`);
@@ -251,17 +260,23 @@ function onAxis(msg) {
   const alarm = msg.alarm ? `${msg.alarm_code ?? ""} ${msg.alarm_text}`.trim()
     : (msg.error ? msg.error.type : "");
   $(`alarm-${name}`).textContent = alarm;
-  if (msg.position !== null && msg.position !== undefined) {
-    const h = state.history.get(name);
-    const now = performance.now() / 1000;
-    h.push([now, msg.position]);
-    while (h.length && h[0][0] < now - PLOT_WINDOW) h.shift();
+  const s = state.series.get(name);
+  const t = wall(msg.timestamp);
+  if (t !== null && (!s.t.length || t > s.t[s.t.length - 1])) {
+    s.t.push(t); s.position.push(msg.position); s.velocity.push(msg.velocity);
+    s.target.push(msg.target); s.state.push(msg.state);
+    trim(s, ["t", "position", "velocity", "target", "state"]);
   }
 }
 
 // -- lines ---------------------------------------------------------------------------------
 
 function onLine(msg) {
+  onLineFacts(msg);
+  onLineChart(msg);
+}
+
+function onLineFacts(msg) {
   let div = $(`line-${msg.name}`);
   if (!div) {
     div = document.createElement("div");
@@ -281,53 +296,146 @@ function onLine(msg) {
     (msg.last_error ? ` · last: ${msg.last_error}` : "");
 }
 
-// -- the plot ------------------------------------------------------------------------------
+// -- charts --------------------------------------------------------------------------------
 
-function color(name) {
-  return COLORS[[...state.history.keys()].indexOf(name) % COLORS.length];
+function wall(monotonic) {
+  // The service's monotonic poll time on the wall clock (null before the first poll).
+  if (!monotonic || state.clockOffset === null) return null;
+  return monotonic + state.clockOffset;
 }
 
-function drawLegend() {
-  $("legend").innerHTML = "";
-  for (const name of state.history.keys()) {
-    const span = document.createElement("span");
-    span.innerHTML = `<i style="background:${color(name)}"></i>${name}`;
-    $("legend").append(span);
+function trim(s, keys) {
+  const t = s.t;
+  let n = 0;
+  while (n < t.length && t[n] < t[t.length - 1] - KEEP) n++;
+  if (n) for (const k of keys) s[k].splice(0, n);
+}
+
+function pause(on) {
+  state.paused = on;
+  $("pause").textContent = on ? "Resume" : "Pause";
+  $("pause").classList.toggle("held", on);
+  if (!on) draw();
+}
+
+function addAxisChart(name, msg) {
+  state.series.set(name, { t: [], position: [], velocity: [], target: [], state: [],
+                           marks: [] });
+  const div = document.createElement("div");
+  div.className = "chart";
+  div.id = `chart-${name}`;
+  $("charts").append(div);
+  DrivebusCharts.axisChart(div, { name, unit: msg.units, time: true, height: 210,
+                                  onZoom: () => pause(true) });
+  DrivebusCharts.fit();  // the grid has re-flowed: every chart to its cell's width
+}
+
+function markMotion(msg) {
+  const kinds = { started: "started", done: "in_position", aborted: "aborted",
+                  failed: "error" };
+  const now = Date.now() / 1000;
+  for (const name of msg.axes || []) {
+    const s = state.series.get(name);
+    if (s) s.marks.push({ t: now, kind: kinds[msg.event] || "accepted", label: "" });
   }
+}
+
+function onLineChart(msg) {
+  let s = state.lineSeries.get(msg.name);
+  if (!s) {
+    s = { t: [], utilisation: [], rate: [], latency: [], last: null };
+    state.lineSeries.set(msg.name, s);
+    const div = document.createElement("div");
+    div.className = "chart";
+    div.id = `linechart-${msg.name}`;
+    $("line-charts").append(div);
+    DrivebusCharts.lineChart(div, { name: msg.name, time: true, height: 180,
+                                    onZoom: () => pause(true) });
+    DrivebusCharts.fit();
+  }
+  const last = s.last;
+  s.last = msg;
+  const t = wall(msg.timestamp);
+  if (!last || t === null || msg.timestamp <= last.timestamp) return;
+  const dt = msg.timestamp - last.timestamp;
+  const replies = msg.replies - last.replies;
+  s.t.push(t);
+  s.utilisation.push(Math.min(100, 100 * (msg.wire_time - last.wire_time) / dt));
+  s.rate.push((msg.transactions - last.transactions) / dt);
+  s.latency.push(replies > 0 ? 1000 * (msg.reply_time - last.reply_time) / replies : null);
+  trim(s, ["t", "utilisation", "rate", "latency"]);
+  const facts = document.querySelector(`#line-${CSS.escape(msg.name)} span.facts`);
+  if (facts) {
+    facts.textContent += ` · ${s.rate[s.rate.length - 1].toFixed(0)} tx/s` +
+      (replies > 0 ? ` · reply ${s.latency[s.latency.length - 1].toFixed(2)} ms` : "");
+  }
+}
+
+function visible(s, keys, from) {
+  // The points inside the window (and one before, so the line enters from the edge).
+  let i = 0;
+  while (i < s.t.length && s.t[i] < from) i++;
+  i = Math.max(0, i - 1);
+  return keys.map((k) => s[k].slice(i));
 }
 
 function draw() {
-  const canvas = $("plot");
-  const w = canvas.clientWidth, h = canvas.clientHeight;
-  if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
-  const g = canvas.getContext("2d");
-  g.clearRect(0, 0, w, h);
-  const now = performance.now() / 1000;
-  let lo = Infinity, hi = -Infinity;
-  for (const pts of state.history.values()) {
-    for (const [, p] of pts) { lo = Math.min(lo, p); hi = Math.max(hi, p); }
+  if (state.paused || state.clockOffset === null) return;
+  const now = Date.now() / 1000;
+  const from = now - state.window;
+  for (const [name, s] of state.series) {
+    const chart = DrivebusCharts.registry.get(`axis-${name}`);
+    const data = visible(s, ["t", "position", "velocity", "target"], from);
+    const [t, st] = visible(s, ["t", "state"], from);
+    s.marks = s.marks.filter((m) => m.t >= now - KEEP);
+    chart.set(data, { states: DrivebusCharts.stateRuns(t, st, now), marks: s.marks }, true);
+    chart.u.setScale("x", { min: from, max: now });
   }
-  if (!Number.isFinite(lo)) return;
-  if (hi - lo < 1) { hi += 0.5; lo -= 0.5; }
-  const pad = 28;
-  const x = (t) => pad + (w - pad - 8) * (1 - (now - t) / PLOT_WINDOW);
-  const y = (p) => h - pad / 2 - (h - pad) * (p - lo) / (hi - lo);
-  g.strokeStyle = "#2c353f"; g.fillStyle = "#93a1ae"; g.font = "11px sans-serif";
-  g.lineWidth = 1;
-  for (let k = 0; k <= 4; k++) {
-    const p = lo + (hi - lo) * k / 4;
-    g.beginPath(); g.moveTo(pad, y(p)); g.lineTo(w, y(p)); g.stroke();
-    g.fillText(p.toFixed(0), 2, y(p) + 4);
+  for (const [name, s] of state.lineSeries) {
+    const chart = DrivebusCharts.registry.get(`line-${name}`);
+    chart.set(visible(s, ["t", "utilisation", "rate", "latency"], from), undefined, true);
+    chart.u.setScale("x", { min: from, max: now });
   }
-  g.lineWidth = 2;
-  for (const [name, pts] of state.history) {
-    if (!pts.length) continue;
-    g.strokeStyle = color(name);
-    g.beginPath();
-    pts.forEach(([t, p], i) => (i ? g.lineTo(x(t), y(p)) : g.moveTo(x(t), y(p))));
-    g.lineTo(x(now), y(pts[pts.length - 1][1]));  // it is still there now
-    g.stroke();
+}
+
+// -- recording -------------------------------------------------------------------------------
+
+async function toggleRecording() {
+  const b = $("record");
+  if (state.recording === null) {
+    const rec = await api("POST", "/api/recordings").catch(() => null);
+    if (!rec) return;
+    state.recording = rec.id;
+    b.dataset.id = rec.id;
+    b.textContent = "■ Stop and download";
+    b.classList.add("held");
+    const t0 = Date.now();
+    clearInterval(toggleRecording.timer);
+    toggleRecording.timer = setInterval(() => {
+      $("recording").textContent = `recording ${rec.id}: ${((Date.now() - t0) / 1000).toFixed(0)} s`;
+    }, 500);
+    return;
   }
+  const id = state.recording;
+  state.recording = null;
+  clearInterval(toggleRecording.timer);
+  b.textContent = "● Record";
+  b.classList.remove("held");
+  await api("POST", `/api/recordings/${id}/stop`).catch(() => null);
+  const headers = { "X-Drivebus-Client": "dashboard" };
+  if (state.token) headers.Authorization = `Bearer ${state.token}`;
+  const r = await fetch(`/api/recordings/${id}/report`, { headers });
+  if (!r.ok) { toast(`recording ${id}: HTTP ${r.status}`); return; }
+  const blob = await r.blob();
+  const a = $("report-link");
+  if (a.href) URL.revokeObjectURL(a.href);
+  a.href = URL.createObjectURL(blob);
+  a.download = `drivebus-${$("machine").textContent}-${id}.html`;
+  a.textContent = `report ${id}`;
+  a.hidden = false;
+  a.dataset.id = id;
+  $("recording").textContent = `recording ${id}: downloaded`;
+  a.click();
 }
 
 // -- start ---------------------------------------------------------------------------------
@@ -352,6 +460,12 @@ $("estop").addEventListener("click", () => {
 
 window.addEventListener("blur", releaseAllJogs);
 document.addEventListener("visibilitychange", () => { if (document.hidden) releaseAllJogs(); });
-$("window").textContent = PLOT_WINDOW;
-setInterval(draw, 100);
+$("window").addEventListener("change", () => {
+  state.window = Number($("window").value);
+  draw();
+});
+$("pause").addEventListener("click", () => pause(!state.paused));
+$("record").addEventListener("click", toggleRecording);
+window.addEventListener("resize", () => DrivebusCharts.fit());
+setInterval(draw, DRAW_EVERY);
 connect();

@@ -15,7 +15,9 @@ lazily from the ``now`` of each request. Modelled beyond plain registers:
   and the active-level register 0x0040. Switch positions are physical: they stay put
   when the position counter is zeroed or homed (``position()`` is the counter,
   ``physical_position()`` the motor).
-- Homing modes 0-3 as in manual §4.4; limit stops during moves (0x0017).
+- Homing modes 0-3 as in manual §4.4; limit stops during moves (0x0017). The home switch
+  is a cam from ``home_switch`` on the side the mode searches towards (0 forward, 1
+  backward) unless ``home_cam`` names the side, or a dog of ``home_switch_width``.
 - Alarms: ``raise_alarm(code)`` latches Err1..Err5; only Err4 clears with 0x002A,
   Err2/Err3 clear with ``supply_recovered()``, Err1/Err5 only by a power cycle.
 
@@ -32,7 +34,7 @@ from collections.abc import Callable
 from drivebus.clock import monotonic
 from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
+from drivebus.sim.drive import HomeCam, SimDrive, Span, TwinSetup, time_or_present
 from drivebus.sim.registers import Access, ExceptionCodes, RegisterSpec, SlaveException
 
 __all__ = ["FACTORY_SETTINGS", "SimBHSS"]
@@ -164,9 +166,12 @@ class SimBHSS(SimDrive):
         setup: TwinSetup | None = None,
         *,
         crc_error_reply: bool = True,
+        home_cam: HomeCam | None = None,
+        home_switch_width: float | None = None,
     ) -> None:
         settings = settings or FACTORY_SETTINGS
         super().__init__(address, settings, setup)
+        self.set_home_shape(home_cam, home_switch_width)
         self.crc_error_reply = crc_error_reply
         """Answer a bad-CRC frame with exception 01 (the manual's example) or stay silent."""
         self.regs: dict[int, int] = _factory_registers()
@@ -183,6 +188,7 @@ class SimBHSS(SimDrive):
         self._home = _Home.IDLE
         self._home_dir = 1.0
         self._home_accel = 1.0
+        self._home_reversed = False
         self._latched_decel = math.inf
         self._last_dir = 0
         self._processed_until = 0.0  # events processed up to here
@@ -347,18 +353,28 @@ class SimBHSS(SimDrive):
 
     # -- inputs ------------------------------------------------------------------------------------
 
+    def home_side(self) -> int:
+        """The default home cam side: the direction of the homing mode (0x0031: 0/2
+        forward, 1/3 backward)."""
+        return -1 if self.regs[0x0031] in (1, 3) else 1
+
+    def _span(self, index: int) -> Span | None:
+        """Where the switch on input ``index`` (X0 home, X1 +limit, X2 -limit) is active."""
+        if index == 2:
+            return self.home_span()
+        if index in (3, 4):
+            return self.limit_span(1 if index == 3 else -1)
+        return None
+
     def _physical(self, index: int, p: float) -> bool:
         """Switch state of input ``index`` (PU, DR, X0..X4) at position ``p``."""
-        if index == 2 and self.home_switch is not None:
-            return p >= self.home_switch
-        if index == 3 and self.limit_positive is not None:
-            return p >= self.limit_positive
-        if index == 4 and self.limit_negative is not None:
-            return p <= self.limit_negative
-        return False
+        span = self._span(index)
+        return span is not None and span.active(p)
 
-    def _threshold(self, index: int) -> float | None:
-        return {2: self.home_switch, 3: self.limit_positive, 4: self.limit_negative}.get(index)
+    def _thresholds(self, index: int) -> tuple[float, ...]:
+        """The positions where input ``index``'s switch changes state."""
+        span = self._span(index)
+        return () if span is None else tuple(x for x in (span.lo, span.hi) if math.isfinite(x))
 
     def _input(self, index: int, p: float) -> bool:
         """Valid level of input ``index`` at position ``p`` (after 0x0040's inversion)."""
@@ -378,9 +394,16 @@ class SimBHSS(SimDrive):
 
     def _input_edge(self, index: int, rising: bool, t0: float, t1: float) -> float | None:
         """First time in [t0, t1] input ``index`` turns valid (``rising``) or invalid."""
-        x = self._threshold(index)
+        found = [self._threshold_edge(index, x, rising, t0, t1) for x in self._thresholds(index)]
+        times = [t for t in found if t is not None]
+        return min(times) if times else None
+
+    def _threshold_edge(
+        self, index: int, x: float, rising: bool, t0: float, t1: float
+    ) -> float | None:
+        """First time in [t0, t1] input ``index`` turns valid (or invalid) passing ``x``."""
         t = t0
-        while x is not None and t <= t1:
+        while t <= t1:
             tc = self.kin.crossing(x, t, t1)
             if tc is None:
                 return self._boundary_edge(index, rising, t, t1)
@@ -520,9 +543,22 @@ class SimBHSS(SimDrive):
         self._home_accel = self._ramp_rate(pps, self.regs[0x0034])
         self._home_dir = 1.0 if mode in (0, 2) else -1.0
         self.homed = False
+        self.homing_failed = False
         self.reached = False
         self._move_active = False
+        self._home_reversed = False
+        p = self.kin.position(now)
+        if self._function_active(self._reference(), p):
+            # On the reference input already: the manual does not say; the twin backs off
+            # to its falling edge first, as the NT86's and CL86R's manuals do.
+            self._home = _Home.BRAKE1
+            self._on_home_ramp_end(now)
+            return
         self._home = _Home.SEARCH
+        ahead = _limit_towards(self._home_dir)
+        if ahead != self._reference() and self._function_active(ahead, p):
+            self._home_dir = -self._home_dir  # on a limit already: "the turning will reverse"
+            self._home_reversed = True
         self.kin.run(now, self._home_dir * pps, self._home_accel, self._home_accel)
         self._last_dir = int(self._home_dir)
 
@@ -549,18 +585,22 @@ class SimBHSS(SimDrive):
             return None
         end = self.kin.end_time()
         phase = self._home
+        reference = self._reference()
         if phase is _Home.SEARCH:
-            reference = self._reference()
             return self._first(
                 (self._edge(reference, True, t0, t1), self._on_reference_found),
-                *((self._edge(limit, True, t0, t1) if reference != limit else None,
-                   self._on_limit_reverse) for limit in _LIMITS),
+                *self._homing_limits(t0, t1, reverse=not self._home_reversed),
             )
         if phase is _Home.BACKOFF:
-            return self._first((self._edge(self._reference(), False, t0, t1), self._on_falling))
+            return self._first((self._edge(reference, False, t0, t1), self._on_falling),
+                               *self._homing_limits(t0, t1))
         if phase is _Home.CREEP:
-            return self._first((self._edge(self._reference(), True, t0, t1), self._on_origin))
-        if phase in (_Home.BRAKE1, _Home.BRAKE2, _Home.OFFSET):
+            return self._first((self._edge(reference, True, t0, t1), self._on_origin),
+                               *self._homing_limits(t0, t1))
+        if phase is _Home.OFFSET:
+            return self._first((end if end <= t1 else None, self._on_home_ramp_end),
+                               *self._homing_limits(t0, t1, offset=True))
+        if phase in (_Home.BRAKE1, _Home.BRAKE2):
             return (end, self._on_home_ramp_end) if end <= t1 else None
         if self.is_moving(t0):
             return self._first(
@@ -570,6 +610,16 @@ class SimBHSS(SimDrive):
         if self._move_active:
             return (max(end, t0), self._on_move_done)
         return None
+
+    def _homing_limits(
+        self, t0: float, t1: float, *, reverse: bool = False, offset: bool = False
+    ) -> list[tuple[float | None, _Handler]]:
+        """The limit inputs turning valid in [t0, t1] while homing, but the one homed on
+        (in the compensation move, that one too): the search reverses at the first one
+        (manual §4.4, L1184) if ``reverse``; any other stops homing."""
+        handler = self._on_limit_reverse if reverse else self._on_homing_limit_stop
+        return [(self._edge(limit, True, t0, t1), handler) for limit in _LIMITS
+                if offset or limit != self._reference()]
 
     @staticmethod
     def _first(*candidates: tuple[float | None, _Handler]) -> tuple[float, _Handler] | None:
@@ -586,10 +636,22 @@ class SimBHSS(SimDrive):
         self._move_active = False
 
     def _on_limit_reverse(self, t: float) -> None:
+        self._home_reversed = True
         self._home_dir = -self._home_dir
         pps = self._pps(self.regs[0x0032])
         self.kin.run(t, self._home_dir * pps, self._home_accel, self._home_accel)
         self._last_dir = int(self._home_dir)
+
+    def _on_homing_limit_stop(self, t: float) -> None:
+        """A limit input met while homing, other than the search's first one: the manual
+        says only that the search reverses at a limit, not what follows (the other limit
+        after that reversal, or one met backing off, creeping or compensating). The twin
+        stops as 0x0017 says (0: ramp down at 0x0034's rate, 1: at once) and homing
+        fails: reversing again would run between the limits for ever."""
+        emergency = self.regs[0x0017] == 1
+        self.kin.stop(t, None if emergency else self._home_accel)
+        self._home = _Home.IDLE
+        self.homing_failed = True
 
     def _on_reference_found(self, t: float) -> None:
         self.kin.stop(t, self._home_accel)
@@ -619,6 +681,11 @@ class SimBHSS(SimDrive):
         self.kin.hold(t)
         self._shift = -self.kin.position(t)
         offset = self.regs[0x0035] - self.regs[0x0036]
+        if offset and self._function_active(
+            _limit_towards(offset), self.kin.position(t) + math.copysign(0.5, offset)
+        ):
+            self._on_homing_limit_stop(t)  # the compensation would go into a limit switch
+            return
         if offset:
             self._home = _Home.OFFSET
             creep = self._pps(self.regs[0x0033])

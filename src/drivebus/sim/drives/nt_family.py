@@ -24,13 +24,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Generator, Mapping
 from dataclasses import dataclass
-from typing import ClassVar, Literal
+from typing import ClassVar
 
 from drivebus.clock import monotonic
 from drivebus.errors import ConfigError
 from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
-from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
+from drivebus.sim.drive import HomeCam, SimDrive, Span, TwinSetup, time_or_present
 from drivebus.sim.registers import Access, RegisterSpec, SlaveException, signed32
 
 __all__ = ["SimEPR60", "SimNT86"]
@@ -63,6 +63,12 @@ def _words_low_first(value: int) -> tuple[int, int]:
     """A 32-bit value as (low word, high word): the NT family's order."""
     u = value & 0xFFFFFFFF
     return u & 0xFFFF, u >> 16
+
+
+def _edge_of(span: Span | None, direction: int, *, rising: bool) -> float | None:
+    """Where a motor travelling in ``direction`` sees ``span`` turn active (``rising``)
+    or inactive; None without a switch or such an edge."""
+    return None if span is None else span.edge(direction, rising)
 
 
 _READ_ONLY = RegisterSpec(access=Access.R)
@@ -179,8 +185,10 @@ _EPR60_MAP, _EPR60_PAIRS = _epr60_map()
 class SimNT86(SimDrive):
     """Simulated Rtelligent NT86: Modbus RTU at 8N1 only, 9600/19200/38400/115200 baud.
 
-    Family options: ``home_cam`` — the home switch is a cam active on the "positive"
-    (default) or "negative" side of ``home_switch``; ``hard_stop_negative`` /
+    Family options: ``home_cam`` — the home switch is a cam active on the "positive" or
+    "negative" side of ``home_switch`` (default: the side 288 searches towards, as the
+    manual draws 288=0 and mirrors it for 288=1); ``home_switch_width`` — instead a dog
+    over ``[home_switch, home_switch + width]``; ``hard_stop_negative`` /
     ``hard_stop_positive`` — mechanical end stops for hard-stop homing (288=4/5, closed
     loop only); ``control_mode`` — register 22 at power-up (0 open loop, 1/2 closed loop).
     Physical inputs: IN6 conducts while the home switch is active (its default function 11);
@@ -201,7 +209,8 @@ class SimNT86(SimDrive):
         settings: LineSettings | None = None,
         setup: TwinSetup | None = None,
         *,
-        home_cam: Literal["positive", "negative"] = "positive",
+        home_cam: HomeCam | None = None,
+        home_switch_width: float | None = None,
         hard_stop_negative: float | None = None,
         hard_stop_positive: float | None = None,
         control_mode: int = 0,
@@ -209,9 +218,7 @@ class SimNT86(SimDrive):
         settings = settings or LineSettings.parse("115200 8N1")
         self._check_line(address, settings)
         super().__init__(address, settings, setup)
-        if home_cam not in ("positive", "negative"):
-            raise ConfigError(f"home_cam must be 'positive' or 'negative', not {home_cam!r}")
-        self.home_cam = home_cam
+        self.set_home_shape(home_cam, home_switch_width)
         self.hard_stop_negative = hard_stop_negative
         self.hard_stop_positive = hard_stop_positive
         self.params: dict[int, int] = {a: s.default for a, s in self.register_map.items()}
@@ -271,12 +278,10 @@ class SimNT86(SimDrive):
     def _set_counter(self, t: float, value: int) -> None:
         self._offset = value - self._physical(t)
 
-    def switch_states(self, now: float) -> tuple[bool, bool, bool]:
-        """(home, limit negative, limit positive); the home cam side is ``home_cam``."""
-        home, neg, pos = super().switch_states(now)
-        if self.home_switch is not None and self.home_cam == "negative":
-            home = self.kin.position(now) <= self.home_switch
-        return home, neg, pos
+    def home_side(self) -> int:
+        """The default home cam side: negative for 288=1, else positive (288=0 searches
+        positive; 2-5 do not use the home switch)."""
+        return -1 if self.params.get(288) == 1 else 1
 
     def _input_mask(self, t: float) -> int:
         home, _, _ = self.switch_states(t)
@@ -693,6 +698,7 @@ class SimNT86(SimDrive):
             self.params[287] = 0
             raise SlaveException(4)  # hard-stop homing works only in closed loop
         self.homed = False
+        self.homing_failed = False
         self._jog = None
         self._estopping = False
         self._clear_trigger = clear_trigger
@@ -717,101 +723,149 @@ class SimNT86(SimDrive):
         if self._clear_trigger and 287 in self.params:
             self.params[287] = 0
 
-    def _home_electrical(self) -> Program:
-        """287=5: move to the absolute position 293/294 at speed 289 (accel 291)."""
+    def _homing_failed(self, t: float, decel: float) -> None:
+        """Homing stops without its origin (at a limit switch): decelerate to rest at
+        ``decel``; HOME stays 0 and 287 clears, so a new trigger is needed (the manual's
+        "stop and wait for a new trigger", 295=0/1)."""
+        self.kin.stop(t, decel)
+        self.homing_failed = True
+        self._homing_aborted()
+
+    def _until(
+        self, direction: int, edge: float | None, reference: Span | None = None,
+        *, rest: bool = False,
+    ) -> Generator[_Wait, tuple[str, float], tuple[str, float]]:
+        """Follow the motion just planned, travelling in ``direction``, to the first of:
+        "edge" (it reaches ``edge`` going that way), "rest" (if ``rest``) or "limit" (it
+        meets the limit switch ahead, at once if that one is already active), unless that
+        switch is ``reference``, the signal the method homes on. With nothing to wait for
+        the motor runs until stopped."""
         t = self._wait_from
+        ahead = self.limit_span(direction)
+        cross: list[tuple[str, float, int]] = []
+        if edge is not None:
+            cross.append(("edge", edge, direction))
+        if ahead is not None and ahead != reference:
+            if ahead.active(self._physical(t)):
+                return "limit", t
+            inner = ahead.edge(direction, True)
+            assert inner is not None  # a limit switch's inner end is finite
+            cross.append(("limit", inner, direction))
+        return (yield _Wait(cross=tuple(cross), rest=rest))
+
+    def _home_electrical(self) -> Program:
+        """287=5: move to the absolute position 293/294 at speed 289 (accel 291). A limit
+        switch on the way stops it, not homed (assumption: the manual is silent)."""
+        t = self._wait_from
+        here = self._physical(t)
         target = self._pair_value(293) - self._offset
         speed, acc = self.pulse_rate(self.params[289]), self.pulse_acceleration(self.params[291])
-        if speed > 0 and acc > 0:
+        if speed > 0 and acc > 0 and target != here:
             self.kin.move_to(t, target, speed, acc, acc)
-            _, t = yield _Wait(rest=True)
+            name, t = yield from self._until(1 if target > here else -1, None, rest=True)
+            if name == "limit":
+                self._homing_failed(t, acc)
+                return
         self._homing_done(t, self._pair_value(293))
 
-    def _signal(self, method: int) -> float | None:
-        return {
-            0: self.home_switch,
-            1: self.home_switch,
-            2: self.limit_positive,
-            3: self.limit_negative,
-        }.get(method)
-
-    def _signal_active(self, method: int, t: float) -> bool:
-        home, neg, pos = self.switch_states(t)
-        return (home, home, pos, neg)[method]
+    def _reference(self, method: int) -> Span | None:
+        """Where the signal 288 homes on is active: the home switch (0/1), the positive
+        (2) or the negative (3) limit switch."""
+        if method in (0, 1):
+            return self.home_span()
+        return self.limit_span(1 if method == 2 else -1)
 
     def _home_mechanical(self, t0: float) -> Program:
-        """288=0-3: search the switch fast, back off slowly to its falling edge, creep back
-        to its rising edge (the origin); 288=4/5: creep into the hard stop (manual 3.1.2)."""
+        """288=0-3: the switch search of manual 3.1.2; 288=4/5: creep into the hard stop.
+        Then 295=1/3 travel the offset further; the origin's coordinate is 293/294."""
         method, handling = self.params[288], self.params[295]
         d = 1 if method in (0, 2, 4) else -1
         fast, slow = self.pulse_rate(self.params[289]), self.pulse_rate(self.params[290])
         acc = self.pulse_acceleration(self.params[291])
         if method in (4, 5):
-            t = yield from self._hard_stop(d, slow, acc)
+            found = yield from self._hard_stop(d, slow, acc)
         else:
-            found = yield from self._switch_search(method, d, fast, slow, acc, handling)
-            if found is None:
-                return  # stopped at a limit (295=0/1): wait for a new trigger
-            t = found
+            found = yield from self._switch_search(method, d, fast, slow, acc, handling >= 2)
+        if found is None:
+            return  # stopped at a limit switch: not homed, 287 cleared
+        t = found
         offset = self._pair_value(293)
         if handling in (1, 3) and offset:
             self.kin.move_to(t, self._physical(t) + offset, max(fast, 1.0), acc, acc)
-            _, t = yield _Wait(rest=True)
+            # A limit switch ahead stops the offset travel (assumption: the manual is silent).
+            name, t = yield from self._until(1 if offset > 0 else -1, None, rest=True)
+            if name == "limit":
+                self._homing_failed(t, acc)
+                return
         self._homing_done(t, offset)
 
     def _switch_search(
-        self, method: int, d: int, fast: float, slow: float, acc: float, handling: int
+        self, method: int, d: int, fast: float, slow: float, acc: float, reverse_at_limit: bool
     ) -> Generator[_Wait, tuple[str, float], float | None]:
+        """Manual 3.1.2 for 288=0-3, searching in direction ``d``: with the signal inactive,
+        search at P289 for its rising edge and decelerate at P291 (①); with it active (②),
+        or after that, back off at P290 to its falling edge and stop at once; then creep at
+        P290 to the rising edge and stop at once there: the origin. A limit switch met in
+        the search (③; 288=0/1, the limit ahead) stops homing with 295=0/1, and with 295=2/3
+        reverses it at P289 to the signal's falling edge, decelerates and creeps back.
+        Any other limit switch met, the other one after that reversal included, stops
+        homing (assumption: the manual does not say; a second reversal would run on for
+        ever without a home switch). The time of the origin, None if homing stopped."""
+        span = self._reference(method)
         t = self._wait_from
-        edge = self._signal(method)
-        if edge is None:
+        back_off = True
+        if span is None or not span.active(self._physical(t)):
             self.kin.run(t, d * fast, acc, acc)
-            yield _Wait()  # no such switch: runs until stopped
-            return None
-        if not self._signal_active(method, t):
-            self.kin.run(t, d * fast, acc, acc)
-            limit = self.limit_positive if d > 0 else self.limit_negative
-            watch = [("edge", edge, d)]
-            if method in (0, 1) and limit is not None:
-                watch.append(("limit", limit, d))
-            name, t = yield _Wait(cross=tuple(watch))
-            self.kin.stop(t, acc)
-            _, t = yield _Wait(rest=True)
+            name, t = yield from self._until(d, _edge_of(span, d, rising=True), span)
             if name == "limit":
-                if handling in (0, 1):
-                    self._homing_aborted()
+                if not reverse_at_limit:
+                    self._homing_failed(t, acc)
                     return None
-                # Reverse fast to the switch's far edge, decelerate, then creep back.
                 self.kin.run(t, -d * fast, acc, acc)
-                _, t = yield _Wait(cross=(("edge", edge, -d),))
-                self.kin.stop(t, acc)
-                _, t = yield _Wait(rest=True)
-                return (yield from self._creep(edge, d, slow, acc))
-        self.kin.run(t, -d * slow, acc, acc)
-        _, t = yield _Wait(cross=(("edge", edge, -d),))
-        self.kin.hold(t, edge)  # stop at once, on the edge
-        return (yield from self._creep(edge, d, slow, acc))
+                name, t = yield from self._until(-d, _edge_of(span, -d, rising=False), span)
+                if name == "limit":
+                    self._homing_failed(t, acc)
+                    return None
+                back_off = False  # ③: past the falling edge already
+            self.kin.stop(t, acc)  # decelerate at P291 past the edge
+            _, t = yield _Wait(rest=True)
+        assert span is not None  # an edge was reached, or the signal is active
+        if back_off:
+            edge = span.edge(-d, rising=False)
+            self.kin.run(t, -d * slow, acc, acc)
+            name, t = yield from self._until(-d, edge, span)
+            if name == "limit" or edge is None:
+                self._homing_failed(t, acc)
+                return None
+            self.kin.hold(t, edge)  # stop at once, on the edge
+        return (yield from self._creep(span, d, slow, acc))
 
     def _creep(
-        self, edge: float, d: int, slow: float, acc: float
-    ) -> Generator[_Wait, tuple[str, float], float]:
-        """Creep in direction ``d`` to the switch edge and stop there at once."""
+        self, span: Span, d: int, slow: float, acc: float
+    ) -> Generator[_Wait, tuple[str, float], float | None]:
+        """Creep at P290 in direction ``d`` to the signal's rising edge and stop there at
+        once (the origin's time); None if a limit switch stops homing first."""
+        edge = span.edge(d, rising=True)
         self.kin.run(self._wait_from, d * slow, acc, acc)
-        _, t = yield _Wait(cross=(("edge", edge, d),))
+        name, t = yield from self._until(d, edge, span)
+        if name == "limit" or edge is None:
+            self._homing_failed(t, acc)
+            return None
         self.kin.hold(t, edge)
         return t
 
     def _hard_stop(
         self, d: int, slow: float, acc: float
-    ) -> Generator[_Wait, tuple[str, float], float]:
-        """Creep at 290 until the motor stalls on the end stop for 296 x 50 µs."""
-        t = self._wait_from
+    ) -> Generator[_Wait, tuple[str, float], float | None]:
+        """Creep at 290 until the motor stalls on the end stop for 296 x 50 µs. A limit
+        switch met first stops homing (assumption: the manual is silent); without an end
+        stop or limit switch ahead it creeps until stopped."""
         stop = self.hard_stop_positive if d > 0 else self.hard_stop_negative
-        self.kin.run(t, d * slow, acc, acc)
-        if stop is None:
-            yield _Wait()  # nothing to hit: creeps until stopped
-            return t
-        _, t = yield _Wait(cross=(("stall", stop, d),))
+        self.kin.run(self._wait_from, d * slow, acc, acc)
+        name, t = yield from self._until(d, stop)
+        if name == "limit" or stop is None:
+            self._homing_failed(t, acc)
+            return None
         self.kin.hold(t, stop)
         self._stalled = True
         _, t = yield _Wait(until=t + self.params[296] * 50e-6)
@@ -829,7 +883,10 @@ class SimEPR60(SimNT86):
 
     Homing sequence (assumption; the manual gives none): fast (80) towards the limit to
     its edge, decelerate (82), back off slowly (81) to the edge where the limit releases,
-    stop at once, travel 83 pulses further away from the limit, and that point is 0.
+    stop at once, travel 83 pulses further away from the limit, and that point is 0. The
+    manual says nothing of the other limit switch: met while backing off or travelling
+    83, it stops homing (decelerating at 82), not homed. Without the limit switch homed
+    on, the search runs until stopped, as the drive would.
     """
 
     family: ClassVar[str] = "EPR60"
@@ -871,6 +928,7 @@ class SimEPR60(SimNT86):
     def _on_start_homing_input(self, t: float) -> None:
         if self.params[20] == 1 and self._may_start(t):
             self.homed = False
+            self.homing_failed = False
             self._jog = None
             self._estopping = False
             self._stop_decel = self.pulse_acceleration(self.params[82])
@@ -879,24 +937,30 @@ class SimEPR60(SimNT86):
     def _home_limit(self) -> Program:
         t = self._wait_from
         d = 1 if self.params[79] == 1 else -1
-        edge = self.limit_positive if d > 0 else self.limit_negative
+        span = self.limit_span(d)
         fast, slow = self.pulse_rate(self.params[80]), self.pulse_rate(self.params[81])
         acc = self.pulse_acceleration(self.params[82])
-        if edge is None:
+        if span is None or not span.active(self._physical(t)):
             self.kin.run(t, d * fast, acc, acc)
-            yield _Wait()  # no limit switch: runs until stopped
-            return
-        active = self.switch_states(t)[2 if d > 0 else 1]
-        if not active:
-            self.kin.run(t, d * fast, acc, acc)
-            _, t = yield _Wait(cross=(("edge", edge, d),))
+            # Without that limit switch nothing ends this: the motor runs until stopped.
+            _, t = yield from self._until(d, _edge_of(span, d, rising=True), span)
             self.kin.stop(t, acc)
             _, t = yield _Wait(rest=True)
+        assert span is not None
+        edge = span.edge(-d, rising=False)
+        assert edge is not None  # a limit switch's inner end
         self.kin.run(t, -d * slow, acc, acc)
-        _, t = yield _Wait(cross=(("edge", edge, -d),))
+        # The other limit switch met stops homing (assumption: the manual is silent).
+        name, t = yield from self._until(-d, edge, span)
+        if name == "limit":
+            self._homing_failed(t, acc)
+            return
         self.kin.hold(t, edge)
         offset = self.params[83]
         if offset and slow > 0 and acc > 0:
             self.kin.move_to(t, self._physical(t) - d * offset, slow, acc, acc)
-            _, t = yield _Wait(rest=True)
+            name, t = yield from self._until(-d, None, rest=True)
+            if name == "limit":
+                self._homing_failed(t, acc)
+                return
         self._homing_done(t, 0)

@@ -1,0 +1,383 @@
+"""Parameter backup, compare and restore: what ``drivebus params`` and the service's
+``/api/axes/{name}/parameters`` do, on any drive profile.
+
+A drive's documented readable parameters are its profile's data
+(``DriveProfile.parameters()``). ``read_parameters`` only reads (a viewing operation: no
+write reaches the drive); ``load_parameters`` writes only what differs, in the manual's
+order, after every value of the set was checked against its register's range; with
+``save`` the drive stores them once at the end (never a save per parameter). A load that
+stops part-way raises ``PartialWrite`` naming what the drive took.
+
+A parameter file is TOML: a ``[drive]`` table (family, machine file, axis, address, when)
+and a ``[parameters]`` table with one inline table per parameter (``value``, ``unit``,
+``register``, ``stored``); a bare number is taken as the value too.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+import tomllib
+from collections.abc import AsyncIterator, Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import anyio
+
+from drivebus.bus import Bus, Priority
+from drivebus.config import MachineConfig, machine_config
+from drivebus.drives.base import DriveProfile, Parameter
+from drivebus.drives.registry import family
+from drivebus.errors import (
+    ConfigError,
+    DrivebusError,
+    LimitViolation,
+    NotSupported,
+    PartialWrite,
+)
+from drivebus.motion.lines import open_line
+
+__all__ = [
+    "Difference",
+    "LoadReport",
+    "ParameterSet",
+    "diff_parameters",
+    "load_parameters",
+    "open_drive",
+    "plan_load",
+    "read_parameters",
+]
+
+
+@dataclass
+class ParameterSet:
+    """Parameter values of one drive (read from it, or from a file), by key, with where
+    they came from."""
+
+    family: str
+    values: dict[str, int]
+    about: dict[str, Any] = field(default_factory=dict)
+    """Where from: machine, axis, address, line, read_at (as a file's ``[drive]`` table)."""
+
+    @property
+    def params(self) -> dict[str, Parameter]:
+        """The family's parameters by key."""
+        return {p.key: p for p in family(self.family).profile.parameters()}
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready data: each parameter with its value, unit, register and storage."""
+        params = self.params
+        return {
+            "family": self.family, **{k: v for k, v in self.about.items() if k != "family"},
+            "parameters": {
+                k: {"value": v, "name": params[k].name, "unit": params[k].unit,
+                    "register": params[k].location, "stored": params[k].stored,
+                    "comms": params[k].comms}
+                for k, v in self.values.items()
+            },
+        }
+
+    def to_toml(self) -> str:
+        """The set as a parameter file."""
+        params = self.params
+        head = [f"# drivebus parameters of a {self.family} drive"]
+        if "axis" in self.about:
+            head[0] += f": axis {self.about['axis']}"
+        head.append("# restore: drivebus params load FILE [AXIS] [--save]; compare: "
+                    "drivebus params diff FILE")
+        out = [*head, "", "[drive]", f"family = {_toml(self.family)}"]
+        out += [f"{k} = {_toml(v)}" for k, v in self.about.items() if k != "family"]
+        out += ["", "[parameters]"]
+        for k, v in self.values.items():
+            p = params[k]
+            fields = [f"value = {v}"]
+            if p.unit:
+                fields.append(f"unit = {_toml(p.unit)}")
+            fields += [f"register = {_toml(p.location)}", f"stored = {_toml(p.stored)}"]
+            if p.comms:
+                fields.append("comms = true")
+            out.append(f"{k} = {{ {', '.join(fields)} }}  # {p.name}")
+        return "\n".join(out) + "\n"
+
+    @classmethod
+    def from_toml(cls, text: str, where: str = "parameter file") -> ParameterSet:
+        """A parameter file's content; ``ConfigError`` naming the file and the problem."""
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{where}: not TOML: {exc}") from None
+        return cls.from_toml_data(data, where)
+
+    @classmethod
+    def from_toml_data(cls, data: Mapping[str, Any], where: str) -> ParameterSet:
+        """A parameter file's data (as parsed); ``ConfigError`` naming ``where``."""
+        drive = data.get("drive")
+        if not isinstance(drive, dict) or not isinstance(drive.get("family"), str):
+            raise ConfigError(f"{where}: no [drive] table with the drive's family")
+        fam = family(drive["family"])
+        params = {p.key: p for p in fam.profile.parameters()}
+        raw = data.get("parameters")
+        if not isinstance(raw, dict):
+            raise ConfigError(f"{where}: no [parameters] table")
+        unknown = [k for k in raw if k not in params]
+        if unknown:
+            raise ConfigError(f"{where}: the {fam.name} drive has no parameter "
+                              f"{', '.join(unknown)} (it has {', '.join(params)})")
+        values: dict[str, int] = {}
+        for key in params:  # the manual's order, whatever the file's
+            if key not in raw:
+                continue
+            item = raw[key]
+            v = item.get("value") if isinstance(item, dict) else item
+            if not isinstance(v, int) or isinstance(v, bool):
+                raise ConfigError(f"{where}: parameters.{key}: the value must be a whole "
+                                  f"number, not {v!r}")
+            values[key] = v
+        return cls(fam.name, values, {k: v for k, v in drive.items() if k != "family"})
+
+    @classmethod
+    def from_mapping(cls, family_name: str, values: Mapping[str, object]) -> ParameterSet:
+        """Values by key for a drive of ``family_name`` (a request body's); ``ConfigError``
+        naming unknown keys and values that are no whole numbers."""
+        return cls.from_toml_data({"drive": {"family": family_name},
+                                   "parameters": dict(values)}, "parameters")
+
+    @classmethod
+    def load(cls, path: str | Path) -> ParameterSet:
+        """Read a parameter file."""
+        p = Path(path)
+        try:
+            text = p.read_text()
+        except OSError as exc:
+            raise ConfigError(f"parameter file {p}: {exc.strerror or exc}") from None
+        return cls.from_toml(text, str(p))
+
+
+def _toml(v: object) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    s = str(v).replace("\\", "\\\\").replace('"', '\\"')
+    return f'"{s}"'
+
+
+async def read_parameters(
+    profile: DriveProfile, *, priority: Priority = Priority.CONFIG,
+    about: Mapping[str, Any] | None = None,
+) -> ParameterSet:
+    """Every documented readable parameter of the drive behind ``profile`` (reads only)."""
+    params = profile.parameters()
+    if not params:
+        raise NotSupported(f"the {profile.family} profile documents no parameters")
+    values = await profile.read_parameter_values(params, priority=priority)
+    return ParameterSet(profile.family, {p.key: v for p, v in zip(params, values, strict=True)},
+                        dict(about or {}))
+
+
+@dataclass(frozen=True)
+class Difference:
+    """One parameter that differs between two sets (None: absent from that set)."""
+
+    key: str
+    name: str
+    unit: str
+    a: int | None
+    b: int | None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready data."""
+        return {"key": self.key, "name": self.name, "unit": self.unit, "a": self.a, "b": self.b}
+
+
+def diff_parameters(a: ParameterSet, b: ParameterSet) -> list[Difference]:
+    """What differs between ``a`` and ``b`` (same family), in the manual's order."""
+    if a.family != b.family:
+        raise ConfigError(f"cannot compare a {a.family} drive's parameters with a "
+                          f"{b.family} drive's")
+    out = []
+    for key, p in a.params.items():
+        va, vb = a.values.get(key), b.values.get(key)
+        if va != vb:
+            out.append(Difference(key, p.name, p.unit, va, vb))
+    return out
+
+
+@dataclass
+class Write:
+    """One write of a load: the parameter, what the drive holds and what it gets."""
+
+    parameter: Parameter
+    old: int | None
+    new: int
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready data."""
+        return {"key": self.parameter.key, "name": self.parameter.name,
+                "unit": self.parameter.unit, "old": self.old, "new": self.new}
+
+
+@dataclass
+class LoadReport:
+    """A load's plan and how far it got: the writes, what was written, the save."""
+
+    family: str
+    writes: list[Write]
+    skipped: list[str] = field(default_factory=list)
+    """Parameters that differ but were not written (comms ones, without ``include_comms``)."""
+    written: list[str] = field(default_factory=list)
+    saved: bool = False
+    dry_run: bool = False
+    notes: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready data."""
+        return {"family": self.family, "dry_run": self.dry_run,
+                "writes": [w.as_dict() for w in self.writes], "written": self.written,
+                "skipped": self.skipped, "saved": self.saved, "notes": self.notes}
+
+
+def plan_load(
+    profile: DriveProfile | type[DriveProfile], current: ParameterSet, wanted: ParameterSet,
+    *, include_comms: bool = False,
+) -> LoadReport:
+    """The writes that make the drive (holding ``current``) hold ``wanted``: every wanted
+    value range-checked (``LimitViolation`` naming each one out of range; nothing is
+    written then), read-only parameters that differ refused, comms ones skipped unless
+    ``include_comms``."""
+    if wanted.family != profile.family:
+        raise ConfigError(f"the parameters are a {wanted.family} drive's; this drive is a "
+                          f"{profile.family}")
+    params = {p.key: p for p in profile.parameters()}
+    problems = []
+    for key, p in params.items():  # the manual's order
+        if key not in wanted.values:
+            continue
+        try:
+            p.register.check(wanted.values[key])
+        except LimitViolation as exc:
+            problems.append(f"{key}: {exc}")
+    if problems:
+        raise LimitViolation("nothing written: " + "; ".join(problems))
+    report = LoadReport(profile.family, [])
+    for key, p in params.items():  # the manual's order
+        if key not in wanted.values or wanted.values[key] == current.values.get(key):
+            continue
+        if not p.writable:
+            problems.append(f"{key}: read-only (the drive holds {current.values.get(key)})")
+        elif p.comms and not include_comms:
+            report.skipped.append(key)
+        else:
+            report.writes.append(Write(p, current.values.get(key), wanted.values[key]))
+    if problems:
+        raise ConfigError("nothing written: " + "; ".join(problems))
+    return report
+
+
+async def load_parameters(
+    profile: DriveProfile, wanted: ParameterSet, *, save: bool = False, dry_run: bool = False,
+    include_comms: bool = False, report: LoadReport | None = None,
+    on_write: Callable[[Write], None] | None = None,
+) -> LoadReport:
+    """Make the drive hold ``wanted``: read it, write only what differs (in the manual's
+    order, all values checked first), and with ``save`` store them once at the end.
+
+    A drive with an EEPROM write-through switch has it off for the writes (so no write
+    wears the EEPROM) and set back afterwards; a drive without a save command (the BHSS)
+    stores the values as they are written instead, with write-through on. ``report``
+    (if given) is filled as the load goes, so a caller that is cancelled can say what
+    was written; a failed write raises ``PartialWrite`` naming what was written before.
+    """
+    if save and not profile.saves_by_write_through and (why := profile.save_problem()):
+        raise NotSupported(f"--save: {why}")
+    current = await read_parameters(profile)
+    plan = plan_load(profile, current, wanted, include_comms=include_comms)
+    if report is None:
+        report = plan
+    else:
+        report.family, report.writes, report.skipped = plan.family, plan.writes, plan.skipped
+    report.dry_run = dry_run
+    if dry_run or (not report.writes and not save):
+        return report
+    wt = profile.write_through
+    mode: int | None = None
+    if wt is not None:
+        mode = wt.on if save and profile.saves_by_write_through else wt.off
+        was = await profile.read(wt.register)
+        if was != mode and report.writes:
+            await profile.write(wt.register, mode)
+            report.notes.append(f"{wt.register.name} set to {mode} for the load, then back "
+                                f"to {was}")
+        else:
+            mode = None
+    try:
+        for w in report.writes:
+            try:
+                await profile.write_parameter_value(w.parameter, w.new)
+            except DrivebusError as exc:
+                keys = [x.parameter.key for x in report.writes]
+                left = keys[keys.index(w.parameter.key) + 1 :]
+                done = ", ".join(report.written) or "nothing"
+                raise PartialWrite(
+                    f"the load stopped at {w.parameter.key}: {exc}; written before it: "
+                    f"{done}; {w.parameter.key} itself may or may not have been taken "
+                    f"(`drivebus params diff` shows it); not written: "
+                    f"{', '.join(left) or 'nothing'}; nothing was saved",
+                    written=list(report.written),
+                ) from exc
+            report.written.append(w.parameter.key)
+            if on_write is not None:
+                on_write(w)
+        if save and profile.saves_by_write_through:
+            report.saved = True  # each value was stored as it was written
+        elif save:
+            await profile.save_parameters()
+            report.saved = True
+    finally:
+        if wt is not None and mode is not None:
+            with anyio.CancelScope(shield=True):
+                try:
+                    await profile.write(wt.register, was)
+                except DrivebusError as exc:
+                    report.notes.append(f"{wt.register.name} could not be set back to {was}: "
+                                        f"{exc}")
+    return report
+
+
+@contextlib.asynccontextmanager
+async def open_drive(
+    config: str | Path | MachineConfig, axis: str, *, timeout: float | None = None
+) -> AsyncIterator[DriveProfile]:
+    """The profile of ``axis``'s drive on its own line, for the block: only that line is
+    opened (a ``sim://`` line reaches a running ``drivebus sim`` or starts its simulator),
+    and nothing is written to the drive (no set-up, no axis actor)."""
+    cfg = machine_config(config)
+    ax = cfg.axes.get(axis)
+    if ax is None:
+        raise ConfigError(f"no axis {axis!r} in machine {cfg.name} (axes: "
+                          f"{', '.join(cfg.axes)})")
+    line_cfg = cfg.lines[ax.line]
+    one = cfg.model_copy(update={"axes": {axis: ax}, "lines": {ax.line: line_cfg}})
+    async with contextlib.AsyncExitStack() as stack:
+        line, _ = await open_line(one, ax.line, stack)
+        bus = await stack.enter_async_context(
+            Bus(line, timeout=timeout or line_cfg.timeout, retries=line_cfg.retries))
+        slave = bus.slave(ax.address, settings=ax.settings)
+        try:
+            profile = family(ax.drive).profile(slave, pulses_per_rev=ax.pulses_per_rev,
+                                               **ax.drive_options)
+        except TypeError as exc:
+            raise ConfigError(f"axes.{axis}.drive_options: {exc}") from None
+        yield profile
+
+
+def about_axis(config: MachineConfig, axis: str, source: str | None = None) -> dict[str, Any]:
+    """A parameter file's ``[drive]`` entries for ``axis`` of ``config`` (read now)."""
+    ax = config.axes[axis]
+    about: dict[str, Any] = {}
+    if source is not None:
+        about["machine"] = source
+    about.update(axis=axis, line=ax.line, address=ax.address,
+                 read_at=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    return about

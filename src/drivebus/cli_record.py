@@ -1,0 +1,191 @@
+"""``drivebus record``: record a machine's axes and lines, write the report and exports.
+
+``drivebus record MACHINE --during "move x 100" -o run.html`` opens the machine, records
+while the ``--during`` steps run one after the other (and for ``--seconds``), and writes
+each ``-o`` file by its suffix: ``.html`` the self-contained report, ``.jsonl`` the whole
+recording, ``.csv`` and ``.parquet`` the samples table; ``--png`` a static picture.
+"""
+
+from __future__ import annotations
+
+import shlex
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import anyio
+import typer
+
+from drivebus import checks
+from drivebus.errors import ArgumentError, ConfigError
+
+__all__ = ["Step", "parse_step", "record"]
+
+OUTPUTS = (".html", ".htm", ".jsonl", ".csv", ".parquet")
+
+_STEPS = ('"move AXIS TARGET [AXIS TARGET ...]" (several axes: a group move), '
+          '"move-by AXIS DISTANCE [...]", "home AXIS", "jog AXIS SPEED SECONDS", '
+          '"stop [AXIS ...]", "enable AXIS", "wait SECONDS"')
+
+
+@dataclass(frozen=True)
+class Step:
+    """One ``--during`` step: an operation and its arguments."""
+
+    op: str
+    axes: tuple[str, ...]
+    values: tuple[float, ...] = ()
+
+
+def _number(text: str, what: str, step: str) -> float:
+    try:
+        return checks.finite(what, float(text))
+    except ValueError:
+        raise ArgumentError(f"--during {step!r}: {what} {text!r} is not a number") from None
+
+
+def parse_step(text: str) -> Step:
+    """A ``--during`` step from its text (``ArgumentError`` naming what is wrong)."""
+    words = shlex.split(text)
+    if not words:
+        raise ArgumentError(f"--during: empty step; steps: {_STEPS}")
+    op, args = words[0].lower(), words[1:]
+    if op in ("move", "move-by"):
+        if not args or len(args) % 2:
+            raise ArgumentError(f"--during {text!r}: expected AXIS VALUE pairs")
+        pairs = list(zip(args[::2], args[1::2], strict=True))
+        return Step(op, tuple(a for a, _ in pairs),
+                    tuple(_number(v, "position" if op == "move" else "distance", text)
+                          for _, v in pairs))
+    if op in ("home", "enable") and len(args) == 1:
+        return Step(op, (args[0],))
+    if op == "stop":
+        return Step(op, tuple(args))
+    if op == "jog" and len(args) == 3:
+        seconds = checks.positive("--during jog SECONDS", _number(args[2], "SECONDS", text),
+                                  unit="s")
+        return Step(op, (args[0],), (_number(args[1], "SPEED", text), seconds))
+    if op == "wait" and len(args) == 1:
+        return Step(op, (), (checks.positive("--during wait", _number(args[0], "SECONDS",
+                                                                       text), unit="s"),))
+    raise ArgumentError(f"--during {text!r}: not a step; steps: {_STEPS}")
+
+
+def _runner(step: Step, machine: object) -> Callable[[], Awaitable[object]]:
+    from drivebus.motion import Machine
+
+    assert isinstance(machine, Machine)
+    m = machine
+    for name in step.axes:
+        if name not in m.axes:
+            raise ConfigError(f"--during: no axis {name!r} (axes: {', '.join(m.axes)})")
+    targets = dict(zip(step.axes, step.values, strict=False))
+    if step.op == "move":
+        if len(targets) == 1:
+            (name, target), = targets.items()
+            return lambda: m.axes[name].move_to(target)
+        return lambda: m.group(*targets).move_to(targets)
+    if step.op == "move-by":
+        if len(targets) == 1:
+            (name, distance), = targets.items()
+            return lambda: m.axes[name].move_by(distance)
+        return lambda: m.group(*targets).move_by(targets)
+    if step.op == "home":
+        return m.axes[step.axes[0]].home
+    if step.op == "enable":
+        return m.axes[step.axes[0]].enable
+    if step.op == "stop":
+        return m.group(*step.axes).stop
+    if step.op == "jog":
+        axis, (speed, seconds) = m.axes[step.axes[0]], step.values
+
+        async def jog() -> None:
+            async with axis.jogging(speed):
+                await anyio.sleep(seconds)
+
+        return jog
+    return lambda: anyio.sleep(step.values[0])
+
+
+async def _record(config: Path, axes: list[str], steps: list[Step], seconds: float | None,
+                  outputs: list[Path], png: Path | None) -> int:
+    from drivebus.motion import open_machine
+    from drivebus.service.report import report_html, report_png
+
+    async with open_machine(config) as m:
+        runs = [_runner(s, m) for s in steps]  # every step checked before anything moves
+        async with m.record(axes=axes or None) as rec:
+            for run in runs:
+                await run()
+            rest = (seconds or 0.0) - rec.duration
+            await anyio.sleep(max(rest, 0.25 if steps else 0.0))
+    for path in outputs:
+        suffix = path.suffix.lower()
+        if suffix in (".html", ".htm"):
+            path.write_text(report_html(rec), encoding="utf-8")
+        elif suffix == ".jsonl":
+            rec.to_jsonl(path)
+        elif suffix == ".csv":
+            rec.to_csv(path)
+        else:
+            rec.to_parquet(path)
+        typer.echo(f"wrote {path}")
+    if png is not None:
+        report_png(rec, png)
+        typer.echo(f"wrote {png}")
+    moves = rec.arrivals()
+    typer.echo(f"recorded {rec.duration:.2f} s: {sum(len(t.samples) for t in rec.axes.values())}"
+               f" samples, {sum(len(t.events) for t in rec.axes.values())} events, "
+               f"{sum(len(t.transactions) for t in rec.lines.values())} transactions, "
+               f"{len(moves)} moves")
+    return 0
+
+
+def record(
+    config: Annotated[Path, typer.Argument(help="machine file (TOML)", metavar="CONFIG")],
+    axes: Annotated[list[str] | None, typer.Argument(
+        help="axes to record (default: all)", metavar="[AXIS]...")] = None,
+    seconds: Annotated[float | None, typer.Option(
+        "--seconds", "-s", metavar="N",
+        help="record at least N seconds (default: until the --during steps end, or 5 s)")]
+    = None,
+    during: Annotated[list[str] | None, typer.Option(
+        "--during", "-d", metavar="STEP",
+        help=f"a step to run while recording, repeatable, in order: {_STEPS}")] = None,
+    output: Annotated[list[Path] | None, typer.Option(
+        "--output", "-o", metavar="FILE",
+        help="write FILE by its suffix: .html report, .jsonl recording, .csv or .parquet "
+             "samples; repeatable")] = None,
+    png: Annotated[Path | None, typer.Option(
+        "--png", metavar="FILE", help="also draw the report as a PNG (matplotlib)")] = None,
+    local: Annotated[bool, typer.Option(
+        "--local", help="open the machine here even if a drivebus serve owns it")] = False,
+) -> None:
+    """Record the axes' positions, velocities and events and the lines' transactions while
+    --during steps run; write a self-contained HTML report (-o run.html) and exports."""
+    from drivebus.terminal import run_guarded
+
+    steps = [parse_step(s) for s in during or []]
+    if seconds is not None:
+        checks.positive("--seconds", seconds, unit="s")
+    elif not steps:
+        seconds = 5.0
+    outputs = list(output or [])
+    bad = [str(p) for p in outputs if p.suffix.lower() not in OUTPUTS]
+    if bad:
+        raise ArgumentError(f"--output {', '.join(bad)}: the suffix says what to write: "
+                            f"{', '.join(OUTPUTS)}")
+    if not outputs and png is None:
+        raise ArgumentError("nothing to write: give -o run.html (or .jsonl, .csv, .parquet) "
+                            "or --png FILE")
+    if not local:
+        from drivebus.service.client import find_service
+
+        url = find_service(config)
+        if url is not None:
+            raise ConfigError(f"{config} is served by a running drivebus serve at {url}: "
+                              f"record there with its dashboard's Record button (or pass "
+                              f"--local to open the machine here)")
+    raise typer.Exit(run_guarded(lambda: _record(config, axes or [], steps, seconds,
+                                                 outputs, png)))

@@ -1,0 +1,128 @@
+"""``GET /metrics``: the machine's bus and axis figures in Prometheus's text exposition
+format (version 0.0.4), for Prometheus, Grafana Agent, VictoriaMetrics and the like.
+
+Names follow Prometheus's conventions (base units, ``_total`` counters) so that Grafana's
+defaults work: ``drivebus_transactions_total{line,slave,outcome}``, the reply latency as a
+histogram ``drivebus_reply_latency_seconds{line,slave}`` (``histogram_quantile()``) and
+the window's quantiles as a gauge, retries, line utilisation and wire time, and each
+axis's position, state and whether it is online. Hand-written: the format is a few lines
+of text, and drivebus takes no dependency for it.
+"""
+
+# No ``from __future__ import annotations`` here: FastAPI reads the annotations at runtime.
+
+from collections.abc import Iterable
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import PlainTextResponse
+
+from drivebus.app import MachineSession
+from drivebus.bus.stats import SlaveStats
+
+__all__ = ["CONTENT_TYPE", "exposition", "install"]
+
+CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
+
+_OUTCOMES = (
+    ("ok", lambda s: s.transactions - s.exceptions),
+    ("exception", lambda s: s.exceptions),
+    ("timeout", lambda s: s.timeouts),
+    ("crc_error", lambda s: s.crc_errors),
+    ("wrong_responder", lambda s: s.wrong_responder),
+    ("connection_error", lambda s: s.connection_errors),
+    ("line_noise", lambda s: s.line_noise),
+    ("broadcast", lambda s: s.broadcasts),
+)
+"""Each outcome of a transaction attempt, from a slave's counters."""
+
+
+def _label(value: object) -> str:
+    return str(value).replace("\\", "\\\\").replace("\n", "\\n").replace('"', '\\"')
+
+
+def _labels(**labels: object) -> str:
+    return "{" + ",".join(f'{k}="{_label(v)}"' for k, v in labels.items()) + "}"
+
+
+def _number(v: float) -> str:
+    if v == float("inf"):
+        return "+Inf"
+    return repr(float(v)) if isinstance(v, float) else str(v)
+
+
+class _Family:
+    """One metric family: its help, type and samples."""
+
+    def __init__(self, name: str, kind: str, help_text: str) -> None:
+        self.name, self.kind, self.help = name, kind, help_text
+        self.samples: list[str] = []
+
+    def add(self, value: float, suffix: str = "", **labels: object) -> None:
+        self.samples.append(f"{self.name}{suffix}{_labels(**labels)} {_number(value)}")
+
+    def text(self) -> Iterable[str]:
+        yield f"# HELP {self.name} {self.help}"
+        yield f"# TYPE {self.name} {self.kind}"
+        yield from self.samples
+
+
+def exposition(session: MachineSession) -> str:
+    """The machine's figures as Prometheus text."""
+    tx = _Family("drivebus_transactions_total", "counter",
+                 "Transaction attempts per slave by outcome (retries count again).")
+    retries = _Family("drivebus_retries_total", "counter", "Retried attempts per slave.")
+    latency = _Family("drivebus_reply_latency_seconds", "histogram",
+                      "Reply latency per slave: end of the request to end of the reply.")
+    window = _Family("drivebus_reply_latency_window_seconds", "gauge",
+                     "Reply latency quantiles of the last replies per slave.")
+    util = _Family("drivebus_line_utilisation_ratio", "gauge",
+                   "Fraction of the time since the line opened that frames occupied it.")
+    wire = _Family("drivebus_line_wire_seconds_total", "counter",
+                   "Seconds the line carried frames.")
+    position = _Family("drivebus_axis_position", "gauge", "Axis position in its units.")
+    state = _Family("drivebus_axis_state", "gauge", "1 for the axis's PLCopen state.")
+    online = _Family("drivebus_axis_online", "gauge", "1 while the axis's drive answers.")
+    m = session.machine
+    for line, bus in m.buses.items():
+        util.add(bus.stats.utilisation, line=line)
+        wire.add(bus.stats.wire_time, line=line)
+        for address, s in sorted(bus.stats.slaves.items()):
+            _slave(tx, retries, latency, window, line, address, s)
+    for name, ax in m.axes.items():
+        if ax.position is not None:
+            position.add(ax.position, axis=name, unit=ax.config.unit)
+        state.add(1, axis=name, state=str(ax.state))
+        online.add(0 if str(ax.state) == "Offline" else 1, axis=name)
+    families = (tx, retries, latency, window, util, wire, position, state, online)
+    return "\n".join(line for f in families for line in f.text()) + "\n"
+
+
+def _slave(tx: _Family, retries: _Family, latency: _Family, window: _Family, line: str,
+           address: int, s: SlaveStats) -> None:
+    for outcome, count in _OUTCOMES:
+        tx.add(count(s), line=line, slave=address, outcome=outcome)
+    retries.add(s.retries, line=line, slave=address)
+    for bound, n in s.latency.cumulative():
+        latency.add(n, "_bucket", line=line, slave=address, le=_number(bound))
+    latency.add(s.latency.sum, "_sum", line=line, slave=address)
+    latency.add(s.latency.count, "_count", line=line, slave=address)
+    for q in (0.5, 0.99):
+        v = s.latency.quantile(q)
+        if v is not None:
+            window.add(v, line=line, slave=address, quantile=q)
+
+
+def _session(request: Request) -> MachineSession:
+    session: MachineSession = request.app.state.drivebus.session
+    return session
+
+
+def install(app_router: APIRouter, reader: object) -> None:
+    """Add ``GET /metrics`` to ``app_router``, readable by whoever ``reader`` admits."""
+
+    @app_router.get("/metrics", tags=["machine"], response_class=PlainTextResponse)
+    async def metrics(session: Annotated[MachineSession, Depends(_session)],
+                      _: Annotated[object, Depends(reader)]) -> PlainTextResponse:
+        """The bus and axis figures in Prometheus's text format."""
+        return PlainTextResponse(exposition(session), media_type=CONTENT_TYPE)

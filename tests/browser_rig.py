@@ -1,0 +1,103 @@
+"""What the browser tests share: Debian's headless Chromium through selenium and its
+chromedriver, optionally with every request off this machine made to fail, and the
+screenshots kept under ``tests/artifacts/`` (ignored by git)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from urllib.parse import urlsplit
+
+import pytest
+
+from service_rig import ROOT
+
+webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed")
+from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
+
+CHROMIUM = shutil.which("chromium")
+CHROMEDRIVER = shutil.which("chromedriver")
+ARTIFACTS = ROOT / "tests" / "artifacts"
+
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None or CHROMEDRIVER is None,
+    reason="needs Debian's chromium and chromium-driver: `sh .ci/ensure-chromium` as root "
+           "(make test runs it) or `apt-get install chromium chromium-driver`",
+)
+
+LOOPBACK = {"127.0.0.1", "localhost", "[::1]", "::1"}
+
+
+@contextmanager
+def chromium(*, offline: bool = False, height: int = 1100) -> Iterator[webdriver.Chrome]:
+    """Headless Chromium with a fresh profile. ``offline``: the network is cut for
+    everything but loopback (every request goes to a dead proxy, and no name resolves
+    but localhost), and every request the page makes is logged (``requests_made``)."""
+    assert CHROMIUM is not None and CHROMEDRIVER is not None
+    with tempfile.TemporaryDirectory(prefix="drivebus-chromium-") as profile:
+        options = webdriver.ChromeOptions()
+        options.binary_location = CHROMIUM
+        for arg in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                    "--no-first-run", "--disable-background-networking",
+                    "--disable-component-update", "--disable-sync",
+                    "--disable-dev-shm-usage", f"--user-data-dir={profile}",
+                    f"--window-size=1280,{height}"):
+            options.add_argument(arg)
+        if offline:
+            options.add_argument("--proxy-server=http://127.0.0.1:9")  # discard: nothing
+            options.add_argument("--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE localhost, "
+                                 "EXCLUDE 127.0.0.1")
+            options.set_capability("goog:loggingPrefs", {"performance": "ALL"})
+        driver = webdriver.Chrome(options=options,
+                                  service=webdriver.ChromeService(executable_path=CHROMEDRIVER))
+        try:
+            yield driver
+        finally:
+            driver.quit()
+
+
+def requests_made(driver: webdriver.Chrome) -> list[str]:
+    """The URLs the page requested since the last call (an ``offline`` browser), less
+    those its content security policy stopped inside the browser (they never left)."""
+    urls: dict[str, str] = {}
+    blocked: set[str] = set()
+    for entry in driver.get_log("performance"):
+        msg = json.loads(entry["message"])["message"]
+        params = msg.get("params", {})
+        if msg.get("method") == "Network.requestWillBeSent":
+            urls[params["requestId"]] = params["request"]["url"]
+        elif msg.get("method") == "Network.loadingFailed" and params.get(
+                "blockedReason") == "csp":
+            blocked.add(params["requestId"])
+    return [url for rid, url in urls.items() if rid not in blocked]
+
+
+def off_machine(urls: list[str]) -> list[str]:
+    """The URLs among ``urls`` that would leave this machine."""
+    out = []
+    for url in urls:
+        parts = urlsplit(url)
+        if parts.scheme in ("data", "blob", "about", "file", "chrome", "chrome-untrusted",
+                            "devtools"):
+            continue
+        if (parts.hostname or "") not in LOOPBACK:
+            out.append(url)
+    return out
+
+
+def wait(driver: webdriver.Chrome, check: Callable[[webdriver.Chrome], object],
+         message: str) -> None:
+    """Wait for a condition on the page (a hang guard of 20 s, not a figure)."""
+    WebDriverWait(driver, 20, poll_frequency=0.05).until(check, message)
+
+
+def screenshot(driver: webdriver.Chrome, name: str) -> None:
+    """Keep a screenshot of the page as ``tests/artifacts/NAME.png``."""
+    ARTIFACTS.mkdir(exist_ok=True)
+    shot = ARTIFACTS / f"{name}.png"
+    assert driver.save_screenshot(str(shot))
+    print(f"screenshot: {shot}")
+    assert shot.stat().st_size > 10_000

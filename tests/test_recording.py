@@ -1,0 +1,171 @@
+"""Recordings on the simulator: what ``machine.record`` keeps is what the twins did, and
+its exports (CSV, JSONL, Parquet) read back to the same values with their units."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from drivebus import MotionEvent, Recording, open_machine
+from drivebus.config import MachineConfig, parse_config
+from drivebus.errors import ConfigError
+
+POLL = 0.01
+
+
+def machine(name: str) -> MachineConfig:
+    """Two CL86R axes in mm and one in degrees on one simulated line."""
+    def axis(address: int, unit: str, units_per_rev: float, speed: float) -> dict[str, Any]:
+        return {"line": "rs485", "address": address, "drive": "CL86R",
+                "settings": "115200 8N1", "pulses_per_rev": 1000,
+                "units_per_rev": units_per_rev, "unit": unit, "speed": speed,
+                "accel": 10 * speed, "decel": 10 * speed, "limits": [-500.0, 500.0],
+                "poll": {"moving": POLL, "idle": 0.05}}
+
+    return parse_config({
+        "name": name,
+        "lines": {"rs485": {"port": f"sim://{name}", "settings": "115200 8N1",
+                            "timeout": 0.05}},
+        "axes": {"x": axis(1, "mm", 10.0, 100.0), "y": axis(2, "mm", 5.0, 40.0),
+                 "r": axis(3, "deg", 360.0, 360.0)},
+    })
+
+
+async def test_a_recorded_move_follows_the_twin_within_one_poll_period() -> None:
+    async with open_machine(machine("rec-twin")) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        async with m.record(axes=["x"]) as rec:
+            await x.move_to(40.0)
+        trace = rec.axes["x"]
+        moving = [s for s in trace.samples if s.moving]
+        assert len(moving) >= 10, "a 0.5 s move polled every 10 ms gave too few samples"
+        for s in trace.samples:
+            assert s.position is not None
+            pulses = round(s.position / 10.0 * 1000)
+            # The drive was read between the request and the reply, whose arrival is the
+            # sample's time: the twin passed the recorded position within one poll period
+            # before it (the move is monotonic, so it lies between those two positions).
+            lo, hi = sorted((twin.position(s.time - POLL), twin.position(s.time)))
+            assert lo - 1 <= pulses <= hi + 1, (s, lo, hi)
+        # the samples carry the axis's units and its motion
+        assert trace.unit == "mm"
+        assert trace.samples[-1].position == pytest.approx(40.0)
+        assert {s.state for s in moving} == {"DiscreteMotion"}
+        assert all(s.target == pytest.approx(40.0) for s in moving)
+        # the events, in order, with a planned and an observed arrival
+        kinds = [e.kind for e in trace.events]
+        assert kinds == ["accepted", "started", "in_position"]
+        started, arrived = trace.events[1], trace.events[2]
+        assert started.planned_end is not None and started.target == pytest.approx(40.0)
+        assert started.time < arrived.time
+        # the line's transactions: every one observed, none added by recording
+        txs = rec.lines["rs485"].transactions
+        assert txs and all(t.outcome == "ok" and t.slave in (1, 2, 3) for t in txs)
+        assert all(t.start <= t.end and t.latency is not None for t in txs)
+
+
+async def test_recording_adds_no_transaction_and_keeps_bounded_rings() -> None:
+    async with open_machine(machine("rec-ring")) as m:
+        bus = m.buses["rs485"]
+        async with m.record(max_samples=5, max_transactions=7) as rec:
+            before = bus.stats.transactions
+            await m.axes["y"].move_by(2.0)
+            during = bus.stats.transactions - before
+        assert len(rec.axes["y"].samples) == 5
+        assert len(rec.lines["rs485"].transactions) == 7
+        assert rec.dropped.transactions == during - 7 > 0
+        assert rec.dropped.samples > 0
+        # after stop() nothing more is kept
+        kept = len(rec.lines["rs485"].transactions), rec.dropped.transactions
+        await m.axes["y"].move_by(-2.0)
+        assert (len(rec.lines["rs485"].transactions), rec.dropped.transactions) == kept
+
+
+async def test_unknown_axes_and_bad_sizes_are_refused() -> None:
+    async with open_machine(machine("rec-bad")) as m:
+        with pytest.raises(ConfigError, match="no axis 'w'"):
+            m.record(axes=["x", "w"])
+        with pytest.raises(Exception, match="max_samples"):
+            m.record(max_samples=0)
+
+
+async def recorded_group_move(name: str) -> Recording:
+    async with open_machine(machine(name)) as m, m.record() as rec:
+        await m.group("x", "y", "r").move_to({"x": 20.0, "y": -8.0, "r": 90.0})
+        await m.axes["x"].move_to(25.0)
+    return rec
+
+
+async def test_exports_read_back_with_their_units(tmp_path: Path) -> None:
+    rec = await recorded_group_move("rec-export")
+    samples = rec.rows("samples")
+    names = [c.name for c in rec.columns("samples")]
+    assert names[:8] == ["time [s]", "axis", "position [mm]", "velocity [mm/s]",
+                         "target [mm]", "position [deg]", "velocity [deg/s]", "target [deg]"]
+
+    # CSV: the header names the units; values come back exactly
+    for table in ("samples", "events", "transactions"):
+        text = rec.to_csv(tmp_path / f"{table}.csv", table=table)
+        assert (tmp_path / f"{table}.csv").read_text() == text
+        rows = list(csv.reader(io.StringIO(text)))
+        assert rows[0] == [c.name for c in rec.columns(table)]
+        assert len(rows) - 1 == len(rec.rows(table)) > 0
+    rows = list(csv.DictReader(io.StringIO(rec.to_csv())))
+    for got, want in zip(rows, samples, strict=True):
+        assert float(got["time [s]"]) == want[0] and got["axis"] == want[1]
+        if want[1] == "r":
+            assert float(got["position [deg]"]) == want[5] and got["position [mm]"] == ""
+        else:
+            assert float(got["position [mm]"]) == want[2] and got["position [deg]"] == ""
+
+    # JSONL: a header with the units, and the whole recording back
+    path = tmp_path / "run.jsonl"
+    rec.to_jsonl(path)
+    header = json.loads(path.read_text().splitlines()[0])
+    assert header["axes"]["r"]["unit"] == "deg" and header["axes"]["x"]["unit"] == "mm"
+    back = Recording.from_jsonl(path)
+    for table in ("samples", "events", "transactions"):
+        _same(back.rows(table), rec.rows(table))
+    assert isinstance(back.axes["x"].events[0], MotionEvent)
+    with pytest.raises(ConfigError, match="line 1"):
+        Recording.from_jsonl('{"type": "header", "format": "other"}')
+
+    # Parquet: typed columns, units in the fields' metadata, read by pyarrow
+    pq = pytest.importorskip("pyarrow.parquet", reason="pyarrow is in the test extra")
+    rec.to_parquet(tmp_path / "samples.parquet")
+    table = pq.read_table(tmp_path / "samples.parquet")
+    assert table.column_names == names
+    field = table.schema.field("velocity [deg/s]")
+    assert field.metadata == {b"unit": b"deg/s"}
+    assert json.loads(table.schema.metadata[b"drivebus"])["axes"]["y"]["unit"] == "mm"
+    got = table.to_pylist()
+    assert [tuple(r.values()) for r in got] == samples
+    rec.to_parquet(tmp_path / "tx.parquet", table="transactions")
+    assert pq.read_table(tmp_path / "tx.parquet").num_rows == len(rec.rows("transactions"))
+
+
+def _same(a: list[tuple[Any, ...]], b: list[tuple[Any, ...]]) -> None:
+    """Rows equal (floats to 1e-12: a duration is recomputed from relative times)."""
+    assert len(a) == len(b)
+    for ra, rb in zip(a, b, strict=True):
+        for va, vb in zip(ra, rb, strict=True):
+            assert va == pytest.approx(vb, rel=1e-12, abs=1e-12) if isinstance(
+                vb, float) else va == vb
+
+
+async def test_a_group_move_records_planned_and_observed_arrivals() -> None:
+    rec = await recorded_group_move("rec-group")
+    started = {e.axis: e for e in rec.events() if e.kind == "started"}
+    arrived = {e.axis: e for e in rec.events() if e.kind == "in_position"}
+    assert set(started) == set(arrived) == {"x", "y", "r"}
+    # one plan: the group's axes are planned to arrive together (within the group's own
+    # tolerance and its start offsets' rounding), and each was seen arriving after it
+    ends = [started[n].planned_end or 0.0 for n in ("y", "r")]
+    assert max(ends) - min(ends) < 0.02
+    for n in ("y", "r"):
+        assert arrived[n].time >= started[n].time
