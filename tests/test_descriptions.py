@@ -125,6 +125,13 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
      ("procedures.stop", "needs steps")),
     ("call", MINIMAL + "\n[procedures.stop]\nsteps = [{ call = 'halt' }]\n",
      ("procedures.stop.steps[0].call", "no procedure 'halt'")),
+    ("parameter key", MINIMAL + "\n[registers.t]\naddress = 8\ncount = 4\nparameter = 't'\n",
+     ("registers.t", "a table's key needs {i} or {name}")),
+    ("parameter twice", MINIMAL.replace("address = 1", "address = 1\nparameter = 'x'")
+     + "\n[registers.other]\naddress = 2\nparameter = 'x'\n",
+     ("registers.other.parameter", "key 'x' is also registers.enable's")),
+    ("address register", MINIMAL + "\n[link]\naddress_register = 'addr'\n",
+     ("link.address_register", "no register 'addr'")),
 ]
 
 
@@ -785,3 +792,78 @@ steps = [
         assert twin.regs[22] == 1
         with pytest.raises(LimitViolation, match="no entry 'X9'"):
             await profile.assign("X9", "origin")  # type: ignore[attr-defined]
+
+
+COMMS = MINIMAL + """
+[registers.addr]
+address = 2
+min = 1
+max = 31
+default = 1
+eeprom = true
+comms = true
+
+[registers.fmt]
+address = 3
+values = { "8N1" = 0, "8N2" = 1, "8E1" = 2 }
+eeprom = true
+comms = true
+
+[registers.table]
+address = 8
+count = 2
+names = ["A", "B"]
+parameter = "speed_{name}"
+
+[registers.aux]
+address = 4
+volatile = true
+
+[link]
+baud_rates = [9600, 38400]
+formats = ["8N1", "8N2", "8E1"]
+address_register = "addr"
+format_register = "fmt"
+comms_note = "its baud rate is set by a rotary switch"
+
+[[link.format_rules]]
+baud_rates = [9600]
+formats = ["8N1"]
+why = "the format register applies from 19200 up"
+
+[procedures.save_parameters]
+steps = [{ write = { aux = 1 } }]
+
+[[twin.on_write]]
+register = "aux"
+when = "value == 1"
+do = "save"
+"""
+
+
+async def test_parameters_and_commissioning_come_from_the_description(tmp_path: Path) -> None:
+    d = load_description(write(tmp_path, COMMS))
+    cls = profile_class(d)
+    assert [(p.key, p.register.address, p.comms) for p in cls.parameters()] == [
+        ("enable", 1, False), ("addr", 2, True), ("fmt", 3, True),
+        ("speed_A", 8, False), ("speed_B", 9, False)]
+    s38k = LineSettings.parse("38400 8N1")
+    twin = described_twin(d)(1, s38k, soft_address=True)
+    async with sim_bus([twin], s38k) as (wire, bus):
+        profile = cls(bus.slave(1))
+        writes = profile.comms_writes(7, LineSettings.parse("38400 8N2"), s38k)
+        assert [(r.address, v) for r, v in writes] == [(2, 7), (3, 1)]
+        with pytest.raises(NotSupported, match="rotary switch"):
+            profile.comms_writes(None, LineSettings.parse("9600 8N1"), s38k)
+        with pytest.raises(NotSupported, match="applies from 19200 up"):
+            profile.comms_writes(None, LineSettings.parse("9600 8E1"), None)
+        with pytest.raises(LimitViolation):
+            profile.comms_writes(32, None, s38k)
+        for reg, value in writes:
+            await profile.write(reg, value)
+        await profile.save_parameters()
+        assert (twin.address, str(twin.settings)) == (1, "38400 8N1")  # until power-up
+        twin.power_loss()
+        twin.power_restore()
+        assert (twin.address, str(twin.settings)) == (7, "38400 8N2")
+        assert wire.requests()  # every write went over the wire
