@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +34,7 @@ from pydantic import (
 )
 
 from drivebus.checks import MAX_RETRIES, MAX_TIMEOUT, validation_problems
+from drivebus.drives.description import read_toml
 from drivebus.errors import ConfigError
 from drivebus.providers import line_provider, scheme_of
 from drivebus.settings import LineSettings
@@ -405,17 +405,7 @@ def load_config(path: str | Path) -> MachineConfig:
     if not isinstance(path, str | os.PathLike):
         raise ConfigError(f"a machine file is a path, not {path!r}")
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such config file") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{p}: not a text file (not UTF-8 at byte {exc.start})") from None
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read the config file: {exc.strerror or exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
-    return parse_config(data, str(p), base=p.parent)
+    return parse_config(read_toml(p, "config file"), str(p), base=p.parent)
 
 
 def machine_config(config: str | Path | Mapping[str, Any] | MachineConfig) -> MachineConfig:

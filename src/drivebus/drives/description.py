@@ -273,6 +273,13 @@ TWIN_MEANINGS = {
 """What a register or bit can mean to the simulated twin."""
 
 
+def _known_meaning(v: str | None) -> str | None:
+    """A ``means`` value, checked against ``TWIN_MEANINGS``."""
+    if v is not None and v not in TWIN_MEANINGS:
+        raise ValueError(f"unknown meaning {v!r} (known: {', '.join(TWIN_MEANINGS)})")
+    return v
+
+
 class BitDef(_Model):
     """One bit or field of a register."""
 
@@ -281,12 +288,7 @@ class BitDef(_Model):
     means: str | None = None
     doc: str = ""
 
-    @field_validator("means")
-    @classmethod
-    def _means(cls, v: str | None) -> str | None:
-        if v is not None and v not in TWIN_MEANINGS:
-            raise ValueError(f"unknown meaning {v!r} (known: {', '.join(TWIN_MEANINGS)})")
-        return v
+    _means = field_validator("means")(_known_meaning)
 
     @property
     def mask(self) -> int:
@@ -334,12 +336,7 @@ class RegisterDef(_Model):
     object: str | None = Field(None, description="CiA 402 object, '6040' or '607A:00'")
     doc: str = ""
 
-    @field_validator("means")
-    @classmethod
-    def _means(cls, v: str | None) -> str | None:
-        if v is not None and v not in TWIN_MEANINGS:
-            raise ValueError(f"unknown meaning {v!r} (known: {', '.join(TWIN_MEANINGS)})")
-        return v
+    _means = field_validator("means")(_known_meaning)
 
     def _check_parameter_key(self, key: str) -> None:
         fields = set(re.findall(r"{(\w*)}", key))
@@ -1021,20 +1018,25 @@ def parse_description(data: Mapping[str, Any], source: str = "description") -> D
     return desc
 
 
-def load_description(path: str | Path) -> Description:
-    """Read and check the description file ``path``."""
-    p = Path(path)
+def read_toml(p: Path, noun: str) -> dict[str, Any]:
+    """The TOML file ``p`` (a ``noun``: "drive description", "config file") as a mapping;
+    one ``ConfigError`` naming the file when it is missing, unreadable or not TOML."""
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        return tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise ConfigError(f"{p}: no such drive description") from None
+        raise ConfigError(f"{p}: no such {noun}") from None
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{p}: not a text file (not UTF-8 at byte {exc.start})") from None
     except OSError as exc:
-        raise ConfigError(f"{p}: cannot read the description: {exc.strerror or exc}") from None
+        raise ConfigError(f"{p}: cannot read the {noun}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
-    return parse_description(data, str(p))
+
+
+def load_description(path: str | Path) -> Description:
+    """Read and check the description file ``path``."""
+    p = Path(path)
+    return parse_description(read_toml(p, "drive description"), str(p))
 
 
 _CONTEXT_NAMES = {
