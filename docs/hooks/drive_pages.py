@@ -28,11 +28,25 @@ from mkdocs.exceptions import PluginError
 from mkdocs.structure.files import Files
 from mkdocs.structure.pages import Page
 
-from drivebus import Bus, LineSettings, SerialLine
-from drivebus.drives.base import _PROCEDURES, DriveProfile, describe_values
-from drivebus.drives.registers import Access, Register, WordOrder
+from drivebus.drives.base import DriveProfile
+from drivebus.drives.pages import (
+    at_a_glance,
+    cell,
+    commissioning_section,
+    exceptions_section,
+    families_table,
+    options_section,
+    parameters_section,
+    procedures_section,
+    register_address,
+    registers_table,
+    slug,
+)
+from drivebus.drives.pages import (
+    family_page as described_page,
+)
+from drivebus.drives.registers import Register
 from drivebus.drives.registry import FAMILIES, DriveFamily
-from drivebus.errors import NotSupported
 
 _MARK = re.compile(r"^<!--\s*drive-family:\s*(\S+)[^>]*-->\s*$", re.MULTILINE)
 _TABLE_MARK = "<!-- drive-families -->"
@@ -41,21 +55,7 @@ _PAGE = "drives/{slug}.md"
 _DOCS = Path(__file__).resolve().parents[1]
 _NOTE = "generated from the profile by `python docs/hooks/drive_pages.py`; do not edit"
 
-_LINK = {"rtu": "Modbus RTU", "tcp": "Modbus TCP"}
-_KINDS = {
-    "serial": "serial (an RS-485 port)",
-    "rtu-over-tcp": "rtu-over-tcp (a serial device server)",
-    "tcp": "tcp (Modbus TCP; an RTU drive through a gateway)",
-}
-_ORDER = {WordOrder.LOW_FIRST: "low word first", WordOrder.HIGH_FIRST: "high word first"}
-_ACCESS = {Access.R: "R", Access.W: "W", Access.RW: "RW"}
-
 _seen: set[str] = set()
-
-
-def slug(name: str) -> str:
-    """The page name of family ``name``: ``drives/<slug>.md``."""
-    return name.lower()
 
 
 # -- mkdocs events ----------------------------------------------------------------------------
@@ -104,7 +104,7 @@ def index_text(current: str) -> str:
     """``docs/drives/index.md`` with the families table between its markers renewed."""
     head, _, rest = current.partition(_TABLE_MARK)
     _, _, tail = rest.partition(_TABLE_END)
-    return f"{head}{_TABLE_MARK}\n{families_table()}\n{_TABLE_END}{tail}"
+    return f"{head}{_TABLE_MARK}\n{families_table(FAMILIES.values())}\n{_TABLE_END}{tail}"
 
 
 def write_pages(docs: Path = _DOCS) -> list[Path]:
@@ -133,33 +133,21 @@ def on_post_build(config: MkDocsConfig) -> None:
 # -- the generated markdown ---------------------------------------------------------------------
 
 
-def families_table() -> str:
-    """One row per family: link, addresses, baud rates, formats, homing, what it cannot do."""
-    rows = ["| Family | Drive | Link | Addresses | Baud rates | Formats | Cannot |",
-            "|---|---|---|---|---|---|---|"]
-    for name, f in FAMILIES.items():
-        p = f.profile
-        cannot = [proc for proc, why in procedures(f) if why]
-        rows.append(
-            f"| [{name}]({slug(name)}.md) | {f.description} | {_LINK.get(f.link, f.link)} | "
-            f"{_values(p.addresses)} | {_bauds(p)} | {_formats(p)} | "
-            f"{', '.join(_PROCEDURES[c] for c in cannot) or '-'} |"
-        )
-    return "\n".join(rows)
-
-
 def family_page(family: DriveFamily) -> str:
-    """The generated part of one family's page."""
+    """The generated part of one family's page: a described family's whole page as
+    ``drivebus drive doc`` prints it, or what a hand-written profile's code declares."""
+    if family.spec is not None:
+        return described_page(family)
     p = family.profile
     parts = [
         _about(family),
-        _at_a_glance(family),
-        _options(p),
-        _procedures(family),
+        at_a_glance(family),
+        options_section(p),
+        procedures_section(family),
         _limits(p),
-        _parameters(p),
-        _commissioning(p),
-        _exceptions(p),
+        parameters_section(p),
+        commissioning_section(p),
+        exceptions_section(p),
         _registers(family),
     ]
     return "\n\n".join(x for x in parts if x)
@@ -174,168 +162,6 @@ def _about(family: DriveFamily) -> str:
     if p.__doc__:
         text.append(f"### `{p.__name__}`\n\n" + _rst_to_md(p.__doc__))
     return "\n\n".join(text)
-
-
-def _at_a_glance(family: DriveFamily) -> str:
-    p = family.profile
-    kinds = "<br>".join(_KINDS.get(k, k) for k in sorted(p.line_kinds))
-    homing = ", ".join(
-        f"`{m}`" + (" (default)" if i == 0 else "") for i, m in enumerate(p.homing_methods)
-    ) or "none over Modbus"
-    ppr = p.pulses_per_rev_allowed
-    rows = [
-        ("Drive", family.description),
-        ("Profile", f"`{p.__module__}.{p.__qualname__}`"),
-        ("Machine file", f'`drive = "{family.name}"`'),
-        ("Link", _LINK.get(family.link, family.link)),
-        ("Line kinds", kinds),
-        ("Addresses (unit ids)", _values(p.addresses)),
-        ("Baud rates", _bauds(p)),
-        ("Line formats", _formats(p)),
-        ("Pulses per revolution", _values(ppr)),
-        ("32-bit word order", _ORDER[p.word_order]),
-        ("Homing methods", homing),
-        ("Standard Modbus frames", "yes" if p.standard_frames else
-         "no (a scan asks the family itself)"),
-    ]
-    body = "\n".join(f"| {k} | {v} |" for k, v in rows)
-    return f"## At a glance\n\n| Declaration | Value |\n|---|---|\n{body}"
-
-
-def _values(values: Iterable[int]) -> str:
-    """``lo..hi`` for a range (one value alone), else the values listed."""
-    if isinstance(values, range) and len(values) == 1:
-        return str(values.start)
-    if isinstance(values, range):
-        return describe_values(values)
-    return ", ".join(map(str, values))
-
-
-def _bauds(p: type[DriveProfile]) -> str:
-    if "serial" not in p.line_kinds:
-        return "- (not on a serial line)"
-    return ", ".join(map(str, p.baud_rates)) or "any"
-
-
-def _formats(p: type[DriveProfile]) -> str:
-    if "serial" not in p.line_kinds:
-        return "- (not on a serial line)"
-    return ", ".join(p.line_formats) or "any"
-
-
-def _options(p: type[DriveProfile]) -> str:
-    schema = p.options.model_json_schema()
-    props: dict[str, Any] = schema.get("properties", {})
-    head = "## `drive_options`\n\n"
-    if not props:
-        return head + (f"The {p.family} profile takes no `drive_options` (only "
-                       "`pulses_per_rev`, a key of the axis itself).")
-    defaults = _constructor_defaults(p)
-    rows = ["| Option | Type | Allowed | Default |", "|---|---|---|---|"]
-    for name, prop in props.items():
-        kind, allowed = _describe_schema(prop)
-        default = defaults.get(name, inspect.Parameter.empty)
-        shown = ("-" if default is inspect.Parameter.empty else
-                 "not set" if default is None else f"`{_toml(default)}`")
-        rows.append(f"| `{name}` | {kind} | {allowed} | {shown} |")
-    example = {k: v for k, v in defaults.items() if k in props and v is not None}
-    toml = ", ".join(f"{k} = {_toml(v)}" for k, v in example.items())
-    text = head + "\n".join(rows)
-    text += ("\n\nTypes are strict (a float option takes a number, a whole option an "
-             "integer, a flag `true`/`false`); a machine file that gives anything else, "
-             "an unknown option or a value out of range is refused at load time with one "
-             "`ConfigError` naming the key, the value and what is allowed.")
-    if toml:
-        text += (f"\n\nIn a machine file, with the defaults spelt out:\n\n```toml\n"
-                 f"[axes.x]\ndrive = \"{p.family}\"\ndrive_options = {{ {toml} }}\n```")
-    return text
-
-
-def _constructor_defaults(p: type[DriveProfile]) -> dict[str, Any]:
-    params = inspect.signature(p.__init__).parameters
-    return {
-        n: prm.default for n, prm in params.items()
-        if prm.kind is inspect.Parameter.KEYWORD_ONLY and n != "pulses_per_rev"
-    }
-
-
-def _describe_schema(prop: dict[str, Any]) -> tuple[str, str]:
-    """(type, allowed values) of one option's JSON schema (its None branch dropped)."""
-    branches = [b for b in prop.get("anyOf", [prop]) if b.get("type") != "null"]
-    kinds, allowed = [], []
-    for b in branches:
-        t = b.get("type")
-        note = b.get("description") or prop.get("description") or ""
-        if t == "object":
-            keys = b.get("propertyNames", {}).get("enum")
-            values = b.get("additionalProperties", {}).get("enum")
-            kinds.append("table")
-            allowed.append(
-                "keys: " + (", ".join(f"`{k}`" for k in keys) if keys else "any")
-                + "<br>values: " + (", ".join(f"`{v}`" for v in values) if values else "any")
-            )
-            continue
-        kinds.append({"number": "float", "integer": "int", "boolean": "bool",
-                      "string": "string"}.get(t, str(t)))
-        if "enum" in b:
-            allowed.append(", ".join(f"`{v}`" for v in b["enum"]))
-        elif t in ("number", "integer"):
-            lo = b.get("minimum", b.get("exclusiveMinimum"))
-            hi = b.get("maximum", b.get("exclusiveMaximum"))
-            lo_op = "<" if "exclusiveMinimum" in b else "≤"
-            hi_op = "<" if "exclusiveMaximum" in b else "≤"
-            rng = " ".join(
-                x for x in (f"{lo} {lo_op}" if lo is not None else "", "x",
-                            f"{hi_op} {hi}" if hi is not None else "") if x
-            )
-            allowed.append(rng if rng != "x" else "any")
-        elif t == "boolean":
-            allowed.append("`true`, `false`")
-        else:
-            allowed.append("any")
-        if note:
-            allowed[-1] += f" ({note})"
-    return " or ".join(kinds), "; ".join(allowed)
-
-
-def _toml(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return f'"{v}"'
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {_toml(x)}" for k, x in v.items()) + " }"
-    return repr(v)
-
-
-def procedures(family: DriveFamily) -> list[tuple[str, str]]:
-    """(procedure, why not or "") for every common procedure, asked of a profile built
-    with its default options (no I/O: ``check_supported`` only reads declarations)."""
-    p = family.profile
-    address = min(p.addresses)
-    bus = Bus(SerialLine("/dev/null", LineSettings.parse("9600 8N1")))
-    profile = p(bus.slave(address))
-    out = []
-    for proc in _PROCEDURES:
-        try:
-            profile.check_supported(proc)
-        except NotSupported as exc:
-            out.append((proc, str(exc)))
-        else:
-            why = profile.save_problem() if proc == "save_parameters" else None
-            out.append((proc, why or ""))
-    return out
-
-
-def _procedures(family: DriveFamily) -> str:
-    rows = ["| Procedure | With the default options |", "|---|---|"]
-    for proc, why in procedures(family):
-        # "the NT86 drive cannot clear an alarm over Modbus: REASON" -> "no: REASON"
-        reason = re.sub(r"^the \S+ drive cannot .*? over Modbus:?\s*", "", why)
-        rows.append(f"| {_PROCEDURES[proc]} | {'yes' if not why else 'no: ' + _cell(reason)} |")
-    return ("## Procedures\n\nWhat the axis can ask of the drive, as the profile answers "
-            "before anything is sent (a refused command raises `NotSupported` and changes "
-            "nothing):\n\n" + "\n".join(rows))
 
 
 def _limits(p: type[DriveProfile]) -> str:
@@ -396,7 +222,7 @@ def _unsupported_calls(cls: type[DriveProfile], profile: type[DriveProfile]
                 args = [_render(a, local, module) for a in call.args]
                 what = args[0] if args else "…"
                 why = args[1] if len(args) > 1 else ""
-                yield what, _cell(why)
+                yield what, cell(why)
 
 
 def _render(node: ast.expr, local: dict[str, ast.expr | None], module: dict[str, Any]
@@ -429,50 +255,6 @@ def _render(node: ast.expr, local: dict[str, ast.expr | None], module: dict[str,
     return "…"
 
 
-def _parameters(p: type[DriveProfile]) -> str:
-    params = p.parameters()
-    if not params:
-        return ""
-    rows = ["| Key | Name | Where | Range | Unit | Kept |", "|---|---|---|---|---|---|"]
-    for prm in params:
-        kept = "saved" if prm.stored else "volatile"
-        if prm.comms:
-            kept += ", address/line (only with `--include-comms`)"
-        rows.append(f"| `{prm.key}` | {_cell(prm.name)} | {prm.location} | "
-                    f"{prm.register.lo}..{prm.register.hi} | {prm.unit or '-'} | {kept} |")
-    wt = p.write_through
-    how = "`--save` makes the drive store them once at the end (its save command)."
-    if p.saves_by_write_through and wt is not None:
-        how = (f"The drive has no save command: with `--save` each value is stored as it is "
-               f"written, with {_cell(wt.register.name)} ({_address(wt.register)}) = "
-               f"{wt.on} for the load; without it that switch is {wt.off} (RAM only).")
-    elif wt is not None:
-        how += (f" {_cell(wt.register.name)} ({_address(wt.register)}) is kept at {wt.off} "
-                f"during a load, so no write wears the EEPROM on its own.")
-    return ("## Parameters\n\nWhat `drivebus params dump` backs up and `params load` "
-            "restores (only what differs, in this order, every value checked against its "
-            f"range before the first write). {how}\n\n" + "\n".join(rows))
-
-
-def _commissioning(p: type[DriveProfile]) -> str:
-    if not p.comms_note:
-        return ""
-    can = p.comms_writes is not DriveProfile.comms_writes
-    verb = ("`drivebus commission` writes them" if can else
-            "`drivebus commission` cannot change them")
-    return f"## Address and line settings\n\n{verb}: {_cell(p.comms_note)}."
-
-
-def _exceptions(p: type[DriveProfile]) -> str:
-    if not p.exception_texts:
-        return ""
-    rows = ["| Code | The vendor's meaning |", "|---|---|"]
-    rows += [f"| {c:02d} | {_cell(t)} |" for c, t in sorted(p.exception_texts.items())]
-    return ("## Modbus exception codes\n\n`ModbusException` carries the code and this "
-            "text (the vendor's own meaning where it redefines the standard codes):\n\n"
-            + "\n".join(rows))
-
-
 def registers(family: DriveFamily) -> list[tuple[str, Register]]:
     """(label, register) of every register the family's profile module declares for it."""
     p = family.profile
@@ -500,41 +282,20 @@ def registers(family: DriveFamily) -> list[tuple[str, Register]]:
 
 def _labelled(value: Any) -> list[tuple[str, Register]]:
     if isinstance(value, Register):
-        return [(_address(value), value)]
+        return [(register_address(value), value)]
     if hasattr(value, "register") and isinstance(value.register, Register):  # OD objects
-        return [(getattr(value, "label", _address(value.register)), value.register)]
+        return [(getattr(value, "label", register_address(value.register)), value.register)]
     if isinstance(value, tuple | list) or inspect.isgenerator(value):
         items: Iterable[Any] = value
         return [x for v in items for x in _labelled(v)]
     return []
 
 
-def _address(reg: Register) -> str:
-    if reg.words == 2 and reg.low_address is not None:
-        return f"0x{reg.address:04X} / 0x{reg.low_address:04X} ({reg.address} / {reg.low_address})"
-    if reg.words == 2:
-        return f"0x{reg.address:04X}-0x{reg.address + 1:04X} ({reg.address}-{reg.address + 1})"
-    return f"0x{reg.address:04X} ({reg.address})"
-
-
 def _registers(family: DriveFamily) -> str:
-    regs = registers(family)
-    if not regs:
-        return ""
-    rows = ["| Address | Name | Width | Range | Unit | Access |", "|---|---|---|---|---|---|"]
-    for label, r in regs:
-        width = "16 bit" if r.words == 1 else f"32 bit, {_ORDER[r.order]}"
-        if r.signed:
-            width += ", signed"
-        rows.append(f"| {label} | {_cell(r.name)} | {width} | {r.lo}..{r.hi} | "
-                    f"{r.unit or '-'} | {_ACCESS[r.access]} |")
-    return ("## Registers\n\nThe register map the profile declares (0-based PDU "
-            "addresses, as the manuals print them), with the ranges every write is checked "
-            "against:\n\n" + "\n".join(rows))
-
-
-def _cell(text: str) -> str:
-    return " ".join(text.split()).replace("|", "\\|")
+    return registers_table(
+        ((label, r, "") for label, r in registers(family)),
+        "The register map the profile declares (0-based PDU addresses, as the manuals "
+        "print them), with the ranges every write is checked against:")
 
 
 _SOURCES = re.compile(r"\s*\((?:[^()]*?)`?shared/(?:seeds|drives)/[^()]*\)|"

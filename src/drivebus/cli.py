@@ -46,6 +46,10 @@ app = typer.Typer(
     rich_markup_mode=None,
 )
 
+from drivebus.cli_drive import drive_app  # noqa: E402  (drivebus drive check/doc/try)
+
+app.add_typer(drive_app)
+
 _LEVELS = ("debug", "info", "warning", "error")
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,11 +28,13 @@ from pydantic import (
     StrictFloat,
     StrictInt,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
 
 from drivebus.checks import MAX_RETRIES, MAX_TIMEOUT, validation_problems
+from drivebus.drives.description import read_toml
 from drivebus.errors import ConfigError
 from drivebus.providers import line_provider, scheme_of
 from drivebus.settings import LineSettings
@@ -192,11 +193,14 @@ class AxisConfig(_Model):
 
     @field_validator("drive")
     @classmethod
-    def _known_drive(cls, v: str) -> str:
-        from drivebus.drives.registry import family
+    def _known_drive(cls, v: str, info: ValidationInfo) -> str:
+        """A family name, or a description file (relative to the machine file), as the
+        family's canonical reference (see ``drivebus.drives.registry``)."""
+        from drivebus.drives.registry import resolve_drive
 
+        base = (info.context or {}).get("base")
         try:
-            return family(v).name
+            return resolve_drive(v, base)
         except ConfigError as exc:
             raise ValueError(str(exc)) from None
 
@@ -283,11 +287,28 @@ class MachineConfig(_Model):
     """A machine: named lines and named axes on them."""
 
     name: str = "machine"
+    drives_path: list[str] = Field(
+        default_factory=list,
+        description="directories of drive descriptions (relative to the machine file)")
     lines: dict[str, LineConfig]
     axes: dict[Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_-]*$")], AxisConfig]
     mqtt: MqttConfig | None = None
     """The MQTT plant bridge's settings (used by ``python -m drivebus.mqtt`` and
     ``drivebus serve --mqtt``); None: no ``[mqtt]`` section."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _drives_path(cls, data: Any, info: ValidationInfo) -> Any:
+        """Make ``drives_path``'s descriptions known before the axes name them."""
+        from drivebus.drives.registry import add_drives_path
+
+        paths = data.get("drives_path") if isinstance(data, dict) else None
+        if isinstance(paths, list):
+            base = Path((info.context or {}).get("base") or ".")
+            for p in paths:
+                if isinstance(p, str):
+                    add_drives_path(base / Path(p).expanduser())
+        return data
 
     @model_validator(mode="after")
     def _consistent(self) -> MachineConfig:
@@ -365,11 +386,15 @@ def _speed_problems(ax: AxisConfig) -> list[str]:
             for key, v in speeds.items() if v > ax.max_speed]
 
 
-def parse_config(data: dict[str, Any], source: str = "config") -> MachineConfig:
+def parse_config(
+    data: dict[str, Any], source: str = "config", *, base: str | Path | None = None
+) -> MachineConfig:
     """Validate a config mapping, cross-checks included; ``ConfigError`` names ``source``,
-    each key path, the value and what is allowed."""
+    each key path, the value and what is allowed. Description files an axis names
+    (``drive = "drives/x.toml"``) are relative to ``base`` (the machine file's directory;
+    by default the working directory)."""
     try:
-        return MachineConfig.model_validate(data)
+        return MachineConfig.model_validate(data, context={"base": str(base or ".")})
     except ValidationError as exc:
         problems = "; ".join(validation_problems(exc, model=MachineConfig))
         raise ConfigError(f"{source}: {problems}") from None
@@ -380,17 +405,7 @@ def load_config(path: str | Path) -> MachineConfig:
     if not isinstance(path, str | os.PathLike):
         raise ConfigError(f"a machine file is a path, not {path!r}")
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such config file") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{p}: not a text file (not UTF-8 at byte {exc.start})") from None
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read the config file: {exc.strerror or exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
-    return parse_config(data, str(p))
+    return parse_config(read_toml(p, "config file"), str(p), base=p.parent)
 
 
 def machine_config(config: str | Path | Mapping[str, Any] | MachineConfig) -> MachineConfig:

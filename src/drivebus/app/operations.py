@@ -17,6 +17,7 @@ import anyio
 
 from drivebus.app.doctor import Adapter, check_serial_port, poll_efficiency
 from drivebus.config import MachineConfig, load_config, machine_config
+from drivebus.drives.registry import drive_label
 from drivebus.errors import ConfigError, DriveOffline
 from drivebus.motion import Axis, AxisState, Machine, open_machine
 from drivebus.settings import LineSettings
@@ -169,7 +170,8 @@ def check_config(config: str | Path, sysfs: Path = Path("/sys")) -> ConfigReport
     cfg = load_config(config)
     lines = []
     for name, ln in cfg.lines.items():
-        axes = [f"{n} ({a.drive} @{a.address})" for n, a in cfg.axes.items() if a.line == name]
+        axes = [f"{n} ({drive_label(a.drive)} @{a.address})" for n, a in cfg.axes.items()
+                if a.line == name]
         where = ln.port if ln.kind == "serial" else f"{ln.host}:{ln.tcp_port}"
         report = LineReport(
             name, ln.kind, ln.port or ln.host or "" if ln.scheme else where or "",

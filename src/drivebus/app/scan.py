@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from drivebus.app.targets import parse_target
 from drivebus.bus import Bus, SlaveHandle
-from drivebus.drives.registry import FAMILIES, DriveFamily
+from drivebus.drives.registry import DriveFamily, all_families
 from drivebus.drives.status import DriveIdentity
 from drivebus.errors import (
     ConfigError,
@@ -90,7 +90,7 @@ async def probe(
     OD2000) is asked directly where it could be.
     """
     slave = bus.slave(address, settings=settings)
-    families = [f for f in FAMILIES.values()
+    families = [f for f in all_families()
                 if f.profile.could_be_at(address, line_kind, settings)]
     if await _present(slave):
         for fam in families:

@@ -1,21 +1,58 @@
-"""Which profile class belongs to a drive family name: the registry of drive families.
+"""Which profile belongs to a drive family: the registry of drive families.
 
-A sixth drive family is one profile module in ``drivebus.drives`` registered here (plus
-its simulated twin in ``drivebus.sim.twins``, which the core never imports).
+A drive family is a description (``drivebus/drives/descriptions/*.toml``, run by an
+engine) or, where its frames or behaviour cannot be data, a profile class in
+``drivebus.drives``. Descriptions are found, in this order:
+
+* built in: the files shipped inside the package (``FAMILIES`` holds them with the
+  hand-written profiles);
+* by path: ``drive = "drives/my_servo.toml"`` in a machine file (relative to that file);
+* in the directories of the environment variable ``DRIVEBUS_DRIVES_PATH`` (separated
+  like ``PATH``) and of ``add_drives_path`` (a machine file's ``drives_path``);
+* from other packages: entry points of the group ``drivebus.drives``, each naming a
+  module (its package's ``*.toml`` files) or a function returning directories or files.
+
+A family found by path keeps its file's absolute path as its reference
+(``AxisConfig.drive``), so that every tool reading the machine file finds it again.
 """
 
 from __future__ import annotations
 
+import os
+import tomllib
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from importlib import resources
+from importlib.metadata import entry_points
+from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 from drivebus.drives.base import DriveProfile
 from drivebus.drives.bhss import BHSSProfile
-from drivebus.drives.cl86r import CL86RProfile
+from drivebus.drives.description import Description, load_description
+from drivebus.drives.engine import profile_class
 from drivebus.drives.nt_family import EPR60Profile, NT86Profile
 from drivebus.drives.od_drive import ODDriveProfile
 from drivebus.errors import ConfigError
 
-__all__ = ["FAMILIES", "DriveFamily", "family"]
+__all__ = [
+    "ENTRY_POINT_GROUP",
+    "ENV_PATH",
+    "FAMILIES",
+    "DriveFamily",
+    "add_drives_path",
+    "all_families",
+    "builtin_description",
+    "drive_label",
+    "family",
+    "family_from_description",
+    "is_file_reference",
+    "resolve_drive",
+]
+
+ENV_PATH = "DRIVEBUS_DRIVES_PATH"
+ENTRY_POINT_GROUP = "drivebus.drives"
 
 
 @dataclass(frozen=True)
@@ -27,24 +64,219 @@ class DriveFamily:
     link: str
     """"rtu" or "tcp"."""
     description: str
+    spec: Description | None = None
+    """The drive description the profile runs (None: a hand-written profile)."""
+    source: str = ""
+    """Where the description came from (a file path, or "built in")."""
 
 
-FAMILIES: dict[str, DriveFamily] = {
-    f.name: f
-    for f in (
-        DriveFamily("NT86", NT86Profile, "rtu", "Rtelligent NT86 RS-485 stepper drive"),
-        DriveFamily("EPR60", EPR60Profile, "tcp", "EPR60/EPT60 Modbus TCP stepper drive"),
-        DriveFamily("BHSS", BHSSProfile, "rtu", "Bholanath BHSS-100-MBUS stepper drive"),
-        DriveFamily("CL86R", CL86RProfile, "rtu", "CL86R closed-loop stepper drive"),
-        DriveFamily("OD2000", ODDriveProfile, "rtu",
-                    "2000h object-dictionary drive (settings and monitoring only)"),
-    )
-}
+def family_from_description(d: Description, source: str = "") -> DriveFamily:
+    """The family of a description: its engine's profile class."""
+    return DriveFamily(d.family, profile_class(d), d.link.protocol,
+                       d.drive.description or d.drive.model or d.family, d, source)
+
+
+def _builtin_files() -> Iterator[Any]:
+    root = resources.files("drivebus.drives").joinpath("descriptions")
+    for entry in sorted(root.iterdir(), key=lambda e: e.name):
+        if entry.name.endswith(".toml"):
+            yield entry
+
+
+def builtin_description(name: str) -> Description:
+    """The built-in description of family ``name``."""
+    fam = FAMILIES.get(name.upper())
+    if fam is None or fam.spec is None:
+        raise ConfigError(f"no built-in description of drive {name!r}")
+    return fam.spec
+
+
+def _load_builtin() -> dict[str, DriveFamily]:
+    out: dict[str, DriveFamily] = {}
+    for entry in _builtin_files():
+        with resources.as_file(entry) as path:
+            d = load_description(path)
+        out[d.family.upper()] = family_from_description(d, "built in")
+    return out
+
+
+_PROFILES: tuple[DriveFamily, ...] = (
+    DriveFamily("NT86", NT86Profile, "rtu", "Rtelligent NT86 RS-485 stepper drive"),
+    DriveFamily("EPR60", EPR60Profile, "tcp", "EPR60/EPT60 Modbus TCP stepper drive"),
+    DriveFamily("BHSS", BHSSProfile, "rtu", "Bholanath BHSS-100-MBUS stepper drive"),
+    DriveFamily("OD2000", ODDriveProfile, "rtu",
+                "2000h object-dictionary drive (settings and monitoring only)"),
+)
+"""The families whose profiles are still code (each says why in its module)."""
+
+
+def _builtin_families() -> dict[str, DriveFamily]:
+    described = _load_builtin()
+    order = ["NT86", "EPR60", "BHSS", "CL86R", "OD2000"]
+    merged = {f.name: f for f in _PROFILES}
+    merged.update({f.name: f for f in described.values()})
+    names = [n for n in order if n in merged] + sorted(n for n in merged if n not in order)
+    return {n: merged[n] for n in names}
+
+
+FAMILIES: dict[str, DriveFamily] = _builtin_families()
+"""The built-in families, by name: the hand-written profiles and the shipped descriptions."""
+
+
+# -- descriptions outside the package -------------------------------------------------------
+
+_extra_paths: list[Path] = []
+_file_cache: dict[Path, tuple[float, DriveFamily]] = {}
+
+
+def add_drives_path(directory: str | os.PathLike[str]) -> None:
+    """Look for descriptions (``*.toml``) in ``directory`` too (after the environment's)."""
+    p = Path(directory).resolve()
+    if p not in _extra_paths:
+        _extra_paths.append(p)
+
+
+def _search_dirs() -> list[Path]:
+    env = os.environ.get(ENV_PATH, "")
+    dirs = [Path(p).expanduser().resolve() for p in env.split(os.pathsep) if p.strip()]
+    return dirs + [p for p in _extra_paths if p not in dirs]
+
+
+def is_file_reference(ref: str) -> bool:
+    """True if ``ref`` names a description file rather than a family."""
+    return ref.endswith(".toml") or "/" in ref or os.sep in ref
+
+
+def _from_file(path: Path) -> DriveFamily:
+    p = path.resolve()
+    try:
+        mtime = p.stat().st_mtime
+    except OSError:
+        raise ConfigError(f"{path}: no such drive description") from None
+    cached = _file_cache.get(p)
+    if cached is not None and cached[0] == mtime:
+        return cached[1]
+    fam = family_from_description(load_description(p), str(p))
+    _file_cache[p] = (mtime, fam)
+    return fam
+
+
+def _family_name(path: Path) -> str | None:
+    """The family a description file declares (read cheaply, without checking it)."""
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return None
+    drive = data.get("drive")
+    name = drive.get("family") if isinstance(drive, dict) else None
+    return name if isinstance(name, str) else None
+
+
+def _files_in(directory: Path) -> list[Path]:
+    try:
+        return sorted(p for p in directory.iterdir() if p.suffix == ".toml" and p.is_file())
+    except OSError:
+        return []
+
+
+def _entry_point_files() -> Iterator[Path]:
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            target = ep.load()
+        except Exception as exc:  # a broken plug-in must not break the other drives
+            raise ConfigError(f"entry point {ep.name} ({ep.value}) of group "
+                              f"{ENTRY_POINT_GROUP} cannot be loaded: {exc}") from exc
+        yield from _plugin_files(target, ep.name)
+
+
+def _plugin_files(target: Any, name: str) -> Iterator[Path]:
+    if isinstance(target, ModuleType):
+        root = resources.files(target)
+        for entry in root.iterdir():
+            if entry.name.endswith(".toml"):
+                with resources.as_file(entry) as path:
+                    yield Path(path)
+        return
+    if callable(target):
+        target = target()
+    items: Iterable[Any] = [target] if isinstance(target, str | os.PathLike) else target
+    for item in items:
+        p = Path(item)
+        if p.is_dir():
+            yield from _files_in(p)
+        elif p.suffix == ".toml":
+            yield p
+        else:
+            raise ConfigError(f"entry point {name} of group {ENTRY_POINT_GROUP} gave "
+                              f"{item!r}: neither a directory nor a .toml file")
+
+
+def _found_files() -> Iterator[Path]:
+    for d in _search_dirs():
+        yield from _files_in(d)
+    yield from _entry_point_files()
+
+
+def resolve_drive(ref: str, base: str | os.PathLike[str] | None = None) -> str:
+    """The canonical reference of drive ``ref``: a family's name, or the absolute path of
+    a description file (``ref`` relative to ``base``); ``ConfigError`` if unknown."""
+    if not isinstance(ref, str) or not ref.strip():
+        raise ConfigError(f"a drive is a family name or a description file, not {ref!r}")
+    if is_file_reference(ref):
+        p = Path(ref).expanduser()
+        if not p.is_absolute():
+            p = Path(base or ".") / p
+        return str(_from_file(p).source)
+    return family(ref).name if ref.upper() in FAMILIES else _search(ref)[0]
+
+
+def _search(name: str) -> tuple[str, DriveFamily]:
+    for path in _found_files():
+        declared = _family_name(path)
+        if declared is not None and declared.upper() == name.upper():
+            fam = _from_file(path)
+            return fam.source, fam
+    known = ", ".join(f.name for f in all_families())
+    raise ConfigError(f"unknown drive {name!r}: known drives are {known} (or give a "
+                      f"description file, drive = \"drives/my_drive.toml\")")
 
 
 def family(name: str) -> DriveFamily:
-    """The family called ``name`` (case-insensitive); ConfigError listing the known ones."""
-    f = FAMILIES.get(name.upper()) if isinstance(name, str) else None
-    if f is None:
+    """The family called ``name`` (case-insensitive), or described in file ``name``;
+    ``ConfigError`` listing the known ones."""
+    if not isinstance(name, str):
         raise ConfigError(f"unknown drive {name!r}: known drives are {', '.join(FAMILIES)}")
-    return f
+    f = FAMILIES.get(name.upper())
+    if f is not None:
+        return f
+    if is_file_reference(name):
+        return _from_file(Path(name).expanduser())
+    return _search(name)[1]
+
+
+def drive_label(ref: str) -> str:
+    """How to name drive ``ref`` to a person: its family, and the file it is described in
+    when it is one outside the package (``MOONS-STF (drives/moons_stf.toml)``)."""
+    if not is_file_reference(ref):
+        return ref
+    try:
+        fam = family(ref)
+    except ConfigError:
+        return ref
+    return f"{fam.name} ({os.path.relpath(ref) if os.path.isabs(ref) else ref})"
+
+
+def all_families() -> list[DriveFamily]:
+    """The built-in families, then those found on the search path and in plug-ins (a
+    broken file there is skipped here; naming it gives its error)."""
+    out = list(FAMILIES.values())
+    seen = set(FAMILIES)
+    for path in _found_files():
+        try:
+            fam = _from_file(path)
+        except ConfigError:
+            continue
+        if fam.name.upper() not in seen:
+            seen.add(fam.name.upper())
+            out.append(fam)
+    return out

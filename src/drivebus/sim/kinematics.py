@@ -68,6 +68,11 @@ class Kinematics:
             return True
         return last.v0 != 0.0 or last.a != 0.0
 
+    def cruising(self, t: float) -> bool:
+        """True if at ``t`` the axis runs at the constant speed of a speed run's end."""
+        last = self._segments[-1]
+        return t >= last.t0 and last.a == 0.0 and last.v0 != 0.0
+
     def end_time(self) -> float:
         """When the planned motion comes to rest (inf for a speed run)."""
         last = self._segments[-1]

@@ -23,7 +23,7 @@ from drivebus.errors import ConfigError
 from drivebus.providers import ProvidedLine
 from drivebus.sim.machine import adapter_options, start_sim_line
 from drivebus.sim.serve import published
-from drivebus.sim.twins import TWINS
+from drivebus.sim.twins import twin_class
 
 __all__ = ["SimLineProvider"]
 
@@ -86,12 +86,17 @@ def _axis_problems(ax: AxisConfig) -> list[str]:
     drive's range, switches that leave it no room (``.key: problem``)."""
     out = []
     s = ax.sim
-    twin = TWINS.get(ax.drive)
-    if twin is None:
+    try:
+        twin = twin_class(ax.drive)
+    except ConfigError:
         return [f": the simulator has no twin of drive {ax.drive!r}"]
-    params = inspect.signature(twin.__init__).parameters
-    known = sorted(p for p, v in params.items()
-                   if v.kind is inspect.Parameter.KEYWORD_ONLY and p not in _TWIN_SET)
+    options = getattr(twin, "twin_options", None)
+    if options is not None:
+        known = sorted(options())
+    else:
+        params = inspect.signature(twin.__init__).parameters
+        known = sorted(p for p, v in params.items()
+                       if v.kind is inspect.Parameter.KEYWORD_ONLY and p not in _TWIN_SET)
     for key in s.options:
         if key not in known:
             out.append(f".options.{key}: the simulated {ax.drive} has no option {key!r} "

@@ -1,35 +1,50 @@
 """Which simulated twin plays each drive family (the simulator's own registry).
 
-The core's registry (``drivebus.drives.registry``) knows the profiles; the twins are the
-simulator's business: a sixth drive family adds its twin here.
+A described family (``drivebus.drives.registry``: a description file) is played by the
+generic twin built from the same description (``drivebus.sim.described``); a family whose
+profile is still code has a twin of its own here.
 """
 
 from __future__ import annotations
 
+from drivebus.drives.registry import FAMILIES, family
 from drivebus.errors import ConfigError
+from drivebus.sim.described import twin_of
 from drivebus.sim.drive import SimDrive
+from drivebus.sim.drives import cl86r as _cl86r  # noqa: F401  (SimCL86R's home module)
 from drivebus.sim.drives.bhss import SimBHSS
-from drivebus.sim.drives.cl86r import SimCL86R
 from drivebus.sim.drives.nt_family import SimEPR60, SimNT86
 from drivebus.sim.drives.od_drive import SimODDrive
 
-__all__ = ["TWINS", "twin_class"]
+__all__ = ["TWINS", "twin_class", "twin_of"]
 
-TWINS: dict[str, type[SimDrive]] = {
+_CODED: dict[str, type[SimDrive]] = {
     "NT86": SimNT86,
     "EPR60": SimEPR60,
     "BHSS": SimBHSS,
-    "CL86R": SimCL86R,
     "OD2000": SimODDrive,
 }
-"""The twin class of each drive family, by the family's registry name."""
+"""The twins written as code, by the family's registry name."""
 
 
-def twin_class(family: str) -> type[SimDrive]:
-    """The twin of drive family ``family``; ``ConfigError`` if the simulator has none."""
+TWINS: dict[str, type[SimDrive]] = {
+    name: _CODED[name] if f.spec is None else twin_of(f.spec)
+    for name, f in FAMILIES.items() if f.spec is not None or name in _CODED
+}
+"""The twin class of each built-in family, by the family's registry name."""
+
+
+def twin_class(drive: str) -> type[SimDrive]:
+    """The twin of drive ``drive`` (a family name or a description file's reference);
+    ``ConfigError`` if the simulator has none."""
+    twin = TWINS.get(drive.upper()) if isinstance(drive, str) else None
+    if twin is not None:
+        return twin
     try:
-        return TWINS[family.upper()]
-    except KeyError:
-        raise ConfigError(
-            f"the simulator has no twin of drive {family!r} (it has {', '.join(TWINS)})"
-        ) from None
+        fam = family(drive)
+    except ConfigError as exc:
+        raise ConfigError(f"the simulator has no twin of drive {drive!r}: {exc}") from None
+    if fam.spec is None:
+        raise ConfigError(f"the simulator has no twin of drive {drive!r} (it has "
+                          f"{', '.join(TWINS)} and every described drive)")
+    return twin_of(fam.spec)

@@ -1,0 +1,183 @@
+"""What ``drivebus drive check`` and ``drivebus drive doc`` say about a drive description.
+
+``load`` reads a description file (or a family's name) the way a machine file would;
+``check_report`` says what drivebus understood of it (link, units, registers, status
+decoding, procedures, homing, what it cannot do and why) and warns about what an axis
+will miss; ``doc_page`` is the page the docs site shows for a built-in family.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from drivebus.drives.base import _PROCEDURES, describe_values
+from drivebus.drives.description import PROCEDURES, load_description
+from drivebus.drives.pages import family_page
+from drivebus.drives.registry import (
+    DriveFamily,
+    family,
+    family_from_description,
+    is_file_reference,
+)
+
+__all__ = ["DescriptionReport", "check_report", "doc_page", "load"]
+
+_NEEDED = ("enable", "move_absolute", "move_relative", "speed_run", "stop", "emergency_stop")
+"""The procedures an axis uses for its everyday commands."""
+
+
+def load(ref: str | Path) -> DriveFamily:
+    """The family of description file ``ref`` (or of a known family's name)."""
+    text = str(ref)
+    if isinstance(ref, Path) or is_file_reference(text) or Path(text).is_file():
+        p = Path(text)
+        return family_from_description(load_description(p), str(p.resolve()))
+    return family(text)
+
+
+@dataclass
+class DescriptionReport:
+    """What was understood, and the warnings."""
+
+    lines: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def text(self) -> str:
+        """The report as text."""
+        out = list(self.lines)
+        if self.warnings:
+            out += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
+        return "\n".join(out)
+
+
+def check_report(fam: DriveFamily) -> DescriptionReport:
+    """What drivebus understood of a described family."""
+    d = fam.spec
+    r = DescriptionReport()
+    if d is None:
+        r.lines.append(f"{fam.name}: a profile written as code ({fam.profile.__module__}); "
+                       f"nothing to check")
+        return r
+    p = fam.profile
+    link = d.link
+    r.lines += [
+        f"{d.family} ({d.drive.engine} engine): {d.drive.description or d.drive.model}",
+        f"  source: {fam.source}",
+        f"  link: {'Modbus RTU' if link.protocol == 'rtu' else 'Modbus TCP'} on "
+        f"{', '.join(sorted(p.line_kinds))} lines; addresses {describe_values(p.addresses)}; "
+        f"baud {', '.join(map(str, link.baud_rates)) or 'any'}; formats "
+        f"{', '.join(link.formats) or 'any'}; 32-bit values "
+        f"{link.word_order.replace('_', ' ')}; function codes "
+        f"{', '.join(f'{c:02d}' for c in link.functions)}; at most {link.max_read} registers "
+        f"per read",
+        f"  pulses/rev: {d.units.pulses_per_rev.default} by default, allowed "
+        f"{describe_values(p.pulses_per_rev_allowed)}"
+        + (f" (register {d.units.pulses_per_rev.reg})" if d.units.pulses_per_rev.reg else ""),
+    ]
+    regs = d.regs.values()
+    tables = [f"{x.key} ×{x.d.count}" for x in regs if x.array]
+    r.lines.append(
+        f"  registers: {len(d.regs)} ({sum(x.d.access == 'R' for x in regs)} read-only, "
+        f"{sum(x.d.access == 'W' for x in regs)} write-only, {sum(x.d.eeprom for x in regs)} "
+        f"wear EEPROM, {sum(x.d.volatile for x in regs)} volatile)"
+        + (f"; tables {', '.join(tables)}" if tables else ""))
+    plan = p._status_plan  # type: ignore[attr-defined]
+    r.lines.append("  status poll: " + ", ".join(
+        [f"FC03 {start} (0x{start:04X}) ×{count}" for start, count in plan.blocks]
+        + [f"FC04 {start} (0x{start:04X}) ×{count}" for start, count in plan.input_blocks]))
+    s = d.status
+    if d.drive.engine == "cia402":
+        _cia402_lines(fam, r)
+        return r
+    derived = d.status_exprs
+    for name in ("enabled", "moving", "in_position", "homed", "homing", "alarm",
+                 "alarm_code", "limit_positive", "limit_negative", "position", "velocity"):
+        e = derived.get(name)
+        how = "" if getattr(s, name) is not None or e is None else "   (from the meanings)"
+        r.lines.append(f"    {name:<15} {e if e is not None else '-'}{how}")
+        if e is None and name in ("enabled", "moving", "in_position", "alarm", "position"):
+            r.warnings.append(f"status.{name} is not decoded: the axis will take it as "
+                              f"{'0' if name == 'position' else 'false'}")
+    r.lines.append("  procedures:")
+    for name, proc in d.procedures.items():
+        what = "" if name in PROCEDURES else " (its own)"
+        if proc.unsupported is not None:
+            r.lines.append(f"    {name:<22} cannot: {proc.unsupported}")
+        else:
+            cond = f" when {proc.supported}" if proc.supported is not None else ""
+            params = ", ".join(x.name for x in proc.params)
+            head = f"{name}({params})" if params else name
+            r.lines.append(f"    {head:<22} {len(proc.steps)} step(s){cond}{what}")
+    missing = [n for n in _PROCEDURES if n not in d.procedures]
+    if missing:
+        r.lines.append("  not described (NotSupported): " + ", ".join(missing))
+    for n in _NEEDED:
+        if n not in d.procedures:
+            r.warnings.append(f"no procedure {n}: the axis cannot {_PROCEDURES[n]}")
+    if d.homing is not None:
+        r.lines.append("  homing methods: " + ", ".join(
+            f"{n} ({m.code if m.code is not None else '-'}"
+            f"{', CiA 402 ' + str(m.cia402) if m.cia402 is not None else ''})"
+            for n, m in d.homing.methods.items()))
+    elif "home" in d.procedures:
+        r.warnings.append("procedures.home exists but [homing.methods] lists no method")
+    if d.alarms is None:
+        r.warnings.append("no [alarms] section: alarms have no texts")
+    ident = d.identify
+    r.lines.append("  identify: " + (f"cannot ({ident.cannot})" if ident and ident.cannot else
+                                     f"reads {', '.join(ident.read)}, matches {ident.match}"
+                                     if ident else "not described: a scan lists it as an "
+                                     "unknown Modbus slave"))
+    if not d.twin.on_write:
+        r.warnings.append("no [twin] on_write triggers: the simulated twin will not move "
+                          "(drive try fails)")
+    else:
+        regs_t = sorted({t.reg for t in d.twin.on_write})
+        r.lines.append(f"  twin: {len(d.twin.on_write)} triggers on {', '.join(regs_t)}")
+    return r
+
+
+def _cia402_lines(fam: DriveFamily, r: DescriptionReport) -> None:
+    """The CiA 402 engine's part: objects, what the engine can do with them."""
+    from drivebus.bus import Bus
+    from drivebus.errors import NotSupported
+    from drivebus.line import SerialLine
+    from drivebus.settings import LineSettings
+
+    d = fam.spec
+    assert d is not None
+    r.lines.append("  CiA 402 objects:")
+    for name, reg in sorted(d.objects.items(), key=lambda nr: nr[1].register.address):
+        x = reg.register
+        how = reg.codec.describe()
+        r.lines.append(f"    {name:<28} {x.address:5d} (0x{x.address:04X}) "
+                       f"{16 * x.words}-bit{' signed' if x.signed else ''}"
+                       + (f", {how}" if how else ""))
+    for needed in ("modes_of_operation", "target_position", "profile_velocity",
+                   "profile_acceleration", "profile_deceleration", "velocity_actual_value",
+                   "position_actual_value", "target_velocity", "homing_method"):
+        if needed not in d.objects:
+            r.warnings.append(f"no register for the object {needed}")
+    profile = fam.profile(Bus(SerialLine("/dev/null", LineSettings())).slave(
+        max(min(fam.profile.addresses), 1)))
+    r.lines.append("  procedures (engine's, or the description's own where it gives one):")
+    for name in _PROCEDURES:
+        try:
+            profile.check_supported(name)
+        except NotSupported as exc:
+            r.lines.append(f"    {name:<22} cannot: {str(exc).split(': ', 1)[-1]}")
+        else:
+            own = " (the description's)" if name in d.procedures else ""
+            r.lines.append(f"    {name:<22} yes{own}")
+    if d.homing is not None:
+        r.lines.append("  homing methods: " + ", ".join(
+            f"{n} (CiA 402 {m.cia402 if m.cia402 is not None else m.code})"
+            for n, m in d.homing.methods.items()))
+
+
+def doc_page(fam: DriveFamily) -> str:
+    """The family's reference page (markdown), as the docs site shows the built-ins."""
+    if fam.spec is None:
+        return f"# {fam.name}\n\n{fam.name} is a profile written as code; see the docs site."
+    return f"# {fam.name}\n\n" + family_page(fam) + "\n"

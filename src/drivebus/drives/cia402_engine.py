@@ -1,0 +1,472 @@
+"""The CiA 402 engine: a ``DriveProfile`` for drives that map the CiA 402 objects onto
+Modbus registers, run from their description.
+
+The description says where each object is (``object = "controlword"`` on a register, or
+an address rule in ``[cia402]``) and in which units; the engine runs the profile with the
+pure logic of ``drivebus.drives.cia402``: the device control state machine (shutdown,
+switch on, enable operation, fault reset as a rising edge), profile position with the
+new-set-point handshake, profile velocity, homing with the homing method's number, halt
+for a decelerating stop and quick stop (or halt) for an emergency stop. A common procedure
+the description itself defines (``[procedures.enable]``, say) replaces the engine's, and
+the description's own procedures, ``setup`` and ``learn`` run as in the command engine.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
+
+import anyio
+
+from drivebus.bus import Priority
+from drivebus.clock import monotonic
+from drivebus.drives.base import HomingParams, MoveParams
+from drivebus.drives.cia402 import (
+    COMMAND_WORDS,
+    MAX_STEPS,
+    Command,
+    Controlword,
+    DigitalInput,
+    HomingStatus,
+    Mode,
+    SetPointHandshake,
+    State,
+    StatuswordError,
+    decode_state,
+    homing_status,
+    next_step,
+)
+from drivebus.drives.description import Reg
+from drivebus.drives.engine import DescribedProfile, plan_reads
+from drivebus.drives.status import DriveStatus
+from drivebus.drives.values import Attrs
+from drivebus.errors import LimitViolation, StateError
+
+__all__ = ["STATUS_OBJECTS", "Cia402Profile"]
+
+STATUS_OBJECTS = ("statusword", "modes_of_operation_display", "position_actual_value",
+                  "velocity_actual_value", "error_code", "digital_inputs")
+"""The objects the status poll reads, where the description maps them."""
+
+_ENABLED = COMMAND_WORDS[Command.ENABLE_OPERATION]
+
+
+class Cia402Profile(DescribedProfile):
+    """A profile that runs a CiA 402 drive's description."""
+
+    _status_objects: ClassVar[tuple[str, ...]]
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._last_cw: int | None = None
+        self._homing = False
+        self._homed = False
+
+    # -- objects ---------------------------------------------------------------------------
+
+    def _obj(self, name: str) -> Reg:
+        reg = self.description.objects.get(name)
+        if reg is None:
+            raise self.unsupported(f"use the CiA 402 object {name}",
+                                   "its description maps no register to it")
+        return reg
+
+    def _raw(self, name: str, value: float | int, ref: float | None = None) -> int:
+        reg = self._obj(name)
+        return reg.codec.to_raw(reg.register, value, ppr=self.pulses_per_rev, ref_rpm=ref)
+
+    async def _write_objects(self, values: Sequence[tuple[str, float | int]], *,
+                             priority: Priority = Priority.COMMAND,
+                             idempotent: bool = True) -> None:
+        """Write objects (values in drive units), all range-checked first; registers side by
+        side go in one FC16."""
+        items = [(self._obj(n).register, self._raw(n, v)) for n, v in values]
+        groups: list[list[tuple[Any, int]]] = []
+        for r, raw in sorted(items, key=lambda x: x[0].address) if len(items) > 1 else items:
+            if groups:
+                last = groups[-1][-1][0]
+                if last.contiguous and r.contiguous and r.address == last.address + last.words:
+                    groups[-1].append((r, raw))
+                    continue
+            groups.append([(r, raw)])
+        for group in groups:
+            if len(group) == 1:
+                await self.write(group[0][0], group[0][1], priority=priority,
+                                 idempotent=idempotent)
+            else:
+                await self.write_block(group, priority=priority, idempotent=idempotent)
+
+    async def _controlword(self, word: int, *, priority: Priority = Priority.COMMAND,
+                           idempotent: bool = False) -> None:
+        await self.write(self._obj("controlword").register, word, priority=priority,
+                         idempotent=idempotent)
+        self._last_cw = word
+
+    async def _statusword(self, priority: Priority = Priority.COMMAND) -> int:
+        return await self.read(self._obj("statusword").register, priority=priority)
+
+    async def _state(self, priority: Priority = Priority.COMMAND) -> tuple[State, int]:
+        sw = await self._statusword(priority)
+        try:
+            return decode_state(sw), sw
+        except StatuswordError as exc:
+            raise StateError(f"{self.family}: {exc}") from None
+
+    async def goto(self, goal: State) -> None:
+        """Walk the state machine to ``goal`` (bounded: each step is confirmed within the
+        description's timeout, and no more steps than the profile can need)."""
+        timeout = self._timeout
+        for _ in range(MAX_STEPS + 2):
+            state, _ = await self._state()
+            step = next_step(state, goal, self._last_cw)
+            if step is None:
+                return
+            if step.controlword is not None:
+                await self._controlword(step.controlword, idempotent=True)
+            try:
+                with anyio.fail_after(timeout):
+                    while True:
+                        state, _ = await self._state()
+                        if state is step.expect or state is goal:
+                            break
+                        await anyio.sleep(0.005)  # the poll period; the read decides
+            except TimeoutError:
+                raise StateError(
+                    f"{self.family}: {step.command or 'waiting'} did not lead from {state} to "
+                    f"{step.expect} within {timeout:g} s") from None
+        state, _ = await self._state()
+        raise StateError(f"{self.family}: the drive did not reach {goal} (it is {state})")
+
+    @property
+    def _timeout(self) -> float:
+        c = self.description.cia402
+        return c.timeout if c is not None else 1.0
+
+    def _described(self, name: str) -> bool:
+        return name in self.description.procedures
+
+    # -- status ----------------------------------------------------------------------------
+
+    async def read_status(self, *, priority: Priority = Priority.POLL) -> DriveStatus:
+        """The mapped status objects in as few reads as the drive allows."""
+        if not self._learned and self.description.status.learn_first:
+            await self.learn()
+        values = await self._poll_values(self._status_plan, priority)
+        await self._read_due_signals(priority)
+        return self.decode_status(values)
+
+    def decode_status(self, values: Mapping[str, Any],
+                      raw_words: Mapping[str, list[int]] | None = None) -> DriveStatus:
+        """A ``DriveStatus`` from the objects read (the description's ``[status]`` fields,
+        where it gives them, replace the engine's)."""
+        d = self.description
+        obj = {n: values.get(r.key) for n, r in d.objects.items()}
+        sw = int(obj.get("statusword") or 0)
+        try:
+            state: State | None = decode_state(sw)
+        except StatuswordError:
+            state = None
+        mode = obj.get("modes_of_operation_display")
+        if mode is None:  # no display mapped: the mode written is the mode
+            mode = obj.get("modes_of_operation")
+        velocity = obj.get("velocity_actual_value")
+        reached = bool(sw & 0x0400)
+        enabled = state is State.OPERATION_ENABLED
+        fault = state in (State.FAULT, State.FAULT_REACTION_ACTIVE)
+        homing_mode = mode is not None and int(mode) == Mode.HOMING
+        hs = homing_status(sw) if homing_mode else None
+        if self._homing and hs is not None:
+            if hs is HomingStatus.COMPLETED:
+                self._homing, self._homed = False, True
+            elif hs.error or hs is HomingStatus.INTERRUPTED:
+                self._homing = False
+        elif self._homing and not enabled:
+            self._homing = False
+        turning = velocity is not None and abs(float(velocity)) > 0
+        if mode is not None and int(mode) == Mode.PROFILE_POSITION and enabled:
+            moving = turning or not reached
+        else:
+            moving = turning or (self._homing and hs is not HomingStatus.COMPLETED)
+        inputs = obj.get("digital_inputs")
+        code = obj.get("error_code")
+        st = DriveStatus(
+            enabled=enabled,
+            moving=moving,
+            in_position=not moving and not fault and (reached or not enabled),
+            homed=self._homed,
+            alarm=fault,
+            alarm_code=int(code) if fault and code is not None else (0 if fault else None),
+            alarm_text=self.alarm_text(int(code)) if fault and code else "",
+            limit_positive=bool(inputs is not None and int(inputs) & DigitalInput.POSITIVE_LIMIT),
+            limit_negative=bool(inputs is not None and int(inputs) & DigitalInput.NEGATIVE_LIMIT),
+            homing=self._homing,
+            position=None if obj.get("position_actual_value") is None else
+            int(obj["position_actual_value"]),
+            velocity_rpm=None if velocity is None else float(velocity),
+            raw={"statusword": sw, "state": list(State).index(state) if state else -1,
+                 **({"mode": int(mode)} if mode is not None else {}),
+                 **({"error_code": int(code)} if code is not None else {}),
+                 **({"inputs": int(inputs)} if inputs is not None else {})},
+            timestamp=monotonic(),
+        )
+        return self._overrides(st, values)
+
+    def _overrides(self, st: DriveStatus, values: Mapping[str, Any]) -> DriveStatus:
+        s = self.description.status
+        fields = {k: getattr(s, k) for k in ("enabled", "moving", "in_position", "homed",
+                                              "homing", "alarm", "limit_positive",
+                                              "limit_negative")
+                  if getattr(s, k) is not None}
+        if not fields:
+            return st
+        scope = self._scope(None, values)
+        scope["words"] = Attrs("words", {})
+        changed = {k: bool(e(scope)) for k, e in fields.items()}
+        return DriveStatus(**{**st.__dict__, **changed})
+
+    # -- procedures ------------------------------------------------------------------------
+
+    async def enable(self) -> None:
+        """Shutdown, switch on, enable operation, as the state machine needs (or the
+        description's own ``enable``)."""
+        if self._described("enable"):
+            await super().enable()
+            return
+        await self.goto(State.OPERATION_ENABLED)
+
+    async def disable(self) -> None:
+        """Shutdown: Ready to switch on, the motor released (or the description's own)."""
+        if self._described("disable"):
+            await super().disable()
+            return
+        await self.goto(State.READY_TO_SWITCH_ON)
+
+    def check_supported(self, procedure: str) -> None:
+        """The engine's procedures exist wherever the objects they need are mapped."""
+        if self._described(procedure):
+            super().check_supported(procedure)
+            return
+        needs = {
+            "enable": ("controlword",), "disable": ("controlword",),
+            "move_absolute": ("modes_of_operation", "target_position", "profile_velocity"),
+            "move_relative": ("modes_of_operation", "target_position", "profile_velocity"),
+            "speed_run": ("modes_of_operation", "target_velocity"),
+            "stop": ("controlword",), "emergency_stop": ("controlword",),
+            "home": ("modes_of_operation", "homing_method"),
+            "clear_alarm": ("controlword",),
+        }.get(procedure)
+        if needs is None:
+            if procedure == "zero_position" and self._current_position_method() is not None:
+                return
+            super().check_supported(procedure)
+            return
+        for name in needs:
+            self._obj(name)
+        if procedure == "home" and self.description.homing is None:
+            raise self.unsupported("home", "its description lists no homing method")
+
+    async def _enabled_or_raise(self) -> None:
+        state, _ = await self._state()
+        if state is not State.OPERATION_ENABLED:
+            raise StateError(f"{self.family}: the drive is in {state}, not Operation "
+                             f"enabled: enable it first")
+
+    def _move_values(self, params: MoveParams) -> list[tuple[str, float]]:
+        values = [("profile_velocity", abs(params.speed_rpm))]
+        for name, v in (("profile_acceleration", params.accel_rps2),
+                        ("profile_deceleration", params.decel_rps2)):
+            if name in self.description.objects:
+                values.append((name, v))
+        return values
+
+    def check_move(self, params: MoveParams) -> None:
+        """Range-check the profile velocity, acceleration and deceleration (no I/O)."""
+        if self._described("move_absolute"):
+            super().check_move(params)
+            return
+        for name, v in self._move_values(params):
+            raw = self._raw(name, v)
+            if raw == 0:
+                reg = self._obj(name).register
+                raise LimitViolation(
+                    f"value {v:g} for register {reg.name} (address {reg.address}) rounds to "
+                    f"0: the drive would not move")
+
+    def quantize(self, params: MoveParams) -> MoveParams:
+        """What the objects' resolution makes of ``params``."""
+        if self._described("move_absolute"):
+            return super().quantize(params)
+        out = {"profile_velocity": abs(params.speed_rpm),
+               "profile_acceleration": params.accel_rps2,
+               "profile_deceleration": params.decel_rps2}
+        for name, v in list(out.items()):
+            reg = self.description.objects.get(name)
+            if reg is None:
+                continue
+            try:
+                raw = self._raw(name, v)
+            except LimitViolation:
+                continue
+            out[name] = abs(float(reg.codec.to_physical(raw, ppr=self.pulses_per_rev)))
+        return MoveParams(out["profile_velocity"], out["profile_acceleration"],
+                          out["profile_deceleration"])
+
+    async def _prepare(self, target: int, params: MoveParams) -> None:
+        self.check_move(params)
+        self._raw("target_position", target)
+        await self._enabled_or_raise()
+        await self._write_objects([("modes_of_operation", Mode.PROFILE_POSITION)])
+        await self._write_objects([*self._move_values(params), ("target_position", target)])
+
+    async def _set_point(self, *, relative: bool) -> None:
+        c = self.description.cia402
+        hs = SetPointHandshake(_ENABLED, relative=relative,
+                               immediate=bool(c and c.change_set_immediately))
+        try:
+            with anyio.fail_after(self._timeout):
+                while not hs.accepted:
+                    sw = await self._statusword()
+                    word = hs.controlword(sw)
+                    if word is not None:
+                        await self._controlword(word)
+                        if hs.accepted:
+                            break
+                        continue
+                    await anyio.sleep(0.002)  # the poll period; the statusword decides
+        except TimeoutError:
+            raise StateError(f"{self.family}: the drive did not acknowledge the set-point "
+                             f"within {self._timeout:g} s") from None
+
+    async def move_absolute(self, position: int, params: MoveParams) -> None:
+        """Profile position: objects, then the new-set-point handshake."""
+        if self._described("move_absolute"):
+            await super().move_absolute(position, params)
+            return
+        await self._prepare(position, params)
+        await self._set_point(relative=False)
+
+    async def prepare_absolute(self, position: int, params: MoveParams) -> None:
+        """Mode and objects of a move: everything but the handshake."""
+        if self._described("move_absolute"):
+            await super().prepare_absolute(position, params)
+            return
+        await self._prepare(position, params)
+
+    async def start_absolute(self) -> None:
+        """The handshake of the prepared move."""
+        if self._described("move_absolute"):
+            await super().start_absolute()
+            return
+        await self._set_point(relative=False)
+
+    async def move_relative(self, distance: int, params: MoveParams) -> None:
+        """Profile position with the relative bit."""
+        if self._described("move_relative"):
+            await super().move_relative(distance, params)
+            return
+        await self._prepare(distance, params)
+        await self._set_point(relative=True)
+
+    async def speed_run(self, speed_rpm: float, accel_rps2: float, decel_rps2: float) -> None:
+        """Profile velocity at ``speed_rpm`` (signed); 0 is a decelerating stop."""
+        if self._described("speed_run"):
+            await super().speed_run(speed_rpm, accel_rps2, decel_rps2)
+            return
+        values: list[tuple[str, float]] = [("target_velocity", speed_rpm)]
+        for name, v in (("profile_acceleration", accel_rps2),
+                        ("profile_deceleration", decel_rps2)):
+            if name in self.description.objects:
+                values.append((name, v))
+        for name, v in values:
+            self._raw(name, v)  # range-checked before anything is sent
+        if round(speed_rpm, 9) == 0:
+            await self.stop(decel_rps2)
+            return
+        await self._enabled_or_raise()
+        await self._write_objects([("modes_of_operation", Mode.PROFILE_VELOCITY)])
+        await self._write_objects(values)
+        await self._controlword(_ENABLED)  # halt clear: run
+
+    async def stop(self, decel_rps2: float | None = None) -> None:
+        """Halt (controlword bit 8), with ``decel_rps2`` as the profile deceleration."""
+        if self._described("stop"):
+            await super().stop(decel_rps2)
+            return
+        prio = Priority.EMERGENCY
+        if decel_rps2 is not None and "profile_deceleration" in self.description.objects:
+            await self._write_objects([("profile_deceleration", decel_rps2)], priority=prio)
+        self._homing = False
+        await self._controlword(_ENABLED | Controlword.HALT, priority=prio, idempotent=True)
+
+    async def emergency_stop(self) -> None:
+        """Quick stop (or halt, as ``[cia402] emergency_stop`` says)."""
+        if self._described("emergency_stop"):
+            await super().emergency_stop()
+            return
+        c = self.description.cia402
+        self._homing = False
+        word = (_ENABLED | Controlword.HALT if c is not None and c.emergency_stop == "halt"
+                else COMMAND_WORDS[Command.QUICK_STOP])
+        await self._controlword(word, priority=Priority.EMERGENCY, idempotent=True)
+
+    async def start_homing(self, params: HomingParams) -> None:
+        """Homing mode with the method's number, speeds, acceleration and offset, then the
+        rising edge of controlword bit 4."""
+        if self._described("home"):
+            await super().start_homing(params)
+            return
+        _, m = self._home_method(params.method)
+        number = m.cia402 if m.cia402 is not None else m.code
+        values: list[tuple[str, float | int]] = [("homing_method", number)]
+        for name, v in (("homing_speed_search", params.speed_rpm),
+                        ("homing_speed_zero", params.creep_rpm),
+                        ("homing_acceleration", params.accel_rps2),
+                        ("home_offset", params.offset)):
+            if name in self.description.objects:
+                values.append((name, v))
+        for name, v in values:
+            self._raw(name, v)
+        await self._enabled_or_raise()
+        await self._write_objects([("modes_of_operation", Mode.HOMING)])
+        await self._write_objects(values)
+        await self._controlword(_ENABLED)
+        self._homing, self._homed = True, False
+        await self._controlword(_ENABLED | Controlword.HOMING_START)
+
+    async def clear_alarm(self) -> None:
+        """Fault reset: bit 7's rising edge (the drive then shows Switch on disabled)."""
+        if self._described("clear_alarm"):
+            await super().clear_alarm()
+            return
+        state, _ = await self._state()
+        if state not in (State.FAULT, State.FAULT_REACTION_ACTIVE):
+            return
+        await self.goto(State.SWITCH_ON_DISABLED)
+
+    def _current_position_method(self) -> str | None:
+        h = self.description.homing
+        if h is None:
+            return None
+        return next((n for n, m in h.methods.items() if m.cia402 in (35, 37)), None)
+
+    async def zero_position(self) -> None:
+        """Homing on the current position (method 35/37) with offset 0, where described."""
+        if self._described("zero_position"):
+            await super().zero_position()
+            return
+        method = self._current_position_method()
+        if method is None:
+            raise self.unsupported("set its position to zero",
+                                   "it lists no homing method on the current position")
+        await self.start_homing(HomingParams(method, offset=0))
+
+
+def cia402_attrs(d: Any) -> dict[str, Any]:
+    """The class attributes of a CiA 402 description's profile: its status poll."""
+    names = [n for n in STATUS_OBJECTS if n in d.objects]
+    if "modes_of_operation_display" not in d.objects and "modes_of_operation" in d.objects:
+        names.append("modes_of_operation")
+    regs = [(d.objects[n], None) for n in names]
+    link = d.link
+    return {"_status_plan": plan_reads(regs, max_read=link.max_read, max_hole=link.max_hole),
+            "_status_objects": tuple(names)}

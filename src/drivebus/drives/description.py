@@ -1,0 +1,1368 @@
+"""Drive descriptions: a drive family as data (TOML), validated into typed models.
+
+A description says everything a profile says: who the drive is and how a scan knows it,
+its link (baud rates, formats, addresses, function codes, word order, exception texts),
+its registers (address, width, sign, unit, range, access, EEPROM wear, volatility), its
+units, how its status decodes into ``DriveStatus``, its procedures as ordered steps, its
+homing methods, what it cannot do and why, and how it behaves (for its simulated twin).
+An engine (``drivebus.drives.engine``) interprets it as a ``DriveProfile``;
+``drivebus.sim.described`` builds a twin from the same file.
+
+The format's reference is ``docs/reference/descriptions.md``; the built-in families are
+the files in ``drivebus/drives/descriptions/``. ``load_description`` reads and checks one
+file: any mistake is one ``ConfigError`` naming the file, the key path and the problem.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+from drivebus.checks import validation_problems
+from drivebus.drives.expr import FUNCTIONS, Expr, ExprError, Template
+from drivebus.drives.registers import Access, Register, WordOrder
+from drivebus.drives.units import Kind, UnitCodec, parse_scale
+from drivebus.errors import ConfigError, LimitViolation
+from drivebus.settings import LineSettings
+
+__all__ = [
+    "PROCEDURES",
+    "TWIN_ACTIONS",
+    "TWIN_MEANINGS",
+    "Description",
+    "Reg",
+    "Step",
+    "load_description",
+    "parse_description",
+]
+
+FORMAT_VERSION = 1
+
+
+def _expr(v: Any) -> Any:
+    if isinstance(v, Expr):
+        return v
+    try:
+        return Expr.parse(v)
+    except ExprError as exc:
+        raise ValueError(str(exc)) from None
+
+
+def _template(v: Any) -> Any:
+    if isinstance(v, Template):
+        return v
+    if not isinstance(v, str):
+        raise ValueError(f"expected a text, got {v!r}")
+    try:
+        return Template.parse(v)
+    except ExprError as exc:
+        raise ValueError(str(exc)) from None
+
+
+def _int_keys(v: Any) -> Any:
+    """TOML keys are texts: ``"1"`` and ``"0x10"`` become ints."""
+    if not isinstance(v, Mapping):
+        return v
+    out = {}
+    for k, val in v.items():
+        if isinstance(k, str):
+            try:
+                k = int(k, 0)
+            except ValueError:
+                raise ValueError(f"key {k!r} is not a whole number (like 4 or 0x10)") from None
+        out[k] = val
+    return out
+
+
+def _scale(v: Any) -> float:
+    try:
+        return parse_scale(v)
+    except ValueError as exc:
+        raise ValueError(str(exc)) from None
+
+
+E = Annotated[Expr, BeforeValidator(_expr)]
+T = Annotated[Template, BeforeValidator(_template)]
+Scale = Annotated[float, BeforeValidator(_scale)]
+IntKeyed = BeforeValidator(_int_keys)
+Word = Annotated[int, Field(ge=0, le=0xFFFF)]
+_KEY = r"^[A-Za-z_][A-Za-z0-9_]*$"
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, allow_inf_nan=False, arbitrary_types_allowed=True,
+        populate_by_name=True,
+    )
+
+
+# -- identity and link ----------------------------------------------------------------------
+
+
+class DriveInfo(_Model):
+    """``[drive]``: who the drive is and which engine interprets it."""
+
+    family: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,31}$")
+    vendor: str = ""
+    model: str = ""
+    description: str = Field("", description="one line, as in drive tables")
+    engine: Literal["command", "cia402"] = "command"
+    manual: str = Field("", description="where the register tables come from")
+    about: str = Field("", description="what the docs page says about the drive (markdown)")
+
+
+class Identify(_Model):
+    """``[identify]``: how a scan recognises the drive (or why it cannot)."""
+
+    read: list[str] = []
+    match: E | None = None
+    model: T = Template.parse("")
+    firmware: T = Template.parse("")
+    raw: dict[str, E] = {}
+    cannot: str = ""
+
+    @model_validator(mode="after")
+    def _either(self) -> Identify:
+        if self.cannot and (self.read or self.match is not None):
+            raise ValueError("give either 'cannot' (a reason) or 'read' and 'match'")
+        if not self.cannot and (not self.read or self.match is None):
+            raise ValueError("needs 'read' (registers) and 'match' (an expression), or "
+                             "'cannot' with the reason a scan cannot tell this drive")
+        return self
+
+
+class FormatRule(_Model):
+    """A restriction of the formats at some baud rates."""
+
+    baud_rates: list[int] = Field(min_length=1)
+    formats: list[str] = Field(min_length=1)
+    why: str = ""
+
+
+class Refusals(_Model):
+    """The exception code the drive answers for each kind of refusal (its twin uses them)."""
+
+    function: int = Field(1, ge=1, le=255)
+    address: int = Field(2, ge=1, le=255)
+    outside: int | None = Field(None, ge=1, le=255, description="an address outside its map")
+    access: int = Field(2, ge=1, le=255)
+    value: int = Field(3, ge=1, le=255)
+    count: int = Field(3, ge=1, le=255)
+    crc: int | None = Field(None, ge=1, le=255, description="reply to a bad CRC (else silence)")
+    busy: int | None = Field(None, ge=1, le=255, description="a command it cannot carry out now")
+
+
+class Timing(_Model):
+    """Per-drive timing."""
+
+    response_timeout: float | None = Field(None, gt=0, le=10, description="s")
+    guard: float = Field(0.0, ge=0, le=1, description="extra silence before its frames, s")
+    frame_timeout: float | None = Field(None, gt=0, le=1, description="s (trailing garbage)")
+
+
+_LINE_KINDS = Literal["serial", "rtu-over-tcp", "tcp"]
+_FORMAT = r"^[5-8][NEO][12]$"
+
+
+class Link(_Model):
+    """``[link]``: how the drive is reached and what it accepts."""
+
+    protocol: Literal["rtu", "tcp"] = "rtu"
+    kinds: list[_LINE_KINDS] | None = None
+    addresses: tuple[int, int] = (1, 247)
+    baud_rates: list[Annotated[int, Field(gt=0)]] = []
+    formats: list[Annotated[str, Field(pattern=_FORMAT)]] = []
+    format_rules: list[FormatRule] = []
+    factory: str | None = Field(None, description="line settings out of the box: '9600 8N1'")
+    format_register: str | None = Field(None, description="the register that sets its line "
+                                        "format (its named values: '8N1' = 0, ...)")
+    baud_register: str | None = Field(None, description="the register that sets its baud "
+                                      "rate (its named values: '9600' = 0, ...)")
+    address_register: str | None = Field(None, description="the register that sets its "
+                                         "address (`drivebus commission`)")
+    comms_note: str = Field("", description="how it takes a new address or line settings "
+                            "(switches, a save, a power cycle)")
+    functions: list[Literal[3, 4, 6, 16]] = [3, 6, 16]
+    max_read: int = Field(125, ge=1, le=125)
+    max_write: int = Field(123, ge=1, le=123)
+    max_hole: int = Field(0, ge=0, le=124, description="largest gap a coalesced read spans")
+    word_order: Literal["high_first", "low_first"] = "high_first"
+    exceptions: Annotated[dict[int, str], IntKeyed] = {}
+    refusals: Refusals = Refusals()
+    timing: Timing = Timing()
+
+    @field_validator("addresses", mode="before")
+    @classmethod
+    def _addresses(cls, v: Any) -> Any:
+        if isinstance(v, str) and ".." in v:
+            lo, _, hi = v.partition("..")
+            try:
+                return (int(lo, 0), int(hi, 0))
+            except ValueError:
+                raise ValueError(f"{v!r}: expected 'LO..HI' like '1..31'") from None
+        return v
+
+    @model_validator(mode="after")
+    def _check(self) -> Link:
+        lo, hi = self.addresses
+        if not 0 <= lo <= hi <= 255:
+            raise ValueError(f"addresses {lo}..{hi}: expected 0 <= lo <= hi <= 255")
+        if self.factory is not None:
+            LineSettings.parse(self.factory)
+        return self
+
+    @property
+    def line_kinds(self) -> frozenset[str]:
+        """The kinds of line that reach it."""
+        if self.kinds is not None:
+            return frozenset(self.kinds)
+        if self.protocol == "tcp":
+            return frozenset({"tcp", "rtu-over-tcp"})
+        return frozenset({"serial", "rtu-over-tcp", "tcp"})
+
+    @property
+    def order(self) -> WordOrder:
+        """The default 32-bit word order."""
+        return WordOrder(self.word_order)
+
+
+# -- registers ----------------------------------------------------------------------------
+
+
+TWIN_MEANINGS = {
+    # what a status bit or register shows, in the twin's terms (docs say each)
+    "enabled": "the motor is energised",
+    "disabled": "the motor is released",
+    "moving": "the motor turns (or a motion is planned)",
+    "at_rest": "the motor stands still",
+    "in_position": "at rest on the target, no alarm",
+    "homed": "a homing completed since power-up",
+    "homing": "a homing runs",
+    "alarm": "an alarm is latched",
+    "no_alarm": "no alarm is latched",
+    "limit_positive": "the positive limit switch is active",
+    "limit_negative": "the negative limit switch is active",
+    "home_switch": "the home switch is active",
+    "at_speed": "a speed run reached its speed",
+    "ready": "powered and ready (always set)",
+    "jogging": "a speed run (jog) is under way",
+    "position": "the position counter (pulses)",
+    "velocity": "the present speed",
+    "command_velocity": "the speed of the running motion",
+    "alarm_code": "the latched alarm's code (0: none)",
+    "motion": "the kind of motion last started (values: position, speed, homing, ...)",
+    "constant": "a fixed value: the register's default (a model code, a version)",
+    "inputs": "the input terminals (see [inputs])",
+    "outputs": "the output terminals (see [outputs])",
+}
+"""What a register or bit can mean to the simulated twin."""
+
+
+def _known_meaning(v: str | None) -> str | None:
+    """A ``means`` value, checked against ``TWIN_MEANINGS``."""
+    if v is not None and v not in TWIN_MEANINGS:
+        raise ValueError(f"unknown meaning {v!r} (known: {', '.join(TWIN_MEANINGS)})")
+    return v
+
+
+class BitDef(_Model):
+    """One bit or field of a register."""
+
+    bit: int = Field(ge=0, le=31)
+    width: int = Field(1, ge=1, le=32)
+    means: str | None = None
+    doc: str = ""
+
+    _means = field_validator("means")(_known_meaning)
+
+    @property
+    def mask(self) -> int:
+        """The bits it covers."""
+        return ((1 << self.width) - 1) << self.bit
+
+
+def _bit(v: Any) -> Any:
+    return {"bit": v} if isinstance(v, int) and not isinstance(v, bool) else v
+
+
+class RegisterDef(_Model):
+    """One entry of ``[registers]``: a register (or a table of them, with ``count``)."""
+
+    address: Word
+    name: str = ""
+    words: Literal[1, 2] = 1
+    signed: bool = False
+    order: Literal["high_first", "low_first"] | None = None
+    low_address: Word | None = None
+    unit: str = ""
+    scale: Scale = 1.0
+    ramp: str | float | None = None
+    table: list[int] = []
+    values: dict[str, int] = {}
+    min: int | None = None
+    max: int | None = None
+    default: int = 0
+    defaults: list[int] = Field([], description="a table's defaults, entry by entry")
+    access: Literal["R", "W", "RW"] = "RW"
+    input: bool = Field(False, description="an input register (read with FC04, read-only)")
+    eeprom: bool = False
+    volatile: bool = False
+    parameter: bool | str | None = Field(
+        None, description="a documented setting `drivebus params` backs up (default: RW, "
+        "not volatile, no meaning, not the write-through switch); a string is its key in a "
+        "parameter file (a table's with {i}, the entry's index, or {name}, its name)")
+    comms: bool = Field(False, description="sets the drive's address or line settings")
+    means: str | None = None
+    bits: dict[str, Annotated[BitDef, BeforeValidator(_bit)]] = {}
+    count: int = Field(1, ge=1, le=4096)
+    stride: int = Field(1, ge=1, le=4096)
+    first: int = Field(0, ge=0, description="index of the table's first entry")
+    names: list[str] = Field([], description="a table's entries by name (TABLE['X0'])")
+    object: str | None = Field(None, description="CiA 402 object, '6040' or '607A:00'")
+    doc: str = ""
+
+    _means = field_validator("means")(_known_meaning)
+
+    def _check_parameter_key(self, key: str) -> None:
+        fields = set(re.findall(r"{(\w*)}", key))
+        if self.count > 1 and not fields & {"i", "name"}:
+            raise ValueError(f"parameter {key!r}: a table's key needs {{i}} or {{name}} "
+                             "(each entry has its own key)")
+        if fields - ({"i", "name"} if self.count > 1 else set()):
+            raise ValueError(f"parameter {key!r}: only a table's key takes {{i}} or {{name}}")
+        if "name" in fields and not self.names:
+            raise ValueError(f"parameter {key!r}: {{name}} needs the table's names")
+        if not re.fullmatch(r"[A-Za-z_][\w{}]*", key):
+            raise ValueError(f"parameter {key!r}: a key is a name (letters, digits, _)")
+
+    @model_validator(mode="after")
+    def _check(self) -> RegisterDef:
+        if self.low_address is not None and self.words != 2:
+            raise ValueError("low_address is for a 32-bit register (words = 2)")
+        if self.min is not None and self.max is not None and self.min > self.max:
+            raise ValueError(f"min {self.min} is above max {self.max}")
+        if self.table and self.values:
+            raise ValueError("give a table or named values, not both")
+        if self.input and self.access != "R":
+            raise ValueError("an input register is read-only: access = \"R\"")
+        if self.names and len(self.names) != self.count:
+            raise ValueError(f"names: {len(self.names)} names for {self.count} entries")
+        if self.defaults and len(self.defaults) != self.count:
+            raise ValueError(f"defaults: {len(self.defaults)} values for {self.count} entries")
+        if isinstance(self.parameter, str):
+            self._check_parameter_key(self.parameter)
+        bits = 16 * self.words
+        for name, b in self.bits.items():
+            if b.bit + b.width > bits:
+                raise ValueError(f"bit {name} ({b.bit}, width {b.width}) is beyond the "
+                                 f"register's {bits} bits")
+        return self
+
+
+@dataclass(frozen=True)
+class Reg:
+    """A register of a description, ready to use: its key, definition, codec and unit."""
+
+    key: str
+    d: RegisterDef
+    codec: UnitCodec
+    order: WordOrder
+
+    @property
+    def name(self) -> str:
+        """Its display name."""
+        return self.d.name or self.key.replace("_", " ")
+
+    @property
+    def array(self) -> bool:
+        """True for a table of registers (``count`` > 1)."""
+        return self.d.count > 1
+
+    @property
+    def indices(self) -> range:
+        """The indices of a table's entries."""
+        return range(self.d.first, self.d.first + self.d.count)
+
+    def at(self, index: int | str | None = None) -> Register:
+        """The codec register (of entry ``index`` of a table, a number or one of its
+        ``names``); ``LimitViolation`` naming the table and its indices if it is not one."""
+        d = self.d
+        if isinstance(index, str) and self.array:
+            if index not in d.names:
+                shown = ", ".join(d.names) or f"{d.first}..{d.first + d.count - 1}"
+                raise LimitViolation(f"{self.name}: no entry {index!r} (it has {shown})")
+            index = d.first + d.names.index(index)
+        if self.array:
+            if index is None or isinstance(index, bool) or index not in self.indices:
+                lo, hi = self.indices.start, self.indices.stop - 1
+                raise LimitViolation(f"{self.name}: entry {index!r} is outside {lo}..{hi}")
+            n = index - d.first
+            name = self.name.replace("{n}", str(index)) if "{n}" in self.name \
+                else f"{self.name} {index}"
+            return self._register(name, d.address + n * d.stride,
+                                  None if d.low_address is None else d.low_address + n * d.stride)
+        return self.register
+
+    @cached_property
+    def register(self) -> Register:
+        """The codec register of a single register (the first entry of a table)."""
+        d = self.d
+        name = self.name.replace("{n}", str(d.first))
+        return self._register(name, d.address, d.low_address)
+
+    def _register(self, name: str, address: int, low: int | None) -> Register:
+        d = self.d
+        return Register(
+            name, address, d.words, signed=d.signed, order=self.order, unit=d.unit,
+            minimum=d.min, maximum=d.max, access=Access(d.access), low_address=low,
+        )
+
+    def addresses(self) -> Iterator[int]:
+        """Every address it occupies (every word of every entry)."""
+        d = self.d
+        for n in range(d.count):
+            base = d.address + n * d.stride
+            yield base
+            if d.words == 2:
+                yield (d.low_address + n * d.stride) if d.low_address is not None else base + 1
+
+    def default_at(self, index: int | None = None) -> int:
+        """The factory value (of entry ``index`` of a table)."""
+        d = self.d
+        if d.defaults and index is not None:
+            return d.defaults[index - d.first]
+        return d.default
+
+    def bit_mask(self, name: str) -> int:
+        """The mask of bit (field) ``name``."""
+        return self.d.bits[name].mask
+
+
+# -- options, units, status ------------------------------------------------------------------
+
+
+class OptionDef(_Model):
+    """One of the drive's ``drive_options``."""
+
+    type: Literal["int", "float", "bool", "str", "choice", "map"] = "int"
+    min: float | None = None
+    max: float | None = None
+    choices: list[str] = []
+    keys: list[str] = Field([], description="map: the keys allowed")
+    default: Any = None
+    doc: str = ""
+
+    @model_validator(mode="after")
+    def _check(self) -> OptionDef:
+        if self.type == "choice" and not self.choices:
+            raise ValueError("a choice needs 'choices'")
+        if self.type == "map" and not (self.keys and self.choices):
+            raise ValueError("a map needs 'keys' and 'choices' (its values)")
+        return self
+
+
+class PulsesPerRev(_Model):
+    """How many pulses make a revolution, and what the axis may set."""
+
+    default: int = Field(gt=0)
+    reg: str | None = Field(None, alias="register", description="the register that sets it "
+                            "(its range or table gives the allowed values)")
+    allowed: list[int] = Field([], description="the values allowed (else any, or the "
+                                               "register's)")
+    range: tuple[int, int] | None = None
+
+
+class Units(_Model):
+    """``[units]``."""
+
+    pulses_per_rev: PulsesPerRev
+
+
+class PollDef(_Model):
+    """A conditional read of a status poll."""
+
+    read: list[str | list[str]]
+    when: E
+
+
+class StatusDef(_Model):
+    """``[status]``: the poll and how it decodes into ``DriveStatus``."""
+
+    poll: list[str | list[str]] = []
+    extra: list[PollDef] = []
+    enabled: E | None = None
+    moving: E | None = None
+    in_position: E | None = None
+    homed: E | None = None
+    homing: E | None = None
+    alarm: E | None = None
+    alarm_code: E | None = None
+    limit_positive: E | None = None
+    limit_negative: E | None = None
+    position: E | None = None
+    velocity: E | None = None
+    raw: dict[str, E] = {}
+    track: dict[str, E] = Field({}, description="state variables updated after each poll")
+    learn_first: bool = Field(False, description="run learn before the first poll (else "
+                              "decoding uses the registers' defaults until setup or learn)")
+
+
+class IoDef(_Model):
+    """``[inputs]`` / ``[outputs]``: which terminal carries which signal."""
+
+    state: str
+    invert: str | None = None
+    functions: str | None = None
+    codes: dict[str, int] = {}
+    bits: dict[str, int] = Field({}, description="fixed wiring: signal -> bit number")
+
+
+class AlarmsDef(_Model):
+    """``[alarms]``: the alarm code register and the texts of its codes."""
+
+    reg: str = Field(alias="register")
+    kind: Literal["code", "flags"] = "code"
+    texts: Annotated[dict[int, str], IntKeyed] = {}
+    unknown: T = Template.parse("alarm code {code}")
+    clears: Annotated[dict[int, Literal["command", "power_cycle", "supply"]], IntKeyed] = {}
+
+
+class WriteThroughDef(_Model):
+    """A switch that makes every Modbus write an EEPROM write while it holds ``on``."""
+
+    reg: str = Field(alias="register")
+    on: int
+    off: int
+
+
+class EepromDef(_Model):
+    """``[eeprom]``: how the drive stores its settings."""
+
+    write_through: WriteThroughDef | None = None
+    saves_by_write_through: bool = Field(
+        False, description="no save command: a value is stored only when written with the "
+        "write-through switch on")
+
+
+class SignalDef(_Model):
+    """A further value read in its own poll group (temperature, bus voltage, ...)."""
+
+    reg: str = Field(alias="register")
+    every: float = Field(1.0, gt=0, le=3600, description="s")
+    doc: str = ""
+
+
+class HomingMethod(BaseModel):
+    """One homing method: its code for the drive and the behaviour its twin plays."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+    code: int | None = None
+    cia402: int | None = Field(None, description="the equivalent CiA 402 method (twin)")
+    behaviour: Literal["search", "set", "move_to_offset"] | None = None
+    doc: str = ""
+
+    @property
+    def extras(self) -> dict[str, Any]:
+        """The method's further values (usable as ``home.NAME`` in expressions)."""
+        return dict(self.model_extra or {})
+
+
+class HomingDef(_Model):
+    """``[homing]``: the drive's homing methods, the first is the default."""
+
+    methods: dict[str, HomingMethod] = Field(min_length=1)
+
+
+# -- procedures ---------------------------------------------------------------------------
+
+
+class WriteItem(_Model):
+    """A value to write, with constraints beyond the register's range."""
+
+    value: E
+    nonzero: bool = Field(False, description="the raw value must not be 0 (a move's speed)")
+
+
+def _item(v: Any) -> Any:
+    return v if isinstance(v, Mapping | WriteItem) else {"value": v}
+
+
+Priorities = Literal["emergency", "command", "config", "poll"]
+_ACTIONS = ("write", "read", "modify", "call", "check", "wait", "set", "fail", "return_")
+
+
+class Step(_Model):
+    """One step of a procedure (exactly one action key, plus modifiers)."""
+
+    model_config = ConfigDict(populate_by_name=True)
+
+    write: dict[str, Annotated[WriteItem, BeforeValidator(_item)]] | None = None
+    read: list[str | list[str]] | None = None
+    modify: str | None = None
+    call: str | None = None
+    check: E | None = None
+    wait: E | None = None
+    set: dict[str, E] | None = None
+    fail: T | None = None
+    return_: E | None = Field(None, alias="return")
+    # modifiers
+    when: E | None = None
+    block: E | None = None
+    single: bool = Field(False, description="32-bit values as FC06 word by word")
+    idempotent: bool = True
+    priority: Priorities | None = None
+    start: bool = Field(False, description="where a prepared move starts")
+    volatile: bool = False
+    end: bool = Field(False, description="the procedure ends after this step")
+    args: dict[str, E] = {}
+    bits_set: E | None = Field(None, alias="set_bits")
+    bits_clear: E | None = Field(None, alias="clear_bits")
+    bits_toggle: E | None = Field(None, alias="toggle_bits")
+    pulse: bool = Field(False, description="modify: toggle, then toggle back")
+    timeout: E = Expr.parse(5.0)
+    every: float = Field(0.005, gt=0, le=10)
+    error: Literal["alarm", "state", "motion", "limit"] = "state"
+    message: T | None = None
+
+    @model_validator(mode="after")
+    def _one_action(self) -> Step:
+        given = [a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None]
+        if len(given) != 1:
+            keys = ", ".join(a.rstrip("_") for a in _ACTIONS)
+            got = f"got {', '.join(given)}" if given else "got none"
+            raise ValueError(f"a step has exactly one of {keys} ({got})")
+        if self.modify is not None and self.bits_set is None and self.bits_clear is None \
+                and self.bits_toggle is None:
+            raise ValueError("a modify step needs set_bits, clear_bits or toggle_bits")
+        return self
+
+    @property
+    def action(self) -> str:
+        """The step's action key."""
+        return next(a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None)
+
+
+class Param(_Model):
+    """A parameter of a procedure of the drive's own."""
+
+    name: str = Field(pattern=_KEY)
+    default: Any = None
+    doc: str = ""
+
+
+def _param(v: Any) -> Any:
+    return {"name": v} if isinstance(v, str) else v
+
+
+class Procedure(_Model):
+    """One procedure: its steps, or why the drive cannot do it."""
+
+    steps: list[Step] = []
+    params: list[Annotated[Param, BeforeValidator(_param)]] = []
+    what: T | None = None
+    unsupported: str | None = None
+    supported: E | None = Field(None, description="a condition on the options")
+    why: str = ""
+    priority: Priorities | None = None
+    doc: str = ""
+
+    @model_validator(mode="after")
+    def _check(self) -> Procedure:
+        if self.unsupported is not None and self.steps:
+            raise ValueError("an unsupported procedure has no steps")
+        if self.unsupported is None and not self.steps:
+            raise ValueError("needs steps (or 'unsupported' with the reason)")
+        return self
+
+
+PROCEDURES: dict[str, tuple[str, tuple[str, ...]]] = {
+    "learn": ("learn what decoding needs (reads only)", ()),
+    "setup": ("set the drive up", ()),
+    "enable": ("enable the motor", ()),
+    "disable": ("disable the motor", ()),
+    "move_absolute": ("make an absolute move", ("target", "speed", "accel", "decel")),
+    "move_relative": ("make a relative move", ("distance", "speed", "accel", "decel")),
+    "speed_run": ("run at a set speed", ("speed", "accel", "decel")),
+    "stop": ("stop with deceleration", ("decel",)),
+    "emergency_stop": ("make an emergency stop", ()),
+    "home": ("home", ("method", "speed", "creep", "accel", "offset")),
+    "clear_alarm": ("clear an alarm", ()),
+    "zero_position": ("set its position to zero", ()),
+    "save_parameters": ("save parameters", ()),
+}
+"""The common procedures: what a NotSupported error says, and the names they pass."""
+
+
+# -- the twin -----------------------------------------------------------------------------
+
+
+TWIN_ACTIONS = {
+    "move_absolute": ("target", "speed", "accel", "decel"),
+    "move_relative": ("distance", "speed", "accel", "decel"),
+    "run": ("speed", "accel", "decel"),
+    "set_speed": ("speed",),
+    "stop": ("decel",),
+    "emergency_stop": (),
+    "home": ("method", "speed", "creep", "accel", "offset"),
+    "enable": (),
+    "disable": (),
+    "clear_alarm": (),
+    "zero_position": (),
+    "set_position": ("position",),
+    "save": (),
+    "factory_reset": (),
+    "none": (),
+}
+"""What a twin does on a trigger, and the parameters each action takes."""
+
+
+class Trigger(_Model):
+    """What the drive does when a register is written."""
+
+    reg: str = Field(alias="register")
+    when: E | None = None
+    do: Literal[tuple(TWIN_ACTIONS)]  # type: ignore[valid-type]
+    target: E | None = None
+    distance: E | None = None
+    speed: E | None = None
+    accel: E | None = None
+    decel: E | None = None
+    creep: E | None = None
+    method: E | None = None
+    offset: E | None = None
+    position: E | None = None
+    motion: str | None = Field(None, description="the motion kind it starts (mode register)")
+    more: bool = Field(False, description="go on to the next triggers of the register")
+    refuse: bool = Field(False, description="refuse with refusals.busy when it cannot start")
+
+
+class LimitsDef(_Model):
+    """How the drive reacts at a limit switch."""
+
+    stop: E = Expr.parse("'decelerate'")
+    decel: E | None = None
+    block_start: bool = True
+
+
+class TwinDef(_Model):
+    """``[twin]``: how the drive behaves, for its simulated twin."""
+
+    on_write: list[Trigger] = []
+    starts: E = Expr.parse("enabled and not alarm")
+    limits: LimitsDef = LimitsDef()
+    eeprom_write_through: E | None = Field(
+        None, description="when a write to an `eeprom` register is stored (default: the "
+        "[eeprom] write-through switch holds its `on` value)")
+    enabled: E = Expr.parse(True)
+    decel: E | None = Field(None, description="an alarm or a disable: None = at once")
+
+
+# -- the CiA 402 engine ---------------------------------------------------------------
+
+
+class ObjectUnit(_Model):
+    """How the registers of one kind of CiA 402 object hold their values."""
+
+    unit: str
+    scale: Scale = 1.0
+
+
+class Cia402Def(_Model):
+    """``[cia402]``: how a CiA 402 drive maps its objects and runs its state machine."""
+
+    address_rule: E | None = Field(None, description="the address of an object from its "
+                                   "`index` and `sub` (for the objects listed in `objects`)")
+    objects: list[str] = Field([], description="objects whose registers the rule places")
+    position: ObjectUnit = ObjectUnit(unit="pulses")
+    velocity: ObjectUnit = ObjectUnit(unit="pulses/s")
+    acceleration: ObjectUnit = ObjectUnit(unit="pulses/s²")
+    emergency_stop: Literal["quick_stop", "halt"] = "quick_stop"
+    change_set_immediately: bool = Field(False, description="a new move replaces a running "
+                                         "one at once (controlword bit 5)")
+    timeout: float = Field(1.0, gt=0, le=30, description="s, for a state change or a "
+                           "set-point acknowledge")
+
+
+def object_name(ref: str) -> str | None:
+    """The CiA 402 object ``ref`` names: an object name, or its index (``6040``,
+    ``0x6040``, ``6040h``) with an optional sub-index (``6099:01``, ``6099.1``)."""
+    from drivebus.drives.cia402 import OBJECTS
+
+    if ref in OBJECTS:
+        return ref
+    text = ref.strip().lower().removeprefix("0x")
+    index_s, _, sub_s = text.replace(".", ":").partition(":")
+    index_s = index_s.removesuffix("h")
+    try:
+        index = int(index_s, 16)
+        sub = int(sub_s.removesuffix("h"), 16) if sub_s else 0
+    except ValueError:
+        return None
+    for name, info in OBJECTS.items():
+        if info.index == index and info.subindex == sub:
+            return name
+    return None
+
+
+# -- the whole description ---------------------------------------------------------------
+
+
+class Description(_Model):
+    """A whole description file."""
+
+    format: Literal[1] = 1
+    drive: DriveInfo
+    identify: Identify | None = None
+    link: Link = Link()
+    registers: dict[Annotated[str, Field(pattern=_KEY)], RegisterDef] = {}
+    constants: dict[Annotated[str, Field(pattern=_KEY)], int] = {}
+    state: dict[Annotated[str, Field(pattern=_KEY)], int | float | bool | str | None] = {}
+    options: dict[Annotated[str, Field(pattern=_KEY)], OptionDef] = {}
+    units: Units
+    status: StatusDef = StatusDef()
+    inputs: IoDef | None = None
+    outputs: IoDef | None = None
+    alarms: AlarmsDef | None = None
+    homing: HomingDef | None = None
+    signals: dict[Annotated[str, Field(pattern=_KEY)], SignalDef] = {}
+    eeprom: EepromDef = EepromDef()
+    cia402: Cia402Def | None = None
+    procedures: dict[Annotated[str, Field(pattern=_KEY)], Procedure] = {}
+    twin: TwinDef = TwinDef()
+
+    # -- compiled views ---------------------------------------------------------------------
+
+    @cached_property
+    def regs(self) -> dict[str, Reg]:
+        """Every register, by key (with those a CiA 402 address rule places)."""
+        out = {}
+        for key, d in {**self.registers, **self._generated()}.items():
+            codec = UnitCodec.make(d.unit, d.scale, d.ramp, d.table, d.values)
+            order = WordOrder(d.order) if d.order else self.link.order
+            out[key] = Reg(key, d, codec, order)
+        return out
+
+    @cached_property
+    def objects(self) -> dict[str, Reg]:
+        """The registers of the CiA 402 objects, by object name."""
+        out: dict[str, Reg] = {}
+        for reg in self.regs.values():
+            if reg.d.object is not None:
+                name = object_name(reg.d.object)
+                if name is not None:
+                    out[name] = reg
+        return out
+
+    def _generated(self) -> dict[str, RegisterDef]:
+        """Registers for the objects ``[cia402]`` places by its address rule."""
+        from drivebus.drives.cia402 import OBJECTS
+
+        c = self.cia402
+        if c is None or c.address_rule is None:
+            return {}
+        taken = {object_name(d.object) for d in self.registers.values() if d.object}
+        out: dict[str, RegisterDef] = {}
+        for ref in c.objects:
+            name = object_name(ref)
+            if name is None or name in taken or name in self.registers:
+                continue
+            info = OBJECTS[name]
+            try:
+                address = int(c.address_rule({"index": info.index, "sub": info.subindex}))
+            except (ExprError, TypeError, ValueError):
+                continue  # reported by the checks
+            kind = _object_kind(name)
+            unit = getattr(c, kind) if kind else None
+            out[name] = RegisterDef(
+                address=address, words=2 if info.bits > 16 else 1, signed=info.signed,
+                access="RW" if info.writable else "R", object=name,
+                unit=unit.unit if unit else "", scale=unit.scale if unit else 1.0,
+                name=info.text)
+        return out
+
+    @property
+    def family(self) -> str:
+        """The family name."""
+        return self.drive.family
+
+    @cached_property
+    def status_exprs(self) -> dict[str, Expr]:
+        """How each ``DriveStatus`` field decodes: ``[status]``'s expression, else one made
+        from what the polled registers and bits *mean* (``means``), else ``enabled`` is
+        taken as true (a drive that does not report it) and the others are absent."""
+        s = self.status
+        out: dict[str, Expr] = {}
+        bits: dict[str, list[str]] = {}
+        regs: dict[str, list[str]] = {}
+        for reg in self.regs.values():
+            if reg.d.access == "W" or reg.array:
+                continue
+            if reg.d.means:
+                regs.setdefault(reg.d.means, []).append(reg.key)
+            for name, b in reg.d.bits.items():
+                if b.means:
+                    bits.setdefault(b.means, []).append(f"{reg.key}.{name}")
+
+        def any_of(pos: str, neg: str | None = None) -> str | None:
+            terms = list(bits.get(pos, []))
+            if neg is not None:
+                terms += [f"not {t}" for t in bits.get(neg, [])]
+            return " or ".join(terms) or None
+
+        derived: dict[str, str | None] = {
+            "enabled": any_of("enabled", "disabled"),
+            "moving": any_of("moving", "at_rest") or any_of("jogging"),
+            "homed": any_of("homed"),
+            "homing": any_of("homing"),
+            "alarm": " or ".join(filter(None, [any_of("alarm", "no_alarm")] + [
+                f"{k} != 0" for k in regs.get("alarm_code", [])])) or None,
+            "alarm_code": (regs.get("alarm_code") or [None])[0],
+            "position": (regs.get("position") or [None])[0],
+            "velocity": (regs.get("velocity") or [None])[0],
+        }
+        for side in ("limit_positive", "limit_negative"):
+            io = self.inputs
+            if io is not None and (side in io.codes or side in io.bits):
+                derived[side] = f"input.{side}"
+            else:
+                derived[side] = any_of(side)
+        moving = s.moving.source if s.moving is not None else derived["moving"]
+        alarm = s.alarm.source if s.alarm is not None else derived["alarm"]
+        reached = any_of("in_position")
+        if reached and moving:
+            derived["in_position"] = f"({reached}) and not ({moving})"
+        elif reached:
+            derived["in_position"] = reached
+        elif moving:
+            derived["in_position"] = f"not ({moving})" + (f" and not ({alarm})" if alarm else "")
+        else:
+            derived["in_position"] = None
+        for field, text in derived.items():
+            given = getattr(s, field)
+            if given is not None:
+                out[field] = given
+            elif text is not None:
+                out[field] = Expr.parse(text)
+        out.setdefault("enabled", Expr.parse(True))
+        return out
+
+    def parameter_regs(self) -> list[tuple[str, Reg, int | None]]:
+        """The documented settings (key, register, table index) ``drivebus params`` backs
+        up, in address order: each register's ``parameter`` flag or key, else every
+        read/write register that is not volatile, shows no state and is not the EEPROM
+        write-through switch."""
+        wt = self.eeprom.write_through
+        out = []
+        for key, reg in self.regs.items():
+            d = reg.d
+            wanted = d.parameter if d.parameter is not None else (
+                d.access == "RW" and not d.volatile and d.means is None
+                and (wt is None or wt.reg != key))
+            if wanted is False:
+                continue
+            for i in reg.indices if reg.array else [None]:
+                out.append((self._parameter_key(key, reg, i), reg, i))
+        return sorted(out, key=lambda kri: kri[1].at(kri[2]).address)
+
+    @staticmethod
+    def _parameter_key(key: str, reg: Reg, index: int | None) -> str:
+        given = reg.d.parameter if isinstance(reg.d.parameter, str) else None
+        if index is None:
+            return given or key
+        name = reg.d.names[index - reg.d.first] if reg.d.names else str(index)
+        if given is None:
+            return f"{key}_{index}"
+        return given.format(i=index, name=name)
+
+    def procedure_what(self, name: str) -> str:
+        """How a NotSupported error says procedure ``name``."""
+        if name in PROCEDURES:
+            return PROCEDURES[name][0]
+        proc = self.procedures.get(name)
+        if proc is not None and proc.what is not None and not proc.what.names:
+            return str(proc.what)
+        return name.replace("_", " ")
+
+
+# -- loading and checking -------------------------------------------------------------------
+
+
+def parse_description(data: Mapping[str, Any], source: str = "description") -> Description:
+    """Validate a description mapping; one ``ConfigError`` names ``source``, each key
+    path and the problem."""
+    try:
+        desc = Description.model_validate(dict(data))
+    except ValidationError as exc:
+        problems = "; ".join(validation_problems(exc, model=Description, limit=8))
+        raise ConfigError(f"{source}: {problems}") from None
+    problems = list(_Checker(desc).problems())
+    if problems:
+        shown = problems[:8] + ([f"and {len(problems) - 8} more"] if len(problems) > 8 else [])
+        raise ConfigError(f"{source}: {'; '.join(shown)}")
+    return desc
+
+
+def read_toml(p: Path, noun: str) -> dict[str, Any]:
+    """The TOML file ``p`` (a ``noun``: "drive description", "config file") as a mapping;
+    one ``ConfigError`` naming the file when it is missing, unreadable or not TOML."""
+    try:
+        return tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such {noun}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not a text file (not UTF-8 at byte {exc.start})") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read the {noun}: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+
+
+def load_description(path: str | Path) -> Description:
+    """Read and check the description file ``path``."""
+    p = Path(path)
+    return parse_description(read_toml(p, "drive description"), str(p))
+
+
+_CONTEXT_NAMES = {
+    "option", "state", "last", "words", "input", "output", "home", "pulses_per_rev",
+    "value", "raw", "True", "False", "None",
+}
+_TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "raw", "speed_now",
+               "pulses_per_rev", "limit_positive", "limit_negative"}
+
+
+class _Checker:
+    """The cross-checks pydantic cannot make: every name an expression uses exists, every
+    register key named exists, tables and ramps refer to what they should."""
+
+    def __init__(self, d: Description) -> None:
+        self.d = d
+        self.regs = d.regs
+        self.out: list[str] = []
+
+    def problems(self) -> Iterator[str]:
+        d = self.d
+        self._registers()
+        self._units()
+        self._identify()
+        self._status()
+        self._io("inputs", d.inputs)
+        self._io("outputs", d.outputs)
+        if d.alarms is not None:
+            self._reg_key("alarms.register", d.alarms.reg)
+        for name, sig in d.signals.items():
+            self._reg_key(f"signals.{name}.register", sig.reg)
+        for name, proc in d.procedures.items():
+            self._procedure(name, proc)
+        self._twin()
+        if d.link.format_register is not None:
+            self._reg_key("link.format_register", d.link.format_register)
+        if d.link.baud_register is not None:
+            self._reg_key("link.baud_register", d.link.baud_register)
+        if d.link.address_register is not None:
+            self._reg_key("link.address_register", d.link.address_register)
+        if d.eeprom.write_through is not None:
+            self._reg_key("eeprom.write_through.register", d.eeprom.write_through.reg)
+        self._cia402()
+        self._parameters()
+        yield from self.out
+
+    def _parameters(self) -> None:
+        seen: dict[str, str] = {}
+        for pkey, reg, index in self.d.parameter_regs():
+            where = reg.key if index is None else f"{reg.key}[{index}]"
+            other = seen.setdefault(pkey, where)
+            if other != where:
+                self.out.append(f"registers.{reg.key}.parameter: key {pkey!r} is also "
+                                f"registers.{other}'s")
+
+    # -- registers --------------------------------------------------------------------------
+
+    def _registers(self) -> None:
+        if not self.regs:
+            self.out.append("registers: none given (a description needs at least one)")
+        owner: dict[int, str] = {}
+        for key, reg in self.regs.items():
+            where = f"registers.{key}"
+            d = reg.d
+            if d.ramp is not None and isinstance(d.ramp, str):
+                ref = self.regs.get(d.ramp)
+                if ref is None:
+                    self.out.append(f"{where}.ramp: no register {d.ramp!r}")
+                elif ref.codec.kind is not Kind.SPEED:
+                    self.out.append(f"{where}.ramp: register {d.ramp} holds no speed (give it "
+                                    f"a speed unit: rpm, rps, pulses/s)")
+            if d.ramp is not None and d.unit not in ("ms", "s"):
+                self.out.append(f"{where}.unit: a ramp time is in 'ms' or 's', not {d.unit!r}")
+            try:
+                Register(reg.name, d.address, d.words, signed=d.signed, minimum=d.min,
+                         maximum=d.max)
+            except ConfigError as exc:
+                self.out.append(f"{where}: {exc}")
+            lo, hi = reg.register.lo, reg.register.hi
+            if (d.min is not None and d.min < _width_lo(d)) or (d.max is not None and \
+                    d.max > _width_hi(d)):
+                self.out.append(f"{where}: range {lo}..{hi} does not fit {16 * d.words} "
+                                f"{'signed' if d.signed else 'unsigned'} bits")
+            space = 1 << 16 if d.input else 0  # input registers are an address space apart
+            for a in reg.addresses():
+                if a > 0xFFFF:
+                    self.out.append(f"{where}: its words reach address {a}, beyond 65535")
+                    break
+                if space + a in owner and owner[space + a] != key:
+                    self.out.append(f"{where}.address: address {a} (0x{a:04X}) is also "
+                                    f"register {owner[space + a]}")
+                    break
+                owner[space + a] = key
+
+    def _cia402(self) -> None:
+        d = self.d
+        for key, r in d.registers.items():
+            if r.object is not None and object_name(r.object) is None:
+                self.out.append(f"registers.{key}.object: {r.object!r} is not a CiA 402 "
+                                f"object drivebus knows (see drivebus.drives.cia402.OBJECTS)")
+        c = d.cia402
+        if c is not None:
+            for i, ref in enumerate(c.objects):
+                if object_name(ref) is None:
+                    self.out.append(f"cia402.objects[{i}]: {ref!r} is not a CiA 402 object")
+            if c.objects and c.address_rule is None:
+                self.out.append("cia402.objects: needs address_rule (how an object's index "
+                                "and sub-index give its address)")
+            if c.address_rule is not None:
+                unknown = c.address_rule.names - {"index", "sub"} - set(FUNCTIONS)
+                if unknown:
+                    self.out.append(f"cia402.address_rule: {c.address_rule.source!r} may use "
+                                    f"only index and sub, not {', '.join(sorted(unknown))}")
+        if 3 not in d.link.functions and any(not r.d.input for r in self.regs.values()):
+            self.out.append("link.functions: holding registers need function code 3")
+        if 4 not in d.link.functions and any(r.d.input for r in self.regs.values()):
+            self.out.append("link.functions: input registers need function code 4")
+        if d.drive.engine == "cia402":
+            for needed in ("controlword", "statusword"):
+                if needed not in d.objects:
+                    self.out.append(f"registers: the CiA 402 engine needs the {needed} "
+                                    f"(a register with object = \"{needed}\")")
+        elif c is not None:
+            self.out.append("cia402: only for drive.engine = \"cia402\"")
+
+    def _units(self) -> None:
+        ppr = self.d.units.pulses_per_rev
+        if ppr.reg is not None:
+            self._reg_key("units.pulses_per_rev.register", ppr.reg)
+
+    def _reg_key(self, where: str, key: str) -> None:
+        base = key.split("[", 1)[0]
+        if base not in self.regs:
+            self.out.append(f"{where}: no register {base!r} (registers: {_some(self.regs)})")
+
+    # -- expressions --------------------------------------------------------------------------
+
+    def _names(self, where: str, expr: Expr | Template | None, extra: Iterable[str] = ()) -> None:
+        """Every name ``expr`` uses must be known in its context."""
+        if expr is None:
+            return
+        d = self.d
+        known = set(self.regs) | set(d.constants) | _CONTEXT_NAMES | set(FUNCTIONS) | set(extra)
+        for name in sorted(expr.names - known):
+            self.out.append(f"{where}: {expr.source!r} uses {name!r}, which is no register, "
+                            f"constant, option or parameter")
+        for path in sorted(expr.paths):
+            head, _, rest = path.partition(".")
+            attr = rest.split(".", 1)[0]
+            if not attr:
+                continue
+            if head == "option" and attr not in d.options:
+                self.out.append(f"{where}: {expr.source!r}: no option {attr!r} (options: "
+                                f"{_some(d.options)})")
+            elif head == "state" and attr not in d.state:
+                self.out.append(f"{where}: {expr.source!r}: no state variable {attr!r} "
+                                f"(declare it in [state])")
+            elif head in ("last", "words") and attr not in self.regs:
+                self.out.append(f"{where}: {expr.source!r}: no register {attr!r}")
+            elif head in self.regs and head not in extra:
+                reg = self.regs[head]
+                if attr not in reg.d.bits and attr not in reg.d.values:
+                    self.out.append(f"{where}: {expr.source!r}: register {head} has no bit "
+                                    f"or value {attr!r}")
+
+    def _identify(self) -> None:
+        ident = self.d.identify
+        if ident is None:
+            return
+        for i, key in enumerate(ident.read):
+            self._reg_key(f"identify.read[{i}]", key)
+        self._names("identify.match", ident.match)
+        self._names("identify.model", ident.model)
+        self._names("identify.firmware", ident.firmware)
+        for k, e in ident.raw.items():
+            self._names(f"identify.raw.{k}", e)
+
+    def _span(self, where: str, item: str | list[str]) -> None:
+        keys = [item] if isinstance(item, str) else item
+        if isinstance(item, list) and len(item) != 2:
+            self.out.append(f"{where}: a span is [first, last] register")
+        for k in keys:
+            self._reg_key(where, k)
+
+    def _status(self) -> None:
+        s = self.d.status
+        for i, item in enumerate(s.poll):
+            self._span(f"status.poll[{i}]", item)
+        for i, extra in enumerate(s.extra):
+            for j, item in enumerate(extra.read):
+                self._span(f"status.extra[{i}].read[{j}]", item)
+            self._names(f"status.extra[{i}].when", extra.when)
+        for field in ("enabled", "moving", "in_position", "homed", "homing", "alarm",
+                      "alarm_code", "limit_positive", "limit_negative", "position", "velocity"):
+            self._names(f"status.{field}", getattr(s, field))
+        for k, e in s.raw.items():
+            self._names(f"status.raw.{k}", e)
+        for k, e in s.track.items():
+            self._names(f"status.track.{k}", e)
+            if k not in self.d.state:
+                self.out.append(f"status.track.{k}: no state variable {k!r} (declare it in "
+                                f"[state])")
+
+    def _io(self, where: str, io: IoDef | None) -> None:
+        if io is None:
+            return
+        self._reg_key(f"{where}.state", io.state)
+        for k in ("invert", "functions"):
+            v = getattr(io, k)
+            if v is not None:
+                self._reg_key(f"{where}.{k}", v)
+        if io.functions is None and io.codes:
+            self.out.append(f"{where}.codes: function codes need 'functions' (the registers "
+                            f"that assign them); give fixed wiring with 'bits'")
+
+    def _procedure(self, name: str, proc: Procedure) -> None:
+        where = f"procedures.{name}"
+        params = set(PROCEDURES.get(name, ("", ()))[1]) | {p.name for p in proc.params}
+        self._names(f"{where}.supported", proc.supported)
+        self._names(f"{where}.what", proc.what, params)
+        if name == "learn":
+            for i, step in enumerate(proc.steps):
+                if step.action != "read":
+                    self.out.append(f"{where}.steps[{i}]: learn only reads (it runs when a "
+                                    f"viewing command opens the drive); write in setup")
+        for i, step in enumerate(proc.steps):
+            self._step(f"{where}.steps[{i}]", step, params)
+
+    def _step(self, where: str, step: Step, params: set[str]) -> None:
+        for field in ("when", "block", "check", "wait", "return_", "bits_set", "bits_clear",
+                      "bits_toggle", "timeout"):
+            self._names(f"{where}.{field.rstrip('_')}", getattr(step, field), params)
+        self._names(f"{where}.fail", step.fail, params)
+        self._names(f"{where}.message", step.message, params)
+        if step.write is not None:
+            for key, item in step.write.items():
+                self._target(f"{where}.write", key, params)
+                self._names(f"{where}.write.{key}", item.value, params)
+        if step.read is not None:
+            for j, item in enumerate(step.read):
+                if isinstance(item, str) and "[" in item:
+                    self._target(f"{where}.read[{j}]", item, params)
+                else:
+                    self._span(f"{where}.read[{j}]", item)
+        if step.modify is not None:
+            self._target(f"{where}.modify", step.modify, params)
+        if step.call is not None and step.call not in self.d.procedures:
+            self.out.append(f"{where}.call: no procedure {step.call!r}")
+        for k, e in step.args.items():
+            self._names(f"{where}.args.{k}", e, params)
+        if step.set is not None:
+            for k, e in step.set.items():
+                if k not in self.d.state:
+                    self.out.append(f"{where}.set.{k}: no state variable {k!r} (declare it "
+                                    f"in [state])")
+                self._names(f"{where}.set.{k}", e, params)
+
+    def _target(self, where: str, key: str, params: set[str]) -> None:
+        """A written register: ``key`` or ``key[index expression]``."""
+        m = re.fullmatch(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[(.+)\])?", key.strip())
+        if m is None:
+            self.out.append(f"{where}: {key!r} is not a register (KEY or KEY[index])")
+            return
+        base, index = m.groups()
+        if base not in self.regs:
+            self.out.append(f"{where}: no register {base!r} (registers: {_some(self.regs)})")
+            return
+        reg = self.regs[base]
+        if index is None and reg.array:
+            self.out.append(f"{where}: register {base} is a table: name an entry, "
+                            f"{base}[index]")
+        if index is not None:
+            if not reg.array:
+                self.out.append(f"{where}: register {base} is not a table")
+            try:
+                self._names(f"{where}", Expr.parse(index), params)
+            except ExprError as exc:
+                self.out.append(f"{where}: {exc}")
+
+    def _twin(self) -> None:
+        t = self.d.twin
+        names = _TWIN_NAMES
+        self._names("twin.starts", t.starts, names)
+        self._names("twin.limits.stop", t.limits.stop, names)
+        self._names("twin.limits.decel", t.limits.decel, names)
+        self._names("twin.eeprom_write_through", t.eeprom_write_through, names)
+        self._names("twin.enabled", t.enabled, names)
+        for i, trig in enumerate(t.on_write):
+            where = f"twin.on_write[{i}]"
+            self._reg_key(f"{where}.register", trig.reg)
+            self._names(f"{where}.when", trig.when, names)
+            allowed = TWIN_ACTIONS[trig.do]
+            for field in ("target", "distance", "speed", "accel", "decel", "creep", "method",
+                          "offset", "position"):
+                e = getattr(trig, field)
+                if e is None:
+                    continue
+                if field not in allowed:
+                    self.out.append(f"{where}.{field}: action {trig.do} takes "
+                                    f"{', '.join(allowed) or 'no parameters'}")
+                self._names(f"{where}.{field}", e, names)
+
+
+def _object_kind(name: str) -> str | None:
+    """Which of ``[cia402]``'s units an object's registers take."""
+    if name in ("position_actual_value", "target_position", "home_offset"):
+        return "position"
+    if name in ("velocity_actual_value", "profile_velocity", "target_velocity",
+                "homing_speed_search", "homing_speed_zero"):
+        return "velocity"
+    if name in ("profile_acceleration", "profile_deceleration", "quick_stop_deceleration",
+                "homing_acceleration"):
+        return "acceleration"
+    return None
+
+
+def _width_lo(d: RegisterDef) -> int:
+    bits = 16 * d.words
+    return -(1 << (bits - 1)) if d.signed else 0
+
+
+def _width_hi(d: RegisterDef) -> int:
+    bits = 16 * d.words
+    return (1 << (bits - 1)) - 1 if d.signed else (1 << bits) - 1
+
+
+def _some(keys: Iterable[str], n: int = 12) -> str:
+    ks = list(keys)
+    return ", ".join(ks[:n]) + (", ..." if len(ks) > n else "") if ks else "none"

@@ -1,0 +1,1241 @@
+"""The command engine: a ``DriveProfile`` driven by a drive description.
+
+It runs the description's procedures step by step (register and block writes with values
+computed from the call, command codes, control-word bits, read-modify-writes, read-backs
+and checks, bounded waits, calls of other procedures), polls and decodes the status, and
+learns what decoding needs with reads only (``learn``) apart from the writes of ``setup``.
+Every procedure is first run dry, without I/O: every value it will write is computed and
+range-checked before the first frame, so a bad argument never leaves a command half-sent.
+
+``profile_class(description)`` makes the profile class of a description; the axis layer
+above uses it like any hand-written profile.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import re
+from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Annotated, Any, ClassVar, Literal
+
+import anyio
+from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, create_model
+
+from drivebus.bus import Priority, SlaveHandle
+from drivebus.clock import monotonic
+from drivebus.drives.base import (
+    DriveOptions,
+    DriveProfile,
+    HomingParams,
+    HomingSwitches,
+    MoveParams,
+    Parameter,
+    WriteThrough,
+)
+from drivebus.drives.description import PROCEDURES, Description, Procedure, Reg, Step
+from drivebus.drives.expr import Expr, ExprError, Unknown
+from drivebus.drives.registers import Register, WordOrder
+from drivebus.drives.status import DriveIdentity, DriveStatus
+from drivebus.drives.units import Kind
+from drivebus.drives.values import Attrs, IoSignals, RegValue, Table, Unread, reg_value
+from drivebus.errors import (
+    ConfigError,
+    DriveAlarm,
+    LimitViolation,
+    MotionError,
+    NotSupported,
+    StateError,
+)
+
+__all__ = ["DescribedProfile", "ReadPlan", "plan_reads", "profile_class"]
+
+_PRIORITY = {"emergency": Priority.EMERGENCY, "command": Priority.COMMAND,
+             "config": Priority.CONFIG, "poll": Priority.POLL}
+_DEFAULT_PRIORITY = {
+    "learn": Priority.CONFIG, "setup": Priority.CONFIG, "save_parameters": Priority.CONFIG,
+    "stop": Priority.EMERGENCY, "emergency_stop": Priority.EMERGENCY,
+}
+INPUT = 1 << 16
+"""Where input registers' words sit in a read's words (``INPUT + address``)."""
+_TARGET = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[(.+)\])?")
+_MAX_DEPTH = 8
+
+
+# -- reads ----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ReadPlan:
+    """Which registers to read and in which transactions."""
+
+    blocks: tuple[tuple[int, int], ...]
+    """(first address, count) per FC03."""
+    regs: tuple[tuple[Reg, int | None], ...]
+    """(register, table index) read, each decoded from the blocks' words."""
+    input_blocks: tuple[tuple[int, int], ...] = ()
+    """(first address, count) per FC04, for input registers."""
+
+
+def plan_reads(
+    targets: Iterable[tuple[Reg, int | None]], *, max_read: int, max_hole: int,
+    spans: Iterable[tuple[int, int]] = (),
+) -> ReadPlan:
+    """Cover ``targets`` (and the address ``spans`` given whole) with as few reads as
+    ``max_read`` registers per read and gaps of at most ``max_hole`` allow."""
+    wanted: set[int] = set()
+    inputs: set[int] = set()
+    regs = []
+    for reg, index in targets:
+        r = reg.at(index) if reg.array else reg.register
+        space = inputs if reg.d.input else wanted
+        space.add(r.address)
+        if r.words == 2:
+            space.add(r.low_address if r.low_address is not None else r.address + 1)
+        regs.append((reg, index))
+    for first, last in spans:
+        wanted.update(range(first, last + 1))
+    return ReadPlan(_blocks(wanted, max_read, max_hole), tuple(regs),
+                    _blocks(inputs, max_read, max_hole))
+
+
+def _blocks(addresses: set[int], max_read: int, max_hole: int) -> tuple[tuple[int, int], ...]:
+    blocks: list[tuple[int, int]] = []
+    for a in sorted(addresses):
+        if blocks:
+            start, count = blocks[-1]
+            end = start + count  # next address after the block
+            if a - end <= max_hole and a - start + 1 <= max_read:
+                blocks[-1] = (start, a - start + 1)
+                continue
+        blocks.append((a, 1))
+    return tuple(blocks)
+
+
+# -- evaluation contexts -----------------------------------------------------------------
+
+
+class _Last:
+    """``last.REGISTER``: the physical value this profile last wrote (None if never)."""
+
+    __slots__ = ("_values",)
+
+    def __init__(self, values: Mapping[str, Any]) -> None:
+        self._values = values
+
+    def __getattr__(self, key: str) -> Any:
+        if key.startswith("_"):
+            raise AttributeError(key)
+        return self._values.get(key)
+
+
+@dataclass
+class _Run:
+    """One run of a procedure: its arguments, what it read and wrote, dry or not."""
+
+    proc: str
+    args: dict[str, Any]
+    dry: bool
+    priority: Priority
+    depth: int = 0
+    values: dict[str, Any] = field(default_factory=dict)
+    """Register key -> value (a ``Table`` for tables) read by this run."""
+    written: dict[str, Any] = field(default_factory=dict)
+    """Register (or ``key[index]``) -> physical value written by this run."""
+    result: Any = None
+    home: Attrs | None = None
+    trace: list[tuple[str, Reg, int | None, int, str]] = field(default_factory=list)
+    """(step action, register, index, raw, source expression) of every value written."""
+
+
+@dataclass
+class _Item:
+    reg: Reg
+    index: int | None
+    register: Register
+    value: Any
+    source: Expr
+    nonzero: bool
+    raw: int = 0
+    physical: Any = None
+
+    @property
+    def key(self) -> str:
+        return self.reg.key if self.index is None else f"{self.reg.key}[{self.index}]"
+
+
+class DescribedProfile(DriveProfile):
+    """A profile that runs a drive description (the command engine)."""
+
+    description: ClassVar[Description]
+    _status_plan: ClassVar[ReadPlan]
+    _identity_plan: ClassVar[ReadPlan | None]
+    _extra_plans: ClassVar[tuple[tuple[Expr, ReadPlan], ...]]
+
+    def __init__(
+        self, slave: SlaveHandle, *, pulses_per_rev: int | None = None, **options: Any
+    ) -> None:
+        d = self.description
+        self.check_options(options)
+        ppr = d.units.pulses_per_rev.default if pulses_per_rev is None else pulses_per_rev
+        super().__init__(slave, pulses_per_rev=ppr)
+        values = {k: (o.default if k not in options or options[k] is None else options[k])
+                  for k, o in d.options.items()}
+        self.options_given = dict(values)
+        self.option = Attrs("option", values)
+        self.state: dict[str, Any] = dict(d.state)
+        self.last: dict[str, Any] = {}
+        self.learned: dict[str, Any] = {}
+        self._learned = False
+        self._signal_due: dict[str, float] = {}
+        self.signals: dict[str, Any] = {}
+        """The latest value of each of the description's signals (``read_signals``)."""
+        timeout = d.link.timing.response_timeout
+        if timeout is not None and slave.timeout < timeout:
+            slave.timeout = timeout
+
+    # -- declarations the base class and machine files use ---------------------------------
+
+    @classmethod
+    def settings_problem(cls, settings: Any) -> str | None:
+        """As declared, and the description's format rules at some baud rates."""
+        problem = super().settings_problem(settings)
+        if problem is not None:
+            return problem
+        for rule in cls.description.link.format_rules:
+            if settings.baudrate in rule.baud_rates and settings.format not in rule.formats:
+                why = f" ({rule.why})" if rule.why else ""
+                return (f"the {cls.family} drive runs {'/'.join(rule.formats)} only at "
+                        f"{settings.baudrate} baud{why}")
+        return None
+
+    def check_supported(self, procedure: str) -> None:
+        """``NotSupported`` if the description lacks ``procedure`` (or its condition on
+        the options does not hold)."""
+        self._procedure(procedure, {})
+
+    def _procedure(self, name: str, args: Mapping[str, Any]) -> Procedure:
+        d = self.description
+        proc = d.procedures.get(name)
+        what = self._what(name, proc, args)
+        if proc is None:
+            raise self.unsupported(what)
+        if proc.unsupported is not None:
+            raise self.unsupported(what, proc.unsupported)
+        if proc.supported is not None and not proc.supported(self._scope(None)):
+            raise self.unsupported(what, proc.why)
+        return proc
+
+    def _what(self, name: str, proc: Procedure | None, args: Mapping[str, Any]) -> str:
+        if proc is not None and proc.what is not None:
+            try:
+                return proc.what({**self._scope(None), **args})
+            except (ExprError, Unknown):
+                return str(proc.what)
+        return self.description.procedure_what(name)
+
+    # -- evaluation -------------------------------------------------------------------------
+
+    def _scope(self, run: _Run | None, values: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """The names an expression sees."""
+        d = self.description
+        scope: dict[str, Any] = {}
+        for key in d.regs:
+            scope[key] = Unread(key)
+        scope.update(self.learned)
+        if values is not None:
+            scope.update(values)
+        if run is not None:
+            scope.update(run.values)
+        scope.update(d.constants)
+        scope["option"] = self.option
+        scope["state"] = Attrs("state", self.state)
+        scope["last"] = _Last(self.last)
+        scope["pulses_per_rev"] = self.pulses_per_rev
+        scope["input"] = IoSignals(d, "inputs", scope)
+        scope["output"] = IoSignals(d, "outputs", scope)
+        if run is not None:
+            scope.update(run.args)
+            if run.home is not None:
+                scope["home"] = run.home
+        return scope
+
+    # -- running procedures -----------------------------------------------------------------
+
+    async def run(self, name: str, *args: Any, **kwargs: Any) -> Any:
+        """Run procedure ``name`` with its parameters (positional or by name)."""
+        d = self.description
+        proc = d.procedures.get(name)
+        params = list(PROCEDURES[name][1]) if name in PROCEDURES else \
+            [p.name for p in (proc.params if proc is not None else [])]
+        if len(args) > len(params):
+            raise TypeError(f"{name}() takes {len(params)} arguments, got {len(args)}")
+        call = dict(zip(params, args, strict=False))
+        for k, v in kwargs.items():
+            if k not in params:
+                raise TypeError(f"{name}() has no parameter {k!r}")
+            call[k] = v
+        if proc is not None:
+            for p in proc.params:
+                call.setdefault(p.name, p.default)
+        for p in params:
+            call.setdefault(p, None)
+        return await self._run(name, call)
+
+    async def _run(self, name: str, args: dict[str, Any], *, depth: int = 0,
+                   priority: Priority | None = None) -> Any:
+        if depth > _MAX_DEPTH:
+            raise ConfigError(f"{self.family}: procedure {name} calls itself too deep")
+        proc = self._procedure(name, args)
+        prio = priority or self._priority(name, proc)
+        home = self._home_attrs(args) if name == "home" else None
+        dry = _Run(name, dict(args), True, prio, depth, home=home)
+        self._dry(proc, dry)
+        run = _Run(name, dict(args), False, prio, depth, home=home)
+        try:
+            await self._steps(proc.steps, run)
+        except Unknown as exc:
+            raise ConfigError(f"{self.family}: procedure {name} uses what it has not read "
+                              f"({exc}): read it in a step before") from None
+        return run.result
+
+    def _priority(self, name: str, proc: Procedure) -> Priority:
+        if proc.priority is not None:
+            return _PRIORITY[proc.priority]
+        return _DEFAULT_PRIORITY.get(name, Priority.COMMAND)
+
+    def _dry(self, proc: Procedure, run: _Run) -> None:
+        """Evaluate ``proc`` without I/O: every value it writes is range-checked now, up to
+        the first step that needs what the drive answers."""
+        try:
+            for step in proc.steps:
+                if step.when is not None and not step.when(self._scope(run)):
+                    continue
+                if step.action == "write":
+                    self._items(step, run)
+                elif step.action == "call":
+                    assert step.call is not None
+                    sub = self._procedure(step.call, {})
+                    args = self._args(step, run)
+                    self._dry(sub, _Run(step.call, args, True, run.priority, run.depth + 1))
+                elif step.action == "fail":
+                    break  # raised for real by the run
+                elif step.action == "check" and step.error == "limit":
+                    assert step.check is not None
+                    if not step.check(self._scope(run)):  # Unknown: not known before I/O
+                        self._fail_check(step, run)
+                elif step.action in ("read", "wait", "modify", "check"):
+                    break  # what follows depends on the drive's answers
+                elif step.action == "set":
+                    continue
+                elif step.action == "return":
+                    break
+                if step.end:
+                    break
+        except Unknown:
+            pass
+
+    def _args(self, step: Step, run: _Run) -> dict[str, Any]:
+        scope = self._scope(run)
+        args = {k: e(scope) for k, e in step.args.items()}
+        assert step.call is not None
+        for p in PROCEDURES.get(step.call, ("", ()))[1]:
+            args.setdefault(p, None)
+        return args
+
+    async def _steps(self, steps: Sequence[Step], run: _Run, *,
+                     stop_at_start: bool = False, from_start: bool = False) -> None:
+        started = False
+        for step in steps:
+            if step.start:
+                started = True
+                if stop_at_start:
+                    return
+            if from_start and not started:
+                continue
+            if step.when is not None and not step.when(self._scope(run)):
+                continue
+            await self._step(step, run)
+            if step.end or step.action == "return":
+                return
+
+    async def _step(self, step: Step, run: _Run) -> None:
+        prio = _PRIORITY[step.priority] if step.priority else run.priority
+        action = step.action
+        if action == "write":
+            await self._write(step, run, prio)
+        elif action == "read":
+            assert step.read is not None
+            run.values.update(await self._read_items(step.read, run, prio))
+        elif action == "modify":
+            await self._modify(step, run, prio)
+        elif action == "call":
+            assert step.call is not None
+            await self._run(step.call, self._args(step, run), depth=run.depth + 1,
+                            priority=_PRIORITY[step.priority] if step.priority else None)
+        elif action == "check":
+            assert step.check is not None
+            if not step.check(self._scope(run)):
+                self._fail_check(step, run)
+        elif action == "wait":
+            await self._wait(step, run, prio)
+        elif action == "set":
+            assert step.set is not None
+            scope = self._scope(run)
+            updates = {k: e(scope) for k, e in step.set.items()}
+            self.state.update(updates)
+        elif action == "fail":
+            assert step.fail is not None
+            raise self.unsupported(self._what(run.proc, None, run.args),
+                                   step.fail(self._scope(run)))
+        elif action == "return":
+            assert step.return_ is not None
+            run.result = step.return_(self._scope(run))
+
+    def _fail_check(self, step: Step, run: _Run) -> None:
+        scope = self._scope(run)
+        text = step.message(scope) if step.message is not None else \
+            f"check {step.check} failed after {run.proc}"
+        msg = f"{self.family}: {text}"
+        if step.error == "alarm":
+            code, alarm_text = self._alarm_of(scope)
+            raise DriveAlarm(msg, code=code, text=alarm_text)
+        if step.error == "motion":
+            raise MotionError(msg)
+        if step.error == "limit":
+            raise LimitViolation(text)
+        raise StateError(msg)
+
+    def _alarm_of(self, scope: Mapping[str, Any]) -> tuple[int | None, str]:
+        alarms = self.description.alarms
+        if alarms is None:
+            return None, ""
+        v = scope.get(alarms.reg)
+        if v is None or isinstance(v, Unread):
+            return None, ""
+        return int(v), self.alarm_text(int(v))
+
+    # -- writes ---------------------------------------------------------------------------
+
+    def _target(self, key: str, scope: Mapping[str, Any]) -> tuple[Reg, int | None]:
+        m = _TARGET.fullmatch(key.strip())
+        assert m is not None  # checked when the description was loaded
+        reg = self.description.regs[m.group(1)]
+        index = None
+        if m.group(2) is not None:
+            index = Expr.parse(m.group(2))(scope)
+            if isinstance(index, float) and index == int(index):
+                index = int(index)
+            if isinstance(index, str) and index in reg.d.names:
+                index = reg.d.first + reg.d.names.index(index)
+        reg.at(index)  # LimitViolation for an index outside the table
+        return reg, index
+
+    def _items(self, step: Step, run: _Run) -> list[_Item]:
+        """The step's writes, evaluated, converted to raw values and range-checked."""
+        assert step.write is not None
+        scope = self._scope(run)
+        items = []
+        for key, w in step.write.items():
+            reg, index = self._target(key, scope)
+            value = w.value(scope)
+            items.append(_Item(reg, index, reg.at(index), value, w.value, w.nonzero))
+        for item in items:  # ramp times last: they refer to the speeds written with them
+            if item.reg.codec.kind is not Kind.RAMP:
+                self._encode(item, items, run)
+        for item in items:
+            if item.reg.codec.kind is Kind.RAMP:
+                self._encode(item, items, run)
+        for item in items:
+            run.written[item.key] = item.physical
+            run.trace.append(("write", item.reg, item.index, item.raw, item.source.source))
+        return items
+
+    def _encode(self, item: _Item, items: Sequence[_Item], run: _Run) -> None:
+        codec = item.reg.codec
+        ref = None
+        if codec.kind is Kind.RAMP and isinstance(codec.ramp, str):
+            ref = self._reference(codec.ramp, item.index, items, run)
+        if item.value is None:
+            raise LimitViolation(f"no value for register {item.register.name} (address "
+                                 f"{item.register.address}): {item.source} is not given")
+        raw = codec.to_raw(item.register, item.value, ppr=self.pulses_per_rev, ref_rpm=ref)
+        if item.nonzero and raw == 0:
+            reg = item.register
+            unit = f" {reg.unit}" if reg.unit else ""
+            raise LimitViolation(
+                f"value {item.value} {codec.drive_unit} for register {reg.name} (address "
+                f"{reg.address}) is outside its usable range {max(reg.lo, 1)}..{reg.hi}{unit} "
+                f"for this command")
+        item.raw = raw
+        item.physical = codec.to_physical(raw, ppr=self.pulses_per_rev, ref_rpm=ref)
+
+    def _reference(self, key: str, index: int | None, items: Sequence[_Item],
+                   run: _Run) -> float | None:
+        """The speed a ramp time refers to: written with it, earlier in this run, or last."""
+        ref = key if index is None or not self.description.regs[key].array else \
+            f"{key}[{index}]"
+        for it in items:
+            if it.key == ref and it.reg.codec.kind is not Kind.RAMP:
+                return float(it.physical)
+        if ref in run.written:
+            return float(run.written[ref])
+        last = self.last.get(ref)
+        return None if last is None else float(last)
+
+    async def write(self, reg: Register, value: int, *, priority: Priority = Priority.CONFIG,
+                    idempotent: bool = True) -> None:
+        """Write one register with the function codes the drive serves (FC06 where it has
+        it, else FC16; a 32-bit value in one FC16, or word by word without FC16)."""
+        fcs = self.description.link.functions
+        words = reg.encode(value)
+        if len(words) == 1 and 6 not in fcs:
+            await self.slave.write_registers(reg.address, words, priority=priority,
+                                             idempotent=idempotent)
+            return
+        if len(words) == 2 and 16 not in fcs:
+            low = reg.low_address if reg.low_address is not None else reg.address + 1
+            for address, word in sorted(((reg.address, words[0]), (low, words[1]))):
+                await self.slave.write_register(address, word, priority=priority,
+                                                idempotent=idempotent)
+            return
+        await super().write(reg, value, priority=priority, idempotent=idempotent)
+
+    async def _write(self, step: Step, run: _Run, prio: Priority) -> None:
+        items = self._items(step, run)
+        block = step.block is not None and bool(step.block(self._scope(run))) and \
+            16 in self.description.link.functions
+        idem = step.idempotent
+        if block:
+            for group in _consecutive(items):
+                await self.write_block([(it.register, it.raw) for it in group], priority=prio,
+                                       idempotent=idem)
+        else:
+            for it in items:
+                r = it.register
+                if step.single and r.words == 2:
+                    words = r.encode(it.raw)
+                    low = r.low_address if r.low_address is not None else r.address + 1
+                    for address, word in sorted(((r.address, words[0]), (low, words[1]))):
+                        await self.slave.write_register(address, word, priority=prio,
+                                                        idempotent=idem)
+                else:
+                    await self.write(r, it.raw, priority=prio, idempotent=idem)
+        for it in items:
+            self.last[it.key] = it.physical
+
+    async def _modify(self, step: Step, run: _Run, prio: Priority) -> None:
+        assert step.modify is not None
+        scope = self._scope(run)
+        reg, index = self._target(step.modify, scope)
+        r = reg.at(index)
+        value = await self.read(r, priority=prio)
+        set_bits = int(step.bits_set(scope)) if step.bits_set is not None else 0
+        clear = int(step.bits_clear(scope)) if step.bits_clear is not None else 0
+        toggle = int(step.bits_toggle(scope)) if step.bits_toggle is not None else 0
+        new = ((value | set_bits) & ~clear) ^ toggle
+        await self.write(r, new, priority=prio, idempotent=False)
+        if step.pulse:
+            await self.write(r, value, priority=prio, idempotent=False)
+        else:
+            self.last[reg.key if index is None else f"{reg.key}[{index}]"] = new
+        run.values[reg.key] = RegValue(new if not step.pulse else value, reg)
+
+    async def _wait(self, step: Step, run: _Run, prio: Priority) -> None:
+        assert step.wait is not None
+        timeout = float(step.timeout(self._scope(run)))
+        targets = step.read
+        with anyio.fail_after(timeout):
+            while True:
+                if targets:
+                    run.values.update(await self._read_items(targets, run, prio))
+                else:
+                    run.values.update(await self._poll_values(self._status_plan, prio))
+                if step.wait(self._scope(run)):
+                    return
+                await anyio.sleep(step.every)  # poll period; the read is the condition
+
+    # -- reads -----------------------------------------------------------------------------
+
+    def _read_targets(self, items: Sequence[str | list[str]],
+                      scope: Mapping[str, Any]) -> tuple[list[tuple[Reg, int | None]],
+                                                         list[tuple[int, int]]]:
+        regs = self.description.regs
+        targets: list[tuple[Reg, int | None]] = []
+        spans: list[tuple[int, int]] = []
+        for item in items:
+            if isinstance(item, list):
+                first_reg, first_i = self._target(item[0], scope)
+                last_reg, last_i = self._target(item[1], scope)
+                a = first_reg.at(first_i).address
+                last = last_reg.at(last_i)
+                b = (last.low_address if last.low_address is not None else
+                     last.address + last.words - 1)
+                spans.append((a, b))
+                for reg in regs.values():
+                    for index in (reg.indices if reg.array else [None]):
+                        r = reg.at(index)
+                        if a <= r.address <= b:
+                            targets.append((reg, index))
+            elif "[" in item:
+                targets.append(self._target(item, scope))
+            else:
+                reg = regs[item]
+                targets.extend((reg, i) for i in (reg.indices if reg.array else [None]))
+        return targets, spans
+
+    async def _read_items(self, items: Sequence[str | list[str]], run: _Run | None,
+                          prio: Priority) -> dict[str, Any]:
+        targets, spans = self._read_targets(items, self._scope(run))
+        link = self.description.link
+        plan = plan_reads(targets, max_read=link.max_read, max_hole=link.max_hole, spans=spans)
+        return await self._poll_values(plan, prio)
+
+    async def _read_words(self, plan: ReadPlan, prio: Priority) -> dict[int, int]:
+        """The words of ``plan``: holding registers by address, input registers by
+        ``INPUT + address``."""
+        words: dict[int, int] = {}
+        for start, count in plan.blocks:
+            got = await self.slave.read_holding_registers(start, count, priority=prio)
+            words.update(zip(range(start, start + count), got, strict=True))
+        for start, count in plan.input_blocks:
+            got = await self.slave.read_input_registers(start, count, priority=prio)
+            words.update(zip(range(INPUT + start, INPUT + start + count), got, strict=True))
+        return words
+
+    async def _poll_values(self, plan: ReadPlan, prio: Priority,
+                           raw_words: dict[str, list[int]] | None = None) -> dict[str, Any]:
+        words = await self._read_words(plan, prio)
+        return self._decode(plan, words, raw_words)
+
+    def _decode(self, plan: ReadPlan, words: Mapping[int, int],
+                raw_words: dict[str, list[int]] | None = None) -> dict[str, Any]:
+        """Register key -> value for every register of ``plan`` (ramp times after the
+        speeds they refer to)."""
+        out: dict[str, Any] = {}
+        tables: dict[str, dict[int, Any]] = {}
+        pending = []
+        for reg, index in plan.regs:
+            if reg.codec.kind is Kind.RAMP:
+                pending.append((reg, index))
+                continue
+            self._decode_one(reg, index, words, out, tables, raw_words)
+        for reg, index in pending:
+            self._decode_one(reg, index, words, out, tables, raw_words)
+        for key, entries in tables.items():
+            out[key] = Table(self.description.regs[key], entries)
+        return out
+
+    def _decode_one(self, reg: Reg, index: int | None, words: Mapping[int, int],
+                    out: dict[str, Any], tables: dict[str, dict[int, Any]],
+                    raw_words: dict[str, list[int]] | None) -> None:
+        r = reg.at(index)
+        base = INPUT if reg.d.input else 0
+        if r.words == 2:
+            low = r.low_address if r.low_address is not None else r.address + 1
+            ws = [words[base + r.address], words[base + low]]
+        else:
+            ws = [words[base + r.address]]
+        raw = r.decode(ws)
+        ref = None
+        if reg.codec.kind is Kind.RAMP and isinstance(reg.codec.ramp, str):
+            ref_val = out.get(reg.codec.ramp, self.last.get(reg.codec.ramp))
+            ref = None if ref_val is None or isinstance(ref_val, Table) else float(ref_val)
+        physical = reg.codec.to_physical(raw, ppr=self.pulses_per_rev, ref_rpm=ref)
+        value = reg_value(reg, raw, physical)
+        if index is not None and reg.array:
+            tables.setdefault(reg.key, {})[index] = value
+        else:
+            out[reg.key] = value
+            if raw_words is not None:
+                raw_words[reg.key] = ws
+
+    # -- learn and setup -------------------------------------------------------------------
+
+    async def learn(self) -> None:
+        """Read what decoding needs (the description's ``learn`` reads); never writes."""
+        proc = self.description.procedures.get("learn")
+        if proc is not None and proc.unsupported is None:
+            run = _Run("learn", {}, False, Priority.CONFIG)
+            await self._steps(proc.steps, run)
+            self.learned.update(run.values)
+        self._learned = True
+
+    async def setup(self) -> None:
+        """The description's ``setup`` writes (before the first command), then ``learn``."""
+        proc = self.description.procedures.get("setup")
+        if proc is not None and proc.unsupported is None:
+            await self._run("setup", {})
+        await self.learn()
+
+    def volatile_settings(self) -> list[tuple[Register, int]]:
+        """The (register, value) pairs of the setup steps marked volatile."""
+        proc = self.description.procedures.get("setup")
+        if proc is None or proc.unsupported is not None:
+            return []
+        out: list[tuple[Register, int]] = []
+        run = _Run("setup", {}, True, Priority.CONFIG)
+        for step in proc.steps:
+            if step.when is not None and not step.when(self._scope(run)):
+                continue
+            if step.action == "write" and step.volatile:
+                out.extend((it.register, it.raw) for it in self._items(step, run))
+        return out
+
+    # -- status ------------------------------------------------------------------------------
+
+    async def read_status(self, *, priority: Priority = Priority.POLL) -> DriveStatus:
+        """The status poll, decoded as the description says."""
+        if not self._learned and self.description.status.learn_first:
+            await self.learn()
+        raw_words: dict[str, list[int]] = {}
+        values = await self._poll_values(self._status_plan, priority, raw_words)
+        try:
+            for when, plan in self._extra_plans:
+                if when(self._scope(None, values)):
+                    values.update(await self._poll_values(plan, priority, raw_words))
+            await self._read_due_signals(priority)
+            return self.decode_status(values, raw_words)
+        except Unknown as exc:
+            raise ConfigError(f"{self.family}: its status decoding uses what the poll does "
+                              f"not read ({exc}): add it to [status] poll") from None
+
+    def decode_status(self, values: Mapping[str, Any],
+                      raw_words: Mapping[str, list[int]] | None = None) -> DriveStatus:
+        """A ``DriveStatus`` from the polled register values."""
+        d = self.description
+        s = d.status
+        fields = d.status_exprs
+        scope = self._scope(None, values)
+        scope["words"] = Attrs("words", dict(raw_words or {}))
+        if s.track:  # state trackers first: the fields see this poll's state
+            updates = {k: e(scope) for k, e in s.track.items()}
+            self.state.update(updates)
+            scope = self._scope(None, values)
+            scope["words"] = Attrs("words", dict(raw_words or {}))
+
+        def flag(name: str) -> bool:
+            e = fields.get(name)
+            return bool(e(scope)) if e is not None else False
+
+        alarm = flag("alarm")
+        code = None
+        text = ""
+        if alarm and "alarm_code" in fields:
+            code = int(fields["alarm_code"](scope))
+            text = self.alarm_text(code) if code else ""
+        position = _physical(fields["position"], scope, d, "position") \
+            if "position" in fields else None
+        velocity = _physical(fields["velocity"], scope, d, "velocity") \
+            if "velocity" in fields else None
+        raw = {k: int(e(scope)) for k, e in s.raw.items()} if s.raw else {
+            k: int(v) for k, v in values.items() if isinstance(v, int)}
+        return DriveStatus(
+            enabled=flag("enabled"),
+            moving=flag("moving"),
+            in_position=flag("in_position"),
+            homed=flag("homed"),
+            alarm=alarm,
+            alarm_code=code,
+            alarm_text=text,
+            limit_positive=flag("limit_positive"),
+            limit_negative=flag("limit_negative"),
+            homing=flag("homing"),
+            position=None if position is None else int(position),
+            velocity_rpm=None if velocity is None else float(velocity),
+            raw=raw,
+            timestamp=monotonic(),
+        )
+
+    def alarm_text(self, code: int) -> str:
+        """The description's text for alarm code ``code`` (flags: each bit's text)."""
+        a = self.description.alarms
+        if a is None:
+            return f"alarm code {code}"
+        if code in a.texts:
+            return a.texts[code]
+        if a.kind == "flags":
+            parts = [t for bit, t in a.texts.items() if code & bit]
+            unknown = code & ~sum(a.texts)
+            if unknown:
+                parts.append(a.unknown({"code": code, "bits": unknown}))
+            return "; ".join(parts)
+        return a.unknown({"code": code, "bits": code})
+
+    async def read_signals(self, names: Iterable[str] | None = None, *,
+                           priority: Priority = Priority.POLL) -> dict[str, Any]:
+        """Read the description's signals (all, or ``names``) now."""
+        d = self.description
+        wanted = list(d.signals) if names is None else list(names)
+        for n in wanted:
+            if n not in d.signals:
+                raise ConfigError(f"{self.family} has no signal {n!r} (it has "
+                                  f"{', '.join(d.signals) or 'none'})")
+        items = [d.signals[n].reg for n in wanted]
+        values = await self._read_items(items, None, priority) if items else {}
+        for n in wanted:
+            self.signals[n] = values.get(d.signals[n].reg)
+            self._signal_due[n] = monotonic() + d.signals[n].every
+        return {n: self.signals[n] for n in wanted}
+
+    async def _read_due_signals(self, priority: Priority) -> None:
+        d = self.description
+        if not d.signals:
+            return
+        now = monotonic()
+        due = [n for n in d.signals if self._signal_due.get(n, 0.0) <= now]
+        if due:
+            await self.read_signals(due, priority=priority)
+
+    # -- identity -----------------------------------------------------------------------------
+
+    def is_own_identity(self, ident: DriveIdentity) -> bool:
+        """The description's ``identify.match`` on what ``read_identity`` read."""
+        ident_d = self.description.identify
+        if ident_d is None or ident_d.match is None or not ident.raw:
+            return False
+        values = getattr(ident, "_values", None)
+        scope = self._scope(None, values if values is not None else ident.raw)
+        try:
+            return bool(ident_d.match(scope))
+        except (ExprError, Unknown):
+            return False
+
+    async def read_identity(self) -> DriveIdentity:
+        """The registers of ``identify.read``, with the model and firmware texts."""
+        ident_d = self.description.identify
+        if ident_d is None or ident_d.cannot:
+            return DriveIdentity(self.family)
+        values = await self._read_items(list(ident_d.read), None, Priority.CONFIG)
+        scope = self._scope(None, values)
+        raw = {k: int(e(scope)) for k, e in ident_d.raw.items()} if ident_d.raw else {
+            k: int(v) for k, v in values.items() if isinstance(v, int)}
+        return DriveIdentity(self.family, model=ident_d.model(scope),
+                             firmware=ident_d.firmware(scope), raw=raw)
+
+    # -- procedures -----------------------------------------------------------------------
+
+    async def enable(self) -> None:
+        """The description's ``enable``."""
+        await self.run("enable")
+
+    async def disable(self) -> None:
+        """The description's ``disable``."""
+        await self.run("disable")
+
+    def _move_args(self, target: int | None, params: MoveParams, name: str) -> dict[str, Any]:
+        key = "distance" if name == "move_relative" else "target"
+        return {key: target, "speed": params.speed_rpm, "accel": params.accel_rps2,
+                "decel": params.decel_rps2}
+
+    def _dry_trace(self, name: str, args: dict[str, Any]) -> list[tuple[str, Reg, int | None,
+                                                                         int, str]]:
+        proc = self._procedure(name, args)
+        run = _Run(name, args, True, Priority.COMMAND)
+        self._dry(proc, run)
+        return run.trace
+
+    def check_move(self, params: MoveParams) -> None:
+        """Range-check what a move with ``params`` would write (no I/O)."""
+        self._dry_trace("move_absolute", self._move_args(0, params, "move_absolute"))
+
+    def quantize(self, params: MoveParams) -> MoveParams:
+        """The speed and ramps the drive runs after its registers' rounding."""
+        try:
+            trace = self._dry_trace("move_absolute", self._move_args(0, params, "move_absolute"))
+        except (LimitViolation, NotSupported):
+            return params
+        speed = abs(params.speed_rpm)
+        out = {"speed": speed, "accel": params.accel_rps2, "decel": params.decel_rps2}
+        written: dict[str, float] = {}
+        for _, reg, _index, raw, source in trace:
+            name = source.replace("abs(", "").rstrip(")").strip()
+            if name not in out or reg.codec.kind not in (Kind.SPEED, Kind.ACCEL, Kind.RAMP):
+                continue
+            ref = None
+            if reg.codec.kind is Kind.RAMP:
+                ref = written.get("speed", speed)
+            v = reg.codec.to_physical(raw, ppr=self.pulses_per_rev, ref_rpm=ref)
+            if isinstance(v, int | float) and math.isfinite(v):
+                written[name] = abs(float(v))
+        for name, v in written.items():
+            out[name] = v
+        return MoveParams(out["speed"], out["accel"], out["decel"])
+
+    async def move_absolute(self, position: int, params: MoveParams) -> None:
+        """The description's ``move_absolute``."""
+        await self.run("move_absolute", **self._move_args(position, params, "move_absolute"))
+
+    async def prepare_absolute(self, position: int, params: MoveParams) -> None:
+        """``move_absolute`` up to its step marked ``start``."""
+        args = self._move_args(position, params, "move_absolute")
+        proc = self._procedure("move_absolute", args)
+        if not any(s.start for s in proc.steps):
+            await super().prepare_absolute(position, params)
+            return
+        self._dry(proc, _Run("move_absolute", dict(args), True, Priority.COMMAND))
+        run = _Run("move_absolute", dict(args), False, Priority.COMMAND)
+        await self._steps(proc.steps, run, stop_at_start=True)
+        self._prepared_run = run
+
+    async def start_absolute(self) -> None:
+        """The rest of the prepared ``move_absolute``, from its step marked ``start``."""
+        run = getattr(self, "_prepared_run", None)
+        if run is None:
+            await super().start_absolute()
+            return
+        proc = self._procedure("move_absolute", run.args)
+        await self._steps(proc.steps, run, from_start=True)
+
+    async def move_relative(self, distance: int, params: MoveParams) -> None:
+        """The description's ``move_relative``."""
+        await self.run("move_relative", **self._move_args(distance, params, "move_relative"))
+
+    async def speed_run(self, speed_rpm: float, accel_rps2: float, decel_rps2: float) -> None:
+        """The description's ``speed_run`` (signed speed)."""
+        await self.run("speed_run", speed=speed_rpm, accel=accel_rps2, decel=decel_rps2)
+
+    async def stop(self, decel_rps2: float | None = None) -> None:
+        """The description's ``stop``."""
+        await self.run("stop", decel=decel_rps2)
+
+    async def emergency_stop(self) -> None:
+        """The description's ``emergency_stop``."""
+        await self.run("emergency_stop")
+
+    def homing_mode(self, method: str | None) -> int | None:
+        """The code of homing method ``method`` (a name, or its code as digits)."""
+        return self._home_method(method)[1].code
+
+    def _home_method(self, method: str | None) -> tuple[str, Any]:
+        h = self.description.homing
+        if h is None:
+            raise self.unsupported("home")
+        name = next(iter(h.methods)) if method is None else method
+        if name in h.methods:
+            return name, h.methods[name]
+        if isinstance(name, str) and name.isdigit():
+            for n, m in h.methods.items():
+                if m.code == int(name):
+                    return n, m
+        documented = ", ".join(f"{n} ({m.code})" if m.code is not None else n
+                               for n, m in h.methods.items())
+        raise self.unsupported(f"home with method {method!r}", "it documents " + documented)
+
+    def homing_switches(self, method: str | None) -> HomingSwitches:
+        """The limit switches homing with ``method`` homes on or reverses at: the method's
+        ``homes_on``/``reverses_at`` (+1/-1) where it gives them, else its CiA 402
+        method's (17/18 home on a limit switch; 23-30 reverse at the one ahead)."""
+        _, m = self._home_method(method)
+        extras = m.extras
+        if "homes_on" in extras or "reverses_at" in extras:
+            return HomingSwitches(frozenset(extras.get("homes_on", ())),
+                                  frozenset(extras.get("reverses_at", ())))
+        return cia402_homing_switches(m.cia402)
+
+    def _home_attrs(self, args: Mapping[str, Any]) -> Attrs:
+        name, m = self._home_method(args.get("method"))
+        return Attrs("home", {"name": name, "method": name, "code": m.code,
+                              "cia402": m.cia402, **m.extras})
+
+    async def start_homing(self, params: HomingParams) -> None:
+        """The description's ``home`` with the method's code and extras as ``home.*``."""
+        await self.run("home", method=params.method, speed=params.speed_rpm,
+                       creep=params.creep_rpm, accel=params.accel_rps2, offset=params.offset)
+
+    async def clear_alarm(self) -> None:
+        """The description's ``clear_alarm``."""
+        await self.run("clear_alarm")
+
+    async def zero_position(self) -> None:
+        """The description's ``zero_position``."""
+        await self.run("zero_position")
+
+    async def save_parameters(self) -> None:
+        """The description's ``save_parameters``."""
+        await self.run("save_parameters")
+
+    def __getattr__(self, name: str) -> Callable[..., Awaitable[Any]]:
+        """The description's own procedures as methods (``profile.write_position_path(...)``)."""
+        if name.startswith("_"):
+            raise AttributeError(name)
+        d = type(self).__dict__.get("description") or getattr(type(self), "description", None)
+        if d is None or name not in d.procedures or name in PROCEDURES:
+            raise AttributeError(f"{type(self).__name__!r} has no attribute {name!r}")
+
+        async def call(*args: Any, **kwargs: Any) -> Any:
+            return await self.run(name, *args, **kwargs)
+
+        call.__name__ = name
+        call.__doc__ = d.procedures[name].doc or f"The {d.family} procedure {name}."
+        return call
+
+
+def cia402_homing_switches(method: int | None) -> HomingSwitches:
+    """The limit switches CiA 402 homing method ``method`` homes on or reverses at."""
+    if method in (1, 17):
+        return HomingSwitches(homes_on=frozenset({-1}))
+    if method in (2, 18):
+        return HomingSwitches(homes_on=frozenset({1}))
+    if method in (7, 8, 9, 10, 23, 24, 25, 26):
+        return HomingSwitches(reverses_at=frozenset({1}))
+    if method in (11, 12, 13, 14, 27, 28, 29, 30):
+        return HomingSwitches(reverses_at=frozenset({-1}))
+    return HomingSwitches()
+
+
+def _consecutive(items: Sequence[_Item]) -> list[list[_Item]]:
+    """Items grouped into runs of consecutive, contiguous registers (one FC16 each)."""
+    groups: list[list[_Item]] = []
+    for it in items:
+        r = it.register
+        if groups:
+            last = groups[-1][-1].register
+            if last.contiguous and r.contiguous and r.address == last.address + last.words:
+                groups[-1].append(it)
+                continue
+        groups.append([it])
+    return groups
+
+
+def _physical(e: Expr, scope: Mapping[str, Any], d: Description, what: str) -> Any:
+    """A status field's value: a register's physical value, or the expression's."""
+    v = e(scope)
+    if isinstance(v, Unread):
+        raise Unknown(f"status.{what}: register {v.key} was not polled")
+    return v
+
+
+# -- the profile class of a description ----------------------------------------------------
+
+
+def _option_type(o: Any) -> Any:
+    bounds: dict[str, Any] = {}
+    if o.min is not None:
+        bounds["ge"] = o.min
+    if o.max is not None:
+        bounds["le"] = o.max
+    if o.type == "int":
+        return Annotated[StrictInt, Field(**bounds)]
+    if o.type == "float":
+        return Annotated[StrictFloat | StrictInt, Field(**bounds)]
+    if o.type == "bool":
+        return StrictBool
+    if o.type == "str":
+        return StrictStr
+    if o.type == "choice":
+        return Literal[tuple(o.choices)]
+    return dict[Literal[tuple(o.keys)], Literal[tuple(o.choices)]]  # type: ignore[misc]
+
+
+def options_model(d: Description) -> type[DriveOptions]:
+    """The pydantic model of a description's ``drive_options``."""
+    fields: dict[str, Any] = {
+        k: (_option_type(o) | None, Field(None, description=o.doc))
+        for k, o in d.options.items()
+    }
+    return create_model(f"{d.family}Options", __base__=DriveOptions, **fields)
+
+
+def _ppr_allowed(d: Description) -> Any:
+    p = d.units.pulses_per_rev
+    if p.allowed:
+        return tuple(sorted(p.allowed))
+    if p.range is not None:
+        return range(p.range[0], p.range[1] + 1)
+    if p.reg is not None:
+        reg = d.regs[p.reg]
+        if reg.codec.table:
+            return tuple(sorted(reg.codec.table))
+        return range(max(reg.register.lo, 1), reg.register.hi + 1)
+    return range(1, 1 << 31)
+
+
+def _status_plan(d: Description) -> ReadPlan:
+    s = d.status
+    link = d.link
+    items: list[str | list[str]] = list(s.poll)
+    if not items:
+        names: set[str] = set()
+        for e in (*d.status_exprs.values(), *s.raw.values(), *s.track.values()):
+            names |= e.names
+        for io in (d.inputs,):
+            if io is not None and {"input"} & names:
+                names.add(io.state)
+                if io.invert is not None:
+                    names.add(io.invert)
+        learned = _learned_keys(d)
+        items = sorted(n for n in names if n in d.regs and n not in learned)
+    return _plan(d, items, link.max_read, link.max_hole)
+
+
+def _learned_keys(d: Description) -> set[str]:
+    proc = d.procedures.get("learn")
+    out: set[str] = set()
+    if proc is None:
+        return out
+    for step in proc.steps:
+        for item in step.read or []:
+            if isinstance(item, str):
+                out.add(item.split("[", 1)[0])
+    return out
+
+
+def _plan(d: Description, items: Sequence[str | list[str]], max_read: int,
+          max_hole: int) -> ReadPlan:
+    targets: list[tuple[Reg, int | None]] = []
+    spans: list[tuple[int, int]] = []
+    regs = d.regs
+    for item in items:
+        if isinstance(item, list):
+            first = _static_target(d, item[0])
+            last = _static_target(d, item[1])
+            a = first.address
+            b = last.low_address if last.low_address is not None else \
+                last.address + last.words - 1
+            spans.append((a, b))
+            for reg in regs.values():
+                for index in (reg.indices if reg.array else [None]):
+                    if a <= reg.at(index).address <= b:
+                        targets.append((reg, index))
+        else:
+            reg = regs[item.split("[", 1)[0]]
+            targets.extend((reg, i) for i in (reg.indices if reg.array else [None]))
+    return plan_reads(targets, max_read=max_read, max_hole=max_hole, spans=spans)
+
+
+def _static_target(d: Description, key: str) -> Register:
+    m = _TARGET.fullmatch(key.strip())
+    if m is None:
+        raise ConfigError(f"{d.family}: {key!r} is not a register")
+    reg = d.regs[m.group(1)]
+    return reg.at(int(m.group(2), 0)) if m.group(2) is not None else reg.register
+
+
+def profile_class(d: Description) -> type[DescribedProfile]:
+    """The ``DriveProfile`` class of description ``d``."""
+    link = d.link
+    homing = tuple(d.homing.methods) if d.homing is not None else ()
+    ident = None
+    if d.identify is not None and not d.identify.cannot:
+        ident = _plan(d, list(d.identify.read), link.max_read, link.max_hole)
+    extras = tuple((x.when, _plan(d, x.read, link.max_read, link.max_hole))
+                   for x in d.status.extra)
+    attrs: dict[str, Any] = {
+        "__doc__": f"{d.drive.description or d.family}: a profile run from its description.",
+        "__module__": __name__,
+        "description": d,
+        "family": d.family,
+        "word_order": WordOrder(link.word_order),
+        "exception_texts": dict(link.exceptions),
+        "homing_methods": homing,
+        "options": options_model(d),
+        "pulses_per_rev_allowed": _ppr_allowed(d),
+        "addresses": range(link.addresses[0], link.addresses[1] + 1),
+        "line_kinds": link.line_kinds,
+        "baud_rates": tuple(link.baud_rates),
+        "line_formats": tuple(link.formats),
+        "_status_plan": _status_plan(d),
+        "_identity_plan": ident,
+        "_extra_plans": extras,
+    }
+    attrs.update(_parameter_attrs(d))
+    base: type[DescribedProfile] = DescribedProfile
+    if d.drive.engine == "cia402":
+        from drivebus.drives.cia402_engine import Cia402Profile, cia402_attrs
+
+        base = Cia402Profile
+        attrs.update(cia402_attrs(d))
+    name = re.sub(r"\W", "_", d.family) + "Profile"
+    cls = type(name, (base,), attrs)
+    cls.__init__ = _init_with_signature(d, base)  # type: ignore[method-assign]
+    return cls
+
+
+def _parameter_attrs(d: Description) -> dict[str, Any]:
+    """``parameter_list``/``write_through``/``saves_by_write_through`` of the profile class,
+    from the description's registers; ``comms_note`` and, where a register sets the
+    address or the line, ``comms_writes`` (``drivebus commission``)."""
+    params = []
+    for key, reg, index in d.parameter_regs():
+        params.append(Parameter(key, reg.at(index), stored=not reg.d.volatile,
+                                comms=reg.d.comms))
+    wt = d.eeprom.write_through
+    return {
+        "parameter_list": tuple(params),
+        "write_through": None if wt is None else WriteThrough(d.regs[wt.reg].register,
+                                                               wt.on, wt.off),
+        "saves_by_write_through": d.eeprom.saves_by_write_through,
+        "comms_note": d.link.comms_note,
+        **({"comms_writes": _comms_writes} if any(
+            (d.link.address_register, d.link.format_register, d.link.baud_register)) else {}),
+    }
+
+
+def _comms_writes(
+    self: DescribedProfile, address: int | None, settings: Any, current: Any
+) -> list[tuple[Register, int]]:
+    """The writes that give the drive ``address`` and line ``settings`` (None: keep): its
+    ``[link]`` address, baud and format registers; ``NotSupported`` for what no register
+    sets (saying how it is done, ``comms_note``) or what its format rules forbid."""
+    link = self.description.link
+    regs = self.description.regs
+    how = link.comms_note or "the manual documents no register for it"
+    writes: list[tuple[Register, int]] = []
+    if address is not None:
+        if link.address_register is None:
+            raise self.unsupported(f"change its address to {address}", how)
+        reg = regs[link.address_register].register
+        reg.check(address)
+        writes.append((reg, address))
+    if settings is None:
+        return writes
+    baud_changes = current is None or settings.baudrate != current.baudrate
+    if baud_changes and link.baud_register is not None:
+        writes.append(_named_value(self, link.baud_register, str(settings.baudrate),
+                                   f"run {settings.baudrate} baud"))
+    elif baud_changes and current is not None:
+        raise self.unsupported(f"change its baud rate to {settings.baudrate}", how)
+    for rule in link.format_rules:
+        if settings.baudrate in rule.baud_rates and settings.format not in rule.formats:
+            raise self.unsupported(f"talk {settings.format} at {settings.baudrate} baud",
+                                   rule.why or f"it talks {'/'.join(rule.formats)} there")
+    if link.format_register is not None:
+        writes.append(_named_value(self, link.format_register, settings.format,
+                                   f"talk {settings.format}"))
+    elif link.format_register is None and current is not None and \
+            settings.format != current.format:
+        raise self.unsupported(f"change its line format to {settings.format}", how)
+    return writes
+
+
+def _named_value(self: DescribedProfile, key: str, name: str, what: str
+                 ) -> tuple[Register, int]:
+    """(register, value) of register ``key``'s value named ``name`` ('8N2', '38400')."""
+    reg = self.description.regs[key]
+    if name not in reg.d.values:
+        raise self.unsupported(what, f"{reg.register.name} has no value for {name} "
+                               f"(it takes {', '.join(reg.d.values)})")
+    return reg.register, reg.d.values[name]
+
+
+def _init_with_signature(d: Description, base: type[DescribedProfile]) -> Callable[..., None]:
+    """A constructor whose signature lists the description's options with their defaults
+    (what ``inspect`` and the docs show), calling ``DescribedProfile.__init__``."""
+
+    def __init__(self: DescribedProfile, slave: SlaveHandle, **kwargs: Any) -> None:
+        base.__init__(self, slave, **kwargs)
+
+    kw = inspect.Parameter.KEYWORD_ONLY
+    params = [
+        inspect.Parameter("self", inspect.Parameter.POSITIONAL_OR_KEYWORD),
+        inspect.Parameter("slave", inspect.Parameter.POSITIONAL_OR_KEYWORD,
+                          annotation=SlaveHandle),
+        inspect.Parameter("pulses_per_rev", kw, default=d.units.pulses_per_rev.default,
+                          annotation=int),
+        *(inspect.Parameter(k, kw, default=o.default) for k, o in d.options.items()),
+    ]
+    __init__.__signature__ = inspect.Signature(params, return_annotation=None)  # type: ignore[attr-defined]
+    __init__.__doc__ = f"The {d.family} profile on ``slave``; options as its description says."
+    return __init__

@@ -1,0 +1,1188 @@
+"""A simulated twin built from a drive description: any described drive on ``sim://``.
+
+The twin answers only the addresses the description documents (exception 02 elsewhere,
+or its ``refusals``), refuses writes to read-only registers and values outside their
+ranges with the codes the description gives, reads only with the function codes its
+link lists, and acts on the writes its ``[twin]`` section describes (``on_write``
+triggers: moves, speed runs, stops, homing, enable, alarm clear, zeroing, save, factory
+reset) with the simulator's kinematics. Status registers and bits are computed from what
+they *mean* (``means``: enabled, moving, in position, homed, alarm, position, velocity,
+inputs, ...); inputs carry the home and limit switches as the description's ``[inputs]``
+wiring says. Limit switches stop motion and block starts towards them; an alarm stops
+the motor at once; a power cycle reloads registers from the twin's EEPROM (what a save
+or a write-through stored) and the defaults of volatile registers, applies a changed
+line format, starts the position counter at 0 and forgets the homed state.
+
+Homing follows the CiA 402 method each of the description's methods names (``cia402``):
+17/18 (limit switches), 19-30 (home switch, with a dog of ``home_switch_width`` or a
+cam), 33-37 (the present position); the position at the origin edge becomes the offset.
+The home cam covers the side the method in use searches towards (``home_cam`` names the
+side instead). A limit switch the method does not reverse on stops the motor as the
+description's ``[twin] limits`` say, and the homing fails (``homing_failed``).
+
+With ``soft_address`` (where ``[link] address_register`` names the register), the twin's
+address is that register's saved value from the next power-up on, as ``drivebus
+commission`` sets it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from drivebus.clock import monotonic
+from drivebus.drives.cia402 import (
+    OBJECTS,
+    HomeSignal,
+    HomeSwitch,
+    HomingMethod,
+    State,
+    homing_method,
+)
+from drivebus.drives.description import Description, Reg, Trigger, object_name
+from drivebus.drives.description import HomingMethod as MethodDef
+from drivebus.drives.expr import Expr, ExprError, Unknown
+from drivebus.drives.registers import Access
+from drivebus.drives.units import Kind
+from drivebus.drives.values import Attrs, RegValue, Table, reg_value
+from drivebus.errors import ArgumentError, ConfigError
+from drivebus.pdu import READ_HOLDING, READ_INPUT
+from drivebus.settings import LineSettings
+from drivebus.sim.cia402_device import Cia402Device, Cia402Setup
+from drivebus.sim.drive import HomeCam, SimDrive, Span, TwinSetup, time_or_present
+from drivebus.sim.registers import ExceptionCodes, RegisterSpec, SlaveException, signed32
+
+__all__ = ["DescribedCia402Drive", "DescribedDrive", "described_twin", "twin_of"]
+
+_COMPUTED = {"position", "velocity", "command_velocity", "alarm_code", "motion", "inputs",
+             "outputs"}
+_STARTS = {"move_absolute", "move_relative", "run", "home"}
+
+
+@dataclass(frozen=True)
+class _Word:
+    """Where an address sits: its register, table entry and which word of the value."""
+
+    reg: Reg
+    index: int | None
+    word: int
+
+
+@dataclass(frozen=True)
+class _Phase:
+    """One leg of a homing: run in ``direction`` (fast or creep) until one of the edges,
+    then go on with the named leg ("done": the origin)."""
+
+    direction: int
+    fast: bool
+    events: tuple[tuple[str, str], ...]
+
+
+@dataclass
+class _Homing:
+    phases: dict[str, _Phase]
+    phase: str
+    t_dir: float
+    speed: float
+    creep: float
+    rate: float
+    offset: float
+
+
+def _search_phases(method: int, home: bool, neg: bool, pos: bool
+                   ) -> tuple[dict[str, _Phase], str] | None:
+    """The legs of CiA 402 homing method ``method`` (``drivebus.drives.cia402``) and the
+    first leg, given the switch states (home, negative limit, positive limit) at the start.
+
+    The origin is the method's edge crossed in its final direction at the creep speed: a
+    limit switch's edge (where it becomes inactive), or the home switch's lower or upper
+    edge. The search runs at the fast speed in the method's initial direction (for a home
+    switch that is a cam, where the switch's state says), reverses at the method's
+    reversal limit switch, and backs off the edge to cross it again at the creep speed.
+    Index pulses are not modelled (methods 1-14 home as 17-30).
+    """
+    try:
+        m = homing_method(method)
+    except ArgumentError:
+        return None
+    if m.signal is HomeSignal.NEGATIVE_LIMIT:
+        legs = {"fast": _Phase(-1, True, (("limit_negative", "creep"),)),
+                "creep": _Phase(+1, False, (("limit_negative", "done"),))}
+        return legs, "creep" if neg else "fast"
+    if m.signal is HomeSignal.POSITIVE_LIMIT:
+        legs = {"fast": _Phase(+1, True, (("limit_positive", "creep"),)),
+                "creep": _Phase(-1, False, (("limit_positive", "done"),))}
+        return legs, "creep" if pos else "fast"
+    if m.signal is not HomeSignal.HOME_SWITCH:
+        return None
+    edge = "home_high" if m.home_switch in (HomeSwitch.UPPER_EDGE, HomeSwitch.NEGATIVE) \
+        else "home_low"
+    f = m.final_direction
+    # Crossing the edge moving f enters the switch (lower edge moving up, upper moving down)
+    # or leaves it; entering needs a back-off to cross it again at the creep speed.
+    entering = (edge == "home_low") == (f > 0)
+    final = _Phase(f, False, ((edge, "done"),))
+    legs: dict[str, _Phase] = {"final": final}
+    if entering:
+        legs["back"] = _Phase(-f, False, ((edge, "final"),))
+        on_switch = "back"
+    else:
+        on_switch = "final"
+    initial = m.initial_direction
+    if m.home_switch in (HomeSwitch.POSITIVE, HomeSwitch.NEGATIVE):  # a cam on one side
+        side = 1 if m.home_switch is HomeSwitch.POSITIVE else -1
+        if not home:
+            legs["fast"] = _Phase(side, True, ((edge, on_switch),))
+            return legs, "fast"
+        if f == -side:
+            return legs, "final"  # leave the cam at the creep speed
+        legs["off"] = _Phase(-side, True, ((edge, "final"),))
+        return legs, "off"
+    first_edge = "home_low" if initial > 0 else "home_high"
+    other_edge = "home_high" if initial > 0 else "home_low"
+    ahead = "limit_positive" if initial > 0 else "limit_negative"
+    legs["fast"] = _Phase(initial, True, ((first_edge, on_switch), (ahead, "reverse")))
+    legs["reverse"] = _Phase(-initial, True, ((other_edge, on_switch),))
+    return legs, on_switch if home else "fast"
+
+
+class DescribedDrive(SimDrive):
+    """A simulated drive that plays a drive description."""
+
+    description: ClassVar[Description]
+    _words: ClassVar[dict[int, _Word]]
+    _pairs: ClassVar[dict[int, tuple[Reg, int | None]]]
+    _input_specs: ClassVar[dict[int, RegisterSpec]]
+    _input_words: ClassVar[dict[int, _Word]]
+    _triggers: ClassVar[dict[str, tuple[Trigger, ...]]]
+
+    def __init__(
+        self,
+        address: int,
+        settings: LineSettings | None = None,
+        setup: TwinSetup | None = None,
+        *,
+        home_switch_width: float | None = None,
+        home_cam: HomeCam | None = None,
+        crc_error_reply: bool = True,
+        soft_address: bool = False,
+        **constants: int,
+    ) -> None:
+        d = self.description
+        if settings is None and d.link.protocol == "rtu":
+            settings = LineSettings.parse(d.link.factory) if d.link.factory else LineSettings()
+        if settings is not None and d.link.protocol == "rtu":
+            self._check_line(settings)
+        super().__init__(address, settings, setup)
+        self.set_home_shape(home_cam, home_switch_width)
+        self.crc_error_reply = crc_error_reply
+        if soft_address and d.link.address_register is None:
+            raise ConfigError(f"the simulated {d.family} has no soft_address: its description "
+                              "names no [link] address_register")
+        self.soft_address = soft_address
+        """The address is the address register's saved value, taken at power-up."""
+        self.factory = self._factory_words()
+        for key, value in constants.items():
+            reg = d.regs.get(key)
+            if reg is None or reg.d.means != "constant":
+                raise ConfigError(f"the simulated {d.family} has no option {key!r} (options: "
+                                  f"{', '.join(self.twin_options())})")
+            self._store(self.factory, reg, None, int(value))
+        self.regs: dict[int, int] = dict(self.factory)
+        if soft_address:
+            assert d.link.address_register is not None
+            self._store(self.regs, d.regs[d.link.address_register], None, address)
+        self._apply_format_register(initial=True)
+        self.eeprom: dict[int, int] = dict(self.regs)
+        """Register words that survive a power cycle."""
+        self.eeprom_writes = 0
+        self.motion: str | None = None
+        """The kind of motion last started (a ``motion``-meaning register shows it)."""
+        self.homed = False
+        self._homing: _Homing | None = None
+        self._watch_from = 0.0
+        self._motion_decel: float | None = None
+        self._run_rates = (math.inf, math.inf)
+        self._shift = 0.0
+        self.enabled = bool(self._eval(d.twin.enabled, 0.0))
+
+    # -- the description's map ---------------------------------------------------------------
+
+    @classmethod
+    def twin_options(cls) -> list[str]:
+        """The keyword options this twin takes (a machine file's ``sim.options``)."""
+        d = cls.description
+        consts = [k for k, r in d.regs.items() if r.d.means == "constant"]
+        soft = ["soft_address"] if d.link.address_register is not None else []
+        return ["home_switch_width", "home_cam", "crc_error_reply", *soft, *consts]
+
+    def _check_line(self, settings: LineSettings) -> None:
+        d = self.description
+        link = d.link
+        if link.baud_rates and settings.baudrate not in link.baud_rates:
+            raise ConfigError(f"{d.family} baud rate {settings.baudrate} is not one of "
+                              f"{tuple(link.baud_rates)}")
+        if link.formats and settings.format not in link.formats:
+            raise ConfigError(f"{d.family} line format {settings.format} is not one of "
+                              f"{tuple(link.formats)}")
+        for rule in link.format_rules:
+            if settings.baudrate in rule.baud_rates and settings.format not in rule.formats:
+                why = f" ({rule.why})" if rule.why else ""
+                raise ConfigError(f"the {d.family} runs {'/'.join(rule.formats)} at "
+                                  f"{settings.baudrate} baud{why}")
+
+    def _factory_words(self) -> dict[int, int]:
+        words: dict[int, int] = {}
+        for reg in self.description.regs.values():
+            if reg.d.input:
+                continue  # input registers are another address space: computed or fixed
+            for index in (reg.indices if reg.array else [None]):
+                self._store(words, reg, index, reg.default_at(index))
+        return words
+
+    @staticmethod
+    def _store(words: dict[int, int], reg: Reg, index: int | None, value: int) -> None:
+        r = reg.at(index)
+        if r.words == 1:
+            words[r.address] = value & 0xFFFF
+            return
+        u = value & 0xFFFFFFFF
+        hi, lo = u >> 16, u & 0xFFFF
+        low_addr = r.low_address if r.low_address is not None else r.address + 1
+        if r.low_address is None and r.order.value == "low_first":
+            words[r.address], words[low_addr] = lo, hi
+        else:
+            words[r.address], words[low_addr] = hi, lo
+
+    def _raw(self, reg: Reg, index: int | None, words: Mapping[int, int] | None = None) -> int:
+        if reg.d.input:
+            return reg.default_at(index)
+        r = reg.at(index)
+        w = self.regs if words is None else words
+        if r.words == 1:
+            return r.decode([w[r.address]])
+        low = r.low_address if r.low_address is not None else r.address + 1
+        return r.decode([w[r.address], w[low]])
+
+    # -- units ----------------------------------------------------------------------------
+
+    @property
+    def pulses_per_rev(self) -> int:
+        """The pulses per revolution (the description's register, or its default)."""
+        p = self.description.units.pulses_per_rev
+        if p.reg is None:
+            return p.default
+        reg = self.description.regs[p.reg]
+        v = reg.codec.to_physical(self._raw(reg, None), ppr=1)
+        return int(v) if v else p.default
+
+    # -- the position counter ----------------------------------------------------------------
+
+    def position(self, now: float | None = None) -> int:
+        """The drive's 32-bit position counter (it wraps at ±2^31)."""
+        return signed32(super().position(now))
+
+    def physical_position(self, now: float | None = None) -> float:
+        """Where the axis physically is (the frame of the switch positions)."""
+        return self.kin.position(time_or_present(now)) - self._shift
+
+    def _set_counter(self, t: float, value: float) -> None:
+        old = self.kin.position(t)
+        self.kin.set_position(t, value)
+        self._shift += value - old
+
+    def _wrap(self, now: float) -> float:
+        p = self.kin.position(now)
+        wrapped = signed32(round(p))
+        if wrapped != round(p):
+            self._set_counter(now, p + (wrapped - round(p)))
+        return self.kin.position(now)
+
+    # -- switches ----------------------------------------------------------------------------
+
+    def switch_states(self, now: float) -> tuple[bool, bool, bool]:
+        """(home, limit negative, limit positive) at the physical position."""
+        return self.switches_at(self.physical_position(now))
+
+    def home_side(self) -> int:
+        """The side a home cam covers when ``home_cam`` does not say: the side the homing
+        method in the drive's registers searches towards (+1 if none)."""
+        try:
+            m = _cia402_method(self._method_def(self._method_code(monotonic())))
+        except ExprError:  # the method depends on a write being made: the default side
+            m = None
+        if m is None or m.home_switch is HomeSwitch.POSITIVE:
+            return 1
+        if m.home_switch is HomeSwitch.NEGATIVE:
+            return -1
+        return m.initial_direction or 1
+
+    def _wired(self, signal: str) -> bool:
+        """True if an input carries ``signal`` (home_switch, limit_positive, ...)."""
+        io = self.description.inputs
+        if io is None:
+            return True
+        if signal in io.bits:
+            return True
+        if io.functions is None or signal not in io.codes:
+            return False
+        reg = self.description.regs[io.functions]
+        code = io.codes[signal]
+        return any(self._raw(reg, i) == code for i in reg.indices)
+
+    def _span(self, edge: str) -> Span | None:
+        """Where the switch of ``edge`` is active (physical), if the drive can see it."""
+        signal = "home_switch" if edge.startswith("home") else edge
+        if not self._wired(signal):
+            return None
+        if signal == "home_switch":
+            return self.home_span()
+        return self.limit_span(1 if signal == "limit_positive" else -1)
+
+    def _boundary(self, edge: str) -> float | None:
+        """Counter position of a switch edge the drive can see, or None (an edge at
+        infinity: a cam's or a limit's outer end)."""
+        span = self._span(edge)
+        if span is None:
+            return None
+        pos = span.hi if edge in ("home_high", "limit_negative") else span.lo
+        return pos + self._shift if math.isfinite(pos) else None
+
+    def _signals(self, now: float) -> dict[str, bool]:
+        home, neg, pos = self.switch_states(now)
+        moving = self.kin.moving(now)
+        alarm = bool(self.alarm_code)
+        at_speed = moving and self.motion == "speed" and self.kin.cruising(now)
+        return {
+            "enabled": self.enabled, "disabled": not self.enabled, "moving": moving,
+            "at_rest": not moving, "in_position": not moving and not alarm,
+            "homed": self.homed, "homing": self._homing is not None, "alarm": alarm,
+            "no_alarm": not alarm, "limit_positive": pos, "limit_negative": neg,
+            "home_switch": home, "at_speed": bool(at_speed), "ready": True,
+            "jogging": moving and self.motion == "speed",
+        }
+
+    # -- reads --------------------------------------------------------------------------------
+
+    def read_registers(self, function: int, address: int, count: int, now: float) -> list[int]:
+        """Holding registers (FC03), or the description's input registers (FC04)."""
+        if function != READ_INPUT:
+            return super().read_registers(function, address, count, now)
+        out = []
+        for a in range(address, address + count):
+            w = self._input_words.get(a)
+            if w is None:
+                raise SlaveException(self.exception_codes.address)
+            raw = self._computed(w.reg, w.index, now) if _computed(w.reg) else \
+                w.reg.default_at(w.index)
+            words: dict[int, int] = {}
+            self._store(words, w.reg, w.index, raw)
+            out.append(words[a])
+        return out
+
+    def read_register(self, address: int, now: float) -> int:
+        """A stored word, or one computed now for registers that show the drive's state."""
+        w = self._words[address]
+        reg = w.reg
+        if not _computed(reg):
+            return self.regs[address]
+        raw = self._computed(reg, w.index, now)
+        words: dict[int, int] = {}
+        self._store(words, reg, w.index, raw)
+        return words[address]
+
+    def _computed(self, reg: Reg, index: int | None, now: float) -> int:
+        """The value of a register that shows the drive's state: from what it means, with
+        the bits that have meanings set or cleared by the state."""
+        means = reg.d.means
+        if means == "position":
+            counter = signed32(round(self.kin.position(now)))
+            value = _clamp(reg, round(counter / reg.codec.scale))
+        elif means in ("velocity", "command_velocity"):
+            rpm = self.speed_rpm(now)
+            if reg.codec.kind is Kind.SPEED:
+                value = _clamp(reg, round(rpm / reg.codec.factor(self.pulses_per_rev)
+                                          / reg.codec.scale))
+            else:
+                value = _clamp(reg, round(rpm))
+        elif means == "alarm_code":
+            value = self.alarm_code
+        elif means == "motion":
+            value = reg.d.values.get(self.motion or "none", 0)
+        elif means == "inputs":
+            value = self._io_word("inputs", now)
+        elif means == "outputs":
+            value = self._io_word("outputs", now)
+        elif means is None and reg.d.access == "R":
+            value = 0
+        else:
+            value = self._raw(reg, index)
+        bits = [b for b in reg.d.bits.values() if b.means is not None]
+        if bits:
+            signals = self._signals(now)
+            for b in bits:
+                if signals.get(b.means or "", False):
+                    value |= b.mask
+                else:
+                    value &= ~b.mask
+        return value
+
+    def _io_word(self, which: str, now: float) -> int:
+        d = self.description
+        io = d.inputs if which == "inputs" else d.outputs
+        if io is None:
+            return 0
+        signals = self._signals(now)
+        active = {k: v for k, v in signals.items()}
+        word = 0
+        if io.functions is not None:
+            reg = d.regs[io.functions]
+            by_code = {c: s for s, c in io.codes.items()}
+            for n, i in enumerate(reg.indices):
+                sig = by_code.get(self._raw(reg, i))
+                if sig is not None and active.get(sig, False):
+                    word |= 1 << n
+        for sig, bit in io.bits.items():
+            if active.get(sig, False):
+                word |= 1 << bit
+        if io.invert is not None:
+            word ^= self._raw(d.regs[io.invert], None)
+        return word
+
+    # -- writes --------------------------------------------------------------------------------
+
+    def check_write(self, address: int, values: list[int]) -> None:
+        """Word by word, then each 32-bit register written whole against its range."""
+        super().check_write(address, values)
+        written = dict(zip(range(address, address + len(values)), values, strict=True))
+        for a in written:
+            pair = self._pairs.get(a)
+            if pair is None:
+                continue
+            reg, index = pair
+            r = reg.at(index)
+            low = r.low_address if r.low_address is not None else r.address + 1
+            if r.address in written and low in written:
+                words = {**self.regs, **written}
+                value = self._raw(reg, index, words)
+                if (reg.d.min is not None and value < reg.d.min) or \
+                        (reg.d.max is not None and value > reg.d.max):
+                    raise SlaveException(self.exception_codes.value)
+
+    def write_registers(self, address: int, values: list[int], now: float) -> None:
+        """Store the words, then act on the registers written (in address order)."""
+        self.check_write(address, values)
+        before = dict(self.regs)
+        touched: list[tuple[Reg, int | None]] = []
+        write_through = self._write_through(now)
+        for offset, word in enumerate(values):
+            a = address + offset
+            self.regs[a] = word
+            w = self._words[a]
+            if w.reg.d.eeprom and write_through:
+                self.eeprom[a] = word
+                self.eeprom_writes += 1
+            if (w.reg, w.index) not in touched:
+                touched.append((w.reg, w.index))
+        try:
+            for reg, index in touched:
+                self._act(reg, index, now)
+        except SlaveException:
+            self.regs = before
+            raise
+
+    def _write_through(self, now: float) -> bool:
+        """True while a write to an ``eeprom`` register is stored."""
+        d = self.description
+        if d.twin.eeprom_write_through is not None:
+            return bool(self._eval(d.twin.eeprom_write_through, now))
+        wt = d.eeprom.write_through
+        return wt is not None and self._raw(d.regs[wt.reg], None) == wt.on
+
+    def write_register(self, address: int, word: int, now: float) -> None:
+        """One word (FC06): as a write of one register."""
+        self.write_registers(address, [word], now)
+
+    def _act(self, reg: Reg, index: int | None, now: float) -> None:
+        triggers = self._triggers.get(reg.key, ())
+        if not triggers:
+            return
+        value = RegValue(self._raw(reg, index), reg)
+        for trig in triggers:
+            if trig.when is not None and not self._eval(trig.when, now, value):
+                continue
+            self._do(trig, value, now)
+            if not trig.more:
+                return
+
+    # -- evaluation ---------------------------------------------------------------------------
+
+    def _scope(self, now: float, value: Any = None) -> _Scope:
+        return _Scope(self, now, value)
+
+    def _eval(self, e: Expr, now: float, value: Any = None) -> Any:
+        try:
+            return e(self._scope(now, value))
+        except Unknown as exc:
+            raise ExprError(f"{e.source!r}: {exc}") from None
+
+    def physical(self, reg: Reg, index: int | None, now: float, ref: float | None = None
+                 ) -> Any:
+        """The physical value register ``reg`` holds (a ramp time as a rate in r/s²)."""
+        raw = self._computed(reg, index, now) if _computed(reg) else self._raw(reg, index)
+        if reg.codec.kind is Kind.RAMP and isinstance(reg.codec.ramp, str) and ref is None:
+            ref_reg = self.description.regs[reg.codec.ramp]
+            ref_v = self.physical(ref_reg, index if ref_reg.array else None, now)
+            ref = abs(float(ref_v)) or abs(self.speed_rpm(now))
+        return reg_value(reg, raw, reg.codec.to_physical(raw, ppr=self.pulses_per_rev,
+                                                        ref_rpm=ref))
+
+    # -- actions -------------------------------------------------------------------------------
+
+    def _param(self, trig: Trigger, name: str, now: float, value: Any) -> Any:
+        e = getattr(trig, name)
+        return None if e is None else self._eval(e, now, value)
+
+    def _do(self, trig: Trigger, value: Any, now: float) -> None:
+        do = trig.do
+        if do in _STARTS and not self._eval(self.description.twin.starts, now, value):
+            if trig.refuse and self.description.link.refusals.busy is not None:
+                raise SlaveException(self.description.link.refusals.busy)
+            return
+        p = self.pulses_per_rev
+        if do == "emergency_stop":
+            self._homing = None
+            self.kin.stop(now, None)
+        elif do == "stop":
+            self._homing = None
+            decel = self._param(trig, "decel", now, value)
+            self.kin.stop(now, _rate(decel, p))
+        elif do == "enable":
+            self.enabled = True
+        elif do == "disable":
+            self.enabled = False
+            self._homing = None
+            self.kin.stop(now, None)  # released: the shaft is free, motion ends
+        elif do == "clear_alarm":
+            rule = self._clear_rule(self.alarm_code)
+            if rule == "command":
+                self.alarm_code = 0
+        elif do == "zero_position":
+            self._set_counter(now, 0)
+        elif do == "set_position":
+            self._set_counter(now, float(self._param(trig, "position", now, value)))
+        elif do == "save":
+            self.eeprom.update(self.regs)
+        elif do == "factory_reset":
+            self.regs.update(self.factory)
+            self.eeprom.update(self.regs)
+        elif do in ("move_absolute", "move_relative"):
+            self._move(trig, value, now)
+        elif do == "run":
+            self._run(trig, value, now)
+        elif do == "set_speed":
+            self._set_speed(trig, value, now)
+        elif do == "home":
+            self._home(trig, value, now)
+
+    def _clear_rule(self, code: int) -> str:
+        alarms = self.description.alarms
+        if alarms is None:
+            return "command"
+        return alarms.clears.get(code, "command")
+
+    def _blocked(self, direction: float, now: float) -> bool:
+        """True if a limit input in ``direction`` is active (the drive will not go on)."""
+        if not self.description.twin.limits.block_start:
+            return False
+        _, neg, pos = self.switch_states(now)
+        return (direction > 0 and pos and self._wired("limit_positive")) or (
+            direction < 0 and neg and self._wired("limit_negative"))
+
+    def _move(self, trig: Trigger, value: Any, now: float) -> None:
+        ppr = self.pulses_per_rev
+        speed = self._param(trig, "speed", now, value)
+        accel = self._param(trig, "accel", now, value)
+        decel = self._param(trig, "decel", now, value)
+        if not _usable(speed, accel, decel):
+            return
+        p = self._wrap(now)
+        if trig.do == "move_absolute":
+            target = float(self._param(trig, "target", now, value))
+        else:
+            target = round(p) + float(self._param(trig, "distance", now, value))
+        if self._blocked(target - p, now):
+            return
+        a, dc = float(accel) * ppr, float(decel) * ppr
+        self.kin.move_to(now, target, abs(float(speed)) * ppr / 60.0, a, dc)
+        self._started(trig, "position", now, dc)
+
+    def _run(self, trig: Trigger, value: Any, now: float) -> None:
+        ppr = self.pulses_per_rev
+        speed = float(self._param(trig, "speed", now, value) or 0.0)
+        accel = self._param(trig, "accel", now, value)
+        decel = self._param(trig, "decel", now, value)
+        if self._blocked(speed, now):
+            return
+        self._wrap(now)
+        a = float(accel) * ppr if _finite_pos(accel) else math.inf
+        dc = float(decel) * ppr if _finite_pos(decel) else math.inf
+        if speed == 0:
+            self.kin.stop(now, dc)
+        else:
+            self.kin.run(now, speed * ppr / 60.0, a, dc)
+        self._run_rates = (a, dc)
+        self._started(trig, "speed", now, dc)
+
+    def _set_speed(self, trig: Trigger, value: Any, now: float) -> None:
+        if self.motion != "speed" or not self.kin.moving(now):
+            return
+        speed = float(self._param(trig, "speed", now, value) or 0.0)
+        v = self.kin.velocity(now)
+        signed = math.copysign(abs(speed), v) if v else speed
+        a, dc = self._run_rates
+        self.kin.run(now, signed * self.pulses_per_rev / 60.0, a, dc)
+
+    def _started(self, trig: Trigger, kind: str, now: float, decel: float) -> None:
+        self.motion = trig.motion or kind
+        self._watch_from = now
+        self._motion_decel = decel
+        self._homing = None
+
+    # -- homing --------------------------------------------------------------------------------
+
+    def _method_code(self, now: float) -> Any:
+        """The homing method the drive's home trigger names now (its register's value)."""
+        trig = next((t for ts in self._triggers.values() for t in ts if t.do == "home"), None)
+        return None if trig is None else self._param(trig, "method", now, None)
+
+    def _method_def(self, code: Any) -> MethodDef | None:
+        """The description's homing method of ``code`` (a name or the drive's number)."""
+        h = self.description.homing
+        if h is None or code is None:
+            return None
+        if isinstance(code, str):
+            return h.methods.get(code)
+        return next((m for m in h.methods.values() if m.code is not None and
+                     m.code == int(code)), None)
+
+    def _home(self, trig: Trigger, value: Any, now: float) -> None:
+        method = self._method_def(self._param(trig, "method", now, value))
+        if method is None:
+            return  # not a documented method: the drive does nothing
+        ppr = self.pulses_per_rev
+        speed = float(self._param(trig, "speed", now, value) or 0.0)
+        creep = float(self._param(trig, "creep", now, value) or speed)
+        accel = self._param(trig, "accel", now, value)
+        offset = float(self._param(trig, "offset", now, value) or 0.0)
+        self._wrap(now)
+        self.motion = trig.motion or "homing"
+        self.homed = False
+        self.homing_failed = False
+        number = method.cia402
+        if method.behaviour == "set" or number in (33, 34, 35, 37):
+            self._set_counter(now, offset)
+            self.homed = True
+            return
+        home, neg, pos = self.switch_states(now)
+        plan = _search_phases(number or 0, home and self._wired("home_switch"),
+                              neg and self._wired("limit_negative"),
+                              pos and self._wired("limit_positive"))
+        if plan is None:
+            return
+        phases, first = plan
+        rate = float(accel) * ppr if _finite_pos(accel) else math.inf
+        self._homing = _Homing(phases, first, now, speed * ppr / 60.0, creep * ppr / 60.0,
+                               rate, offset)
+        self._enter(first, now)
+
+    def _enter(self, name: str, t: float) -> None:
+        h = self._homing
+        assert h is not None
+        phase = h.phases[name]
+        v = self.kin.velocity(t)
+        self.kin.run(t, phase.direction * (h.speed if phase.fast else h.creep), h.rate, h.rate)
+        h.t_dir = t + abs(v) / h.rate if v * phase.direction < 0 and h.rate > 0 else t
+        h.phase = name
+
+    def _next_edge(self, now: float) -> tuple[float, str] | None:
+        h = self._homing
+        assert h is not None
+        phase = h.phases[h.phase]
+        events = list(phase.events)
+        ahead = "limit_positive" if phase.direction > 0 else "limit_negative"
+        if all(name != ahead for name, _ in events):
+            events.append((ahead, "abort"))
+        t_from = h.t_dir + 1e-9
+        best: tuple[float, str] | None = None
+        for name, nxt in events:
+            span = self._span(name)
+            if name == ahead and span is not None and t_from <= now and \
+                    span.active(self.physical_position(t_from)):
+                return t_from, nxt  # the limit ahead is active as the leg sets off
+            boundary = self._boundary(name)
+            if boundary is None:
+                continue
+            tc = self.kin.crossing(boundary, t_from, now)
+            if tc is not None and (best is None or tc < best[0]):
+                best = (tc, nxt)
+        return best
+
+    def _advance_homing(self, now: float) -> None:
+        for _ in range(16):
+            h = self._homing
+            if h is None:
+                return
+            edge = self._next_edge(now)
+            if edge is None:
+                return
+            tc, nxt = edge
+            if nxt == "done":
+                self.kin.stop(tc, h.rate)
+                self._set_counter(tc, h.offset)
+                self.homed = True
+                self._homing = None
+            elif nxt == "abort":
+                self.kin.stop(tc, self._limit_rate(tc))
+                self._homing = None
+                self.homing_failed = True
+            else:
+                self._enter(nxt, tc)
+
+    # -- limits, alarms, power ----------------------------------------------------------------
+
+    def _limit_rate(self, t: float) -> float | None:
+        lim = self.description.twin.limits
+        mode = self._eval(lim.stop, t)
+        if mode == "immediate":
+            return None
+        if lim.decel is not None:
+            return _rate(self._eval(lim.decel, t), self.pulses_per_rev)
+        return self._motion_decel
+
+    def _limit_hit(self, now: float) -> float | None:
+        hits = []
+        for boundary, direction in ((self._boundary("limit_positive"), 1),
+                                    (self._boundary("limit_negative"), -1)):
+            if boundary is None:
+                continue
+            t0 = self._watch_from
+            for _ in range(4):
+                tc = self.kin.crossing(boundary, t0, now)
+                if tc is None:
+                    break
+                if self.kin.velocity(tc) * direction > 0:
+                    hits.append(tc)
+                    break
+                t0 = tc + 1e-6
+        return min(hits) if hits else None
+
+    def advance(self, now: float) -> None:
+        """Bring homing legs and limit stops up to ``now`` (state is computed lazily)."""
+        if self._homing is not None:
+            self._advance_homing(now)
+            return
+        if self.motion in ("position", "speed") and self.kin.moving(now):
+            tc = self._limit_hit(now)
+            if tc is not None:
+                self.kin.stop(tc, self._limit_rate(tc))
+                self._watch_from = now
+
+    def raise_alarm(self, code: int, now: float | None = None) -> None:
+        """Latch alarm ``code``: the motor stops at once."""
+        t = time_or_present(now)
+        self.advance(t)
+        self._homing = None
+        super().raise_alarm(code, t)
+
+    def supply_recovered(self) -> None:
+        """The supply is back in range: alarms that clear with the supply clear."""
+        if self._clear_rule(self.alarm_code) == "supply":
+            self.alarm_code = 0
+
+    def power_restore(self) -> None:
+        """Power-up: stored words come back, volatile registers take their defaults, a
+        stored line format applies, the counter starts at 0, the homed state is gone."""
+        super().power_restore()
+        now = monotonic()
+        self.regs = dict(self.eeprom)
+        for reg in self.description.regs.values():
+            if reg.d.volatile:
+                for index in (reg.indices if reg.array else [None]):
+                    self._store(self.regs, reg, index, reg.default_at(index))
+        self._apply_format_register(initial=False)
+        if self.soft_address:
+            key = self.description.link.address_register
+            assert key is not None
+            self.address = self._raw(self.description.regs[key], None)
+        self.kin.hold(now)
+        self._set_counter(now, 0)
+        self.alarm_code = 0
+        self.motion = None
+        self.homed = False
+        self._homing = None
+        self.enabled = bool(self._eval(self.description.twin.enabled, now))
+
+    def _apply_format_register(self, *, initial: bool) -> None:
+        """The line format register: set from the settings at first, applied at power-up."""
+        d = self.description
+        key = d.link.format_register
+        if key is None or self.settings is None:
+            return
+        reg = d.regs[key]
+        values = reg.d.values
+        allowed = _formats_at(d, self.settings.baudrate)
+        if initial:
+            code = values.get(self.settings.format, 0) if self.settings.format in allowed \
+                else 0
+            self._store(self.regs, reg, None, code)
+            return
+        names = {v: k for k, v in values.items()}
+        fmt = names.get(self._raw(reg, None))
+        if fmt is not None and fmt in allowed:
+            self.settings = LineSettings.parse(fmt, baudrate=self.settings.baudrate)
+
+
+def _cia402_method(method: MethodDef | None) -> HomingMethod | None:
+    """The CiA 402 method a description's homing method behaves as, if any."""
+    if method is None or method.cia402 is None:
+        return None
+    try:
+        return homing_method(method.cia402)
+    except ArgumentError:
+        return None
+
+
+def _formats_at(d: Description, baud: int) -> list[str]:
+    for rule in d.link.format_rules:
+        if baud in rule.baud_rates:
+            return list(rule.formats)
+    return list(d.link.formats)
+
+
+def _computed(reg: Reg) -> bool:
+    return reg.d.means in _COMPUTED or reg.d.means == "constant" or any(
+        b.means is not None for b in reg.d.bits.values())
+
+
+def _clamp(reg: Reg, value: int) -> int:
+    r = reg.register
+    bits = 16 * r.words
+    lo = -(1 << (bits - 1)) if r.signed else 0
+    hi = (1 << (bits - 1)) - 1 if r.signed else (1 << bits) - 1
+    return max(lo, min(hi, value))
+
+
+def _finite_pos(v: Any) -> bool:
+    return isinstance(v, int | float) and math.isfinite(v) and v > 0
+
+
+def _usable(speed: Any, accel: Any, decel: Any) -> bool:
+    return _finite_pos(abs(speed) if isinstance(speed, int | float) else speed) and \
+        _finite_pos(accel) and _finite_pos(decel)
+
+
+def _rate(decel: Any, ppr: int) -> float | None:
+    """A deceleration in r/s² as pulses/s² (None: at once)."""
+    if decel is None or not isinstance(decel, int | float) or not math.isfinite(decel) or \
+            decel <= 0:
+        return None
+    return float(decel) * ppr
+
+
+class _Scope(Mapping[str, Any]):
+    """The names a twin expression sees: registers (physical values), constants, the
+    written ``value`` and the twin's state."""
+
+    def __init__(self, twin: DescribedDrive, now: float, value: Any) -> None:
+        self._twin = twin
+        self._now = now
+        self._value = value
+
+    def __getitem__(self, key: str) -> Any:
+        t = self._twin
+        d = t.description
+        if key == "value":
+            if self._value is None:
+                raise KeyError(key)
+            return self._value
+        if key in d.constants:
+            return d.constants[key]
+        reg = d.regs.get(key)
+        if reg is not None:
+            if reg.array:
+                return Table(reg, {i: t.physical(reg, i, self._now) for i in reg.indices})
+            return t.physical(reg, None, self._now)
+        now = self._now
+        state = {
+            "enabled": lambda: t.enabled,
+            "moving": lambda: t.kin.moving(now),
+            "alarm": lambda: bool(t.alarm_code),
+            "homed": lambda: t.homed,
+            "motion": lambda: t.motion,
+            "speed_now": lambda: t.speed_rpm(now),
+            "pulses_per_rev": lambda: t.pulses_per_rev,
+            "limit_positive": lambda: t.switch_states(now)[2],
+            "limit_negative": lambda: t.switch_states(now)[1],
+        }
+        if key in state:
+            return state[key]()
+        if key == "raw":
+            return Attrs("raw", {k: t._raw(r, None) for k, r in d.regs.items()
+                                 if not r.array})
+        raise KeyError(key)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(())
+
+    def __len__(self) -> int:
+        return 0
+
+
+# -- the twin class of a description -------------------------------------------------------
+
+
+def _map(d: Description, *, inputs: bool = False
+         ) -> tuple[dict[int, RegisterSpec], dict[int, _Word], dict[int, tuple[Reg, int | None]]]:
+    """The twin's map of holding registers (or of input registers)."""
+    specs: dict[int, RegisterSpec] = {}
+    words: dict[int, _Word] = {}
+    pairs: dict[int, tuple[Reg, int | None]] = {}
+    for reg in d.regs.values():
+        if reg.d.input != inputs:
+            continue
+        access = Access(reg.d.access)
+        for index in (reg.indices if reg.array else [None]):
+            r = reg.at(index)
+            if r.words == 1:
+                lo = r.lo
+                hi = r.hi
+                specs[r.address] = RegisterSpec(reg.default_at(index) & 0xFFFF, lo, hi, access,
+                                                signed=r.signed, stored=reg.d.eeprom)
+                words[r.address] = _Word(reg, index, 0)
+                continue
+            low = r.low_address if r.low_address is not None else r.address + 1
+            for n, a in enumerate((r.address, low)):
+                specs[a] = RegisterSpec(0, 0, 0xFFFF, access, stored=reg.d.eeprom)
+                words[a] = _Word(reg, index, n)
+                pairs[a] = (reg, index)
+    return specs, words, pairs
+
+
+def described_twin(d: Description) -> type[DescribedDrive]:
+    """The twin class of description ``d``."""
+    specs, words, pairs = _map(d)
+    input_specs, input_words, _ = _map(d, inputs=True)
+    r = d.link.refusals
+    codes = ExceptionCodes(function=r.function, address=r.address, access=r.access,
+                           value=r.value, count=r.count, crc=r.crc)
+    reads = frozenset(f for f in (READ_HOLDING, READ_INPUT) if f in d.link.functions)
+    triggers: dict[str, list[Trigger]] = {}
+    for trig in d.twin.on_write:
+        triggers.setdefault(trig.reg, []).append(trig)
+    attrs: dict[str, Any] = {
+        "__doc__": f"Simulated {d.family}, played from its description.",
+        "__module__": __name__,
+        "description": d,
+        "family": d.family,
+        "register_map": specs,
+        "exception_codes": codes,
+        "read_functions": reads,
+        "max_read": d.link.max_read,
+        "_words": words,
+        "_pairs": pairs,
+        "_input_specs": input_specs,
+        "_input_words": input_words,
+        "_triggers": {k: tuple(v) for k, v in triggers.items()},
+    }
+    name = "Sim" + "".join(c if c.isalnum() else "_" for c in d.family)
+    base: type[DescribedDrive] = DescribedDrive
+    if d.drive.engine == "cia402":
+        base = DescribedCia402Drive
+        attrs["_objects"] = dict(d.objects)
+    return type(name, (base,), attrs)
+
+
+class DescribedCia402Drive(DescribedDrive):
+    """A twin of a CiA 402 description: the registers mapped to CiA 402 objects are the
+    simulated device's (``Cia402Device``: state machine, profile position and velocity,
+    homing, on this twin's kinematics); the others are plain registers as in any twin."""
+
+    _objects: ClassVar[dict[str, Reg]]
+
+    @classmethod
+    def twin_options(cls) -> list[str]:
+        """The keyword options this twin takes (the device has no home cam side option)."""
+        return [o for o in super().twin_options() if o not in ("home_cam", "soft_address")]
+
+    def __init__(
+        self,
+        address: int,
+        settings: LineSettings | None = None,
+        setup: TwinSetup | None = None,
+        *,
+        home_switch_width: float | None = None,
+        crc_error_reply: bool = True,
+        **constants: int,
+    ) -> None:
+        super().__init__(address, settings, setup, home_switch_width=home_switch_width,
+                         crc_error_reply=crc_error_reply, **constants)
+        d = self.description
+        s = setup or TwinSetup()
+        ppr = self.pulses_per_rev
+        methods = frozenset(m.cia402 for m in (d.homing.methods.values() if d.homing else [])
+                            if m.cia402 is not None) or None
+        self.device = Cia402Device(
+            Cia402Setup(
+                position=s.position, home_switch=s.home_switch,
+                home_switch_width=home_switch_width, limit_negative=s.limit_negative,
+                limit_positive=s.limit_positive, increments_per_rev=ppr,
+                velocity_unit=_pulses_per_raw(d, "velocity", ppr),
+                acceleration_unit=_pulses_per_raw(d, "acceleration", ppr),
+                **({"homing_methods": methods} if methods else {}),
+            ),
+            defaults={name: reg.default_at(None) for name, reg in self._objects.items()
+                      if reg.d.default and OBJECTS[name].writable},
+            codes=self.exception_codes, kin=self.kin, now=0.0,
+        )
+
+    # -- the device's state as a twin shows it ------------------------------------------------
+
+    @property  # type: ignore[override]
+    def enabled(self) -> bool:
+        """Operation enabled."""
+        device = getattr(self, "device", None)
+        return device is not None and device.state_at() is State.OPERATION_ENABLED
+
+    @enabled.setter
+    def enabled(self, value: bool) -> None:
+        pass  # the state machine decides
+
+    @property  # type: ignore[override]
+    def alarm_code(self) -> int:
+        """The device's error code while it is in a fault."""
+        device = getattr(self, "device", None)
+        if device is None:
+            return 0
+        state = device.state_at()
+        return device.error_code if state in (State.FAULT, State.FAULT_REACTION_ACTIVE) else 0
+
+    @alarm_code.setter
+    def alarm_code(self, value: int) -> None:
+        device = getattr(self, "device", None)
+        if device is not None and value == 0:
+            device.error_code = 0
+
+    def position(self, now: float | None = None) -> int:
+        return signed32(round(self.device.position(time_or_present(now))))
+
+    def physical_position(self, now: float | None = None) -> float:
+        return self.device.physical_position(time_or_present(now))
+
+    def switch_states(self, now: float) -> tuple[bool, bool, bool]:
+        return self.device.switch_states(now)
+
+    def is_moving(self, now: float | None = None) -> bool:
+        return self.device.is_moving(time_or_present(now))
+
+    def velocity(self, now: float | None = None) -> float:
+        return self.device.velocity(time_or_present(now))
+
+    def advance(self, now: float) -> None:
+        self.device.advance(now)
+
+    def raise_alarm(self, code: int, now: float | None = None) -> None:
+        """A fault with error code ``code``."""
+        self.device.raise_fault(code, time_or_present(now))
+
+    def power_loss(self) -> None:
+        super().power_loss()
+        self.device.power_loss(monotonic())
+
+    def power_restore(self) -> None:
+        SimDrive.power_restore(self)
+        self.regs = dict(self.eeprom)
+        self.device.power_restore(monotonic())
+
+    # -- registers ---------------------------------------------------------------------------
+
+    def _object_at(self, address: int) -> str | None:
+        w = self._words.get(address)
+        if w is None or w.reg.d.object is None:
+            return None
+        return object_name(w.reg.d.object)
+
+    def read_register(self, address: int, now: float) -> int:
+        name = self._object_at(address)
+        if name is None:
+            return super().read_register(address, now)
+        reg = self._words[address].reg
+        words: dict[int, int] = {}
+        self._store(words, reg, None, self.device.read(name, now))
+        return words[address]
+
+    def write_registers(self, address: int, values: list[int], now: float) -> None:
+        """Plain registers as in any twin; objects checked whole, then written in address
+        order (a 32-bit object needs both its words in the request or stored)."""
+        self.check_write(address, values)
+        written = dict(zip(range(address, address + len(values)), values, strict=True))
+        objects: list[tuple[str, int]] = []
+        plain: list[tuple[int, int]] = []
+        seen: set[str] = set()
+        for a, word in written.items():
+            name = self._object_at(a)
+            if name is None:
+                plain.append((a, word))
+                continue
+            if name in seen:
+                continue
+            seen.add(name)
+            reg = self._words[a].reg
+            objects.append((name, self._raw(reg, None, {**self.regs, **written})))
+        for name, value in objects:
+            self.device.check(name, value)
+        if plain:
+            start = plain[0][0]
+            if [a for a, _ in plain] == list(range(start, start + len(plain))):
+                super().write_registers(start, [w for _, w in plain], now)
+            else:
+                for a, w in plain:
+                    super().write_registers(a, [w], now)
+        for a, word in written.items():
+            if self._object_at(a) is not None:
+                self.regs[a] = word
+        for name, value in objects:
+            self.device.write(name, value, now)
+
+
+def _pulses_per_raw(d: Description, kind: str, ppr: int) -> float:
+    """Pulses/s (or /s²) of one raw unit of the description's velocity (acceleration)
+    objects."""
+    names = ("profile_velocity", "target_velocity", "velocity_actual_value",
+             "homing_speed_search") if kind == "velocity" else (
+        "profile_acceleration", "profile_deceleration", "homing_acceleration")
+    for name in names:
+        reg = d.objects.get(name)
+        if reg is None:
+            continue
+        v = float(reg.codec.to_physical(1, ppr=ppr))
+        if reg.codec.kind is Kind.SPEED:
+            return v * ppr / 60.0
+        if reg.codec.kind is Kind.ACCEL:
+            return v * ppr
+        return v
+    return 1.0
+
+
+_described: dict[int, tuple[Description, type[DescribedDrive]]] = {}
+
+
+def twin_of(d: Description) -> type[DescribedDrive]:
+    """The twin class of description ``d`` (one class per description, made once)."""
+    cached = _described.get(id(d))
+    if cached is None or cached[0] is not d:
+        cached = (d, described_twin(d))
+        _described[id(d)] = cached
+    return cached[1]
