@@ -76,6 +76,7 @@ async def test_frames_take_wire_time() -> None:
         assert rep.start - req.end >= 0.002  # the slave's turnaround
 
 
+@pytest.mark.serial  # the wire stamps the master's bytes when it reads them: load shortens
 async def test_broadcast_reaches_all_and_waits_the_turnaround_delay() -> None:
     s = LineSettings.parse("115200 8N1")
     slaves = [RegisterSlave(a, s) for a in (1, 2, 3)]
