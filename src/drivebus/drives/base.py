@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.checks import validation_problems
+from drivebus.drives.programs import Completion, ProgramSupport
 from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, FrameError, ModbusException, NotSupported
@@ -141,6 +142,10 @@ class DriveProfile:
 
     standard_frames: ClassVar[bool] = True
     """Speaks standard Modbus frames (a scan finds it by a plain register read first)."""
+
+    programs: ClassVar[ProgramSupport] = ProgramSupport()
+    """What the drive offers motion programs (buffered and blended moves, speed changes
+    on the fly), each with its manual's reason; by default nothing."""
 
     def __init__(self, slave: SlaveHandle, *, pulses_per_rev: int = 10000) -> None:
         self.slave = slave
@@ -478,3 +483,15 @@ class DriveProfile:
     async def save_parameters(self) -> None:
         """Store the parameters in the drive's non-volatile memory."""
         raise self.unsupported("save parameters")
+
+    # -- motion programs ------------------------------------------------------------------
+
+    async def retarget_absolute(self, position: int, params: MoveParams) -> None:
+        """Give a running motion a new target (and speed) without stopping, where the
+        drive's manual allows it (``programs.retarget``); at rest it is an absolute move."""
+        raise self.unsupported("take a new target while it moves", self.programs.no_retarget)
+
+    async def read_completion(self, *, priority: Priority = Priority.COMMAND) -> Completion | None:
+        """A short read that tells whether a motion has ended (a buffered move starts on
+        it); None: the family's full status read is as short (``read_status`` is used)."""
+        return None

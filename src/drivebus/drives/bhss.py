@@ -27,6 +27,7 @@ from drivebus.drives.base import (
     MoveParams,
     ramp_time_quantized,
 )
+from drivebus.drives.programs import Completion, ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation
@@ -217,6 +218,12 @@ class BHSSProfile(DriveProfile):
     """
 
     family: ClassVar[str] = "BHSS"
+    programs: ClassVar[ProgramSupport] = ProgramSupport(
+        preload="a motion latches its ramps when it starts (a stop uses the deceleration time "
+        "in effect at the start, BHSS manual L1229-L1233); speed and distance are taken at "
+        "the 0x0027 start as well",
+        no_retarget="its manual does not say what a start (0x0027) does while the motor turns",
+    )
     word_order: ClassVar[WordOrder] = WordOrder.HIGH_FIRST
     exception_texts: ClassVar[dict[int, str]] = EXCEPTION_TEXTS
     homing_methods: ClassVar[tuple[str, ...]] = tuple(_HOMING_MODES)
@@ -550,4 +557,23 @@ class BHSSProfile(DriveProfile):
             "it has no save command; it stores each Modbus write in EEPROM only while "
             "register 0x0016 is 0: build the profile with eeprom_write_through=True for that "
             "(every write, motion commands included, then wears the EEPROM)",
+        )
+
+    # -- motion programs --------------------------------------------------------------------
+
+    async def read_completion(self, *, priority: Priority = Priority.COMMAND) -> Completion:
+        """0x0007..0x0008 (status bits, inputs): two registers of the status's nine, so a
+        buffered move starts sooner (a position move turns while bit2 is set)."""
+        if self._limit_bits is None:
+            await self._load_limit_bits()
+        assert self._limit_bits is not None
+        bits, inputs = await self.slave.read_holding_registers(0x0007, 2, priority=priority)
+        moving = bool(bits & StatusBit.TURNING)
+        pos_mask, neg_mask = self._limit_bits
+        return Completion(
+            moving=moving,
+            in_position=bool(bits & StatusBit.POSITION_REACHED) and not moving,
+            alarm=bool(bits & StatusBit.ALARM),
+            limit_positive=bool(inputs & pos_mask),
+            limit_negative=bool(inputs & neg_mask),
         )

@@ -42,6 +42,7 @@ from drivebus.drives.base import (
     MoveParams,
     ramp_time_quantized,
 )
+from drivebus.drives.programs import Completion, ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import LimitViolation
@@ -329,6 +330,14 @@ class CL86RProfile(DriveProfile):
     """
 
     family: ClassVar[str] = "CL86R"
+    programs: ClassVar[ProgramSupport] = ProgramSupport(
+        preload_braking="the manual does not say a move latches its values, and a stop "
+        "ramps down with the deceleration time 0x0032 holds at that moment: the next move "
+        "is written only as the one before it comes to rest, and only if it brakes no "
+        "gentler",
+        retarget="control word bit 2: a new command interrupts the running move and runs at "
+        "once (CL86R manual L245)",
+    )
     word_order: ClassVar[WordOrder] = WordOrder.HIGH_FIRST
     exception_texts: ClassVar[dict[int, str]] = {
         1: "illegal function code",
@@ -612,6 +621,28 @@ class CL86RProfile(DriveProfile):
     async def factory_reset(self) -> None:
         """Restore the factory settings: 0x0037 = 0x0001."""
         await self.write(AUX_CONTROL, int(Aux.FACTORY_RESET), idempotent=False)
+
+    # -- motion programs --------------------------------------------------------------------
+
+    async def retarget_absolute(self, position: int, params: MoveParams) -> None:
+        """0x0030-0x0035, then 0x0036 = 0x0007: an absolute move that interrupts the one
+        running (bit 2) and runs at once from the present speed (manual L245)."""
+        await self._write_move(position, params)
+        word = Control.START_POSITION | Control.ABSOLUTE | Control.INTERRUPT
+        await self._control(int(word), priority=Priority.COMMAND, idempotent=False)
+
+    async def read_completion(self, *, priority: Priority = Priority.COMMAND) -> Completion:
+        """0x0003..0x0005 (status word, error code, inputs): three registers of the ten."""
+        status, error, inputs = await self.slave.read_holding_registers(
+            STATUS.address, 3, priority=priority)
+        running = bool(status & StatusBit.RUNNING)
+        return Completion(
+            moving=running,
+            in_position=bool(status & StatusBit.IN_PLACE) and not running,
+            alarm=bool(status & StatusBit.ALARM) or error != 0,
+            limit_positive=self._input(inputs, _DI_LIMIT_POSITIVE),
+            limit_negative=self._input(inputs, _DI_LIMIT_NEGATIVE),
+        )
 
     # -- CL86R specifics ------------------------------------------------------------------------
 

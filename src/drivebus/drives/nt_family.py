@@ -35,6 +35,7 @@ from drivebus.drives.base import (
     HomingSwitches,
     MoveParams,
 )
+from drivebus.drives.programs import ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation, StateError
@@ -308,6 +309,13 @@ class NT86Profile(DriveProfile):
 
     family: ClassVar[str] = "NT86"
     word_order: ClassVar[WordOrder] = WordOrder.LOW_FIRST
+    programs: ClassVar[ProgramSupport] = ProgramSupport(
+        preload="changes to 70-72 made during a point move apply from the next start "
+        "(NT86 manual L1312); the target 73/74 is taken at the start as well",
+        no_retarget="while it moves (MOV=1) the NT86 obeys only the stop commands 18=5/6 "
+        "(manual L632)",
+        jog_speed="register 77 (jog speed) takes effect at once during a jog (manual L1342)",
+    )
     exception_texts: ClassVar[dict[int, str]] = dict(_NT_EXCEPTIONS)
     homing_methods: ClassVar[tuple[str, ...]] = (
         "home_switch_positive",  # 288=0
@@ -802,6 +810,14 @@ class EPR60Profile(NT86Profile):
 
     family: ClassVar[str] = "EPR60"
     DRIVE_ID: ClassVar[int] = 60
+    programs: ClassVar[ProgramSupport] = ProgramSupport(
+        preload="changes to 70-72 made during a move take effect only at the next start "
+        "(EPR60 manual L1100); the target 73/74 is taken at the start as well",
+        no_retarget="while it moves (MOV=1) the EPR60 ignores new motion commands and accepts "
+        "only 18=5/6 (manual L623, L1099)",
+        jog_speed="register 77 can be changed while running and takes effect immediately "
+        "(manual L1121)",
+    )
     homing_methods: ClassVar[tuple[str, ...]] = ("limit_negative", "limit_positive")
     regs: ClassVar[NTRegisterMap] = EPR60_MAP
     options: ClassVar[type[DriveOptions]] = EPR60Options

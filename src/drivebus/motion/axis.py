@@ -28,7 +28,7 @@ import logging
 import math
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import anyio
@@ -57,7 +57,10 @@ from drivebus.errors import (
 )
 from drivebus.motion.envelope import Envelope, MotionPlan
 from drivebus.motion.events import AxisListener, MotionEvent, MotionEventKind
+from drivebus.motion.handle import BufferMode, MotionHandle, QueuePlan, Runs, check_buffer
+from drivebus.motion.program import ProgramRunner
 from drivebus.motion.state import MOVING_STATES, AxisState
+from drivebus.motion.trajectory import Trajectory
 from drivebus.motion.units import Units
 from drivebus.timing import timing
 
@@ -122,6 +125,30 @@ class _Motion:
     """Set when the command I/O that ``io`` belongs to has ended."""
     finished: anyio.Event = field(default_factory=anyio.Event)
     outcome: BaseException | None = None
+    trajectory: Trajectory | None = None
+    """Where it will be when (user units, monotonic s), planned once the drive took it."""
+    deadline: float | None = None
+    """When it has failed if it is not over (MotionTimeout), for a motion nobody awaits."""
+    buffer: BufferMode = "aborting"
+    runs: Runs = "now"
+    reason: str = ""
+    """Why it buffers although a blend was asked (the drive, or the geometry)."""
+    prepare: Callable[[], Awaitable[None]] | None = None
+    """A queued move: write everything but its start (the next ``begin`` starts it)."""
+    begin: Callable[[], Awaitable[None]] | None = None
+    """A queued motion: its start command (after ``prepare``)."""
+    retarget: Callable[[], Awaitable[None]] | None = None
+    """A queued move that blends: the new target given on the fly."""
+    prepared: bool = False
+    blend_speed: float | None = None
+    watchdog: float | None = None
+    """A queued jog's watchdog period (armed when it starts)."""
+
+    def queue_plan(self) -> QueuePlan:
+        """How it runs, for its handle."""
+        t = self.trajectory
+        return QueuePlan(self.buffer, self.runs, self.reason, self.blend_speed,
+                         None if t is None else t.start, None if t is None else t.end)
 
     @property
     def over(self) -> bool:
@@ -151,7 +178,7 @@ _REFUSALS = (LimitViolation, StateError, ArgumentError, NotSupported, ConfigErro
 """Errors that mean nothing was started: raised before any frame, or the drive's own no."""
 
 
-class Axis:
+class Axis(ProgramRunner):
     """A named axis: a drive profile, user units, limits, state and its actor."""
 
     def __init__(self, name: str, config: AxisConfig, profile: DriveProfile) -> None:
@@ -194,6 +221,8 @@ class Axis:
         self._watchdog_period: float | None = None
         self._watchers: list[_Latest] = []
         self._listeners: list[AxisListener] = []
+        self._queue: list[_Motion] = []
+        self._queue_wake = anyio.Event()
 
     # -- reading -----------------------------------------------------------------------------
 
@@ -252,12 +281,19 @@ class Axis:
     # -- the actor ------------------------------------------------------------------------------
 
     async def run(self) -> None:
-        """Poll the drive and keep its safety rules until cancelled; owned by the machine."""
+        """Poll the drive, keep its safety rules and run its queue until cancelled; owned
+        by the machine."""
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(self._sequence, name=f"drivebus axis {self.name} queue")
+            await self._poll_forever()
+
+    async def _poll_forever(self) -> None:
         fails = 0
         poll = self.config.poll
         next_poll = monotonic()
         while True:
-            fast = self.state in MOVING_STATES or self._waiters > 0 or self._motion is not None
+            fast = (self.state in MOVING_STATES or self._waiters > 0
+                    or self._motion is not None or bool(self._queue))
             period = poll.moving if fast else poll.idle
             now = monotonic()
             next_poll = min(next_poll, now + period)
@@ -314,6 +350,7 @@ class Axis:
         )
         self.state = AxisState.OFFLINE
         log.warning("%s", self.error)
+        self._drop_queue(MotionAborted(f"axis {self.name}: the queue was dropped: {self.error}"))
         if self._motion is not None:
             self._end_motion(self._motion, self.error, None)
         else:
@@ -372,7 +409,7 @@ class Axis:
             self.state = AxisState.DISCRETE_MOTION  # moved by someone else (a panel, a PLC)
         elif self.state in (AxisState.STOPPING, AxisState.DISCRETE_MOTION) and not st.moving and (
             issued > self._stop_sent_at
-        ):
+        ) and not self._queue:
             self.state = AxisState.STANDSTILL
         if not st.moving:
             for w in [w for w in self._rest_waits if issued > w.after]:
@@ -483,8 +520,11 @@ class Axis:
         self._end_motion(m, self.error, AxisState.ERROR_STOP)
         self._stop_due = f"{name} limit switch"
 
-    def _end_motion(self, m: _Motion, error: BaseException | None, state: AxisState | None) -> None:
-        """Decide ``m``'s outcome; the axis goes to ``state`` (None: leave it).
+    def _end_motion(self, m: _Motion, error: BaseException | None, state: AxisState | None,
+                    *, detail: str = "") -> None:
+        """Decide ``m``'s outcome; the axis goes to ``state`` (None: leave it). An error
+        drops the queue behind it; a success with a queue behind it keeps the axis in
+        motion for the queue's next (``detail``: what to tell of a success).
 
         A motion that ended in an error the drive caused (it stopped short, did not start,
         an alarm) may hide a reset: the drive's settings are checked before the next
@@ -492,24 +532,37 @@ class Axis:
         if error is not None and not isinstance(error, MotionAborted):
             self._check_due = True
         if not m.over:
-            log.debug("axis %s: %s ends: %s", self.name, m.what, error or "done")
+            log.debug("axis %s: %s ends: %s", self.name, m.what, error or detail or "done")
             if self._listeners:
                 kind: MotionEventKind = (
                     "error" if error is not None and not isinstance(error, MotionAborted)
                     else "aborted" if error is not None
-                    else "in_position" if m.kind == "move" else "done")
-                self._note(kind, m.what, m=m, detail="" if error is None else str(error),
+                    else "in_position" if m.kind == "move" and not detail else "done")
+                self._note(kind, m.what, m=m, detail=detail if error is None else str(error),
                            at=self.arrived_at if kind == "in_position" else None)
         m.finish(error)
+        if error is not None and self._queue and self._motion is m:
+            self._drop_queue(MotionAborted(
+                f"axis {self.name}: the queue was dropped: the {m.what} ended: {error}"))
         if self._motion is m:
             self._motion = None
             self._jog_deadline = None
+            if state is AxisState.STANDSTILL and self._queue:
+                state = None  # the queue's next starts now
             if state is not None:
                 self.state = state
+        self._wake_queue()
 
     async def _act(self) -> None:
         """What a poll asked for: a stop (limit, watchdog, alarm), a settings check."""
         reason = self._stop_due
+        m = self._motion
+        if (reason is None and m is not None and m.deadline is not None and not m.over
+                and monotonic() > m.deadline):
+            timeout = MotionTimeout(f"axis {self.name}: the {m.what} did not complete in time "
+                                    f"(its deadline passed {monotonic() - m.deadline:.1f} s ago)")
+            log.warning("%s", timeout)
+            await self._stop_now(str(timeout), error=timeout)
         if (
             reason is None
             and self.state is AxisState.CONTINUOUS_MOTION
@@ -633,22 +686,29 @@ class Axis:
     ) -> None:
         """Run ``io`` alone on the axis; a motion's I/O can be cancelled by a stop."""
         async with self._lane:
-            if motion is not None and motion.over:
-                raise motion.outcome or MotionAborted(f"axis {self.name}: {motion.what} aborted")
-            scope, done = anyio.CancelScope(), anyio.Event()
+            await self._locked_io(io, motion=motion)
+
+    async def _locked_io(
+        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None
+    ) -> None:
+        """``_exclusive``'s body, for a caller that holds the lane."""
+        if motion is not None and motion.over:
+            raise motion.outcome or MotionAborted(f"axis {self.name}: {motion.what} aborted")
+        scope, done = anyio.CancelScope(), anyio.Event()
+        if motion is not None:
+            motion.io, motion.io_done = scope, done
+        try:
+            with scope:
+                if self._check_due or self._setup_due:
+                    await self._verify_settings()
+                await io()
+        finally:
             if motion is not None:
-                motion.io, motion.io_done = scope, done
-            try:
-                with scope:
-                    if self._check_due or self._setup_due:
-                        await self._verify_settings()
-                    await io()
-            finally:
-                if motion is not None:
-                    motion.io = None
-                done.set()
-            if motion is not None and scope.cancelled_caught:
-                raise motion.outcome or MotionAborted(f"axis {self.name}: {motion.what} aborted")
+                motion.io = None
+            done.set()
+            self._wake_queue()
+        if motion is not None and scope.cancelled_caught:
+            raise motion.outcome or MotionAborted(f"axis {self.name}: {motion.what} aborted")
 
     def _begin(
         self,
@@ -682,9 +742,11 @@ class Axis:
     ) -> None:
         """``StateError`` unless the axis may start a motion now (at rest, nothing under
         way); no I/O, nothing changes."""
-        if self.state not in allowed or self._motion is not None:
+        if self.state not in allowed or self._motion is not None or self._queue:
             detail = f" ({self.error})" if self.error is not None else ""
             running = f"; the {self._motion.what} is under way" if self._motion else ""
+            if self._queue:
+                running += f"; {len(self._queue)} more queued"
             raise StateError(
                 f"axis {self.name}: cannot start the {what} in state {self.state}{detail}"
                 f"{running}"
@@ -752,6 +814,7 @@ class Axis:
         start: Callable[[], Awaitable[None]],
         *,
         prepare: Callable[[], Awaitable[None]] | None = None,
+        trajectory: Callable[[float], Trajectory] | None = None,
     ) -> None:
         """Send ``m``'s start command. If the drive may have been reset since it was
         prepared (a poll failed meanwhile), check its settings and ``prepare`` it again
@@ -777,6 +840,14 @@ class Axis:
                 await start()
         m.accepted_at = self.command_started_at = monotonic()
         log.debug("axis %s: %s started (target %s pulses)", self.name, m.what, m.target)
+        drive_start = self._drive_started(m.accepted_at)
+        if trajectory is not None:
+            m.trajectory = trajectory(drive_start)
+        elif m.plan is not None and m.target is not None and m.start is not None:
+            u = self.units
+            m.trajectory = Trajectory.point_to_point(
+                u.from_pulses(m.start), u.from_pulses(m.target),
+                self.envelope.quantized(m.plan), t0=drive_start)
         if self._listeners:
             planned = None
             if m.plan is not None and m.target is not None and m.start is not None:
@@ -785,6 +856,7 @@ class Axis:
             self._note("started", m.what, m=m, at=m.accepted_at, planned_end=planned)
         self._commanded = True
         self._poke_now()
+        self._wake_queue()
 
     async def _stop_now(self, reason: str, *, error: BaseException | None = None) -> None:
         """Abort the motion under way and send a decelerating stop, not waiting for rest.
@@ -794,12 +866,16 @@ class Axis:
         """
         m = self._motion
         self._note("stop", "stop", m=m, detail=reason)
+        pending = self._drop_queue(MotionAborted(
+            f"axis {self.name}: the queue was dropped: the axis was stopped: {reason}"))
         if m is not None:
             running = m.io is not None
             self._end_motion(m, error or MotionAborted(
                 f"axis {self.name}: the {m.what} was stopped: {reason}"), None)
             if running and m.io_done is not None:
-                await m.io_done.wait()
+                pending.append(m.io_done)
+        for done in pending:
+            await done.wait()
         self._jog_deadline = None
         try:
             await self.profile.stop(None)
@@ -827,16 +903,27 @@ class Axis:
         speed: float | None = None,
         accel: float | None = None,
         decel: float | None = None,
+        buffer: BufferMode = "aborting",
         ready: Callable[[], Awaitable[None]] | None = None,
         accepted: Callable[[], object] | None = None,
-    ) -> None:
+    ) -> MotionHandle | None:
         """Move to ``target`` (user units); return when the drive reports it is there.
+
+        ``buffer`` (PLCopen buffer mode) says what it does to a motion under way:
+        ``"aborting"`` (the default) takes over where the drive takes a new target on the
+        fly (the motion under way ends with ``MotionAborted``), else it is a
+        ``StateError``. ``"buffered"`` queues it to start the moment the motion before it
+        is in position; ``"blending"`` queues it to reach the drive before the motion
+        before it brakes, so the axis does not stop (a drive that cannot buffers, and
+        says why in the handle's ``plan``). Both return a ``MotionHandle`` once the move
+        is taken (at once if nothing runs): await it for the move's outcome.
 
         With ``ready``, the move is prepared on the drive, then ``ready()`` is awaited
         before the start command goes out (a group starts its axes back to back).
         ``accepted()`` is called once every check has passed and the axis has taken the
         move (a service answers "running" then; a refusal raises before it).
         """
+        buffer = check_buffer(buffer)
         target = checks.finite(f"axis {self.name}: target", target)
         plan = self.plan(speed, accel, decel)
         self.check_limits(target)
@@ -844,12 +931,18 @@ class Axis:
         target_p = self.envelope.pulses(target)
         params = self.drive_params(plan)
         self.check_drive(plan)
+        what = f"move to {target:g}"
+        if buffer != "aborting" and (self._motion is not None or self._queue):
+            return self._queue_move(what, target_p, plan, params, buffer, accepted)
+        if buffer == "aborting" and self._may_take_over():
+            await self._take_over(what, target_p, plan, params, accepted)
+            return None
         here = self.status.position if self.status is not None else None
         direction = 0 if here is None else (target_p > here) - (target_p < here)
         self.envelope.check_switch(direction, self.status)
-        m = self._begin("move", f"move to {target:g}", AxisState.DISCRETE_MOTION,
+        m = self._begin("move", what, AxisState.DISCRETE_MOTION,
                         direction=direction, accepted=accepted)
-        m.target, m.plan = target_p, plan
+        m.target, m.plan, m.buffer = target_p, plan, buffer
 
         async def prepare() -> None:
             await self.profile.prepare_absolute(target_p, params)
@@ -867,6 +960,83 @@ class Axis:
             await self._commit(m, self.profile.start_absolute, prepare=prepare)
 
         distance = self.units.from_pulses(target_p - (m.start or 0))
+        timeout = self.envelope.motion_timeout(plan, distance)
+        if buffer == "aborting":
+            await self._run_motion(m, io, timeout=timeout)
+            return None
+        await self._run_motion(m, io, timeout=None, wait=False)
+        m.deadline = monotonic() + timeout
+        return self._handle(m)
+
+    def _queue_move(
+        self, what: str, target_p: int, plan: MotionPlan, params: MoveParams,
+        buffer: BufferMode, accepted: Callable[[], object] | None,
+    ) -> MotionHandle:
+        """Queue a move to ``target_p`` pulses behind the motions under way (checked)."""
+        origin, _ = self._queue_origin(what)
+        direction = 0 if origin is None else (target_p > origin) - (target_p < origin)
+        m = _Motion("move", what, AxisState.STANDSTILL, direction=direction)
+        m.start, m.target, m.plan, m.buffer = origin, target_p, plan, buffer
+        profile = self.profile
+
+        async def prepare() -> None:
+            await profile.prepare_absolute(target_p, params)
+
+        async def retarget() -> None:
+            await profile.retarget_absolute(target_p, params)
+
+        m.prepare, m.begin, m.retarget = prepare, profile.start_absolute, retarget
+        return self._enqueue(m, accepted)
+
+    def _may_take_over(self) -> bool:
+        """True if a new move may replace the motion under way on the fly (aborting)."""
+        m = self._motion
+        return (
+            m is not None and self.profile.programs.blends and m.kind in ("move", "jog")
+            and m.target is not None and m.accepted_at is not None and m.io is None
+            and not m.over
+            and self.state in (AxisState.DISCRETE_MOTION, AxisState.CONTINUOUS_MOTION)
+        )
+
+    async def _take_over(
+        self, what: str, target_p: int, plan: MotionPlan, params: MoveParams,
+        accepted: Callable[[], object] | None,
+    ) -> None:
+        """Replace the motion under way by a move to ``target_p`` given on the fly (the
+        drive's retarget): the motion and the queue end with ``MotionAborted``."""
+        cur = self._motion
+        assert cur is not None
+        here = self.status.position if self.status is not None else cur.target
+        assert here is not None
+        direction = (target_p > here) - (target_p < here)
+        self.envelope.check_switch(direction, self.status)
+        self._drop_queue(MotionAborted(
+            f"axis {self.name}: the queued motions were dropped: the {what} takes over"))
+        self._end_motion(cur, MotionAborted(
+            f"axis {self.name}: the {cur.what} was aborted by the {what} (aborting)"), None)
+        m = _Motion("move", what, AxisState.STANDSTILL, direction=direction)
+        m.start, m.target, m.plan, m.runs = here, target_p, plan, "taken over"
+        m.seen_motion, m.accepted_at = True, cur.accepted_at  # the drive is moving already
+        self._motion, self.state, self._jog_deadline = m, AxisState.DISCRETE_MOTION, None
+        self._note("accepted", what, m=m, detail="takes over")
+        if accepted is not None:
+            accepted()
+        before, goal = cur.trajectory, self.units.from_pulses(target_p)
+        quantized = self.envelope.quantized(plan)
+
+        def trajectory(t0: float) -> Trajectory:
+            if before is not None:
+                return before.retargeted(t0, goal, quantized)
+            return Trajectory.point_to_point(self.units.from_pulses(here), goal, quantized,
+                                             t0=t0)
+
+        async def retarget() -> None:
+            await self.profile.retarget_absolute(target_p, params)
+
+        async def io() -> None:
+            await self._commit(m, retarget, trajectory=trajectory)
+
+        distance = self.units.from_pulses(target_p - here)
         await self._run_motion(m, io, timeout=self.envelope.motion_timeout(plan, distance))
 
     async def move_by(
@@ -876,12 +1046,36 @@ class Axis:
         speed: float | None = None,
         accel: float | None = None,
         decel: float | None = None,
+        buffer: BufferMode = "aborting",
         accepted: Callable[[], object] | None = None,
-    ) -> None:
-        """Move by ``distance`` (user units) from the present position (``accepted``: as
-        for ``move_to``)."""
+    ) -> MotionHandle | None:
+        """Move by ``distance`` (user units) from the present position (``buffer``,
+        ``accepted``: as for ``move_to``). Queued (buffered or blending), the distance
+        counts from where the motion before it ends, PLCopen's reading."""
+        buffer = check_buffer(buffer)
         distance = checks.finite(f"axis {self.name}: distance", distance)
         plan = self.plan(speed, accel, decel)
+        what = f"move by {distance:g}"
+        if (buffer != "aborting" and (self._motion is not None or self._queue)) or (
+            buffer == "aborting" and self._may_take_over()
+        ):
+            self.profile.check_supported("move_absolute")
+            params = self.drive_params(plan)
+            self.check_drive(plan)
+            if buffer == "aborting":
+                origin = self.status.position if self.status is not None else None
+            else:
+                origin, _ = self._queue_origin(what)
+            if origin is None:
+                raise StateError(f"axis {self.name}: the {what} has no start to count from: "
+                                 f"the motion before it has no end position")
+            target = self.units.from_pulses(origin) + distance
+            self.check_limits(target)
+            target_p = self.envelope.pulses(target)
+            if buffer == "aborting":
+                await self._take_over(what, target_p, plan, params, accepted)
+                return None
+            return self._queue_move(what, target_p, plan, params, buffer, accepted)
         self.profile.check_supported("move_relative")
         params = self.drive_params(plan)
         self.check_drive(plan)
@@ -889,9 +1083,9 @@ class Axis:
             self.check_limits(self.position + distance)
         direction = self.envelope.drive_direction(distance)
         self.envelope.check_switch(direction, self.status)
-        m = self._begin("move", f"move by {distance:g}", AxisState.DISCRETE_MOTION,
+        m = self._begin("move", what, AxisState.DISCRETE_MOTION,
                         direction=direction, accepted=accepted)
-        m.plan = plan
+        m.plan, m.buffer = plan, buffer
 
         async def io() -> None:
             st = await self.refresh()
@@ -902,7 +1096,13 @@ class Axis:
             m.start, m.target = start, target
             await self._commit(m, lambda: self.profile.move_relative(target - start, params))
 
-        await self._run_motion(m, io, timeout=self.envelope.motion_timeout(plan, distance))
+        timeout = self.envelope.motion_timeout(plan, distance)
+        if buffer == "aborting":
+            await self._run_motion(m, io, timeout=timeout)
+            return None
+        await self._run_motion(m, io, timeout=None, wait=False)
+        m.deadline = monotonic() + timeout
+        return self._handle(m)
 
     async def home(self, *, accepted: Callable[[], object] | None = None) -> None:
         """Run the configured homing procedure; return when the drive reports homed
@@ -940,7 +1140,8 @@ class Axis:
         accel: float | None = None,
         decel: float | None = None,
         watchdog: float | None = 1.0,
-    ) -> None:
+        buffer: BufferMode = "aborting",
+    ) -> MotionHandle | None:
         """Run at ``speed`` units/s (sign = direction) until ``stop()`` or until the
         watchdog expires; returns once running.
 
@@ -951,33 +1152,65 @@ class Axis:
         the limit in its direction, so it comes to rest on the limit at the latest.
 
         Called again while jogging with the same values it feeds the watchdog; with
-        another speed or direction it changes the jog (towards a limit: by a stop and a new
-        start, the drives cannot retarget a position move while it runs).
+        another speed or direction it changes the jog (towards a limit: on the fly where
+        the drive takes a new target while it moves, else by a stop and a new start).
+
+        ``buffer="buffered"`` (or ``"blending"``) queues the jog behind the motions under
+        way, as for ``move_to``, and returns a ``MotionHandle``; its watchdog starts with
+        it. A blend needs soft limits (the jog is then a move to the limit).
         """
+        buffer = check_buffer(buffer)
         speed = checks.finite(f"axis {self.name}: speed", speed)
         if watchdog is not None:
             watchdog = checks.positive(f"axis {self.name}: watchdog", watchdog, unit="s")
-        if speed == 0:
+        if speed == 0 and buffer == "aborting":
             await self.stop()
-            return
+            return None
+        if speed == 0:
+            raise ArgumentError(f"axis {self.name}: a queued jog needs a speed other than 0")
         plan = self.plan(abs(speed), accel, decel)
-        self.envelope.check_jog_room(speed, self.status)
         bound = self.envelope.jog_bound(speed)
         procedure = "move_absolute" if bound is not None else "speed_run"
         self.profile.check_supported(procedure)
         self.check_drive(plan)
+        what = f"jog at {speed:g}"
+        if buffer != "aborting" and (self._motion is not None or self._queue):
+            return self._queue_jog(what, speed, plan, bound, watchdog, buffer)
+        self.envelope.check_jog_room(speed, self.status)
         m = self._motion
         if m is not None and m.kind == "jog" and self.state is AxisState.CONTINUOUS_MOTION:
             if m.speed == speed and m.plan == plan:
                 self._arm_watchdog(watchdog)  # the same jog again: a feed
-                return
+                return None
             await self._change_jog(m, speed, plan, bound, watchdog)
-            return
-        m = self._begin("jog", f"jog at {speed:g}", AxisState.CONTINUOUS_MOTION,
+            return None
+        m = self._begin("jog", what, AxisState.CONTINUOUS_MOTION,
                         direction=self.envelope.drive_direction(speed))
-        m.speed, m.plan, m.target = speed, plan, bound
+        m.speed, m.plan, m.target, m.buffer = speed, plan, bound, buffer
         await self._run_motion(m, lambda: self._start_jog(m), timeout=None, wait=False)
         self._arm_watchdog(watchdog)
+        return None if buffer == "aborting" else self._handle(m)
+
+    def _queue_jog(
+        self, what: str, speed: float, plan: MotionPlan, bound: int | None,
+        watchdog: float | None, buffer: BufferMode,
+    ) -> MotionHandle:
+        """Queue a jog behind the motions under way (checked against where they end)."""
+        origin, _ = self._queue_origin(what)
+        if origin is not None and self.status is not None:
+            self.envelope.check_jog_room(speed, replace(self.status, position=origin))
+        m = _Motion("jog", what, AxisState.STANDSTILL,
+                    direction=self.envelope.drive_direction(speed))
+        m.speed, m.plan, m.target, m.start = speed, plan, bound, origin
+        m.buffer, m.watchdog = buffer, watchdog
+        if bound is not None:
+            params = self.drive_params(plan)
+
+            async def retarget() -> None:
+                await self.profile.retarget_absolute(bound, params)
+
+            m.retarget = retarget
+        return self._enqueue(m, None)
 
     async def _start_jog(self, m: _Motion) -> None:
         assert m.plan is not None
@@ -1007,6 +1240,13 @@ class Axis:
                 params = self.drive_params(plan)
                 rpm = math.copysign(params.speed_rpm, direction)
                 await self.profile.speed_run(rpm, params.accel_rps2, params.decel_rps2)
+            elif bound is not None and direction == m.direction and self.profile.programs.blends:
+                # towards the same limit at another speed, given on the fly
+                await self.profile.retarget_absolute(bound, self.drive_params(plan))
+                before, limit = m.trajectory, self.units.from_pulses(bound)
+                if before is not None:
+                    m.trajectory = before.retargeted(
+                        self._drive_started(monotonic()), limit, self.envelope.quantized(plan))
             else:
                 m.restarting = True
                 await self.profile.stop(None)
@@ -1075,20 +1315,25 @@ class Axis:
         offline = self.state is AxisState.OFFLINE
         m = self._motion
         self._note("stop", by, m=m)
+        queued = bool(self._queue)
+        pending = self._drop_queue(MotionAborted(
+            f"axis {self.name}: the queued motions were dropped by {by}"))
         running = m is not None and m.io is not None
         if m is not None:
             self._end_motion(m, MotionAborted(f"axis {self.name}: the {m.what} was aborted by "
                                               f"{by}"), None)
         self._jog_deadline = None
         moving = self.status is not None and self.status.moving
-        if m is None and not offline and not moving and self.state in (
+        if m is None and not queued and not offline and not moving and self.state in (
             AxisState.STANDSTILL, AxisState.DISABLED, AxisState.ERROR_STOP
         ):
             return
         if self.state not in (AxisState.ERROR_STOP, AxisState.OFFLINE, AxisState.DISABLED):
             self.state = AxisState.STOPPING
         if running and m is not None and m.io_done is not None:
-            await m.io_done.wait()  # nothing of the aborted motion can follow the stop now
+            pending.append(m.io_done)
+        for done in pending:
+            await done.wait()  # nothing of the aborted motions can follow the stop now
         try:
             # Offline or not, the stop is sent: the drive may be back (a network blip) and a
             # motor must not keep running because our polls failed.
@@ -1153,7 +1398,7 @@ class Axis:
     # -- other commands --------------------------------------------------------------------------
 
     def _at_rest_or_raise(self, what: str) -> None:
-        if self._motion is not None or self.state in MOVING_STATES or (
+        if self._motion is not None or self._queue or self.state in MOVING_STATES or (
             self.status is not None and self.status.moving
         ):
             raise StateError(f"axis {self.name}: stop before you {what} ({self.state})")
@@ -1162,7 +1407,7 @@ class Axis:
         """Before a command that needs the drive at rest: ``StateError`` if a motion is
         under way; else decide on a status polled from now on, not a stale one. A drive
         still braking from a stop (Stopping, ErrorStop) is waited for, bounded."""
-        if self._motion is not None or self.state in _COMMANDED_MOTION:
+        if self._motion is not None or self._queue or self.state in _COMMANDED_MOTION:
             self._at_rest_or_raise(what)
         if self.state is AxisState.OFFLINE:
             return
