@@ -57,6 +57,7 @@ from drivebus.errors import (
 )
 from drivebus.motion.envelope import Envelope, MotionPlan
 from drivebus.motion.events import AxisListener, MotionEvent, MotionEventKind
+from drivebus.motion.gate import SegmentGate
 from drivebus.motion.handle import BufferMode, MotionHandle, QueuePlan, Runs, check_buffer
 from drivebus.motion.program import ProgramRunner
 from drivebus.motion.state import MOVING_STATES, AxisState
@@ -143,6 +144,24 @@ class _Motion:
     blend_speed: float | None = None
     watchdog: float | None = None
     """A queued jog's watchdog period (armed when it starts)."""
+    gate: SegmentGate | None = None
+    """A group segment: it starts once every axis of the segment before it is there."""
+    blend_before_end: float | None = None
+    """A blended path corner: the new target reaches the drive this long before the
+    motion before it would arrive (None: as that motion begins to brake)."""
+    may_reverse: bool = False
+    """A path corner may blend although this axis reverses there."""
+    ready: Callable[[], Awaitable[None]] | None = None
+    """A queued group start: awaited once the move is written, before its start."""
+    reports: list[SegmentGate] = field(default_factory=list)
+    """Group segments it is part of: told when it is done (or failed)."""
+    began: float | None = None
+    """When the drive took it (its start or its new target), monotonic s."""
+    fresh: anyio.Event | None = None
+    """A move a short read found in position: set once a full status polled after that
+    was taken in (its handle returns then, with the axis's position up to date)."""
+    arrived: tuple[float, float] | None = None
+    """When it was seen in position: (the poll before, the poll that saw it)."""
 
     def queue_plan(self) -> QueuePlan:
         """How it runs, for its handle."""
@@ -223,6 +242,7 @@ class Axis(ProgramRunner):
         self._listeners: list[AxisListener] = []
         self._queue: list[_Motion] = []
         self._queue_wake = anyio.Event()
+        self._unconfirmed: list[_Motion] = []  # ended by a short read, no full status since
 
     # -- reading -----------------------------------------------------------------------------
 
@@ -359,6 +379,7 @@ class Axis(ProgramRunner):
             w.error = self.error
             w.event.set()
         self._rest_waits.clear()
+        self._take_fresh(math.inf)
         self._publish()
 
     def _apply(self, st: DriveStatus, issued: float) -> None:
@@ -415,9 +436,18 @@ class Axis(ProgramRunner):
             for w in [w for w in self._rest_waits if issued > w.after]:
                 w.event.set()
                 self._rest_waits.remove(w)
+        self._take_fresh(issued)
         for listener in self._listeners:
             listener(st)
         self._publish()
+
+    def _take_fresh(self, issued: float) -> None:
+        """A full status polled at ``issued``: the moves a short read ended before it may
+        return to their callers now."""
+        for m in [m for m in self._unconfirmed if m.arrived is None or issued > m.arrived[1]]:
+            self._unconfirmed.remove(m)
+            if m.fresh is not None:
+                m.fresh.set()
 
     def _judge(self, m: _Motion, st: DriveStatus, issued: float, prev_issued: float) -> None:
         """Decide from a status polled after ``m`` started: done, failed, or going on."""
@@ -439,6 +469,7 @@ class Axis(ProgramRunner):
                 self.moves_done += 1
                 self.arrived_at = issued
                 self.arrived_after = max(prev_issued, m.accepted_at or 0.0)
+                m.arrived = (self.arrived_after, issued)
                 self._end_motion(m, None, AxisState.STANDSTILL)
             return  # at the target, still settling
         if m.kind == "jog" and m.target is not None and at:
@@ -541,6 +572,11 @@ class Axis(ProgramRunner):
                 self._note(kind, m.what, m=m, detail=detail if error is None else str(error),
                            at=self.arrived_at if kind == "in_position" else None)
         m.finish(error)
+        for gate in m.reports:
+            if error is None:
+                gate.arrive(self.name, monotonic())
+            else:
+                gate.fail(self.name, error)
         if error is not None and self._queue and self._motion is m:
             self._drop_queue(MotionAborted(
                 f"axis {self.name}: the queue was dropped: the {m.what} ended: {error}"))
@@ -840,7 +876,7 @@ class Axis(ProgramRunner):
                 await start()
         m.accepted_at = self.command_started_at = monotonic()
         log.debug("axis %s: %s started (target %s pulses)", self.name, m.what, m.target)
-        drive_start = self._drive_started(m.accepted_at)
+        drive_start = m.began = self._drive_started(m.accepted_at)
         if trajectory is not None:
             m.trajectory = trajectory(drive_start)
         elif m.plan is not None and m.target is not None and m.start is not None:
@@ -970,10 +1006,15 @@ class Axis(ProgramRunner):
 
     def _queue_move(
         self, what: str, target_p: int, plan: MotionPlan, params: MoveParams,
-        buffer: BufferMode, accepted: Callable[[], object] | None,
+        buffer: BufferMode, accepted: Callable[[], object] | None, *,
+        origin: int | None = None,
+        configure: Callable[[_Motion], object] | None = None,
     ) -> MotionHandle:
-        """Queue a move to ``target_p`` pulses behind the motions under way (checked)."""
-        origin, _ = self._queue_origin(what)
+        """Queue a move to ``target_p`` pulses behind the motions under way (checked);
+        ``origin``: where it starts (default: where the motions under way end);
+        ``configure``: called with the motion before it is queued."""
+        if origin is None:
+            origin, _ = self._queue_origin(what)
         direction = 0 if origin is None else (target_p > origin) - (target_p < origin)
         m = _Motion("move", what, AxisState.STANDSTILL, direction=direction)
         m.start, m.target, m.plan, m.buffer = origin, target_p, plan, buffer
@@ -986,7 +1027,79 @@ class Axis(ProgramRunner):
             await profile.retarget_absolute(target_p, params)
 
         m.prepare, m.begin, m.retarget = prepare, profile.start_absolute, retarget
+        if configure is not None:
+            configure(m)
         return self._enqueue(m, accepted)
+
+    def queue_segment(
+        self,
+        what: str,
+        target: float,
+        plan: MotionPlan,
+        *,
+        origin: float,
+        gate: SegmentGate | None = None,
+        reports: SegmentGate | None = None,
+        blend: bool = False,
+        blend_before_end: float | None = None,
+        ready: Callable[[], Awaitable[None]] | None = None,
+    ) -> MotionHandle:
+        """Queue a group segment's move to ``target`` (from ``origin``, where the segment
+        before it ends) with the group's fitted ``plan``; it starts once ``gate`` is open
+        (and ``ready()`` has returned), or blends ``blend_before_end`` s before the motion
+        before it would arrive (``blend``: as it begins to brake); it tells ``reports``
+        when it is done. Checked like ``move_to``; for ``AxisGroup``."""
+        self.check_limits(target)
+        self.profile.check_supported("move_absolute")
+        self.check_drive(plan)
+        target_p, origin_p = self.envelope.pulses(target), self.units.to_pulses(origin)
+        params = self.drive_params(plan)
+
+        def configure(m: _Motion) -> None:
+            m.gate, m.ready, m.blend_before_end = gate, ready, blend_before_end
+            m.may_reverse = blend_before_end is not None
+            if reports is not None:
+                m.reports.append(reports)
+
+        blends = blend or blend_before_end is not None
+        return self._queue_move(what, target_p, plan, params,
+                                "blending" if blends else "buffered",
+                                None, origin=origin_p, configure=configure)
+
+    @property
+    def busy(self) -> bool:
+        """True while a motion commanded through the axis runs or waits in its queue."""
+        return self._motion is not None or bool(self._queue)
+
+    def blend_problem(self, target: float) -> str:
+        """Why a move to ``target`` could not blend into the motions under way ("" if it
+        could), as ``move_to(..., buffer="blending")`` would decide."""
+        before = self._queue[-1] if self._queue else self._motion
+        origin = None if before is None else before.target
+        target_p = self.envelope.pulses(target)
+        m = _Motion("move", "move", AxisState.STANDSTILL,
+                    direction=0 if origin is None else (target_p > origin) - (target_p < origin))
+        m.target = target_p
+        m.retarget = self.profile.retarget_absolute  # type: ignore[assignment]
+        return self._why_not_blend(m, before)
+
+    def report_to(self, gate: SegmentGate) -> bool:
+        """Have the last motion under way or queued tell ``gate`` when it is done; False
+        if nothing runs (the axis is there already)."""
+        last = self._queue[-1] if self._queue else self._motion
+        if last is None or last.over:
+            return False
+        last.reports.append(gate)
+        return True
+
+    @property
+    def planned_end(self) -> float | None:
+        """Where the axis will be when the motions under way and queued are done (user
+        units; None: a motion without an end position); at rest: its position."""
+        last = self._queue[-1] if self._queue else self._motion
+        if last is None:
+            return self.position
+        return None if last.target is None else self.units.from_pulses(last.target)
 
     def _may_take_over(self) -> bool:
         """True if a new move may replace the motion under way on the fly (aborting)."""

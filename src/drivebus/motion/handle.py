@@ -16,11 +16,14 @@ from __future__ import annotations
 
 from collections.abc import Awaitable, Callable, Generator
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import anyio
 
 from drivebus.errors import ArgumentError
+
+if TYPE_CHECKING:
+    from drivebus.motion.trajectory import Trajectory
 
 __all__ = ["BUFFER_MODES", "BufferMode", "MotionHandle", "QueuePlan", "check_buffer"]
 
@@ -67,6 +70,10 @@ class _Ticket(Protocol):
     what: str
     finished: anyio.Event
     outcome: BaseException | None
+    trajectory: Trajectory | None
+    began: float | None
+    arrived: tuple[float, float] | None
+    fresh: anyio.Event | None
 
     def queue_plan(self) -> QueuePlan: ...
 
@@ -102,10 +109,33 @@ class MotionHandle:
         """How it runs: buffered, blended (at what speed), and why not blended."""
         return self._ticket.queue_plan()
 
+    @property
+    def trajectory(self) -> Trajectory | None:
+        """Where the drive is planned to be when (user units, monotonic s), once it took
+        the motion (a blend's includes the motion it took over from)."""
+        return self._ticket.trajectory
+
+    @property
+    def began(self) -> float | None:
+        """When the drive took it (its start, or its new target for a blend)."""
+        return self._ticket.began
+
+    @property
+    def arrived(self) -> tuple[float, float] | None:
+        """The polls that bracket its arrival in position: (still on its way, there)."""
+        return self._ticket.arrived
+
+    async def ended(self) -> None:
+        """Return once it is over, whatever the outcome; cancelling this stops nothing."""
+        await self._ticket.finished.wait()
+
     async def wait(self) -> None:
         """Return when the motion is done; raise what ended it otherwise."""
         try:
             await self._ticket.finished.wait()
+            fresh = self._ticket.fresh
+            if fresh is not None and self._ticket.outcome is None:
+                await fresh.wait()  # a full status after the arrival: positions are current
         except BaseException:
             with anyio.CancelScope(shield=True):
                 if not self.done:

@@ -128,7 +128,7 @@ class ProgramRunner:
         if m.target is None or m.retarget is None:
             return "a jog without soft limits is a speed run: it starts when the motion " \
                    "before it is done"
-        if m.direction == 0 or m.direction != before.direction:
+        if (m.direction == 0 or m.direction != before.direction) and not m.may_reverse:
             return "it reverses: the axis stops at the point between them"
         return ""
 
@@ -179,9 +179,25 @@ class ProgramRunner:
         """One step for the queue's head; when to look again (inf: when woken)."""
         while self._queue and self._queue[0].over:
             self._queue.pop(0)
+        cur = self._motion
         if not self._queue:
+            if cur is not None and self._awaited(cur):
+                return await self._report_arrival(cur)
             return math.inf
-        head, cur = self._queue[0], self._motion
+        head = self._queue[0]
+        gate = head.gate
+        if cur is None and gate is not None and not gate.open:
+            if head.kind == "move" and not head.prepared:  # at rest: written while it waits
+                async with self._lane:
+                    if self._motion is None and not head.over:
+                        head.prepared = await self._run_queued_io(
+                            head, self._prepare_of(head), current=False)
+            gate.notify(self._wake_queue)
+            return math.inf
+        if cur is None and gate is not None and gate.error is not None:
+            head.finish(gate.error)
+            self._drop_queue(gate.error)
+            return monotonic()
         if cur is None:  # the motion before it ended in position
             async with self._lane:
                 if self._queue and self._queue[0] is head and self._motion is None:
@@ -221,9 +237,28 @@ class ProgramRunner:
             async with bus.hold():
                 arrived = await self._confirm_arrival(cur, arrive)
             if arrived and self._queue and self._queue[0] is head and self._motion is None:
-                await self._start_queued(head)
+                if head.gate is not None and not head.gate.open:
+                    return monotonic()  # the others of the group are not all there yet
+                if head.gate is None or head.gate.error is None:
+                    await self._start_queued(head)
                 return monotonic()
         return monotonic() + self.config.poll.moving
+
+    @staticmethod
+    def _awaited(m: _Motion) -> bool:
+        """True if other axes of a group wait for ``m`` to arrive."""
+        return m.trajectory is not None and m.accepted_at is not None and m.io is None and any(
+            not gate.open for gate in m.reports)
+
+    async def _report_arrival(self: Axis, cur: _Motion) -> float:
+        """Confirm ``cur``'s arrival at its predicted moment (others wait for it)."""
+        assert cur.trajectory is not None
+        arrive = cur.trajectory.end
+        if monotonic() < arrive - _HOLD_LEAD:
+            return arrive - _HOLD_LEAD
+        async with self._lane, self.profile.slave.bus.hold():
+            await self._confirm_arrival(cur, arrive)
+        return math.inf if cur.over else monotonic() + self.config.poll.moving
 
     def _prepare_of(self: Axis, head: _Motion) -> Callable[[], Awaitable[None]]:
         assert head.prepare is not None
@@ -274,13 +309,20 @@ class ProgramRunner:
         self.moves_done += 1
         self.arrived_at = issued
         self.arrived_after = max(self._status_issued, m.accepted_at)
+        m.arrived = (self.arrived_after, issued)
+        m.fresh = anyio.Event()  # its handle waits for a full status (the position)
+        self._unconfirmed.append(m)
+        self._poke_now()
         self._end_motion(m, None, AxisState.STANDSTILL)
 
     async def _blend_step(self: Axis, head: _Motion, cur: _Motion) -> float:
         """Send the head's target so that it reaches the drive as ``cur`` begins to brake."""
         assert cur.trajectory is not None
         lead = self._blend_lead()
-        send = cur.trajectory.braking_starts() - lead
+        if head.blend_before_end is not None:
+            send = cur.trajectory.end - head.blend_before_end - lead
+        else:
+            send = cur.trajectory.braking_starts() - lead
         now = monotonic()
         if cur.trajectory.end - lead <= now:
             head.runs = "buffered"
@@ -340,6 +382,8 @@ class ProgramRunner:
             assert head.begin is not None and head.prepare is not None
             if not head.prepared:
                 await head.prepare()
+            if head.ready is not None:
+                await head.ready()
             await self._commit(head, head.begin, prepare=head.prepare)
 
         if await self._run_queued_io(head, io) and head.kind == "jog":

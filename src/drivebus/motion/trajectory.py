@@ -116,7 +116,9 @@ class Trajectory:
         a, b = plan.accel, plan.decel
         # The highest speed reachable: accelerate from u, then brake to rest within d.
         peak = math.sqrt((2 * a * b * d + b * u * u) / (a + b))
-        top = min(peak, plan.speed) if u <= plan.speed else max(min(peak, u), plan.speed)
+        # Faster than the plan already: down to its speed first (braking from u through
+        # it to rest takes the same distance as braking from u, which fits).
+        top = min(peak, plan.speed) if u <= plan.speed else plan.speed
         rate = a if top >= u else b
         t_up = abs(top - u) / rate
         d_up = abs(top * top - u * u) / (2 * rate)

@@ -200,7 +200,9 @@ class Kinematics:
             u = 0.0
         d_abs = abs(dist)
         vp = math.sqrt((2 * accel * decel * d_abs + decel * u * u) / (accel + decel))
-        vp = min(vp, speed) if u <= speed else max(min(vp, u), speed)
+        # Faster than the new speed already: down to it (it always fits: braking from u
+        # through the new speed to rest takes the same distance as braking from u).
+        vp = min(vp, speed) if u <= speed else speed
         up_rate = accel if vp >= u else decel
         t_up = abs(vp - u) / up_rate
         d_up = (vp * vp - u * u) / (2 * (up_rate if vp >= u else -up_rate))
