@@ -18,6 +18,7 @@ import anyio
 import typer
 
 from drivebus import checks
+from drivebus.cli_positions import positions, teach
 from drivebus.cli_record import record
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
 from drivebus.terminal import explain
@@ -373,10 +374,12 @@ def status(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False,
 
 @app.command(context_settings=_SIGNED)
 def move(
+    ctx: typer.Context,
     config: ConfigArg,
-    axis: AxisArg,
-    target: Annotated[float, typer.Argument(
-        metavar="TARGET", help="target position in the axis's units")],
+    axis: Annotated[str, typer.Argument(
+        metavar="AXIS|POSITION", help="axis name, or a taught position (no TARGET)")],
+    target: Annotated[float | None, typer.Argument(
+        metavar="TARGET", help="target position in the axis's units")] = None,
     by: Annotated[bool, typer.Option("--by", help="move by TARGET (relative)")] = False,
     speed: Annotated[float | None, typer.Option(
         "--speed", "-s", metavar="SPEED", help="speed, the axis's units/s")] = None,
@@ -385,9 +388,17 @@ def move(
     token: TokenOpt = None,
     local: LocalOpt = False,
 ) -> None:
-    """Move an axis to TARGET (or by it) and wait until it is there; Ctrl-C stops it."""
+    """Move an axis to TARGET (or by it), or the axes of a taught POSITION there together,
+    and wait until they are there; Ctrl-C stops them."""
     from drivebus.terminal import Out, move_axis, remote_motion, run_guarded
 
+    if target is None:
+        from drivebus.cli_positions import move_position
+        from drivebus.config import load_config
+
+        if by or axis in load_config(config).axes:  # an axis needs its TARGET
+            raise UsageError("Missing argument 'TARGET'.", ctx)  # type: ignore[arg-type]
+        raise typer.Exit(move_position(config, axis, speed, as_json, server, token, local))
     checks.finite("TARGET", target)
     if speed is not None:
         checks.positive("--speed", speed, unit="units/s")
@@ -569,6 +580,8 @@ def serve(
 
 
 app.command()(record)  # drivebus record: in its own module
+app.command()(teach)  # drivebus teach, positions: in cli_positions
+app.command()(positions)
 
 
 @app.command()

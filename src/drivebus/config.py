@@ -25,6 +25,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PrivateAttr,
     StrictBool,
     StrictFloat,
     StrictInt,
@@ -281,10 +282,28 @@ class MachineConfig(_Model):
     mqtt: MqttConfig | None = None
     """The MQTT plant bridge's settings (used by ``python -m drivebus.mqtt`` and
     ``drivebus serve --mqtt``); None: no ``[mqtt]`` section."""
+    positions: dict[str, dict[str, StrictFloat | StrictInt]] = Field(default_factory=dict)
+    """Taught positions: name -> axis -> position in the axis's units
+    (``drivebus.positions``)."""
+    positions_file: str | None = Field(
+        None, description="a TOML file beside the machine file that holds the [positions]")
+    _source: Path | None = PrivateAttr(default=None)
+    """The machine file it was read from (None: a mapping)."""
+
+    @property
+    def source(self) -> Path | None:
+        """The machine file it was read from (None: given as a mapping)."""
+        return self._source
 
     @model_validator(mode="after")
     def _consistent(self) -> MachineConfig:
+        from drivebus.positions import position_problems
+
         problems = self._line_problems() + self._axis_problems()
+        problems += position_problems(self, self.positions)
+        if self.positions and self.positions_file is not None:
+            problems.append("positions_file: the positions are either in [positions] or in "
+                            "the positions file, not both")
         if problems:
             raise ValueError("; ".join(problems))
         return self
@@ -383,7 +402,9 @@ def load_config(path: str | Path) -> MachineConfig:
         raise ConfigError(f"{p}: cannot read the config file: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
-    return parse_config(data, str(p))
+    config = parse_config(data, str(p))
+    config._source = p.resolve()
+    return config
 
 
 def machine_config(config: str | Path | Mapping[str, Any] | MachineConfig) -> MachineConfig:
