@@ -58,7 +58,14 @@ from drivebus.errors import (
 from drivebus.motion.envelope import Envelope, MotionPlan
 from drivebus.motion.events import AxisListener, MotionEvent, MotionEventKind
 from drivebus.motion.gate import SegmentGate
-from drivebus.motion.handle import BufferMode, MotionHandle, QueuePlan, Runs, check_buffer
+from drivebus.motion.handle import (
+    BufferMode,
+    MotionHandle,
+    QueuePlan,
+    Runs,
+    check_buffer,
+    check_override,
+)
 from drivebus.motion.program import ProgramRunner
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.motion.trajectory import Trajectory
@@ -102,6 +109,9 @@ class _Motion:
     target: int | None = None
     """Target in pulses (a move, or a jog bounded by a soft limit)."""
     plan: MotionPlan | None = None
+    """Its speed and ramps as the drive gets them (the speed override applied)."""
+    base_plan: MotionPlan | None = None
+    """Its speed and ramps as asked, before the speed override."""
     speed: float = 0.0
     """A jog's signed speed in user units/s."""
     committing: bool = False
@@ -243,6 +253,10 @@ class Axis(ProgramRunner):
         self._queue: list[_Motion] = []
         self._queue_wake = anyio.Event()
         self._unconfirmed: list[_Motion] = []  # ended by a short read, no full status since
+        self._override = 1.0
+        self.machine_override: Callable[[], float] = lambda: 1.0
+        """The machine's speed override (set by the machine that owns the axis)."""
+        self._override_due = False  # the sequencer applies a new override to the motion
 
     # -- reading -----------------------------------------------------------------------------
 
@@ -289,6 +303,42 @@ class Axis(ProgramRunner):
     def drive_params(self, plan: MotionPlan) -> MoveParams:
         """``plan`` in drive units (rpm, rev/s²)."""
         return self.envelope.drive_params(plan)
+
+    # -- speed override --------------------------------------------------------------------------
+
+    @property
+    def override(self) -> float:
+        """The axis's own speed override (1.0: the speeds as asked; the machine's
+        ``override`` multiplies it). Setting it scales every later motion's speed and, where
+        the drive can change speed on the fly, the motion under way (the axis's sequencer
+        sends that at once); ramps are kept. 0 < override <= 2; a faster speed is held to
+        ``max_speed``. A per-axis override slows that axis alone: a group's axes then no
+        longer arrive together (use the machine's)."""
+        return self._override
+
+    @override.setter
+    def override(self, value: float) -> None:
+        self._override = check_override(f"axis {self.name}: override", value)
+        self.override_changed()
+
+    @property
+    def effective_override(self) -> float:
+        """The speed factor the axis applies: its own override times the machine's."""
+        return self._override * self.machine_override()
+
+    def override_changed(self) -> None:
+        """The factor changed: later motions use it; the sequencer applies it on the fly."""
+        self._override_due = True
+        self._wake_queue()
+
+    def _effective(self, plan: MotionPlan) -> MotionPlan:
+        """``plan`` with the speed override applied (held to ``max_speed``)."""
+        factor = self.effective_override
+        if factor == 1.0:
+            return plan
+        speed = plan.speed * factor
+        top = self.config.max_speed
+        return replace(plan, speed=min(speed, top) if top is not None else speed)
 
     def check_drive(self, plan: MotionPlan) -> None:
         """``LimitViolation`` in the axis's units if its drive cannot run ``plan``."""
@@ -803,9 +853,15 @@ class Axis(ProgramRunner):
                 return
             self._waiters += 1
             self._poke_now()
+            if timeout is not None and m.deadline is None:
+                m.deadline = monotonic() + timeout  # a speed override may push it back
             try:
-                with anyio.fail_after(timeout):
-                    await m.finished.wait()
+                while not m.finished.is_set():
+                    left = None if m.deadline is None else m.deadline - monotonic()
+                    if left is not None and left <= 0:
+                        raise TimeoutError
+                    with anyio.move_on_after(left):
+                        await m.finished.wait()
             except TimeoutError:
                 st = self.status
                 where = "unknown" if st is None or st.position is None else (
@@ -816,8 +872,8 @@ class Axis(ProgramRunner):
                     f"in_position={st.in_position}, homed={st.homed})"
                 )
                 raise MotionTimeout(
-                    f"axis {self.name}: the {m.what} did not complete within {timeout:.1f} s"
-                    f"{last}"
+                    f"axis {self.name}: the {m.what} did not complete within "
+                    f"{timeout or 0:.1f} s{last}"
                 ) from None
             finally:
                 self._waiters -= 1
@@ -961,7 +1017,8 @@ class Axis(ProgramRunner):
         """
         buffer = check_buffer(buffer)
         target = checks.finite(f"axis {self.name}: target", target)
-        plan = self.plan(speed, accel, decel)
+        base = self.plan(speed, accel, decel)
+        plan = self._effective(base)
         self.check_limits(target)
         self.profile.check_supported("move_absolute")
         target_p = self.envelope.pulses(target)
@@ -969,16 +1026,16 @@ class Axis(ProgramRunner):
         self.check_drive(plan)
         what = f"move to {target:g}"
         if buffer != "aborting" and (self._motion is not None or self._queue):
-            return self._queue_move(what, target_p, plan, params, buffer, accepted)
+            return self._queue_move(what, target_p, base, buffer, accepted)
         if buffer == "aborting" and self._may_take_over():
-            await self._take_over(what, target_p, plan, params, accepted)
+            await self._take_over(what, target_p, base, accepted)
             return None
         here = self.status.position if self.status is not None else None
         direction = 0 if here is None else (target_p > here) - (target_p < here)
         self.envelope.check_switch(direction, self.status)
         m = self._begin("move", what, AxisState.DISCRETE_MOTION,
                         direction=direction, accepted=accepted)
-        m.target, m.plan, m.buffer = target_p, plan, buffer
+        m.target, m.plan, m.base_plan, m.buffer = target_p, plan, base, buffer
 
         async def prepare() -> None:
             await self.profile.prepare_absolute(target_p, params)
@@ -1005,26 +1062,34 @@ class Axis(ProgramRunner):
         return self._handle(m)
 
     def _queue_move(
-        self, what: str, target_p: int, plan: MotionPlan, params: MoveParams,
+        self, what: str, target_p: int, base: MotionPlan,
         buffer: BufferMode, accepted: Callable[[], object] | None, *,
         origin: int | None = None,
         configure: Callable[[_Motion], object] | None = None,
     ) -> MotionHandle:
-        """Queue a move to ``target_p`` pulses behind the motions under way (checked);
-        ``origin``: where it starts (default: where the motions under way end);
-        ``configure``: called with the motion before it is queued."""
+        """Queue a move to ``target_p`` pulses at ``base`` (before the override) behind
+        the motions under way (checked); ``origin``: where it starts (default: where the
+        motions under way end); ``configure``: called with the motion before it is queued.
+        Its speed takes the override in force when it is written to the drive."""
         if origin is None:
             origin, _ = self._queue_origin(what)
         direction = 0 if origin is None else (target_p > origin) - (target_p < origin)
         m = _Motion("move", what, AxisState.STANDSTILL, direction=direction)
-        m.start, m.target, m.plan, m.buffer = origin, target_p, plan, buffer
+        m.start, m.target, m.plan, m.buffer = origin, target_p, self._effective(base), buffer
+        m.base_plan = base
         profile = self.profile
 
+        def params() -> MoveParams:
+            assert m.plan is not None
+            return self.drive_params(m.plan)
+
         async def prepare() -> None:
-            await profile.prepare_absolute(target_p, params)
+            m.plan = self._effective(base)
+            await profile.prepare_absolute(target_p, params())
 
         async def retarget() -> None:
-            await profile.retarget_absolute(target_p, params)
+            m.plan = self._effective(base)
+            await profile.retarget_absolute(target_p, params())
 
         m.prepare, m.begin, m.retarget = prepare, profile.start_absolute, retarget
         if configure is not None:
@@ -1053,7 +1118,6 @@ class Axis(ProgramRunner):
         self.profile.check_supported("move_absolute")
         self.check_drive(plan)
         target_p, origin_p = self.envelope.pulses(target), self.units.to_pulses(origin)
-        params = self.drive_params(plan)
 
         def configure(m: _Motion) -> None:
             m.gate, m.ready, m.blend_before_end = gate, ready, blend_before_end
@@ -1062,7 +1126,7 @@ class Axis(ProgramRunner):
                 m.reports.append(reports)
 
         blends = blend or blend_before_end is not None
-        return self._queue_move(what, target_p, plan, params,
+        return self._queue_move(what, target_p, plan,
                                 "blending" if blends else "buffered",
                                 None, origin=origin_p, configure=configure)
 
@@ -1112,7 +1176,7 @@ class Axis(ProgramRunner):
         )
 
     async def _take_over(
-        self, what: str, target_p: int, plan: MotionPlan, params: MoveParams,
+        self, what: str, target_p: int, base: MotionPlan,
         accepted: Callable[[], object] | None,
     ) -> None:
         """Replace the motion under way by a move to ``target_p`` given on the fly (the
@@ -1127,8 +1191,11 @@ class Axis(ProgramRunner):
             f"axis {self.name}: the queued motions were dropped: the {what} takes over"))
         self._end_motion(cur, MotionAborted(
             f"axis {self.name}: the {cur.what} was aborted by the {what} (aborting)"), None)
+        plan = self._effective(base)
+        params = self.drive_params(plan)
         m = _Motion("move", what, AxisState.STANDSTILL, direction=direction)
         m.start, m.target, m.plan, m.runs = here, target_p, plan, "taken over"
+        m.base_plan = base
         m.seen_motion, m.accepted_at = True, cur.accepted_at  # the drive is moving already
         self._motion, self.state, self._jog_deadline = m, AxisState.DISCRETE_MOTION, None
         self._note("accepted", what, m=m, detail="takes over")
@@ -1167,7 +1234,8 @@ class Axis(ProgramRunner):
         counts from where the motion before it ends, PLCopen's reading."""
         buffer = check_buffer(buffer)
         distance = checks.finite(f"axis {self.name}: distance", distance)
-        plan = self.plan(speed, accel, decel)
+        base = self.plan(speed, accel, decel)
+        plan = self._effective(base)
         what = f"move by {distance:g}"
         if (buffer != "aborting" and (self._motion is not None or self._queue)) or (
             buffer == "aborting" and self._may_take_over()
@@ -1186,9 +1254,9 @@ class Axis(ProgramRunner):
             self.check_limits(target)
             target_p = self.envelope.pulses(target)
             if buffer == "aborting":
-                await self._take_over(what, target_p, plan, params, accepted)
+                await self._take_over(what, target_p, base, accepted)
                 return None
-            return self._queue_move(what, target_p, plan, params, buffer, accepted)
+            return self._queue_move(what, target_p, base, buffer, accepted)
         self.profile.check_supported("move_relative")
         params = self.drive_params(plan)
         self.check_drive(plan)
@@ -1198,7 +1266,7 @@ class Axis(ProgramRunner):
         self.envelope.check_switch(direction, self.status)
         m = self._begin("move", what, AxisState.DISCRETE_MOTION,
                         direction=direction, accepted=accepted)
-        m.plan, m.buffer = plan, buffer
+        m.plan, m.base_plan, m.buffer = plan, base, buffer
 
         async def io() -> None:
             st = await self.refresh()
@@ -1281,31 +1349,34 @@ class Axis(ProgramRunner):
             return None
         if speed == 0:
             raise ArgumentError(f"axis {self.name}: a queued jog needs a speed other than 0")
-        plan = self.plan(abs(speed), accel, decel)
+        base = self.plan(abs(speed), accel, decel)
+        plan = self._effective(base)
         bound = self.envelope.jog_bound(speed)
         procedure = "move_absolute" if bound is not None else "speed_run"
         self.profile.check_supported(procedure)
         self.check_drive(plan)
         what = f"jog at {speed:g}"
         if buffer != "aborting" and (self._motion is not None or self._queue):
-            return self._queue_jog(what, speed, plan, bound, watchdog, buffer)
+            return self._queue_jog(what, speed, base, bound, watchdog, buffer)
         self.envelope.check_jog_room(speed, self.status)
         m = self._motion
         if m is not None and m.kind == "jog" and self.state is AxisState.CONTINUOUS_MOTION:
-            if m.speed == speed and m.plan == plan:
+            if m.speed == speed and m.base_plan == base:
                 self._arm_watchdog(watchdog)  # the same jog again: a feed
                 return None
             await self._change_jog(m, speed, plan, bound, watchdog)
+            m.base_plan = base
             return None
         m = self._begin("jog", what, AxisState.CONTINUOUS_MOTION,
                         direction=self.envelope.drive_direction(speed))
         m.speed, m.plan, m.target, m.buffer = speed, plan, bound, buffer
+        m.base_plan = base
         await self._run_motion(m, lambda: self._start_jog(m), timeout=None, wait=False)
         self._arm_watchdog(watchdog)
         return None if buffer == "aborting" else self._handle(m)
 
     def _queue_jog(
-        self, what: str, speed: float, plan: MotionPlan, bound: int | None,
+        self, what: str, speed: float, base: MotionPlan, bound: int | None,
         watchdog: float | None, buffer: BufferMode,
     ) -> MotionHandle:
         """Queue a jog behind the motions under way (checked against where they end)."""
@@ -1314,13 +1385,13 @@ class Axis(ProgramRunner):
             self.envelope.check_jog_room(speed, replace(self.status, position=origin))
         m = _Motion("jog", what, AxisState.STANDSTILL,
                     direction=self.envelope.drive_direction(speed))
-        m.speed, m.plan, m.target, m.start = speed, plan, bound, origin
-        m.buffer, m.watchdog = buffer, watchdog
+        m.speed, m.plan, m.target, m.start = speed, self._effective(base), bound, origin
+        m.base_plan, m.buffer, m.watchdog = base, buffer, watchdog
         if bound is not None:
-            params = self.drive_params(plan)
 
             async def retarget() -> None:
-                await self.profile.retarget_absolute(bound, params)
+                m.plan = self._effective(base)
+                await self.profile.retarget_absolute(bound, self.drive_params(m.plan))
 
             m.retarget = retarget
         return self._enqueue(m, None)

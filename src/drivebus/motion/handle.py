@@ -20,12 +20,24 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import anyio
 
+from drivebus import checks
 from drivebus.errors import ArgumentError
 
 if TYPE_CHECKING:
     from drivebus.motion.trajectory import Trajectory
 
-__all__ = ["BUFFER_MODES", "BufferMode", "MotionHandle", "QueuePlan", "check_buffer"]
+__all__ = [
+    "BUFFER_MODES",
+    "MAX_OVERRIDE",
+    "BufferMode",
+    "MotionHandle",
+    "QueuePlan",
+    "check_buffer",
+    "check_override",
+]
+
+MAX_OVERRIDE = 2.0
+"""The largest speed override (200 %, as CNC feed overrides go)."""
 
 BufferMode = Literal["aborting", "buffered", "blending"]
 """What a new motion does to the one under way (PLCopen ``MC_BufferMode``)."""
@@ -41,6 +53,15 @@ def check_buffer(buffer: object) -> BufferMode:
         raise ArgumentError(
             f"buffer: {buffer!r} is not a buffer mode ({', '.join(BUFFER_MODES)})")
     return buffer  # type: ignore[return-value]
+
+
+def check_override(name: str, value: object) -> float:
+    """``value`` if it is a speed override (0 < value <= 2), else ``ArgumentError``."""
+    v = checks.finite(name, value)
+    if not 0 < v <= MAX_OVERRIDE:
+        raise ArgumentError(f"{name}: {v:g} is not a speed override (0 < override <= "
+                            f"{MAX_OVERRIDE:g})")
+    return v
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from drivebus.errors import (
 )
 from drivebus.motion.axis import Axis
 from drivebus.motion.group import AxisGroup, GroupMoveReport
-from drivebus.motion.handle import BufferMode
+from drivebus.motion.handle import BufferMode, check_override
 from drivebus.motion.lines import open_line
 from drivebus.motion.path import GroupHandle
 from drivebus.motion.recording import Recording
@@ -52,9 +52,32 @@ class Machine:
         self.wires: dict[str, Any] = {}
         """What serves each provided line: on ``sim://`` lines, the simulator's wire or
         server (its wire log, faults)."""
+        self._override = 1.0
         self.taught = PositionStore.of(config, config.source)
         """The taught positions and the file they are kept in (``drivebus.positions``)."""
         self._teaching = anyio.Lock()
+
+    # -- speed override ---------------------------------------------------------------------
+
+    @property
+    def override(self) -> float:
+        """The machine's speed override (a feed override: 1.0 the speeds as asked, 0.5 half
+        of them). Setting it scales the speed of every later move and jog of every axis
+        and, where the drive can change speed on the fly, of those under way (each axis's
+        sequencer sends that at once; others keep their speed to the end, logged).
+        Multiplies each axis's own ``override``; 0 < override <= 2."""
+        return self._override
+
+    @override.setter
+    def override(self, value: float) -> None:
+        self._override = check_override("machine override", value)
+        for axis in self.axes.values():
+            axis.override_changed()
+
+    def _own(self, axis: Axis) -> Axis:
+        """Make ``axis`` take this machine's override."""
+        axis.machine_override = lambda: self._override
+        return axis
 
     # -- taught positions -------------------------------------------------------------------
 
@@ -225,7 +248,8 @@ async def open_machine(
                 Bus(ln, timeout=line.timeout, retries=line.retries)
             )
         for name, axis_cfg in cfg.axes.items():
-            machine.axes[name] = await _make_axis(machine, name, axis_cfg, require=require_all)
+            machine.axes[name] = machine._own(
+                await _make_axis(machine, name, axis_cfg, require=require_all))
         actors = await stack.enter_async_context(ServiceTasks())
         for axis in machine.axes.values():
             actors.start_soon(axis.run, name=f"drivebus axis {axis.name}")

@@ -177,6 +177,8 @@ class ProgramRunner:
 
     async def _queue_step(self: Axis) -> float:
         """One step for the queue's head; when to look again (inf: when woken)."""
+        if self._override_due:
+            await self._apply_override()
         while self._queue and self._queue[0].over:
             self._queue.pop(0)
         cur = self._motion
@@ -349,10 +351,10 @@ class ProgramRunner:
         before = cur.trajectory
         self._end_motion(cur, None, None, detail=f"blended into the {head.what}")
         target = self.units.from_pulses(head.target)
-        plan = self.envelope.quantized(head.plan)
 
         def trajectory(t0: float) -> Trajectory:
-            return before.retargeted(t0, target, plan)
+            assert head.plan is not None  # as the retarget wrote it (the override in force)
+            return before.retargeted(t0, target, self.envelope.quantized(head.plan))
 
         head.seen_motion = True
         self._promote(head)
@@ -380,6 +382,8 @@ class ProgramRunner:
                 await self._start_jog(head)
                 return
             assert head.begin is not None and head.prepare is not None
+            if head.base_plan is not None and self._effective(head.base_plan) != head.plan:
+                head.prepared = False  # the override changed since it was written
             if not head.prepared:
                 await head.prepare()
             if head.ready is not None:
@@ -420,6 +424,62 @@ class ProgramRunner:
             distance = self.units.from_pulses(m.target - m.start)
             m.deadline = monotonic() + self.envelope.motion_timeout(m.plan, distance)
         return True
+
+    # -- speed override ------------------------------------------------------------------------
+
+    async def _apply_override(self: Axis) -> None:
+        """Give the motion under way the speed the override now asks, where the drive can
+        change it on the fly: a jog's speed run (its running speed), a move or a bounded
+        jog by its target given again at the new speed (a drive that takes a new target
+        on the fly). Otherwise the new speed applies from the next motion (logged)."""
+        self._override_due = False
+        m = self._motion
+        if (m is None or m.over or m.accepted_at is None or m.io is not None
+                or m.base_plan is None or m.plan is None):
+            return
+        plan = self._effective(m.base_plan)
+        if plan == m.plan:
+            return
+        try:
+            self.check_drive(plan)
+        except DrivebusError as exc:
+            log.warning("axis %s: the override cannot apply to the %s: %s", self.name,
+                        m.what, exc)
+            return
+        params = self.drive_params(plan)
+        profile, target = self.profile, m.target
+        if m.kind == "jog" and target is None and profile.programs.jog_speed:
+            rpm = math.copysign(params.speed_rpm, m.direction)
+
+            async def io() -> None:
+                await profile.speed_run(rpm, params.accel_rps2, params.decel_rps2)
+        elif m.kind in ("move", "jog") and target is not None and profile.programs.blends:
+
+            async def io() -> None:
+                await profile.retarget_absolute(target, params)
+        else:
+            log.info("axis %s: the %s drive cannot change the speed of the %s under way: the "
+                     "override applies from the next motion", self.name, profile.family,
+                     m.what)
+            return
+        async with self._lane:
+            if m is not self._motion or m.over:
+                return
+            before, deadline = m.trajectory, m.deadline
+            if not await self._run_queued_io(m, io, current=True):
+                return
+            m.plan, m.deadline = plan, deadline
+            if before is not None and target is not None:
+                now = monotonic()
+                m.trajectory = before.retargeted(self._drive_started(now),
+                                                 self.units.from_pulses(target),
+                                                 self.envelope.quantized(plan))
+                if m.deadline is not None:  # a slower motion may take longer
+                    rest = m.trajectory.end - now
+                    m.deadline = max(m.deadline, now + rest * 1.5 + 1.0
+                                     + 4 * self.config.poll.moving)
+        log.info("axis %s: the %s now runs at %g %s/s (override %g)", self.name, m.what,
+                 plan.speed, self.config.unit, self.effective_override)
 
     # -- timing of the wire -------------------------------------------------------------------
 
