@@ -173,6 +173,9 @@ class AxisConfig(_Model):
     homing: HomingConfig = Field(default_factory=HomingConfig)
     poll: PollConfig = Field(default_factory=PollConfig)
     drive_options: dict[str, Any] = Field(default_factory=dict)
+    io: dict[Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_-]{0,63}$")], str] = Field(
+        default_factory=dict,
+        description="names for the drive's I/O terminals: vacuum = \"OUT1\"")
     sim: SimAxisConfig = Field(default_factory=SimAxisConfig)
 
     _parse_settings = field_validator("settings", mode="before")(_settings)
@@ -363,6 +366,10 @@ class MachineConfig(_Model):
                 options=ax.drive_options,
             )]
             out += [f"{where}.{p}" for p in _speed_problems(ax)]
+            terminals = (*profile.io_inputs, *profile.io_outputs)
+            out += [f"{where}.io.{alias}: the {ax.drive} drive has no terminal {t!r} (it has "
+                    f"{', '.join(terminals) or 'none readable'})"
+                    for alias, t in ax.io.items() if t not in terminals]
         for scheme in sorted({ln.scheme for ln in self.lines.values() if ln.scheme}):
             out += line_provider(scheme).problems(self)
         return out

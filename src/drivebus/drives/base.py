@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.checks import validation_problems
+from drivebus.drives.io import IOPoint, decode_bits
 from drivebus.drives.programs import Completion, ProgramSupport
 from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
@@ -142,6 +143,15 @@ class DriveProfile:
 
     standard_frames: ClassVar[bool] = True
     """Speaks standard Modbus frames (a scan finds it by a plain register read first)."""
+
+    io_inputs: ClassVar[tuple[str, ...]] = ()
+    """The input terminals by the manual's names, in the order of the bits of the input
+    state the status carries (``raw["inputs"]``); empty: none readable."""
+    io_outputs: ClassVar[tuple[str, ...]] = ()
+    """The output terminals likewise (``raw["outputs"]``)."""
+    no_output_control: ClassVar[str] = (
+        "its manual documents no way to switch an output over Modbus")
+    """Why ``set_output`` cannot (said in its NotSupported error)."""
 
     programs: ClassVar[ProgramSupport] = ProgramSupport()
     """What the drive offers motion programs (buffered and blended moves, speed changes
@@ -495,3 +505,19 @@ class DriveProfile:
         """A short read that tells whether a motion has ended (a buffered move starts on
         it); None: the family's full status read is as short (``read_status`` is used)."""
         return None
+
+    # -- digital I/O --------------------------------------------------------------------------
+
+    def io_state(self, status: DriveStatus) -> tuple[dict[str, bool], dict[str, bool]]:
+        """The inputs' and outputs' states (by name) in a polled ``status``."""
+        return (decode_bits(self.io_inputs, status.raw.get("inputs")),
+                decode_bits(self.io_outputs, status.raw.get("outputs")))
+
+    async def io_points(self) -> list[IOPoint]:
+        """Every terminal and what it is set to do (reads the drive's I/O settings)."""
+        return ([IOPoint(n, False) for n in self.io_inputs]
+                + [IOPoint(n, True) for n in self.io_outputs])
+
+    async def set_output(self, name: str, state: bool) -> None:
+        """Switch output ``name`` on or off, where the drive lets Modbus drive it."""
+        raise self.unsupported(f"switch its output {name}", self.no_output_control)

@@ -27,6 +27,7 @@ from drivebus.drives.base import (
     MoveParams,
     ramp_time_quantized,
 )
+from drivebus.drives.io import IOPoint, function_text
 from drivebus.drives.programs import Completion, ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
@@ -174,6 +175,12 @@ _STATUS_BLOCK = (0x0003, 9)  # drive mode .. position low word, gap-free
 _MAX_PULSE_RATE = 200_000  # the drive's pulse output cap (L438-L439)
 
 
+_OUTPUT_FUNCTION_NAMES: dict[int, str] = {
+    0: "undefined", 1: "alarm", 2: "running", 3: "homing complete", 4: "position reached",
+    5: "PT mode", 6: "POUT0", 7: "POUT1", 8: "POUT2",
+}
+"""The output functions (0x004C-0x004E), with the manual's names (L525-L536)."""
+
 _Terminal = Literal[INPUT_TERMINALS]  # type: ignore[valid-type]
 _InputFunction = Literal[tuple(INPUT_FUNCTIONS)]  # type: ignore[valid-type]
 
@@ -218,6 +225,12 @@ class BHSSProfile(DriveProfile):
     """
 
     family: ClassVar[str] = "BHSS"
+    io_inputs: ClassVar[tuple[str, ...]] = INPUT_TERMINALS
+    io_outputs: ClassVar[tuple[str, ...]] = ("Y0", "Y1", "Y2")
+    no_output_control: ClassVar[str] = (
+        "its outputs follow drive functions (0x004C-0x004E); POUT0-2 (functions 6-8) are "
+        "switched by the multi-position (PT) sequencer's segments, not by a register "
+        "(manual L991-L1000)")
     programs: ClassVar[ProgramSupport] = ProgramSupport(
         preload="a motion latches its ramps when it starts (a stop uses the deceleration time "
         "in effect at the start, BHSS manual L1229-L1233); speed and distance are taken at "
@@ -577,3 +590,18 @@ class BHSSProfile(DriveProfile):
             limit_positive=bool(inputs & pos_mask),
             limit_negative=bool(inputs & neg_mask),
         )
+
+    # -- digital I/O --------------------------------------------------------------------------
+
+    async def io_points(self) -> list[IOPoint]:
+        """PU, DR, X0-X4 with their functions (0x0041-0x0047), Y0-Y2 with theirs
+        (0x004C-0x004E)."""
+        ins = await self.slave.read_holding_registers(Regs.INPUT_FUNCTION_BASE,
+                                                      len(INPUT_TERMINALS),
+                                                      priority=Priority.CONFIG)
+        outs = await self.slave.read_holding_registers(0x004C, 3, priority=Priority.CONFIG)
+        names = {v: k.replace("_", " ") for k, v in INPUT_FUNCTIONS.items()}
+        return ([IOPoint(n, False, function_text(names, w))
+                 for n, w in zip(self.io_inputs, ins, strict=True)]
+                + [IOPoint(n, True, function_text(_OUTPUT_FUNCTION_NAMES, w))
+                   for n, w in zip(self.io_outputs, outs, strict=True)])

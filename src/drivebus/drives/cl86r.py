@@ -42,6 +42,7 @@ from drivebus.drives.base import (
     MoveParams,
     ramp_time_quantized,
 )
+from drivebus.drives.io import IOPoint, function_text
 from drivebus.drives.programs import Completion, ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
@@ -260,6 +261,20 @@ ALARM_TEXTS: dict[int, str] = {
 }
 
 _DI_HOME, _DI_LIMIT_POSITIVE, _DI_LIMIT_NEGATIVE = 1, 2, 3
+
+DI_FUNCTION_NAMES: dict[int, str] = {
+    0: "none", 1: "home switch", 2: "positive limit", 3: "negative limit",
+    4: "motor release", 5: "alarm clear", 6: "stop", 7: "emergency stop", 8: "jog forward",
+    9: "jog reverse", 10: "homing trigger", 11: "position path trigger",
+    12: "speed path trigger", 13: "path address bit 0", 14: "path address bit 1",
+    15: "path address bit 2", 16: "path address bit 3",
+}
+"""The input functions (0x0013-0x0019), with the manual's names (L218-L222)."""
+
+DO_FUNCTION_NAMES: dict[int, str] = {
+    0: "none", 1: "alarm", 2: "running", 3: "homing done", 4: "in position", 5: "brake",
+}
+"""The output functions (0x001A-0x001C), with the manual's names (L225-L227)."""
 _MONITOR_WORDS = 10  # 0x0000..0x0009 in one read
 
 
@@ -330,6 +345,11 @@ class CL86RProfile(DriveProfile):
     """
 
     family: ClassVar[str] = "CL86R"
+    io_inputs: ClassVar[tuple[str, ...]] = tuple(f"X{i}" for i in range(7))
+    io_outputs: ClassVar[tuple[str, ...]] = ("Y0", "Y1", "Y2")
+    no_output_control: ClassVar[str] = (
+        "its outputs Y0-Y2 follow drive functions 0-5 (0x001A-0x001C: none, alarm, running, "
+        "homed, in position, brake); none is switched by a register (manual L225-L229)")
     programs: ClassVar[ProgramSupport] = ProgramSupport(
         preload_braking="the manual does not say a move latches its values, and a stop "
         "ramps down with the deceleration time 0x0032 holds at that moment: the next move "
@@ -643,6 +663,17 @@ class CL86RProfile(DriveProfile):
             limit_positive=self._input(inputs, _DI_LIMIT_POSITIVE),
             limit_negative=self._input(inputs, _DI_LIMIT_NEGATIVE),
         )
+
+    # -- digital I/O --------------------------------------------------------------------------
+
+    async def io_points(self) -> list[IOPoint]:
+        """X0-X6 with their functions (0x0013-0x0019), Y0-Y2 with theirs (0x001A-0x001C)."""
+        words = await self.slave.read_holding_registers(DI_FUNCTIONS[0].address, 10,
+                                                        priority=Priority.CONFIG)
+        return ([IOPoint(n, False, function_text(DI_FUNCTION_NAMES, w))
+                 for n, w in zip(self.io_inputs, words[:7], strict=True)]
+                + [IOPoint(n, True, function_text(DO_FUNCTION_NAMES, w))
+                   for n, w in zip(self.io_outputs, words[7:], strict=True)])
 
     # -- CL86R specifics ------------------------------------------------------------------------
 

@@ -35,6 +35,7 @@ from drivebus.drives.base import (
     HomingSwitches,
     MoveParams,
 )
+from drivebus.drives.io import IOPoint, function_text
 from drivebus.drives.programs import ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
@@ -99,6 +100,28 @@ CMD_IDLE, CMD_FORWARD, CMD_REVERSE, CMD_JOG_FWD, CMD_JOG_REV, CMD_ESTOP, CMD_STO
 # Input functions (bits 0-4 of the input setting registers 60-65); bit 5 is the polarity.
 FUNC_OFFLINE, FUNC_CLEAR_FAULT, FUNC_START_HOMING = 4, 5, 12
 POLARITY_BIT = 0x20
+
+INPUT_FUNCTIONS: dict[int, str] = {
+    0: "pulse input", 1: "direction input", 2: "encoder A", 3: "encoder B",
+    4: "motor offline", 5: "clear fault", 6: "emergency stop", 7: "jog forward / start-stop",
+    8: "jog reverse / direction", 9: "positive limit", 10: "negative limit",
+    11: "home switch", 12: "start homing", 13: "reverse direction",
+    **{14 + i: f"multi-speed select {i}" for i in range(4)},
+    **{18 + i: f"multi-position select {i}" for i in range(4)},
+    **{22 + i: f"USER{i + 1}" for i in range(10)},
+}
+"""The input functions (bits 0-4 of registers 60-65), with the manual's names (L881)."""
+
+OUTPUT_FUNCTIONS: dict[int, str] = {
+    0: "general-purpose output (register 68)", 1: "alarm", 2: "brake", 3: "in position",
+    4: "speed reached", 5: "homing complete", 6: "ready", 7: "motor stopped",
+    8: "positive limit", 9: "negative limit", 10: "power", 11: "torque reached",
+}
+"""The output functions (bits 0-3 of registers 66/67), with the manual's names (L901)."""
+
+OUTPUT_SETTINGS = 66
+"""Registers 66/67: OUT1/OUT2's function (bits 0-3) and polarity (bit 4)."""
+OUTPUT_VALUES = Register("general-purpose output values", 68, minimum=0, maximum=3)
 
 
 @dataclass(frozen=True)
@@ -309,6 +332,11 @@ class NT86Profile(DriveProfile):
 
     family: ClassVar[str] = "NT86"
     word_order: ClassVar[WordOrder] = WordOrder.LOW_FIRST
+    io_inputs: ClassVar[tuple[str, ...]] = tuple(f"IN{n}" for n in range(1, 7))
+    io_outputs: ClassVar[tuple[str, ...]] = ("OUT1", "OUT2")
+    no_output_control: ClassVar[str] = (
+        "an output follows register 68 only while its setting register (66/67) gives it "
+        "function 0, general-purpose output (manual L894-L922)")
     programs: ClassVar[ProgramSupport] = ProgramSupport(
         preload="changes to 70-72 made during a point move apply from the next start "
         "(NT86 manual L1312); the target 73/74 is taken at the start as well",
@@ -750,6 +778,33 @@ class NT86Profile(DriveProfile):
 
     async def _leave_homing_mode(self) -> None:
         """Hook: EPR60 must leave application mode 1 before register 18 acts; NT86: nothing."""
+
+    # -- digital I/O --------------------------------------------------------------------------
+
+    async def io_points(self) -> list[IOPoint]:
+        """IN1-IN6 with their functions (60-65), OUT1/OUT2 with theirs (66/67)."""
+        words = await self.slave.read_holding_registers(60, 8, priority=Priority.CONFIG)
+        inputs = [IOPoint(n, False, function_text(INPUT_FUNCTIONS, w & 0x1F))
+                  for n, w in zip(self.io_inputs, words[:6], strict=True)]
+        outputs = [IOPoint(n, True, function_text(OUTPUT_FUNCTIONS, w & 0x0F), w & 0x0F == 0)
+                   for n, w in zip(self.io_outputs, words[6:8], strict=True)]
+        return inputs + outputs
+
+    async def set_output(self, name: str, state: bool) -> None:
+        """OUTn with function 0 (general-purpose): bit n-1 of register 68 (read, then
+        written); another function is ``NotSupported`` naming it."""
+        n = self.io_outputs.index(name)
+        setting = (await self.slave.read_holding_registers(
+            OUTPUT_SETTINGS + n, 1, priority=Priority.COMMAND))[0]
+        if setting & 0x0F:
+            raise self.unsupported(
+                f"switch its output {name}",
+                f"{name} is set to function {setting & 0x0F} "
+                f"({function_text(OUTPUT_FUNCTIONS, setting & 0x0F)}) in register "
+                f"{OUTPUT_SETTINGS + n}; {self.no_output_control}")
+        value = await self.read(OUTPUT_VALUES, priority=Priority.COMMAND)
+        value = value | (1 << n) if state else value & ~(1 << n)
+        await self.write(OUTPUT_VALUES, value, priority=Priority.COMMAND)
 
     # -- homing ---------------------------------------------------------------------------
 

@@ -66,6 +66,7 @@ from drivebus.motion.handle import (
     check_buffer,
     check_override,
 )
+from drivebus.motion.io import AxisIO
 from drivebus.motion.program import ProgramRunner
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.motion.trajectory import Trajectory
@@ -207,7 +208,7 @@ _REFUSALS = (LimitViolation, StateError, ArgumentError, NotSupported, ConfigErro
 """Errors that mean nothing was started: raised before any frame, or the drive's own no."""
 
 
-class Axis(ProgramRunner):
+class Axis(ProgramRunner, AxisIO):
     """A named axis: a drive profile, user units, limits, state and its actor."""
 
     def __init__(self, name: str, config: AxisConfig, profile: DriveProfile) -> None:

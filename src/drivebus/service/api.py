@@ -404,6 +404,9 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     app.state.drivebus = state
     problems.install(app)
     app.include_router(router)
+    from drivebus.service.programs_api import router as programs
+
+    app.include_router(programs)  # positions, override, I/O
     app.add_api_websocket_route("/api/ws", websocket_endpoint)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 

@@ -184,6 +184,7 @@ class SimCL86R(SimDrive):
         self.enabled = self.regs[0x0038] == 1
         self.mode = _MODE_NONE
         self.homed = False
+        self._external = 0  # X0..X6 driven from outside (set_input), by bit
         self._homing: _Homing | None = None
         self._watch_from = 0.0
         self._shift = 0.0
@@ -271,11 +272,19 @@ class SimCL86R(SimDrive):
         """Input terminals 0x0005: each input's function's level, XOR its inversion bit."""
         home, neg, pos = self.switch_states(now)
         active = {1: home, 2: pos, 3: neg}
-        inputs = 0
+        inputs = self._external
         for i in range(7):
             if active.get(self.regs[0x0013 + i], False):
                 inputs |= 1 << i
         return inputs ^ (self.regs[0x0010] & 0x7F)  # terminal state = logical level ^ inversion
+
+    def set_input(self, index: int, closed: bool) -> None:
+        """Drive input X``index`` (0-6) from outside: a sensor or a PLC wired to it (the
+        switches given in the setup stay as they are)."""
+        if not 0 <= index <= 6:
+            raise ConfigError(f"X{index}: the CL86R has inputs X0..X6")
+        bit = 1 << index
+        self._external = self._external | bit if closed else self._external & ~bit
 
     def _outputs(self, now: float) -> int:
         """Output terminals 0x0006: each output's function's signal, XOR its inversion bit."""
