@@ -80,7 +80,7 @@ async def test_an_output_is_switched_where_modbus_drives_it_and_refused_elsewher
             await y.set_output("Y0", True)
         with pytest.raises(NotSupported, match="OD2000 drive has no inputs"):
             await m.axes["aux"].wait_input("IN1")
-        with pytest.raises(ArgumentError, match="no output 'OUT3'.*OUT1, OUT2"):
+        with pytest.raises(ArgumentError, match=r"no output 'OUT3'.*OUT1, OUT2"):
             await x.set_output("OUT3", True)
 
 
