@@ -291,6 +291,9 @@ class _NTOptions(DriveOptions):
     )
     enable_input: _Input | None = None
     clear_alarm_input: _Input | None = None
+    general_outputs: (
+        Annotated[list[Annotated[StrictInt, Field(ge=1, le=2)]], Field(max_length=2)] | None
+    ) = None
 
     @model_validator(mode="after")
     def _one_function_per_input(self) -> _NTOptions:
@@ -328,6 +331,9 @@ class NT86Profile(DriveProfile):
     ``home_offset_moves``: 295=1/3 (move by the offset after the origin, then position =
     offset) instead of 0/2 (position = offset at the origin). ``home_reverse_at_limit``:
     295=2/3 (reverse at a limit during the search) instead of 0/1 (stop).
+    ``general_outputs=[n, ...]``: setup() gives OUT n function 0, general-purpose output
+    switched by register 68, so ``set_output`` can switch it (its previous function is
+    lost).
     """
 
     family: ClassVar[str] = "NT86"
@@ -372,16 +378,20 @@ class NT86Profile(DriveProfile):
         clear_alarm_input: int | None = None,
         home_offset_moves: bool = False,
         home_reverse_at_limit: bool = False,
+        general_outputs: list[int] | None = None,
     ) -> None:
         NT86Profile.check_options(dict(
             estop_decel_rps2=estop_decel_rps2, enable_input=enable_input,
             clear_alarm_input=clear_alarm_input, home_offset_moves=home_offset_moves,
-            home_reverse_at_limit=home_reverse_at_limit,
+            home_reverse_at_limit=home_reverse_at_limit, general_outputs=general_outputs,
         ))
         super().__init__(slave, pulses_per_rev=pulses_per_rev)
         self.estop_decel = _round_unit(self.regs.estop_decel, estop_decel_rps2)
         self.enable_input = enable_input
         self.clear_alarm_input = clear_alarm_input
+        self.general_outputs = tuple(sorted(set(general_outputs or ())))
+        """OUTn setup() makes general-purpose outputs (function 0, switched by 68)."""
+        self._output_settings: list[tuple[Register, int]] = []
         self.home_offset_moves = home_offset_moves
         self.home_reverse_at_limit = home_reverse_at_limit
         self.closed_loop: bool | None = None
@@ -406,6 +416,13 @@ class NT86Profile(DriveProfile):
             await self._assign_input(self.enable_input, FUNC_OFFLINE)
         if self.clear_alarm_input is not None:
             await self._assign_input(self.clear_alarm_input, FUNC_CLEAR_FAULT)
+        self._output_settings = []
+        for n in self.general_outputs:  # function 0, the polarity bit kept
+            reg = Register(f"OUT{n} setting", OUTPUT_SETTINGS + n - 1, maximum=0x1F)
+            value = await self.read(reg)
+            if value & 0x0F:
+                await self.write(reg, value & 0x10)
+            self._output_settings.append((reg, value & 0x10))
         self._jog_command = None
 
     async def learn(self) -> None:
@@ -433,7 +450,7 @@ class NT86Profile(DriveProfile):
             (r.app_mode, self._expected_app_mode()),
             (r.microstep, self.pulses_per_rev),
         ]
-        return wanted
+        return wanted + self._output_settings
 
     def _expected_app_mode(self) -> int:
         return 0
@@ -891,10 +908,12 @@ class EPR60Profile(NT86Profile):
         enable_input: int | None = None,
         clear_alarm_input: int | None = None,
         home_input: int | None = None,
+        general_outputs: list[int] | None = None,
     ) -> None:
         self.check_options(dict(
             estop_decel_rps2=estop_decel_rps2, enable_input=enable_input,
             clear_alarm_input=clear_alarm_input, home_input=home_input,
+            general_outputs=general_outputs,
         ))
         super().__init__(
             slave,
@@ -902,6 +921,7 @@ class EPR60Profile(NT86Profile):
             estop_decel_rps2=estop_decel_rps2,
             enable_input=enable_input,
             clear_alarm_input=clear_alarm_input,
+            general_outputs=general_outputs,
         )
         self.home_input = home_input
         self._app_mode: int | None = None
