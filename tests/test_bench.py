@@ -62,7 +62,7 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
         assert jog["overshoot_steady"] == 0 and jog["overshoot_speed_change"] == 0
     for kind in ("x (NT86)", "y (BHSS)", "z (CL86R)", "r (EPR60)"):
         dwell = motion[f"buffered dwell {kind}"]
-        assert dwell["moves"] == 6 and 0 < dwell["dwell_max_ms"]
+        assert dwell["moves"] == 6 and dwell["dwell_max_ms"] > 0
     assert motion["blend z (CL86R)"]["min_speed_between_mm_s"] > 0
     paths = {case: f for case, f in motion.items() if case.startswith("path")}
     assert len(paths) == 2 and all(f["deviation_twins_mm"] >= 0 for f in paths.values())
