@@ -575,20 +575,16 @@ class BHSSProfile(DriveProfile):
     # -- motion programs --------------------------------------------------------------------
 
     async def read_completion(self, *, priority: Priority = Priority.COMMAND) -> Completion:
-        """0x0007..0x0008 (status bits, inputs): two registers of the status's nine, so a
-        buffered move starts sooner (a position move turns while bit2 is set)."""
-        if self._limit_bits is None:
-            await self._load_limit_bits()
-        assert self._limit_bits is not None
-        bits, inputs = await self.slave.read_holding_registers(0x0007, 2, priority=priority)
+        """0x0007 (status bits) alone, one register of the status's nine, so a buffered
+        move starts sooner at 19200 baud (a position move turns while bit2 is set; a
+        move stopped at a limit switch has not reached its position, and the full polls
+        judge it)."""
+        bits = (await self.slave.read_holding_registers(0x0007, 1, priority=priority))[0]
         moving = bool(bits & StatusBit.TURNING)
-        pos_mask, neg_mask = self._limit_bits
         return Completion(
             moving=moving,
             in_position=bool(bits & StatusBit.POSITION_REACHED) and not moving,
             alarm=bool(bits & StatusBit.ALARM),
-            limit_positive=bool(inputs & pos_mask),
-            limit_negative=bool(inputs & neg_mask),
         )
 
     # -- digital I/O --------------------------------------------------------------------------

@@ -49,10 +49,11 @@ log = logging.getLogger(__name__)
 _HOLD_LEAD = 0.04
 """The line is kept quiet from this long before a program's timed command, so that no
 other transaction (a slow slave's poll) is on the wire then, seconds."""
-_ARRIVAL_MARGIN = 0.001
+_ARRIVAL_MARGIN = 0.0005
 """A confirming read reaches the drive this long after the predicted arrival, seconds."""
-_CONFIRM_TRIES = 6
-"""Short reads a buffered start makes at most before it leaves the rest to the polls."""
+_CONFIRM_TRIES = 10
+"""Short reads a buffered start makes at most before it leaves the rest to the polls
+(back to back: the drive is due, each read takes its own wire time)."""
 _TURNAROUND = 0.001
 """Assumed time a drive takes to answer, seconds."""
 _NETWORK = 0.0003
@@ -158,9 +159,21 @@ class ProgramRunner:
         finally:
             self._timer.close()
 
-    async def _sleep_until(self: Axis, deadline: float) -> None:
-        """Sleep to ``deadline`` on the clock, not the event loop's coarser timer."""
-        await self._timer.sleep_until(deadline)
+    async def _sleep_until(self: Axis, deadline: float, over: anyio.Event) -> None:
+        """Sleep to ``deadline`` on the clock, not the event loop's coarser timer; return
+        early once ``over`` is set (the motion it times ended: a stop, say, which must
+        not wait for a line this sequencer keeps quiet)."""
+        if over.is_set():
+            return
+        async with anyio.create_task_group() as tg:
+
+            async def cut_short() -> None:
+                await over.wait()
+                tg.cancel_scope.cancel()
+
+            tg.start_soon(cut_short)
+            await self._timer.sleep_until(deadline)
+            tg.cancel_scope.cancel()
 
     async def _sequence_steps(self: Axis) -> None:
         while True:
@@ -232,7 +245,7 @@ class ProgramRunner:
         async with self._lane:
             if early:
                 async with bus.hold():
-                    await self._sleep_until(write_at)
+                    await self._sleep_until(write_at, cur.finished)
                 if cur is self._motion and not head.over:
                     head.prepared = await self._run_queued_io(head, self._prepare_of(head),
                                                               current=False)
@@ -279,8 +292,8 @@ class ProgramRunner:
         it still moves): True once ``cur`` is done in position."""
         wire = self._wire()
         request = 0.0 if wire is None else wire.frame_time(8)
-        retry = 0.002 if wire is None else max(0.002, wire.transaction_time(8, 15, _TURNAROUND))
-        await self._sleep_until(arrive + _ARRIVAL_MARGIN - request)
+        retry = 0.001
+        await self._sleep_until(arrive + _ARRIVAL_MARGIN - request, cur.finished)
         for _ in range(_CONFIRM_TRIES):
             if cur.over:
                 break
@@ -336,7 +349,7 @@ class ProgramRunner:
             return send - _HOLD_LEAD
         async with self._lane:
             async with self.profile.slave.bus.hold():
-                await self._sleep_until(send)
+                await self._sleep_until(send, cur.finished)
             if self._queue and self._queue[0] is head and self._motion is cur and not cur.over:
                 await self._blend_into(head, cur)
         return monotonic()
