@@ -18,13 +18,15 @@ import anyio
 import typer
 
 from drivebus import checks
+from drivebus.cli_options import ConfigArg, JsonOpt, LocalOpt, ServerOpt, TokenOpt
+from drivebus.cli_options import owner as _owner
 from drivebus.cli_positions import positions, teach
 from drivebus.cli_record import record
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
 from drivebus.terminal import explain
 
 if TYPE_CHECKING:
-    from drivebus.service.client import ServiceClient
+    pass
 
 try:  # typer vendors click from 0.2x on; before, it used click itself
     from typer._click.exceptions import UsageError
@@ -82,12 +84,10 @@ def _options(
 _SIGNED = {"ignore_unknown_options": True}
 """Let negative numbers through as arguments (``drivebus jog m.toml x -20``)."""
 
-ConfigArg = Annotated[Path, typer.Argument(help="machine file (TOML)", metavar="CONFIG")]
 AxesArg = Annotated[
     list[str] | None, typer.Argument(help="axes (default: all)", metavar="[AXIS]...")
 ]
 AxisArg = Annotated[str, typer.Argument(help="axis name", metavar="AXIS")]
-JsonOpt = Annotated[bool, typer.Option("--json", "-j", help="print the result as JSON")]
 TargetArg = Annotated[str, typer.Argument(
     metavar="TARGET",
     help="serial device or pty, sim://NAME, tcp://HOST[:PORT] or rtu+tcp://HOST:PORT")]
@@ -99,32 +99,6 @@ FormatOpt = Annotated[str, typer.Option(
     help="hex, int (signed 16-bit), uint, int32-le, int32-be (low/high word first) or float")]
 TimeoutOpt = Annotated[float, typer.Option(
     "--timeout", "-t", metavar="SECONDS", help="response timeout")]
-ServerOpt = Annotated[str | None, typer.Option(
-    "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
-    help="talk to this drivebus serve (default: the one serving CONFIG, if it runs)")]
-TokenOpt = Annotated[str | None, typer.Option(
-    "--token", metavar="TOKEN", envvar="DRIVEBUS_TOKEN",
-    help="bearer token for --server (from its token file)")]
-LocalOpt = Annotated[bool, typer.Option(
-    "--local", help="open the machine here even if a drivebus serve owns it")]
-
-
-def _owner(
-    config: Path, server: str | None, token: str | None, local: bool
-) -> ServiceClient | None:
-    """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
-    through the file), as a client; None to open the machine here."""
-    from drivebus.service.client import ServiceClient, find_service
-
-    if local:
-        return None
-    url = server or find_service(config)
-    if url is None:
-        return None
-    if server is None:
-        typer.echo(f"note: {config} is served by a running drivebus serve at {url}: "
-                   f"talking to it (--local opens the machine here)", err=True)
-    return ServiceClient(url, token=token)
 
 
 @app.command()

@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from drivebus.cli_options import ConfigArg, JsonOpt, LocalOpt, ServerOpt, TokenOpt
+from drivebus.cli_options import owner as _owner
 from drivebus.errors import ArgumentError
 
 if TYPE_CHECKING:
@@ -22,26 +24,6 @@ if TYPE_CHECKING:
     from drivebus.terminal import Out
 
 __all__ = ["move_position", "positions", "teach"]
-
-ConfigArg = Annotated[Path, typer.Argument(help="machine file (TOML)", metavar="CONFIG")]
-NameArg = Annotated[str, typer.Argument(help="the position's name", metavar="POSITION")]
-JsonOpt = Annotated[bool, typer.Option("--json", help="print the result as JSON")]
-ServerOpt = Annotated[str | None, typer.Option(
-    "--server", metavar="URL", envvar="DRIVEBUS_SERVER",
-    help="talk to this drivebus serve (default: the one serving CONFIG, if it runs)")]
-TokenOpt = Annotated[str | None, typer.Option(
-    "--token", metavar="TOKEN", envvar="DRIVEBUS_TOKEN",
-    help="bearer token for --server (from its token file)")]
-LocalOpt = Annotated[bool, typer.Option(
-    "--local", help="open the machine here even if a drivebus serve owns it")]
-
-
-def _owner(config: Path, server: str | None, token: str | None, local: bool
-           ) -> ServiceClient | None:
-    from drivebus.cli import _owner as owner
-
-    return owner(config, server, token, local)
-
 
 def _shown(position: dict[str, float]) -> str:
     return " ".join(f"{a}={v:.3f}" for a, v in position.items())
@@ -66,6 +48,9 @@ async def _teach_remote(out: Out, client: ServiceClient, name: str, axes: list[s
     out.line(f"taught {name}: {_shown(result['axes'])} ({result.get('file') or 'memory'})")
     out.result(result)
     return 0
+
+
+NameArg = Annotated[str, typer.Argument(help="the position's name", metavar="POSITION")]
 
 
 def teach(

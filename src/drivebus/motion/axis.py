@@ -1054,8 +1054,14 @@ class Axis(ProgramRunner, AxisIO):
             await self._commit(m, self.profile.start_absolute, prepare=prepare)
 
         distance = self.units.from_pulses(target_p - (m.start or 0))
-        timeout = self.envelope.motion_timeout(plan, distance)
-        if buffer == "aborting":
+        return await self._run_or_hand(m, io, self.envelope.motion_timeout(plan, distance))
+
+    async def _run_or_hand(
+        self, m: _Motion, io: Callable[[], Awaitable[None]], timeout: float
+    ) -> MotionHandle | None:
+        """Start ``m``: aborting, await it (None); else return its handle once started
+        (its deadline kept by the actor)."""
+        if m.buffer == "aborting":
             await self._run_motion(m, io, timeout=timeout)
             return None
         await self._run_motion(m, io, timeout=None, wait=False)
@@ -1278,13 +1284,7 @@ class Axis(ProgramRunner, AxisIO):
             m.start, m.target = start, target
             await self._commit(m, lambda: self.profile.move_relative(target - start, params))
 
-        timeout = self.envelope.motion_timeout(plan, distance)
-        if buffer == "aborting":
-            await self._run_motion(m, io, timeout=timeout)
-            return None
-        await self._run_motion(m, io, timeout=None, wait=False)
-        m.deadline = monotonic() + timeout
-        return self._handle(m)
+        return await self._run_or_hand(m, io, self.envelope.motion_timeout(plan, distance))
 
     async def home(self, *, accepted: Callable[[], object] | None = None) -> None:
         """Run the configured homing procedure; return when the drive reports homed
