@@ -521,3 +521,21 @@ class DriveProfile:
     async def set_output(self, name: str, state: bool) -> None:
         """Switch output ``name`` on or off, where the drive lets Modbus drive it."""
         raise self.unsupported(f"switch its output {name}", self.no_output_control)
+
+    # -- position tables ----------------------------------------------------------------------
+
+    table_rows: ClassVar[int] = 0
+    """How many rows the drive's own position table has that Modbus can run (0: none)."""
+    no_table: ClassVar[str] = "drivebus knows no way to start its position table over Modbus"
+    """Why ``prepare_table`` cannot (said in its NotSupported error)."""
+
+    async def prepare_table(self, rows: Sequence[tuple[int, MoveParams, float]],
+                            trigger: str) -> None:
+        """Write ``rows`` (absolute position in pulses, speed and ramp, wait after it in
+        seconds) into the drive's position table, armed to run once from its first row
+        when ``start_table`` pulls the input ``trigger``'s function."""
+        raise self.unsupported("run its position table", self.no_table)
+
+    async def start_table(self) -> None:
+        """Start the table ``prepare_table`` wrote."""
+        raise self.unsupported("run its position table", self.no_table)

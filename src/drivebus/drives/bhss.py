@@ -225,6 +225,8 @@ class BHSSProfile(DriveProfile):
     """
 
     family: ClassVar[str] = "BHSS"
+    no_table: ClassVar[str] = ("drivebus does not drive its multi-position (PT) "
+                               "sequencer (0x0070) yet")
     io_inputs: ClassVar[tuple[str, ...]] = INPUT_TERMINALS
     io_outputs: ClassVar[tuple[str, ...]] = ("Y0", "Y1", "Y2")
     no_output_control: ClassVar[str] = (

@@ -345,6 +345,9 @@ class CL86RProfile(DriveProfile):
     """
 
     family: ClassVar[str] = "CL86R"
+    no_table: ClassVar[str] = ("its position table starts only from an input assigned "
+                               "function 11, its row chosen on inputs 13-16 (manual "
+                               "L724-L782); no control-word bit starts it")
     io_inputs: ClassVar[tuple[str, ...]] = tuple(f"X{i}" for i in range(7))
     io_outputs: ClassVar[tuple[str, ...]] = ("Y0", "Y1", "Y2")
     no_output_control: ClassVar[str] = (

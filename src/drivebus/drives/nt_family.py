@@ -20,6 +20,7 @@ that only as explicit opt-ins (``enable_input``, ``clear_alarm_input``, ``home_i
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Annotated, ClassVar
 
@@ -99,6 +100,7 @@ CMD_IDLE, CMD_FORWARD, CMD_REVERSE, CMD_JOG_FWD, CMD_JOG_REV, CMD_ESTOP, CMD_STO
 
 # Input functions (bits 0-4 of the input setting registers 60-65); bit 5 is the polarity.
 FUNC_OFFLINE, FUNC_CLEAR_FAULT, FUNC_START_HOMING = 4, 5, 12
+_FUNC_USER3 = 24  # the multi-segment start in application mode 20
 POLARITY_BIT = 0x20
 
 INPUT_FUNCTIONS: dict[int, str] = {
@@ -392,6 +394,7 @@ class NT86Profile(DriveProfile):
         self.general_outputs = tuple(sorted(set(general_outputs or ())))
         """OUTn setup() makes general-purpose outputs (function 0, switched by 68)."""
         self._output_settings: list[tuple[Register, int]] = []
+        self._table_input: int | None = None  # IN n armed as the table's start (USER3)
         self.home_offset_moves = home_offset_moves
         self.home_reverse_at_limit = home_reverse_at_limit
         self.closed_loop: bool | None = None
@@ -453,7 +456,7 @@ class NT86Profile(DriveProfile):
         return wanted + self._output_settings
 
     def _expected_app_mode(self) -> int:
-        return 0
+        return 20 if self._table_input is not None else 0
 
     def check_supported(self, procedure: str) -> None:
         """Enable/disable and alarm clearing exist only through the opted-in inputs."""
@@ -660,7 +663,8 @@ class NT86Profile(DriveProfile):
         await self.write(self.regs.command, code, priority=Priority.COMMAND, idempotent=False)
 
     async def _ensure_command_mode(self) -> None:
-        """Hook for drives that leave register-18 mode (EPR60 homing); NT86: nothing."""
+        """Register 18 commands after a position table: back to application mode 0."""
+        await self._leave_table()
 
     async def _restore_estop_decel(self) -> None:
         if self._estop_dirty:
@@ -823,6 +827,60 @@ class NT86Profile(DriveProfile):
         value = value | (1 << n) if state else value & ~(1 << n)
         await self.write(OUTPUT_VALUES, value, priority=Priority.COMMAND)
 
+    # -- the multi-segment position table (manual 3.7.4) ----------------------------------
+
+    table_rows: ClassVar[int] = 16
+    no_table: ClassVar[str] = ""
+
+    async def prepare_table(self, rows: Sequence[tuple[int, MoveParams, float]],
+                            trigger: str) -> None:
+        """Internal positions 1..n (125-156, absolute: 84=1), their speed, acceleration and
+        wait (224-271, ms: 223=0), single pass through n segments (221=0, 222=n), the
+        input ``trigger`` given function 24 USER3 (inactive), application mode 20. The
+        manual's own way to start it over Modbus is to flip that input's polarity bit
+        (3.7.4): ``start_table`` does. Leave the input unwired."""
+        if not 1 <= len(rows) <= self.table_rows:
+            raise LimitViolation(f"a position table has 1 to {self.table_rows} rows, "
+                                 f"not {len(rows)}")
+        r = self.regs
+        positions: list[int] = []
+        segments: list[int] = []
+        for k, (pulses, params, wait) in enumerate(rows):
+            positions.extend(r.move_target.encode(r.move_target.check(pulses)))
+            speed = Register(f"segment {k + 1} speed", 224 + 3 * k, unit="rpm", maximum=3000)
+            rate = Register(f"segment {k + 1} acceleration", 225 + 3 * k, unit="r/s²",
+                            minimum=1, maximum=2000)
+            pause = Register(f"segment {k + 1} wait", 226 + 3 * k, unit="ms")
+            segments += [_round_unit(speed, params.speed_rpm, nonzero=True),
+                         _round_unit(rate, params.accel_rps2),
+                         _round_unit(pause, wait * 1000.0)]
+        n = self.io_inputs.index(trigger) + 1
+        await self.slave.write_registers(125, positions, priority=Priority.COMMAND)
+        await self.slave.write_registers(224, segments, priority=Priority.COMMAND)
+        await self.slave.write_registers(221, [0, len(rows), 0], priority=Priority.COMMAND)
+        await self._set_position_mode(1)
+        await self._restore_estop_decel()
+        await self.write(self.regs.input_config[n - 1], _FUNC_USER3, priority=Priority.COMMAND)
+        await self.write(self.regs.app_mode, 20, priority=Priority.COMMAND)
+        self._table_input = n
+        self._jog_command = None
+
+    async def start_table(self) -> None:
+        """Flip the trigger input's polarity bit: USER3 becomes active, the table runs."""
+        assert self._table_input is not None, "prepare_table first"
+        reg = self.regs.input_config[self._table_input - 1]
+        await self.write(reg, _FUNC_USER3 | POLARITY_BIT, priority=Priority.COMMAND,
+                         idempotent=False)
+
+    async def _leave_table(self) -> None:
+        """Release the table's trigger input and go back to application mode 0."""
+        n, self._table_input = self._table_input, None
+        if n is None:
+            return
+        await self.write(self.regs.input_config[n - 1], _FUNC_USER3,
+                         priority=Priority.COMMAND)
+        await self.write(self.regs.app_mode, 0, priority=Priority.COMMAND)
+
     # -- homing ---------------------------------------------------------------------------
 
     def _method(self, method: str | None) -> str:
@@ -882,6 +940,9 @@ class EPR60Profile(NT86Profile):
 
     family: ClassVar[str] = "EPR60"
     DRIVE_ID: ClassVar[int] = 60
+    table_rows: ClassVar[int] = 0
+    no_table: ClassVar[str] = ("its manual does not describe how position-table mode is "
+                               "operated (L1225 refers to a section that does not exist)")
     programs: ClassVar[ProgramSupport] = ProgramSupport(
         preload="changes to 70-72 made during a move take effect only at the next start "
         "(EPR60 manual L1100); the target 73/74 is taken at the start as well",
@@ -935,6 +996,11 @@ class EPR60Profile(NT86Profile):
 
     def _expected_app_mode(self) -> int:
         return self._app_mode if self._app_mode is not None else 0
+
+    async def prepare_table(self, rows: Sequence[tuple[int, MoveParams, float]],
+                            trigger: str) -> None:
+        """Not described by the EPR60 manual (``no_table``)."""
+        raise self.unsupported("run its position table", self.no_table)
 
     def check_supported(self, procedure: str) -> None:
         """Homing exists only through the opted-in start-homing input."""

@@ -24,9 +24,10 @@ its volatile settings read back and set up again before the next command.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import logging
 import math
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -69,7 +70,7 @@ from drivebus.motion.handle import (
 from drivebus.motion.io import AxisIO
 from drivebus.motion.program import ProgramRunner
 from drivebus.motion.state import MOVING_STATES, AxisState
-from drivebus.motion.trajectory import Trajectory
+from drivebus.motion.trajectory import Phase, Trajectory
 from drivebus.motion.units import Units
 from drivebus.timing import timing
 
@@ -173,6 +174,8 @@ class _Motion:
     was taken in (its handle returns then, with the axis's position up to date)."""
     arrived: tuple[float, float] | None = None
     """When it was seen in position: (the poll before, the poll that saw it)."""
+    both_ways: bool = False
+    """It goes both ways (a position table): a limit switch either way ends it."""
 
     def queue_plan(self) -> QueuePlan:
         """How it runs, for its handle."""
@@ -505,14 +508,16 @@ class Axis(ProgramRunner, AxisIO):
         if m.kind == "home":
             self._judge_homing(m, st, issued)
             return
+        switch = self._switch_ahead(st, m.direction) or (
+            m.both_ways and (st.limit_positive or st.limit_negative))
+        side = (1 if st.limit_positive else -1) if m.both_ways else 0
         if st.moving:
             m.seen_motion = True
-            if self._switch_ahead(st, m.direction):
-                self._limit_hit(m, st)
+            if switch:
+                self._limit_hit(m, st, side=side)
             return
         tol = self.config.in_position_tolerance
         at = m.target is None or st.position is None or abs(st.position - m.target) <= tol
-        switch = self._switch_ahead(st, m.direction)
         late = issued > (m.accepted_at or 0.0) + max(0.25, 5 * self.config.poll.moving)
         here = f"{self.units.from_pulses(st.position or 0):.4f}"
         if m.kind == "move" and at:
@@ -529,7 +534,7 @@ class Axis(ProgramRunner, AxisIO):
             return
         started = m.seen_motion or (st.position is not None and st.position != m.start)
         if switch and started:
-            self._limit_hit(m, st)
+            self._limit_hit(m, st, side=side)
         elif not started and not late:
             return  # not yet moving: the drive has a moment to start
         elif not started:
@@ -1285,6 +1290,78 @@ class Axis(ProgramRunner, AxisIO):
             await self._commit(m, lambda: self.profile.move_relative(target - start, params))
 
         return await self._run_or_hand(m, io, self.envelope.motion_timeout(plan, distance))
+
+    async def run_table(
+        self,
+        targets: Sequence[float],
+        *,
+        speed: float | None = None,
+        accel: float | None = None,
+        dwell: float = 0.0,
+        trigger_input: str,
+    ) -> None:
+        """Run ``targets`` (user units, absolute) one after the other from the drive's own
+        position table: written first, then started with one command, so no bus latency
+        falls between the moves (each waits ``dwell`` seconds at its target). Returns when
+        the drive is at the last one. ``trigger_input``: an unwired input the drive's
+        manual lets Modbus pull to start the table (NT86: its function becomes USER3,
+        application mode 20; the next command restores mode 0). ``NotSupported`` naming
+        the drive's reason where it has no table Modbus can start. A stop works as for
+        any move."""
+        if not isinstance(targets, Sequence) or isinstance(targets, str) or not targets:
+            raise ArgumentError(f"axis {self.name}: a table needs a list of positions")
+        goals = [checks.finite(f"axis {self.name}: table position {i + 1}", t)
+                 for i, t in enumerate(targets)]
+        dwell = checks.finite(f"axis {self.name}: dwell", dwell)
+        if dwell < 0:
+            raise ArgumentError(f"axis {self.name}: dwell {dwell:g} s is below 0")
+        if not self.profile.table_rows:
+            raise self.profile.unsupported("run its position table", self.profile.no_table)
+        if len(goals) > self.profile.table_rows:
+            raise ArgumentError(f"axis {self.name}: the {self.profile.family}'s table has "
+                                f"{self.profile.table_rows} rows, not {len(goals)}")
+        base = self.plan(speed, accel, accel)
+        plan = self._effective(base)
+        self.check_drive(plan)
+        for t in goals:
+            self.check_limits(t)
+        trigger = self._terminal(trigger_input, output=False)
+        pulses = [self.envelope.pulses(t) for t in goals]
+        params = self.drive_params(plan)
+        rows = [(p, params, dwell) for p in pulses]
+        here = self.status.position if self.status is not None else None
+        m = self._begin("move", f"table of {len(goals)} positions", AxisState.DISCRETE_MOTION,
+                        direction=0)
+        m.target, m.plan, m.base_plan, m.both_ways = pulses[-1], plan, base, True
+
+        async def prepare() -> None:
+            await self.profile.prepare_table(rows, trigger)
+
+        def trajectory(t0: float) -> Trajectory:
+            q = self.envelope.quantized(plan)
+            phases: list[Phase] = []
+            at = self.units.from_pulses(m.start if m.start is not None else pulses[0])
+            for goal in goals:
+                leg = Trajectory.point_to_point(at, goal, q, t0=t0)
+                phases += leg.phases
+                t0 = leg.end
+                if dwell and goal is not goals[-1]:
+                    phases.append(Phase(t0, dwell, goal, 0.0, 0.0))
+                    t0 += dwell
+                at = goal
+            return Trajectory(tuple(phases), goals[-1])
+
+        async def io() -> None:
+            await prepare()
+            await self._commit(m, self.profile.start_table, prepare=prepare,
+                               trajectory=trajectory)
+
+        start = self.units.from_pulses(here) if here is not None else goals[0]
+        path = [start, *goals]
+        distance = sum(abs(b - a) for a, b in itertools.pairwise(path))
+        timeout = self.envelope.motion_timeout(plan, distance) + dwell * len(goals) + (
+            len(goals) * plan.speed / plan.accel)
+        await self._run_motion(m, io, timeout=timeout)
 
     async def home(self, *, accepted: Callable[[], object] | None = None) -> None:
         """Run the configured homing procedure; return when the drive reports homed
