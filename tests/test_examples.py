@@ -32,6 +32,23 @@ def test_example_runs(script: str, last_line: str) -> None:
         assert any("monitor: y is DiscreteMotion" in line for line in lines)
 
 
+def test_pick_and_place_example_runs_on_a_copy_of_its_cell(tmp_path: Path) -> None:
+    cell = tmp_path / "cell.toml"
+    cell.write_text((ROOT / "examples" / "pick_and_place.toml").read_text())
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "pick_and_place.py"), str(cell)],
+        capture_output=True, text=True, timeout=180, cwd=ROOT,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = proc.stdout.strip().splitlines()
+    assert lines[-1] == "pick and place done: 3 parts", proc.stdout[-2000:]
+    parts = [line for line in lines if line.startswith("part ")]
+    assert len(parts) == 3 and all("placed at x=160.00 y=80.00" in p for p in parts)
+    assert all("NT86 drive cannot take a new target" in p for p in parts)  # it says why
+    assert "[positions.last_place]" in cell.read_text()  # taught, written back
+    assert "# the feeder's nest" in cell.read_text()  # comments kept
+
+
 def test_http_client_example_drives_a_running_service() -> None:
     served = subprocess.Popen(
         [sys.executable, "-m", "drivebus.cli", "serve", str(ROOT / "configs" / "demo.toml"),

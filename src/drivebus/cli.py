@@ -21,6 +21,9 @@ import typer.main
 
 from drivebus import checks
 from drivebus.cli_args import LocalOpt, ServerOpt, TokenOpt
+from drivebus.cli_options import ConfigArg, JsonOpt
+from drivebus.cli_options import owner as _owner
+from drivebus.cli_positions import positions, teach
 from drivebus.cli_record import record
 from drivebus.commissioning import commission as commission_command
 from drivebus.commissioning import params_app
@@ -28,7 +31,7 @@ from drivebus.errors import ArgumentError, ConfigError, DrivebusError
 from drivebus.terminal import explain
 
 if TYPE_CHECKING:
-    from drivebus.service.client import ServiceClient
+    pass
 
 try:  # typer vendors click from 0.2x on; before, it used click itself
     from typer._click.exceptions import UsageError
@@ -92,12 +95,10 @@ def _options(
 _SIGNED = {"ignore_unknown_options": True}
 """Let negative numbers through as arguments (``drivebus jog m.toml x -20``)."""
 
-ConfigArg = Annotated[Path, typer.Argument(help="machine file (TOML)", metavar="CONFIG")]
 AxesArg = Annotated[
     list[str] | None, typer.Argument(help="axes (default: all)", metavar="[AXIS]...")
 ]
 AxisArg = Annotated[str, typer.Argument(help="axis name", metavar="AXIS")]
-JsonOpt = Annotated[bool, typer.Option("--json", "-j", help="print the result as JSON")]
 TargetArg = Annotated[str, typer.Argument(
     metavar="TARGET",
     help="serial device or pty, sim://NAME, tcp://HOST[:PORT] or rtu+tcp://HOST:PORT")]
@@ -115,15 +116,6 @@ FormatOpt = Annotated[str, typer.Option(
     help="hex, int (signed 16-bit), uint, int32-le, int32-be (low/high word first) or float")]
 TimeoutOpt = Annotated[float, typer.Option(
     "--timeout", "-t", metavar="SECONDS", help="response timeout")]
-
-
-def _owner(
-    config: Path, server: str | None, token: str | None, local: bool
-) -> ServiceClient | None:
-    """The ``drivebus serve`` that owns ``config``'s machine, as a client (or None)."""
-    from drivebus.terminal import service_owner
-
-    return service_owner(config, server, token, local)
 
 
 @app.command()
@@ -412,10 +404,12 @@ def status(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False,
 
 @app.command(context_settings=_SIGNED)
 def move(
+    ctx: typer.Context,
     config: ConfigArg,
-    axis: AxisArg,
-    target: Annotated[float, typer.Argument(
-        metavar="TARGET", help="target position in the axis's units")],
+    axis: Annotated[str, typer.Argument(
+        metavar="AXIS|POSITION", help="axis name, or a taught position (no TARGET)")],
+    target: Annotated[float | None, typer.Argument(
+        metavar="TARGET", help="target position in the axis's units")] = None,
     by: Annotated[bool, typer.Option("--by", help="move by TARGET (relative)")] = False,
     speed: Annotated[float | None, typer.Option(
         "--speed", "-s", metavar="SPEED", help="speed, the axis's units/s")] = None,
@@ -424,9 +418,17 @@ def move(
     token: TokenOpt = None,
     local: LocalOpt = False,
 ) -> None:
-    """Move an axis to TARGET (or by it) and wait until it is there; Ctrl-C stops it."""
+    """Move an axis to TARGET (or by it), or the axes of a taught POSITION there together,
+    and wait until they are there; Ctrl-C stops them."""
     from drivebus.terminal import Out, move_axis, remote_motion, run_guarded
 
+    if target is None:
+        from drivebus.cli_positions import move_position
+        from drivebus.config import load_config
+
+        if by or axis in load_config(config).axes:  # an axis needs its TARGET
+            raise UsageError("Missing argument 'TARGET'.", ctx)  # type: ignore[arg-type]
+        raise typer.Exit(move_position(config, axis, speed, as_json, server, token, local))
     checks.finite("TARGET", target)
     if speed is not None:
         checks.positive("--speed", speed, unit="units/s")
@@ -609,6 +611,8 @@ def serve(
 
 
 app.command()(record)  # drivebus record: in its own module
+app.command()(teach)  # drivebus teach, positions: in cli_positions
+app.command()(positions)
 
 
 @app.command()

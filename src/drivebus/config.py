@@ -24,6 +24,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PrivateAttr,
     StrictBool,
     StrictFloat,
     StrictInt,
@@ -180,6 +181,9 @@ class AxisConfig(_Model):
     homing: HomingConfig = Field(default_factory=HomingConfig)
     poll: PollConfig = Field(default_factory=PollConfig)
     drive_options: dict[str, Any] = Field(default_factory=dict)
+    io: dict[Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_-]{0,63}$")], str] = Field(
+        default_factory=dict,
+        description="names for the drive's I/O terminals: vacuum = \"OUT1\"")
     sim: SimAxisConfig = Field(default_factory=SimAxisConfig)
 
     _parse_settings = field_validator("settings", mode="before")(_settings)
@@ -295,6 +299,18 @@ class MachineConfig(_Model):
     mqtt: MqttConfig | None = None
     """The MQTT plant bridge's settings (used by ``python -m drivebus.mqtt`` and
     ``drivebus serve --mqtt``); None: no ``[mqtt]`` section."""
+    positions: dict[str, dict[str, StrictFloat | StrictInt]] = Field(default_factory=dict)
+    """Taught positions: name -> axis -> position in the axis's units
+    (``drivebus.positions``)."""
+    positions_file: str | None = Field(
+        None, description="a TOML file beside the machine file that holds the [positions]")
+    _source: Path | None = PrivateAttr(default=None)
+    """The machine file it was read from (None: a mapping)."""
+
+    @property
+    def source(self) -> Path | None:
+        """The machine file it was read from (None: given as a mapping)."""
+        return self._source
 
     @model_validator(mode="before")
     @classmethod
@@ -312,7 +328,13 @@ class MachineConfig(_Model):
 
     @model_validator(mode="after")
     def _consistent(self) -> MachineConfig:
+        from drivebus.positions import position_problems
+
         problems = self._line_problems() + self._axis_problems()
+        problems += position_problems(self, self.positions)
+        if self.positions and self.positions_file is not None:
+            problems.append("positions_file: the positions are either in [positions] or in "
+                            "the positions file, not both")
         if problems:
             raise ValueError("; ".join(problems))
         return self
@@ -372,6 +394,10 @@ class MachineConfig(_Model):
                 options=ax.drive_options,
             )]
             out += [f"{where}.{p}" for p in _speed_problems(ax)]
+            terminals = (*profile.io_inputs, *profile.io_outputs)
+            out += [f"{where}.io.{alias}: the {ax.drive} drive has no terminal {t!r} (it has "
+                    f"{', '.join(terminals) or 'none readable'})"
+                    for alias, t in ax.io.items() if t not in terminals]
         for scheme in sorted({ln.scheme for ln in self.lines.values() if ln.scheme}):
             out += line_provider(scheme).problems(self)
         return out
@@ -405,7 +431,9 @@ def load_config(path: str | Path) -> MachineConfig:
     if not isinstance(path, str | os.PathLike):
         raise ConfigError(f"a machine file is a path, not {path!r}")
     p = Path(path)
-    return parse_config(read_toml(p, "config file"), str(p), base=p.parent)
+    config = parse_config(read_toml(p, "config file"), str(p), base=p.parent)
+    config._source = p.resolve()
+    return config
 
 
 def machine_config(config: str | Path | Mapping[str, Any] | MachineConfig) -> MachineConfig:

@@ -14,6 +14,7 @@ __all__ = [
     "DrivebusError",
     "FrameError",
     "GroupMotionError",
+    "InputTimeout",
     "LeaseHeld",
     "LimitViolation",
     "LineClosed",
@@ -175,6 +176,10 @@ class StateError(DrivebusError):
 
 class MotionTimeout(DrivebusError):
     """A motion did not complete within the time its distance, speed and ramps allow."""
+
+
+class InputTimeout(DrivebusError):
+    """A digital input did not reach the awaited state in time (``Axis.wait_input``)."""
 
 
 class MotionAborted(DrivebusError):

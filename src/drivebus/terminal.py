@@ -673,14 +673,18 @@ async def remote_status(out: Out, client: ServiceClient, axes: Sequence[str], as
 
 async def remote_motion(out: Out, client: ServiceClient, axis: str, what: str, path: str,
                         body: object = None) -> int:
-    """Start a motion on the service and wait for it; cancelled (Ctrl-C), cancel it."""
+    """Start a motion on the service and wait for it; cancelled (Ctrl-C), cancel it.
+    ``axis`` is the axis shown while it runs ("": the motion's own axes, not shown)."""
     record = await _call(client.start, path, body)
     started = shown = time.monotonic()
+    axis = axis or ",".join(record.get("axes") or [])
     try:
         while record.get("state") == "running":
             await anyio.sleep(0.05)
             record = await _call(client.request, "GET", f"/motions/{record['id']}")
-            if time.monotonic() - shown >= 0.2 and record.get("state") == "running":
+            if time.monotonic() - shown >= 0.2 and record.get("state") == "running" and (
+                "," not in axis
+            ):
                 shown = time.monotonic()
                 a = await _call(client.axis, axis)
                 out.line(f"{axis}: position={_fmt(a.get('position'))} "
@@ -688,11 +692,13 @@ async def remote_motion(out: Out, client: ServiceClient, axis: str, what: str, p
     except BaseException:
         with anyio.CancelScope(shield=True):
             record = await _call(client.cancel, record["id"])
-            a = await _call(client.axis, axis)
-            out.line(f"{axis}: {what} stopped after {time.monotonic() - started:.2f} s, "
-                     f"position={_fmt(a.get('position'))} state={a['state']}")
+            for name in axis.split(","):
+                a = await _call(client.axis, name)
+                out.line(f"{name}: {what} stopped after {time.monotonic() - started:.2f} s, "
+                         f"position={_fmt(a.get('position'))} state={a['state']}")
         raise
-    a = await _call(client.axis, axis)
+    seen = {name: await _call(client.axis, name) for name in axis.split(",")}
+    a = next(iter(seen.values()))
     op = {"axis": axis, "what": what, "done": record["state"] == "done",
           "seconds": round(time.monotonic() - started, 4), "position": a.get("position"),
           "state": a["state"], "motion": record}
@@ -700,8 +706,9 @@ async def remote_motion(out: Out, client: ServiceClient, axis: str, what: str, p
         err = record.get("error") or {}
         kind = getattr(errors, str(err.get("type")), DrivebusError)
         raise kind(str(err.get("message", f"the {what} ended {record['state']}")))
-    out.line(f"{axis}: {what} done in {op['seconds']:.2f} s, "
-             f"position={_fmt(op['position'])} state={op['state']}")
+    for name, a in seen.items():
+        out.line(f"{name}: {what} done in {op['seconds']:.2f} s, "
+                 f"position={_fmt(a.get('position'))} state={a['state']}")
     out.result(op)
     return 0
 

@@ -534,6 +534,62 @@ class MachineSession:
                 raise StateError(f"axis {axis} is {ax.state}: parameters are loaded at rest")
         return await load_parameters(ax.profile, wanted, save=save, dry_run=dry_run,
                                      include_comms=include_comms)
+    # -- motion programs: taught positions, speed override, digital I/O ---------------------
+
+    async def start_position_move(
+        self, name: str, *, speed: float | None = None, duration: float | None = None,
+        client: str | None = None,
+    ) -> MotionRecord:
+        """Start a move of a taught position's axes there, together; returns once
+        accepted (``NotFound`` naming the positions if there is none)."""
+        targets = self.machine.position(name)
+        self.authorize(client)
+        group = self.machine.group(*targets)
+
+        async def run(accepted: Callable[[], object]) -> dict[str, Any]:
+            report = await group.move_to(targets, speed=speed, duration=duration,
+                                         accepted=accepted)
+            assert isinstance(report, GroupMoveReport)
+            return _report(report)
+
+        request = {k: v for k, v in {"position": name, "speed": speed,
+                                     "duration": duration}.items() if v is not None}
+        return await self._launch("group-move", list(targets), request, run, client)
+
+    async def teach(self, name: str, axes: list[str] | None = None, *,
+                    client: str | None = None) -> dict[str, float]:
+        """Store the axes' present positions as ``name`` (``Machine.teach``)."""
+        self.authorize(client)
+        stored = await self.machine.teach(name, axes)
+        self.events.publish(Event("motions", None, {
+            "type": "position", "name": name, "axes": stored}))
+        return stored
+
+    def set_override(self, factor: float, *, axis: str | None = None,
+                     client: str | None = None) -> float:
+        """Set the machine's speed override (or ``axis``'s own); returns the factor the
+        axis (or the machine) now applies. Not refused by the lease: slowing down is
+        always allowed; speeding up is a command and needs it."""
+        factor = checks.finite("override", factor)
+        current = self.machine.override if axis is None else self.axis(axis).override
+        if factor > current:
+            self.authorize(client)
+        if axis is None:
+            self.machine.override = factor
+            value = self.machine.override
+        else:
+            self.axis(axis).override = factor
+            value = self.axis(axis).effective_override
+        self.events.publish(Event("motions", None, {
+            "type": "override", "axis": axis, "factor": factor}))
+        return value
+
+    async def set_output(self, axis: str, output: str, state: bool, *,
+                         client: str | None = None) -> None:
+        """Switch an output of ``axis``'s drive (``Axis.set_output``)."""
+        ax = self.axis(axis)
+        self.authorize(client)
+        await ax.set_output(output, state)
 
     # -- raw registers (commissioning, tools that talk to a running service) ----------------
 

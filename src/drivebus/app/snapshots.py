@@ -68,6 +68,14 @@ class AxisSnapshot:
     """What put the axis into ErrorStop or Offline (type and message)."""
     timestamp: float
     """When the status behind this was polled (monotonic seconds; 0 if never)."""
+    inputs: dict[str, bool] = field(default_factory=dict)
+    """The drive's inputs by name, as polled (the machine file's names too)."""
+    outputs: dict[str, bool] = field(default_factory=dict)
+    """The drive's outputs by name, as polled."""
+    override: float = 1.0
+    """The speed override the axis applies (its own times the machine's)."""
+    queued: int = 0
+    """Motions waiting in the axis's queue (buffered or blended)."""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready data."""
@@ -103,6 +111,10 @@ def axis_snapshot(axis: Axis) -> AxisSnapshot:
         pulses_per_rev=cfg.pulses_per_rev,
         error=error_record(axis.error),
         timestamp=0.0 if st is None else st.timestamp,
+        inputs=axis.inputs,
+        outputs=axis.outputs,
+        override=axis.effective_override,
+        queued=axis.queued,
     )
 
 
@@ -169,6 +181,10 @@ class MachineSnapshot:
     name: str
     lines: list[LineSnapshot]
     axes: list[AxisSnapshot]
+    override: float = 1.0
+    """The machine's speed override."""
+    positions: dict[str, dict[str, float]] = field(default_factory=dict)
+    """The taught positions."""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready data."""
@@ -176,6 +192,8 @@ class MachineSnapshot:
             "name": self.name,
             "lines": [ln.as_dict() for ln in self.lines],
             "axes": [ax.as_dict() for ax in self.axes],
+            "override": self.override,
+            "positions": self.positions,
         }
 
 
@@ -187,7 +205,8 @@ def machine_snapshot(machine: Machine) -> MachineSnapshot:
         endpoint = cfg.port or f"{cfg.host}:{cfg.tcp_port}"
         lines.append(line_snapshot(name, bus, cfg.kind, endpoint))
     return MachineSnapshot(
-        machine.config.name, lines, [axis_snapshot(a) for a in machine.axes.values()]
+        machine.config.name, lines, [axis_snapshot(a) for a in machine.axes.values()],
+        machine.override, machine.positions,
     )
 
 

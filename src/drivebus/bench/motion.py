@@ -4,9 +4,10 @@ Per drive kind: the stop-to-rest time (from ``stop()`` to the twin at rest, and 
 ``stop()`` returning) against the drive's deceleration time plus two poll periods; the
 overshoot of a jog towards a soft limit (must be 0), steady and with a speed change on the
 way; and the arrival spread of group moves of mixed distances on RS-485 and TCP (the
-twins' own motion ends, against one poll period). Then the randomized soak of
-``drivebus.sim.soak``: 10 minutes (``--quick``: 20 s, shorter with shorter runs), its
-counts and its violations.
+twins' own motion ends, against one poll period); the motion programs' rows
+(``drivebus.bench.programs``: buffered dwell, blend speed, path deviation). Then the
+randomized soak of ``drivebus.sim.soak``: 10 minutes (``--quick``: 20 s, shorter with
+shorter runs), its counts and its violations.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from pathlib import Path
 import anyio
 
 from drivebus.bench.common import BenchOptions, BenchResult, Scenario, at_most
+from drivebus.bench.programs import program_rows
 from drivebus.errors import ConfigError, MotionAborted
 from drivebus.motion import Axis, AxisState, Machine, open_machine
 from drivebus.motion.recording import Recording
@@ -168,6 +170,7 @@ async def run(opts: BenchOptions) -> list[BenchResult]:
         for name in _KINDS:
             results.append(await _jogs(m, name))
         results.append(await _groups(m, opts.plots))
+        results += await program_rows(m, opts.quick)  # buffered, blended, paths (issue 24)
     seconds = min(20.0, 40 * opts.seconds) if opts.quick else 600.0
     with _quiet_axes():  # the soak's injected alarms and expired watchdogs, logged by the hundred
         report = await run_soak(seconds, seed=20261124, name="bench-soak")

@@ -18,6 +18,8 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.checks import validation_problems
+from drivebus.drives.io import IOPoint, decode_bits
+from drivebus.drives.programs import Completion, ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, FrameError, ModbusException, NotSupported
@@ -264,6 +266,18 @@ class DriveProfile:
         talking at ``current`` now; ``NotSupported`` saying how it is done instead."""
         raise self.unsupported("change its address or line settings",
                                self.comms_note or "the manual documents no register for them")
+    io_inputs: ClassVar[tuple[str, ...]] = ()
+    """The input terminals by the manual's names, in the order of the bits of the input
+    state the status carries (``raw["inputs"]``); empty: none readable."""
+    io_outputs: ClassVar[tuple[str, ...]] = ()
+    """The output terminals likewise (``raw["outputs"]``)."""
+    no_output_control: ClassVar[str] = (
+        "its manual documents no way to switch an output over Modbus")
+    """Why ``set_output`` cannot (said in its NotSupported error)."""
+
+    programs: ClassVar[ProgramSupport] = ProgramSupport()
+    """What the drive offers motion programs (buffered and blended moves, speed changes
+    on the fly), each with its manual's reason; by default nothing."""
 
     def __init__(self, slave: SlaveHandle, *, pulses_per_rev: int = 10000) -> None:
         self.slave = slave
@@ -601,3 +615,49 @@ class DriveProfile:
     async def save_parameters(self) -> None:
         """Store the parameters in the drive's non-volatile memory."""
         raise self.unsupported("save parameters")
+
+    # -- motion programs ------------------------------------------------------------------
+
+    async def retarget_absolute(self, position: int, params: MoveParams) -> None:
+        """Give a running motion a new target (and speed) without stopping, where the
+        drive's manual allows it (``programs.retarget``); at rest it is an absolute move."""
+        raise self.unsupported("take a new target while it moves", self.programs.no_retarget)
+
+    async def read_completion(self, *, priority: Priority = Priority.COMMAND) -> Completion | None:
+        """A short read that tells whether a motion has ended (a buffered move starts on
+        it); None: the family's full status read is as short (``read_status`` is used)."""
+        return None
+
+    # -- digital I/O --------------------------------------------------------------------------
+
+    def io_state(self, status: DriveStatus) -> tuple[dict[str, bool], dict[str, bool]]:
+        """The inputs' and outputs' states (by name) in a polled ``status``."""
+        return (decode_bits(self.io_inputs, status.raw.get("inputs")),
+                decode_bits(self.io_outputs, status.raw.get("outputs")))
+
+    async def io_points(self) -> list[IOPoint]:
+        """Every terminal and what it is set to do (reads the drive's I/O settings)."""
+        return ([IOPoint(n, False) for n in self.io_inputs]
+                + [IOPoint(n, True) for n in self.io_outputs])
+
+    async def set_output(self, name: str, state: bool) -> None:
+        """Switch output ``name`` on or off, where the drive lets Modbus drive it."""
+        raise self.unsupported(f"switch its output {name}", self.no_output_control)
+
+    # -- position tables ----------------------------------------------------------------------
+
+    table_rows: ClassVar[int] = 0
+    """How many rows the drive's own position table has that Modbus can run (0: none)."""
+    no_table: ClassVar[str] = "drivebus knows no way to start its position table over Modbus"
+    """Why ``prepare_table`` cannot (said in its NotSupported error)."""
+
+    async def prepare_table(self, rows: Sequence[tuple[int, MoveParams, float]],
+                            trigger: str) -> None:
+        """Write ``rows`` (absolute position in pulses, speed and ramp, wait after it in
+        seconds) into the drive's position table, armed to run once from its first row
+        when ``start_table`` pulls the input ``trigger``'s function."""
+        raise self.unsupported("run its position table", self.no_table)
+
+    async def start_table(self) -> None:
+        """Start the table ``prepare_table`` wrote."""
+        raise self.unsupported("run its position table", self.no_table)

@@ -29,6 +29,8 @@ from drivebus.drives.base import (
     WriteThrough,
     ramp_time_quantized,
 )
+from drivebus.drives.io import IOPoint, function_text
+from drivebus.drives.programs import Completion, ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation
@@ -232,6 +234,11 @@ BHSS_PARAMETERS: tuple[Parameter, ...] = (
 )
 """The BHSS's parameters (manual Table 10), in address order."""
 
+_OUTPUT_FUNCTION_NAMES: dict[int, str] = {
+    0: "undefined", 1: "alarm", 2: "running", 3: "homing complete", 4: "position reached",
+    5: "PT mode", 6: "POUT0", 7: "POUT1", 8: "POUT2",
+}
+"""The output functions (0x004C-0x004E), with the manual's names (L525-L536)."""
 
 _Terminal = Literal[INPUT_TERMINALS]  # type: ignore[valid-type]
 _InputFunction = Literal[tuple(INPUT_FUNCTIONS)]  # type: ignore[valid-type]
@@ -277,6 +284,20 @@ class BHSSProfile(DriveProfile):
     """
 
     family: ClassVar[str] = "BHSS"
+    no_table: ClassVar[str] = ("drivebus does not drive its multi-position (PT) "
+                               "sequencer (0x0070) yet")
+    io_inputs: ClassVar[tuple[str, ...]] = INPUT_TERMINALS
+    io_outputs: ClassVar[tuple[str, ...]] = ("Y0", "Y1", "Y2")
+    no_output_control: ClassVar[str] = (
+        "its outputs follow drive functions (0x004C-0x004E); POUT0-2 (functions 6-8) are "
+        "switched by the multi-position (PT) sequencer's segments, not by a register "
+        "(manual L991-L1000)")
+    programs: ClassVar[ProgramSupport] = ProgramSupport(
+        preload="a motion latches its ramps when it starts (a stop uses the deceleration time "
+        "in effect at the start, BHSS manual L1229-L1233); speed and distance are taken at "
+        "the 0x0027 start as well",
+        no_retarget="its manual does not say what a start (0x0027) does while the motor turns",
+    )
     word_order: ClassVar[WordOrder] = WordOrder.HIGH_FIRST
     exception_texts: ClassVar[dict[int, str]] = EXCEPTION_TEXTS
     homing_methods: ClassVar[tuple[str, ...]] = tuple(_HOMING_MODES)
@@ -653,3 +674,33 @@ class BHSSProfile(DriveProfile):
             "register 0x0016 is 0: build the profile with eeprom_write_through=True for that "
             "(every write, motion commands included, then wears the EEPROM)",
         )
+
+    # -- motion programs --------------------------------------------------------------------
+
+    async def read_completion(self, *, priority: Priority = Priority.COMMAND) -> Completion:
+        """0x0007 (status bits) alone, one register of the status's nine, so a buffered
+        move starts sooner at 19200 baud (a position move turns while bit2 is set; a
+        move stopped at a limit switch has not reached its position, and the full polls
+        judge it)."""
+        bits = (await self.slave.read_holding_registers(0x0007, 1, priority=priority))[0]
+        moving = bool(bits & StatusBit.TURNING)
+        return Completion(
+            moving=moving,
+            in_position=bool(bits & StatusBit.POSITION_REACHED) and not moving,
+            alarm=bool(bits & StatusBit.ALARM),
+        )
+
+    # -- digital I/O --------------------------------------------------------------------------
+
+    async def io_points(self) -> list[IOPoint]:
+        """PU, DR, X0-X4 with their functions (0x0041-0x0047), Y0-Y2 with theirs
+        (0x004C-0x004E)."""
+        ins = await self.slave.read_holding_registers(Regs.INPUT_FUNCTION_BASE,
+                                                      len(INPUT_TERMINALS),
+                                                      priority=Priority.CONFIG)
+        outs = await self.slave.read_holding_registers(0x004C, 3, priority=Priority.CONFIG)
+        names = {v: k.replace("_", " ") for k, v in INPUT_FUNCTIONS.items()}
+        return ([IOPoint(n, False, function_text(names, w))
+                 for n, w in zip(self.io_inputs, ins, strict=True)]
+                + [IOPoint(n, True, function_text(_OUTPUT_FUNCTION_NAMES, w))
+                   for n, w in zip(self.io_outputs, outs, strict=True)])

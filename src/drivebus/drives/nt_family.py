@@ -20,6 +20,7 @@ that only as explicit opt-ins (``enable_input``, ``clear_alarm_input``, ``home_i
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Annotated, ClassVar
 
@@ -36,6 +37,8 @@ from drivebus.drives.base import (
     MoveParams,
     Parameter,
 )
+from drivebus.drives.io import IOPoint, function_text
+from drivebus.drives.programs import ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.errors import ConfigError, DriveAlarm, LimitViolation, StateError
@@ -98,7 +101,30 @@ CMD_IDLE, CMD_FORWARD, CMD_REVERSE, CMD_JOG_FWD, CMD_JOG_REV, CMD_ESTOP, CMD_STO
 
 # Input functions (bits 0-4 of the input setting registers 60-65); bit 5 is the polarity.
 FUNC_OFFLINE, FUNC_CLEAR_FAULT, FUNC_START_HOMING = 4, 5, 12
+_FUNC_USER3 = 24  # the multi-segment start in application mode 20
 POLARITY_BIT = 0x20
+
+INPUT_FUNCTIONS: dict[int, str] = {
+    0: "pulse input", 1: "direction input", 2: "encoder A", 3: "encoder B",
+    4: "motor offline", 5: "clear fault", 6: "emergency stop", 7: "jog forward / start-stop",
+    8: "jog reverse / direction", 9: "positive limit", 10: "negative limit",
+    11: "home switch", 12: "start homing", 13: "reverse direction",
+    **{14 + i: f"multi-speed select {i}" for i in range(4)},
+    **{18 + i: f"multi-position select {i}" for i in range(4)},
+    **{22 + i: f"USER{i + 1}" for i in range(10)},
+}
+"""The input functions (bits 0-4 of registers 60-65), with the manual's names (L881)."""
+
+OUTPUT_FUNCTIONS: dict[int, str] = {
+    0: "general-purpose output (register 68)", 1: "alarm", 2: "brake", 3: "in position",
+    4: "speed reached", 5: "homing complete", 6: "ready", 7: "motor stopped",
+    8: "positive limit", 9: "negative limit", 10: "power", 11: "torque reached",
+}
+"""The output functions (bits 0-3 of registers 66/67), with the manual's names (L901)."""
+
+OUTPUT_SETTINGS = 66
+"""Registers 66/67: OUT1/OUT2's function (bits 0-3) and polarity (bit 4)."""
+OUTPUT_VALUES = Register("general-purpose output values", 68, minimum=0, maximum=3)
 
 
 @dataclass(frozen=True)
@@ -324,6 +350,9 @@ class _NTOptions(DriveOptions):
     )
     enable_input: _Input | None = None
     clear_alarm_input: _Input | None = None
+    general_outputs: (
+        Annotated[list[Annotated[StrictInt, Field(ge=1, le=2)]], Field(max_length=2)] | None
+    ) = None
 
     @model_validator(mode="after")
     def _one_function_per_input(self) -> _NTOptions:
@@ -361,10 +390,25 @@ class NT86Profile(DriveProfile):
     ``home_offset_moves``: 295=1/3 (move by the offset after the origin, then position =
     offset) instead of 0/2 (position = offset at the origin). ``home_reverse_at_limit``:
     295=2/3 (reverse at a limit during the search) instead of 0/1 (stop).
+    ``general_outputs=[n, ...]``: setup() gives OUT n function 0, general-purpose output
+    switched by register 68, so ``set_output`` can switch it (its previous function is
+    lost).
     """
 
     family: ClassVar[str] = "NT86"
     word_order: ClassVar[WordOrder] = WordOrder.LOW_FIRST
+    io_inputs: ClassVar[tuple[str, ...]] = tuple(f"IN{n}" for n in range(1, 7))
+    io_outputs: ClassVar[tuple[str, ...]] = ("OUT1", "OUT2")
+    no_output_control: ClassVar[str] = (
+        "an output follows register 68 only while its setting register (66/67) gives it "
+        "function 0, general-purpose output (manual L894-L922)")
+    programs: ClassVar[ProgramSupport] = ProgramSupport(
+        preload="changes to 70-72 made during a point move apply from the next start "
+        "(NT86 manual L1312); the target 73/74 is taken at the start as well",
+        no_retarget="while it moves (MOV=1) the NT86 obeys only the stop commands 18=5/6 "
+        "(manual L632)",
+        jog_speed="register 77 (jog speed) takes effect at once during a jog (manual L1342)",
+    )
     exception_texts: ClassVar[dict[int, str]] = dict(_NT_EXCEPTIONS)
     homing_methods: ClassVar[tuple[str, ...]] = (
         "home_switch_positive",  # 288=0
@@ -396,16 +440,21 @@ class NT86Profile(DriveProfile):
         clear_alarm_input: int | None = None,
         home_offset_moves: bool = False,
         home_reverse_at_limit: bool = False,
+        general_outputs: list[int] | None = None,
     ) -> None:
         NT86Profile.check_options(dict(
             estop_decel_rps2=estop_decel_rps2, enable_input=enable_input,
             clear_alarm_input=clear_alarm_input, home_offset_moves=home_offset_moves,
-            home_reverse_at_limit=home_reverse_at_limit,
+            home_reverse_at_limit=home_reverse_at_limit, general_outputs=general_outputs,
         ))
         super().__init__(slave, pulses_per_rev=pulses_per_rev)
         self.estop_decel = _round_unit(self.regs.estop_decel, estop_decel_rps2)
         self.enable_input = enable_input
         self.clear_alarm_input = clear_alarm_input
+        self.general_outputs = tuple(sorted(set(general_outputs or ())))
+        """OUTn setup() makes general-purpose outputs (function 0, switched by 68)."""
+        self._output_settings: list[tuple[Register, int]] = []
+        self._table_input: int | None = None  # IN n armed as the table's start (USER3)
         self.home_offset_moves = home_offset_moves
         self.home_reverse_at_limit = home_reverse_at_limit
         self.closed_loop: bool | None = None
@@ -430,6 +479,13 @@ class NT86Profile(DriveProfile):
             await self._assign_input(self.enable_input, FUNC_OFFLINE)
         if self.clear_alarm_input is not None:
             await self._assign_input(self.clear_alarm_input, FUNC_CLEAR_FAULT)
+        self._output_settings = []
+        for n in self.general_outputs:  # function 0, the polarity bit kept
+            reg = Register(f"OUT{n} setting", OUTPUT_SETTINGS + n - 1, maximum=0x1F)
+            value = await self.read(reg)
+            if value & 0x0F:
+                await self.write(reg, value & 0x10)
+            self._output_settings.append((reg, value & 0x10))
         self._jog_command = None
 
     async def learn(self) -> None:
@@ -457,10 +513,10 @@ class NT86Profile(DriveProfile):
             (r.app_mode, self._expected_app_mode()),
             (r.microstep, self.pulses_per_rev),
         ]
-        return wanted
+        return wanted + self._output_settings
 
     def _expected_app_mode(self) -> int:
-        return 0
+        return 20 if self._table_input is not None else 0
 
     def check_supported(self, procedure: str) -> None:
         """Enable/disable and alarm clearing exist only through the opted-in inputs."""
@@ -667,7 +723,8 @@ class NT86Profile(DriveProfile):
         await self.write(self.regs.command, code, priority=Priority.COMMAND, idempotent=False)
 
     async def _ensure_command_mode(self) -> None:
-        """Hook for drives that leave register-18 mode (EPR60 homing); NT86: nothing."""
+        """Register 18 commands after a position table: back to application mode 0."""
+        await self._leave_table()
 
     async def _restore_estop_decel(self) -> None:
         if self._estop_dirty:
@@ -803,6 +860,87 @@ class NT86Profile(DriveProfile):
     async def _leave_homing_mode(self) -> None:
         """Hook: EPR60 must leave application mode 1 before register 18 acts; NT86: nothing."""
 
+    # -- digital I/O --------------------------------------------------------------------------
+
+    async def io_points(self) -> list[IOPoint]:
+        """IN1-IN6 with their functions (60-65), OUT1/OUT2 with theirs (66/67)."""
+        words = await self.slave.read_holding_registers(60, 8, priority=Priority.CONFIG)
+        inputs = [IOPoint(n, False, function_text(INPUT_FUNCTIONS, w & 0x1F))
+                  for n, w in zip(self.io_inputs, words[:6], strict=True)]
+        outputs = [IOPoint(n, True, function_text(OUTPUT_FUNCTIONS, w & 0x0F), w & 0x0F == 0)
+                   for n, w in zip(self.io_outputs, words[6:8], strict=True)]
+        return inputs + outputs
+
+    async def set_output(self, name: str, state: bool) -> None:
+        """OUTn with function 0 (general-purpose): bit n-1 of register 68 (read, then
+        written); another function is ``NotSupported`` naming it."""
+        n = self.io_outputs.index(name)
+        setting = (await self.slave.read_holding_registers(
+            OUTPUT_SETTINGS + n, 1, priority=Priority.COMMAND))[0]
+        if setting & 0x0F:
+            raise self.unsupported(
+                f"switch its output {name}",
+                f"{name} is set to function {setting & 0x0F} "
+                f"({function_text(OUTPUT_FUNCTIONS, setting & 0x0F)}) in register "
+                f"{OUTPUT_SETTINGS + n}; {self.no_output_control}")
+        value = await self.read(OUTPUT_VALUES, priority=Priority.COMMAND)
+        value = value | (1 << n) if state else value & ~(1 << n)
+        await self.write(OUTPUT_VALUES, value, priority=Priority.COMMAND)
+
+    # -- the multi-segment position table (manual 3.7.4) ----------------------------------
+
+    table_rows: ClassVar[int] = 16
+    no_table: ClassVar[str] = ""
+
+    async def prepare_table(self, rows: Sequence[tuple[int, MoveParams, float]],
+                            trigger: str) -> None:
+        """Internal positions 1..n (125-156, absolute: 84=1), their speed, acceleration and
+        wait (224-271, ms: 223=0), single pass through n segments (221=0, 222=n), the
+        input ``trigger`` given function 24 USER3 (inactive), application mode 20. The
+        manual's own way to start it over Modbus is to flip that input's polarity bit
+        (3.7.4): ``start_table`` does. Leave the input unwired."""
+        if not 1 <= len(rows) <= self.table_rows:
+            raise LimitViolation(f"a position table has 1 to {self.table_rows} rows, "
+                                 f"not {len(rows)}")
+        r = self.regs
+        positions: list[int] = []
+        segments: list[int] = []
+        for k, (pulses, params, wait) in enumerate(rows):
+            positions.extend(r.move_target.encode(r.move_target.check(pulses)))
+            speed = Register(f"segment {k + 1} speed", 224 + 3 * k, unit="rpm", maximum=3000)
+            rate = Register(f"segment {k + 1} acceleration", 225 + 3 * k, unit="r/s²",
+                            minimum=1, maximum=2000)
+            pause = Register(f"segment {k + 1} wait", 226 + 3 * k, unit="ms")
+            segments += [_round_unit(speed, params.speed_rpm, nonzero=True),
+                         _round_unit(rate, params.accel_rps2),
+                         _round_unit(pause, wait * 1000.0)]
+        n = self.io_inputs.index(trigger) + 1
+        await self.slave.write_registers(125, positions, priority=Priority.COMMAND)
+        await self.slave.write_registers(224, segments, priority=Priority.COMMAND)
+        await self.slave.write_registers(221, [0, len(rows), 0], priority=Priority.COMMAND)
+        await self._set_position_mode(1)
+        await self._restore_estop_decel()
+        await self.write(self.regs.input_config[n - 1], _FUNC_USER3, priority=Priority.COMMAND)
+        await self.write(self.regs.app_mode, 20, priority=Priority.COMMAND)
+        self._table_input = n
+        self._jog_command = None
+
+    async def start_table(self) -> None:
+        """Flip the trigger input's polarity bit: USER3 becomes active, the table runs."""
+        assert self._table_input is not None, "prepare_table first"
+        reg = self.regs.input_config[self._table_input - 1]
+        await self.write(reg, _FUNC_USER3 | POLARITY_BIT, priority=Priority.COMMAND,
+                         idempotent=False)
+
+    async def _leave_table(self) -> None:
+        """Release the table's trigger input and go back to application mode 0."""
+        n, self._table_input = self._table_input, None
+        if n is None:
+            return
+        await self.write(self.regs.input_config[n - 1], _FUNC_USER3,
+                         priority=Priority.COMMAND)
+        await self.write(self.regs.app_mode, 0, priority=Priority.COMMAND)
+
     # -- homing ---------------------------------------------------------------------------
 
     def _method(self, method: str | None) -> str:
@@ -862,6 +1000,17 @@ class EPR60Profile(NT86Profile):
 
     family: ClassVar[str] = "EPR60"
     DRIVE_ID: ClassVar[int] = 60
+    table_rows: ClassVar[int] = 0
+    no_table: ClassVar[str] = ("its manual does not describe how position-table mode is "
+                               "operated (L1225 refers to a section that does not exist)")
+    programs: ClassVar[ProgramSupport] = ProgramSupport(
+        preload="changes to 70-72 made during a move take effect only at the next start "
+        "(EPR60 manual L1100); the target 73/74 is taken at the start as well",
+        no_retarget="while it moves (MOV=1) the EPR60 ignores new motion commands and accepts "
+        "only 18=5/6 (manual L623, L1099)",
+        jog_speed="register 77 can be changed while running and takes effect immediately "
+        "(manual L1121)",
+    )
     homing_methods: ClassVar[tuple[str, ...]] = ("limit_negative", "limit_positive")
     regs: ClassVar[NTRegisterMap] = EPR60_MAP
     options: ClassVar[type[DriveOptions]] = EPR60Options
@@ -883,10 +1032,12 @@ class EPR60Profile(NT86Profile):
         enable_input: int | None = None,
         clear_alarm_input: int | None = None,
         home_input: int | None = None,
+        general_outputs: list[int] | None = None,
     ) -> None:
         self.check_options(dict(
             estop_decel_rps2=estop_decel_rps2, enable_input=enable_input,
             clear_alarm_input=clear_alarm_input, home_input=home_input,
+            general_outputs=general_outputs,
         ))
         super().__init__(
             slave,
@@ -894,6 +1045,7 @@ class EPR60Profile(NT86Profile):
             estop_decel_rps2=estop_decel_rps2,
             enable_input=enable_input,
             clear_alarm_input=clear_alarm_input,
+            general_outputs=general_outputs,
         )
         self.home_input = home_input
         self._app_mode: int | None = None
@@ -907,6 +1059,11 @@ class EPR60Profile(NT86Profile):
 
     def _expected_app_mode(self) -> int:
         return self._app_mode if self._app_mode is not None else 0
+
+    async def prepare_table(self, rows: Sequence[tuple[int, MoveParams, float]],
+                            trigger: str) -> None:
+        """Not described by the EPR60 manual (``no_table``)."""
+        raise self.unsupported("run its position table", self.no_table)
 
     def check_supported(self, procedure: str) -> None:
         """Homing exists only through the opted-in start-homing input."""

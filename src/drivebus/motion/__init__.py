@@ -3,6 +3,7 @@
 from drivebus.motion.axis import Axis, MotionPlan
 from drivebus.motion.events import MotionEvent
 from drivebus.motion.group import AxisGroup, GroupMotionError, GroupMoveReport
+from drivebus.motion.handle import BufferMode, MotionHandle, QueuePlan
 from drivebus.motion.machine import Machine, open_machine
 from drivebus.motion.recording import Recording
 from drivebus.motion.state import AxisState
@@ -12,11 +13,14 @@ __all__ = [
     "Axis",
     "AxisGroup",
     "AxisState",
+    "BufferMode",
     "GroupMotionError",
     "GroupMoveReport",
     "Machine",
     "MotionEvent",
+    "MotionHandle",
     "MotionPlan",
+    "QueuePlan",
     "Recording",
     "Units",
     "open_machine",

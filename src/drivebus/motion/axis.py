@@ -24,11 +24,12 @@ its volatile settings read back and set up again before the next command.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import logging
 import math
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from contextlib import asynccontextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import anyio
@@ -57,7 +58,19 @@ from drivebus.errors import (
 )
 from drivebus.motion.envelope import Envelope, MotionPlan
 from drivebus.motion.events import AxisListener, MotionEvent, MotionEventKind
+from drivebus.motion.gate import SegmentGate
+from drivebus.motion.handle import (
+    BufferMode,
+    MotionHandle,
+    QueuePlan,
+    Runs,
+    check_buffer,
+    check_override,
+)
+from drivebus.motion.io import AxisIO
+from drivebus.motion.program import ProgramRunner
 from drivebus.motion.state import MOVING_STATES, AxisState
+from drivebus.motion.trajectory import Phase, Trajectory
 from drivebus.motion.units import Units
 from drivebus.timing import timing
 
@@ -98,6 +111,9 @@ class _Motion:
     target: int | None = None
     """Target in pulses (a move, or a jog bounded by a soft limit)."""
     plan: MotionPlan | None = None
+    """Its speed and ramps as the drive gets them (the speed override applied)."""
+    base_plan: MotionPlan | None = None
+    """Its speed and ramps as asked, before the speed override."""
     speed: float = 0.0
     """A jog's signed speed in user units/s."""
     committing: bool = False
@@ -122,6 +138,50 @@ class _Motion:
     """Set when the command I/O that ``io`` belongs to has ended."""
     finished: anyio.Event = field(default_factory=anyio.Event)
     outcome: BaseException | None = None
+    trajectory: Trajectory | None = None
+    """Where it will be when (user units, monotonic s), planned once the drive took it."""
+    deadline: float | None = None
+    """When it has failed if it is not over (MotionTimeout), for a motion nobody awaits."""
+    buffer: BufferMode = "aborting"
+    runs: Runs = "now"
+    reason: str = ""
+    """Why it buffers although a blend was asked (the drive, or the geometry)."""
+    prepare: Callable[[], Awaitable[None]] | None = None
+    """A queued move: write everything but its start (the next ``begin`` starts it)."""
+    begin: Callable[[], Awaitable[None]] | None = None
+    """A queued motion: its start command (after ``prepare``)."""
+    retarget: Callable[[], Awaitable[None]] | None = None
+    """A queued move that blends: the new target given on the fly."""
+    prepared: bool = False
+    blend_speed: float | None = None
+    watchdog: float | None = None
+    """A queued jog's watchdog period (armed when it starts)."""
+    gate: SegmentGate | None = None
+    """A group segment: it starts once every axis of the segment before it is there."""
+    blend_before_end: float | None = None
+    """A blended path corner: the new target reaches the drive this long before the
+    motion before it would arrive (None: as that motion begins to brake)."""
+    may_reverse: bool = False
+    """A path corner may blend although this axis reverses there."""
+    ready: Callable[[], Awaitable[None]] | None = None
+    """A queued group start: awaited once the move is written, before its start."""
+    reports: list[SegmentGate] = field(default_factory=list)
+    """Group segments it is part of: told when it is done (or failed)."""
+    began: float | None = None
+    """When the drive took it (its start or its new target), monotonic s."""
+    fresh: anyio.Event | None = None
+    """A move a short read found in position: set once a full status polled after that
+    was taken in (its handle returns then, with the axis's position up to date)."""
+    arrived: tuple[float, float] | None = None
+    """When it was seen in position: (the poll before, the poll that saw it)."""
+    both_ways: bool = False
+    """It goes both ways (a position table): a limit switch either way ends it."""
+
+    def queue_plan(self) -> QueuePlan:
+        """How it runs, for its handle."""
+        t = self.trajectory
+        return QueuePlan(self.buffer, self.runs, self.reason, self.blend_speed,
+                         None if t is None else t.start, None if t is None else t.end)
 
     @property
     def over(self) -> bool:
@@ -151,7 +211,7 @@ _REFUSALS = (LimitViolation, StateError, ArgumentError, NotSupported, ConfigErro
 """Errors that mean nothing was started: raised before any frame, or the drive's own no."""
 
 
-class Axis:
+class Axis(ProgramRunner, AxisIO):
     """A named axis: a drive profile, user units, limits, state and its actor."""
 
     def __init__(self, name: str, config: AxisConfig, profile: DriveProfile) -> None:
@@ -197,6 +257,13 @@ class Axis:
         self._watchdog_period: float | None = None
         self._watchers: list[_Latest] = []
         self._listeners: list[AxisListener] = []
+        self._queue: list[_Motion] = []
+        self._queue_wake = anyio.Event()
+        self._unconfirmed: list[_Motion] = []  # ended by a short read, no full status since
+        self._override = 1.0
+        self.machine_override: Callable[[], float] = lambda: 1.0
+        """The machine's speed override (set by the machine that owns the axis)."""
+        self._override_due = False  # the sequencer applies a new override to the motion
 
     # -- reading -----------------------------------------------------------------------------
 
@@ -244,6 +311,42 @@ class Axis:
         """``plan`` in drive units (rpm, rev/s²)."""
         return self.envelope.drive_params(plan)
 
+    # -- speed override --------------------------------------------------------------------------
+
+    @property
+    def override(self) -> float:
+        """The axis's own speed override (1.0: the speeds as asked; the machine's
+        ``override`` multiplies it). Setting it scales every later motion's speed and, where
+        the drive can change speed on the fly, the motion under way (the axis's sequencer
+        sends that at once); ramps are kept. 0 < override <= 2; a faster speed is held to
+        ``max_speed``. A per-axis override slows that axis alone: a group's axes then no
+        longer arrive together (use the machine's)."""
+        return self._override
+
+    @override.setter
+    def override(self, value: float) -> None:
+        self._override = check_override(f"axis {self.name}: override", value)
+        self.override_changed()
+
+    @property
+    def effective_override(self) -> float:
+        """The speed factor the axis applies: its own override times the machine's."""
+        return self._override * self.machine_override()
+
+    def override_changed(self) -> None:
+        """The factor changed: later motions use it; the sequencer applies it on the fly."""
+        self._override_due = True
+        self._wake_queue()
+
+    def _effective(self, plan: MotionPlan) -> MotionPlan:
+        """``plan`` with the speed override applied (held to ``max_speed``)."""
+        factor = self.effective_override
+        if factor == 1.0:
+            return plan
+        speed = plan.speed * factor
+        top = self.config.max_speed
+        return replace(plan, speed=min(speed, top) if top is not None else speed)
+
     def check_drive(self, plan: MotionPlan) -> None:
         """``LimitViolation`` in the axis's units if its drive cannot run ``plan``."""
         self.envelope.check_drive(plan)
@@ -255,12 +358,19 @@ class Axis:
     # -- the actor ------------------------------------------------------------------------------
 
     async def run(self) -> None:
-        """Poll the drive and keep its safety rules until cancelled; owned by the machine."""
+        """Poll the drive, keep its safety rules and run its queue until cancelled; owned
+        by the machine."""
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(self._sequence, name=f"drivebus axis {self.name} queue")
+            await self._poll_forever()
+
+    async def _poll_forever(self) -> None:
         fails = 0
         poll = self.config.poll
         next_poll = monotonic()
         while True:
-            fast = self.state in MOVING_STATES or self._waiters > 0 or self._motion is not None
+            fast = (self.state in MOVING_STATES or self._waiters > 0
+                    or self._motion is not None or bool(self._queue))
             period = poll.moving if fast else poll.idle
             now = monotonic()
             next_poll = min(next_poll, now + period)
@@ -317,6 +427,7 @@ class Axis:
         )
         self.state = AxisState.OFFLINE
         log.warning("%s", self.error)
+        self._drop_queue(MotionAborted(f"axis {self.name}: the queue was dropped: {self.error}"))
         if self._motion is not None:
             self._end_motion(self._motion, self.error, None)
         else:
@@ -325,6 +436,7 @@ class Axis:
             w.error = self.error
             w.event.set()
         self._rest_waits.clear()
+        self._take_fresh(math.inf)
         self._publish()
 
     def _apply(self, st: DriveStatus, issued: float) -> None:
@@ -375,29 +487,40 @@ class Axis:
             self.state = AxisState.DISCRETE_MOTION  # moved by someone else (a panel, a PLC)
         elif self.state in (AxisState.STOPPING, AxisState.DISCRETE_MOTION) and not st.moving and (
             issued > self._stop_sent_at
-        ):
+        ) and not self._queue:
             self.state = AxisState.STANDSTILL
         if not st.moving:
             for w in [w for w in self._rest_waits if issued > w.after]:
                 w.event.set()
                 self._rest_waits.remove(w)
+        self._take_fresh(issued)
         for listener in self._listeners:
             listener(st)
         self._publish()
+
+    def _take_fresh(self, issued: float) -> None:
+        """A full status polled at ``issued``: the moves a short read ended before it may
+        return to their callers now."""
+        for m in [m for m in self._unconfirmed if m.arrived is None or issued > m.arrived[1]]:
+            self._unconfirmed.remove(m)
+            if m.fresh is not None:
+                m.fresh.set()
 
     def _judge(self, m: _Motion, st: DriveStatus, issued: float, prev_issued: float) -> None:
         """Decide from a status polled after ``m`` started: done, failed, or going on."""
         if m.kind == "home":
             self._judge_homing(m, st, issued)
             return
+        switch = self._switch_ahead(st, m.direction) or (
+            m.both_ways and (st.limit_positive or st.limit_negative))
+        side = (1 if st.limit_positive else -1) if m.both_ways else 0
         if st.moving:
             m.seen_motion = True
-            if self._switch_ahead(st, m.direction):
-                self._limit_hit(m, st)
+            if switch:
+                self._limit_hit(m, st, side=side)
             return
         tol = self.config.in_position_tolerance
         at = m.target is None or st.position is None or abs(st.position - m.target) <= tol
-        switch = self._switch_ahead(st, m.direction)
         late = issued > (m.accepted_at or 0.0) + max(0.25, 5 * self.config.poll.moving)
         here = f"{self.units.from_pulses(st.position or 0):.4f}"
         if m.kind == "move" and at:
@@ -406,6 +529,7 @@ class Axis:
                 self.arrived_at = issued
                 self.arrived_after = max(prev_issued, m.accepted_at or 0.0)
                 self.arrived_by = max(st.timestamp or issued, issued)
+                m.arrived = (self.arrived_after, self.arrived_by)
                 self._end_motion(m, None, AxisState.STANDSTILL)
             return  # at the target, still settling
         if m.kind == "jog" and m.target is not None and at:
@@ -414,7 +538,7 @@ class Axis:
             return
         started = m.seen_motion or (st.position is not None and st.position != m.start)
         if switch and started:
-            self._limit_hit(m, st)
+            self._limit_hit(m, st, side=side)
         elif not started and not late:
             return  # not yet moving: the drive has a moment to start
         elif not started:
@@ -487,8 +611,11 @@ class Axis:
         self._end_motion(m, self.error, AxisState.ERROR_STOP)
         self._stop_due = f"{name} limit switch"
 
-    def _end_motion(self, m: _Motion, error: BaseException | None, state: AxisState | None) -> None:
-        """Decide ``m``'s outcome; the axis goes to ``state`` (None: leave it).
+    def _end_motion(self, m: _Motion, error: BaseException | None, state: AxisState | None,
+                    *, detail: str = "") -> None:
+        """Decide ``m``'s outcome; the axis goes to ``state`` (None: leave it). An error
+        drops the queue behind it; a success with a queue behind it keeps the axis in
+        motion for the queue's next (``detail``: what to tell of a success).
 
         A motion that ended in an error the drive caused (it stopped short, did not start,
         an alarm) may hide a reset: the drive's settings are checked before the next
@@ -496,24 +623,42 @@ class Axis:
         if error is not None and not isinstance(error, MotionAborted):
             self._check_due = True
         if not m.over:
-            log.debug("axis %s: %s ends: %s", self.name, m.what, error or "done")
+            log.debug("axis %s: %s ends: %s", self.name, m.what, error or detail or "done")
             if self._listeners:
                 kind: MotionEventKind = (
                     "error" if error is not None and not isinstance(error, MotionAborted)
                     else "aborted" if error is not None
-                    else "in_position" if m.kind == "move" else "done")
-                self._note(kind, m.what, m=m, detail="" if error is None else str(error),
+                    else "in_position" if m.kind == "move" and not detail else "done")
+                self._note(kind, m.what, m=m, detail=detail if error is None else str(error),
                            at=self.arrived_at if kind == "in_position" else None)
         m.finish(error)
+        for gate in m.reports:
+            if error is None:
+                gate.arrive(self.name, monotonic())
+            else:
+                gate.fail(self.name, error)
+        if error is not None and self._queue and self._motion is m:
+            self._drop_queue(MotionAborted(
+                f"axis {self.name}: the queue was dropped: the {m.what} ended: {error}"))
         if self._motion is m:
             self._motion = None
             self._jog_deadline = None
+            if state is AxisState.STANDSTILL and self._queue:
+                state = None  # the queue's next starts now
             if state is not None:
                 self.state = state
+        self._wake_queue()
 
     async def _act(self) -> None:
         """What a poll asked for: a stop (limit, watchdog, alarm), a settings check."""
         reason = self._stop_due
+        m = self._motion
+        if (reason is None and m is not None and m.deadline is not None and not m.over
+                and monotonic() > m.deadline):
+            timeout = MotionTimeout(f"axis {self.name}: the {m.what} did not complete in time "
+                                    f"(its deadline passed {monotonic() - m.deadline:.1f} s ago)")
+            log.warning("%s", timeout)
+            await self._stop_now(str(timeout), error=timeout)
         if (
             reason is None
             and self.state is AxisState.CONTINUOUS_MOTION
@@ -636,22 +781,29 @@ class Axis:
     ) -> None:
         """Run ``io`` alone on the axis; a motion's I/O can be cancelled by a stop."""
         async with self._lane:
-            if motion is not None and motion.over:
-                raise motion.outcome or MotionAborted(f"axis {self.name}: {motion.what} aborted")
-            scope, done = anyio.CancelScope(), anyio.Event()
+            await self._locked_io(io, motion=motion)
+
+    async def _locked_io(
+        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None
+    ) -> None:
+        """``_exclusive``'s body, for a caller that holds the lane."""
+        if motion is not None and motion.over:
+            raise motion.outcome or MotionAborted(f"axis {self.name}: {motion.what} aborted")
+        scope, done = anyio.CancelScope(), anyio.Event()
+        if motion is not None:
+            motion.io, motion.io_done = scope, done
+        try:
+            with scope:
+                if self._check_due or self._setup_due:
+                    await self._verify_settings()
+                await io()
+        finally:
             if motion is not None:
-                motion.io, motion.io_done = scope, done
-            try:
-                with scope:
-                    if self._check_due or self._setup_due:
-                        await self._verify_settings()
-                    await io()
-            finally:
-                if motion is not None:
-                    motion.io = None
-                done.set()
-            if motion is not None and scope.cancelled_caught:
-                raise motion.outcome or MotionAborted(f"axis {self.name}: {motion.what} aborted")
+                motion.io = None
+            done.set()
+            self._wake_queue()
+        if motion is not None and scope.cancelled_caught:
+            raise motion.outcome or MotionAborted(f"axis {self.name}: {motion.what} aborted")
 
     def _begin(
         self,
@@ -685,9 +837,11 @@ class Axis:
     ) -> None:
         """``StateError`` unless the axis may start a motion now (at rest, nothing under
         way); no I/O, nothing changes."""
-        if self.state not in allowed or self._motion is not None:
+        if self.state not in allowed or self._motion is not None or self._queue:
             detail = f" ({self.error})" if self.error is not None else ""
             running = f"; the {self._motion.what} is under way" if self._motion else ""
+            if self._queue:
+                running += f"; {len(self._queue)} more queued"
             raise StateError(
                 f"axis {self.name}: cannot start the {what} in state {self.state}{detail}"
                 f"{running}"
@@ -708,9 +862,15 @@ class Axis:
                 return
             self._waiters += 1
             self._poke_now()
+            if timeout is not None and m.deadline is None:
+                m.deadline = monotonic() + timeout  # a speed override may push it back
             try:
-                with anyio.fail_after(timeout):
-                    await m.finished.wait()
+                while not m.finished.is_set():
+                    left = None if m.deadline is None else m.deadline - monotonic()
+                    if left is not None and left <= 0:
+                        raise TimeoutError
+                    with anyio.move_on_after(left):
+                        await m.finished.wait()
             except TimeoutError:
                 st = self.status
                 where = "unknown" if st is None or st.position is None else (
@@ -721,8 +881,8 @@ class Axis:
                     f"in_position={st.in_position}, homed={st.homed})"
                 )
                 raise MotionTimeout(
-                    f"axis {self.name}: the {m.what} did not complete within {timeout:.1f} s"
-                    f"{last}"
+                    f"axis {self.name}: the {m.what} did not complete within "
+                    f"{timeout or 0:.1f} s{last}"
                 ) from None
             finally:
                 self._waiters -= 1
@@ -755,6 +915,7 @@ class Axis:
         start: Callable[[], Awaitable[None]],
         *,
         prepare: Callable[[], Awaitable[None]] | None = None,
+        trajectory: Callable[[float], Trajectory] | None = None,
     ) -> None:
         """Send ``m``'s start command. If the drive may have been reset since it was
         prepared (a poll failed meanwhile), check its settings and ``prepare`` it again
@@ -780,6 +941,14 @@ class Axis:
                 await start()
         m.accepted_at = self.command_started_at = monotonic()
         log.debug("axis %s: %s started (target %s pulses)", self.name, m.what, m.target)
+        drive_start = m.began = self._drive_started(m.accepted_at)
+        if trajectory is not None:
+            m.trajectory = trajectory(drive_start)
+        elif m.plan is not None and m.target is not None and m.start is not None:
+            u = self.units
+            m.trajectory = Trajectory.point_to_point(
+                u.from_pulses(m.start), u.from_pulses(m.target),
+                self.envelope.quantized(m.plan), t0=drive_start)
         if self._listeners:
             planned = None
             if m.plan is not None and m.target is not None and m.start is not None:
@@ -788,6 +957,7 @@ class Axis:
             self._note("started", m.what, m=m, at=m.accepted_at, planned_end=planned)
         self._commanded = True
         self._poke_now()
+        self._wake_queue()
 
     async def _stop_now(self, reason: str, *, error: BaseException | None = None) -> None:
         """Abort the motion under way and send a decelerating stop, not waiting for rest.
@@ -797,12 +967,16 @@ class Axis:
         """
         m = self._motion
         self._note("stop", "stop", m=m, detail=reason)
+        pending = self._drop_queue(MotionAborted(
+            f"axis {self.name}: the queue was dropped: the axis was stopped: {reason}"))
         if m is not None:
             running = m.io is not None
             self._end_motion(m, error or MotionAborted(
                 f"axis {self.name}: the {m.what} was stopped: {reason}"), None)
             if running and m.io_done is not None:
-                await m.io_done.wait()
+                pending.append(m.io_done)
+        for done in pending:
+            await done.wait()
         self._jog_deadline = None
         try:
             await self.profile.stop(None)
@@ -830,29 +1004,47 @@ class Axis:
         speed: float | None = None,
         accel: float | None = None,
         decel: float | None = None,
+        buffer: BufferMode = "aborting",
         ready: Callable[[], Awaitable[None]] | None = None,
         accepted: Callable[[], object] | None = None,
-    ) -> None:
+    ) -> MotionHandle | None:
         """Move to ``target`` (user units); return when the drive reports it is there.
+
+        ``buffer`` (PLCopen buffer mode) says what it does to a motion under way:
+        ``"aborting"`` (the default) takes over where the drive takes a new target on the
+        fly (the motion under way ends with ``MotionAborted``), else it is a
+        ``StateError``. ``"buffered"`` queues it to start the moment the motion before it
+        is in position; ``"blending"`` queues it to reach the drive before the motion
+        before it brakes, so the axis does not stop (a drive that cannot buffers, and
+        says why in the handle's ``plan``). Both return a ``MotionHandle`` once the move
+        is taken (at once if nothing runs): await it for the move's outcome.
 
         With ``ready``, the move is prepared on the drive, then ``ready()`` is awaited
         before the start command goes out (a group starts its axes back to back).
         ``accepted()`` is called once every check has passed and the axis has taken the
         move (a service answers "running" then; a refusal raises before it).
         """
+        buffer = check_buffer(buffer)
         target = checks.finite(f"axis {self.name}: target", target)
-        plan = self.plan(speed, accel, decel)
+        base = self.plan(speed, accel, decel)
+        plan = self._effective(base)
         self.check_limits(target)
         self.profile.check_supported("move_absolute")
         target_p = self.envelope.pulses(target)
         params = self.drive_params(plan)
         self.check_drive(plan)
+        what = f"move to {target:g}"
+        if buffer != "aborting" and (self._motion is not None or self._queue):
+            return self._queue_move(what, target_p, base, buffer, accepted)
+        if buffer == "aborting" and self._may_take_over():
+            await self._take_over(what, target_p, base, accepted)
+            return None
         here = self.status.position if self.status is not None else None
         direction = 0 if here is None else (target_p > here) - (target_p < here)
         self.envelope.check_switch(direction, self.status)
-        m = self._begin("move", f"move to {target:g}", AxisState.DISCRETE_MOTION,
+        m = self._begin("move", what, AxisState.DISCRETE_MOTION,
                         direction=direction, accepted=accepted)
-        m.target, m.plan = target_p, plan
+        m.target, m.plan, m.base_plan, m.buffer = target_p, plan, base, buffer
 
         async def prepare() -> None:
             await self.profile.prepare_absolute(target_p, params)
@@ -870,6 +1062,176 @@ class Axis:
             await self._commit(m, self.profile.start_absolute, prepare=prepare)
 
         distance = self.units.from_pulses(target_p - (m.start or 0))
+        return await self._run_or_hand(m, io, self.envelope.motion_timeout(plan, distance))
+
+    async def _run_or_hand(
+        self, m: _Motion, io: Callable[[], Awaitable[None]], timeout: float
+    ) -> MotionHandle | None:
+        """Start ``m``: aborting, await it (None); else return its handle once started
+        (its deadline kept by the actor)."""
+        if m.buffer == "aborting":
+            await self._run_motion(m, io, timeout=timeout)
+            return None
+        await self._run_motion(m, io, timeout=None, wait=False)
+        m.deadline = monotonic() + timeout
+        return self._handle(m)
+
+    def _queue_move(
+        self, what: str, target_p: int, base: MotionPlan,
+        buffer: BufferMode, accepted: Callable[[], object] | None, *,
+        origin: int | None = None,
+        configure: Callable[[_Motion], object] | None = None,
+    ) -> MotionHandle:
+        """Queue a move to ``target_p`` pulses at ``base`` (before the override) behind
+        the motions under way (checked); ``origin``: where it starts (default: where the
+        motions under way end); ``configure``: called with the motion before it is queued.
+        Its speed takes the override in force when it is written to the drive."""
+        if origin is None:
+            origin, _ = self._queue_origin(what)
+        direction = 0 if origin is None else (target_p > origin) - (target_p < origin)
+        m = _Motion("move", what, AxisState.STANDSTILL, direction=direction)
+        m.start, m.target, m.plan, m.buffer = origin, target_p, self._effective(base), buffer
+        m.base_plan = base
+        profile = self.profile
+
+        def params() -> MoveParams:
+            assert m.plan is not None
+            return self.drive_params(m.plan)
+
+        async def prepare() -> None:
+            m.plan = self._effective(base)
+            await profile.prepare_absolute(target_p, params())
+
+        async def retarget() -> None:
+            m.plan = self._effective(base)
+            await profile.retarget_absolute(target_p, params())
+
+        m.prepare, m.begin, m.retarget = prepare, profile.start_absolute, retarget
+        if configure is not None:
+            configure(m)
+        return self._enqueue(m, accepted)
+
+    def queue_segment(
+        self,
+        what: str,
+        target: float,
+        plan: MotionPlan,
+        *,
+        origin: float,
+        gate: SegmentGate | None = None,
+        reports: SegmentGate | None = None,
+        blend: bool = False,
+        blend_before_end: float | None = None,
+        ready: Callable[[], Awaitable[None]] | None = None,
+    ) -> MotionHandle:
+        """Queue a group segment's move to ``target`` (from ``origin``, where the segment
+        before it ends) with the group's fitted ``plan``; it starts once ``gate`` is open
+        (and ``ready()`` has returned), or blends ``blend_before_end`` s before the motion
+        before it would arrive (``blend``: as it begins to brake); it tells ``reports``
+        when it is done. Checked like ``move_to``; for ``AxisGroup``."""
+        self.check_limits(target)
+        self.profile.check_supported("move_absolute")
+        self.check_drive(plan)
+        target_p, origin_p = self.envelope.pulses(target), self.units.to_pulses(origin)
+
+        def configure(m: _Motion) -> None:
+            m.gate, m.ready, m.blend_before_end = gate, ready, blend_before_end
+            m.may_reverse = blend_before_end is not None
+            if reports is not None:
+                m.reports.append(reports)
+
+        blends = blend or blend_before_end is not None
+        return self._queue_move(what, target_p, plan,
+                                "blending" if blends else "buffered",
+                                None, origin=origin_p, configure=configure)
+
+    @property
+    def busy(self) -> bool:
+        """True while a motion commanded through the axis runs or waits in its queue."""
+        return self._motion is not None or bool(self._queue)
+
+    def blend_problem(self, target: float) -> str:
+        """Why a move to ``target`` could not blend into the motions under way ("" if it
+        could), as ``move_to(..., buffer="blending")`` would decide."""
+        before = self._queue[-1] if self._queue else self._motion
+        origin = None if before is None else before.target
+        target_p = self.envelope.pulses(target)
+        m = _Motion("move", "move", AxisState.STANDSTILL,
+                    direction=0 if origin is None else (target_p > origin) - (target_p < origin))
+        m.target = target_p
+        m.retarget = self.profile.retarget_absolute  # type: ignore[assignment]
+        return self._why_not_blend(m, before)
+
+    def report_to(self, gate: SegmentGate) -> bool:
+        """Have the last motion under way or queued tell ``gate`` when it is done; False
+        if nothing runs (the axis is there already)."""
+        last = self._queue[-1] if self._queue else self._motion
+        if last is None or last.over:
+            return False
+        last.reports.append(gate)
+        return True
+
+    @property
+    def planned_end(self) -> float | None:
+        """Where the axis will be when the motions under way and queued are done (user
+        units; None: a motion without an end position); at rest: its position."""
+        last = self._queue[-1] if self._queue else self._motion
+        if last is None:
+            return self.position
+        return None if last.target is None else self.units.from_pulses(last.target)
+
+    def _may_take_over(self) -> bool:
+        """True if a new move may replace the motion under way on the fly (aborting)."""
+        m = self._motion
+        return (
+            m is not None and self.profile.programs.blends and m.kind in ("move", "jog")
+            and m.target is not None and m.accepted_at is not None and m.io is None
+            and not m.over
+            and self.state in (AxisState.DISCRETE_MOTION, AxisState.CONTINUOUS_MOTION)
+        )
+
+    async def _take_over(
+        self, what: str, target_p: int, base: MotionPlan,
+        accepted: Callable[[], object] | None,
+    ) -> None:
+        """Replace the motion under way by a move to ``target_p`` given on the fly (the
+        drive's retarget): the motion and the queue end with ``MotionAborted``."""
+        cur = self._motion
+        assert cur is not None
+        here = self.status.position if self.status is not None else cur.target
+        assert here is not None
+        direction = (target_p > here) - (target_p < here)
+        self.envelope.check_switch(direction, self.status)
+        self._drop_queue(MotionAborted(
+            f"axis {self.name}: the queued motions were dropped: the {what} takes over"))
+        self._end_motion(cur, MotionAborted(
+            f"axis {self.name}: the {cur.what} was aborted by the {what} (aborting)"), None)
+        plan = self._effective(base)
+        params = self.drive_params(plan)
+        m = _Motion("move", what, AxisState.STANDSTILL, direction=direction)
+        m.start, m.target, m.plan, m.runs = here, target_p, plan, "taken over"
+        m.base_plan = base
+        m.seen_motion, m.accepted_at = True, cur.accepted_at  # the drive is moving already
+        self._motion, self.state, self._jog_deadline = m, AxisState.DISCRETE_MOTION, None
+        self._note("accepted", what, m=m, detail="takes over")
+        if accepted is not None:
+            accepted()
+        before, goal = cur.trajectory, self.units.from_pulses(target_p)
+        quantized = self.envelope.quantized(plan)
+
+        def trajectory(t0: float) -> Trajectory:
+            if before is not None:
+                return before.retargeted(t0, goal, quantized)
+            return Trajectory.point_to_point(self.units.from_pulses(here), goal, quantized,
+                                             t0=t0)
+
+        async def retarget() -> None:
+            await self.profile.retarget_absolute(target_p, params)
+
+        async def io() -> None:
+            await self._commit(m, retarget, trajectory=trajectory)
+
+        distance = self.units.from_pulses(target_p - here)
         await self._run_motion(m, io, timeout=self.envelope.motion_timeout(plan, distance))
 
     async def move_by(
@@ -879,12 +1241,37 @@ class Axis:
         speed: float | None = None,
         accel: float | None = None,
         decel: float | None = None,
+        buffer: BufferMode = "aborting",
         accepted: Callable[[], object] | None = None,
-    ) -> None:
-        """Move by ``distance`` (user units) from the present position (``accepted``: as
-        for ``move_to``)."""
+    ) -> MotionHandle | None:
+        """Move by ``distance`` (user units) from the present position (``buffer``,
+        ``accepted``: as for ``move_to``). Queued (buffered or blending), the distance
+        counts from where the motion before it ends, PLCopen's reading."""
+        buffer = check_buffer(buffer)
         distance = checks.finite(f"axis {self.name}: distance", distance)
-        plan = self.plan(speed, accel, decel)
+        base = self.plan(speed, accel, decel)
+        plan = self._effective(base)
+        what = f"move by {distance:g}"
+        if (buffer != "aborting" and (self._motion is not None or self._queue)) or (
+            buffer == "aborting" and self._may_take_over()
+        ):
+            self.profile.check_supported("move_absolute")
+            params = self.drive_params(plan)
+            self.check_drive(plan)
+            if buffer == "aborting":
+                origin = self.status.position if self.status is not None else None
+            else:
+                origin, _ = self._queue_origin(what)
+            if origin is None:
+                raise StateError(f"axis {self.name}: the {what} has no start to count from: "
+                                 f"the motion before it has no end position")
+            target = self.units.from_pulses(origin) + distance
+            self.check_limits(target)
+            target_p = self.envelope.pulses(target)
+            if buffer == "aborting":
+                await self._take_over(what, target_p, base, accepted)
+                return None
+            return self._queue_move(what, target_p, base, buffer, accepted)
         self.profile.check_supported("move_relative")
         params = self.drive_params(plan)
         self.check_drive(plan)
@@ -892,9 +1279,9 @@ class Axis:
             self.check_limits(self.position + distance)
         direction = self.envelope.drive_direction(distance)
         self.envelope.check_switch(direction, self.status)
-        m = self._begin("move", f"move by {distance:g}", AxisState.DISCRETE_MOTION,
+        m = self._begin("move", what, AxisState.DISCRETE_MOTION,
                         direction=direction, accepted=accepted)
-        m.plan = plan
+        m.plan, m.base_plan, m.buffer = plan, base, buffer
 
         async def io() -> None:
             st = await self.refresh()
@@ -905,7 +1292,79 @@ class Axis:
             m.start, m.target = start, target
             await self._commit(m, lambda: self.profile.move_relative(target - start, params))
 
-        await self._run_motion(m, io, timeout=self.envelope.motion_timeout(plan, distance))
+        return await self._run_or_hand(m, io, self.envelope.motion_timeout(plan, distance))
+
+    async def run_table(
+        self,
+        targets: Sequence[float],
+        *,
+        speed: float | None = None,
+        accel: float | None = None,
+        dwell: float = 0.0,
+        trigger_input: str,
+    ) -> None:
+        """Run ``targets`` (user units, absolute) one after the other from the drive's own
+        position table: written first, then started with one command, so no bus latency
+        falls between the moves (each waits ``dwell`` seconds at its target). Returns when
+        the drive is at the last one. ``trigger_input``: an unwired input the drive's
+        manual lets Modbus pull to start the table (NT86: its function becomes USER3,
+        application mode 20; the next command restores mode 0). ``NotSupported`` naming
+        the drive's reason where it has no table Modbus can start. A stop works as for
+        any move."""
+        if not isinstance(targets, Sequence) or isinstance(targets, str) or not targets:
+            raise ArgumentError(f"axis {self.name}: a table needs a list of positions")
+        goals = [checks.finite(f"axis {self.name}: table position {i + 1}", t)
+                 for i, t in enumerate(targets)]
+        dwell = checks.finite(f"axis {self.name}: dwell", dwell)
+        if dwell < 0:
+            raise ArgumentError(f"axis {self.name}: dwell {dwell:g} s is below 0")
+        if not self.profile.table_rows:
+            raise self.profile.unsupported("run its position table", self.profile.no_table)
+        if len(goals) > self.profile.table_rows:
+            raise ArgumentError(f"axis {self.name}: the {self.profile.family}'s table has "
+                                f"{self.profile.table_rows} rows, not {len(goals)}")
+        base = self.plan(speed, accel, accel)
+        plan = self._effective(base)
+        self.check_drive(plan)
+        for t in goals:
+            self.check_limits(t)
+        trigger = self._terminal(trigger_input, output=False)
+        pulses = [self.envelope.pulses(t) for t in goals]
+        params = self.drive_params(plan)
+        rows = [(p, params, dwell) for p in pulses]
+        here = self.status.position if self.status is not None else None
+        m = self._begin("move", f"table of {len(goals)} positions", AxisState.DISCRETE_MOTION,
+                        direction=0)
+        m.target, m.plan, m.base_plan, m.both_ways = pulses[-1], plan, base, True
+
+        async def prepare() -> None:
+            await self.profile.prepare_table(rows, trigger)
+
+        def trajectory(t0: float) -> Trajectory:
+            q = self.envelope.quantized(plan)
+            phases: list[Phase] = []
+            at = self.units.from_pulses(m.start if m.start is not None else pulses[0])
+            for goal in goals:
+                leg = Trajectory.point_to_point(at, goal, q, t0=t0)
+                phases += leg.phases
+                t0 = leg.end
+                if dwell and goal is not goals[-1]:
+                    phases.append(Phase(t0, dwell, goal, 0.0, 0.0))
+                    t0 += dwell
+                at = goal
+            return Trajectory(tuple(phases), goals[-1])
+
+        async def io() -> None:
+            await prepare()
+            await self._commit(m, self.profile.start_table, prepare=prepare,
+                               trajectory=trajectory)
+
+        start = self.units.from_pulses(here) if here is not None else goals[0]
+        path = [start, *goals]
+        distance = sum(abs(b - a) for a, b in itertools.pairwise(path))
+        timeout = self.envelope.motion_timeout(plan, distance) + dwell * len(goals) + (
+            len(goals) * plan.speed / plan.accel)
+        await self._run_motion(m, io, timeout=timeout)
 
     async def home(self, *, accepted: Callable[[], object] | None = None) -> None:
         """Run the configured homing procedure; return when the drive reports homed
@@ -943,7 +1402,8 @@ class Axis:
         accel: float | None = None,
         decel: float | None = None,
         watchdog: float | None = 1.0,
-    ) -> None:
+        buffer: BufferMode = "aborting",
+    ) -> MotionHandle | None:
         """Run at ``speed`` units/s (sign = direction) until ``stop()`` or until the
         watchdog expires; returns once running.
 
@@ -954,33 +1414,68 @@ class Axis:
         the limit in its direction, so it comes to rest on the limit at the latest.
 
         Called again while jogging with the same values it feeds the watchdog; with
-        another speed or direction it changes the jog (towards a limit: by a stop and a new
-        start, the drives cannot retarget a position move while it runs).
+        another speed or direction it changes the jog (towards a limit: on the fly where
+        the drive takes a new target while it moves, else by a stop and a new start).
+
+        ``buffer="buffered"`` (or ``"blending"``) queues the jog behind the motions under
+        way, as for ``move_to``, and returns a ``MotionHandle``; its watchdog starts with
+        it. A blend needs soft limits (the jog is then a move to the limit).
         """
+        buffer = check_buffer(buffer)
         speed = checks.finite(f"axis {self.name}: speed", speed)
         if watchdog is not None:
             watchdog = checks.positive(f"axis {self.name}: watchdog", watchdog, unit="s")
-        if speed == 0:
+        if speed == 0 and buffer == "aborting":
             await self.stop()
-            return
-        plan = self.plan(abs(speed), accel, decel)
-        self.envelope.check_jog_room(speed, self.status)
+            return None
+        if speed == 0:
+            raise ArgumentError(f"axis {self.name}: a queued jog needs a speed other than 0")
+        base = self.plan(abs(speed), accel, decel)
+        plan = self._effective(base)
         bound = self.envelope.jog_bound(speed)
         procedure = "move_absolute" if bound is not None else "speed_run"
         self.profile.check_supported(procedure)
         self.check_drive(plan)
+        what = f"jog at {speed:g}"
+        if buffer != "aborting" and (self._motion is not None or self._queue):
+            return self._queue_jog(what, speed, base, bound, watchdog, buffer)
+        self.envelope.check_jog_room(speed, self.status)
         m = self._motion
         if m is not None and m.kind == "jog" and self.state is AxisState.CONTINUOUS_MOTION:
-            if m.speed == speed and m.plan == plan:
+            if m.speed == speed and m.base_plan == base:
                 self._arm_watchdog(watchdog)  # the same jog again: a feed
-                return
+                return None
             await self._change_jog(m, speed, plan, bound, watchdog)
-            return
-        m = self._begin("jog", f"jog at {speed:g}", AxisState.CONTINUOUS_MOTION,
+            m.base_plan = base
+            return None
+        m = self._begin("jog", what, AxisState.CONTINUOUS_MOTION,
                         direction=self.envelope.drive_direction(speed))
-        m.speed, m.plan, m.target = speed, plan, bound
+        m.speed, m.plan, m.target, m.buffer = speed, plan, bound, buffer
+        m.base_plan = base
         await self._run_motion(m, lambda: self._start_jog(m), timeout=None, wait=False)
         self._arm_watchdog(watchdog)
+        return None if buffer == "aborting" else self._handle(m)
+
+    def _queue_jog(
+        self, what: str, speed: float, base: MotionPlan, bound: int | None,
+        watchdog: float | None, buffer: BufferMode,
+    ) -> MotionHandle:
+        """Queue a jog behind the motions under way (checked against where they end)."""
+        origin, _ = self._queue_origin(what)
+        if origin is not None and self.status is not None:
+            self.envelope.check_jog_room(speed, replace(self.status, position=origin))
+        m = _Motion("jog", what, AxisState.STANDSTILL,
+                    direction=self.envelope.drive_direction(speed))
+        m.speed, m.plan, m.target, m.start = speed, self._effective(base), bound, origin
+        m.base_plan, m.buffer, m.watchdog = base, buffer, watchdog
+        if bound is not None:
+
+            async def retarget() -> None:
+                m.plan = self._effective(base)
+                await self.profile.retarget_absolute(bound, self.drive_params(m.plan))
+
+            m.retarget = retarget
+        return self._enqueue(m, None)
 
     async def _start_jog(self, m: _Motion) -> None:
         assert m.plan is not None
@@ -1010,6 +1505,13 @@ class Axis:
                 params = self.drive_params(plan)
                 rpm = math.copysign(params.speed_rpm, direction)
                 await self.profile.speed_run(rpm, params.accel_rps2, params.decel_rps2)
+            elif bound is not None and direction == m.direction and self.profile.programs.blends:
+                # towards the same limit at another speed, given on the fly
+                await self.profile.retarget_absolute(bound, self.drive_params(plan))
+                before, limit = m.trajectory, self.units.from_pulses(bound)
+                if before is not None:
+                    m.trajectory = before.retargeted(
+                        self._drive_started(monotonic()), limit, self.envelope.quantized(plan))
             else:
                 m.restarting = True
                 await self.profile.stop(None)
@@ -1078,20 +1580,25 @@ class Axis:
         offline = self.state is AxisState.OFFLINE
         m = self._motion
         self._note("stop", by, m=m)
+        queued = bool(self._queue)
+        pending = self._drop_queue(MotionAborted(
+            f"axis {self.name}: the queued motions were dropped by {by}"))
         running = m is not None and m.io is not None
         if m is not None:
             self._end_motion(m, MotionAborted(f"axis {self.name}: the {m.what} was aborted by "
                                               f"{by}"), None)
         self._jog_deadline = None
         moving = self.status is not None and self.status.moving
-        if m is None and not offline and not moving and self.state in (
+        if m is None and not queued and not offline and not moving and self.state in (
             AxisState.STANDSTILL, AxisState.DISABLED, AxisState.ERROR_STOP
         ):
             return
         if self.state not in (AxisState.ERROR_STOP, AxisState.OFFLINE, AxisState.DISABLED):
             self.state = AxisState.STOPPING
         if running and m is not None and m.io_done is not None:
-            await m.io_done.wait()  # nothing of the aborted motion can follow the stop now
+            pending.append(m.io_done)
+        for done in pending:
+            await done.wait()  # nothing of the aborted motions can follow the stop now
         try:
             # Offline or not, the stop is sent: the drive may be back (a network blip) and a
             # motor must not keep running because our polls failed.
@@ -1156,7 +1663,7 @@ class Axis:
     # -- other commands --------------------------------------------------------------------------
 
     def _at_rest_or_raise(self, what: str) -> None:
-        if self._motion is not None or self.state in MOVING_STATES or (
+        if self._motion is not None or self._queue or self.state in MOVING_STATES or (
             self.status is not None and self.status.moving
         ):
             raise StateError(f"axis {self.name}: stop before you {what} ({self.state})")
@@ -1165,7 +1672,7 @@ class Axis:
         """Before a command that needs the drive at rest: ``StateError`` if a motion is
         under way; else decide on a status polled from now on, not a stale one. A drive
         still braking from a stop (Stopping, ErrorStop) is waited for, bounded."""
-        if self._motion is not None or self.state in _COMMANDED_MOTION:
+        if self._motion is not None or self._queue or self.state in _COMMANDED_MOTION:
             self._at_rest_or_raise(what)
         if self.state is AxisState.OFFLINE:
             return

@@ -80,6 +80,13 @@ class Envelope:
         u = self.units
         return MoveParams(u.to_rpm(plan.speed), u.to_rps2(plan.accel), u.to_rps2(plan.decel))
 
+    def quantized(self, plan: MotionPlan) -> MotionPlan:
+        """``plan`` as its drive runs it (whole rpm, its ramps' resolution), in user units."""
+        q = self.profile.quantize(self.drive_params(plan))
+        u = self.units
+        return MotionPlan(u.from_rpm(abs(q.speed_rpm)), u.from_rps2(q.accel_rps2),
+                          u.from_rps2(q.decel_rps2))
+
     def check_drive(self, plan: MotionPlan) -> None:
         """``LimitViolation`` in the axis's units if its drive cannot run ``plan``: the
         speed, acceleration or deceleration and the most the drive takes of it (found

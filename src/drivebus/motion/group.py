@@ -16,6 +16,7 @@ import math
 from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
 from contextlib import AsyncExitStack
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import anyio
 import anyio.lowlevel
@@ -25,8 +26,12 @@ from drivebus.bus import Bus
 from drivebus.clock import monotonic
 from drivebus.errors import ArgumentError, DrivebusError, GroupMotionError, LimitViolation
 from drivebus.motion.axis import Axis, MotionPlan
+from drivebus.motion.handle import BufferMode, check_buffer
 from drivebus.settings import LineSettings
 from drivebus.timing import switch_silence, timing
+
+if TYPE_CHECKING:
+    from drivebus.motion.path import GroupHandle, PathReport
 
 __all__ = ["AxisGroup", "GroupMotionError", "GroupMoveReport", "synchronise"]
 
@@ -138,17 +143,19 @@ def _speed_for(distance: float, duration: float, accel: float, decel: float) -> 
 
 
 def fit_plan(
-    axis: Axis, distance: float, duration: float, shape: MotionPlan, *, at_least: bool = False
+    axis: Axis, distance: float, duration: float, shape: MotionPlan, *, at_least: bool = False,
+    ceiling: MotionPlan | None = None,
 ) -> MotionPlan:
     """The plan closest to covering ``distance`` in ``duration`` that the axis's drive
     really runs (its quantized speed and ramps), within the axis's limits and the drive's
     register ranges. ``shape`` gives the preferred ramp proportions. ``at_least``: the
     closest that takes no less than ``duration`` (a coarse drive sets the pace then).
 
+    ``ceiling``: the most speed and ramps it may use (default: the axis's own).
     ``LimitViolation`` if no plan fits the drive at all.
     """
     d = abs(distance)
-    own = axis.plan()
+    own = ceiling or axis.plan()
     if d == 0:
         return own
     u, profile = axis.units, axis.profile
@@ -212,6 +219,20 @@ def fit_plan(
     return best[2]
 
 
+@dataclass(frozen=True)
+class _GroupPlan:
+    """A synchronised move of a group, planned and fitted, nothing sent yet."""
+
+    targets: dict[str, float]
+    starts: dict[str, float]
+    distances: dict[str, float]
+    total: float
+    """Planned time from the first start to the common arrival, seconds."""
+    plans: dict[str, MotionPlan]
+    offsets: dict[str, float]
+    delays: dict[str, float]
+
+
 class _StartGate:
     """Every axis prepares its move and waits here; once all are in, the gate holds the
     group's lines quiet and lets the axes send their start commands in the planned order.
@@ -266,7 +287,8 @@ class AxisGroup:
         self.axes = {a.name: a for a in axes}
         self.last_report: GroupMoveReport | None = None
 
-    def _check(self, values: Mapping[str, float], what: str) -> dict[str, float]:
+    def _check(self, values: Mapping[str, float], what: str, *, free: bool = True
+               ) -> dict[str, float]:
         unknown = set(values) - set(self.axes)
         if unknown:
             raise ArgumentError(
@@ -276,8 +298,9 @@ class AxisGroup:
         if not values:
             raise ArgumentError(f"{what}: no axes given")
         checked = {n: checks.finite(f"axis {n}: {what} {n!r}", v) for n, v in values.items()}
-        for n in checked:
-            self.axes[n].check_free("group move")
+        if free:
+            for n in checked:
+                self.axes[n].check_free("group move")
         return checked
 
     async def _positions(self, names: Iterable[str]) -> dict[str, float]:
@@ -292,28 +315,79 @@ class AxisGroup:
         return found
 
     async def move_to(
-        self, targets: Mapping[str, float], *, accepted: Callable[[], object] | None = None
-    ) -> GroupMoveReport:
+        self,
+        targets: Mapping[str, float],
+        *,
+        speed: float | None = None,
+        accel: float | None = None,
+        decel: float | None = None,
+        duration: float | None = None,
+        buffer: BufferMode = "aborting",
+        accepted: Callable[[], object] | None = None,
+    ) -> GroupMoveReport | GroupHandle:
         """Move the named axes to their targets, starting and arriving together.
+
+        By default every axis runs at most at its own speed and ramps and the slowest sets
+        the pace. ``speed``, ``accel``, ``decel``: along the straight line between the two
+        points, in the axes' common unit (each axis gets its share); ``duration``: the move
+        takes that long (``LimitViolation`` naming the axis that cannot). ``buffer``:
+        ``"buffered"`` or ``"blending"`` queue it behind what the axes are doing (a
+        ``GroupHandle`` is returned: await it for the segment's report), as for an axis.
 
         ``accepted()`` is called once every check has passed and every plan fits its drive,
         just before the axes take their moves."""
-        targets = self._check(targets, "targets")
+        buffer = check_buffer(buffer)
+        targets = self._check(targets, "targets", free=buffer == "aborting")
         for name, t in targets.items():
             self.axes[name].check_limits(t)
-        return await self._move(targets, await self._positions(targets), accepted)
+        shape = {"speed": speed, "accel": accel, "decel": decel, "duration": duration}
+        if buffer != "aborting":
+            from drivebus.motion.path import queue_group_move
+
+            return await queue_group_move(self, targets, buffer, accepted, **shape)
+        return await self._move(targets, await self._positions(targets), accepted, **shape)
 
     async def move_by(
-        self, distances: Mapping[str, float], *, accepted: Callable[[], object] | None = None
+        self,
+        distances: Mapping[str, float],
+        *,
+        speed: float | None = None,
+        accel: float | None = None,
+        decel: float | None = None,
+        duration: float | None = None,
+        accepted: Callable[[], object] | None = None,
     ) -> GroupMoveReport:
-        """Move the named axes by their distances, together (``accepted``: as for
+        """Move the named axes by their distances, together (the rest: as for
         ``move_to``)."""
         distances = self._check(distances, "distances")
         starts = await self._positions(distances)
         targets = {n: starts[n] + d for n, d in distances.items()}
         for name, t in targets.items():
             self.axes[name].check_limits(t)
-        return await self._move(targets, starts, accepted)
+        return await self._move(targets, starts, accepted, speed=speed, accel=accel,
+                                decel=decel, duration=duration)
+
+    async def path(
+        self,
+        waypoints: Sequence[Mapping[str, float]],
+        *,
+        speed: float | None = None,
+        accel: float | None = None,
+        decel: float | None = None,
+        blend: float = 0.0,
+    ) -> PathReport:
+        """Move through ``waypoints`` (each names the axes that change; the others keep
+        their place), one synchronised straight segment after another, from rest; returns
+        once the last is reached. ``speed``/``accel``/``decel``: along each segment, as for
+        ``move_to``. ``blend``: how far (axes' units) the path may leave a corner: corners
+        are blended within it where every axis's drive takes a new target on the fly, and
+        the report says where and why not. Each segment starts the moment the one before
+        it is in position (no poll period lost), or blends. A failure or cancellation
+        stops every axis and drops the rest of the path."""
+        from drivebus.motion.path import run_path
+
+        return await run_path(self, waypoints, speed=speed, accel=accel, decel=decel,
+                              blend=blend)
 
     def _start_order(self, names: Iterable[str]) -> dict[str, float]:
         """Start order (the returned dict's order) and each axis's predicted delay from
@@ -349,26 +423,103 @@ class AxisGroup:
                 previous = s
         return {n: offsets[n] for n in sorted(offsets, key=offsets.__getitem__)}
 
-    async def _move(
+    def _shape(
+        self,
+        distances: Mapping[str, float],
+        speed: float | None,
+        accel: float | None,
+        decel: float | None,
+        duration: float | None,
+    ) -> tuple[dict[str, MotionPlan], dict[str, MotionPlan] | None, float]:
+        """Each axis's limits for ``synchronise``, the ceilings its fitted plan may reach
+        (None: its own defaults) and the least duration, from a path ``speed``, ``accel``
+        and ``decel`` (along the straight line, in the axes' common unit) or a
+        ``duration``; neither: every axis at most at its defaults."""
+        def given(name: str, value: float | None, unit: str) -> float | None:
+            return None if value is None else checks.positive(name, value, unit=unit)
+
+        speed = given("speed", speed, "units/s")
+        accel = given("accel", accel, "units/s²")
+        decel = given("decel", decel, "units/s²")
+        duration = given("duration", duration, "s")
+        own = {n: self.axes[n].plan() for n in distances}
+        if duration is not None:
+            if speed is not None or accel is not None or decel is not None:
+                raise ArgumentError("give a group move a duration or a speed and ramps, "
+                                    "not both")
+            limits = {n: MotionPlan(self.axes[n].config.max_speed or own[n].speed,
+                                    own[n].accel, own[n].decel) for n in distances}
+            return limits, limits, duration
+        if speed is None and accel is None and decel is None:
+            return own, None, 0.0
+        moving = {n: abs(d) for n, d in distances.items() if d != 0}
+        units = {self.axes[n].config.unit for n in moving}
+        if len(units) > 1:
+            named = ", ".join(f"{n} ({self.axes[n].config.unit})" for n in moving)
+            raise ArgumentError(f"a path speed needs the axes in one unit, not {named}: give "
+                                f"a duration instead")
+        length = math.sqrt(sum(d * d for d in moving.values()))
+        if length == 0:
+            return own, None, 0.0
+        share = {n: d / length for n, d in moving.items()}
+        # unset values: the most the slowest-limited axis allows along this line
+        v = speed or min(own[n].speed / share[n] for n in moving)
+        a = accel or min(own[n].accel / share[n] for n in moving)
+        b = decel or min(own[n].decel / share[n] for n in moving)
+        limits = dict(own)
+        ceilings = dict(own)
+        for n, r in share.items():
+            axis = self.axes[n]
+            plan = axis.plan(v * r, a * r, b * r)  # LimitViolation beyond max_speed
+            axis.check_drive(plan)
+            limits[n] = plan
+            top = axis.config.max_speed or math.inf
+            # a little room to suit the drive's steps, not more: the path's own values
+            ceilings[n] = MotionPlan(min(top, plan.speed * 1.02), plan.accel * 1.02,
+                                     plan.decel * 1.02)
+        return limits, ceilings, 0.0
+
+    def _plan(
         self,
         targets: Mapping[str, float],
         starts: Mapping[str, float],
-        accepted: Callable[[], object] | None = None,
-    ) -> GroupMoveReport:
+        *,
+        speed: float | None = None,
+        accel: float | None = None,
+        decel: float | None = None,
+        duration: float | None = None,
+        offsets: dict[str, float] | None = None,
+    ) -> _GroupPlan:
+        """Every axis's plan for a synchronised move from ``starts`` to ``targets``, fitted
+        to its drive (nothing is sent): ``LimitViolation`` if one cannot make it."""
         distances = {n: targets[n] - starts[n] for n in targets}
-        limits = {n: self.axes[n].plan() for n in targets}
-        duration, shapes = synchronise(distances, limits)
-        offsets = self._start_order(targets)
+        limits, ceilings, least = self._shape(distances, speed, accel, decel, duration)
+        natural, shapes = synchronise(distances, limits, least)
+        if duration is not None and natural > duration * (1 + 1e-9):
+            lead = max((n for n in distances if distances[n]),
+                       key=lambda n: limits[n].duration(distances[n]))
+            raise LimitViolation(
+                f"the group cannot move in {duration:g} s: axis {lead} needs at least "
+                f"{limits[lead].duration(distances[lead]):.3f} s for "
+                f"{abs(distances[lead]):g} {self.axes[lead].config.unit} at its speed and "
+                f"acceleration limits")
+        if offsets is None:
+            offsets = self._start_order(targets)
         moving = [n for n in targets if distances[n] != 0]
         total = max(
             (limits[n].duration(distances[n]) + offsets[n] for n in moving), default=0.0
         )
-        total = max(total, duration)
+        total = max(total, natural)
         plans = {n: limits[n] for n in targets}
         miss: dict[str, float] = {}
+
+        def ceiling(n: str) -> MotionPlan | None:
+            return None if ceilings is None else ceilings[n]
+
         for _ in range(8):  # every plan is checked against its drive before any axis moves
             for n in moving:
-                plans[n] = fit_plan(self.axes[n], distances[n], total - offsets[n], shapes[n])
+                plans[n] = fit_plan(self.axes[n], distances[n], total - offsets[n], shapes[n],
+                                    ceiling=ceiling(n))
             miss = {n: plans[n].duration(distances[n]) + offsets[n] - total for n in moving}
             late = [n for n in moving if miss[n] > _ARRIVAL_TOLERANCE]
             if late:  # its drive cannot run quite that fast: it sets the pace
@@ -382,7 +533,7 @@ class AxisGroup:
             n = min(early, key=miss.__getitem__)
             try:
                 slower = fit_plan(self.axes[n], distances[n], total - offsets[n], shapes[n],
-                                  at_least=True)
+                                  at_least=True, ceiling=ceiling(n))
             except LimitViolation:
                 break
             longer = slower.duration(distances[n]) + offsets[n]
@@ -390,8 +541,24 @@ class AxisGroup:
                 break
             total = max(total + 1e-4, longer)
         delays = {n: -miss[n] for n in moving if miss.get(n, 0.0) < -_ARRIVAL_TOLERANCE}
-        buses = {n: self.axes[n].profile.slave.bus for n in targets}
-        gate = _StartGate(list(offsets), buses, delays)
+        return _GroupPlan(dict(targets), dict(starts), distances, total, plans, offsets,
+                          delays)
+
+    def start_gate(self, plan: _GroupPlan) -> _StartGate:
+        """The gate that starts ``plan``'s axes back to back on their held lines."""
+        buses = {n: self.axes[n].profile.slave.bus for n in plan.targets}
+        return _StartGate(list(plan.offsets), buses, plan.delays)
+
+    async def _move(
+        self,
+        targets: Mapping[str, float],
+        starts: Mapping[str, float],
+        accepted: Callable[[], object] | None = None,
+        **shape: float | None,
+    ) -> GroupMoveReport:
+        plan = self._plan(targets, starts, **shape)  # type: ignore[arg-type]
+        plans, offsets, distances = plan.plans, plan.offsets, plan.distances
+        gate = self.start_gate(plan)
         for n in targets:
             self.axes[n].check_free("group move")
         if accepted is not None:
@@ -409,7 +576,7 @@ class AxisGroup:
             arrived[axis.name] = (axis.arrived_after, axis.arrived_by)
 
         await self._each([self.axes[n] for n in targets], move_and_note, also=gate.open)
-        report = self._report(total, plans, offsets, distances, arrived)
+        report = self._report(plan.total, plans, offsets, distances, arrived)
         self.last_report = report
         return report
 

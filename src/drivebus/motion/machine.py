@@ -15,12 +15,22 @@ from drivebus.bus import Bus
 from drivebus.config import AxisConfig, MachineConfig, machine_config
 from drivebus.drives.base import DriveProfile
 from drivebus.drives.registry import family
-from drivebus.errors import ConfigError, DrivebusError, DriveOffline, TransactionError
+from drivebus.errors import (
+    ArgumentError,
+    ConfigError,
+    DrivebusError,
+    DriveOffline,
+    StateError,
+    TransactionError,
+)
 from drivebus.motion.axis import Axis
-from drivebus.motion.group import AxisGroup
+from drivebus.motion.group import AxisGroup, GroupMoveReport
+from drivebus.motion.handle import BufferMode, check_override
 from drivebus.motion.lines import open_line
+from drivebus.motion.path import GroupHandle
 from drivebus.motion.recording import Recording
 from drivebus.motion.state import MOVING_STATES
+from drivebus.positions import PositionStore
 from drivebus.tasks import ServiceTasks
 
 __all__ = ["Machine", "open_machine"]
@@ -42,6 +52,90 @@ class Machine:
         self.wires: dict[str, Any] = {}
         """What serves each provided line: on ``sim://`` lines, the simulator's wire or
         server (its wire log, faults)."""
+        self._override = 1.0
+        self.taught = PositionStore.of(config, config.source)
+        """The taught positions and the file they are kept in (``drivebus.positions``)."""
+        self._teaching = anyio.Lock()
+
+    # -- speed override ---------------------------------------------------------------------
+
+    @property
+    def override(self) -> float:
+        """The machine's speed override (a feed override: 1.0 the speeds as asked, 0.5 half
+        of them). Setting it scales the speed of every later move and jog of every axis
+        and, where the drive can change speed on the fly, of those under way (each axis's
+        sequencer sends that at once; others keep their speed to the end, logged).
+        Multiplies each axis's own ``override``; 0 < override <= 2."""
+        return self._override
+
+    @override.setter
+    def override(self, value: float) -> None:
+        self._override = check_override("machine override", value)
+        for axis in self.axes.values():
+            axis.override_changed()
+
+    def _own(self, axis: Axis) -> Axis:
+        """Make ``axis`` take this machine's override."""
+        axis.machine_override = lambda: self._override
+        return axis
+
+    # -- taught positions -------------------------------------------------------------------
+
+    @property
+    def positions(self) -> dict[str, dict[str, float]]:
+        """Every taught position: name -> axis -> position (the axis's units)."""
+        return {n: dict(v) for n, v in self.taught.positions.items()}
+
+    def position(self, name: str) -> dict[str, float]:
+        """The taught position ``name`` (``NotFound`` naming those there are)."""
+        return self.taught.get(name)
+
+    async def move_to(
+        self,
+        position: str | Mapping[str, float],
+        *,
+        speed: float | None = None,
+        accel: float | None = None,
+        decel: float | None = None,
+        duration: float | None = None,
+        buffer: BufferMode = "aborting",
+    ) -> GroupMoveReport | GroupHandle:
+        """Move the axes of a taught ``position`` (its name) or of a mapping there
+        together, as ``AxisGroup.move_to`` does (speed, ramps, duration, buffer mode)."""
+        targets = self.position(position) if isinstance(position, str) else dict(position)
+        return await self.group(*targets).move_to(targets, speed=speed, accel=accel,
+                                                   decel=decel, duration=duration,
+                                                   buffer=buffer)
+
+    async def teach(self, name: str, axes: Iterable[str] | None = None) -> dict[str, float]:
+        """Store the present positions of ``axes`` (default: those the position already
+        has, or every axis that can move) as ``name`` and write it back to the machine
+        file (or its positions file) atomically, comments kept; the position's other
+        axes keep theirs. Each axis is read fresh and must be at rest. Returns the
+        position as stored."""
+        if axes is None:
+            known = self.taught.positions.get(name)
+            names = list(known) if known else [
+                n for n, a in self.axes.items() if _can_move(a)]
+        else:
+            names = list(axes)
+            self.group(*names)  # ConfigError naming an unknown axis
+        if not names:
+            raise ArgumentError(f"teach {name!r}: no axes to teach")
+        values: dict[str, float] = {}
+        async with self._teaching:
+            for n in names:
+                axis = self.axes[n]
+                st = await axis.refresh()
+                if st.moving or axis.busy:
+                    raise StateError(f"axis {n} is moving: teach {name!r} at rest")
+                if st.position is None:
+                    raise StateError(f"axis {n}: its drive reports no position to teach")
+                values[n] = axis.units.from_pulses(st.position)
+            stored = self.taught.teach(name, values)
+        log.info("taught %s: %s%s", name, stored,
+                 f" ({self.taught.path})" if self.taught.path else " (in memory)")
+        return stored
 
     def group(self, *names: str) -> AxisGroup:
         """The named axes as a group (all axes if none are named)."""
@@ -83,6 +177,14 @@ class Machine:
                 moving = a.status is not None and a.status.moving
                 if (a.commanded if only_commanded else a.state in MOVING_STATES or moving):
                     tg.start_soon(stop, a)
+
+
+def _can_move(axis: Axis) -> bool:
+    try:
+        axis.profile.check_supported("move_absolute")
+    except DrivebusError:
+        return False
+    return True
 
 
 async def _make_axis(
@@ -146,7 +248,8 @@ async def open_machine(
                 Bus(ln, timeout=line.timeout, retries=line.retries)
             )
         for name, axis_cfg in cfg.axes.items():
-            machine.axes[name] = await _make_axis(machine, name, axis_cfg, require=require_all)
+            machine.axes[name] = machine._own(
+                await _make_axis(machine, name, axis_cfg, require=require_all))
         actors = await stack.enter_async_context(ServiceTasks())
         for axis in machine.axes.values():
             actors.start_soon(axis.run, name=f"drivebus axis {axis.name}")

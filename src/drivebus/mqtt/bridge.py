@@ -78,7 +78,8 @@ NO_DELAY = (socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 _STATE_KEYS = (
     "state", "position", "velocity", "enabled", "moving", "homed", "alarm", "alarm_code",
     "alarm_text", "limit_positive", "limit_negative", "error", "soft_limits", "units",
-    "units_per_rev", "pulses_per_rev", "drive", "line", "address",
+    "units_per_rev", "pulses_per_rev", "drive", "line", "address", "inputs", "outputs",
+    "override", "queued",
 )
 """What an axis's state message carries (from its snapshot)."""
 
@@ -565,6 +566,10 @@ class Bridge:
                 await s.disable(a, client=client)
             elif cmd.verb == "reset":
                 await s.reset(a, client=client)
+            elif cmd.verb == "override":
+                s.set_override(args["factor"], axis=a, client=client)
+            elif cmd.verb == "set_output":
+                await s.set_output(a, cmd.values["output"], cmd.values["state"], client=client)
             elif cmd.verb == "jog":
                 await s.jog(a, args["speed"], ttl=args["ttl"], accel=args.get("accel"),
                             decel=args.get("decel"), client=client)

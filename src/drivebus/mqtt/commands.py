@@ -34,8 +34,13 @@ _NUMBERS: dict[str, tuple[str, ...]] = {
     "enable": (),
     "disable": (),
     "reset": (),
+    "override": ("factor",),
+    "set_output": (),
 }
-"""Each verb's keys (all numbers) besides ``id``."""
+"""Each verb's numeric keys besides ``id``."""
+
+_OTHERS: dict[str, dict[str, type]] = {"set_output": {"output": str, "state": bool}}
+"""Verbs with keys that are not numbers: key -> type (every one required)."""
 
 VERBS = tuple(_NUMBERS)
 """The axis command verbs."""
@@ -52,6 +57,8 @@ class Command:
     id: Id = None
     args: dict[str, float] = field(default_factory=dict)
     """The verb's numeric arguments that were given, each finite."""
+    values: dict[str, Any] = field(default_factory=dict)
+    """Its other arguments (``set_output``: ``output``, ``state``), each of its type."""
 
 
 def _reject_constant(name: str) -> Any:
@@ -109,9 +116,10 @@ def parse_command(axis: str, verb: str, payload: bytes) -> Command:
                             f"{data!r:.60}")
     cid = _id(data)
     allowed = _NUMBERS[verb]
-    unknown = sorted(k for k in data if k != "id" and k not in allowed)
+    others = _OTHERS.get(verb, {})
+    unknown = sorted(k for k in data if k != "id" and k not in allowed and k not in others)
     if unknown:
-        keys = ", ".join(("id", *allowed))
+        keys = ", ".join(("id", *allowed, *others))
         raise ArgumentError(f"{verb}: unknown key {', '.join(map(repr, unknown))} "
                             f"(keys: {keys})")
     args = {k: checks.finite(k, data[k]) for k in allowed if data.get(k) is not None}
@@ -128,4 +136,13 @@ def parse_command(axis: str, verb: str, payload: bytes) -> Command:
     for k in ("speed", "accel", "decel"):
         if k in args and not (verb == "jog" and k == "speed"):
             checks.positive(k, args[k])
-    return Command(verb, axis, cid, args)
+    if verb == "override" and "factor" not in args:
+        raise ArgumentError("override: 'factor' is required (0 < factor <= 2)")
+    values: dict[str, Any] = {}
+    for key, kind in others.items():
+        v = data.get(key)
+        if not isinstance(v, kind) or (kind is not bool and isinstance(v, bool)):
+            raise ArgumentError(f"{verb}: {key!r} is required, a JSON "
+                                f"{'boolean' if kind is bool else 'string'}, not {v!r}")
+        values[key] = v
+    return Command(verb, axis, cid, args, values)

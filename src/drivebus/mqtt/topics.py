@@ -4,7 +4,7 @@
 drivebus/<node>/status                    retained "online"; the last will sets "offline"
 drivebus/<node>/axes/<axis>/state         retained JSON, on change, at most state_rate/s
 drivebus/<node>/axes/<axis>/cmd/<verb>    JSON commands: move home jog stop halt enable
-                                          disable reset
+                                          disable reset override set_output
 drivebus/<node>/replies                   replies to commands without a response topic
 drivebus/<node>/estop                     e-stop of this node (any payload)
 drivebus/estop                            plant-wide e-stop (any payload)

@@ -430,6 +430,9 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     root = APIRouter()
     metrics.install(root, _reader)  # GET /metrics, for Prometheus
     app.include_router(root)
+    from drivebus.service.programs_api import router as programs
+
+    app.include_router(programs)  # positions, override, I/O
     app.add_api_websocket_route("/api/ws", websocket_endpoint)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
 

@@ -8,6 +8,7 @@ simulated drives use pulses, pulses/s and pulses/s²).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 __all__ = ["Kinematics", "Segment"]
@@ -37,12 +38,37 @@ def _end(seg: Segment) -> float:
     return seg.at(seg.t1)[0]
 
 
+_HISTORY = 100_000
+"""Superseded segments a twin keeps for tests to look back at (its velocity over time)."""
+
+
 class Kinematics:
     """Position and velocity of one simulated axis over time."""
 
     def __init__(self, position: float = 0.0) -> None:
-        self._segments: list[Segment] = [Segment(0.0, math.inf, position, 0.0, 0.0)]
+        self.history: deque[Segment] = deque(maxlen=_HISTORY)
+        """The motion so far: each plan's segments up to where the next plan took over."""
+        self._plan: list[Segment] = []
+        self._segments = [Segment(0.0, math.inf, position, 0.0, 0.0)]
         self.target: float | None = None
+
+    @property
+    def _segments(self) -> list[Segment]:
+        return self._plan
+
+    @_segments.setter
+    def _segments(self, segments: list[Segment]) -> None:
+        """A new plan from ``segments[0].t0``: what the old one did before that is kept."""
+        t = segments[0].t0
+        for seg in self._plan:
+            if seg.t0 < t:
+                self.history.append(Segment(seg.t0, min(seg.duration, t - seg.t0), seg.p0,
+                                            seg.v0, seg.a))
+        self._plan = segments
+
+    def trace(self, t0: float, t1: float) -> list[Segment]:
+        """The segments the axis ran between ``t0`` and ``t1`` (history, then the plan)."""
+        return [s for s in (*self.history, *self._plan) if s.t1 > t0 and s.t0 < t1]
 
     # -- queries ---------------------------------------------------------------------------
 
@@ -179,7 +205,9 @@ class Kinematics:
             u = 0.0
         d_abs = abs(dist)
         vp = math.sqrt((2 * accel * decel * d_abs + decel * u * u) / (accel + decel))
-        vp = min(vp, speed) if u <= speed else max(min(vp, u), speed)
+        # Faster than the new speed already: down to it (it always fits: braking from u
+        # through the new speed to rest takes the same distance as braking from u).
+        vp = min(vp, speed) if u <= speed else speed
         up_rate = accel if vp >= u else decel
         t_up = abs(vp - u) / up_rate
         d_up = (vp * vp - u * u) / (2 * (up_rate if vp >= u else -up_rate))

@@ -11,8 +11,8 @@ from drivebus.drives.registry import FAMILIES, family
 from drivebus.errors import ConfigError
 from drivebus.sim.described import twin_of
 from drivebus.sim.drive import SimDrive
-from drivebus.sim.drives import cl86r as _cl86r  # noqa: F401  (SimCL86R's home module)
 from drivebus.sim.drives.bhss import SimBHSS
+from drivebus.sim.drives.cl86r import SimCL86R
 from drivebus.sim.drives.nt_family import SimEPR60, SimNT86
 from drivebus.sim.drives.od_drive import SimODDrive
 
@@ -22,6 +22,7 @@ _CODED: dict[str, type[SimDrive]] = {
     "NT86": SimNT86,
     "EPR60": SimEPR60,
     "BHSS": SimBHSS,
+    "CL86R": SimCL86R,
     "OD2000": SimODDrive,
 }
 """The twins written as code, by the family's registry name."""

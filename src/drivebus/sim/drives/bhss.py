@@ -195,6 +195,7 @@ class SimBHSS(SimDrive):
         self._last_event = -math.inf
         self._shift = 0.0
         """Position counter minus physical position (zeroing, homing, power-up)."""
+        self._external = 0  # inputs driven from outside (set_input), by bit
 
     # -- line settings -------------------------------------------------------------------------
 
@@ -368,8 +369,18 @@ class SimBHSS(SimDrive):
 
     def _physical(self, index: int, p: float) -> bool:
         """Switch state of input ``index`` (PU, DR, X0..X4) at position ``p``."""
+        if self._external >> index & 1:
+            return True
         span = self._span(index)
         return span is not None and span.active(p)
+
+    def set_input(self, index: int, on: bool) -> None:
+        """Drive input ``index`` (0 PU, 1 DR, 2-6 X0-X4) from outside: a sensor or a PLC
+        wired to it (on top of the switches given in the setup)."""
+        if not 0 <= index <= 6:
+            raise ValueError(f"input {index}: the BHSS has inputs 0..6 (PU, DR, X0..X4)")
+        bit = 1 << index
+        self._external = self._external | bit if on else self._external & ~bit
 
     def _thresholds(self, index: int) -> tuple[float, ...]:
         """The positions where input ``index``'s switch changes state."""

@@ -35,6 +35,9 @@ from drivebus.sim.registers import Access, RegisterSpec, SlaveException, signed3
 
 __all__ = ["SimEPR60", "SimNT86"]
 
+_USER3 = 24
+"""Input function 24, USER3: the multi-segment start in application mode 20 (3.7.4)."""
+
 # Status register 1 bits, by the manual's names: enabled, alarm, in position, moving, homed,
 # ready, at speed, brake released, positive limit, negative limit, powered, torque (stall).
 ENA, ALM, INPOS, MOV, HOME, RDY, ARRSPD, CLAMP, PL, NL, POW, TC = (1 << b for b in range(12))
@@ -434,7 +437,7 @@ class SimNT86(SimDrive):
     # -- status ----------------------------------------------------------------------------
 
     def _moving(self, t: float) -> bool:
-        return self.kin.moving(t) or self._program_kind == "homing"
+        return self.kin.moving(t) or self._program_kind in ("homing", "table")
 
     def _status(self, t: float) -> int:
         _, neg, pos = self.switch_states(t)
@@ -492,8 +495,8 @@ class SimNT86(SimDrive):
             raise SlaveException(4)
 
     def _command(self, code: int, t: float) -> None:
-        if self.params[20] != 0:
-            return  # register 18 acts only in application mode 0 (assumption: ignored)
+        if self.params[20] not in (0, 20):
+            return  # register 18 acts in application modes 0 and 20 (manual 3.7.1-3.7.2)
         if code == 5:
             self._estop(t)
         elif code == 6:
@@ -576,7 +579,7 @@ class SimNT86(SimDrive):
     # -- input functions -------------------------------------------------------------------
 
     def _functions(self, t: float) -> dict[int, bool]:
-        return {f: self._function_active(f, t) for f in (4, 5, 6, 12)}
+        return {f: self._function_active(f, t) for f in (4, 5, 6, 12, _USER3)}
 
     def _functions_changed(self, before: dict[int, bool], t: float) -> None:
         after = self._functions(t)
@@ -592,6 +595,8 @@ class SimNT86(SimDrive):
             self.alarm_code = 0
         if after[6] and not before[6]:  # emergency stop input
             self._estop(t)
+        if after[_USER3] and not before[_USER3]:  # multi-segment start (mode 20)
+            self._on_table_start(t)
         if after[12] and not before[12]:  # start homing
             self._on_start_homing_input(t)
 
@@ -681,6 +686,57 @@ class SimNT86(SimDrive):
         self._jog = None
         self.kin.stop(t, self.pulse_acceleration(self.params[78]))
         yield _Wait(rest=True)
+
+    # -- multi-segment position mode (NT86 manual 3.7.4, registers 121-156, 221-271) ----------
+
+    def _on_table_start(self, t: float) -> None:
+        """USER3 (input function 24) became active in application mode 20 with 221 = 0/1:
+        run segments 1..222 (assumptions where the manual is silent: the start is the
+        level's rising edge; a position is absolute when 84 = 1, else relative; MOV
+        stays set through the waits, the sequence being one motion)."""
+        if self.params[20] != 20 or self.params[221] not in (0, 1) or not self._may_start(t):
+            return
+        self._estopping = False
+        self._jog = None
+        self._run_program(self._table(), "table", t)
+
+    def _table(self) -> Program:
+        t = self._wait_from
+        unit = 1.0 if self.params[223] else 0.001
+        while True:
+            for k in range(self.params[222]):
+                value = self._pair_value(125 + 2 * k)
+                here = self._physical(t)
+                target = value - self._offset if self.params[84] == 1 else here + value
+                speed = self.pulse_rate(self.params[224 + 3 * k])
+                rate = self.pulse_acceleration(self.params[225 + 3 * k])
+                if speed > 0 and target != here:
+                    if self._blocked_by_limit(1 if target > here else -1, t):
+                        return
+                    self._stop_decel, self._cmd_speed = rate, speed
+                    self.kin.move_to(t, target, speed, rate, rate)
+                    name, t = yield from self._segment()
+                    if name == "limit":
+                        return
+                last = k == self.params[222] - 1
+                wait = self.params[226 + 3 * k] * unit
+                if wait > 0 and not (last and self.params[221] == 0):
+                    _, t = yield _Wait(until=t + wait)
+            if self.params[221] == 0:
+                return
+
+    def _segment(self) -> Generator[_Wait, tuple[str, float], tuple[str, float]]:
+        """One segment to rest; a limit switch reached going outwards stops it (78)."""
+        cross = []
+        if self.limit_positive is not None:
+            cross.append(("limit", self.limit_positive, 1))
+        if self.limit_negative is not None:
+            cross.append(("limit", self.limit_negative, -1))
+        name, t = yield _Wait(cross=tuple(cross), rest=True)
+        if name == "limit":
+            self.kin.stop(t, self.pulse_acceleration(self.params[78]))
+            _, t = yield _Wait(rest=True)
+        return name, t
 
     # -- homing (NT86: 287-298) ------------------------------------------------------------
 

@@ -1,0 +1,172 @@
+"""Taught positions: named positions of one or more axes, kept with the machine file.
+
+A machine file names its positions in a ``[positions]`` section, one table per name::
+
+    [positions.pick]      # above the tray
+    x = 120.0
+    y = 40.0
+
+or keeps them in a file beside it (``positions_file = "positions.toml"``, the same
+tables), which is then the file teaching writes to. ``PositionStore.teach`` writes a
+position back atomically (a temporary file beside it, flushed, then renamed over it),
+keeping the file's comments and layout (tomlkit); the file is read back and checked
+before the rename, so a failed teach leaves the old file as it was.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import tempfile
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import tomlkit
+
+from drivebus.config import MachineConfig
+from drivebus.errors import ArgumentError, ConfigError, NotFound
+
+__all__ = ["POSITION_NAME", "PositionStore", "position_problems"]
+
+POSITION_NAME = r"^[A-Za-z_][A-Za-z0-9_-]{0,63}$"
+"""A position's name: a TOML bare key (and one MQTT topic level)."""
+
+_DIGITS = 6
+"""Decimals a taught value keeps (a micrometre in millimetres)."""
+
+
+def position_problems(config: MachineConfig, positions: Mapping[str, Any],
+                      where: str = "positions") -> list[str]:
+    """``key path: problem`` for each position that names an unknown axis, has a value
+    that is not a finite number, or lies outside its axis's soft limits."""
+    out: list[str] = []
+    if not isinstance(positions, Mapping):
+        return [f"{where}: expected tables of axis = position, not {positions!r}"]
+    for name, values in positions.items():
+        key = f"{where}.{name}"
+        if not isinstance(name, str) or not re.match(POSITION_NAME, name):
+            out.append(f"{key}: a position's name is a letter or _, then letters, digits, "
+                       f"_ or - (64 at most)")
+            continue
+        if name in config.axes:
+            out.append(f"{key}: a position may not have an axis's name (drivebus move "
+                       f"MACHINE {name} would be ambiguous)")
+            continue
+        if not isinstance(values, Mapping) or not values:
+            out.append(f"{key}: expected a table of axis = position (at least one axis)")
+            continue
+        for axis, value in values.items():
+            if axis not in config.axes:
+                out.append(f"{key}.{axis}: no axis {axis!r} (axes: {', '.join(config.axes)})")
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float) or not (
+                math.isfinite(value)
+            ):
+                out.append(f"{key}.{axis}: {value!r} is not a finite number")
+                continue
+            limits = config.axes[axis].limits
+            if limits is not None and not limits[0] <= value <= limits[1]:
+                out.append(f"{key}.{axis}: {value:g} is outside the soft limits "
+                           f"{limits[0]:g}..{limits[1]:g}")
+    return out
+
+
+@dataclass
+class PositionStore:
+    """A machine's taught positions and the file they are kept in (None: in memory only,
+    a machine opened from a mapping)."""
+
+    config: MachineConfig
+    path: Path | None
+    positions: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, config: MachineConfig, source: Path | None) -> PositionStore:
+        """The positions of ``config`` (loaded from ``source``, the machine file, if it
+        was a file): its own ``[positions]``, or its ``positions_file``'s, checked."""
+        if config.positions_file is None:
+            return cls(config, source, {n: dict(v) for n, v in config.positions.items()})
+        base = source.parent if source is not None else Path.cwd()
+        path = base / config.positions_file
+        try:
+            data = tomllib.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise ConfigError(f"{path}: cannot read the positions file: {exc}") from None
+        positions = data.get("positions", {})
+        problems = position_problems(config, positions)
+        extra = sorted(set(data) - {"positions"})
+        if extra:
+            problems.append(f"{', '.join(extra)}: a positions file holds only [positions]")
+        if problems:
+            raise ConfigError(f"{path}: {'; '.join(problems)}")
+        return cls(config, path, {n: {a: float(v) for a, v in t.items()}
+                                  for n, t in positions.items()})
+
+    def get(self, name: str) -> dict[str, float]:
+        """The position called ``name``; ``NotFound`` naming those there are."""
+        try:
+            return dict(self.positions[name])
+        except KeyError:
+            known = ", ".join(self.positions) or "none taught yet"
+            raise NotFound(f"no position {name!r} (positions: {known})") from None
+
+    def teach(self, name: str, values: Mapping[str, float]) -> dict[str, float]:
+        """Store ``values`` (axis -> position) under ``name`` (the axes it already had
+        keep theirs) and write the file back; returns the position as stored."""
+        if not isinstance(name, str) or not re.match(POSITION_NAME, name):
+            raise ArgumentError(f"position name {name!r}: a letter or _, then letters, "
+                                f"digits, _ or - (64 at most)")
+        rounded = {a: round(float(v), _DIGITS) for a, v in values.items()}
+        merged = {**self.positions.get(name, {}), **rounded}
+        problems = position_problems(self.config, {name: merged})
+        if problems:
+            raise ArgumentError("; ".join(problems))
+        if self.path is not None:
+            self._write(name, merged)
+        self.positions[name] = merged
+        return dict(merged)
+
+    def _write(self, name: str, position: dict[str, float]) -> None:
+        """Write ``position`` into the file atomically, keeping comments and layout."""
+        assert self.path is not None
+        path = self.path
+        try:
+            text = path.read_text(encoding="utf-8") if path.exists() else ""
+            doc = tomlkit.parse(text)
+        except (OSError, UnicodeDecodeError, tomlkit.exceptions.ParseError) as exc:
+            raise ConfigError(f"{path}: cannot read it to teach {name!r}: {exc}") from None
+        table = doc.get("positions")
+        if table is None:
+            table = tomlkit.table(is_super_table=True)
+            doc["positions"] = table
+        entry = table.get(name)
+        if entry is None:
+            entry = tomlkit.table()
+            table[name] = entry
+        for axis, value in position.items():
+            entry[axis] = value
+        out = tomlkit.dumps(doc)
+        check = tomllib.loads(out).get("positions", {}).get(name, {})
+        if {a: float(v) for a, v in check.items()} != position:
+            raise ConfigError(f"{path}: position {name!r} did not read back as written")
+        _replace(path, out)
+
+
+def _replace(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically: a flushed temporary file renamed over it."""
+    mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,184 @@
+"""Group moves with a speed, ramps or a duration, group paths and queued group moves,
+judged by the twins' motion history and the wire log."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+from typing import Any
+
+import anyio
+import pytest
+
+from drivebus import open_machine
+from drivebus.errors import ArgumentError, GroupMotionError, LimitViolation, MotionAborted
+from drivebus.motion import Machine
+from drivebus.motion.path import GroupHandle
+from test_axis_guarantees import commands, log_size
+from test_motion import machine
+
+DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
+
+
+def moves(twin: Any, t0: float, t1: float) -> list[tuple[float, float]]:
+    """The twin's motions between ``t0`` and ``t1``: (start, end) of each run of motion."""
+    out: list[tuple[float, float]] = []
+    for s in twin.kin.trace(t0, t1):
+        if s.v0 == 0 and s.a == 0:
+            continue
+        if out and abs(out[-1][1] - s.t0) < 1e-9:
+            out[-1] = (out[-1][0], s.t1)
+        else:
+            out.append((s.t0, s.t1))
+    return out
+
+
+def twin_point(m: Machine, names: list[str], t: float) -> dict[str, float]:
+    """Where the twins of ``names`` are at ``t``, in the axes' units."""
+    return {n: m.axes[n].units.from_pulses(m.sim_drives[n].kin.position(t)) for n in names}
+
+
+def off_polyline(p: dict[str, float], points: list[dict[str, float]]) -> float:
+    best = math.inf
+    for a, b in itertools.pairwise(points):
+        ab = {n: b[n] - a[n] for n in a}
+        length2 = sum(v * v for v in ab.values()) or 1.0
+        s = max(0.0, min(1.0, sum((p[n] - a[n]) * ab[n] for n in a) / length2))
+        best = min(best, math.dist([p[n] for n in a], [a[n] + s * ab[n] for n in a]))
+    return best
+
+
+async def test_a_group_move_takes_a_path_speed_ramps_or_a_duration() -> None:
+    async with open_machine(DEMO) as m:
+        xy = m.group("x", "y")
+        await xy.move_to({"x": 20.0, "y": 10.0})
+        report = await xy.move_to({"x": 50.0, "y": 50.0}, speed=40.0, accel=400.0)
+        # the straight line is 50 mm long: x covers 30 of it (3/5), y 40 (4/5)
+        assert report.plans["x"].speed == pytest.approx(24.0, rel=0.03)
+        assert report.plans["y"].speed == pytest.approx(32.0, rel=0.03)
+        assert m.axes["x"].position == 50.0 and m.axes["y"].position == 50.0
+        report = await xy.move_to({"x": 20.0, "y": 10.0}, duration=2.5)
+        assert report.duration == pytest.approx(2.5, abs=0.01)
+        assert m.sim_drives["x"].position() == m.axes["x"].units.to_pulses(20.0)
+        with pytest.raises(LimitViolation, match=r"axis y needs at least"):
+            await xy.move_to({"x": 20.0, "y": 190.0}, duration=0.5)
+        with pytest.raises(ArgumentError, match="one unit"):
+            await m.group("x", "r").move_to({"x": 30.0, "r": 90.0}, speed=10.0)
+        with pytest.raises(ArgumentError, match="not both"):
+            await xy.move_to({"x": 30.0, "y": 30.0}, speed=10.0, duration=3.0)
+        assert m.axes["x"].position == 20.0 and m.axes["y"].position == 10.0  # nothing moved
+
+
+async def test_a_buffered_path_stops_in_position_at_each_corner_within_a_poll_period() -> None:
+    async with open_machine(DEMO) as m:
+        xy = m.group("x", "y")
+        await xy.move_to({"x": 20.0, "y": 10.0})
+        corners = [{"x": 60.0}, {"y": 40.0}, {"x": 20.0, "y": 20.0}, {"y": 10.0}]
+        t0 = anyio.current_time()
+        report = await xy.path(corners, speed=50.0)
+        t1 = anyio.current_time()
+        assert [s.ends for s in report.segments] == ["stop", "stop", "stop", "end"]
+        assert all("blend is 0" in s.reason for s in report.segments[:-1])
+        assert m.sim_drives["x"].position() == m.axes["x"].units.to_pulses(20.0)
+        assert m.sim_drives["y"].position() == m.axes["y"].units.to_pulses(10.0)
+        xs, ys = moves(m.sim_drives["x"], t0, t1), moves(m.sim_drives["y"], t0, t1)
+        assert len(xs) == 2 and len(ys) == 3  # x: segments 1, 3; y: 2, 3, 4
+        segment_moves = [[xs[0]], [ys[0]], [xs[1], ys[1]], [ys[2]]]
+        poll = m.axes["x"].config.poll.moving
+        for before, after in itertools.pairwise(segment_moves):
+            arrived = max(end for _, end in before)
+            started = min(start for start, _ in after)
+            assert 0 <= started - arrived <= poll, (before, after)
+        assert report.segments[2].max_deviation < 0.5
+
+
+async def test_a_blended_path_never_stops_and_stays_within_its_blend_distance() -> None:
+    async with open_machine(machine(2, "CL86R")) as m:
+        g = m.group("a1", "a2")
+        start = {"a1": 0.0, "a2": 0.0}
+        waypoints = [{"a1": 50.0, "a2": 20.0}, {"a1": 100.0, "a2": 30.0},
+                     {"a1": 150.0, "a2": 60.0}, {"a1": 170.0, "a2": 100.0}]
+        t0 = anyio.current_time()
+        report = await g.path(waypoints, blend=1.5)
+        t1 = anyio.current_time()
+        assert [s.ends for s in report.segments] == ["blend", "blend", "blend", "end"]
+        assert report.max_deviation <= 1.5 + 0.05
+        for n in ("a1", "a2"):
+            runs = moves(m.sim_drives[n], t0, t1)
+            assert len(runs) == 1, (n, runs)  # one motion from start to finish: no stop
+            assert m.sim_drives[n].position() == m.axes[n].units.to_pulses(waypoints[-1][n])
+        begin, end = moves(m.sim_drives["a1"], t0, t1)[0]
+        points = [start, *waypoints]
+        worst = max(off_polyline(twin_point(m, ["a1", "a2"], begin + (end - begin) * i / 400),
+                                 points) for i in range(401))
+        assert worst <= 1.5 + 0.1, worst  # the twins' own path, not the prediction
+
+
+async def test_a_path_on_drives_that_cannot_blend_buffers_and_says_why() -> None:
+    async with open_machine(DEMO) as m:
+        xy = m.group("x", "y")
+        await xy.move_to({"x": 20.0, "y": 10.0})
+        report = await xy.path([{"x": 40.0, "y": 20.0}, {"x": 60.0, "y": 40.0}], blend=2.0)
+        assert report.segments[0].ends == "stop"
+        assert "NT86" in report.segments[0].reason and "manual" in report.segments[0].reason
+
+
+async def test_a_stop_during_a_path_leaves_every_drive_at_rest_and_drops_the_rest() -> None:
+    async with open_machine(DEMO) as m:
+        xy = m.group("x", "y")
+        await xy.move_to({"x": 20.0, "y": 10.0})
+        for delay in (0.0, 0.05, 0.4, 0.9):
+            await xy.move_to({"x": 20.0, "y": 10.0})
+            marks = {n: log_size(m, n) for n in ("x", "y")}
+            outcome: list[BaseException] = []
+
+            async def run(out: list[BaseException] = outcome) -> None:
+                try:
+                    await xy.path([{"x": 60.0}, {"y": 40.0}, {"x": 20.0}, {"y": 10.0}])
+                except GroupMotionError as exc:
+                    out.append(exc)
+
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(run)
+                async for _ in m.axes["x"].watch():  # the path has begun
+                    if m.axes["x"].busy:
+                        break
+                await anyio.sleep(delay)
+                await m.axes["y"].stop()
+            assert outcome and isinstance(outcome[0].__cause__, MotionAborted), delay
+            for n in ("x", "y"):
+                assert not m.sim_drives[n].is_moving()
+                assert m.axes[n].queued == 0
+                cmds = commands(m, n, marks[n])
+                if "stop" in cmds:
+                    assert "start" not in cmds[cmds.index("stop"):], (n, delay, cmds)
+
+
+async def test_a_cancelled_path_stops_every_axis() -> None:
+    async with open_machine(DEMO) as m:
+        xy = m.group("x", "y")
+        await xy.move_to({"x": 20.0, "y": 10.0})
+        with anyio.move_on_after(0.5):
+            await xy.path([{"x": 200.0}, {"y": 150.0}])
+        assert not m.sim_drives["x"].is_moving() and not m.sim_drives["y"].is_moving()
+        assert m.axes["x"].queued == 0 and m.axes["y"].queued == 0
+
+
+async def test_a_queued_group_move_starts_when_every_axis_of_it_is_done() -> None:
+    async with open_machine(DEMO) as m:
+        xy = m.group("x", "y")
+        x, y = m.axes["x"], m.axes["y"]
+        await xy.move_to({"x": 20.0, "y": 10.0})
+        t0 = anyio.current_time()
+        first = await x.move_to(80.0, buffer="buffered")  # x alone, a long way
+        queued = await xy.move_to({"x": 40.0, "y": 30.0}, buffer="buffered")
+        assert isinstance(queued, GroupHandle)
+        await first
+        report = await queued
+        t1 = anyio.current_time()
+        xs, ys = moves(m.sim_drives["x"], t0, t1), moves(m.sim_drives["y"], t0, t1)
+        assert len(xs) == 2 and len(ys) == 1
+        assert ys[0][0] >= xs[0][1]  # y waited for x's first move
+        assert x.position == 40.0 and y.position == 30.0
+        assert report.segments[0].end == {"x": 40.0, "y": 30.0}
