@@ -79,6 +79,8 @@ def family_from_description(d: Description, source: str = "") -> DriveFamily:
 
 def _builtin_files() -> Iterator[Any]:
     root = resources.files("drivebus.drives").joinpath("descriptions")
+    if not root.is_dir():  # no family is shipped as a description (yet)
+        return
     for entry in sorted(root.iterdir(), key=lambda e: e.name):
         if entry.name.endswith(".toml"):
             yield entry
