@@ -48,6 +48,7 @@ from drivebus.drives.io import IOPoint, function_text
 from drivebus.drives.programs import Completion, ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
+from drivebus.drives.units import ramp_time_ms
 from drivebus.errors import LimitViolation
 from drivebus.settings import LineSettings
 
@@ -278,25 +279,6 @@ DO_FUNCTION_NAMES: dict[int, str] = {
 }
 """The output functions (0x001A-0x001C), with the manual's names (L225-L227)."""
 _MONITOR_WORDS = 10  # 0x0000..0x0009 in one read
-
-
-def ramp_time_ms(reg: Register, speed_rpm: float, rate_rps2: float) -> int:
-    """The ramp time (ms) to reach ``|speed_rpm|`` from rest at ``rate_rps2``, range-checked.
-
-    Raises ``LimitViolation`` naming ``reg`` and its range when the time is outside it.
-    """
-    if not math.isfinite(rate_rps2) or rate_rps2 <= 0:
-        raise LimitViolation(
-            f"register {reg.name} (address {reg.address}): the rate must be > 0 rev/s², "
-            f"not {rate_rps2}"
-        )
-    ms = round(abs(speed_rpm) / 60.0 / rate_rps2 * 1000.0)
-    try:
-        return reg.check(ms)
-    except LimitViolation as exc:
-        raise LimitViolation(
-            f"{exc} ({rate_rps2} rev/s² at {abs(speed_rpm)} rpm needs {ms} ms)"
-        ) from None
 
 
 def _whole_rpm(reg: Register, rpm: float, *, minimum: int | None = None) -> int:

@@ -128,6 +128,20 @@ class Kinematics:
             return hi
         return None
 
+    def entering(self, p: float, direction: int, t_from: float, t_to: float) -> float | None:
+        """First time in [t_from, t_to] at which the axis passes ``p`` moving in
+        ``direction`` (+1/-1): a switch at ``p`` met on the way in, not on the way out
+        (the first few crossings are looked at), else None."""
+        t0 = t_from
+        for _ in range(4):
+            tc = self.crossing(p, t0, t_to)
+            if tc is None:
+                return None
+            if self.velocity(tc) * direction > 0:
+                return tc
+            t0 = tc + 1e-6
+        return None
+
     # -- commands ------------------------------------------------------------------------------
 
     def _start(self, t: float) -> tuple[float, float]:

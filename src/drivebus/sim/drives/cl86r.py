@@ -549,15 +549,9 @@ class SimCL86R(SimDrive):
                                     (self._boundary(_N, -1, True), -1)):
             if boundary is None:
                 continue
-            t0 = self._watch_from
-            for _ in range(4):
-                tc = self.kin.crossing(boundary, t0, now)
-                if tc is None:
-                    break
-                if self.kin.velocity(tc) * direction > 0:
-                    hits.append(tc)
-                    break
-                t0 = tc + 1e-6
+            tc = self.kin.entering(boundary, direction, self._watch_from, now)
+            if tc is not None:
+                hits.append(tc)
         return min(hits) if hits else None
 
     def advance(self, now: float) -> None:
