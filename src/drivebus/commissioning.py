@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from drivebus.cli_args import LocalOpt, ServerOpt, TokenOpt
+from drivebus.cli_options import JsonOpt
 from drivebus.errors import ArgumentError, ConfigError, LimitViolation
 
 if TYPE_CHECKING:
@@ -33,7 +34,6 @@ params_app = typer.Typer(
     rich_markup_mode=None,
 )
 
-JsonOpt = Annotated[bool, typer.Option("--json", "-j", help="print the result as JSON")]
 MachineOpt = Annotated[Path | None, typer.Option(
     "--machine", "-m", metavar="CONFIG",
     help="the machine file (default: the one the parameter file names)")]

@@ -672,15 +672,19 @@ class SimNT86(SimDrive):
                 return None
         return None
 
-    def _watch_limits(self) -> Program:
-        """A move or jog: a limit switch reached going outwards stops it at the 78 decel
-        (assumption: the manual does not say how the drive reacts to a limit input)."""
+    def _limit_crossings(self) -> tuple[tuple[str, float, int], ...]:
+        """The limit switches as ``_Wait`` crossings, each met going outwards."""
         cross = []
         if self.limit_positive is not None:
             cross.append(("limit", self.limit_positive, 1))
         if self.limit_negative is not None:
             cross.append(("limit", self.limit_negative, -1))
-        name, t = yield _Wait(cross=tuple(cross), rest=True)
+        return tuple(cross)
+
+    def _watch_limits(self) -> Program:
+        """A move or jog: a limit switch reached going outwards stops it at the 78 decel
+        (assumption: the manual does not say how the drive reacts to a limit input)."""
+        name, t = yield _Wait(cross=self._limit_crossings(), rest=True)
         if name == "rest":
             return
         self._jog = None
@@ -727,12 +731,7 @@ class SimNT86(SimDrive):
 
     def _segment(self) -> Generator[_Wait, tuple[str, float], tuple[str, float]]:
         """One segment to rest; a limit switch reached going outwards stops it (78)."""
-        cross = []
-        if self.limit_positive is not None:
-            cross.append(("limit", self.limit_positive, 1))
-        if self.limit_negative is not None:
-            cross.append(("limit", self.limit_negative, -1))
-        name, t = yield _Wait(cross=tuple(cross), rest=True)
+        name, t = yield _Wait(cross=self._limit_crossings(), rest=True)
         if name == "limit":
             self.kin.stop(t, self.pulse_acceleration(self.params[78]))
             _, t = yield _Wait(rest=True)
