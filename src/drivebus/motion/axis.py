@@ -694,9 +694,10 @@ class Axis(ProgramRunner, AxisIO):
             except TransactionError as exc:
                 log.info("axis %s: settings check failed, trying again later: %s", self.name, exc)
 
-    async def _check_settings(self) -> None:
+    async def _check_settings(self) -> list[str]:
         """Read back the volatile settings (reads only): if a reset lost them, the drive is
-        set up again before the next command, and its position is no longer homed."""
+        set up again before the next command, and its position is no longer homed. The
+        settings lost ([] = intact)."""
         self._check_due = False
         try:
             lost = await self.profile.lost_settings()
@@ -709,19 +710,21 @@ class Axis(ProgramRunner, AxisIO):
                         self.name, "; ".join(lost))
             self._setup_due = self._homed_lost = True
             self._publish()
+        return lost
 
     async def _verify_settings(self) -> None:
         """Before a command: set the drive up if it is not (the first command, or a reset
         lost its settings), else check it still holds them."""
-        if not self._setup_due:
-            await self._check_settings()
         if self._setup_due:
             await self._set_up()
+        elif lost := await self._check_settings():
+            await self._set_up(lost)  # what the check just read: not read again
 
-    async def _set_up(self) -> None:
-        """Write the profile's setup; a setting the drive held that it changes is logged
-        (warning) and kept in ``setup_changes``."""
-        changes = await self.profile.lost_settings()
+    async def _set_up(self, changes: list[str] | None = None) -> None:
+        """Write the profile's setup; a setting the drive held that it changes (``changes``
+        if just read, else read now) is logged (warning) and kept in ``setup_changes``."""
+        if changes is None:
+            changes = await self.profile.lost_settings()
         if changes:
             log.warning("axis %s: setting up the %s drive changes %s", self.name,
                         self.profile.family, "; ".join(changes))
