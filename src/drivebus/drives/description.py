@@ -35,6 +35,7 @@ from pydantic import (
 
 from drivebus.checks import validation_problems
 from drivebus.drives.expr import FUNCTIONS, Expr, ExprError, Template
+from drivebus.drives.programs import ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.units import Kind, UnitCodec, parse_scale
 from drivebus.errors import ConfigError, LimitViolation
@@ -530,6 +531,12 @@ class IoDef(_Model):
     functions: str | None = None
     codes: dict[str, int] = {}
     bits: dict[str, int] = Field({}, description="fixed wiring: signal -> bit number")
+    names: list[Annotated[str, Field(min_length=1)]] = Field(
+        [], description="the terminals by the manual's names, in the order of the state "
+        "register's bits (digital I/O by name)")
+    function_names: Annotated[dict[int, str], IntKeyed] = Field(
+        {}, description="the manual's name of each function code (what `io_points` says a "
+        "terminal is set to do)")
 
 
 class AlarmsDef(_Model):
@@ -565,6 +572,24 @@ class SignalDef(_Model):
     reg: str = Field(alias="register")
     every: float = Field(1.0, gt=0, le=3600, description="s")
     doc: str = ""
+
+
+class ProgramsDef(_Model):
+    """``[programs]``: what the drive offers motion programs (``ProgramSupport``), each
+    the manual's reason, or "" where it cannot."""
+
+    preload: str = Field("", description="why the next move's values may be written while "
+                         "a move runs (the drive latches them at the start)")
+    preload_braking: str = Field("", description="why they may be written in the running "
+                                 "move's braking, if no gentler")
+    retarget: str = Field("", description="how a running move takes a new target (needs "
+                          "procedures.retarget_absolute)")
+    no_retarget: str = ProgramSupport.no_retarget
+    jog_speed: str = Field("", description="how a running speed run takes a new speed")
+
+    def support(self) -> ProgramSupport:
+        """The ``ProgramSupport`` a profile declares."""
+        return ProgramSupport(**self.model_dump())
 
 
 class HomingMethod(BaseModel):
@@ -705,6 +730,9 @@ PROCEDURES: dict[str, tuple[str, tuple[str, ...]]] = {
     "clear_alarm": ("clear an alarm", ()),
     "zero_position": ("set its position to zero", ()),
     "save_parameters": ("save parameters", ()),
+    "retarget_absolute": ("take a new target while it moves",
+                          ("target", "speed", "accel", "decel")),
+    "read_completion": ("read whether a motion has ended", ()),
 }
 """The common procedures: what a NotSupported error says, and the names they pass."""
 
@@ -842,6 +870,7 @@ class Description(_Model):
     homing: HomingDef | None = None
     signals: dict[Annotated[str, Field(pattern=_KEY)], SignalDef] = {}
     eeprom: EepromDef = EepromDef()
+    programs: ProgramsDef = ProgramsDef()
     cia402: Cia402Def | None = None
     procedures: dict[Annotated[str, Field(pattern=_KEY)], Procedure] = {}
     twin: TwinDef = TwinDef()
@@ -1070,6 +1099,7 @@ class _Checker:
             self._reg_key(f"signals.{name}.register", sig.reg)
         for name, proc in d.procedures.items():
             self._procedure(name, proc)
+        self._programs()
         self._twin()
         if d.link.format_register is not None:
             self._reg_key("link.format_register", d.link.format_register)
@@ -1082,6 +1112,12 @@ class _Checker:
         self._cia402()
         self._parameters()
         yield from self.out
+
+    def _programs(self) -> None:
+        proc = self.d.procedures.get("retarget_absolute")
+        if self.d.programs.retarget and (proc is None or proc.unsupported is not None):
+            self.out.append("programs.retarget: needs procedures.retarget_absolute (the steps "
+                            "that give a running move its new target)")
 
     def _parameters(self) -> None:
         seen: dict[str, str] = {}
@@ -1251,6 +1287,19 @@ class _Checker:
         if io.functions is None and io.codes:
             self.out.append(f"{where}.codes: function codes need 'functions' (the registers "
                             f"that assign them); give fixed wiring with 'bits'")
+        if io.functions is None and io.function_names:
+            self.out.append(f"{where}.function_names: function names need 'functions' (the "
+                            f"registers that assign them)")
+        state = self.regs.get(io.state)
+        if state is not None and len(io.names) > 16 * state.d.words:
+            self.out.append(f"{where}.names: {len(io.names)} terminals for the "
+                            f"{16 * state.d.words} bits of register {io.state}")
+        funcs = self.regs.get(io.functions) if io.functions is not None else None
+        if funcs is not None and io.names and len(io.names) != funcs.d.count:
+            self.out.append(f"{where}.names: {len(io.names)} terminals, but register "
+                            f"{io.functions} assigns {funcs.d.count} functions")
+        if len(set(n.upper() for n in io.names)) != len(io.names):
+            self.out.append(f"{where}.names: a terminal is named twice")
 
     def _procedure(self, name: str, proc: Procedure) -> None:
         where = f"procedures.{name}"
