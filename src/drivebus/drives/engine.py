@@ -36,6 +36,8 @@ from drivebus.drives.base import (
 )
 from drivebus.drives.description import PROCEDURES, Description, Procedure, Reg, Step
 from drivebus.drives.expr import Expr, ExprError, Unknown
+from drivebus.drives.io import IOPoint, function_text
+from drivebus.drives.programs import Completion
 from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.drives.units import Kind
@@ -956,6 +958,64 @@ class DescribedProfile(DriveProfile):
         """The description's ``save_parameters``."""
         await self.run("save_parameters")
 
+    # -- motion programs and digital I/O ------------------------------------------------------
+
+    async def retarget_absolute(self, position: int, params: MoveParams) -> None:
+        """The description's ``retarget_absolute`` (``[programs] retarget`` says how the
+        drive takes it); without one, ``NotSupported`` with ``[programs] no_retarget``."""
+        if "retarget_absolute" not in self.description.procedures:
+            await super().retarget_absolute(position, params)
+            return
+        await self.run("retarget_absolute",
+                       **self._move_args(position, params, "retarget_absolute"))
+
+    async def read_completion(self, *, priority: Priority = Priority.COMMAND) -> Completion | None:
+        """The description's ``read_completion`` reads, decoded by ``[status]``'s moving,
+        in_position, alarm and limit fields; None without one (the full poll is used)."""
+        proc = self.description.procedures.get("read_completion")
+        if proc is None or proc.unsupported is not None:
+            return None
+        run = _Run("read_completion", {}, False, priority)
+        await self._steps(proc.steps, run)
+        scope = self._scope(run)
+        fields = self.description.status_exprs
+
+        def flag(name: str) -> bool:
+            e = fields.get(name)
+            try:
+                return bool(e(scope)) if e is not None else False
+            except Unknown as exc:
+                raise ConfigError(f"{self.family}: read_completion does not read what "
+                                  f"status.{name} uses ({exc})") from None
+
+        return Completion(moving=flag("moving"), in_position=flag("in_position"),
+                          alarm=flag("alarm"), limit_positive=flag("limit_positive"),
+                          limit_negative=flag("limit_negative"))
+
+    async def io_points(self) -> list[IOPoint]:
+        """Every terminal of ``[inputs]``/``[outputs] names``, with the function its
+        ``functions`` register assigns (read now, in as few reads as the link allows) or
+        the signal its fixed wiring (``bits``) carries."""
+        d = self.description
+        sides = [(io, names, output) for io, names, output in
+                 ((d.inputs, self.io_inputs, False), (d.outputs, self.io_outputs, True))
+                 if io is not None and names]
+        keys = [io.functions for io, _, _ in sides if io.functions is not None]
+        values = await self._read_items(keys, None, Priority.CONFIG) if keys else {}
+        points: list[IOPoint] = []
+        for io, names, output in sides:
+            wired = {bit: signal.replace("_", " ") for signal, bit in io.bits.items()}
+            texts = io.function_names or {c: s.replace("_", " ") for s, c in io.codes.items()}
+            table = values.get(io.functions) if io.functions is not None else None
+            reg = d.regs[io.functions] if io.functions is not None else None
+            for n, name in enumerate(names):
+                if table is not None and reg is not None:
+                    text = function_text(texts, int(table[reg.indices[n]]))
+                else:
+                    text = wired.get(n, "")
+                points.append(IOPoint(name, output, text))
+        return points
+
     def __getattr__(self, name: str) -> Callable[..., Awaitable[Any]]:
         """The description's own procedures as methods (``profile.write_position_path(...)``)."""
         if name.startswith("_"):
@@ -1141,6 +1201,7 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "_extra_plans": extras,
     }
     attrs.update(_parameter_attrs(d))
+    attrs.update(_program_attrs(d))
     base: type[DescribedProfile] = DescribedProfile
     if d.drive.engine == "cia402":
         from drivebus.drives.cia402_engine import Cia402Profile, cia402_attrs
@@ -1171,6 +1232,21 @@ def _parameter_attrs(d: Description) -> dict[str, Any]:
         **({"comms_writes": _comms_writes} if any(
             (d.link.address_register, d.link.format_register, d.link.baud_register)) else {}),
     }
+
+
+def _program_attrs(d: Description) -> dict[str, Any]:
+    """``programs``, ``io_inputs``/``io_outputs`` and the reasons ``set_output`` and
+    ``prepare_table`` give (their procedures' ``unsupported``) of the profile class."""
+    out: dict[str, Any] = {
+        "programs": d.programs.support(),
+        "io_inputs": tuple(d.inputs.names) if d.inputs is not None else (),
+        "io_outputs": tuple(d.outputs.names) if d.outputs is not None else (),
+    }
+    for attr, proc in (("no_output_control", "set_output"), ("no_table", "prepare_table")):
+        p = d.procedures.get(proc)
+        if p is not None and p.unsupported is not None:
+            out[attr] = p.unsupported
+    return out
 
 
 def _comms_writes(
