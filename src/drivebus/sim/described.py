@@ -206,6 +206,8 @@ class DescribedDrive(SimDrive):
         self._motion_decel: float | None = None
         self._run_rates = (math.inf, math.inf)
         self._shift = 0.0
+        self._external = 0
+        """Input terminals driven from outside (``set_input``), by bit."""
         self.enabled = bool(self._eval(d.twin.enabled, 0.0))
 
     # -- the description's map ---------------------------------------------------------------
@@ -429,6 +431,26 @@ class DescribedDrive(SimDrive):
                     value &= ~b.mask
         return value
 
+    def set_input(self, terminal: int | str, closed: bool) -> None:
+        """Drive an input terminal from outside (a sensor or a PLC wired to it): its bit
+        number in the inputs' state register, or its name in ``[inputs] names``. The
+        state register shows it (as the terminal's level, before the inversion); the
+        switches given in the setup stay as they are."""
+        io = self.description.inputs
+        names = list(io.names) if io is not None else []
+        reg = self.description.regs[io.state] if io is not None else None
+        count = len(names) or (16 * reg.d.words if reg is not None else 0)
+        index = terminal
+        if isinstance(terminal, str):
+            upper = [n.upper() for n in names]
+            index = upper.index(terminal.upper()) if terminal.upper() in upper else -1
+        if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < count:
+            shown = f"{names[0]}..{names[-1]}" if names else f"0..{count - 1}"
+            raise ConfigError(f"input {terminal!r}: the simulated {self.family} has "
+                              f"{f'inputs {shown}' if count else 'no inputs'}")
+        bit = 1 << index
+        self._external = self._external | bit if closed else self._external & ~bit
+
     def _io_word(self, which: str, now: float) -> int:
         d = self.description
         io = d.inputs if which == "inputs" else d.outputs
@@ -436,7 +458,7 @@ class DescribedDrive(SimDrive):
             return 0
         signals = self._signals(now)
         active = {k: v for k, v in signals.items()}
-        word = 0
+        word = self._external if which == "inputs" else 0
         if io.functions is not None:
             reg = d.regs[io.functions]
             by_code = {c: s for s, c in io.codes.items()}
