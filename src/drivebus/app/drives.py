@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from drivebus.drives.base import _PROCEDURES, describe_values
+from drivebus.drives.base import _PROCEDURES, DriveProfile, describe_values
 from drivebus.drives.description import PROCEDURES, load_description
 from drivebus.drives.pages import family_page
 from drivebus.drives.registry import (
@@ -101,7 +101,7 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
                               f"{'0' if name == 'position' else 'false'}")
     r.lines.append("  procedures:")
     for name, proc in d.procedures.items():
-        what = "" if name in PROCEDURES else " (its own)"
+        what = "" if name in PROCEDURES or hasattr(DriveProfile, name) else " (its own)"
         if proc.unsupported is not None:
             r.lines.append(f"    {name:<22} cannot: {proc.unsupported}")
         else:
@@ -122,6 +122,12 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
             for n, m in d.homing.methods.items()))
     elif "home" in d.procedures:
         r.warnings.append("procedures.home exists but [homing.methods] lists no method")
+    offers = [k for k in ("preload", "preload_braking", "retarget", "jog_speed")
+              if getattr(d.programs, k)]
+    r.lines.append("  motion programs: " + (", ".join(offers) or "nothing beyond buffering"))
+    for io, kind in ((d.inputs, "inputs"), (d.outputs, "outputs")):
+        if io is not None and io.names:
+            r.lines.append(f"  {kind}: {', '.join(io.names)}")
     if d.alarms is None:
         r.warnings.append("no [alarms] section: alarms have no texts")
     ident = d.identify

@@ -103,6 +103,7 @@ def description_sections(family: DriveFamily) -> list[str]:
         exceptions_section(p),
         _status(d),
         _homing(d),
+        _programs_io(d),
         registers_table(_described_registers(d),
                         "The register map of the description (0-based PDU addresses, as "
                         "the manual prints them), with the ranges every write is checked "
@@ -370,6 +371,26 @@ def _homing(d: Description) -> str:
         rows.append(f"| `{name}` | {'-' if m.code is None else m.code} | "
                     f"{'-' if m.cia402 is None else m.cia402} | {cell(m.doc)} |")
     return "## Homing methods\n\nThe first is the default.\n\n" + "\n".join(rows)
+
+
+def _programs_io(d: Description) -> str:
+    """``[programs]`` and the terminals of ``[inputs]``/``[outputs]``."""
+    parts = []
+    pr = d.programs
+    rows = [(k, getattr(pr, k)) for k in ("preload", "preload_braking", "retarget", "jog_speed")]
+    given = [f"| {k} | {cell(v)} |" for k, v in rows if v]
+    if given:
+        parts.append("## Motion programs\n\n| Mechanism | How |\n|---|---|\n"
+                     + "\n".join(given))
+    io_rows = []
+    for io, kind in ((d.inputs, "inputs"), (d.outputs, "outputs")):
+        if io is not None and io.names:
+            io_rows.append(f"| {kind} | {', '.join(io.names)} | {io.state} | "
+                           f"{io.functions or '-'} |")
+    if io_rows:
+        parts.append("## Digital I/O\n\n| Terminals | Names (bit 0 first) | State | "
+                     "Functions |\n|---|---|---|---|\n" + "\n".join(io_rows))
+    return "\n\n".join(parts)
 
 
 def _described_registers(d: Description) -> list[tuple[str, Register, str]]:
