@@ -12,7 +12,6 @@ from drivebus.errors import ConfigError
 from drivebus.sim.described import twin_of
 from drivebus.sim.drive import SimDrive
 from drivebus.sim.drives.bhss import SimBHSS
-from drivebus.sim.drives.cl86r import SimCL86R
 from drivebus.sim.drives.nt_family import SimEPR60, SimNT86
 from drivebus.sim.drives.od_drive import SimODDrive
 
@@ -22,7 +21,6 @@ _CODED: dict[str, type[SimDrive]] = {
     "NT86": SimNT86,
     "EPR60": SimEPR60,
     "BHSS": SimBHSS,
-    "CL86R": SimCL86R,
     "OD2000": SimODDrive,
 }
 """The twins written as code, by the family's registry name."""
