@@ -102,8 +102,13 @@ max = 9
 [status]
 poll = [["status", "position"]]
 
+[registers.in_level]
+address = 0x23
+max = 7
+
 [inputs]
 state = "inputs"
+invert = "in_level"
 functions = "in_function"
 codes = { limit_positive = 2 }
 names = ["IN0", "IN1", "IN2"]
@@ -257,6 +262,11 @@ async def test_io_points_name_each_terminal_and_set_input_drives_one() -> None:
         twin.set_input("IN1", False)
         inputs, _ = profile.io_state(await profile.read_status())
         assert inputs == {"IN0": False, "IN1": False, "IN2": True}
+        # inverted levels: IN0's limit switch (inactive) is a closed normally-closed
+        # contact; IN2, closed from outside, still reads closed
+        await profile.slave.write_register(0x23, 0b101)
+        inputs, _ = profile.io_state(await profile.read_status())
+        assert inputs == {"IN0": True, "IN1": False, "IN2": True}
         with pytest.raises(ConfigError, match=r"input 3: .*PROGDRIVE has inputs IN0\.\.IN2"):
             twin.set_input(3, True)
         with pytest.raises(ConfigError, match=r"input 'X1': .*inputs IN0\.\.IN2"):

@@ -434,7 +434,8 @@ class DescribedDrive(SimDrive):
     def set_input(self, terminal: int | str, closed: bool) -> None:
         """Drive an input terminal from outside (a sensor or a PLC wired to it): its bit
         number in the inputs' state register, or its name in ``[inputs] names``. The
-        state register shows it (as the terminal's level, before the inversion); the
+        state register shows the terminal closed whatever the inversion register says
+        (it inverts what a closed terminal means to the drive's functions); the
         switches given in the setup stay as they are."""
         io = self.description.inputs
         names = list(io.names) if io is not None else []
@@ -458,7 +459,7 @@ class DescribedDrive(SimDrive):
             return 0
         signals = self._signals(now)
         active = {k: v for k, v in signals.items()}
-        word = self._external if which == "inputs" else 0
+        word = 0
         if io.functions is not None:
             reg = d.regs[io.functions]
             by_code = {c: s for s, c in io.codes.items()}
@@ -471,6 +472,8 @@ class DescribedDrive(SimDrive):
                 word |= 1 << bit
         if io.invert is not None:
             word ^= self._raw(d.regs[io.invert], None)
+        if which == "inputs":
+            word |= self._external  # a terminal closed from outside reads closed
         return word
 
     # -- writes --------------------------------------------------------------------------------
