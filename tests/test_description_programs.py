@@ -305,6 +305,9 @@ async def test_without_retarget_a_running_move_keeps_its_target_and_says_why() -
      ("outputs.function_names", "need 'functions'")),
     ("function code", '9 = "probe"', 'x = "probe"',
      ("inputs.function_names", "not a whole number")),
+    ("completion writes", 'steps = [{ read = [["status", "inputs"]] }]',
+     'steps = [{ write = { control = 0 } }]',
+     ("procedures.read_completion.steps[0]", "read_completion only reads")),
 ])
 def test_each_programs_or_io_mistake_names_file_and_key(
     tmp_path: Path, mistake: str, old: str, new: str, needles: tuple[str, ...]

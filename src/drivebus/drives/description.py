@@ -1311,6 +1311,11 @@ class _Checker:
                 if step.action != "read":
                     self.out.append(f"{where}.steps[{i}]: learn only reads (it runs when a "
                                     f"viewing command opens the drive); write in setup")
+        if name == "read_completion":
+            for i, step in enumerate(proc.steps):
+                if step.action not in ("read", "return"):
+                    self.out.append(f"{where}.steps[{i}]: read_completion only reads (a "
+                                    f"buffered move polls it while the drive moves)")
         for i, step in enumerate(proc.steps):
             self._step(f"{where}.steps[{i}]", step, params)
 
