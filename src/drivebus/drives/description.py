@@ -459,11 +459,13 @@ class Reg:
 class OptionDef(_Model):
     """One of the drive's ``drive_options``."""
 
-    type: Literal["int", "float", "bool", "str", "choice", "map"] = "int"
+    type: Literal["int", "float", "bool", "str", "choice", "map", "list"] = "int"
     min: float | None = None
     max: float | None = None
     choices: list[str] = []
     keys: list[str] = Field([], description="map: the keys allowed")
+    max_items: int | None = Field(None, ge=1, description="list: the most entries (integers "
+                                  "within min..max, each once)")
     default: Any = None
     doc: str = ""
 
@@ -474,6 +476,13 @@ class OptionDef(_Model):
         if self.type == "map" and not (self.keys and self.choices):
             raise ValueError("a map needs 'keys' and 'choices' (its values)")
         return self
+
+
+class OptionCheck(_Model):
+    """A condition the options together must meet (two options naming one terminal)."""
+
+    check: E
+    message: T
 
 
 class PulsesPerRev(_Model):
@@ -530,6 +539,24 @@ class IoDef(_Model):
     functions: str | None = None
     codes: dict[str, int] = {}
     bits: dict[str, int] = Field({}, description="fixed wiring: signal -> bit number")
+    names: list[str] = Field([], description="the terminals' names, bit 0 first (digital "
+                             "I/O by name)")
+    function_mask: int = Field(0xFFFF, ge=1, le=0xFFFF, description="the bits of a "
+                               "`functions` entry that hold the function code")
+    function_names: Annotated[dict[int, str], IntKeyed] = Field(
+        {}, description="the manual's name of each function code (io_points)")
+    settable: int | None = Field(None, description="outputs: the function code under which "
+                                 "Modbus switches the output (set_output)")
+
+
+class ProgramsDef(_Model):
+    """``[programs]``: what the drive offers motion programs (the manual's words)."""
+
+    preload: str = ""
+    preload_braking: str = ""
+    retarget: str = ""
+    no_retarget: str = "its manual documents no way to change the target of a running move"
+    jog_speed: str = ""
 
 
 class AlarmsDef(_Model):
@@ -635,6 +662,9 @@ class Step(_Model):
     bits_clear: E | None = Field(None, alias="clear_bits")
     bits_toggle: E | None = Field(None, alias="toggle_bits")
     pulse: bool = Field(False, description="modify: toggle, then toggle back")
+    if_changed: bool = Field(False, description="write: only the registers whose value "
+                             "differs from what the drive holds (read in this run, else "
+                             "read now)")
     timeout: E = Expr.parse(5.0)
     every: float = Field(0.005, gt=0, le=10)
     error: Literal["alarm", "state", "motion", "limit"] = "state"
@@ -834,6 +864,7 @@ class Description(_Model):
     constants: dict[Annotated[str, Field(pattern=_KEY)], int] = {}
     state: dict[Annotated[str, Field(pattern=_KEY)], int | float | bool | str | None] = {}
     options: dict[Annotated[str, Field(pattern=_KEY)], OptionDef] = {}
+    option_checks: list[OptionCheck] = []
     units: Units
     status: StatusDef = StatusDef()
     inputs: IoDef | None = None
@@ -842,6 +873,7 @@ class Description(_Model):
     homing: HomingDef | None = None
     signals: dict[Annotated[str, Field(pattern=_KEY)], SignalDef] = {}
     eeprom: EepromDef = EepromDef()
+    programs: ProgramsDef = ProgramsDef()
     cia402: Cia402Def | None = None
     procedures: dict[Annotated[str, Field(pattern=_KEY)], Procedure] = {}
     twin: TwinDef = TwinDef()
@@ -1041,7 +1073,7 @@ def load_description(path: str | Path) -> Description:
 
 _CONTEXT_NAMES = {
     "option", "state", "last", "words", "input", "output", "home", "pulses_per_rev",
-    "value", "raw", "True", "False", "None",
+    "value", "raw", "True", "False", "None", "input_functions", "output_functions",
 }
 _TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "raw", "speed_now",
                "pulses_per_rev", "limit_positive", "limit_negative"}
@@ -1070,6 +1102,9 @@ class _Checker:
             self._reg_key(f"signals.{name}.register", sig.reg)
         for name, proc in d.procedures.items():
             self._procedure(name, proc)
+        for i, oc in enumerate(d.option_checks):
+            self._names(f"option_checks[{i}].check", oc.check)
+            self._names(f"option_checks[{i}].message", oc.message)
         self._twin()
         if d.link.format_register is not None:
             self._reg_key("link.format_register", d.link.format_register)
@@ -1259,7 +1294,7 @@ class _Checker:
         self._names(f"{where}.what", proc.what, params)
         if name == "learn":
             for i, step in enumerate(proc.steps):
-                if step.action != "read":
+                if step.action not in ("read", "set"):
                     self.out.append(f"{where}.steps[{i}]: learn only reads (it runs when a "
                                     f"viewing command opens the drive); write in setup")
         for i, step in enumerate(proc.steps):

@@ -21,7 +21,15 @@ from dataclasses import dataclass, field
 from typing import Annotated, Any, ClassVar, Literal
 
 import anyio
-from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, create_model
+from pydantic import (
+    Field,
+    StrictBool,
+    StrictFloat,
+    StrictInt,
+    StrictStr,
+    create_model,
+    model_validator,
+)
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
@@ -36,10 +44,20 @@ from drivebus.drives.base import (
 )
 from drivebus.drives.description import PROCEDURES, Description, Procedure, Reg, Step
 from drivebus.drives.expr import Expr, ExprError, Unknown
+from drivebus.drives.io import IOPoint, function_text
+from drivebus.drives.programs import ProgramSupport
 from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.drives.units import Kind
-from drivebus.drives.values import Attrs, IoSignals, RegValue, Table, Unread, reg_value
+from drivebus.drives.values import (
+    Attrs,
+    FunctionNames,
+    IoSignals,
+    RegValue,
+    Table,
+    Unread,
+    reg_value,
+)
 from drivebus.errors import (
     ConfigError,
     DriveAlarm,
@@ -255,6 +273,8 @@ class DescribedProfile(DriveProfile):
         scope["pulses_per_rev"] = self.pulses_per_rev
         scope["input"] = IoSignals(d, "inputs", scope)
         scope["output"] = IoSignals(d, "outputs", scope)
+        scope["input_functions"] = FunctionNames(d.inputs)
+        scope["output_functions"] = FunctionNames(d.outputs)
         if run is not None:
             scope.update(run.args)
             if run.home is not None:
@@ -298,6 +318,9 @@ class DescribedProfile(DriveProfile):
         except Unknown as exc:
             raise ConfigError(f"{self.family}: procedure {name} uses what it has not read "
                               f"({exc}): read it in a step before") from None
+        if name == "learn":  # called from setup at the point the drive needs it
+            self.learned.update(run.values)
+            self._learned = True
         return run.result
 
     def _priority(self, name: str, proc: Procedure) -> Priority:
@@ -308,10 +331,17 @@ class DescribedProfile(DriveProfile):
     def _dry(self, proc: Procedure, run: _Run) -> None:
         """Evaluate ``proc`` without I/O: every value it writes is range-checked now, up to
         the first step that needs what the drive answers."""
-        try:
-            for step in proc.steps:
+        for step in proc.steps:
+            try:
                 if step.when is not None and not step.when(self._scope(run)):
                     continue
+            except Unknown:  # depends on the drive's answers: it may run, check it
+                if step.action == "fail":
+                    continue
+                unknown_when = True
+            else:
+                unknown_when = False
+            try:
                 if step.action == "write":
                     self._items(step, run)
                 elif step.action == "call":
@@ -325,16 +355,12 @@ class DescribedProfile(DriveProfile):
                     assert step.check is not None
                     if not step.check(self._scope(run)):  # Unknown: not known before I/O
                         self._fail_check(step, run)
-                elif step.action in ("read", "wait", "modify", "check"):
-                    break  # what follows depends on the drive's answers
-                elif step.action == "set":
-                    continue
-                elif step.action == "return":
-                    break
-                if step.end:
-                    break
-        except Unknown:
-            pass
+            except Unknown:
+                continue  # a value only the drive's answers give: checked when it runs
+            # reads, waits, checks and sets go on: later writes that need no answer of
+            # the drive's are range-checked before the first frame too
+            if (step.end or step.action == "return") and not unknown_when:
+                break
 
     def _args(self, step: Step, run: _Run) -> dict[str, Any]:
         scope = self._scope(run)
@@ -504,6 +530,8 @@ class DescribedProfile(DriveProfile):
 
     async def _write(self, step: Step, run: _Run, prio: Priority) -> None:
         items = self._items(step, run)
+        if step.if_changed:
+            items = await self._changed(items, run, prio)
         block = step.block is not None and bool(step.block(self._scope(run))) and \
             16 in self.description.link.functions
         idem = step.idempotent
@@ -524,6 +552,21 @@ class DescribedProfile(DriveProfile):
                     await self.write(r, it.raw, priority=prio, idempotent=idem)
         for it in items:
             self.last[it.key] = it.physical
+
+    async def _changed(self, items: list[_Item], run: _Run, prio: Priority) -> list[_Item]:
+        """The items whose raw value differs from the drive's (read in this run, else now)."""
+        out = []
+        for it in items:
+            held = run.values.get(it.reg.key)
+            if isinstance(held, Table):
+                held = held.get(it.index) if it.index is not None else None
+            if held is None or isinstance(held, Unread) or it.reg.codec.physical:
+                current = await self.read(it.register, priority=prio)
+            else:
+                current = int(held)
+            if current != it.raw:
+                out.append(it)
+        return out
 
     async def _modify(self, step: Step, run: _Run, prio: Priority) -> None:
         assert step.modify is not None
@@ -665,9 +708,11 @@ class DescribedProfile(DriveProfile):
     async def setup(self) -> None:
         """The description's ``setup`` writes (before the first command), then ``learn``."""
         proc = self.description.procedures.get("setup")
+        self._learned = False
         if proc is not None and proc.unsupported is None:
             await self._run("setup", {})
-        await self.learn()
+        if not self._learned:  # unless setup called it where the drive needs it
+            await self.learn()
 
     def volatile_settings(self) -> list[tuple[Register, int]]:
         """The (register, value) pairs of the setup steps marked volatile."""
@@ -956,6 +1001,35 @@ class DescribedProfile(DriveProfile):
         """The description's ``save_parameters``."""
         await self.run("save_parameters")
 
+    async def io_points(self) -> list[IOPoint]:
+        """Every terminal with the function its ``functions`` table assigns it (one read)."""
+        d = self.description
+        ios = [(io, False) for io in (d.inputs,) if io is not None and io.names] + \
+            [(io, True) for io in (d.outputs,) if io is not None and io.names]
+        tables = [io.functions for io, _ in ios if io.functions is not None]
+        values = await self._read_items(tables, None, Priority.CONFIG) if tables else {}
+        points: list[IOPoint] = []
+        for io, output in ios:
+            table = values.get(io.functions) if io.functions is not None else None
+            reg = d.regs[io.functions] if io.functions is not None else None
+            for n, name in enumerate(io.names):
+                if not isinstance(table, Table) or reg is None:
+                    points.append(IOPoint(name, output))
+                    continue
+                code = int(table[reg.indices[n]]) & io.function_mask
+                points.append(IOPoint(name, output, function_text(io.function_names, code),
+                                      output and io.settable == code))
+        return points
+
+    async def set_output(self, name: str, state: bool) -> None:
+        """The description's ``set_output`` with ``output`` (the name), ``index`` (its
+        number, from 1) and ``state``."""
+        if "set_output" not in self.description.procedures:
+            await super().set_output(name, state)
+            return
+        await self.run("set_output", output=name, index=self.io_outputs.index(name) + 1,
+                       state=bool(state))
+
     def __getattr__(self, name: str) -> Callable[..., Awaitable[Any]]:
         """The description's own procedures as methods (``profile.write_position_path(...)``)."""
         if name.startswith("_"):
@@ -1026,7 +1100,27 @@ def _option_type(o: Any) -> Any:
         return StrictStr
     if o.type == "choice":
         return Literal[tuple(o.choices)]
+    if o.type == "list":
+        return Annotated[list[Annotated[StrictInt, Field(**bounds)]],
+                         Field(max_length=o.max_items)]
     return dict[Literal[tuple(o.keys)], Literal[tuple(o.choices)]]  # type: ignore[misc]
+
+
+class _CheckedOptions(DriveOptions):
+    """Options with the description's ``option_checks`` (conditions across options)."""
+
+    description: ClassVar[Description]
+
+    @model_validator(mode="after")
+    def _option_checks(self) -> _CheckedOptions:
+        d = self.description
+        values = {k: (getattr(self, k) if getattr(self, k) is not None else o.default)
+                  for k, o in d.options.items()}
+        scope = {**d.constants, "option": Attrs("option", values)}
+        for oc in d.option_checks:
+            if not oc.check(scope):
+                raise ValueError(oc.message(scope))
+        return self
 
 
 def options_model(d: Description) -> type[DriveOptions]:
@@ -1035,7 +1129,11 @@ def options_model(d: Description) -> type[DriveOptions]:
         k: (_option_type(o) | None, Field(None, description=o.doc))
         for k, o in d.options.items()
     }
-    return create_model(f"{d.family}Options", __base__=DriveOptions, **fields)
+    if not d.option_checks:
+        return create_model(f"{d.family}Options", __base__=DriveOptions, **fields)
+    base = type(f"_{d.family}Checked", (_CheckedOptions,), {"description": d,
+                                                           "__module__": __name__})
+    return create_model(f"{d.family}Options", __base__=base, **fields)
 
 
 def _ppr_allowed(d: Description) -> Any:
@@ -1141,6 +1239,7 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "_extra_plans": extras,
     }
     attrs.update(_parameter_attrs(d))
+    attrs.update(_io_attrs(d))
     base: type[DescribedProfile] = DescribedProfile
     if d.drive.engine == "cia402":
         from drivebus.drives.cia402_engine import Cia402Profile, cia402_attrs
@@ -1151,6 +1250,37 @@ def profile_class(d: Description) -> type[DescribedProfile]:
     cls = type(name, (base,), attrs)
     cls.__init__ = _init_with_signature(d, base)  # type: ignore[method-assign]
     return cls
+
+
+def _io_attrs(d: Description) -> dict[str, Any]:
+    """The terminals' names, what the drive offers motion programs, why it has no position
+    table (a ``prepare_table`` marked unsupported), and its registers by key (``regs``)."""
+    p = d.programs
+    attrs: dict[str, Any] = {
+        "io_inputs": tuple(d.inputs.names) if d.inputs is not None else (),
+        "io_outputs": tuple(d.outputs.names) if d.outputs is not None else (),
+        "programs": ProgramSupport(p.preload, p.preload_braking, p.retarget, p.no_retarget,
+                                   p.jog_speed),
+        "regs": Registers(d),
+    }
+    table = d.procedures.get("prepare_table")
+    if table is not None and table.unsupported is not None:
+        attrs["no_table"] = table.unsupported
+    if "set_output" in d.procedures and d.procedures["set_output"].doc:
+        attrs["no_output_control"] = d.procedures["set_output"].doc
+    return attrs
+
+
+class Registers:
+    """A description's registers as attributes (``profile.regs.microstep.address``)."""
+
+    def __init__(self, d: Description) -> None:
+        self._regs = d.regs
+
+    def __getattr__(self, key: str) -> Register:
+        if key.startswith("_") or key not in self._regs:
+            raise AttributeError(key)
+        return self._regs[key].register
 
 
 def _parameter_attrs(d: Description) -> dict[str, Any]:
