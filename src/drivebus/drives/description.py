@@ -672,7 +672,8 @@ class Step(_Model):
 
     @model_validator(mode="after")
     def _one_action(self) -> Step:
-        given = [a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None]
+        given = [a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None
+                 and not (a == "read" and self.wait is not None)]  # a wait's reads
         if len(given) != 1:
             keys = ", ".join(a.rstrip("_") for a in _ACTIONS)
             got = f"got {', '.join(given)}" if given else "got none"
@@ -685,6 +686,8 @@ class Step(_Model):
     @property
     def action(self) -> str:
         """The step's action key."""
+        if self.wait is not None:
+            return "wait"
         return next(a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None)
 
 

@@ -1086,10 +1086,11 @@ def _physical(e: Expr, scope: Mapping[str, Any], d: Description, what: str) -> A
 
 def _option_type(o: Any) -> Any:
     bounds: dict[str, Any] = {}
+    whole = o.type in ("int", "list")
     if o.min is not None:
-        bounds["ge"] = o.min
+        bounds["ge"] = int(o.min) if whole and o.min == int(o.min) else o.min
     if o.max is not None:
-        bounds["le"] = o.max
+        bounds["le"] = int(o.max) if whole and o.max == int(o.max) else o.max
     if o.type == "int":
         return Annotated[StrictInt, Field(**bounds)]
     if o.type == "float":

@@ -45,9 +45,7 @@ from drivebus.errors import ConfigError, DriveAlarm, LimitViolation, StateError
 
 __all__ = [
     "ALARM_BITS",
-    "EPR60_MAP",
     "NT86_MAP",
-    "EPR60Profile",
     "NT86Profile",
     "NTRegisterMap",
     "StatusBit",
@@ -208,30 +206,6 @@ NT86_MAP = NTRegisterMap(
 )
 """The NT86 register map (NT86 manual chapter 2)."""
 
-EPR60_MAP = NTRegisterMap(
-    **{
-        **NT86_MAP.__dict__,
-        "app_mode": _u16("application mode", 20, lo=0, hi=11),
-        # 96/97: 32-bit, low word first; the manual's range is 200..65535 (L26, L959).
-        "microstep": Register(
-            "pulses per revolution",
-            96,
-            2,
-            order=WordOrder.LOW_FIRST,
-            unit="pulses/rev",
-            minimum=200,
-            maximum=65535,
-        ),
-        # 73/74: the manual prints a per-word range of [0,3000] (a copy error, its section
-        # 7 item 10); it documents a signed 32-bit value and no other bound.
-        "move_target": Register(
-            "point move distance/target", 73, 2, signed=True, order=WordOrder.LOW_FIRST,
-            unit="pulses",
-        ),
-    }
-)
-"""The EPR60/EPT60 register map (EPR60 manual chapter 3)."""
-
 # NT86 homing block (287-298; 292 is reserved, so 288-291 and 293-295 are written apart).
 NT86_HOME_TRIGGER = _u16("homing enable/trigger", 287, lo=0, hi=6)
 NT86_HOME_METHOD = _u16("homing method", 288, lo=0, hi=5)
@@ -249,13 +223,6 @@ NT86_HOME_OFFSET = Register(
     maximum=1048576,
 )
 NT86_HOME_HANDLING = _u16("home offset and limit handling", 295, lo=0, hi=3)
-
-# EPR60 homing parameters (79-83).
-EPR60_HOME_MODE = _u16("homing mode", 79, lo=0, hi=1)
-EPR60_HOME_FAST = _u16("homing fast speed", 80, "rpm", 0, 600)
-EPR60_HOME_SLOW = _u16("homing slow speed", 81, "rpm", 0, 600)
-EPR60_HOME_ACCEL = _u16("homing acceleration", 82, "r/s²", 0, 1000)
-EPR60_HOME_OFFSET = _u16("offset after homing", 83, "pulses", 0, 1000)
 
 # -- parameters (``drivebus params``), in the manuals' order --------------------------------------
 # Every RW parameter is kept in flash by 90=1 (NT86 manual L955, EPR60 L957); none of them is
@@ -304,14 +271,6 @@ NT86_PARAMETERS = _nt_parameters(NT86_MAP, (
     ("stall_current", NT86_STALL_CURRENT),
 ))
 """The NT86's parameters (manual chapter 2), in address order."""
-
-EPR60_PARAMETERS = _nt_parameters(EPR60_MAP, (
-    ("homing_mode", EPR60_HOME_MODE), ("homing_speed", EPR60_HOME_FAST),
-    ("homing_creep", EPR60_HOME_SLOW), ("homing_accel", EPR60_HOME_ACCEL),
-    ("home_offset", EPR60_HOME_OFFSET),
-))
-"""The EPR60's parameters (manual chapter 3), in address order."""
-
 
 _NT_EXCEPTIONS = {
     1: "ILLEGAL_FUNCTION: function code not supported (the drive knows FC03, FC06, FC16)",
@@ -371,12 +330,6 @@ class NT86Options(_NTOptions):
 
     home_offset_moves: StrictBool | None = None
     home_reverse_at_limit: StrictBool | None = None
-
-
-class EPR60Options(_NTOptions):
-    """The EPR60's options (see ``EPR60Profile``)."""
-
-    home_input: _Input | None = None
 
 
 class NT86Profile(DriveProfile):
@@ -987,135 +940,10 @@ class NT86Profile(DriveProfile):
         self._seen_moving = False
 
 
-class EPR60Profile(NT86Profile):
-    """Rtelligent EPR60/EPT60 over Modbus TCP: the NT map with the EPR60 manual's changes.
+def __getattr__(name: str) -> object:
+    """``EPR60Profile``: the profile class of the built-in EPR60 description."""
+    if name == "EPR60Profile":
+        from drivebus.drives.registry import FAMILIES
 
-    Pulses/rev at 96/97 (32-bit); homing on a limit switch (79=0 negative, 1 positive)
-    with 80-83 in application mode 20=1. The manual documents no Modbus trigger for homing,
-    only input function 12 "start homing" (IN5 by default): opt in with ``home_input=n`` to
-    pulse that input's polarity bit. Registers 192 "clear alarm" and 212 "motor free/
-    enable" are named in the manual without values, so they are not used; ``enable_input``
-    and ``clear_alarm_input`` work as on the NT86.
-    """
-
-    family: ClassVar[str] = "EPR60"
-    DRIVE_ID: ClassVar[int] = 60
-    table_rows: ClassVar[int] = 0
-    no_table: ClassVar[str] = ("its manual does not describe how position-table mode is "
-                               "operated (L1225 refers to a section that does not exist)")
-    programs: ClassVar[ProgramSupport] = ProgramSupport(
-        preload="changes to 70-72 made during a move take effect only at the next start "
-        "(EPR60 manual L1100); the target 73/74 is taken at the start as well",
-        no_retarget="while it moves (MOV=1) the EPR60 ignores new motion commands and accepts "
-        "only 18=5/6 (manual L623, L1099)",
-        jog_speed="register 77 can be changed while running and takes effect immediately "
-        "(manual L1121)",
-    )
-    homing_methods: ClassVar[tuple[str, ...]] = ("limit_negative", "limit_positive")
-    regs: ClassVar[NTRegisterMap] = EPR60_MAP
-    options: ClassVar[type[DriveOptions]] = EPR60Options
-    parameter_list = EPR60_PARAMETERS
-    comms_note = ("it is a Modbus TCP drive: its IP address is registers 170-180, set with "
-                  "the vendor's tool (drivebus commission is for RS-485 drives)")
-    pulses_per_rev_allowed = range(EPR60_MAP.microstep.lo, EPR60_MAP.microstep.hi + 1)
-    addresses = range(1, 248)  # the Modbus TCP unit id (the manual's examples use 1)
-    line_kinds = frozenset({"tcp", "rtu-over-tcp"})  # an Ethernet port only
-    baud_rates = ()
-    line_formats = ()
-
-    def __init__(
-        self,
-        slave: SlaveHandle,
-        *,
-        pulses_per_rev: int = 4000,
-        estop_decel_rps2: float = 500.0,
-        enable_input: int | None = None,
-        clear_alarm_input: int | None = None,
-        home_input: int | None = None,
-        general_outputs: list[int] | None = None,
-    ) -> None:
-        self.check_options(dict(
-            estop_decel_rps2=estop_decel_rps2, enable_input=enable_input,
-            clear_alarm_input=clear_alarm_input, home_input=home_input,
-            general_outputs=general_outputs,
-        ))
-        super().__init__(
-            slave,
-            pulses_per_rev=pulses_per_rev,
-            estop_decel_rps2=estop_decel_rps2,
-            enable_input=enable_input,
-            clear_alarm_input=clear_alarm_input,
-            general_outputs=general_outputs,
-        )
-        self.home_input = home_input
-        self._app_mode: int | None = None
-
-    async def setup(self) -> None:
-        """As the NT86 (pulses/rev at 96/97), plus function 12 on the opted-in home input."""
-        await super().setup()
-        self._app_mode = 0
-        if self.home_input is not None:
-            await self._assign_input(self.home_input, FUNC_START_HOMING)
-
-    def _expected_app_mode(self) -> int:
-        return self._app_mode if self._app_mode is not None else 0
-
-    async def prepare_table(self, rows: Sequence[tuple[int, MoveParams, float]],
-                            trigger: str) -> None:
-        """Not described by the EPR60 manual (``no_table``)."""
-        raise self.unsupported("run its position table", self.no_table)
-
-    def check_supported(self, procedure: str) -> None:
-        """Homing exists only through the opted-in start-homing input."""
-        super().check_supported(procedure)
-        if procedure == "home" and self.home_input is None:
-            raise self.unsupported(
-                "start homing",
-                "its manual documents no Modbus homing trigger; pass home_input=N to pulse "
-                "IN N's polarity bit (input function 12 'start homing')",
-            )
-
-    async def _homing_trigger(self, priority: Priority) -> int | None:
-        return None  # no 287 on the EPR60: completion is HOME=1 with MOV=0
-
-    async def _ensure_command_mode(self) -> None:
-        """Register 18 acts only in application mode 0: leave homing mode 1 first."""
-        if self._app_mode != 0:
-            await self.write(self.regs.app_mode, 0, priority=Priority.COMMAND)
-            self._app_mode = 0
-
-    async def _leave_homing_mode(self) -> None:
-        if self._app_mode == 1:
-            await self.write(self.regs.app_mode, 0, priority=Priority.EMERGENCY)
-            self._app_mode = 0
-
-    async def start_homing(self, params: HomingParams) -> None:
-        """79-83 in one FC16, 20=1 (homing mode), then pulse the start-homing input.
-
-        ``offset`` (83, 0..1000 pulses) is travelled away from the limit after the origin
-        edge; the manual gives no sign, sequence or final coordinate (see the twin).
-        """
-        m = self._method(params.method)
-        if self.home_input is None:
-            raise self.unsupported(
-                "start homing",
-                "its manual documents no Modbus homing trigger, only input function 12 "
-                "'start homing' (IN5 by default). Pass home_input=N to pulse IN N's "
-                "polarity bit instead (the NT-family input-trigger technique)",
-            )
-        await self.write_block(
-            [
-                (EPR60_HOME_MODE, self.homing_methods.index(m)),
-                (EPR60_HOME_FAST, _round_unit(EPR60_HOME_FAST, params.speed_rpm, nonzero=True)),
-                (EPR60_HOME_SLOW, _round_unit(EPR60_HOME_SLOW, params.creep_rpm, nonzero=True)),
-                (EPR60_HOME_ACCEL, _round_unit(EPR60_HOME_ACCEL, params.accel_rps2)),
-                (EPR60_HOME_OFFSET, int(params.offset)),
-            ],
-            priority=Priority.COMMAND,
-        )
-        await self.write(self.regs.app_mode, 1, priority=Priority.COMMAND)
-        self._app_mode = 1
-        self._jog_command = None
-        await self._pulse_input(self.home_input)
-        self._homing = True
-        self._seen_moving = False
+        return FAMILIES["EPR60"].profile
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
