@@ -557,6 +557,8 @@ class ProgramsDef(_Model):
     retarget: str = ""
     no_retarget: str = "its manual documents no way to change the target of a running move"
     jog_speed: str = ""
+    table_rows: int = Field(0, ge=0, le=1024, description="rows of its position table "
+                            "(`prepare_table`/`start_table`)")
 
 
 class AlarmsDef(_Model):
@@ -665,6 +667,9 @@ class Step(_Model):
     if_changed: bool = Field(False, description="write: only the registers whose value "
                              "differs from what the drive holds (read in this run, else "
                              "read now)")
+    each: str | None = Field(None, pattern=r"^\s*[A-Za-z_][A-Za-z0-9_]*\s+in\s+.+$",
+                             description="write: 'NAME in EXPRESSION', the step's writes "
+                             "once per value (in one block with `block`)")
     timeout: E = Expr.parse(5.0)
     every: float = Field(0.005, gt=0, le=10)
     error: Literal["alarm", "state", "motion", "limit"] = "state"
@@ -681,6 +686,10 @@ class Step(_Model):
         if self.modify is not None and self.bits_set is None and self.bits_clear is None \
                 and self.bits_toggle is None:
             raise ValueError("a modify step needs set_bits, clear_bits or toggle_bits")
+        if self.each is not None:
+            if self.write is None:
+                raise ValueError("'each' repeats a write step only")
+            Expr.parse(self.each.split(" in ", 1)[1])
         return self
 
     @property
@@ -1068,10 +1077,47 @@ def read_toml(p: Path, noun: str) -> dict[str, Any]:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
 
 
+def _extended(data: dict[str, Any], p: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """``data`` over the description it ``extends`` (a file relative to ``p``): each
+    section's keys replace the base's whole (a register, an option, a procedure,
+    ``homing.methods``, a ``[link]`` key), and ``remove = { registers = [...] }`` drops
+    entries of the base."""
+    ref = data.pop("extends", None)
+    remove = data.pop("remove", {})
+    if ref is None:
+        if remove:
+            raise ConfigError(f"{p}: remove: only a description that extends another removes")
+        return data
+    if not isinstance(ref, str):
+        raise ConfigError(f"{p}: extends: expected a file name, got {ref!r}")
+    base_path = (p.parent / ref).resolve()
+    if base_path in seen:
+        raise ConfigError(f"{p}: extends: {ref} extends it in turn")
+    base = _extended(read_toml(base_path, "drive description"), base_path, (*seen, p.resolve()))
+    out = dict(base)
+    for section, value in data.items():
+        old = out.get(section)
+        if not isinstance(value, dict) or not isinstance(old, dict):
+            out[section] = value
+        else:
+            out[section] = {**old, **value}
+    if not isinstance(remove, dict):
+        raise ConfigError(f"{p}: remove: expected a table of section = [keys]")
+    for section, keys in remove.items():
+        entries = dict(out.get(section, {}))
+        for key in keys if isinstance(keys, list) else [keys]:
+            if key not in entries:
+                raise ConfigError(f"{p}: remove.{section}: {ref} has no {section}.{key}")
+            del entries[key]
+        out[section] = entries
+    return out
+
+
 def load_description(path: str | Path) -> Description:
-    """Read and check the description file ``path``."""
+    """Read and check the description file ``path`` (over the one it ``extends``)."""
     p = Path(path)
-    return parse_description(read_toml(p, "drive description"), str(p))
+    data = _extended(read_toml(p, "drive description"), p)
+    return parse_description(data, str(p))
 
 
 _CONTEXT_NAMES = {
@@ -1310,6 +1356,10 @@ class _Checker:
         self._names(f"{where}.fail", step.fail, params)
         self._names(f"{where}.message", step.message, params)
         if step.write is not None:
+            if step.each is not None:
+                name, _, source = step.each.partition(" in ")
+                self._names(f"{where}.each", Expr.parse(source), params)
+                params = params | {name.strip()}
             for key, item in step.write.items():
                 self._target(f"{where}.write", key, params)
                 self._names(f"{where}.write.{key}", item.value, params)

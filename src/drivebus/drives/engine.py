@@ -63,6 +63,7 @@ from drivebus.errors import (
     DriveAlarm,
     LimitViolation,
     MotionError,
+    NoSuchMethod,
     NotSupported,
     StateError,
 )
@@ -413,7 +414,8 @@ class DescribedProfile(DriveProfile):
             self.state.update(updates)
         elif action == "fail":
             assert step.fail is not None
-            raise self.unsupported(self._what(run.proc, None, run.args),
+            raise self.unsupported(self._what(run.proc, self.description.procedures.get(
+                run.proc), run.args),
                                    step.fail(self._scope(run)))
         elif action == "return":
             assert step.return_ is not None
@@ -462,11 +464,16 @@ class DescribedProfile(DriveProfile):
         """The step's writes, evaluated, converted to raw values and range-checked."""
         assert step.write is not None
         scope = self._scope(run)
+        scopes = [scope]
+        if step.each is not None:  # "NAME in EXPRESSION": the writes once per value
+            name, _, source = step.each.partition(" in ")
+            scopes = [{**scope, name.strip(): v} for v in Expr.parse(source)(scope)]
         items = []
-        for key, w in step.write.items():
-            reg, index = self._target(key, scope)
-            value = w.value(scope)
-            items.append(_Item(reg, index, reg.at(index), value, w.value, w.nonzero))
+        for each in scopes:
+            for key, w in step.write.items():
+                reg, index = self._target(key, each)
+                value = w.value(each)
+                items.append(_Item(reg, index, reg.at(index), value, w.value, w.nonzero))
         for item in items:  # ramp times last: they refer to the speeds written with them
             if item.reg.codec.kind is not Kind.RAMP:
                 self._encode(item, items, run)
@@ -774,7 +781,7 @@ class DescribedProfile(DriveProfile):
             if "position" in fields else None
         velocity = _physical(fields["velocity"], scope, d, "velocity") \
             if "velocity" in fields else None
-        raw = {k: int(e(scope)) for k, e in s.raw.items()} if s.raw else {
+        raw = _raw_values(s.raw, scope) if s.raw else {
             k: int(v) for k, v in values.items() if isinstance(v, int)}
         return DriveStatus(
             enabled=flag("enabled"),
@@ -966,7 +973,9 @@ class DescribedProfile(DriveProfile):
                     return n, m
         documented = ", ".join(f"{n} ({m.code})" if m.code is not None else n
                                for n, m in h.methods.items())
-        raise self.unsupported(f"home with method {method!r}", "it documents " + documented)
+        raise NoSuchMethod(str(self.unsupported(
+            f"home with method {method!r}",
+            f"it has no homing method {method!r}; it documents {documented}")))
 
     def homing_switches(self, method: str | None) -> HomingSwitches:
         """The limit switches homing with ``method`` homes on or reverses at: the method's
@@ -975,8 +984,11 @@ class DescribedProfile(DriveProfile):
         _, m = self._home_method(method)
         extras = m.extras
         if "homes_on" in extras or "reverses_at" in extras:
-            return HomingSwitches(frozenset(extras.get("homes_on", ())),
-                                  frozenset(extras.get("reverses_at", ())))
+            scope = self._scope(None)
+            sides = {k: Expr.parse(v)(scope) if isinstance(v, str) else v  # on the options
+                     for k, v in extras.items() if k in ("homes_on", "reverses_at")}
+            return HomingSwitches(frozenset(sides.get("homes_on", ())),
+                                  frozenset(sides.get("reverses_at", ())))
         return cia402_homing_switches(m.cia402)
 
     def _home_attrs(self, args: Mapping[str, Any]) -> Attrs:
@@ -1000,6 +1012,28 @@ class DescribedProfile(DriveProfile):
     async def save_parameters(self) -> None:
         """The description's ``save_parameters``."""
         await self.run("save_parameters")
+
+    async def prepare_table(self, rows: Sequence[tuple[int, MoveParams, float]],
+                            trigger: str) -> None:
+        """The description's ``prepare_table`` with ``rows`` (each with ``position``,
+        ``speed``, ``accel``, ``decel``, ``wait``), ``trigger`` (an input's name) and
+        ``input`` (its number, from 1)."""
+        proc = self.description.procedures.get("prepare_table")
+        if proc is None or proc.unsupported is not None:
+            await super().prepare_table(rows, trigger)
+            return
+        table = [Attrs("row", {"position": int(p), "speed": m.speed_rpm, "accel": m.accel_rps2,
+                               "decel": m.decel_rps2, "wait": float(w)}) for p, m, w in rows]
+        await self.run("prepare_table", rows=table, trigger=trigger,
+                       input=self.io_inputs.index(trigger) + 1)
+
+    async def start_table(self) -> None:
+        """The description's ``start_table``."""
+        proc = self.description.procedures.get("start_table")
+        if proc is None or proc.unsupported is not None:
+            await super().start_table()
+            return
+        await self.run("start_table")
 
     async def io_points(self) -> list[IOPoint]:
         """Every terminal with the function its ``functions`` table assigns it (one read)."""
@@ -1057,6 +1091,19 @@ def cia402_homing_switches(method: int | None) -> HomingSwitches:
     if method in (11, 12, 13, 14, 27, 28, 29, 30):
         return HomingSwitches(reverses_at=frozenset({-1}))
     return HomingSwitches()
+
+
+def _raw_values(raw: Mapping[str, Expr], scope: Mapping[str, Any]) -> dict[str, int]:
+    """``[status] raw``'s values; one whose register this read did not cover is left out."""
+    out: dict[str, int] = {}
+    for k, e in raw.items():
+        try:
+            v = e(scope)
+        except Unknown:
+            continue
+        if v is not None:
+            out[k] = int(v)
+    return out
 
 
 def _consecutive(items: Sequence[_Item]) -> list[list[_Item]]:
@@ -1263,6 +1310,7 @@ def _io_attrs(d: Description) -> dict[str, Any]:
         "programs": ProgramSupport(p.preload, p.preload_braking, p.retarget, p.no_retarget,
                                    p.jog_speed),
         "regs": Registers(d),
+        "table_rows": p.table_rows,
     }
     table = d.procedures.get("prepare_table")
     if table is not None and table.unsupported is not None:
