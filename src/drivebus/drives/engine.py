@@ -1015,15 +1015,15 @@ class DescribedProfile(DriveProfile):
 
     async def prepare_table(self, rows: Sequence[tuple[int, MoveParams, float]],
                             trigger: str) -> None:
-        """The description's ``prepare_table`` with ``rows`` (each with ``position``,
-        ``speed``, ``accel``, ``decel``, ``wait``), ``trigger`` (an input's name) and
-        ``input`` (its number, from 1)."""
+        """The description's ``prepare_table`` with ``rows`` (``rows[i]['position']``,
+        ``'speed'``, ``'accel'``, ``'decel'``, ``'wait'`` in s), ``trigger`` (an input's
+        name) and ``input`` (its number, from 1)."""
         proc = self.description.procedures.get("prepare_table")
         if proc is None or proc.unsupported is not None:
             await super().prepare_table(rows, trigger)
             return
-        table = [Attrs("row", {"position": int(p), "speed": m.speed_rpm, "accel": m.accel_rps2,
-                               "decel": m.decel_rps2, "wait": float(w)}) for p, m, w in rows]
+        table = [{"position": int(p), "speed": m.speed_rpm, "accel": m.accel_rps2,
+                  "decel": m.decel_rps2, "wait": float(w)} for p, m, w in rows]
         await self.run("prepare_table", rows=table, trigger=trigger,
                        input=self.io_inputs.index(trigger) + 1)
 

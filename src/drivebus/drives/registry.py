@@ -33,7 +33,6 @@ from drivebus.drives.bhss import BHSSProfile
 from drivebus.drives.cl86r import CL86RProfile
 from drivebus.drives.description import Description, load_description
 from drivebus.drives.engine import profile_class
-from drivebus.drives.nt_family import NT86Profile
 from drivebus.drives.od_drive import ODDriveProfile
 from drivebus.errors import ConfigError
 
@@ -104,7 +103,6 @@ def _load_builtin() -> dict[str, DriveFamily]:
 
 
 _PROFILES: tuple[DriveFamily, ...] = (
-    DriveFamily("NT86", NT86Profile, "rtu", "Rtelligent NT86 RS-485 stepper drive"),
     DriveFamily("BHSS", BHSSProfile, "rtu", "Bholanath BHSS-100-MBUS stepper drive"),
     DriveFamily("CL86R", CL86RProfile, "rtu", "CL86R closed-loop stepper drive"),
     DriveFamily("OD2000", ODDriveProfile, "rtu",
