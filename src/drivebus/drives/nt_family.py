@@ -7,6 +7,7 @@ the profile classes, the status bits, the alarm texts and the command codes.
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -30,22 +31,10 @@ assert _NT86.spec is not None and _EPR60.spec is not None, "built in as descript
 _REGS = _NT86.spec.regs
 
 
-class StatusBit:
-    """Bits of status register 1 (NT86 manual 2.6.1.2, EPR60 manual 3.3), from the
-    description's ``registers.status.bits``."""
-
-    ENA = _REGS["status"].bit_mask("ENA")
-    ALM = _REGS["status"].bit_mask("ALM")
-    INPOS = _REGS["status"].bit_mask("INPOS")
-    MOV = _REGS["status"].bit_mask("MOV")
-    HOME = _REGS["status"].bit_mask("HOME")
-    RDY = _REGS["status"].bit_mask("RDY")
-    ARRSPD = _REGS["status"].bit_mask("ARRSPD")
-    CLAMP = _REGS["status"].bit_mask("CLAMP")
-    PL = _REGS["status"].bit_mask("PL")
-    NL = _REGS["status"].bit_mask("NL")
-    POW = _REGS["status"].bit_mask("POW")
-    TC = _REGS["status"].bit_mask("TC")
+StatusBit = enum.IntFlag("StatusBit", {name: _REGS["status"].bit_mask(name)
+                                        for name in _REGS["status"].d.bits})
+"""Bits of status register 1 (NT86 manual 2.6.1.2, EPR60 manual 3.3): the description's
+``registers.status.bits`` (``StatusBit.MOV``)."""
 
 
 _ALARMS = _NT86.spec.alarms
