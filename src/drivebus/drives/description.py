@@ -1335,6 +1335,10 @@ class _Checker:
         if io.functions is None and io.codes:
             self.out.append(f"{where}.codes: function codes need 'functions' (the registers "
                             f"that assign them); give fixed wiring with 'bits'")
+        if io.functions is not None and io.functions in self.regs and \
+                len(io.names) > self.regs[io.functions].d.count:
+            self.out.append(f"{where}.names: {len(io.names)} terminals, but {io.functions} "
+                            f"assigns functions to {self.regs[io.functions].d.count}")
 
     def _procedure(self, name: str, proc: Procedure) -> None:
         where = f"procedures.{name}"
