@@ -24,6 +24,7 @@ __all__ = [
     "MotionAborted",
     "MotionError",
     "MotionTimeout",
+    "NoSuchMethod",
     "NotFound",
     "NotSupported",
     "PartialWrite",
@@ -142,6 +143,11 @@ BusClosed = LineClosed
 
 class NotSupported(DrivebusError):
     """The drive cannot do this over its bus; the message names drive and function."""
+
+
+class NoSuchMethod(NotSupported, ConfigError):
+    """A named variant (a homing method) the drive does not have: it cannot do it, and
+    naming it is a configuration mistake."""
 
 
 class PartialWrite(DrivebusError):

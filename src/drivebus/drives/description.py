@@ -460,11 +460,13 @@ class Reg:
 class OptionDef(_Model):
     """One of the drive's ``drive_options``."""
 
-    type: Literal["int", "float", "bool", "str", "choice", "map"] = "int"
+    type: Literal["int", "float", "bool", "str", "choice", "map", "list"] = "int"
     min: float | None = None
     max: float | None = None
     choices: list[str] = []
     keys: list[str] = Field([], description="map: the keys allowed")
+    max_items: int | None = Field(None, ge=1, description="list: the most entries (integers "
+                                  "within min..max, each once)")
     default: Any = None
     doc: str = ""
 
@@ -475,6 +477,13 @@ class OptionDef(_Model):
         if self.type == "map" and not (self.keys and self.choices):
             raise ValueError("a map needs 'keys' and 'choices' (its values)")
         return self
+
+
+class OptionCheck(_Model):
+    """A condition the options together must meet (two options naming one terminal)."""
+
+    check: E
+    message: T
 
 
 class PulsesPerRev(_Model):
@@ -534,9 +543,13 @@ class IoDef(_Model):
     names: list[Annotated[str, Field(min_length=1)]] = Field(
         [], description="the terminals by the manual's names, in the order of the state "
         "register's bits (digital I/O by name)")
+    function_mask: int = Field(0xFFFF, ge=1, le=0xFFFF, description="the bits of a "
+                               "`functions` entry that hold the function code")
     function_names: Annotated[dict[int, str], IntKeyed] = Field(
         {}, description="the manual's name of each function code (what `io_points` says a "
         "terminal is set to do)")
+    settable: int | None = Field(None, description="outputs: the function code under which "
+                                 "Modbus switches the output (set_output)")
 
 
 class AlarmsDef(_Model):
@@ -586,10 +599,12 @@ class ProgramsDef(_Model):
                           "procedures.retarget_absolute)")
     no_retarget: str = ProgramSupport.no_retarget
     jog_speed: str = Field("", description="how a running speed run takes a new speed")
+    table_rows: int = Field(0, ge=0, le=1024, description="rows of its position table "
+                            "(`prepare_table`/`start_table`)")
 
     def support(self) -> ProgramSupport:
         """The ``ProgramSupport`` a profile declares."""
-        return ProgramSupport(**self.model_dump())
+        return ProgramSupport(**self.model_dump(exclude={"table_rows"}))
 
 
 class HomingMethod(BaseModel):
@@ -660,6 +675,12 @@ class Step(_Model):
     bits_clear: E | None = Field(None, alias="clear_bits")
     bits_toggle: E | None = Field(None, alias="toggle_bits")
     pulse: bool = Field(False, description="modify: toggle, then toggle back")
+    if_changed: bool = Field(False, description="write: only the registers whose value "
+                             "differs from what the drive holds (read in this run, else "
+                             "read now)")
+    each: str | None = Field(None, pattern=r"^\s*[A-Za-z_][A-Za-z0-9_]*\s+in\s+.+$",
+                             description="write: 'NAME in EXPRESSION', the step's writes "
+                             "once per value (in one block with `block`)")
     timeout: E = Expr.parse(5.0)
     every: float = Field(0.005, gt=0, le=10)
     error: Literal["alarm", "state", "motion", "limit"] = "state"
@@ -667,7 +688,8 @@ class Step(_Model):
 
     @model_validator(mode="after")
     def _one_action(self) -> Step:
-        given = [a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None]
+        given = [a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None
+                 and not (a == "read" and self.wait is not None)]  # a wait's reads
         if len(given) != 1:
             keys = ", ".join(a.rstrip("_") for a in _ACTIONS)
             got = f"got {', '.join(given)}" if given else "got none"
@@ -675,11 +697,17 @@ class Step(_Model):
         if self.modify is not None and self.bits_set is None and self.bits_clear is None \
                 and self.bits_toggle is None:
             raise ValueError("a modify step needs set_bits, clear_bits or toggle_bits")
+        if self.each is not None:
+            if self.write is None:
+                raise ValueError("'each' repeats a write step only")
+            Expr.parse(self.each.split(" in ", 1)[1])
         return self
 
     @property
     def action(self) -> str:
         """The step's action key."""
+        if self.wait is not None:
+            return "wait"
         return next(a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None)
 
 
@@ -862,6 +890,7 @@ class Description(_Model):
     constants: dict[Annotated[str, Field(pattern=_KEY)], int] = {}
     state: dict[Annotated[str, Field(pattern=_KEY)], int | float | bool | str | None] = {}
     options: dict[Annotated[str, Field(pattern=_KEY)], OptionDef] = {}
+    option_checks: list[OptionCheck] = []
     units: Units
     status: StatusDef = StatusDef()
     inputs: IoDef | None = None
@@ -1062,15 +1091,52 @@ def read_toml(p: Path, noun: str) -> dict[str, Any]:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
 
 
+def _extended(data: dict[str, Any], p: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """``data`` over the description it ``extends`` (a file relative to ``p``): each
+    section's keys replace the base's whole (a register, an option, a procedure,
+    ``homing.methods``, a ``[link]`` key), and ``remove = { registers = [...] }`` drops
+    entries of the base."""
+    ref = data.pop("extends", None)
+    remove = data.pop("remove", {})
+    if ref is None:
+        if remove:
+            raise ConfigError(f"{p}: remove: only a description that extends another removes")
+        return data
+    if not isinstance(ref, str):
+        raise ConfigError(f"{p}: extends: expected a file name, got {ref!r}")
+    base_path = (p.parent / ref).resolve()
+    if base_path in seen:
+        raise ConfigError(f"{p}: extends: {ref} extends it in turn")
+    base = _extended(read_toml(base_path, "drive description"), base_path, (*seen, p.resolve()))
+    out = dict(base)
+    for section, value in data.items():
+        old = out.get(section)
+        if not isinstance(value, dict) or not isinstance(old, dict):
+            out[section] = value
+        else:
+            out[section] = {**old, **value}
+    if not isinstance(remove, dict):
+        raise ConfigError(f"{p}: remove: expected a table of section = [keys]")
+    for section, keys in remove.items():
+        entries = dict(out.get(section, {}))
+        for key in keys if isinstance(keys, list) else [keys]:
+            if key not in entries:
+                raise ConfigError(f"{p}: remove.{section}: {ref} has no {section}.{key}")
+            del entries[key]
+        out[section] = entries
+    return out
+
+
 def load_description(path: str | Path) -> Description:
-    """Read and check the description file ``path``."""
+    """Read and check the description file ``path`` (over the one it ``extends``)."""
     p = Path(path)
-    return parse_description(read_toml(p, "drive description"), str(p))
+    data = _extended(read_toml(p, "drive description"), p)
+    return parse_description(data, str(p))
 
 
 _CONTEXT_NAMES = {
     "option", "state", "last", "words", "input", "output", "home", "pulses_per_rev",
-    "value", "raw", "True", "False", "None",
+    "value", "raw", "True", "False", "None", "input_functions", "output_functions",
 }
 _TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "raw", "speed_now",
                "pulses_per_rev", "limit_positive", "limit_negative"}
@@ -1099,6 +1165,9 @@ class _Checker:
             self._reg_key(f"signals.{name}.register", sig.reg)
         for name, proc in d.procedures.items():
             self._procedure(name, proc)
+        for i, oc in enumerate(d.option_checks):
+            self._names(f"option_checks[{i}].check", oc.check)
+            self._names(f"option_checks[{i}].message", oc.message)
         self._programs()
         self._twin()
         if d.link.format_register is not None:
@@ -1308,7 +1377,7 @@ class _Checker:
         self._names(f"{where}.what", proc.what, params)
         if name == "learn":
             for i, step in enumerate(proc.steps):
-                if step.action != "read":
+                if step.action not in ("read", "set"):
                     self.out.append(f"{where}.steps[{i}]: learn only reads (it runs when a "
                                     f"viewing command opens the drive); write in setup")
         if name == "read_completion":
@@ -1326,6 +1395,10 @@ class _Checker:
         self._names(f"{where}.fail", step.fail, params)
         self._names(f"{where}.message", step.message, params)
         if step.write is not None:
+            if step.each is not None:
+                name, _, source = step.each.partition(" in ")
+                self._names(f"{where}.each", Expr.parse(source), params)
+                params = params | {name.strip()}
             for key, item in step.write.items():
                 self._target(f"{where}.write", key, params)
                 self._names(f"{where}.write.{key}", item.value, params)

@@ -21,7 +21,15 @@ from dataclasses import dataclass, field
 from typing import Annotated, Any, ClassVar, Literal
 
 import anyio
-from pydantic import Field, StrictBool, StrictFloat, StrictInt, StrictStr, create_model
+from pydantic import (
+    Field,
+    StrictBool,
+    StrictFloat,
+    StrictInt,
+    StrictStr,
+    create_model,
+    model_validator,
+)
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import monotonic
@@ -41,12 +49,21 @@ from drivebus.drives.programs import Completion
 from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.drives.units import Kind
-from drivebus.drives.values import Attrs, IoSignals, RegValue, Table, Unread, reg_value
+from drivebus.drives.values import (
+    Attrs,
+    FunctionNames,
+    IoSignals,
+    RegValue,
+    Table,
+    Unread,
+    reg_value,
+)
 from drivebus.errors import (
     ConfigError,
     DriveAlarm,
     LimitViolation,
     MotionError,
+    NoSuchMethod,
     NotSupported,
     StateError,
 )
@@ -257,6 +274,8 @@ class DescribedProfile(DriveProfile):
         scope["pulses_per_rev"] = self.pulses_per_rev
         scope["input"] = IoSignals(d, "inputs", scope)
         scope["output"] = IoSignals(d, "outputs", scope)
+        scope["input_functions"] = FunctionNames(d.inputs)
+        scope["output_functions"] = FunctionNames(d.outputs)
         if run is not None:
             scope.update(run.args)
             if run.home is not None:
@@ -300,6 +319,9 @@ class DescribedProfile(DriveProfile):
         except Unknown as exc:
             raise ConfigError(f"{self.family}: procedure {name} uses what it has not read "
                               f"({exc}): read it in a step before") from None
+        if name == "learn":  # called from setup at the point the drive needs it
+            self.learned.update(run.values)
+            self._learned = True
         return run.result
 
     def _priority(self, name: str, proc: Procedure) -> Priority:
@@ -310,10 +332,17 @@ class DescribedProfile(DriveProfile):
     def _dry(self, proc: Procedure, run: _Run) -> None:
         """Evaluate ``proc`` without I/O: every value it writes is range-checked now, up to
         the first step that needs what the drive answers."""
-        try:
-            for step in proc.steps:
+        for step in proc.steps:
+            try:
                 if step.when is not None and not step.when(self._scope(run)):
                     continue
+            except Unknown:  # depends on the drive's answers: it may run, check it
+                if step.action == "fail":
+                    continue
+                unknown_when = True
+            else:
+                unknown_when = False
+            try:
                 if step.action == "write":
                     self._items(step, run)
                 elif step.action == "call":
@@ -327,16 +356,12 @@ class DescribedProfile(DriveProfile):
                     assert step.check is not None
                     if not step.check(self._scope(run)):  # Unknown: not known before I/O
                         self._fail_check(step, run)
-                elif step.action in ("read", "wait", "modify", "check"):
-                    break  # what follows depends on the drive's answers
-                elif step.action == "set":
-                    continue
-                elif step.action == "return":
-                    break
-                if step.end:
-                    break
-        except Unknown:
-            pass
+            except Unknown:
+                continue  # a value only the drive's answers give: checked when it runs
+            # reads, waits, checks and sets go on: later writes that need no answer of
+            # the drive's are range-checked before the first frame too
+            if (step.end or step.action == "return") and not unknown_when:
+                break
 
     def _args(self, step: Step, run: _Run) -> dict[str, Any]:
         scope = self._scope(run)
@@ -389,7 +414,8 @@ class DescribedProfile(DriveProfile):
             self.state.update(updates)
         elif action == "fail":
             assert step.fail is not None
-            raise self.unsupported(self._what(run.proc, None, run.args),
+            raise self.unsupported(self._what(run.proc, self.description.procedures.get(
+                run.proc), run.args),
                                    step.fail(self._scope(run)))
         elif action == "return":
             assert step.return_ is not None
@@ -438,11 +464,16 @@ class DescribedProfile(DriveProfile):
         """The step's writes, evaluated, converted to raw values and range-checked."""
         assert step.write is not None
         scope = self._scope(run)
+        scopes = [scope]
+        if step.each is not None:  # "NAME in EXPRESSION": the writes once per value
+            name, _, source = step.each.partition(" in ")
+            scopes = [{**scope, name.strip(): v} for v in Expr.parse(source)(scope)]
         items = []
-        for key, w in step.write.items():
-            reg, index = self._target(key, scope)
-            value = w.value(scope)
-            items.append(_Item(reg, index, reg.at(index), value, w.value, w.nonzero))
+        for each in scopes:
+            for key, w in step.write.items():
+                reg, index = self._target(key, each)
+                value = w.value(each)
+                items.append(_Item(reg, index, reg.at(index), value, w.value, w.nonzero))
         for item in items:  # ramp times last: they refer to the speeds written with them
             if item.reg.codec.kind is not Kind.RAMP:
                 self._encode(item, items, run)
@@ -506,6 +537,8 @@ class DescribedProfile(DriveProfile):
 
     async def _write(self, step: Step, run: _Run, prio: Priority) -> None:
         items = self._items(step, run)
+        if step.if_changed:
+            items = await self._changed(items, run, prio)
         block = step.block is not None and bool(step.block(self._scope(run))) and \
             16 in self.description.link.functions
         idem = step.idempotent
@@ -526,6 +559,21 @@ class DescribedProfile(DriveProfile):
                     await self.write(r, it.raw, priority=prio, idempotent=idem)
         for it in items:
             self.last[it.key] = it.physical
+
+    async def _changed(self, items: list[_Item], run: _Run, prio: Priority) -> list[_Item]:
+        """The items whose raw value differs from the drive's (read in this run, else now)."""
+        out = []
+        for it in items:
+            held = run.values.get(it.reg.key)
+            if isinstance(held, Table):
+                held = held.get(it.index) if it.index is not None else None
+            if held is None or isinstance(held, Unread) or it.reg.codec.physical:
+                current = await self.read(it.register, priority=prio)
+            else:
+                current = int(held)
+            if current != it.raw:
+                out.append(it)
+        return out
 
     async def _modify(self, step: Step, run: _Run, prio: Priority) -> None:
         assert step.modify is not None
@@ -667,9 +715,11 @@ class DescribedProfile(DriveProfile):
     async def setup(self) -> None:
         """The description's ``setup`` writes (before the first command), then ``learn``."""
         proc = self.description.procedures.get("setup")
+        self._learned = False
         if proc is not None and proc.unsupported is None:
             await self._run("setup", {})
-        await self.learn()
+        if not self._learned:  # unless setup called it where the drive needs it
+            await self.learn()
 
     def volatile_settings(self) -> list[tuple[Register, int]]:
         """The (register, value) pairs of the setup steps marked volatile."""
@@ -731,7 +781,7 @@ class DescribedProfile(DriveProfile):
             if "position" in fields else None
         velocity = _physical(fields["velocity"], scope, d, "velocity") \
             if "velocity" in fields else None
-        raw = {k: int(e(scope)) for k, e in s.raw.items()} if s.raw else {
+        raw = _raw_values(s.raw, scope) if s.raw else {
             k: int(v) for k, v in values.items() if isinstance(v, int)}
         return DriveStatus(
             enabled=flag("enabled"),
@@ -923,7 +973,9 @@ class DescribedProfile(DriveProfile):
                     return n, m
         documented = ", ".join(f"{n} ({m.code})" if m.code is not None else n
                                for n, m in h.methods.items())
-        raise self.unsupported(f"home with method {method!r}", "it documents " + documented)
+        raise NoSuchMethod(str(self.unsupported(
+            f"home with method {method!r}",
+            f"it has no homing method {method!r}; it documents {documented}")))
 
     def homing_switches(self, method: str | None) -> HomingSwitches:
         """The limit switches homing with ``method`` homes on or reverses at: the method's
@@ -932,8 +984,11 @@ class DescribedProfile(DriveProfile):
         _, m = self._home_method(method)
         extras = m.extras
         if "homes_on" in extras or "reverses_at" in extras:
-            return HomingSwitches(frozenset(extras.get("homes_on", ())),
-                                  frozenset(extras.get("reverses_at", ())))
+            scope = self._scope(None)
+            sides = {k: Expr.parse(v)(scope) if isinstance(v, str) else v  # on the options
+                     for k, v in extras.items() if k in ("homes_on", "reverses_at")}
+            return HomingSwitches(frozenset(sides.get("homes_on", ())),
+                                  frozenset(sides.get("reverses_at", ())))
         return cia402_homing_switches(m.cia402)
 
     def _home_attrs(self, args: Mapping[str, Any]) -> Attrs:
@@ -995,7 +1050,8 @@ class DescribedProfile(DriveProfile):
     async def io_points(self) -> list[IOPoint]:
         """Every terminal of ``[inputs]``/``[outputs] names``, with the function its
         ``functions`` register assigns (read now, in as few reads as the link allows) or
-        the signal its fixed wiring (``bits``) carries."""
+        the signal its fixed wiring (``bits``) carries; an output is settable when its
+        function is ``[outputs] settable``."""
         d = self.description
         sides = [(io, names, output) for io, names, output in
                  ((d.inputs, self.io_inputs, False), (d.outputs, self.io_outputs, True))
@@ -1009,12 +1065,45 @@ class DescribedProfile(DriveProfile):
             table = values.get(io.functions) if io.functions is not None else None
             reg = d.regs[io.functions] if io.functions is not None else None
             for n, name in enumerate(names):
-                if table is not None and reg is not None:
-                    text = function_text(texts, int(table[reg.indices[n]]))
+                if isinstance(table, Table) and reg is not None:
+                    code = int(table[reg.indices[n]]) & io.function_mask
+                    points.append(IOPoint(name, output, function_text(texts, code),
+                                          output and io.settable == code))
                 else:
-                    text = wired.get(n, "")
-                points.append(IOPoint(name, output, text))
+                    points.append(IOPoint(name, output, wired.get(n, "")))
         return points
+
+    async def prepare_table(self, rows: Sequence[tuple[int, MoveParams, float]],
+                            trigger: str) -> None:
+        """The description's ``prepare_table`` with ``rows`` (``rows[i]['position']``,
+        ``'speed'``, ``'accel'``, ``'decel'``, ``'wait'`` in s), ``trigger`` (an input's
+        name) and ``input`` (its number, from 1)."""
+        proc = self.description.procedures.get("prepare_table")
+        if proc is None or proc.unsupported is not None:
+            await super().prepare_table(rows, trigger)
+            return
+        table = [{"position": int(p), "speed": m.speed_rpm, "accel": m.accel_rps2,
+                  "decel": m.decel_rps2, "wait": float(w)} for p, m, w in rows]
+        await self.run("prepare_table", rows=table, trigger=trigger,
+                       input=self.io_inputs.index(trigger) + 1)
+
+    async def start_table(self) -> None:
+        """The description's ``start_table``."""
+        proc = self.description.procedures.get("start_table")
+        if proc is None or proc.unsupported is not None:
+            await super().start_table()
+            return
+        await self.run("start_table")
+
+    async def set_output(self, name: str, state: bool) -> None:
+        """The description's ``set_output`` with ``output`` (the name), ``index`` (its
+        number, from 1) and ``state``."""
+        proc = self.description.procedures.get("set_output")
+        if proc is None or proc.unsupported is not None:
+            await super().set_output(name, state)
+            return
+        await self.run("set_output", output=name, index=self.io_outputs.index(name) + 1,
+                       state=bool(state))
 
     def __getattr__(self, name: str) -> Callable[..., Awaitable[Any]]:
         """The description's own procedures as methods (``profile.write_position_path(...)``)."""
@@ -1045,6 +1134,19 @@ def cia402_homing_switches(method: int | None) -> HomingSwitches:
     return HomingSwitches()
 
 
+def _raw_values(raw: Mapping[str, Expr], scope: Mapping[str, Any]) -> dict[str, int]:
+    """``[status] raw``'s values; one whose register this read did not cover is left out."""
+    out: dict[str, int] = {}
+    for k, e in raw.items():
+        try:
+            v = e(scope)
+        except Unknown:
+            continue
+        if v is not None:
+            out[k] = int(v)
+    return out
+
+
 def _consecutive(items: Sequence[_Item]) -> list[list[_Item]]:
     """Items grouped into runs of consecutive, contiguous registers (one FC16 each)."""
     groups: list[list[_Item]] = []
@@ -1072,10 +1174,11 @@ def _physical(e: Expr, scope: Mapping[str, Any], d: Description, what: str) -> A
 
 def _option_type(o: Any) -> Any:
     bounds: dict[str, Any] = {}
+    whole = o.type in ("int", "list")
     if o.min is not None:
-        bounds["ge"] = o.min
+        bounds["ge"] = int(o.min) if whole and o.min == int(o.min) else o.min
     if o.max is not None:
-        bounds["le"] = o.max
+        bounds["le"] = int(o.max) if whole and o.max == int(o.max) else o.max
     if o.type == "int":
         return Annotated[StrictInt, Field(**bounds)]
     if o.type == "float":
@@ -1086,7 +1189,27 @@ def _option_type(o: Any) -> Any:
         return StrictStr
     if o.type == "choice":
         return Literal[tuple(o.choices)]
+    if o.type == "list":
+        return Annotated[list[Annotated[StrictInt, Field(**bounds)]],
+                         Field(max_length=o.max_items)]
     return dict[Literal[tuple(o.keys)], Literal[tuple(o.choices)]]  # type: ignore[misc]
+
+
+class _CheckedOptions(DriveOptions):
+    """Options with the description's ``option_checks`` (conditions across options)."""
+
+    description: ClassVar[Description]
+
+    @model_validator(mode="after")
+    def _option_checks(self) -> _CheckedOptions:
+        d = self.description
+        values = {k: (getattr(self, k) if getattr(self, k) is not None else o.default)
+                  for k, o in d.options.items()}
+        scope = {**d.constants, "option": Attrs("option", values)}
+        for oc in d.option_checks:
+            if not oc.check(scope):
+                raise ValueError(oc.message(scope))
+        return self
 
 
 def options_model(d: Description) -> type[DriveOptions]:
@@ -1095,7 +1218,11 @@ def options_model(d: Description) -> type[DriveOptions]:
         k: (_option_type(o) | None, Field(None, description=o.doc))
         for k, o in d.options.items()
     }
-    return create_model(f"{d.family}Options", __base__=DriveOptions, **fields)
+    if not d.option_checks:
+        return create_model(f"{d.family}Options", __base__=DriveOptions, **fields)
+    base = type(f"_{d.family}Checked", (_CheckedOptions,), {"description": d,
+                                                           "__module__": __name__})
+    return create_model(f"{d.family}Options", __base__=base, **fields)
 
 
 def _ppr_allowed(d: Description) -> Any:
@@ -1214,6 +1341,18 @@ def profile_class(d: Description) -> type[DescribedProfile]:
     return cls
 
 
+class Registers:
+    """A description's registers as attributes (``profile.regs.microstep.address``)."""
+
+    def __init__(self, d: Description) -> None:
+        self._regs = d.regs
+
+    def __getattr__(self, key: str) -> Register:
+        if key.startswith("_") or key not in self._regs:
+            raise AttributeError(key)
+        return self._regs[key].register
+
+
 def _parameter_attrs(d: Description) -> dict[str, Any]:
     """``parameter_list``/``write_through``/``saves_by_write_through`` of the profile class,
     from the description's registers; ``comms_note`` and, where a register sets the
@@ -1235,17 +1374,22 @@ def _parameter_attrs(d: Description) -> dict[str, Any]:
 
 
 def _program_attrs(d: Description) -> dict[str, Any]:
-    """``programs``, ``io_inputs``/``io_outputs`` and the reasons ``set_output`` and
-    ``prepare_table`` give (their procedures' ``unsupported``) of the profile class."""
+    """``programs``, ``io_inputs``/``io_outputs``, the reasons ``set_output`` and
+    ``prepare_table`` give (their procedures' ``unsupported``, or ``set_output``'s doc), the
+    table's rows and the registers by key (``regs``) of the profile class."""
     out: dict[str, Any] = {
         "programs": d.programs.support(),
         "io_inputs": tuple(d.inputs.names) if d.inputs is not None else (),
         "io_outputs": tuple(d.outputs.names) if d.outputs is not None else (),
+        "regs": Registers(d),
+        "table_rows": d.programs.table_rows,
     }
     for attr, proc in (("no_output_control", "set_output"), ("no_table", "prepare_table")):
         p = d.procedures.get(proc)
         if p is not None and p.unsupported is not None:
             out[attr] = p.unsupported
+        elif p is not None and p.doc and attr == "no_output_control":
+            out[attr] = p.doc  # which outputs it cannot switch, and why
     return out
 
 

@@ -53,6 +53,8 @@ FUNCTIONS: dict[str, Callable[..., Any]] = {
     "ceil": math.ceil,
     "bit": _bit,
     "str": str,
+    "len": len,
+    "range": lambda *a: range(*(int(x) for x in a)),
     "upper": lambda s: str(s).upper(),
     "lower": lambda s: str(s).lower(),
 }

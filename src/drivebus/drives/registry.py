@@ -32,7 +32,6 @@ from drivebus.drives.base import DriveProfile
 from drivebus.drives.bhss import BHSSProfile
 from drivebus.drives.description import Description, load_description
 from drivebus.drives.engine import profile_class
-from drivebus.drives.nt_family import EPR60Profile, NT86Profile
 from drivebus.drives.od_drive import ODDriveProfile
 from drivebus.errors import ConfigError
 
@@ -103,8 +102,6 @@ def _load_builtin() -> dict[str, DriveFamily]:
 
 
 _PROFILES: tuple[DriveFamily, ...] = (
-    DriveFamily("NT86", NT86Profile, "rtu", "Rtelligent NT86 RS-485 stepper drive"),
-    DriveFamily("EPR60", EPR60Profile, "tcp", "EPR60/EPT60 Modbus TCP stepper drive"),
     DriveFamily("BHSS", BHSSProfile, "rtu", "Bholanath BHSS-100-MBUS stepper drive"),
     DriveFamily("OD2000", ODDriveProfile, "rtu",
                 "2000h object-dictionary drive (settings and monitoring only)"),

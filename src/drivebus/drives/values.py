@@ -14,10 +14,10 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from drivebus.drives.description import Description, Reg
+from drivebus.drives.description import Description, IoDef, Reg
 from drivebus.drives.expr import ExprError, Unknown
 
-__all__ = ["Attrs", "IoSignals", "RegValue", "Table", "Unread", "reg_value"]
+__all__ = ["Attrs", "FunctionNames", "IoSignals", "RegValue", "Table", "Unread", "reg_value"]
 
 
 class RegValue(int):
@@ -176,3 +176,16 @@ class IoSignals:
             if int(fn) == code and (bits >> n) & 1:
                 return True
         return False
+
+
+class FunctionNames:
+    """``input_functions[code]`` / ``output_functions[code]``: the manual's name of an I/O
+    function code (``function N`` where it gives none)."""
+
+    __slots__ = ("_names",)
+
+    def __init__(self, io: IoDef | None) -> None:
+        self._names = dict(io.function_names) if io is not None else {}
+
+    def __getitem__(self, code: int) -> str:
+        return self._names.get(int(code), f"function {int(code)}")

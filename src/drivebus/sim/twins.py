@@ -27,10 +27,11 @@ _CODED: dict[str, type[SimDrive]] = {
 
 
 TWINS: dict[str, type[SimDrive]] = {
-    name: _CODED[name] if f.spec is None else twin_of(f.spec)
+    name: _CODED[name] if name in _CODED else twin_of(f.spec)  # type: ignore[arg-type]
     for name, f in FAMILIES.items() if f.spec is not None or name in _CODED
 }
-"""The twin class of each built-in family, by the family's registry name."""
+"""The twin class of each built-in family, by the family's registry name (a twin written
+as code plays its family even where the profile runs a description)."""
 
 
 def twin_class(drive: str) -> type[SimDrive]:
