@@ -31,6 +31,7 @@ __all__ = [
     "ServiceUnreachable",
     "StateError",
     "TransactionError",
+    "UnknownMethod",
     "WrongResponder",
 ]
 
@@ -142,6 +143,11 @@ BusClosed = LineClosed
 
 class NotSupported(DrivebusError):
     """The drive cannot do this over its bus; the message names drive and function."""
+
+
+class UnknownMethod(NotSupported, ConfigError):
+    """A method (homing) the drive does not document was named: the drive cannot do it,
+    and naming it is a configuration mistake; the message lists the methods it has."""
 
 
 class PartialWrite(DrivebusError):

@@ -260,6 +260,9 @@ TWIN_MEANINGS = {
     "home_switch": "the home switch is active",
     "at_speed": "a speed run reached its speed",
     "ready": "powered and ready (always set)",
+    "reached": "a position move or a homing ran to its end (a stop or a new start clears it)",
+    "address": "the slave address it answers at",
+    "direction": "the direction of the last motion (0 positive, 1 negative)",
     "jogging": "a speed run (jog) is under way",
     "position": "the position counter (pulses)",
     "velocity": "the present speed",
@@ -339,7 +342,7 @@ class RegisterDef(_Model):
     _means = field_validator("means")(_known_meaning)
 
     def _check_parameter_key(self, key: str) -> None:
-        fields = set(re.findall(r"{(\w*)}", key))
+        fields = set(re.findall(r"{(\w*)(?::(?:lower|upper))?}", key))
         if self.count > 1 and not fields & {"i", "name"}:
             raise ValueError(f"parameter {key!r}: a table's key needs {{i}} or {{name}} "
                              "(each entry has its own key)")
@@ -347,7 +350,7 @@ class RegisterDef(_Model):
             raise ValueError(f"parameter {key!r}: only a table's key takes {{i}} or {{name}}")
         if "name" in fields and not self.names:
             raise ValueError(f"parameter {key!r}: {{name}} needs the table's names")
-        if not re.fullmatch(r"[A-Za-z_][\w{}]*", key):
+        if not re.fullmatch(r"[A-Za-z_{][\w{}:]*", key):
             raise ValueError(f"parameter {key!r}: a key is a name (letters, digits, _)")
 
     @model_validator(mode="after")
@@ -500,6 +503,30 @@ class PollDef(_Model):
     when: E
 
 
+class CompletionDef(_Model):
+    """``[status.completion]``: a short read that tells whether a motion has ended (a
+    buffered move of a motion program starts on it)."""
+
+    read: list[str | list[str]] = Field(min_length=1)
+    moving: E
+    in_position: E
+    alarm: E = Expr.parse(False)
+    limit_positive: E = Expr.parse(False)
+    limit_negative: E = Expr.parse(False)
+
+
+class ProgramsDef(_Model):
+    """``[programs]``: what the drive offers motion programs, each with the manual's reason
+    (``drivebus.drives.programs.ProgramSupport``), and why its own position table cannot run."""
+
+    preload: str = ""
+    preload_braking: str = ""
+    retarget: str = ""
+    no_retarget: str = "its manual documents no way to change the target of a running move"
+    jog_speed: str = ""
+    no_table: str = "drivebus knows no way to start its position table over Modbus"
+
+
 class StatusDef(_Model):
     """``[status]``: the poll and how it decodes into ``DriveStatus``."""
 
@@ -520,6 +547,7 @@ class StatusDef(_Model):
     track: dict[str, E] = Field({}, description="state variables updated after each poll")
     learn_first: bool = Field(False, description="run learn before the first poll (else "
                               "decoding uses the registers' defaults until setup or learn)")
+    completion: CompletionDef | None = None
 
 
 class IoDef(_Model):
@@ -530,6 +558,12 @@ class IoDef(_Model):
     functions: str | None = None
     codes: dict[str, int] = {}
     bits: dict[str, int] = Field({}, description="fixed wiring: signal -> bit number")
+    polarity: str | None = Field(None, description="a register whose bits invert the sense "
+                                 "of the terminals before the drive acts on them (`state` "
+                                 "shows the levels after it; the twin honours it)")
+    names: list[str] = Field([], description="the terminals' names, in the order of the "
+                             "state register's bits (digital I/O by name)")
+    no_control: str = Field("", description="outputs: why Modbus cannot switch them")
 
 
 class AlarmsDef(_Model):
@@ -630,6 +664,10 @@ class Step(_Model):
     start: bool = Field(False, description="where a prepared move starts")
     volatile: bool = False
     end: bool = Field(False, description="the procedure ends after this step")
+    each: E | None = Field(None, description="run the step once per entry of this map (or "
+                           "list), with `key` and `value` naming the entry")
+    changed: bool = Field(False, description="write: leave out the registers whose value, "
+                          "read earlier in the procedure, is already the one to write")
     args: dict[str, E] = {}
     bits_set: E | None = Field(None, alias="set_bits")
     bits_clear: E | None = Field(None, alias="clear_bits")
@@ -650,6 +688,8 @@ class Step(_Model):
         if self.modify is not None and self.bits_set is None and self.bits_clear is None \
                 and self.bits_toggle is None:
             raise ValueError("a modify step needs set_bits, clear_bits or toggle_bits")
+        if self.changed and self.write is None:
+            raise ValueError("'changed' is for a write step")
         return self
 
     @property
@@ -842,6 +882,7 @@ class Description(_Model):
     homing: HomingDef | None = None
     signals: dict[Annotated[str, Field(pattern=_KEY)], SignalDef] = {}
     eeprom: EepromDef = EepromDef()
+    programs: ProgramsDef = ProgramsDef()
     cia402: Cia402Def | None = None
     procedures: dict[Annotated[str, Field(pattern=_KEY)], Procedure] = {}
     twin: TwinDef = TwinDef()
@@ -988,7 +1029,7 @@ class Description(_Model):
         name = reg.d.names[index - reg.d.first] if reg.d.names else str(index)
         if given is None:
             return f"{key}_{index}"
-        return given.format(i=index, name=name)
+        return given.format(i=index, name=_KeyName(name))
 
     def procedure_what(self, name: str) -> str:
         """How a NotSupported error says procedure ``name``."""
@@ -998,6 +1039,19 @@ class Description(_Model):
         if proc is not None and proc.what is not None and not proc.what.names:
             return str(proc.what)
         return name.replace("_", " ")
+
+
+class _KeyName(str):
+    """A table entry's name in a parameter key: ``{name}``, ``{name:lower}``, ``{name:upper}``."""
+
+    __slots__ = ()
+
+    def __format__(self, spec: str) -> str:
+        if spec == "lower":
+            return self.lower()
+        if spec == "upper":
+            return self.upper()
+        return format(str(self), spec)
 
 
 # -- loading and checking -------------------------------------------------------------------
@@ -1234,6 +1288,11 @@ class _Checker:
             self._names(f"status.{field}", getattr(s, field))
         for k, e in s.raw.items():
             self._names(f"status.raw.{k}", e)
+        if s.completion is not None:
+            for j, item in enumerate(s.completion.read):
+                self._span(f"status.completion.read[{j}]", item)
+            for field in ("moving", "in_position", "alarm", "limit_positive", "limit_negative"):
+                self._names(f"status.completion.{field}", getattr(s.completion, field))
         for k, e in s.track.items():
             self._names(f"status.track.{k}", e)
             if k not in self.d.state:
@@ -1244,7 +1303,7 @@ class _Checker:
         if io is None:
             return
         self._reg_key(f"{where}.state", io.state)
-        for k in ("invert", "functions"):
+        for k in ("invert", "functions", "polarity"):
             v = getattr(io, k)
             if v is not None:
                 self._reg_key(f"{where}.{k}", v)
@@ -1266,6 +1325,9 @@ class _Checker:
             self._step(f"{where}.steps[{i}]", step, params)
 
     def _step(self, where: str, step: Step, params: set[str]) -> None:
+        self._names(f"{where}.each", step.each, params)
+        if step.each is not None:
+            params = params | {"key", "value"}
         for field in ("when", "block", "check", "wait", "return_", "bits_set", "bits_clear",
                       "bits_toggle", "timeout"):
             self._names(f"{where}.{field.rstrip('_')}", getattr(step, field), params)

@@ -36,6 +36,8 @@ from drivebus.drives.base import (
 )
 from drivebus.drives.description import PROCEDURES, Description, Procedure, Reg, Step
 from drivebus.drives.expr import Expr, ExprError, Unknown
+from drivebus.drives.io import IOPoint, function_text
+from drivebus.drives.programs import Completion, ProgramSupport
 from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
 from drivebus.drives.units import Kind
@@ -47,6 +49,7 @@ from drivebus.errors import (
     MotionError,
     NotSupported,
     StateError,
+    UnknownMethod,
 )
 
 __all__ = ["DescribedProfile", "ReadPlan", "plan_reads", "profile_class"]
@@ -182,6 +185,10 @@ class DescribedProfile(DriveProfile):
         super().__init__(slave, pulses_per_rev=ppr)
         values = {k: (o.default if k not in options or options[k] is None else options[k])
                   for k, o in d.options.items()}
+        for k, o in d.options.items():  # a map's entries in the order of its keys
+            if o.type == "map" and isinstance(values[k], Mapping):
+                given = values[k]
+                values[k] = {key: given[key] for key in o.keys if key in given}
         self.options_given = dict(values)
         self.option = Attrs("option", values)
         self.state: dict[str, Any] = dict(d.state)
@@ -313,7 +320,8 @@ class DescribedProfile(DriveProfile):
                 if step.when is not None and not step.when(self._scope(run)):
                     continue
                 if step.action == "write":
-                    self._items(step, run)
+                    for _ in self._entries(step, run):
+                        self._items(step, run)
                 elif step.action == "call":
                     assert step.call is not None
                     sub = self._procedure(step.call, {})
@@ -356,9 +364,30 @@ class DescribedProfile(DriveProfile):
                 continue
             if step.when is not None and not step.when(self._scope(run)):
                 continue
-            await self._step(step, run)
+            for _ in self._entries(step, run):
+                await self._step(step, run)
             if step.end or step.action == "return":
                 return
+
+    def _entries(self, step: Step, run: _Run) -> Iterable[None]:
+        """Once for a plain step; for a step with ``each``, once per entry of the map (or
+        list) with ``key`` and ``value`` set in the run's arguments meanwhile."""
+        if step.each is None:
+            yield None
+            return
+        entries = step.each(self._scope(run))
+        if entries is None:
+            return
+        items = entries.items() if isinstance(entries, Mapping) else enumerate(entries)
+        saved = {k: run.args[k] for k in ("key", "value") if k in run.args}
+        try:
+            for key, value in list(items):
+                run.args["key"], run.args["value"] = key, value
+                yield None
+        finally:
+            run.args.pop("key", None)
+            run.args.pop("value", None)
+            run.args.update(saved)
 
     async def _step(self, step: Step, run: _Run) -> None:
         prio = _PRIORITY[step.priority] if step.priority else run.priority
@@ -504,6 +533,8 @@ class DescribedProfile(DriveProfile):
 
     async def _write(self, step: Step, run: _Run, prio: Priority) -> None:
         items = self._items(step, run)
+        if step.changed:  # leave out what the drive already holds (read in this run)
+            items = [it for it in items if not _holds(run.values.get(it.key), it.physical)]
         block = step.block is not None and bool(step.block(self._scope(run))) and \
             16 in self.description.link.functions
         idem = step.idempotent
@@ -680,7 +711,8 @@ class DescribedProfile(DriveProfile):
             if step.when is not None and not step.when(self._scope(run)):
                 continue
             if step.action == "write" and step.volatile:
-                out.extend((it.register, it.raw) for it in self._items(step, run))
+                for _ in self._entries(step, run):
+                    out.extend((it.register, it.raw) for it in self._items(step, run))
         return out
 
     # -- status ------------------------------------------------------------------------------
@@ -921,7 +953,9 @@ class DescribedProfile(DriveProfile):
                     return n, m
         documented = ", ".join(f"{n} ({m.code})" if m.code is not None else n
                                for n, m in h.methods.items())
-        raise self.unsupported(f"home with method {method!r}", "it documents " + documented)
+        raise UnknownMethod(f"the {self.family} drive cannot home with method {method!r} "
+                            f"over Modbus: it has no homing method {method!r} (it documents "
+                            f"{documented})")
 
     def homing_switches(self, method: str | None) -> HomingSwitches:
         """The limit switches homing with ``method`` homes on or reverses at: the method's
@@ -956,6 +990,40 @@ class DescribedProfile(DriveProfile):
         """The description's ``save_parameters``."""
         await self.run("save_parameters")
 
+    # -- motion programs and digital I/O -----------------------------------------------------
+
+    async def read_completion(self, *, priority: Priority = Priority.COMMAND) -> Completion | None:
+        """``[status.completion]``: its short read, decoded (None without one: the status
+        poll is used)."""
+        c = self.description.status.completion
+        if c is None:
+            return None
+        values = await self._read_items(c.read, None, priority)
+        scope = self._scope(None, values)
+        return Completion(
+            moving=bool(c.moving(scope)), in_position=bool(c.in_position(scope)),
+            alarm=bool(c.alarm(scope)), limit_positive=bool(c.limit_positive(scope)),
+            limit_negative=bool(c.limit_negative(scope)))
+
+    async def io_points(self) -> list[IOPoint]:
+        """The terminals of ``[inputs]``/``[outputs]`` with what their function registers
+        (read now) set them to do, by the names of those registers' values."""
+        d = self.description
+        out: list[IOPoint] = []
+        for io, names, output in ((d.inputs, self.io_inputs, False),
+                                  (d.outputs, self.io_outputs, True)):
+            if io is None or io.functions is None:
+                out += [IOPoint(n, output) for n in names]
+                continue
+            reg = d.regs[io.functions]
+            table = (await self._read_items([io.functions], None, Priority.CONFIG))[reg.key]
+            texts = {v: k.replace("_", " ") for k, v in reg.d.values.items()}
+            codes = [int(table[i]) if isinstance(table, Table) else int(table)
+                     for i in (reg.indices if reg.array else [None])]
+            out += [IOPoint(n, output, function_text(texts, code))
+                    for n, code in zip(names, codes, strict=False)]
+        return out
+
     def __getattr__(self, name: str) -> Callable[..., Awaitable[Any]]:
         """The description's own procedures as methods (``profile.write_position_path(...)``)."""
         if name.startswith("_"):
@@ -983,6 +1051,13 @@ def cia402_homing_switches(method: int | None) -> HomingSwitches:
     if method in (11, 12, 13, 14, 27, 28, 29, 30):
         return HomingSwitches(reverses_at=frozenset({-1}))
     return HomingSwitches()
+
+
+def _holds(read: Any, value: Any) -> bool:
+    """True if ``read`` (a value read earlier, or None) is ``value``."""
+    if read is None or isinstance(read, Unread | Table):
+        return False
+    return bool(read == value)
 
 
 def _consecutive(items: Sequence[_Item]) -> list[list[_Item]]:
@@ -1141,6 +1216,7 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "_extra_plans": extras,
     }
     attrs.update(_parameter_attrs(d))
+    attrs.update(_program_attrs(d))
     base: type[DescribedProfile] = DescribedProfile
     if d.drive.engine == "cia402":
         from drivebus.drives.cia402_engine import Cia402Profile, cia402_attrs
@@ -1151,6 +1227,25 @@ def profile_class(d: Description) -> type[DescribedProfile]:
     cls = type(name, (base,), attrs)
     cls.__init__ = _init_with_signature(d, base)  # type: ignore[method-assign]
     return cls
+
+
+def _program_attrs(d: Description) -> dict[str, Any]:
+    """What the profile class declares for motion programs and digital I/O: ``programs``,
+    ``no_table``, ``io_inputs``/``io_outputs`` and ``no_output_control``."""
+    p = d.programs
+    attrs: dict[str, Any] = {
+        "programs": ProgramSupport(preload=p.preload, preload_braking=p.preload_braking,
+                                   retarget=p.retarget, no_retarget=p.no_retarget,
+                                   jog_speed=p.jog_speed),
+        "no_table": p.no_table,
+    }
+    if d.inputs is not None and d.inputs.names:
+        attrs["io_inputs"] = tuple(d.inputs.names)
+    if d.outputs is not None and d.outputs.names:
+        attrs["io_outputs"] = tuple(d.outputs.names)
+    if d.outputs is not None and d.outputs.no_control:
+        attrs["no_output_control"] = d.outputs.no_control
+    return attrs
 
 
 def _parameter_attrs(d: Description) -> dict[str, Any]:
