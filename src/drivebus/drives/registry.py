@@ -29,7 +29,6 @@ from types import ModuleType
 from typing import Any
 
 from drivebus.drives.base import DriveProfile
-from drivebus.drives.bhss import BHSSProfile
 from drivebus.drives.cl86r import CL86RProfile
 from drivebus.drives.description import Description, load_description
 from drivebus.drives.engine import profile_class
@@ -106,7 +105,6 @@ def _load_builtin() -> dict[str, DriveFamily]:
 _PROFILES: tuple[DriveFamily, ...] = (
     DriveFamily("NT86", NT86Profile, "rtu", "Rtelligent NT86 RS-485 stepper drive"),
     DriveFamily("EPR60", EPR60Profile, "tcp", "EPR60/EPT60 Modbus TCP stepper drive"),
-    DriveFamily("BHSS", BHSSProfile, "rtu", "Bholanath BHSS-100-MBUS stepper drive"),
     DriveFamily("CL86R", CL86RProfile, "rtu", "CL86R closed-loop stepper drive"),
     DriveFamily("OD2000", ODDriveProfile, "rtu",
                 "2000h object-dictionary drive (settings and monitoring only)"),

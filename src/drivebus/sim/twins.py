@@ -29,7 +29,7 @@ _CODED: dict[str, type[SimDrive]] = {
 
 
 TWINS: dict[str, type[SimDrive]] = {
-    name: _CODED[name] if f.spec is None else twin_of(f.spec)
+    name: _CODED[name] if f.spec is None or name in _CODED else twin_of(f.spec)
     for name, f in FAMILIES.items() if f.spec is not None or name in _CODED
 }
 """The twin class of each built-in family, by the family's registry name."""
