@@ -337,6 +337,9 @@ class RegisterDef(_Model):
     first: int = Field(0, ge=0, description="index of the table's first entry")
     names: list[str] = Field([], description="a table's entries by name (TABLE['X0'])")
     object: str | None = Field(None, description="CiA 402 object, '6040' or '607A:00'")
+    valid: E | None = Field(None, description="twin: a condition on the raw `value` written "
+                            "(beyond the range); a write that fails it is refused with "
+                            "refusals.value")
     doc: str = ""
 
     _means = field_validator("means")(_known_meaning)
@@ -415,8 +418,7 @@ class Reg:
                 lo, hi = self.indices.start, self.indices.stop - 1
                 raise LimitViolation(f"{self.name}: entry {index!r} is outside {lo}..{hi}")
             n = index - d.first
-            name = self.name.replace("{n}", str(index)) if "{n}" in self.name \
-                else f"{self.name} {index}"
+            name = self._entry_name(index) if "{" in self.name else f"{self.name} {index}"
             return self._register(name, d.address + n * d.stride,
                                   None if d.low_address is None else d.low_address + n * d.stride)
         return self.register
@@ -425,8 +427,15 @@ class Reg:
     def register(self) -> Register:
         """The codec register of a single register (the first entry of a table)."""
         d = self.d
-        name = self.name.replace("{n}", str(d.first))
-        return self._register(name, d.address, d.low_address)
+        return self._register(self._entry_name(d.first), d.address, d.low_address)
+
+    def _entry_name(self, index: int) -> str:
+        """The display name of entry ``index``: ``{n}`` its index, ``{name}`` its name."""
+        d = self.d
+        name = self.name.replace("{n}", str(index))
+        if d.names and d.first <= index < d.first + len(d.names):
+            name = name.replace("{name}", d.names[index - d.first])
+        return name
 
     def _register(self, name: str, address: int, low: int | None) -> Register:
         d = self.d
@@ -608,8 +617,19 @@ class HomingMethod(BaseModel):
 
     code: int | None = None
     cia402: int | None = Field(None, description="the equivalent CiA 402 method (twin)")
-    behaviour: Literal["search", "set", "move_to_offset"] | None = None
+    behaviour: Literal["search", "set", "move_to_offset", "reference_edge"] | None = None
+    reference: Literal["home_switch", "limit_positive", "limit_negative"] | None = Field(
+        None, description="reference_edge: the signal whose rising edge is the origin")
+    direction: Literal[-1, 1] | None = Field(None, description="reference_edge: the search "
+                                             "direction")
     doc: str = ""
+
+    @model_validator(mode="after")
+    def _reference(self) -> HomingMethod:
+        if self.behaviour == "reference_edge" and (self.reference is None or
+                                                   self.direction is None):
+            raise ValueError("behaviour reference_edge needs 'reference' and 'direction'")
+        return self
 
     @property
     def extras(self) -> dict[str, Any]:
@@ -811,6 +831,13 @@ class TwinDef(_Model):
         "[eeprom] write-through switch holds its `on` value)")
     enabled: E = Expr.parse(True)
     decel: E | None = Field(None, description="an alarm or a disable: None = at once")
+    wiring: dict[Literal["home_switch", "limit_positive", "limit_negative"], str | int] = Field(
+        {}, description="the input terminal (a name of [inputs] names, or a bit) each "
+        "simulated switch is wired to; the drive acts on it as its function register and "
+        "[inputs] polarity say")
+    home_offset: Literal["origin", "move"] = Field(
+        "origin", description="origin: the origin edge takes the offset as its position; "
+        "move: the counter is 0 at the edge and a compensation move of the offset follows")
 
 
 # -- the CiA 402 engine ---------------------------------------------------------------
@@ -1098,7 +1125,8 @@ _CONTEXT_NAMES = {
     "value", "raw", "True", "False", "None",
 }
 _TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "raw", "speed_now",
-               "pulses_per_rev", "limit_positive", "limit_negative"}
+               "pulses_per_rev", "limit_positive", "limit_negative", "motion_decel",
+               "homing"}
 
 
 class _Checker:
@@ -1381,6 +1409,15 @@ class _Checker:
     def _twin(self) -> None:
         t = self.d.twin
         names = _TWIN_NAMES
+        for key, reg in self.d.registers.items():
+            self._names(f"registers.{key}.valid", reg.valid, names)
+        io = self.d.inputs
+        for signal, terminal in t.wiring.items():
+            if io is None:
+                self.out.append(f"twin.wiring.{signal}: needs [inputs]")
+            elif isinstance(terminal, str) and terminal not in io.names:
+                self.out.append(f"twin.wiring.{signal}: no terminal {terminal!r} in "
+                                f"inputs.names ({', '.join(io.names) or 'none'})")
         self._names("twin.starts", t.starts, names)
         self._names("twin.limits.stop", t.limits.stop, names)
         self._names("twin.limits.decel", t.limits.decel, names)

@@ -452,6 +452,10 @@ def _step_text(step: Step) -> str:
         text = f"refuse: {step.fail}"
     else:
         text = f"return {step.return_}"
+    if step.each is not None:
+        text += f", for each entry (key, value) of {step.each}"
+    if step.changed:
+        text += ", each only where it differs from what was read"
     if step.when is not None:
         text += f", when {step.when}"
     if step.start:
