@@ -11,7 +11,6 @@ from drivebus.drives.registry import FAMILIES, family
 from drivebus.errors import ConfigError
 from drivebus.sim.described import twin_of
 from drivebus.sim.drive import SimDrive
-from drivebus.sim.drives.bhss import SimBHSS
 from drivebus.sim.drives.cl86r import SimCL86R
 from drivebus.sim.drives.nt_family import SimEPR60, SimNT86
 from drivebus.sim.drives.od_drive import SimODDrive
@@ -21,7 +20,6 @@ __all__ = ["TWINS", "twin_class", "twin_of"]
 _CODED: dict[str, type[SimDrive]] = {
     "NT86": SimNT86,
     "EPR60": SimEPR60,
-    "BHSS": SimBHSS,
     "CL86R": SimCL86R,
     "OD2000": SimODDrive,
 }
@@ -29,7 +27,7 @@ _CODED: dict[str, type[SimDrive]] = {
 
 
 TWINS: dict[str, type[SimDrive]] = {
-    name: _CODED[name] if f.spec is None or name in _CODED else twin_of(f.spec)
+    name: _CODED[name] if f.spec is None else twin_of(f.spec)
     for name, f in FAMILIES.items() if f.spec is not None or name in _CODED
 }
 """The twin class of each built-in family, by the family's registry name."""
