@@ -534,7 +534,7 @@ class DescribedProfile(DriveProfile):
     async def _write(self, step: Step, run: _Run, prio: Priority) -> None:
         items = self._items(step, run)
         if step.changed:  # leave out what the drive already holds (read in this run)
-            items = [it for it in items if not _holds(run.values.get(it.key), it.physical)]
+            items = [it for it in items if not _holds(run.values, it)]
         block = step.block is not None and bool(step.block(self._scope(run))) and \
             16 in self.description.link.functions
         idem = step.idempotent
@@ -1053,11 +1053,18 @@ def cia402_homing_switches(method: int | None) -> HomingSwitches:
     return HomingSwitches()
 
 
-def _holds(read: Any, value: Any) -> bool:
-    """True if ``read`` (a value read earlier, or None) is ``value``."""
+def _holds(values: Mapping[str, Any], item: _Item) -> bool:
+    """True if the register (or table entry) of ``item`` was read in ``values`` and holds
+    the value ``item`` writes."""
+    read = values.get(item.reg.key)
+    if isinstance(read, Table) and item.index is not None:
+        try:
+            read = read[item.index]
+        except Unknown:
+            return False
     if read is None or isinstance(read, Unread | Table):
         return False
-    return bool(read == value)
+    return bool(read == item.physical)
 
 
 def _consecutive(items: Sequence[_Item]) -> list[list[_Item]]:
