@@ -835,6 +835,8 @@ class TwinDef(_Model):
         {}, description="the input terminal (a name of [inputs] names, or a bit) each "
         "simulated switch is wired to; the drive acts on it as its function register and "
         "[inputs] polarity say")
+    max_pulse_rate: float | None = Field(None, gt=0, description="pulses/s: the fastest "
+                                         "the drive's pulse output runs (speeds above are capped)")
     home_offset: Literal["origin", "move"] = Field(
         "origin", description="origin: the origin edge takes the offset as its position; "
         "move: the counter is 0 at the edge and a compensation move of the offset follows")

@@ -215,6 +215,8 @@ class DescribedDrive(SimDrive):
         if soft_address:
             assert d.link.address_register is not None
             self._store(self.regs, d.regs[d.link.address_register], None, address)
+        self._baud_by_register = False
+        self._apply_baud_register(initial=True)
         self._apply_format_register(initial=True)
         self._external = 0
         """Input terminals driven from outside (``set_input``), by bit."""
@@ -325,6 +327,12 @@ class DescribedDrive(SimDrive):
         reg = self.description.regs[p.reg]
         v = reg.codec.to_physical(self._raw(reg, None), ppr=1)
         return int(v) if v else p.default
+
+    def _pps(self, rpm: float) -> float:
+        """Pulses/s of a speed in rpm, capped at ``[twin] max_pulse_rate``."""
+        v = rpm * self.pulses_per_rev / 60.0
+        cap = self.description.twin.max_pulse_rate
+        return v if cap is None else math.copysign(min(abs(v), cap), v)
 
     # -- the position counter ----------------------------------------------------------------
 
@@ -826,7 +834,7 @@ class DescribedDrive(SimDrive):
         if self._blocked(target - p, now):
             return
         a, dc = float(accel) * ppr, float(decel) * ppr
-        self.kin.move_to(now, target, abs(float(speed)) * ppr / 60.0, a, dc)
+        self.kin.move_to(now, target, self._pps(abs(float(speed))), a, dc)
         self._started(trig, "position", now, dc)
 
     def _run(self, trig: Trigger, value: Any, now: float) -> None:
@@ -842,7 +850,7 @@ class DescribedDrive(SimDrive):
         if speed == 0:
             self.kin.stop(now, dc)
         else:
-            self.kin.run(now, speed * ppr / 60.0, a, dc)
+            self.kin.run(now, self._pps(speed), a, dc)
         self._run_rates = (a, dc)
         self._started(trig, "speed", now, dc)
 
@@ -853,7 +861,7 @@ class DescribedDrive(SimDrive):
         v = self.kin.velocity(now)
         signed = math.copysign(abs(speed), v) if v else speed
         a, dc = self._run_rates
-        self.kin.run(now, signed * self.pulses_per_rev / 60.0, a, dc)
+        self.kin.run(now, self._pps(signed), a, dc)
 
     def _started(self, trig: Trigger, kind: str, now: float, decel: float) -> None:
         self.motion = trig.motion or kind
@@ -914,7 +922,7 @@ class DescribedDrive(SimDrive):
             return
         phases, first = plan
         rate = float(accel) * ppr if _finite_pos(accel) else math.inf
-        self._homing = _Homing(phases, first, now, speed * ppr / 60.0, creep * ppr / 60.0,
+        self._homing = _Homing(phases, first, now, self._pps(speed), self._pps(creep),
                                rate, offset)
         self._enter(first, now)
 
@@ -984,7 +992,7 @@ class DescribedDrive(SimDrive):
         assert method.reference is not None and method.direction is not None
         rate = float(accel) * ppr if _finite_pos(accel) else math.inf
         h = _RefHoming(method.reference, "search", float(method.direction),
-                       speed * ppr / 60.0, creep * ppr / 60.0, rate, offset)
+                       self._pps(speed), self._pps(creep), rate, offset)
         self._ref = h
         self._homing = None
         self._motion_decel = rate
@@ -1183,6 +1191,7 @@ class DescribedDrive(SimDrive):
             if reg.d.volatile:
                 for index in (reg.indices if reg.array else [None]):
                     self._store(self.regs, reg, index, reg.default_at(index))
+        self._apply_baud_register(initial=False)
         self._apply_format_register(initial=False)
         if self.soft_address:
             key = self.description.link.address_register
@@ -1198,6 +1207,28 @@ class DescribedDrive(SimDrive):
         self.reached = True
         self._completes = False
         self.enabled = bool(self._eval(self.description.twin.enabled, now))
+
+    def _apply_baud_register(self, *, initial: bool) -> None:
+        """The baud rate register (``[link] baud_register``): a twin built at one of its
+        named rates runs at the register's rate (its switches select the register): the
+        rate is stored at first and the saved one applies at power-up. At another rate
+        (set by switches) the register is not used."""
+        d = self.description
+        key = d.link.baud_register
+        if key is None or self.settings is None:
+            return
+        reg = d.regs[key]
+        if initial:
+            code = reg.d.values.get(str(self.settings.baudrate))
+            self._baud_by_register = code is not None
+            if code is not None:
+                self._store(self.regs, reg, None, code)
+            return
+        if not self._baud_by_register:
+            return
+        baud = {v: k for k, v in reg.d.values.items()}.get(self._raw(reg, None), "")
+        if baud.isdigit():
+            self.settings = LineSettings.parse(self.settings.format, baudrate=int(baud))
 
     def _apply_format_register(self, *, initial: bool) -> None:
         """The line format register: set from the settings at first, applied at power-up."""
