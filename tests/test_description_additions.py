@@ -16,6 +16,7 @@ import anyio
 import pytest
 
 from drivebus import LineSettings
+from drivebus.clock import monotonic
 from drivebus.drives.base import MoveParams
 from drivebus.drives.description import parse_description
 from drivebus.drives.engine import DescribedProfile, profile_class
@@ -221,3 +222,27 @@ async def test_a_stopped_move_has_not_reached_its_position() -> None:
         await profile.move_relative(100, QUICK)
         st = await wait_for(profile, lambda s: s.in_position)
         assert st.raw["status"] & 1
+
+
+async def test_the_pulse_output_caps_what_the_twin_runs() -> None:
+    async with bhss(TwinSetup(), pulses_per_rev=51200) as (_wire, twin, profile):
+        # 300 rpm at 51200 pulses/rev would be 256 kHz: the profile refuses it, a raw
+        # start shows the drive's 200 kHz cap
+        await profile.slave.write_register(0x0023, 300)
+        await profile.slave.write_register(0x0027, 2)
+        assert twin.velocity(monotonic() + 2.0) == pytest.approx(200_000)
+        await profile.emergency_stop()
+
+
+def test_the_baud_register_applies_at_power_up_where_the_switches_select_it() -> None:
+    twin = twin_of(BHSS)(1, LineSettings.parse("128000 8O1"))  # SW6 = SW7 = ON
+    assert (twin.regs[0x0014], twin.regs[0x0015]) == (2, 3)
+    twin.write_registers(0x0014, [3], 0.0)  # stored: write-through is on
+    twin.power_loss()
+    twin.power_restore()
+    assert twin.settings == LineSettings.parse("256000 8O1")
+    twin = twin_of(BHSS)(1, LineSettings.parse("115200 8N1"))  # set by the switches
+    twin.write_registers(0x0014, [3], 0.0)
+    twin.power_loss()
+    twin.power_restore()
+    assert twin.settings == LineSettings.parse("115200 8N1")
