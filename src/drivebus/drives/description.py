@@ -197,6 +197,9 @@ class Link(_Model):
                                          "address (`drivebus commission`)")
     comms_note: str = Field("", description="how it takes a new address or line settings "
                             "(switches, a save, a power cycle)")
+    register_addresses: tuple[int, int] | None = Field(
+        None, description="the addresses address_register can give ('32..127'); the others "
+        "are set another way (comms_note)")
     functions: list[Literal[3, 4, 6, 16]] = [3, 6, 16]
     max_read: int = Field(125, ge=1, le=125)
     max_write: int = Field(123, ge=1, le=123)
@@ -206,7 +209,7 @@ class Link(_Model):
     refusals: Refusals = Refusals()
     timing: Timing = Timing()
 
-    @field_validator("addresses", mode="before")
+    @field_validator("addresses", "register_addresses", mode="before")
     @classmethod
     def _addresses(cls, v: Any) -> Any:
         if isinstance(v, str) and ".." in v:

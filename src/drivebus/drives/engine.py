@@ -1288,6 +1288,10 @@ def _comms_writes(
     if address is not None:
         if link.address_register is None:
             raise self.unsupported(f"change its address to {address}", how)
+        span = link.register_addresses
+        if span is not None and not span[0] <= address <= span[1]:
+            raise self.unsupported(f"take address {address} from a register",
+                                   f"its register gives {span[0]}-{span[1]}; {how}")
         reg = regs[link.address_register].register
         reg.check(address)
         writes.append((reg, address))
