@@ -16,13 +16,16 @@ import anyio
 import pytest
 
 from drivebus import LineSettings
+from drivebus.bus import Bus
 from drivebus.clock import monotonic
 from drivebus.drives.base import MoveParams
+from drivebus.drives.bhss import BHSSProfile
 from drivebus.drives.description import parse_description
 from drivebus.drives.engine import DescribedProfile, profile_class
 from drivebus.drives.registry import builtin_description
 from drivebus.drives.status import DriveStatus
 from drivebus.errors import ConfigError, ModbusException, NotSupported, UnknownMethod
+from drivebus.line import SerialLine
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.described import DescribedDrive, twin_of
 from drivebus.sim.drive import TwinSetup
@@ -246,3 +249,10 @@ def test_the_baud_register_applies_at_power_up_where_the_switches_select_it() ->
     twin.power_loss()
     twin.power_restore()
     assert twin.settings == LineSettings.parse("115200 8N1")
+
+
+def test_the_address_register_gives_only_its_addresses() -> None:
+    profile = BHSSProfile(Bus(SerialLine("/dev/null", FAST)).slave(1))
+    with pytest.raises(NotSupported, match=r"take address 5 from a register.*gives 32-127"):
+        profile.comms_writes(5, None, None)
+    assert [(r.address, v) for r, v in profile.comms_writes(40, None, None)] == [(0x13, 40)]
