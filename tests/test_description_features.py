@@ -1,7 +1,7 @@
 """The description features the NT-family descriptions brought (issue 22): ``extends``,
 list options and option checks, ``if_changed`` and ``each`` writes, I/O names and
 function names with ``set_output``, homing switches on the options, the dry run past
-reads, ``NoSuchMethod`` — each on the generic twin of a small description, on the wire."""
+reads, ``UnknownMethod`` — each on the generic twin of a small description, on the wire."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import pytest
 from drivebus import LineSettings
 from drivebus.drives.description import Description, load_description
 from drivebus.drives.engine import DescribedProfile, profile_class
-from drivebus.errors import ConfigError, LimitViolation, NoSuchMethod, NotSupported
+from drivebus.errors import ConfigError, LimitViolation, NotSupported, UnknownMethod
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.described import described_twin
 
@@ -267,7 +267,7 @@ async def test_homing_switches_follow_the_options(base: Description) -> None:
         assert profile.homing_switches(None).reverses_at == {1}
     async with rig(base) as (wire, profile):
         assert profile.homing_switches(None).reverses_at == frozenset()
-        with pytest.raises(NoSuchMethod, match="no homing method 'index'") as err:
+        with pytest.raises(UnknownMethod, match="no homing method 'index'") as err:
             await profile.home("index")
         assert isinstance(err.value, NotSupported) and isinstance(err.value, ConfigError)
         assert sent(wire) == []

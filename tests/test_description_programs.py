@@ -134,8 +134,8 @@ steps = [
   { write = { control = "START | INTERRUPT" }, idempotent = false },
 ]
 
-[procedures.read_completion]
-steps = [{ read = [["status", "inputs"]] }]
+[status.completion]
+read = [["status", "inputs"]]
 
 [procedures.stop]
 steps = [{ write = { control = "STOP" } }]
@@ -236,8 +236,8 @@ async def test_read_completion_is_one_short_read_decoded_by_the_status_fields() 
         c = await profile.read_completion()
         assert c.alarm and not c.in_position
     without = profile_class(parse_description(
-        tomllib.loads(DRIVE.replace("[procedures.read_completion]\nsteps = "
-                                                  "[{ read = [[\"status\", \"inputs\"]] }]",
+        tomllib.loads(DRIVE.replace("[status.completion]\nread = "
+                                                  "[[\"status\", \"inputs\"]]",
                                                   "")), "x"))
     async with sim_bus([Twin(1, FAST)], FAST) as (_, bus):
         assert await without(bus.slave(1)).read_completion() is None  # type: ignore[arg-type]
@@ -282,7 +282,7 @@ async def test_without_retarget_a_running_move_keeps_its_target_and_says_why() -
                          'the running move"\n', '[programs]\nno_retarget = "it ignores a new '
                          'start while it moves"\n')
     i = text.index("[procedures.retarget_absolute]")
-    text = text[:i] + text[text.index("[procedures.read_completion]"):]
+    text = text[:i] + text[text.index("[status.completion]"):]
     cls = profile_class(parse_description(tomllib.loads(text), "x"))
     assert not cls.programs.blends
     async with sim_bus([Twin(1, FAST)], FAST) as (wire, bus):
@@ -305,9 +305,9 @@ async def test_without_retarget_a_running_move_keeps_its_target_and_says_why() -
      ("outputs.function_names", "need 'functions'")),
     ("function code", '9 = "probe"', 'x = "probe"',
      ("inputs.function_names", "not a whole number")),
-    ("completion writes", 'steps = [{ read = [["status", "inputs"]] }]',
-     'steps = [{ write = { control = 0 } }]',
-     ("procedures.read_completion.steps[0]", "read_completion only reads")),
+    ("completion reads an unknown register", 'read = [["status", "inputs"]]',
+     'read = [["status", "nowhere"]]',
+     ("status.completion.read[0]", "nowhere")),
 ])
 def test_each_programs_or_io_mistake_names_file_and_key(
     tmp_path: Path, mistake: str, old: str, new: str, needles: tuple[str, ...]

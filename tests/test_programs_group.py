@@ -70,6 +70,7 @@ async def test_a_group_move_takes_a_path_speed_ramps_or_a_duration() -> None:
         assert m.axes["x"].position == 20.0 and m.axes["y"].position == 10.0  # nothing moved
 
 
+@pytest.mark.serial  # a bound of one poll period: run where no other test loads the CPU
 async def test_a_buffered_path_stops_in_position_at_each_corner_within_a_poll_period() -> None:
     async with open_machine(DEMO) as m:
         xy = m.group("x", "y")

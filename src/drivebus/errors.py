@@ -24,7 +24,6 @@ __all__ = [
     "MotionAborted",
     "MotionError",
     "MotionTimeout",
-    "NoSuchMethod",
     "NotFound",
     "NotSupported",
     "PartialWrite",
@@ -32,6 +31,7 @@ __all__ = [
     "ServiceUnreachable",
     "StateError",
     "TransactionError",
+    "UnknownMethod",
     "WrongResponder",
 ]
 
@@ -145,9 +145,9 @@ class NotSupported(DrivebusError):
     """The drive cannot do this over its bus; the message names drive and function."""
 
 
-class NoSuchMethod(NotSupported, ConfigError):
-    """A named variant (a homing method) the drive does not have: it cannot do it, and
-    naming it is a configuration mistake."""
+class UnknownMethod(NotSupported, ConfigError):
+    """A method (homing) the drive does not document was named: the drive cannot do it,
+    and naming it is a configuration mistake; the message lists the methods it has."""
 
 
 class PartialWrite(DrivebusError):

@@ -198,6 +198,9 @@ class Link(_Model):
                                          "address (`drivebus commission`)")
     comms_note: str = Field("", description="how it takes a new address or line settings "
                             "(switches, a save, a power cycle)")
+    register_addresses: tuple[int, int] | None = Field(
+        None, description="the addresses address_register can give ('32..127'); the others "
+        "are set another way (comms_note)")
     functions: list[Literal[3, 4, 6, 16]] = [3, 6, 16]
     max_read: int = Field(125, ge=1, le=125)
     max_write: int = Field(123, ge=1, le=123)
@@ -207,7 +210,7 @@ class Link(_Model):
     refusals: Refusals = Refusals()
     timing: Timing = Timing()
 
-    @field_validator("addresses", mode="before")
+    @field_validator("addresses", "register_addresses", mode="before")
     @classmethod
     def _addresses(cls, v: Any) -> Any:
         if isinstance(v, str) and ".." in v:
@@ -261,6 +264,9 @@ TWIN_MEANINGS = {
     "home_switch": "the home switch is active",
     "at_speed": "a speed run reached its speed",
     "ready": "powered and ready (always set)",
+    "reached": "a position move or a homing ran to its end (a stop or a new start clears it)",
+    "address": "the slave address it answers at",
+    "direction": "the direction of the last motion (0 positive, 1 negative)",
     "jogging": "a speed run (jog) is under way",
     "position": "the position counter (pulses)",
     "velocity": "the present speed",
@@ -335,12 +341,15 @@ class RegisterDef(_Model):
     first: int = Field(0, ge=0, description="index of the table's first entry")
     names: list[str] = Field([], description="a table's entries by name (TABLE['X0'])")
     object: str | None = Field(None, description="CiA 402 object, '6040' or '607A:00'")
+    valid: E | None = Field(None, description="twin: a condition on the raw `value` written "
+                            "(beyond the range); a write that fails it is refused with "
+                            "refusals.value")
     doc: str = ""
 
     _means = field_validator("means")(_known_meaning)
 
     def _check_parameter_key(self, key: str) -> None:
-        fields = set(re.findall(r"{(\w*)}", key))
+        fields = set(re.findall(r"{(\w*)(?::(?:lower|upper))?}", key))
         if self.count > 1 and not fields & {"i", "name"}:
             raise ValueError(f"parameter {key!r}: a table's key needs {{i}} or {{name}} "
                              "(each entry has its own key)")
@@ -348,7 +357,7 @@ class RegisterDef(_Model):
             raise ValueError(f"parameter {key!r}: only a table's key takes {{i}} or {{name}}")
         if "name" in fields and not self.names:
             raise ValueError(f"parameter {key!r}: {{name}} needs the table's names")
-        if not re.fullmatch(r"[A-Za-z_][\w{}]*", key):
+        if not re.fullmatch(r"[A-Za-z_{][\w{}:]*", key):
             raise ValueError(f"parameter {key!r}: a key is a name (letters, digits, _)")
 
     @model_validator(mode="after")
@@ -413,8 +422,7 @@ class Reg:
                 lo, hi = self.indices.start, self.indices.stop - 1
                 raise LimitViolation(f"{self.name}: entry {index!r} is outside {lo}..{hi}")
             n = index - d.first
-            name = self.name.replace("{n}", str(index)) if "{n}" in self.name \
-                else f"{self.name} {index}"
+            name = self._entry_name(index) if "{" in self.name else f"{self.name} {index}"
             return self._register(name, d.address + n * d.stride,
                                   None if d.low_address is None else d.low_address + n * d.stride)
         return self.register
@@ -423,8 +431,15 @@ class Reg:
     def register(self) -> Register:
         """The codec register of a single register (the first entry of a table)."""
         d = self.d
-        name = self.name.replace("{n}", str(d.first))
-        return self._register(name, d.address, d.low_address)
+        return self._register(self._entry_name(d.first), d.address, d.low_address)
+
+    def _entry_name(self, index: int) -> str:
+        """The display name of entry ``index``: ``{n}`` its index, ``{name}`` its name."""
+        d = self.d
+        name = self.name.replace("{n}", str(index))
+        if d.names and d.first <= index < d.first + len(d.names):
+            name = name.replace("{name}", d.names[index - d.first])
+        return name
 
     def _register(self, name: str, address: int, low: int | None) -> Register:
         d = self.d
@@ -510,6 +525,19 @@ class PollDef(_Model):
     when: E
 
 
+class CompletionDef(_Model):
+    """``[status.completion]``: a short read that tells whether a motion has ended (a
+    buffered move of a motion program starts on it)."""
+
+    read: list[str | list[str]] = Field(min_length=1)
+    moving: E | None = None
+    in_position: E | None = None
+    alarm: E | None = None
+    limit_positive: E | None = None
+    limit_negative: E | None = None
+    """Each field: an expression on what ``read`` reads; not given, ``[status]``'s own."""
+
+
 class StatusDef(_Model):
     """``[status]``: the poll and how it decodes into ``DriveStatus``."""
 
@@ -530,6 +558,7 @@ class StatusDef(_Model):
     track: dict[str, E] = Field({}, description="state variables updated after each poll")
     learn_first: bool = Field(False, description="run learn before the first poll (else "
                               "decoding uses the registers' defaults until setup or learn)")
+    completion: CompletionDef | None = None
 
 
 class IoDef(_Model):
@@ -540,6 +569,9 @@ class IoDef(_Model):
     functions: str | None = None
     codes: dict[str, int] = {}
     bits: dict[str, int] = Field({}, description="fixed wiring: signal -> bit number")
+    polarity: str | None = Field(None, description="a register whose bits invert the sense "
+                                 "of the terminals before the drive acts on them (`state` "
+                                 "shows the levels after it; the twin honours it)")
     names: list[Annotated[str, Field(min_length=1)]] = Field(
         [], description="the terminals by the manual's names, in the order of the state "
         "register's bits (digital I/O by name)")
@@ -614,8 +646,19 @@ class HomingMethod(BaseModel):
 
     code: int | None = None
     cia402: int | None = Field(None, description="the equivalent CiA 402 method (twin)")
-    behaviour: Literal["search", "set", "move_to_offset"] | None = None
+    behaviour: Literal["search", "set", "move_to_offset", "reference_edge"] | None = None
+    reference: Literal["home_switch", "limit_positive", "limit_negative"] | None = Field(
+        None, description="reference_edge: the signal whose rising edge is the origin")
+    direction: Literal[-1, 1] | None = Field(None, description="reference_edge: the search "
+                                             "direction")
     doc: str = ""
+
+    @model_validator(mode="after")
+    def _reference(self) -> HomingMethod:
+        if self.behaviour == "reference_edge" and (self.reference is None or
+                                                   self.direction is None):
+            raise ValueError("behaviour reference_edge needs 'reference' and 'direction'")
+        return self
 
     @property
     def extras(self) -> dict[str, Any]:
@@ -680,7 +723,8 @@ class Step(_Model):
                              "read now)")
     each: str | None = Field(None, pattern=r"^\s*[A-Za-z_][A-Za-z0-9_]*\s+in\s+.+$",
                              description="write: 'NAME in EXPRESSION', the step's writes "
-                             "once per value (in one block with `block`)")
+                             "once per value of a list (per key of a map, in its order; "
+                             "in one block with `block`)")
     timeout: E = Expr.parse(5.0)
     every: float = Field(0.005, gt=0, le=10)
     error: Literal["alarm", "state", "motion", "limit"] = "state"
@@ -760,7 +804,6 @@ PROCEDURES: dict[str, tuple[str, tuple[str, ...]]] = {
     "save_parameters": ("save parameters", ()),
     "retarget_absolute": ("take a new target while it moves",
                           ("target", "speed", "accel", "decel")),
-    "read_completion": ("read whether a motion has ended", ()),
 }
 """The common procedures: what a NotSupported error says, and the names they pass."""
 
@@ -827,6 +870,15 @@ class TwinDef(_Model):
         "[eeprom] write-through switch holds its `on` value)")
     enabled: E = Expr.parse(True)
     decel: E | None = Field(None, description="an alarm or a disable: None = at once")
+    wiring: dict[Literal["home_switch", "limit_positive", "limit_negative"], str | int] = Field(
+        {}, description="the input terminal (a name of [inputs] names, or a bit) each "
+        "simulated switch is wired to; the drive acts on it as its function register and "
+        "[inputs] polarity say")
+    max_pulse_rate: float | None = Field(None, gt=0, description="pulses/s: the fastest "
+                                         "the drive's pulse output runs (speeds above are capped)")
+    home_offset: Literal["origin", "move"] = Field(
+        "origin", description="origin: the origin edge takes the offset as its position; "
+        "move: the counter is 0 at the edge and a compensation move of the offset follows")
 
 
 # -- the CiA 402 engine ---------------------------------------------------------------
@@ -1046,7 +1098,7 @@ class Description(_Model):
         name = reg.d.names[index - reg.d.first] if reg.d.names else str(index)
         if given is None:
             return f"{key}_{index}"
-        return given.format(i=index, name=name)
+        return given.format(i=index, name=_KeyName(name))
 
     def procedure_what(self, name: str) -> str:
         """How a NotSupported error says procedure ``name``."""
@@ -1056,6 +1108,19 @@ class Description(_Model):
         if proc is not None and proc.what is not None and not proc.what.names:
             return str(proc.what)
         return name.replace("_", " ")
+
+
+class _KeyName(str):
+    """A table entry's name in a parameter key: ``{name}``, ``{name:lower}``, ``{name:upper}``."""
+
+    __slots__ = ()
+
+    def __format__(self, spec: str) -> str:
+        if spec == "lower":
+            return self.lower()
+        if spec == "upper":
+            return self.upper()
+        return format(str(self), spec)
 
 
 # -- loading and checking -------------------------------------------------------------------
@@ -1139,7 +1204,8 @@ _CONTEXT_NAMES = {
     "value", "raw", "True", "False", "None", "input_functions", "output_functions",
 }
 _TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "raw", "speed_now",
-               "pulses_per_rev", "limit_positive", "limit_negative"}
+               "pulses_per_rev", "limit_positive", "limit_negative", "motion_decel",
+               "homing"}
 
 
 class _Checker:
@@ -1339,6 +1405,11 @@ class _Checker:
             self._names(f"status.{field}", getattr(s, field))
         for k, e in s.raw.items():
             self._names(f"status.raw.{k}", e)
+        if s.completion is not None:
+            for j, item in enumerate(s.completion.read):
+                self._span(f"status.completion.read[{j}]", item)
+            for field in ("moving", "in_position", "alarm", "limit_positive", "limit_negative"):
+                self._names(f"status.completion.{field}", getattr(s.completion, field))
         for k, e in s.track.items():
             self._names(f"status.track.{k}", e)
             if k not in self.d.state:
@@ -1349,7 +1420,7 @@ class _Checker:
         if io is None:
             return
         self._reg_key(f"{where}.state", io.state)
-        for k in ("invert", "functions"):
+        for k in ("invert", "functions", "polarity"):
             v = getattr(io, k)
             if v is not None:
                 self._reg_key(f"{where}.{k}", v)
@@ -1380,11 +1451,6 @@ class _Checker:
                 if step.action not in ("read", "set"):
                     self.out.append(f"{where}.steps[{i}]: learn only reads (it runs when a "
                                     f"viewing command opens the drive); write in setup")
-        if name == "read_completion":
-            for i, step in enumerate(proc.steps):
-                if step.action not in ("read", "return"):
-                    self.out.append(f"{where}.steps[{i}]: read_completion only reads (a "
-                                    f"buffered move polls it while the drive moves)")
         for i, step in enumerate(proc.steps):
             self._step(f"{where}.steps[{i}]", step, params)
 
@@ -1446,6 +1512,15 @@ class _Checker:
     def _twin(self) -> None:
         t = self.d.twin
         names = _TWIN_NAMES
+        for key, reg in self.d.registers.items():
+            self._names(f"registers.{key}.valid", reg.valid, names)
+        io = self.d.inputs
+        for signal, terminal in t.wiring.items():
+            if io is None:
+                self.out.append(f"twin.wiring.{signal}: needs [inputs]")
+            elif isinstance(terminal, str) and terminal not in io.names:
+                self.out.append(f"twin.wiring.{signal}: no terminal {terminal!r} in "
+                                f"inputs.names ({', '.join(io.names) or 'none'})")
         self._names("twin.starts", t.starts, names)
         self._names("twin.limits.stop", t.limits.stop, names)
         self._names("twin.limits.decel", t.limits.decel, names)

@@ -63,9 +63,9 @@ from drivebus.errors import (
     DriveAlarm,
     LimitViolation,
     MotionError,
-    NoSuchMethod,
     NotSupported,
     StateError,
+    UnknownMethod,
 )
 
 __all__ = ["DescribedProfile", "ReadPlan", "plan_reads", "profile_class"]
@@ -201,6 +201,10 @@ class DescribedProfile(DriveProfile):
         super().__init__(slave, pulses_per_rev=ppr)
         values = {k: (o.default if k not in options or options[k] is None else options[k])
                   for k, o in d.options.items()}
+        for k, o in d.options.items():  # a map's entries in the order of its keys
+            if o.type == "map" and isinstance(values[k], Mapping):
+                given = values[k]
+                values[k] = {key: given[key] for key in o.keys if key in given}
         self.options_given = dict(values)
         self.option = Attrs("option", values)
         self.state: dict[str, Any] = dict(d.state)
@@ -467,7 +471,8 @@ class DescribedProfile(DriveProfile):
         scopes = [scope]
         if step.each is not None:  # "NAME in EXPRESSION": the writes once per value
             name, _, source = step.each.partition(" in ")
-            scopes = [{**scope, name.strip(): v} for v in Expr.parse(source)(scope)]
+            values = Expr.parse(source)(scope)  # None (an option not given): no writes
+            scopes = [{**scope, name.strip(): v} for v in values or ()]
         items = []
         for each in scopes:
             for key, w in step.write.items():
@@ -537,7 +542,7 @@ class DescribedProfile(DriveProfile):
 
     async def _write(self, step: Step, run: _Run, prio: Priority) -> None:
         items = self._items(step, run)
-        if step.if_changed:
+        if step.if_changed:  # leave out what the drive already holds
             items = await self._changed(items, run, prio)
         block = step.block is not None and bool(step.block(self._scope(run))) and \
             16 in self.description.link.functions
@@ -973,7 +978,7 @@ class DescribedProfile(DriveProfile):
                     return n, m
         documented = ", ".join(f"{n} ({m.code})" if m.code is not None else n
                                for n, m in h.methods.items())
-        raise NoSuchMethod(str(self.unsupported(
+        raise UnknownMethod(str(self.unsupported(
             f"home with method {method!r}",
             f"it has no homing method {method!r}; it documents {documented}")))
 
@@ -1025,22 +1030,21 @@ class DescribedProfile(DriveProfile):
                        **self._move_args(position, params, "retarget_absolute"))
 
     async def read_completion(self, *, priority: Priority = Priority.COMMAND) -> Completion | None:
-        """The description's ``read_completion`` reads, decoded by ``[status]``'s moving,
-        in_position, alarm and limit fields; None without one (the full poll is used)."""
-        proc = self.description.procedures.get("read_completion")
-        if proc is None or proc.unsupported is not None:
+        """``[status.completion]``: its short read, decoded by its expressions (``[status]``'s
+        own where it gives none); None without one (the status poll is used)."""
+        c = self.description.status.completion
+        if c is None:
             return None
-        run = _Run("read_completion", {}, False, priority)
-        await self._steps(proc.steps, run)
-        scope = self._scope(run)
+        values = await self._read_items(c.read, None, priority)
+        scope = self._scope(None, values)
         fields = self.description.status_exprs
 
         def flag(name: str) -> bool:
-            e = fields.get(name)
+            e = getattr(c, name) or fields.get(name)
             try:
                 return bool(e(scope)) if e is not None else False
             except Unknown as exc:
-                raise ConfigError(f"{self.family}: read_completion does not read what "
+                raise ConfigError(f"{self.family}: status.completion.read does not read what "
                                   f"status.{name} uses ({exc})") from None
 
         return Completion(moving=flag("moving"), in_position=flag("in_position"),
@@ -1049,9 +1053,10 @@ class DescribedProfile(DriveProfile):
 
     async def io_points(self) -> list[IOPoint]:
         """Every terminal of ``[inputs]``/``[outputs] names``, with the function its
-        ``functions`` register assigns (read now, in as few reads as the link allows) or
-        the signal its fixed wiring (``bits``) carries; an output is settable when its
-        function is ``[outputs] settable``."""
+        ``functions`` register assigns (read now, in as few reads as the link allows; named
+        by ``function_names``, else the register's ``values``, else ``codes``) or the signal
+        its fixed wiring (``bits``) carries; an output is settable when its function is
+        ``[outputs] settable``."""
         d = self.description
         sides = [(io, names, output) for io, names, output in
                  ((d.inputs, self.io_inputs, False), (d.outputs, self.io_outputs, True))
@@ -1061,9 +1066,10 @@ class DescribedProfile(DriveProfile):
         points: list[IOPoint] = []
         for io, names, output in sides:
             wired = {bit: signal.replace("_", " ") for signal, bit in io.bits.items()}
-            texts = io.function_names or {c: s.replace("_", " ") for s, c in io.codes.items()}
             table = values.get(io.functions) if io.functions is not None else None
             reg = d.regs[io.functions] if io.functions is not None else None
+            named = reg.d.values if reg is not None and reg.d.values else io.codes
+            texts = io.function_names or {c: k.replace("_", " ") for k, c in named.items()}
             for n, name in enumerate(names):
                 if isinstance(table, Table) and reg is not None:
                     code = int(table[reg.indices[n]]) & io.function_mask
@@ -1406,6 +1412,10 @@ def _comms_writes(
     if address is not None:
         if link.address_register is None:
             raise self.unsupported(f"change its address to {address}", how)
+        span = link.register_addresses
+        if span is not None and not span[0] <= address <= span[1]:
+            raise self.unsupported(f"take address {address} from a register",
+                                   f"its register gives {span[0]}-{span[1]}; {how}")
         reg = regs[link.address_register].register
         reg.check(address)
         writes.append((reg, address))

@@ -473,6 +473,10 @@ def _step_text(step: Step) -> str:
         text = f"refuse: {step.fail}"
     else:
         text = f"return {step.return_}"
+    if step.each is not None:
+        text += f", for each {step.each}"
+    if step.if_changed:
+        text += ", each only where it differs from what the drive holds"
     if step.when is not None:
         text += f", when {step.when}"
     if step.start:

@@ -29,7 +29,6 @@ from types import ModuleType
 from typing import Any
 
 from drivebus.drives.base import DriveProfile
-from drivebus.drives.bhss import BHSSProfile
 from drivebus.drives.description import Description, load_description
 from drivebus.drives.engine import profile_class
 from drivebus.drives.od_drive import ODDriveProfile
@@ -102,7 +101,6 @@ def _load_builtin() -> dict[str, DriveFamily]:
 
 
 _PROFILES: tuple[DriveFamily, ...] = (
-    DriveFamily("BHSS", BHSSProfile, "rtu", "Bholanath BHSS-100-MBUS stepper drive"),
     DriveFamily("OD2000", ODDriveProfile, "rtu",
                 "2000h object-dictionary drive (settings and monitoring only)"),
 )

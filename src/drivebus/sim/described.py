@@ -28,7 +28,7 @@ commission`` sets it.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -41,7 +41,7 @@ from drivebus.drives.cia402 import (
     State,
     homing_method,
 )
-from drivebus.drives.description import Description, Reg, Trigger, object_name
+from drivebus.drives.description import TWIN_MEANINGS, Description, Reg, Trigger, object_name
 from drivebus.drives.description import HomingMethod as MethodDef
 from drivebus.drives.expr import Expr, ExprError, Unknown
 from drivebus.drives.registers import Access
@@ -59,6 +59,8 @@ __all__ = ["DescribedCia402Drive", "DescribedDrive", "described_twin", "twin_of"
 _COMPUTED = {"position", "velocity", "command_velocity", "alarm_code", "motion", "inputs",
              "outputs"}
 _STARTS = {"move_absolute", "move_relative", "run", "home"}
+_VALUES = _COMPUTED | {"constant", "address", "direction"}
+"""Meanings that are a register's value (the others are a state: 1 or 0)."""
 
 
 @dataclass(frozen=True)
@@ -78,6 +80,24 @@ class _Phase:
     direction: int
     fast: bool
     events: tuple[tuple[str, str], ...]
+
+
+@dataclass
+class _RefHoming:
+    """A ``reference_edge`` homing under way: its phase, direction, speeds (pulses/s), rate
+    (pulses/s²) and offset (pulses)."""
+
+    reference: str
+    phase: str
+    direction: float
+    speed: float
+    creep: float
+    rate: float
+    offset: float
+    reversed: bool = False
+
+
+_Handler = Callable[[float], None]
 
 
 @dataclass
@@ -157,6 +177,7 @@ class DescribedDrive(SimDrive):
     _input_specs: ClassVar[dict[int, RegisterSpec]]
     _input_words: ClassVar[dict[int, _Word]]
     _triggers: ClassVar[dict[str, tuple[Trigger, ...]]]
+    _map_end: ClassVar[int]
 
     def __init__(
         self,
@@ -194,7 +215,12 @@ class DescribedDrive(SimDrive):
         if soft_address:
             assert d.link.address_register is not None
             self._store(self.regs, d.regs[d.link.address_register], None, address)
+        self._baud_by_register = False
+        self._apply_baud_register(initial=True)
         self._apply_format_register(initial=True)
+        self._external = 0
+        """Input terminals driven from outside (``set_input``), by bit."""
+        self._wire_switches()
         self.eeprom: dict[int, int] = dict(self.regs)
         """Register words that survive a power cycle."""
         self.eeprom_writes = 0
@@ -206,8 +232,13 @@ class DescribedDrive(SimDrive):
         self._motion_decel: float | None = None
         self._run_rates = (math.inf, math.inf)
         self._shift = 0.0
-        self._external = 0
-        """Input terminals driven from outside (``set_input``), by bit."""
+        self.reached = True
+        """A position move or homing ran to its end (``reached`` meaning)."""
+        self._completes = False
+        self._last_dir = 0
+        self._ref: _RefHoming | None = None
+        self._processed_until = 0.0
+        self._last_event = -math.inf
         self.enabled = bool(self._eval(d.twin.enabled, 0.0))
 
     # -- the description's map ---------------------------------------------------------------
@@ -268,6 +299,23 @@ class DescribedDrive(SimDrive):
         low = r.low_address if r.low_address is not None else r.address + 1
         return r.decode([w[r.address], w[low]])
 
+    def register(self, address: int) -> RegisterSpec:
+        """An address past the last documented one is ``refusals.outside`` where given."""
+        outside = self.description.link.refusals.outside
+        if outside is not None and address > self._map_end:
+            raise SlaveException(outside)
+        return super().register(address)
+
+    def check_word(self, address: int, word: int) -> int:
+        """Access and range, then the register's ``valid`` condition."""
+        value = super().check_word(address, word)
+        w = self._words.get(address)
+        valid = None if w is None or w.reg.register.words != 1 else w.reg.d.valid
+        if valid is not None and w is not None and \
+                not self._eval(valid, 0.0, RegValue(value, w.reg)):
+            raise SlaveException(self.exception_codes.value)
+        return value
+
     # -- units ----------------------------------------------------------------------------
 
     @property
@@ -279,6 +327,12 @@ class DescribedDrive(SimDrive):
         reg = self.description.regs[p.reg]
         v = reg.codec.to_physical(self._raw(reg, None), ppr=1)
         return int(v) if v else p.default
+
+    def _pps(self, rpm: float) -> float:
+        """Pulses/s of a speed in rpm, capped at ``[twin] max_pulse_rate``."""
+        v = rpm * self.pulses_per_rev / 60.0
+        cap = self.description.twin.max_pulse_rate
+        return v if cap is None else math.copysign(min(abs(v), cap), v)
 
     # -- the position counter ----------------------------------------------------------------
 
@@ -305,16 +359,151 @@ class DescribedDrive(SimDrive):
     # -- switches ----------------------------------------------------------------------------
 
     def switch_states(self, now: float) -> tuple[bool, bool, bool]:
-        """(home, limit negative, limit positive) at the physical position."""
-        return self.switches_at(self.physical_position(now))
+        """(home, limit negative, limit positive) at the physical position (with
+        ``[twin] wiring``: as the drive sees them through its input functions)."""
+        p = self.physical_position(now)
+        if self.description.twin.wiring:
+            return (self._signal_at("home_switch", p), self._signal_at("limit_negative", p),
+                    self._signal_at("limit_positive", p))
+        return self.switches_at(p)
+
+    # -- wired input terminals (``[twin] wiring``) ------------------------------------------
+
+    def _terminal(self, signal: str) -> int | None:
+        """The bit of the terminal switch ``signal`` is wired to (None: not wired)."""
+        d = self.description
+        t = d.twin.wiring.get(signal)  # type: ignore[call-overload]
+        if t is None:
+            return None
+        if isinstance(t, str):
+            assert d.inputs is not None
+            return d.inputs.names.index(t)
+        return int(t)
+
+    def _wire_switches(self) -> None:
+        """Each switch the setup gives is wired to its terminal, whose function register
+        is set to the switch's code (as the machine's builder configured it)."""
+        d = self.description
+        io = d.inputs
+        if not d.twin.wiring or io is None or io.functions is None:
+            return
+        reg = d.regs[io.functions]
+        given = {"home_switch": self.home_switch, "limit_positive": self.limit_positive,
+                 "limit_negative": self.limit_negative}
+        for signal in d.twin.wiring:
+            bit = self._terminal(signal)
+            if bit is None or signal not in io.codes:
+                continue
+            index = reg.indices[bit]
+            self._store(self.regs, reg, index, io.codes[signal] if given[signal] is not None
+                        else self._raw(reg, index))
+
+    def _terminals(self) -> range:
+        io = self.description.inputs
+        return range(len(io.names) if io is not None and io.names else 16)
+
+    def _switch_span(self, index: int) -> Span | None:
+        for signal in self.description.twin.wiring:
+            if self._terminal(signal) == index:
+                if signal == "home_switch":
+                    return self.home_span()
+                return self.limit_span(1 if signal == "limit_positive" else -1)
+        return None
+
+    def _physical(self, index: int, p: float) -> bool:
+        if self._external >> index & 1:
+            return True
+        span = self._switch_span(index)
+        return span is not None and span.active(p)
+
+    def _level(self, index: int, p: float) -> bool:
+        """The valid level of terminal ``index`` at physical position ``p`` (after the
+        ``[inputs] polarity`` register)."""
+        io = self.description.inputs
+        inverted = False
+        if io is not None and io.polarity is not None:
+            inverted = bool(self._raw(self.description.regs[io.polarity], None) >> index & 1)
+        return self._physical(index, p) != inverted
+
+    def _carriers(self, signal: str) -> list[int]:
+        """The terminals whose function is ``signal`` (or the one it is wired to)."""
+        io = self.description.inputs
+        if io is None or io.functions is None or signal not in io.codes:
+            bit = self._terminal(signal)
+            return [] if bit is None else [bit]
+        reg = self.description.regs[io.functions]
+        code = io.codes[signal]
+        return [n for n, i in enumerate(reg.indices) if self._raw(reg, i) == code]
+
+    def _signal_at(self, signal: str, p: float) -> bool:
+        return any(self._level(i, p) for i in self._carriers(signal))
+
+    def _signal_edge(self, signal: str, rising: bool, t0: float, t1: float) -> float | None:
+        """First time in [t0, t1] a terminal carrying ``signal`` turns valid (or invalid)."""
+        found = [self._terminal_edge(i, rising, t0, t1) for i in self._carriers(signal)]
+        times = [t for t in found if t is not None]
+        return min(times) if times else None
+
+    def _terminal_edge(self, index: int, rising: bool, t0: float, t1: float) -> float | None:
+        span = self._switch_span(index)
+        xs = () if span is None else tuple(x for x in (span.lo, span.hi) if math.isfinite(x))
+        found = [self._threshold_edge(index, x + self._shift, rising, t0, t1) for x in xs]
+        times = [t for t in found if t is not None]
+        return min(times) if times else None
+
+    def _threshold_edge(self, index: int, x: float, rising: bool, t0: float, t1: float
+                        ) -> float | None:
+        """First time in [t0, t1] terminal ``index`` turns valid (or invalid) as the motor
+        passes ``x`` (counter frame)."""
+        t = t0
+        while t <= t1:
+            tc = self.kin.crossing(x, t, t1)
+            if tc is None:
+                return self._boundary_edge(index, rising, t, t1)
+            # at a start from rest (or a turnaround) the way it leaves counts; resting on
+            # the edge crosses nothing
+            v = self.kin.velocity(tc) or self.kin.velocity(tc + 1e-6)
+            if v == 0.0:
+                return None
+            step = math.copysign(0.5, v)
+            p = x - self._shift
+            if self._level(index, p - step) != self._level(index, p + step) and \
+                    self._level(index, p + step) == rising:
+                return tc
+            t = tc + 1e-6
+        return None
+
+    def _level_at(self, index: int, t: float) -> bool:
+        return self._level(index, self.physical_position(t))
+
+    def _boundary_edge(self, index: int, rising: bool, t0: float, t1: float) -> float | None:
+        """An edge in [t0, t1] that ``Kinematics.crossing`` missed where one motion segment
+        hands over to the next on the switch's end (float rounding): the levels at both
+        ends differ, bisection finds the time."""
+        start = self._level_at(index, t0)
+        if start == self._level_at(index, t1) or self._level_at(index, t1) != rising:
+            return None
+        lo, hi = t0, t1
+        for _ in range(64):
+            mid = 0.5 * (lo + hi)
+            if mid in (lo, hi):
+                break
+            if self._level_at(index, mid) == start:
+                lo = mid
+            else:
+                hi = mid
+        return hi
 
     def home_side(self) -> int:
         """The side a home cam covers when ``home_cam`` does not say: the side the homing
         method in the drive's registers searches towards (+1 if none)."""
         try:
-            m = _cia402_method(self._method_def(self._method_code(monotonic())))
+            method = self._method_def(self._method_code(monotonic()))
         except ExprError:  # the method depends on a write being made: the default side
-            m = None
+            method = None
+        if method is not None and method.behaviour == "reference_edge":
+            return method.direction or 1
+        m = _cia402_method(method)
         if m is None or m.home_switch is HomeSwitch.POSITIVE:
             return 1
         if m.home_switch is HomeSwitch.NEGATIVE:
@@ -360,7 +549,9 @@ class DescribedDrive(SimDrive):
         return {
             "enabled": self.enabled, "disabled": not self.enabled, "moving": moving,
             "at_rest": not moving, "in_position": not moving and not alarm,
-            "homed": self.homed, "homing": self._homing is not None, "alarm": alarm,
+            "homed": self.homed, "alarm": alarm,
+            "homing": self._homing is not None or self._ref is not None,
+            "reached": not moving and (self.reached or self._completes),
             "no_alarm": not alarm, "limit_positive": pos, "limit_negative": neg,
             "home_switch": home, "at_speed": bool(at_speed), "ready": True,
             "jogging": moving and self.motion == "speed",
@@ -413,6 +604,15 @@ class DescribedDrive(SimDrive):
             value = self.alarm_code
         elif means == "motion":
             value = reg.d.values.get(self.motion or "none", 0)
+        elif means == "address":
+            value = self.address
+        elif means == "direction":
+            v = self.kin.velocity(now)
+            if v:
+                self._last_dir = -1 if v < 0 else 1
+            value = int(self._last_dir < 0)
+        elif means in TWIN_MEANINGS and means not in _VALUES:
+            value = int(bool(self._signals(now).get(means, False)))
         elif means == "inputs":
             value = self._io_word("inputs", now)
         elif means == "outputs":
@@ -457,6 +657,9 @@ class DescribedDrive(SimDrive):
         io = d.inputs if which == "inputs" else d.outputs
         if io is None:
             return 0
+        if which == "inputs" and d.twin.wiring:  # the terminals' valid levels
+            p = self.physical_position(now)
+            return sum(1 << i for i in self._terminals() if self._level(i, p))
         signals = self._signals(now)
         active = {k: v for k, v in signals.items()}
         word = 0
@@ -577,6 +780,9 @@ class DescribedDrive(SimDrive):
                 raise SlaveException(self.description.link.refusals.busy)
             return
         p = self.pulses_per_rev
+        if do in ("emergency_stop", "stop", "disable"):
+            self._ref = None
+            self._completes = False
         if do == "emergency_stop":
             self._homing = None
             self.kin.stop(now, None)
@@ -641,7 +847,7 @@ class DescribedDrive(SimDrive):
         if self._blocked(target - p, now):
             return
         a, dc = float(accel) * ppr, float(decel) * ppr
-        self.kin.move_to(now, target, abs(float(speed)) * ppr / 60.0, a, dc)
+        self.kin.move_to(now, target, self._pps(abs(float(speed))), a, dc)
         self._started(trig, "position", now, dc)
 
     def _run(self, trig: Trigger, value: Any, now: float) -> None:
@@ -657,7 +863,7 @@ class DescribedDrive(SimDrive):
         if speed == 0:
             self.kin.stop(now, dc)
         else:
-            self.kin.run(now, speed * ppr / 60.0, a, dc)
+            self.kin.run(now, self._pps(speed), a, dc)
         self._run_rates = (a, dc)
         self._started(trig, "speed", now, dc)
 
@@ -668,13 +874,20 @@ class DescribedDrive(SimDrive):
         v = self.kin.velocity(now)
         signed = math.copysign(abs(speed), v) if v else speed
         a, dc = self._run_rates
-        self.kin.run(now, signed * self.pulses_per_rev / 60.0, a, dc)
+        self.kin.run(now, self._pps(signed), a, dc)
 
     def _started(self, trig: Trigger, kind: str, now: float, decel: float) -> None:
         self.motion = trig.motion or kind
         self._watch_from = now
         self._motion_decel = decel
         self._homing = None
+        self._ref = None
+        self.reached = False
+        self._completes = kind == "position"
+        self._processed_until = max(self._processed_until, now)
+        v = self.kin.velocity(now + 1e-3)
+        if v:
+            self._last_dir = -1 if v < 0 else 1
 
     # -- homing --------------------------------------------------------------------------------
 
@@ -706,6 +919,9 @@ class DescribedDrive(SimDrive):
         self.motion = trig.motion or "homing"
         self.homed = False
         self.homing_failed = False
+        if method.behaviour == "reference_edge":
+            self._ref_home(method, speed, creep, accel, offset, now)
+            return
         number = method.cia402
         if method.behaviour == "set" or number in (33, 34, 35, 37):
             self._set_counter(now, offset)
@@ -719,7 +935,7 @@ class DescribedDrive(SimDrive):
             return
         phases, first = plan
         rate = float(accel) * ppr if _finite_pos(accel) else math.inf
-        self._homing = _Homing(phases, first, now, speed * ppr / 60.0, creep * ppr / 60.0,
+        self._homing = _Homing(phases, first, now, self._pps(speed), self._pps(creep),
                                rate, offset)
         self._enter(first, now)
 
@@ -776,6 +992,158 @@ class DescribedDrive(SimDrive):
             else:
                 self._enter(nxt, tc)
 
+    # -- homing on a reference input's rising edge (``behaviour = "reference_edge"``) -----
+
+    def _ref_home(self, method: MethodDef, speed: float, creep: float, accel: Any,
+                  offset: float, now: float) -> None:
+        """Search at ``speed`` in the method's direction until its reference input turns
+        active, brake, back off at ``speed`` until it turns inactive, brake, creep back
+        until it turns active: that edge is the origin. A limit switch ahead in the search
+        reverses it once; any other stops the motor (as ``[twin] limits`` say) and the
+        homing fails. Started on the reference, the twin backs off first."""
+        ppr = self.pulses_per_rev
+        assert method.reference is not None and method.direction is not None
+        rate = float(accel) * ppr if _finite_pos(accel) else math.inf
+        h = _RefHoming(method.reference, "search", float(method.direction),
+                       self._pps(speed), self._pps(creep), rate, offset)
+        self._ref = h
+        self._homing = None
+        self._motion_decel = rate
+        self.reached = False
+        self._completes = False
+        self._processed_until = max(self._processed_until, now)
+        p = self.physical_position(now)
+        if self._signal_at(h.reference, p):
+            h.phase = "brake1"
+            self._ref_ramp_end(now)
+            return
+        ahead = "limit_positive" if h.direction > 0 else "limit_negative"
+        if ahead != h.reference and self._signal_at(ahead, p):
+            h.direction = -h.direction  # on a limit already: the turning reverses
+            h.reversed = True
+        self._ref_run(now, h.direction * h.speed)
+
+    def _ref_run(self, t: float, pps: float) -> None:
+        h = self._ref
+        assert h is not None
+        self.kin.run(t, pps, h.rate, h.rate)
+        self._last_dir = 1 if pps > 0 else -1
+
+    def _ref_ramp_end(self, t: float) -> None:
+        h = self._ref
+        assert h is not None
+        if h.phase == "brake1":
+            h.phase = "backoff"
+            self._ref_run(t, -h.direction * h.speed)
+        elif h.phase == "brake2":
+            h.phase = "creep"
+            self._ref_run(t, h.direction * h.creep)
+        else:
+            self._ref_done()
+
+    def _ref_done(self) -> None:
+        self._ref = None
+        self.homed = True
+        self.reached = True
+
+    def _ref_found(self, t: float) -> None:
+        h = self._ref
+        assert h is not None
+        self.kin.stop(t, h.rate)
+        h.phase = "brake1" if h.phase == "search" else "brake2"
+
+    def _ref_reverse(self, t: float) -> None:
+        h = self._ref
+        assert h is not None
+        h.reversed = True
+        h.direction = -h.direction
+        self._ref_run(t, h.direction * h.speed)
+
+    def _ref_fail(self, t: float) -> None:
+        """A limit switch met while homing (not the search's first): stop as ``[twin]
+        limits`` say; the homing fails (reversing again would run between the limits)."""
+        h = self._ref
+        rate = None if self._eval(self.description.twin.limits.stop, t) == "immediate" \
+            else (h.rate if h is not None else None)
+        self.kin.stop(t, rate)
+        self._ref = None
+        self.homing_failed = True
+
+    def _ref_origin(self, t: float) -> None:
+        """The origin edge: with ``home_offset = "move"`` the counter is 0 there and the
+        compensation move of the offset follows at the creep speed; else the edge takes the
+        offset as its position."""
+        h = self._ref
+        assert h is not None
+        self.kin.hold(t)
+        if self.description.twin.home_offset != "move":
+            self.kin.stop(t, h.rate)
+            self._set_counter(t, h.offset)
+            self._ref_done()
+            return
+        self._set_counter(t, 0)
+        offset = h.offset
+        if not offset:
+            self._ref_done()
+            return
+        towards = "limit_positive" if offset > 0 else "limit_negative"
+        if self._signal_at(towards, self.physical_position(t) + math.copysign(0.5, offset)):
+            self._ref_fail(t)  # the compensation would go into a limit switch
+            return
+        h.phase = "offset"
+        self.kin.move_to(t, self.kin.position(t) + offset, h.creep, h.rate, h.rate)
+        self._last_dir = 1 if offset > 0 else -1
+
+    def _ref_limits(self, t0: float, t1: float, *, reverse: bool = False,
+                    offset: bool = False) -> list[tuple[float | None, _Handler]]:
+        h = self._ref
+        assert h is not None
+        handler = self._ref_reverse if reverse else self._ref_fail
+        return [(self._signal_edge(lim, True, t0, t1), handler)
+                for lim in ("limit_positive", "limit_negative")
+                if offset or lim != h.reference]
+
+    def _wired_event(self, t0: float, t1: float) -> tuple[float, _Handler] | None:
+        """The next reaction in [t0, t1] of a twin with wired inputs."""
+        if t1 < t0:
+            return None
+        end = self.kin.end_time()
+        h = self._ref
+        if h is not None:
+            if h.phase == "search":
+                return _first((self._signal_edge(h.reference, True, t0, t1), self._ref_found),
+                              *self._ref_limits(t0, t1, reverse=not h.reversed))
+            if h.phase == "backoff":
+                return _first((self._signal_edge(h.reference, False, t0, t1), self._ref_found),
+                              *self._ref_limits(t0, t1))
+            if h.phase == "creep":
+                return _first((self._signal_edge(h.reference, True, t0, t1), self._ref_origin),
+                              *self._ref_limits(t0, t1))
+            if h.phase == "offset":
+                return _first((end if end <= t1 else None, self._ref_ramp_end),
+                              *self._ref_limits(t0, t1, offset=True))
+            return (end, self._ref_ramp_end) if end <= t1 else None
+        if self._homing is None and self.motion in ("position", "speed") and \
+                self.kin.moving(t0):
+            return _first(*((self._signal_edge(lim, True, t0, t1), self._wired_limit_stop)
+                            for lim in ("limit_positive", "limit_negative")))
+        return None
+
+    def _wired_limit_stop(self, t: float) -> None:
+        self.kin.stop(t, self._limit_rate(t))
+        self._completes = False
+
+    def _advance_wired(self, now: float) -> None:
+        for _ in range(64):
+            t_from = max(self._processed_until, self._last_event + 1e-6)
+            event = self._wired_event(t_from, now)
+            if event is None:
+                break
+            t, handler = event
+            self._last_event = t
+            handler(t)
+        self._processed_until = max(self._processed_until, now)
+
     # -- limits, alarms, power ----------------------------------------------------------------
 
     def _limit_rate(self, t: float) -> float | None:
@@ -800,6 +1168,9 @@ class DescribedDrive(SimDrive):
 
     def advance(self, now: float) -> None:
         """Bring homing legs and limit stops up to ``now`` (state is computed lazily)."""
+        if self.description.twin.wiring and self._homing is None:
+            self._advance_wired(now)
+            return
         if self._homing is not None:
             self._advance_homing(now)
             return
@@ -814,6 +1185,8 @@ class DescribedDrive(SimDrive):
         t = time_or_present(now)
         self.advance(t)
         self._homing = None
+        self._ref = None
+        self._completes = False
         super().raise_alarm(code, t)
 
     def supply_recovered(self) -> None:
@@ -831,6 +1204,7 @@ class DescribedDrive(SimDrive):
             if reg.d.volatile:
                 for index in (reg.indices if reg.array else [None]):
                     self._store(self.regs, reg, index, reg.default_at(index))
+        self._apply_baud_register(initial=False)
         self._apply_format_register(initial=False)
         if self.soft_address:
             key = self.description.link.address_register
@@ -842,7 +1216,32 @@ class DescribedDrive(SimDrive):
         self.motion = None
         self.homed = False
         self._homing = None
+        self._ref = None
+        self.reached = True
+        self._completes = False
         self.enabled = bool(self._eval(self.description.twin.enabled, now))
+
+    def _apply_baud_register(self, *, initial: bool) -> None:
+        """The baud rate register (``[link] baud_register``): a twin built at one of its
+        named rates runs at the register's rate (its switches select the register): the
+        rate is stored at first and the saved one applies at power-up. At another rate
+        (set by switches) the register is not used."""
+        d = self.description
+        key = d.link.baud_register
+        if key is None or self.settings is None:
+            return
+        reg = d.regs[key]
+        if initial:
+            code = reg.d.values.get(str(self.settings.baudrate))
+            self._baud_by_register = code is not None
+            if code is not None:
+                self._store(self.regs, reg, None, code)
+            return
+        if not self._baud_by_register:
+            return
+        baud = {v: k for k, v in reg.d.values.items()}.get(self._raw(reg, None), "")
+        if baud.isdigit():
+            self.settings = LineSettings.parse(self.settings.format, baudrate=int(baud))
 
     def _apply_format_register(self, *, initial: bool) -> None:
         """The line format register: set from the settings at first, applied at power-up."""
@@ -864,6 +1263,12 @@ class DescribedDrive(SimDrive):
             self.settings = LineSettings.parse(fmt, baudrate=self.settings.baudrate)
 
 
+def _first(*candidates: tuple[float | None, _Handler]) -> tuple[float, _Handler] | None:
+    """The earliest of the events that happen (time not None)."""
+    found = [(t, h) for t, h in candidates if t is not None]
+    return min(found, key=lambda c: c[0]) if found else None
+
+
 def _cia402_method(method: MethodDef | None) -> HomingMethod | None:
     """The CiA 402 method a description's homing method behaves as, if any."""
     if method is None or method.cia402 is None:
@@ -882,7 +1287,7 @@ def _formats_at(d: Description, baud: int) -> list[str]:
 
 
 def _computed(reg: Reg) -> bool:
-    return reg.d.means in _COMPUTED or reg.d.means == "constant" or any(
+    return reg.d.means is not None or any(
         b.means is not None for b in reg.d.bits.values())
 
 
@@ -940,8 +1345,11 @@ class _Scope(Mapping[str, Any]):
             "moving": lambda: t.kin.moving(now),
             "alarm": lambda: bool(t.alarm_code),
             "homed": lambda: t.homed,
+            "homing": lambda: t._homing is not None or t._ref is not None,
             "motion": lambda: t.motion,
             "speed_now": lambda: t.speed_rpm(now),
+            "motion_decel": lambda: None if t._motion_decel is None or not
+            math.isfinite(t._motion_decel) else t._motion_decel / t.pulses_per_rev,
             "pulses_per_rev": lambda: t.pulses_per_rev,
             "limit_positive": lambda: t.switch_states(now)[2],
             "limit_negative": lambda: t.switch_states(now)[1],
@@ -1010,6 +1418,7 @@ def described_twin(d: Description) -> type[DescribedDrive]:
         "exception_codes": codes,
         "read_functions": reads,
         "max_read": d.link.max_read,
+        "_map_end": max(specs, default=0),
         "_words": words,
         "_pairs": pairs,
         "_input_specs": input_specs,

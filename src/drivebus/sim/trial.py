@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import anyio
 
 from drivebus.drives.base import DriveProfile, MoveParams
-from drivebus.drives.description import Description
+from drivebus.drives.description import Description, HomingMethod
 from drivebus.drives.engine import profile_class
 from drivebus.drives.status import DriveStatus
 from drivebus.errors import DrivebusError, LimitViolation, NotSupported
@@ -216,10 +216,11 @@ async def try_description(d: Description, *, address: int | None = None) -> list
             name, method = next(iter(d.homing.methods.items()))
             if not (await profile.read_status()).enabled:  # a quick stop may disable it
                 await profile.enable()
-            where, origin = _origin(method.cia402, ppr, twin.physical_position())
+            where, origin = _origin(method, ppr, twin.physical_position())
+            # a gentle homing ramp (0.1 s to 120 rpm): drives with a minimum ramp time
             await profile.home(speed_rpm=min(p.speed_rpm, 120.0),
                                creep_rpm=max(min(p.speed_rpm, 120.0) / 4, 1.0),
-                               accel_rps2=p.accel_rps2)
+                               accel_rps2=min(p.accel_rps2, 20.0))
             st = await _wait(profile, lambda s: s.homed and not s.moving and not s.homing,
                              "homed at rest", timeout=3 * _TIMEOUT)
             if origin is None:
@@ -296,8 +297,15 @@ def _trial_ppr(d: Description, allowed: object) -> int:
     return ppr.default
 
 
-def _origin(method: int | None, ppr: int, start: float) -> tuple[str, float | None]:
-    """Where CiA 402 homing method ``method`` puts the origin on the trial's twin."""
+def _origin(m: HomingMethod, ppr: int, start: float) -> tuple[str, float | None]:
+    """Where homing method ``m`` (its CiA 402 method, or its reference input) puts the
+    origin on the trial's twin."""
+    if m.behaviour == "reference_edge":
+        return {"home_switch": ("the home switch's edge", 1.5 * ppr),
+                "limit_positive": ("the positive limit switch", _LIMIT * ppr),
+                "limit_negative": ("the negative limit switch", -_LIMIT * ppr),
+                }[m.reference or "home_switch"]
+    method = m.cia402
     if method in (1, 17):
         return "the negative limit switch", -_LIMIT * ppr
     if method in (2, 18):
@@ -310,8 +318,11 @@ def _origin(method: int | None, ppr: int, start: float) -> tuple[str, float | No
 
 
 def _alarm_code(d: Description) -> int:
+    """An alarm code to raise: one the clear-alarm command clears, where the description
+    says which do."""
     if d.alarms is not None and d.alarms.texts:
-        return next(iter(d.alarms.texts))
+        cleared = [c for c in d.alarms.texts if d.alarms.clears.get(c, "command") == "command"]
+        return (cleared or list(d.alarms.texts))[0]
     return 1
 
 
