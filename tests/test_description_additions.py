@@ -86,7 +86,9 @@ names = ["IN1", "IN2", "IN3"]
 
 [programs]
 preload = "the manual says so"
-no_table = "it has none"
+
+[procedures.prepare_table]
+unsupported = "it has none"
 
 [homing.methods]
 home = { code = 1, behaviour = "reference_edge", reference = "home_switch", direction = 1 }
@@ -94,8 +96,8 @@ home = { code = 1, behaviour = "reference_edge", reference = "home_switch", dire
 [procedures.setup]
 steps = [
   { read = ["mode", "function"] },
-  { write = { mode = 3 }, changed = true },
-  { write = { "function[key]" = "value" }, each = "option.wiring", changed = true },
+  { write = { mode = 3 }, if_changed = true },
+  { write = { "function[key]" = "option.wiring[key]" }, each = "key in option.wiring", if_changed = true },
 ]
 
 [link]

@@ -32,7 +32,7 @@ def test_opening_a_simulated_machine_loads_the_simulator_through_its_provider() 
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, timeout=60, cwd=ROOT)
-    assert out.stdout.strip().startswith("drivebus.sim.drives."), out.stdout
+    assert out.stdout.strip().startswith("drivebus.sim."), out.stdout  # a coded or a described twin
 
 
 def test_the_layer_contracts_are_kept() -> None:

@@ -535,7 +535,8 @@ class CompletionDef(_Model):
     alarm: E | None = None
     limit_positive: E | None = None
     limit_negative: E | None = None
-    """Each field: an expression on what ``read`` reads; not given, ``[status]``'s own."""
+    """Each field: an expression on what ``read`` reads; not given, ``[status]``'s own (an
+    alarm or limit field the read cannot decode is then False: the status polls judge it)."""
 
 
 class StatusDef(_Model):

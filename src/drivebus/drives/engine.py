@@ -1031,7 +1031,8 @@ class DescribedProfile(DriveProfile):
 
     async def read_completion(self, *, priority: Priority = Priority.COMMAND) -> Completion | None:
         """``[status.completion]``: its short read, decoded by its expressions (``[status]``'s
-        own where it gives none); None without one (the status poll is used)."""
+        own where it gives none; an alarm or limit field the read cannot decode is False:
+        the status polls judge it); None without one (the status poll is used)."""
         c = self.description.status.completion
         if c is None:
             return None
@@ -1040,12 +1041,16 @@ class DescribedProfile(DriveProfile):
         fields = self.description.status_exprs
 
         def flag(name: str) -> bool:
-            e = getattr(c, name) or fields.get(name)
+            given = getattr(c, name)
+            e = given or fields.get(name)
             try:
                 return bool(e(scope)) if e is not None else False
             except Unknown as exc:
+                if given is None and name not in ("moving", "in_position"):
+                    return False  # an alarm or a limit the short read does not see: the polls judge it
+                where = f"status.completion.{name}" if given is not None else f"status.{name}"
                 raise ConfigError(f"{self.family}: status.completion.read does not read what "
-                                  f"status.{name} uses ({exc})") from None
+                                  f"{where} uses ({exc})") from None
 
         return Completion(moving=flag("moving"), in_position=flag("in_position"),
                           alarm=flag("alarm"), limit_positive=flag("limit_positive"),
