@@ -1047,7 +1047,7 @@ class DescribedProfile(DriveProfile):
                 return bool(e(scope)) if e is not None else False
             except Unknown as exc:
                 if given is None and name not in ("moving", "in_position"):
-                    return False  # an alarm or a limit the short read does not see: the polls judge it
+                    return False  # an alarm or limit the short read cannot see: polls judge it
                 where = f"status.completion.{name}" if given is not None else f"status.{name}"
                 raise ConfigError(f"{self.family}: status.completion.read does not read what "
                                   f"{where} uses ({exc})") from None
