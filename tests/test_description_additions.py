@@ -97,7 +97,7 @@ home = { code = 1, behaviour = "reference_edge", reference = "home_switch", dire
 steps = [
   { read = ["mode", "function"] },
   { write = { mode = 3 }, if_changed = true },
-  { write = { "function[k]" = "option.wiring[k]" }, each = "k in option.wiring", if_changed = true },
+{ write = { "function[k]" = "option.wiring[k]" }, each = "k in option.wiring", if_changed = true },
 ]
 
 [link]
