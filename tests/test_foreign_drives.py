@@ -1,0 +1,345 @@
+"""Drives drivebus has never seen, described from their public manuals in the description
+format only, and driven through the public API against an INDEPENDENT emulator.
+
+The Leadshine PR-mode stepper (configs/drives/leadshine_pr.toml) is written from the
+manual's parameter list, as an outside user writes it. Its emulator below is a pymodbus
+RTU server whose register behaviour is written from the same manual's words (the trigger
+register, the PR path 0 block, the motion status bits, homing, alarm reset) with a simple
+kinematic of its own — nothing of ``drivebus.sim`` is used. The machine file names the
+description by path, as a user's does, and talks to the emulator over a pty null-modem
+(the real serial stack). The same description also passes ``drivebus drive try`` against
+the generic twin drivebus builds from it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import subprocess
+import sys
+import time
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import anyio
+import pytest
+from pymodbus.server import ModbusSerialServer
+
+from drivebus import AxisState, open_machine
+from drivebus.drives.description import load_description
+from drivebus.errors import LimitViolation, StateError
+from pymodbus_servers import PYMODBUS
+from test_pymodbus_peer import null_modem
+
+ROOT = Path(__file__).resolve().parents[1]
+LEADSHINE = ROOT / "configs" / "drives" / "leadshine_pr.toml"
+
+pytestmark = pytest.mark.skipif(PYMODBUS < (3, 13), reason="SimDevice actions: pymodbus 3.13+")
+
+
+# == an independent Leadshine PR-mode emulator (from the manual, not from drivebus.sim) ========
+
+# The manual's addresses (hex, as on the wire) and factory values.
+PPR, ENABLE, STATUS, CONTROL, ALARM = 0x0001, 0x000F, 0x1003, 0x1801, 0x2203
+TRIGGER, HOME_MODE, HOME_FAST, HOME_SLOW, HOME_ACC, HOME_DEC = (
+    0x6002, 0x600A, 0x600F, 0x6010, 0x6011, 0x6012)
+POS_HI, POS_LO, SPEED_NOW = 0x602A, 0x602B, 0x6030
+PR_MODE, PR_POS_HI, PR_POS_LO, PR_SPEED, PR_ACC, PR_DEC = (
+    0x6200, 0x6201, 0x6202, 0x6203, 0x6204, 0x6205)
+FACTORY = {
+    PPR: 10000, ENABLE: 0, STATUS: 0, CONTROL: 0, ALARM: 0, TRIGGER: 0, HOME_MODE: 0,
+    HOME_FAST: 200, HOME_SLOW: 50, HOME_ACC: 100, HOME_DEC: 100, POS_HI: 0, POS_LO: 0,
+    SPEED_NOW: 0, PR_MODE: 1, PR_POS_HI: 0, PR_POS_LO: 0, PR_SPEED: 60, PR_ACC: 100,
+    PR_DEC: 100,
+}
+READ_ONLY = {STATUS, ALARM, POS_HI, POS_LO, SPEED_NOW}
+# Motion status 0x1003: bit 0 fault, 1 enabled, 2 running, 4 command completed,
+# 5 path completed, 6 homing completed.
+FAULT, ENABLED, RUNNING, CMD_DONE, PATH_DONE, HOMED = 1, 2, 4, 16, 32, 64
+DT = 0.0005  # the emulator's integration step, s
+
+
+def _signed16(w: int) -> int:
+    return w - 0x10000 if w & 0x8000 else w
+
+
+@dataclass
+class Leadshine:
+    """One drive: its registers and a trapezoidal kinematic, advanced at each access."""
+
+    limit_negative: float = -30000.0
+    """Where its negative limit switch sits (pulses), the homing target of mode 0."""
+    home_switch: float = -12000.0
+    regs: dict[int, int] = field(default_factory=lambda: dict(FACTORY))
+    pos: float = 0.0
+    vel: float = 0.0
+    """pulses/s, signed."""
+    motion: str | None = None
+    """None (at rest), "position", "speed", "stopping" or "homing"."""
+    target: float = 0.0
+    vmax: float = 0.0
+    acc: float = 1.0
+    dec: float = 1.0
+    homed: bool = False
+    alarm: int = 0
+    t: float = field(default_factory=time.monotonic)
+    writes: list[tuple[int, list[int]]] = field(default_factory=list)
+    """Every write received: (address, values)."""
+
+    # -- units as the manual gives them -----------------------------------------------------
+
+    def pps(self, rpm: float) -> float:
+        return rpm / 60.0 * self.regs[PPR]
+
+    def rate(self, ms_per_1000rpm: int) -> float:
+        """pulses/s² of a ramp time in ms per 1000 rpm."""
+        return self.pps(1000.0) / (max(ms_per_1000rpm, 1) / 1000.0)
+
+    @property
+    def enabled(self) -> bool:
+        return self.regs[ENABLE] == 1
+
+    @property
+    def position(self) -> int:
+        return round(self.pos)
+
+    # -- the kinematic --------------------------------------------------------------------
+
+    def advance(self, now: float) -> None:
+        while self.t + DT <= now:
+            self.t += DT
+            self._step()
+
+    def _step(self) -> None:
+        m = self.motion
+        if m is None:
+            return
+        if m == "position":
+            dist = self.target - self.pos
+            if abs(dist) < 0.5:
+                self._rest(self.target)
+                return
+            d = math.copysign(1.0, dist)
+            allowed = math.sqrt(2.0 * self.dec * abs(dist))
+            v = min(abs(self.vel) + self.acc * DT, self.vmax, allowed) if self.vel * d >= 0 \
+                else 0.0
+            self.vel = d * v
+            nxt = self.pos + self.vel * DT
+            if (self.target - nxt) * d <= 0:
+                self._rest(self.target)
+                return
+            self.pos = nxt
+        elif m in ("speed", "homing"):
+            want = self.target  # the signed speed
+            rate = self.acc if abs(want) >= abs(self.vel) and want * self.vel >= 0 else self.dec
+            step = rate * DT
+            self.vel = want if abs(want - self.vel) <= step else \
+                self.vel + math.copysign(step, want - self.vel)
+            self.pos += self.vel * DT
+            if m == "homing":
+                mode = self.regs[HOME_MODE]
+                edge = self.home_switch if mode & 4 else self.limit_negative
+                if (self.pos - edge) * math.copysign(1.0, self.vel) >= 0:
+                    self.homed = True
+                    self._rest(0.0)  # the found origin becomes position 0 (Pr8.11/12 = 0)
+                    return
+        elif m == "stopping":
+            step = self.dec * DT
+            if abs(self.vel) <= step:
+                self._rest(self.pos)
+                return
+            self.vel -= math.copysign(step, self.vel)
+            self.pos += self.vel * DT
+        if self.pos <= self.limit_negative and self.vel < 0 and m != "homing":
+            self._rest(self.limit_negative)  # its limit input stops the motor at once
+
+    def _rest(self, pos: float) -> None:
+        self.pos, self.vel, self.motion = pos, 0.0, None
+
+    # -- what the registers do (the manual's words) ----------------------------------------
+
+    def on_write(self, address: int, values: list[int]) -> None:
+        self.writes.append((address, list(values)))
+        for i, v in enumerate(values):
+            self.regs[address + i] = v
+        written = range(address, address + len(values))
+        if ENABLE in written and not self.enabled:
+            self._rest(self.pos)  # disabled: the motor is released at once
+        if CONTROL in written and self.regs[CONTROL] == 0x1111:
+            self.alarm = 0
+        if TRIGGER in written:
+            self.trigger(self.regs[TRIGGER])
+
+    def trigger(self, value: int) -> None:
+        if value == 0x0040:  # stop the path with its deceleration
+            if self.motion is not None:
+                self.dec = self.rate(self.regs[PR_DEC])
+                self.motion = "stopping"
+            return
+        if value == 0x0021:
+            self.pos = 0.0
+            return
+        if not self.enabled or self.alarm:
+            return  # "the drive must be enabled and free of alarms to run a path"
+        if value == 0x0010 and self.motion is None:
+            mode = self.regs[PR_MODE]
+            speed = _signed16(self.regs[PR_SPEED])
+            self.acc, self.dec = self.rate(self.regs[PR_ACC]), self.rate(self.regs[PR_DEC])
+            if mode & 0x0F == 2:
+                self.motion, self.target = "speed", self.pps(speed)
+                return
+            p = (self.regs[PR_POS_HI] << 16) | self.regs[PR_POS_LO]
+            p = p - (1 << 32) if p & 0x80000000 else p
+            self.target = self.pos + p if mode & 0x40 else float(p)
+            self.vmax = abs(self.pps(speed))
+            self.motion = "position"
+        elif value == 0x0020 and self.motion is None:
+            mode = self.regs[HOME_MODE]
+            d = 1.0 if mode & 1 else -1.0
+            self.homed = False
+            self.acc = self.dec = self.rate(self.regs[HOME_ACC])
+            self.motion, self.target = "homing", d * self.pps(self.regs[HOME_FAST])
+
+    def raise_alarm(self, code: int) -> None:
+        self.alarm = code
+        self._rest(self.pos)  # a fault stops the motor at once
+
+    def status_word(self) -> int:
+        w = (FAULT if self.alarm else 0) | (ENABLED if self.enabled else 0)
+        if self.motion is not None:
+            w |= RUNNING
+        else:
+            w |= CMD_DONE | PATH_DONE
+        return w | (HOMED if self.homed else 0)
+
+    def refresh(self, now: float) -> None:
+        self.advance(now)
+        p = self.position & 0xFFFFFFFF
+        rpm = round(self.vel / self.regs[PPR] * 60.0)
+        self.regs.update({STATUS: self.status_word(), ALARM: self.alarm, POS_HI: p >> 16,
+                          POS_LO: p & 0xFFFF, SPEED_NOW: rpm & 0xFFFF})
+
+    async def action(self, function: int, start: int, address: int, count: int,
+                     registers: list[int], values: Any) -> Any:
+        """pymodbus's hook on every access: bring the registers up to date, act on writes."""
+        from pymodbus.constants import ExcCodes
+
+        self.refresh(time.monotonic())
+        if values is not None:
+            if PR_SPEED in range(address, address + count) and \
+                    abs(_signed16(values[PR_SPEED - address])) > 3000:
+                return ExcCodes.ILLEGAL_VALUE  # "out of range: exception 03"
+            self.on_write(address, list(values))
+            self.refresh(time.monotonic())
+        for a, v in self.regs.items():
+            registers[a - start] = v
+        return None
+
+
+@asynccontextmanager
+async def leadshine_on_a_pty(drive: Leadshine, unit: int = 1) -> AsyncIterator[str]:
+    """The emulated drive served by pymodbus on one end of a null modem; yields ours."""
+    from pymodbus.simulator import DataType, SimData, SimDevice
+
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    data = [SimData(a, values=[v], datatype=DataType.REGISTERS, readonly=a in READ_ONLY)
+            for a, v in sorted(FACTORY.items())]
+    async with null_modem() as (ours, theirs):
+        server = ModbusSerialServer([SimDevice(unit, simdata=data, action=drive.action)],
+                                    port=theirs, baudrate=115200, parity="N", stopbits=1)
+        await server.serve_forever(background=True)
+        try:
+            yield ours
+        finally:
+            await server.shutdown()
+
+
+def machine(port: str, drive: Path = LEADSHINE) -> dict[str, Any]:
+    """A machine file with one axis on the emulated drive, its description by path."""
+    return {
+        "name": "foreign",
+        "lines": {"rs485": {"port": port, "settings": "115200 8N1", "timeout": 0.3,
+                            "retries": 1}},
+        "axes": {"a": {
+            "line": "rs485", "address": 1, "drive": str(drive), "pulses_per_rev": 10000,
+            "units_per_rev": 10.0, "unit": "mm", "speed": 60.0, "accel": 600.0,
+            "decel": 600.0, "limits": [-20.0, 200.0], "poll": {"moving": 0.01, "idle": 0.05},
+            "homing": {"method": "negative_limit", "speed": 60.0, "creep": 10.0,
+                       "accel": 600.0},
+        }},
+    }
+
+
+async def until(cond: Any, timeout: float = 5.0) -> None:
+    """Wait (bounded) for a condition on the emulator's state."""
+    with anyio.fail_after(timeout):
+        while not cond():  # noqa: ASYNC110 - the emulator has no event to wait on
+            await anyio.sleep(0.005)
+
+
+async def test_the_leadshine_description_drives_an_independent_emulator() -> None:
+    drive = Leadshine()
+    with anyio.fail_after(60):
+        async with leadshine_on_a_pty(drive) as port, open_machine(machine(port)) as m:
+            a = m.axes["a"]
+            await a.enable()
+            assert drive.enabled and drive.writes[0] == (PPR, [10000])  # setup: Pr0.00 first
+            await a.move_to(20.0)
+            assert drive.position == 20000 and a.position == 20.0
+            assert a.state is AxisState.STANDSTILL
+            # One FC16 for the path block, then the trigger: mode, position (high word
+            # first), speed 360 rpm, ramps of 60 rev/s² in ms per 1000 rpm = 278.
+            block, trig = drive.writes[-2:]
+            assert block == (PR_MODE, [0x0001, 0, 20000, 360, 278, 278])
+            assert trig == (TRIGGER, [0x0010])
+            await a.move_by(-25.0)
+            assert drive.position == -5000 and drive.writes[-2][1][0] == 0x0041
+            # A jog (within soft limits: a path to the limit at the jog speed), then a stop
+            # that decelerates with the path's deceleration.
+            await a.jog(-5.0, watchdog=None)
+            await until(lambda: drive.vel < 0)
+            assert drive.regs[PR_SPEED] == 30 and drive.target == -20000
+            await a.stop()
+            assert drive.motion is None and drive.vel == 0.0
+            assert drive.writes[-1] == (TRIGGER, [0x0040])
+            # Homing on the negative limit switch: Pr8.10 = 0, trigger 0x20; position 0.
+            await a.home()
+            assert drive.homed and drive.position == 0 and a.homed
+            assert (HOME_MODE, [0]) in drive.writes and (TRIGGER, [0x0020]) in drive.writes
+            # Soft limits: nothing is written for a move beyond them.
+            sent = len(drive.writes)
+            with pytest.raises(LimitViolation):
+                await a.move_to(500.0)
+            assert len(drive.writes) == sent
+            # An alarm of the drive reaches the axis with the manual's text; reset clears.
+            await a.jog(5.0, watchdog=None)
+            await until(lambda: drive.vel > 0)
+            drive.raise_alarm(0x80)
+            with anyio.fail_after(5):
+                async for st in a.watch():
+                    if st.alarm:
+                        break
+            assert st.alarm_text == "lock shaft fault (stall)"
+            with pytest.raises(StateError, match=r"drive alarm 128: lock shaft fault"):
+                await a.move_to(10.0)
+            await a.reset()
+            assert drive.alarm == 0 and (CONTROL, [0x1111]) in drive.writes
+            # The emergency stop: halt_now stops the running path.
+            await a.enable()
+            await a.jog(5.0, watchdog=None)
+            await until(lambda: drive.vel > 0)
+            await a.halt_now()
+            await until(lambda: drive.motion is None, timeout=2.0)
+            await a.disable()
+            assert not drive.enabled
+
+
+def test_the_leadshine_description_passes_its_trial() -> None:
+    load_description(LEADSHINE)  # loads without a problem
+    done = subprocess.run([sys.executable, "-m", "drivebus.cli", "drive", "try", str(LEADSHINE)],
+                          capture_output=True, text=True, timeout=120, check=False, cwd=ROOT)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "12 passed, 0 failed, 0 skipped" in done.stdout
