@@ -28,14 +28,18 @@ import anyio
 import pytest
 from pymodbus.server import ModbusSerialServer
 
-from drivebus import AxisState, open_machine
+from drivebus import AxisState, LineSettings, open_machine
 from drivebus.drives.description import load_description
-from drivebus.errors import LimitViolation, StateError
+from drivebus.drives.engine import profile_class
+from drivebus.errors import ConfigError, LimitViolation, StateError
+from drivebus.sim import sim_bus
+from drivebus.sim.described import described_twin
 from pymodbus_servers import PYMODBUS
 from test_pymodbus_peer import null_modem
 
 ROOT = Path(__file__).resolve().parents[1]
 LEADSHINE = ROOT / "configs" / "drives" / "leadshine_pr.toml"
+FAST = LineSettings.parse("115200 8N1")
 
 pytestmark = pytest.mark.skipif(PYMODBUS < (3, 13), reason="SimDevice actions: pymodbus 3.13+")
 
@@ -333,6 +337,8 @@ async def test_the_leadshine_description_drives_an_independent_emulator() -> Non
             await until(lambda: drive.vel > 0)
             await a.halt_now()
             await until(lambda: drive.motion is None, timeout=2.0)
+            # its shortest ramp as the raw value 1 (`raw = true`), then the stop trigger
+            assert drive.writes[-2:] == [(PR_DEC, [1]), (TRIGGER, [0x0040])]
             await a.disable()
             assert not drive.enabled
 
@@ -343,3 +349,30 @@ def test_the_leadshine_description_passes_its_trial() -> None:
                           capture_output=True, text=True, timeout=120, check=False, cwd=ROOT)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "12 passed, 0 failed, 0 skipped" in done.stdout
+
+
+# == what the format gained from these drives =================================================
+
+
+def variant(tmp_path: Path, old: str, new: str, name: str = "variant.toml") -> Path:
+    """The Leadshine description with ``old`` replaced by ``new``, as a file."""
+    text = LEADSHINE.read_text(encoding="utf-8")
+    assert old in text, old
+    path = tmp_path / name
+    path.write_text(text.replace(old, new), encoding="utf-8")
+    return path
+
+
+async def test_a_raw_write_is_range_checked_before_any_frame(tmp_path: Path) -> None:
+    desc = load_description(variant(tmp_path, "{ value = 1, raw = true }",
+                                    "{ value = 0, raw = true }"))
+    twin = described_twin(desc)(1, FAST)
+    async with sim_bus([twin], FAST) as (wire, bus):
+        profile = profile_class(desc)(bus.slave(1))
+        with pytest.raises(LimitViolation, match=r"PR0 deceleration time .* outside its "
+                                                  r"range 1\.\.32767"):
+            await profile.emergency_stop()
+        assert wire.requests() == []
+    with pytest.raises(ConfigError, match=r"variant\.toml: procedures\.emergency_stop\."
+                                          r"steps\[0\]\.write\.pr_decel\.raw: "):
+        load_description(variant(tmp_path, "raw = true", 'raw = "maybe"'))

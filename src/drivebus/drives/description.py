@@ -597,6 +597,8 @@ class WriteItem(_Model):
 
     value: E
     nonzero: bool = Field(False, description="the raw value must not be 0 (a move's speed)")
+    raw: bool = Field(False, description="the value is what the register holds (no unit "
+                      "conversion; still range-checked): a fastest ramp code, a bit pattern")
 
 
 def _item(v: Any) -> Any:

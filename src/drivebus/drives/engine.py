@@ -157,6 +157,7 @@ class _Item:
     value: Any
     source: Expr
     nonzero: bool
+    as_raw: bool = False
     raw: int = 0
     physical: Any = None
 
@@ -440,7 +441,7 @@ class DescribedProfile(DriveProfile):
         for key, w in step.write.items():
             reg, index = self._target(key, scope)
             value = w.value(scope)
-            items.append(_Item(reg, index, reg.at(index), value, w.value, w.nonzero))
+            items.append(_Item(reg, index, reg.at(index), value, w.value, w.nonzero, w.raw))
         for item in items:  # ramp times last: they refer to the speeds written with them
             if item.reg.codec.kind is not Kind.RAMP:
                 self._encode(item, items, run)
@@ -460,7 +461,14 @@ class DescribedProfile(DriveProfile):
         if item.value is None:
             raise LimitViolation(f"no value for register {item.register.name} (address "
                                  f"{item.register.address}): {item.source} is not given")
-        raw = codec.to_raw(item.register, item.value, ppr=self.pulses_per_rev, ref_rpm=ref)
+        if item.as_raw:  # `raw = true`: the register's own value, range-checked only
+            if isinstance(item.value, bool | str) or not isinstance(item.value, int | float):
+                raise LimitViolation(f"raw value {item.value!r} for register "
+                                     f"{item.register.name} is not a whole number")
+            raw = item.register.check(item.value)  # type: ignore[arg-type]
+        else:
+            raw = codec.to_raw(item.register, item.value, ppr=self.pulses_per_rev,
+                               ref_rpm=ref)
         if item.nonzero and raw == 0:
             reg = item.register
             unit = f" {reg.unit}" if reg.unit else ""

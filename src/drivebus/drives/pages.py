@@ -431,7 +431,8 @@ def registers_table(regs: Iterable[tuple[str, Register, str]], intro: str) -> st
 def _step_text(step: Step) -> str:
     a = step.action
     if a == "write" and step.write is not None:
-        body = ", ".join(f"{k} = {v.value}" for k, v in step.write.items())
+        body = ", ".join(f"{k} = {v.value}{' (raw)' if v.raw else ''}"
+                         for k, v in step.write.items())
         how = "" if step.block is None else " (one FC16)" if step.block.constant else \
             f" (one FC16 when {step.block})"
         text = f"write {body}{how}"
