@@ -13,6 +13,7 @@ the generic twin drivebus builds from it.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import subprocess
@@ -376,3 +377,34 @@ async def test_a_raw_write_is_range_checked_before_any_frame(tmp_path: Path) -> 
     with pytest.raises(ConfigError, match=r"variant\.toml: procedures\.emergency_stop\."
                                           r"steps\[0\]\.write\.pr_decel\.raw: "):
         load_description(variant(tmp_path, "raw = true", 'raw = "maybe"'))
+
+
+async def test_the_bus_keeps_a_drives_guard_interval_and_frame_timeout(tmp_path: Path) -> None:
+    """``[link.timing]``: the line stays quiet ``guard`` longer before each frame to the
+    guarded drive, and ``frame_timeout`` longer after each reply of the drive that trails
+    bytes; the wire log's silences show it (lower bounds only: load only lengthens them)."""
+    guarded = load_description(variant(tmp_path, "max_read = 32\n",
+                                       "max_read = 32\ntiming = { guard = 0.02 }\n", "g.toml"))
+    trailing = load_description(variant(
+        tmp_path, "max_read = 32\n", "max_read = 32\ntiming = { frame_timeout = 0.03 }\n",
+        "t.toml"))
+    plain = load_description(LEADSHINE)
+    twins = [described_twin(d)(a, FAST) for a, d in ((1, guarded), (2, trailing), (3, plain))]
+    async with sim_bus(twins, FAST) as (wire, bus):
+        profiles = [profile_class(d)(bus.slave(a))
+                    for a, d in ((1, guarded), (2, trailing), (3, plain))]
+        assert (profiles[0].slave.guard, profiles[1].slave.frame_timeout) == (0.02, 0.03)
+        wire.clear_log()
+        for _ in range(3):
+            for p in profiles:
+                await p.read_status()
+        frames = [f for f in wire.log if f.note == ""]
+    to_guarded = [f for f in frames if f.direction == "request" and f.address == 1]
+    after_trailing = [b for a, b in itertools.pairwise(frames)
+                      if a.direction == "reply" and a.address == 2]
+    assert len(to_guarded) >= 3 and len(after_trailing) >= 2
+    assert min(f.gap for f in to_guarded) >= 0.02
+    assert min(f.gap for f in after_trailing) >= 0.03
+    with pytest.raises(ConfigError, match=r"link\.timing\.guard: "):
+        load_description(variant(tmp_path, "max_read = 32\n",
+                                 "max_read = 32\ntiming = { guard = 5 }\n", "bad.toml"))

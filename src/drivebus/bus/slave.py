@@ -48,7 +48,8 @@ def _priority(priority: object) -> Priority:
 
 
 class SlaveHandle:
-    """One slave on a bus: its address, line settings, timeout, retries and exception texts."""
+    """One slave on a bus: its address, line settings, timeout, retries, guard interval,
+    frame timeout and exception texts."""
 
     def __init__(
         self,
@@ -59,6 +60,8 @@ class SlaveHandle:
         timeout: float,
         retries: int,
         exception_texts: dict[int, str] | None = None,
+        guard: float = 0.0,
+        frame_timeout: float = 0.0,
     ) -> None:
         self.address = checks.whole("slave address (0 = broadcast)", address, 0, 247,
                                     error=ConfigError)
@@ -72,6 +75,13 @@ class SlaveHandle:
         self.timeout = checks.response_timeout(f"slave {address}: response timeout", timeout)
         self.retries = checks.retry_count(f"slave {address}: retries", retries)
         self.exception_texts = dict(exception_texts or {})
+        self.guard = checks.guard_interval(f"slave {address}: guard", guard)
+        """Extra quiet time (s) the line keeps before each of this slave's frames, on top
+        of its silence (a slow drive's guard interval); 0: none."""
+        self.frame_timeout = checks.guard_interval(f"slave {address}: frame timeout",
+                                                   frame_timeout)
+        """Extra quiet time (s) after each of its replies, for bytes the drive trails after
+        its frame, before the line's next frame (to any slave); 0: none."""
 
     @property
     def is_broadcast(self) -> bool:

@@ -171,8 +171,10 @@ class Timing(_Model):
     """Per-drive timing."""
 
     response_timeout: float | None = Field(None, gt=0, le=10, description="s")
-    guard: float = Field(0.0, ge=0, le=1, description="extra silence before its frames, s")
-    frame_timeout: float | None = Field(None, gt=0, le=1, description="s (trailing garbage)")
+    guard: float = Field(0.0, ge=0, le=1, description="extra silence before its frames, s "
+                         "(the bus keeps it, on top of the line's silence)")
+    frame_timeout: float | None = Field(None, gt=0, le=1, description="extra silence after "
+                                        "its replies, s, for bytes it trails after a frame")
 
 
 _LINE_KINDS = Literal["serial", "rtu-over-tcp", "tcp"]

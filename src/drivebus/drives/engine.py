@@ -195,6 +195,9 @@ class DescribedProfile(DriveProfile):
         timeout = d.link.timing.response_timeout
         if timeout is not None and slave.timeout < timeout:
             slave.timeout = timeout
+        timing = d.link.timing
+        slave.guard = max(slave.guard, timing.guard)
+        slave.frame_timeout = max(slave.frame_timeout, timing.frame_timeout or 0.0)
 
     # -- declarations the base class and machine files use ---------------------------------
 
