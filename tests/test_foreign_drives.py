@@ -8,7 +8,9 @@ register, the PR path 0 block, the motion status bits, homing, alarm reset) with
 kinematic of its own — nothing of ``drivebus.sim`` is used. The machine file names the
 description by path, as a user's does, and talks to the emulator over a pty null-modem
 (the real serial stack). The same description also passes ``drivebus drive try`` against
-the generic twin drivebus builds from it.
+the generic twin drivebus builds from it. The ZLTECH ZLAC8015D (left channel), whose
+register list reports neither an enable state nor running, runs beside them and a seed
+drive in one machine.
 """
 
 from __future__ import annotations
@@ -344,12 +346,16 @@ async def test_the_leadshine_description_drives_an_independent_emulator() -> Non
             assert not drive.enabled
 
 
-def test_the_leadshine_description_passes_its_trial() -> None:
-    load_description(LEADSHINE)  # loads without a problem
-    done = subprocess.run([sys.executable, "-m", "drivebus.cli", "drive", "try", str(LEADSHINE)],
+def drive_try(path: Path) -> str:
+    """``drivebus drive try PATH`` as a user runs it: its table, after a zero exit."""
+    done = subprocess.run([sys.executable, "-m", "drivebus.cli", "drive", "try", str(path)],
                           capture_output=True, text=True, timeout=120, check=False, cwd=ROOT)
     assert done.returncode == 0, done.stdout + done.stderr
-    assert "12 passed, 0 failed, 0 skipped" in done.stdout
+    return done.stdout
+
+
+def test_the_leadshine_description_passes_its_trial() -> None:
+    assert "12 passed, 0 failed, 0 skipped" in drive_try(LEADSHINE)
 
 
 # == what the format gained from these drives =================================================
@@ -408,3 +414,47 @@ async def test_the_bus_keeps_a_drives_guard_interval_and_frame_timeout(tmp_path:
     with pytest.raises(ConfigError, match=r"link\.timing\.guard: "):
         load_description(variant(tmp_path, "max_read = 32\n",
                                  "max_read = 32\ntiming = { guard = 5 }\n", "bad.toml"))
+
+
+# == the ZLAC8015D hub servo (left channel) beside the Leadshine and a seed drive =============
+
+ZLAC = ROOT / "configs" / "drives" / "zlac8015d.toml"
+
+
+async def test_foreign_descriptions_share_a_machine_with_a_seed_drive() -> None:
+    """The Leadshine and the ZLAC8015D (status decoded from speed and a tracked target: the
+    drive reports neither enabled nor running) on one simulated line with the NT86: a
+    group move, then every axis jogging and an emergency stop, judged by the twins."""
+    def axis(address: int, drive: str | Path, ppr: int) -> dict[str, Any]:
+        return {"line": "rs485", "address": address, "drive": str(drive),
+                "pulses_per_rev": ppr, "units_per_rev": 10.0, "speed": 50.0, "accel": 500.0,
+                "decel": 500.0, "limits": [-100.0, 300.0],
+                "poll": {"moving": 0.01, "idle": 0.05}}
+
+    cfg = {"name": "foreign-mixed",
+           "lines": {"rs485": {"port": "sim://foreign-mixed", "settings": "115200 8N1",
+                               "timeout": 0.1}},
+           "axes": {"x": axis(2, "NT86", 4000), "l": axis(3, LEADSHINE, 10000),
+                    "z": axis(4, ZLAC, 16384)}}
+    with anyio.fail_after(30):
+        async with open_machine(cfg) as m:
+            for a in m.axes.values():
+                await a.enable()
+            await m.group("x", "l", "z").move_to({"x": 40.0, "l": 25.0, "z": -12.5})
+            twins = m.sim_drives
+            assert [twins[n].position() for n in ("x", "l", "z")] == [16000, 25000, -20480]
+            assert all(m.axes[n].state is AxisState.STANDSTILL for n in ("x", "l", "z"))
+            for a in m.axes.values():
+                await a.jog(5.0, watchdog=None)
+            await until(lambda: all(t.is_moving() for t in twins.values()))
+            async with anyio.create_task_group() as tg:
+                for a in m.axes.values():
+                    tg.start_soon(a.halt_now)
+            for name, twin in twins.items():
+                assert not twin.is_moving(), name
+
+
+def test_the_zlac8015d_description_passes_its_trial() -> None:
+    out = drive_try(ZLAC)
+    assert "11 passed, 0 failed, 1 skipped" in out
+    assert "home             skip  the ZLAC8015D-L drive cannot home" in out
