@@ -322,6 +322,10 @@ class Cia402Profile(DescribedProfile):
         c = self.description.cia402
         hs = SetPointHandshake(_ENABLED, relative=relative,
                                immediate=bool(c and c.change_set_immediately))
+        if self._last_cw is None or self._last_cw & Controlword.NEW_SET_POINT:
+            # The drive takes a set-point on bit 4's rising edge: a bit 4 left high (by a
+            # homing start, or unknown after a reconnect) goes low first.
+            await self._controlword((self._last_cw or _ENABLED) & ~Controlword.NEW_SET_POINT)
         try:
             with anyio.fail_after(self._timeout):
                 while not hs.accepted:
