@@ -74,25 +74,100 @@ def _signed16(w: int) -> int:
 
 
 @dataclass
-class Leadshine:
-    """One drive: its registers and a trapezoidal kinematic, advanced at each access."""
+class Kinematic:
+    """A motor on a trapezoidal profile (pulses, pulses/s, pulses/s²), advanced in fixed
+    steps up to each access; ``edge`` ends a search motion at a switch."""
 
     limit_negative: float = -30000.0
-    """Where its negative limit switch sits (pulses), the homing target of mode 0."""
+    """Where the negative limit switch sits (pulses)."""
     home_switch: float = -12000.0
-    regs: dict[int, int] = field(default_factory=lambda: dict(FACTORY))
+    """Where the home switch's edge sits (pulses)."""
     pos: float = 0.0
     vel: float = 0.0
     """pulses/s, signed."""
     motion: str | None = None
     """None (at rest), "position", "speed", "stopping" or "homing"."""
     target: float = 0.0
+    """The position to reach, or the signed speed to run at."""
     vmax: float = 0.0
     acc: float = 1.0
     dec: float = 1.0
+    edge: float = 0.0
+    """The switch position a homing search ends at."""
+    t: float = field(default_factory=time.monotonic)
+
+    @property
+    def position(self) -> int:
+        return round(self.pos)
+
+    def advance(self, now: float) -> None:
+        while self.t + DT <= now:
+            self.t += DT
+            self._step()
+
+    def _step(self) -> None:
+        m = self.motion
+        if m is None:
+            return
+        if m == "position":
+            dist = self.target - self.pos
+            if abs(dist) < 0.5:
+                self.rest(self.target)
+                return
+            d = math.copysign(1.0, dist)
+            allowed = math.sqrt(2.0 * self.dec * abs(dist))
+            v = min(abs(self.vel) + self.acc * DT, self.vmax, allowed) if self.vel * d >= 0 \
+                else 0.0
+            self.vel = d * v
+            nxt = self.pos + self.vel * DT
+            if (self.target - nxt) * d <= 0:
+                self.rest(self.target)
+                return
+            self.pos = nxt
+        elif m in ("speed", "homing"):
+            want = self.target  # the signed speed
+            rate = self.acc if abs(want) >= abs(self.vel) and want * self.vel >= 0 else self.dec
+            step = rate * DT
+            self.vel = want if abs(want - self.vel) <= step else \
+                self.vel + math.copysign(step, want - self.vel)
+            self.pos += self.vel * DT
+            if m == "homing" and (self.pos - self.edge) * math.copysign(1.0, self.vel) >= 0:
+                self.homed_at_edge()
+                return
+        elif m == "stopping":
+            step = self.dec * DT
+            if abs(self.vel) <= step:
+                self.rest(self.pos)
+                self.stopped()
+                return
+            self.vel -= math.copysign(step, self.vel)
+            self.pos += self.vel * DT
+        if self.pos <= self.limit_negative and self.vel < 0 and m != "homing":
+            self.rest(self.limit_negative)  # its limit input stops the motor at once
+
+    def rest(self, pos: float) -> None:
+        self.pos, self.vel, self.motion = pos, 0.0, None
+
+    def stop_with(self, dec: float) -> None:
+        """Decelerate to rest at ``dec``."""
+        if self.motion is not None:
+            self.dec, self.motion = dec, "stopping"
+
+    def homed_at_edge(self) -> None:
+        """A homing search reached its switch: the drive's own reaction."""
+        self.rest(0.0)
+
+    def stopped(self) -> None:
+        """A decelerating stop came to rest."""
+
+
+@dataclass
+class Leadshine(Kinematic):
+    """One drive: its registers, advanced at each access."""
+
+    regs: dict[int, int] = field(default_factory=lambda: dict(FACTORY))
     homed: bool = False
     alarm: int = 0
-    t: float = field(default_factory=time.monotonic)
     writes: list[tuple[int, list[int]]] = field(default_factory=list)
     """Every write received: (address, values)."""
 
@@ -109,62 +184,9 @@ class Leadshine:
     def enabled(self) -> bool:
         return self.regs[ENABLE] == 1
 
-    @property
-    def position(self) -> int:
-        return round(self.pos)
-
-    # -- the kinematic --------------------------------------------------------------------
-
-    def advance(self, now: float) -> None:
-        while self.t + DT <= now:
-            self.t += DT
-            self._step()
-
-    def _step(self) -> None:
-        m = self.motion
-        if m is None:
-            return
-        if m == "position":
-            dist = self.target - self.pos
-            if abs(dist) < 0.5:
-                self._rest(self.target)
-                return
-            d = math.copysign(1.0, dist)
-            allowed = math.sqrt(2.0 * self.dec * abs(dist))
-            v = min(abs(self.vel) + self.acc * DT, self.vmax, allowed) if self.vel * d >= 0 \
-                else 0.0
-            self.vel = d * v
-            nxt = self.pos + self.vel * DT
-            if (self.target - nxt) * d <= 0:
-                self._rest(self.target)
-                return
-            self.pos = nxt
-        elif m in ("speed", "homing"):
-            want = self.target  # the signed speed
-            rate = self.acc if abs(want) >= abs(self.vel) and want * self.vel >= 0 else self.dec
-            step = rate * DT
-            self.vel = want if abs(want - self.vel) <= step else \
-                self.vel + math.copysign(step, want - self.vel)
-            self.pos += self.vel * DT
-            if m == "homing":
-                mode = self.regs[HOME_MODE]
-                edge = self.home_switch if mode & 4 else self.limit_negative
-                if (self.pos - edge) * math.copysign(1.0, self.vel) >= 0:
-                    self.homed = True
-                    self._rest(0.0)  # the found origin becomes position 0 (Pr8.11/12 = 0)
-                    return
-        elif m == "stopping":
-            step = self.dec * DT
-            if abs(self.vel) <= step:
-                self._rest(self.pos)
-                return
-            self.vel -= math.copysign(step, self.vel)
-            self.pos += self.vel * DT
-        if self.pos <= self.limit_negative and self.vel < 0 and m != "homing":
-            self._rest(self.limit_negative)  # its limit input stops the motor at once
-
-    def _rest(self, pos: float) -> None:
-        self.pos, self.vel, self.motion = pos, 0.0, None
+    def homed_at_edge(self) -> None:
+        self.homed = True
+        self.rest(0.0)  # the found origin becomes position 0 (Pr8.11/12 = 0)
 
     # -- what the registers do (the manual's words) ----------------------------------------
 
@@ -174,7 +196,7 @@ class Leadshine:
             self.regs[address + i] = v
         written = range(address, address + len(values))
         if ENABLE in written and not self.enabled:
-            self._rest(self.pos)  # disabled: the motor is released at once
+            self.rest(self.pos)  # disabled: the motor is released at once
         if CONTROL in written and self.regs[CONTROL] == 0x1111:
             self.alarm = 0
         if TRIGGER in written:
@@ -182,9 +204,7 @@ class Leadshine:
 
     def trigger(self, value: int) -> None:
         if value == 0x0040:  # stop the path with its deceleration
-            if self.motion is not None:
-                self.dec = self.rate(self.regs[PR_DEC])
-                self.motion = "stopping"
+            self.stop_with(self.rate(self.regs[PR_DEC]))
             return
         if value == 0x0021:
             self.pos = 0.0
@@ -208,11 +228,12 @@ class Leadshine:
             d = 1.0 if mode & 1 else -1.0
             self.homed = False
             self.acc = self.dec = self.rate(self.regs[HOME_ACC])
+            self.edge = self.home_switch if mode & 4 else self.limit_negative
             self.motion, self.target = "homing", d * self.pps(self.regs[HOME_FAST])
 
     def raise_alarm(self, code: int) -> None:
         self.alarm = code
-        self._rest(self.pos)  # a fault stops the motor at once
+        self.rest(self.pos)  # a fault stops the motor at once
 
     def status_word(self) -> int:
         w = (FAULT if self.alarm else 0) | (ENABLED if self.enabled else 0)
@@ -356,6 +377,291 @@ def drive_try(path: Path) -> str:
 
 def test_the_leadshine_description_passes_its_trial() -> None:
     assert "12 passed, 0 failed, 0 skipped" in drive_try(LEADSHINE)
+
+
+# == an independent CiA 402 emulator of the Kinco FD (from CiA 402 and the Kinco manual) ======
+
+KINCO = ROOT / "configs" / "drives" / "kinco_fd.toml"
+# The Kinco FD's Modbus addresses of the CiA 402 objects; 32-bit objects LOW word first.
+K_CW, K_SW, K_QS_DEC, K_MODE, K_POS, K_VEL = 0x3100, 0x3200, 0x3300, 0x3500, 0x3700, 0x3B00
+K_TARGET, K_OFFSET, K_SPEED, K_ACC, K_DEC, K_METHOD = 0x4000, 0x4100, 0x4A00, 0x4B00, 0x4C00, \
+    0x4D00
+K_HM_FAST, K_HM_SLOW, K_HM_ACC, K_DIN, K_TARGET_VEL = 0x5010, 0x5020, 0x5200, 0x6D00, 0x6F00
+K_WIDE = {K_QS_DEC, K_POS, K_VEL, K_TARGET, K_OFFSET, K_SPEED, K_ACC, K_DEC, K_HM_FAST,
+          K_HM_SLOW, K_HM_ACC, K_DIN, K_TARGET_VEL}
+K_ONE = {K_CW, K_SW, K_MODE, K_METHOD}
+K_READ_ONLY = {K_SW, K_POS, K_POS + 1, K_VEL, K_VEL + 1, K_DIN, K_DIN + 1}
+SPEED_DEC = 2048 / 125  # DEC per pulse/s
+ACC_DEC = 256 / 15625  # DEC per pulse/s²
+# CiA 402 statusword: the state bits, remote (9), voltage enabled (4) and the mode bits.
+SW_STATE = {"switch_on_disabled": 0x0250, "ready": 0x0231, "switched_on": 0x0233,
+            "enabled": 0x0237, "quick_stop": 0x0217, "fault": 0x0218}
+
+
+@dataclass
+class Kinco(Kinematic):
+    """The drive's side of CiA 402 as the standard says it: the device control state
+    machine on the controlword, profile position with the set-point handshake (bit 4
+    edge, acknowledge bit 12, change set immediately bit 5, relative bit 6), halt (bit 8),
+    quick stop (option code 2: ramp down, then Switch on disabled), profile velocity and
+    homing methods 17, 18 and 35."""
+
+    regs: dict[int, int] = field(default_factory=dict)
+    state: str = "switch_on_disabled"
+    cw: int = 0
+    ack: bool = False
+    halted: bool = False
+    homing_done: bool = False
+    homing_error: bool = False
+    set_points: list[tuple[int, int]] = field(default_factory=list)
+    """(controlword, target) of every set-point the drive took."""
+    states: list[str] = field(default_factory=list)
+    """Every state the drive entered, in order."""
+
+    def __post_init__(self) -> None:
+        for a in K_ONE:
+            self.regs[a] = 0
+        for a in K_WIDE:
+            self.regs[a] = self.regs[a + 1] = 0
+        self.put32(K_QS_DEC, 6100)  # its factory quick stop deceleration (DEC)
+
+    def u32(self, a: int) -> int:
+        return self.regs[a] | self.regs[a + 1] << 16
+
+    def s32(self, a: int) -> int:
+        v = self.u32(a)
+        return v - (1 << 32) if v & 0x80000000 else v
+
+    def put32(self, a: int, v: int) -> None:
+        v &= 0xFFFFFFFF
+        self.regs[a], self.regs[a + 1] = v & 0xFFFF, v >> 16
+
+    @property
+    def mode(self) -> int:
+        return _signed16(self.regs[K_MODE])
+
+    def enter(self, state: str) -> None:
+        if state != self.state:
+            self.state = state
+            self.states.append(state)
+        if state != "enabled" and state != "quick_stop":
+            self.rest(self.pos)  # no torque: the motor stands (a brake holds it)
+
+    # -- the controlword --------------------------------------------------------------------
+
+    def controlword(self, cw: int) -> None:
+        prev, self.cw = self.cw, cw
+        st = self.state
+        if st == "fault":
+            if cw & 0x80 and not prev & 0x80:
+                self.enter("switch_on_disabled")
+            return
+        low = cw & 0x8F
+        if not cw & 0x02:
+            self.enter("switch_on_disabled")  # disable voltage
+        elif not cw & 0x04:  # quick stop
+            if st == "enabled":
+                self.state = "quick_stop"
+                self.states.append("quick_stop")
+                self.stop_with(self.u32(K_QS_DEC) / ACC_DEC)
+                if self.motion is None:
+                    self.enter("switch_on_disabled")
+            elif st != "quick_stop":
+                self.enter("switch_on_disabled")
+        elif low & 0x07 == 0x06:  # shutdown
+            if st in ("switch_on_disabled", "switched_on", "enabled"):
+                self.enter("ready")
+        elif low & 0x0F == 0x07:  # switch on / disable operation
+            if st in ("ready", "enabled"):
+                self.enter("switched_on")
+        elif low & 0x0F == 0x0F and st in ("ready", "switched_on", "quick_stop"):
+            self.enter("enabled")  # switch on + enable operation / enable operation
+        if self.state == "enabled":
+            self.operate(prev, cw)
+
+    def operate(self, prev: int, cw: int) -> None:
+        rising = cw & 0x10 and not prev & 0x10
+        if not cw & 0x10:
+            self.ack = False
+        halt = bool(cw & 0x100)
+        if halt and not self.halted:
+            self.halted = True
+            self.stop_with(self.u32(K_DEC) / ACC_DEC)
+        elif not halt and self.halted:
+            self.halted = False
+            if self.mode == 1 and self.motion is None and self.position != round(self.target):
+                self.go_to(self.target)  # the interrupted positioning goes on
+        if self.mode == 1 and rising and not halt:
+            busy = self.motion == "position"
+            if busy and not cw & 0x20:
+                return  # no buffer here: refused until the running one ends
+            base = self.target if busy else self.pos
+            p = self.s32(K_TARGET)
+            self.set_points.append((cw, p))
+            self.go_to(base + p if cw & 0x40 else float(p))
+            self.ack = True
+        elif self.mode == 3 and not halt:
+            self.run_velocity()
+        elif self.mode == 6 and rising and not halt:
+            self.start_homing()
+
+    def go_to(self, target: float) -> None:
+        self.target, self.motion = target, "position"
+        self.vmax = self.u32(K_SPEED) / SPEED_DEC
+        self.acc, self.dec = self.u32(K_ACC) / ACC_DEC, self.u32(K_DEC) / ACC_DEC
+
+    def run_velocity(self) -> None:
+        self.acc, self.dec = self.u32(K_ACC) / ACC_DEC, self.u32(K_DEC) / ACC_DEC
+        self.motion, self.target = "speed", self.s32(K_TARGET_VEL) / SPEED_DEC
+
+    def start_homing(self) -> None:
+        method = _signed16(self.regs[K_METHOD])
+        self.homing_done = self.homing_error = False
+        if method in (35, 37):
+            self.rest(float(self.s32(K_OFFSET)))
+            self.homing_done = True
+            return
+        if method not in (17, 18):
+            self.homing_error = True
+            return
+        self.edge = self.limit_negative if method == 17 else -self.limit_negative
+        fast = self.u32(K_HM_FAST) / SPEED_DEC
+        self.acc = self.dec = self.u32(K_HM_ACC) / ACC_DEC
+        self.motion, self.target = "homing", -fast if method == 17 else fast
+
+    def homed_at_edge(self) -> None:
+        self.rest(float(self.s32(K_OFFSET)))
+        self.homing_done = True
+
+    def stopped(self) -> None:
+        if self.state == "quick_stop":
+            self.enter("switch_on_disabled")
+
+    def raise_fault(self) -> None:
+        self.rest(self.pos)
+        self.enter("fault")
+
+    # -- the statusword and the other read-only objects --------------------------------------
+
+    def statusword(self) -> int:
+        sw = SW_STATE[self.state]
+        if self.state != "enabled":
+            return sw
+        m = self.mode
+        if m == 1:
+            reached = self.motion is None and (self.halted or self.position == round(self.target))
+            sw |= (0x400 if reached else 0) | (0x1000 if self.ack else 0)
+        elif m == 3:
+            sw |= 0x400 if self.vel == self.target or (self.halted and self.vel == 0) else 0
+            sw |= 0x1000 if self.vel == 0 else 0
+        elif m == 6:
+            sw |= (0x1400 if self.homing_done else 0) | (0x2000 if self.homing_error else 0)
+            if self.halted and self.motion is None:
+                sw |= 0x400
+        return sw
+
+    def refresh(self, now: float) -> None:
+        self.advance(now)
+        self.regs[K_SW] = self.statusword()
+        self.put32(K_POS, self.position)
+        self.put32(K_VEL, round(self.vel * SPEED_DEC))
+        din = (1 if self.pos <= self.limit_negative else 0) | \
+            (2 if self.pos >= -self.limit_negative else 0)
+        self.put32(K_DIN, din)
+
+    async def action(self, function: int, start: int, address: int, count: int,
+                     registers: list[int], values: Any) -> Any:
+        """pymodbus's hook: objects up to date on every access; writes act."""
+        self.refresh(time.monotonic())
+        if values is not None:
+            for i, v in enumerate(values):
+                self.regs[address + i] = v
+            span = range(address, address + len(values))
+            if K_CW in span:
+                self.controlword(self.regs[K_CW])
+            elif (K_TARGET_VEL in span and self.state == "enabled" and self.mode == 3
+                  and not self.halted):
+                self.run_velocity()
+            self.refresh(time.monotonic())
+        for a, v in self.regs.items():
+            registers[a - start] = v
+        return None
+
+
+@asynccontextmanager
+async def kinco_on_a_pty(drive: Kinco, unit: int = 1) -> AsyncIterator[str]:
+    """The emulated Kinco FD served by pymodbus on one end of a null modem."""
+    from pymodbus.simulator import DataType, SimData, SimDevice
+
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    data = [SimData(a, values=[0], datatype=DataType.REGISTERS, readonly=a in K_READ_ONLY)
+            for a in sorted(drive.regs)]
+    async with null_modem() as (ours, theirs):
+        server = ModbusSerialServer([SimDevice(unit, simdata=data, action=drive.action)],
+                                    port=theirs, baudrate=115200, parity="N", stopbits=1)
+        await server.serve_forever(background=True)
+        try:
+            yield ours
+        finally:
+            await server.shutdown()
+
+
+async def test_the_kinco_description_drives_an_independent_cia402_emulator() -> None:
+    drive = Kinco()
+    cfg = machine("", KINCO)
+    axis_cfg = cfg["axes"]["a"]
+    axis_cfg["homing"]["method"] = "negative_limit"
+    with anyio.fail_after(60):
+        async with kinco_on_a_pty(drive) as port:
+            cfg["lines"]["rs485"]["port"] = port
+            async with open_machine(cfg) as m:
+                a = m.axes["a"]
+                await a.enable()
+                assert drive.state == "enabled"
+                assert drive.states == ["ready", "switched_on", "enabled"] or \
+                    drive.states == ["ready", "enabled"]
+                await a.move_to(20.0)
+                assert drive.position == 20000 and a.state is AxisState.STANDSTILL
+                assert drive.set_points[-1][1] == 20000 and not drive.ack
+                await a.move_by(-5.0)
+                assert drive.position == 15000
+                # A stop mid-move, then a move elsewhere: the new set-point, not the old.
+                move = anyio.Event()
+
+                async def far() -> None:
+                    with pytest.raises(Exception):  # noqa: B017 - aborted by the stop
+                        await a.move_to(150.0)
+                    move.set()
+
+                async with anyio.create_task_group() as tg:
+                    tg.start_soon(far)
+                    await until(lambda: drive.vel > 0)
+                    await a.stop()
+                    await move.wait()
+                stopped_at = drive.position
+                assert 15000 < stopped_at < 150000 and drive.motion is None
+                await a.move_to(10.0)
+                assert drive.position == 10000
+                # Homing on the negative limit switch (method 17): position = offset 0.
+                await a.home()
+                assert drive.homing_done and drive.position == 0 and a.homed
+                # A jog and an emergency stop (quick stop): the drive ramps down.
+                await a.jog(5.0, watchdog=None)
+                await until(lambda: drive.vel > 0)
+                await a.halt_now()
+                await until(lambda: drive.motion is None, timeout=2.0)
+                # A fault, then the reset: fault reset is bit 7's rising edge.
+                await a.enable()
+                drive.raise_fault()
+                with anyio.fail_after(5):
+                    async for st in a.watch():
+                        if st.alarm:
+                            break
+                await a.reset()
+                assert drive.state != "fault"
+                await a.enable()
+                await a.move_to(5.0)
+                assert drive.position == 5000
 
 
 # == what the format gained from these drives =================================================
