@@ -1047,8 +1047,8 @@ _CONTEXT_NAMES = {
     "option", "state", "last", "words", "input", "output", "home", "pulses_per_rev",
     "value", "raw", "True", "False", "None",
 }
-_TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "raw", "speed_now",
-               "pulses_per_rev", "limit_positive", "limit_negative"}
+_TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "previous", "raw",
+               "speed_now", "pulses_per_rev", "limit_positive", "limit_negative"}
 
 
 class _Checker:

@@ -206,6 +206,8 @@ class DescribedDrive(SimDrive):
         self._motion_decel: float | None = None
         self._run_rates = (math.inf, math.inf)
         self._shift = 0.0
+        self._previous: RegValue | None = None
+        """While a write's triggers run: what the register held before it."""
         self.enabled = bool(self._eval(d.twin.enabled, 0.0))
 
     # -- the description's map ---------------------------------------------------------------
@@ -488,7 +490,7 @@ class DescribedDrive(SimDrive):
                 touched.append((w.reg, w.index))
         try:
             for reg, index in touched:
-                self._act(reg, index, now)
+                self._act(reg, index, now, before)
         except SlaveException:
             self.regs = before
             raise
@@ -505,17 +507,24 @@ class DescribedDrive(SimDrive):
         """One word (FC06): as a write of one register."""
         self.write_registers(address, [word], now)
 
-    def _act(self, reg: Reg, index: int | None, now: float) -> None:
+    def _act(self, reg: Reg, index: int | None, now: float,
+             before: Mapping[int, int] | None = None) -> None:
         triggers = self._triggers.get(reg.key, ())
         if not triggers:
             return
         value = RegValue(self._raw(reg, index), reg)
-        for trig in triggers:
-            if trig.when is not None and not self._eval(trig.when, now, value):
-                continue
-            self._do(trig, value, now)
-            if not trig.more:
-                return
+        # `previous`: what the register held before this write (a start on a 0->1 edge)
+        self._previous = RegValue(self._raw(reg, index, before), reg) if before is not None \
+            else value
+        try:
+            for trig in triggers:
+                if trig.when is not None and not self._eval(trig.when, now, value):
+                    continue
+                self._do(trig, value, now)
+                if not trig.more:
+                    return
+        finally:
+            self._previous = None
 
     # -- evaluation ---------------------------------------------------------------------------
 
@@ -902,6 +911,10 @@ class _Scope(Mapping[str, Any]):
             if self._value is None:
                 raise KeyError(key)
             return self._value
+        if key == "previous":
+            if t._previous is None:
+                raise KeyError(key)
+            return t._previous
         if key in d.constants:
             return d.constants[key]
         reg = d.regs.get(key)
