@@ -32,6 +32,7 @@ import pytest
 from pymodbus.server import ModbusSerialServer
 
 from drivebus import AxisState, LineSettings, open_machine
+from drivebus.drives.base import MoveParams
 from drivebus.drives.description import load_description
 from drivebus.drives.engine import profile_class
 from drivebus.errors import ConfigError, LimitViolation, StateError
@@ -764,3 +765,99 @@ def test_the_zlac8015d_description_passes_its_trial() -> None:
     out = drive_try(ZLAC)
     assert "11 passed, 0 failed, 1 skipped" in out
     assert "home             skip  the ZLAC8015D-L drive cannot home" in out
+
+
+EDGE_START = """
+[drive]
+family = "EDGE-START"
+
+[link]
+addresses = [1, 1]
+
+[constants]
+START = 0x0001
+
+[units.pulses_per_rev]
+default = 1000
+
+[registers.status]
+address = 0
+access = "R"
+bits.RUNNING = { bit = 0, means = "moving" }
+
+[registers.position]
+address = 1
+words = 2
+signed = true
+unit = "pulses"
+access = "R"
+means = "position"
+
+[registers.distance]
+address = 3
+words = 2
+signed = true
+unit = "pulses"
+
+[registers.speed]
+address = 5
+unit = "rpm"
+min = 1
+max = 3000
+
+[registers.accel]
+address = 6
+unit = "r/s²"
+min = 1
+max = 1000
+
+[registers.control]
+address = 7
+name = "control word (bit 0: start on its 0 -> 1 edge)"
+
+[procedures.move_relative]
+steps = [
+  { write = { distance = "distance", speed = "speed", accel = "accel" }, block = true },
+  { write = { control = 0 } },
+  { write = { control = "START" }, idempotent = false },
+]
+
+[[twin.on_write]]
+register = "control"
+when = "value & START and not previous & START"
+do = "move_relative"
+distance = "distance"
+speed = "speed"
+accel = "accel"
+decel = "accel"
+"""
+
+
+async def test_a_start_on_a_rising_edge_and_a_twin_that_sees_it(tmp_path: Path) -> None:
+    """``previous`` in ``[twin]``: the word before the write, so a twin starts only on the
+    0 -> 1 edge its manual says; a description that forgets to lower the bit first moves
+    once and then never again."""
+    async def moves(text: str) -> list[int]:
+        path = tmp_path / "edge.toml"
+        path.write_text(text, encoding="utf-8")
+        desc = load_description(path)
+        twin = described_twin(desc)(1, FAST)
+        async with sim_bus([twin], FAST) as (_, bus):
+            profile = profile_class(desc)(bus.slave(1))
+            out = []
+            for _ in range(2):
+                await profile.move_relative(500, MoveParams(600, 1000, 1000))
+                with anyio.fail_after(5):
+                    while twin.is_moving():  # noqa: ASYNC110 - the twin is the judge
+                        await anyio.sleep(0.005)
+                out.append(twin.position())
+            return out
+
+    assert await moves(EDGE_START) == [500, 1000]
+    assert await moves(EDGE_START.replace('  { write = { control = 0 } },\n', '')) == [500, 500]
+    with pytest.raises(ConfigError, match=r"procedures\.move_relative\.steps\[1\]\.write\."
+                                          r"control: 'previous' uses 'previous'"):
+        bad = tmp_path / "bad.toml"
+        bad.write_text(EDGE_START.replace("{ control = 0 }", '{ control = "previous" }'),
+                       encoding="utf-8")
+        load_description(bad)
