@@ -204,6 +204,10 @@ class Link(_Model):
     max_write: int = Field(123, ge=1, le=123)
     max_hole: int = Field(0, ge=0, le=124, description="largest gap a coalesced read spans")
     word_order: Literal["high_first", "low_first"] = "high_first"
+    register_base: Literal[0, 1, 40001] = Field(
+        0, description="the number the manual gives the first register: 0 (PDU addresses, "
+        "as on the wire), 1 (1-based) or 40001 (4xxxx numbering; input registers 3xxxx); "
+        "[registers] addresses are then the manual's numbers")
     exceptions: Annotated[dict[int, str], IntKeyed] = {}
     refusals: Refusals = Refusals()
     timing: Timing = Timing()
@@ -856,11 +860,28 @@ class Description(_Model):
     def regs(self) -> dict[str, Reg]:
         """Every register, by key (with those a CiA 402 address rule places)."""
         out = {}
-        for key, d in {**self.registers, **self._generated()}.items():
+        placed = {k: self._pdu_addresses(d) for k, d in self.registers.items()}
+        for key, d in {**placed, **self._generated()}.items():
             codec = UnitCodec.make(d.unit, d.scale, d.ramp, d.table, d.values)
             order = WordOrder(d.order) if d.order else self.link.order
             out[key] = Reg(key, d, codec, order)
         return out
+
+    def register_base(self, d: RegisterDef) -> int:
+        """What ``d``'s numbers count from (``link.register_base``; 3xxxx for input
+        registers under 4xxxx numbering)."""
+        base = self.link.register_base
+        return base - 10000 if base == 40001 and d.input else base
+
+    def _pdu_addresses(self, d: RegisterDef) -> RegisterDef:
+        """``d`` with PDU addresses (its numbers less the register base; a number below
+        the base stays as it is and the checks name it)."""
+        base = self.register_base(d)
+        if not base or d.address < base or (d.low_address is not None and
+                                            d.low_address < base):
+            return d
+        low = None if d.low_address is None else d.low_address - base
+        return d.model_copy(update={"address": d.address - base, "low_address": low})
 
     @cached_property
     def objects(self) -> dict[str, Reg]:
@@ -1102,6 +1123,15 @@ class _Checker:
         if not self.regs:
             self.out.append("registers: none given (a description needs at least one)")
         owner: dict[int, str] = {}
+        for key, given in self.d.registers.items():
+            base = self.d.register_base(given)
+            for field in ("address", "low_address"):
+                number = getattr(given, field)
+                if number is not None and number < base:
+                    self.out.append(
+                        f"registers.{key}.{field}: {number} is below the first register, "
+                        f"{base} (link.register_base = {self.d.link.register_base}: "
+                        f"addresses are the manual's numbers)")
         for key, reg in self.regs.items():
             where = f"registers.{key}"
             d = reg.d
