@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+import re
 import subprocess
 import sys
 import time
@@ -860,4 +861,32 @@ async def test_a_start_on_a_rising_edge_and_a_twin_that_sees_it(tmp_path: Path) 
         bad = tmp_path / "bad.toml"
         bad.write_text(EDGE_START.replace("{ control = 0 }", '{ control = "previous" }'),
                        encoding="utf-8")
+        load_description(bad)
+
+
+async def test_a_manual_in_4xxxx_numbering_is_written_as_it_prints(tmp_path: Path) -> None:
+    """``link.register_base = 40001``: the addresses are the manual's register numbers and
+    the frames are those of the 0-based file; a number below the base is named."""
+    def numbered(text: str) -> str:
+        text = text.replace("[link]\n", "[link]\nregister_base = 40001\n")
+        return re.sub(r"^address = (\d+)$", lambda m: f"address = {40001 + int(m[1])}", text,
+                      flags=re.M)
+
+    frames = []
+    for i, text in enumerate((EDGE_START, numbered(EDGE_START))):
+        path = tmp_path / f"d{i}.toml"
+        path.write_text(text, encoding="utf-8")
+        desc = load_description(path)
+        twin = described_twin(desc)(1, FAST)
+        async with sim_bus([twin], FAST) as (wire, bus):
+            await profile_class(desc)(bus.slave(1)).move_relative(
+                -700, MoveParams(600, 1000, 1000))
+            frames.append([f.data for f in wire.requests()])
+    assert frames[0] == frames[1] and len(frames[0]) == 3
+    assert frames[1][0].hex(" ").startswith("01 10 00 03 00 04")  # 40004 is address 3
+    bad = tmp_path / "bad.toml"
+    bad.write_text(numbered(EDGE_START).replace("address = 40008", "address = 7"),
+                   encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"bad\.toml: registers\.control\.address: 7 is "
+                                          r"below the first register, 40001"):
         load_description(bad)
