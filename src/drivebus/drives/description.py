@@ -651,6 +651,8 @@ class Step(_Model):
     @model_validator(mode="after")
     def _one_action(self) -> Step:
         given = [a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None]
+        if self.wait is not None and "read" in given:
+            given.remove("read")  # a wait's `read`: what each of its polls reads
         if len(given) != 1:
             keys = ", ".join(a.rstrip("_") for a in _ACTIONS)
             got = f"got {', '.join(given)}" if given else "got none"
@@ -663,6 +665,8 @@ class Step(_Model):
     @property
     def action(self) -> str:
         """The step's action key."""
+        if self.wait is not None:
+            return "wait"
         return next(a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None)
 
 
@@ -758,6 +762,9 @@ class Trigger(_Model):
     motion: str | None = Field(None, description="the motion kind it starts (mode register)")
     more: bool = Field(False, description="go on to the next triggers of the register")
     refuse: bool = Field(False, description="refuse with refusals.busy when it cannot start")
+    set: dict[str, E] = Field({}, description="registers the drive sets when the trigger "
+                              "fires, raw values (an acknowledge, a command register it "
+                              "clears)")
 
 
 class LimitsDef(_Model):
@@ -1362,6 +1369,9 @@ class _Checker:
             where = f"twin.on_write[{i}]"
             self._reg_key(f"{where}.register", trig.reg)
             self._names(f"{where}.when", trig.when, names)
+            for key, e in trig.set.items():
+                self._reg_key(f"{where}.set.{key}", key)
+                self._names(f"{where}.set.{key}", e, names)
             allowed = TWIN_ACTIONS[trig.do]
             for field in ("target", "distance", "speed", "accel", "decel", "creep", "method",
                           "offset", "position"):

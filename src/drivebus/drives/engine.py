@@ -397,10 +397,11 @@ class DescribedProfile(DriveProfile):
             assert step.return_ is not None
             run.result = step.return_(self._scope(run))
 
-    def _fail_check(self, step: Step, run: _Run) -> None:
+    def _fail_check(self, step: Step, run: _Run, default: str | None = None) -> None:
+        """Raise the error ``step`` says (``error``), with its ``message`` or ``default``."""
         scope = self._scope(run)
         text = step.message(scope) if step.message is not None else \
-            f"check {step.check} failed after {run.proc}"
+            default or f"check {step.check} failed after {run.proc}"
         msg = f"{self.family}: {text}"
         if step.error == "alarm":
             code, alarm_text = self._alarm_of(scope)
@@ -557,15 +558,19 @@ class DescribedProfile(DriveProfile):
         assert step.wait is not None
         timeout = float(step.timeout(self._scope(run)))
         targets = step.read
-        with anyio.fail_after(timeout):
-            while True:
-                if targets:
-                    run.values.update(await self._read_items(targets, run, prio))
-                else:
-                    run.values.update(await self._poll_values(self._status_plan, prio))
-                if step.wait(self._scope(run)):
-                    return
-                await anyio.sleep(step.every)  # poll period; the read is the condition
+        try:
+            with anyio.fail_after(timeout):
+                while True:
+                    if targets:
+                        run.values.update(await self._read_items(targets, run, prio))
+                    else:
+                        run.values.update(await self._poll_values(self._status_plan, prio))
+                    if step.wait(self._scope(run)):
+                        return
+                    await anyio.sleep(step.every)  # poll period; the read is the condition
+        except TimeoutError:  # a typed error naming the condition, not a bare timeout
+            self._fail_check(step, run, f"{run.proc}: {step.wait.source!r} did not hold "
+                                        f"within {timeout:g} s")
 
     # -- reads -----------------------------------------------------------------------------
 

@@ -521,6 +521,9 @@ class DescribedDrive(SimDrive):
                 if trig.when is not None and not self._eval(trig.when, now, value):
                     continue
                 self._do(trig, value, now)
+                for key, e in trig.set.items():  # what the drive writes back itself
+                    self._store(self.regs, self.description.regs[key], None,
+                                int(self._eval(e, now, value)))
                 if not trig.more:
                     return
         finally:
