@@ -890,3 +890,44 @@ async def test_a_manual_in_4xxxx_numbering_is_written_as_it_prints(tmp_path: Pat
     with pytest.raises(ConfigError, match=r"bad\.toml: registers\.control\.address: 7 is "
                                           r"below the first register, 40001"):
         load_description(bad)
+
+
+def acknowledging(text: str) -> str:
+    """EDGE_START as a drive that clears its control word when it takes a command, and a
+    procedure that waits for that acknowledge."""
+    text = text.replace(
+        '  { write = { control = 0 } },\n'
+        '  { write = { control = "START" }, idempotent = false },\n',
+        '  { write = { control = "START" }, idempotent = false },\n'
+        '  { wait = "control == 0", read = ["control"], timeout = 0.5 },\n')
+    return text.replace('when = "value & START and not previous & START"',
+                        'when = "value & START"\nset = { control = 0 }')
+
+
+async def test_an_acknowledge_handshake_and_a_wait_that_times_out(tmp_path: Path) -> None:
+    """``[twin]`` triggers ``set`` what the drive writes back (an acknowledge); a ``wait``
+    that never holds is a typed error naming its condition, not a bare timeout."""
+    async def move(text: str) -> int:
+        path = tmp_path / "ack.toml"
+        path.write_text(text, encoding="utf-8")
+        desc = load_description(path)
+        twin = described_twin(desc)(1, FAST)
+        async with sim_bus([twin], FAST) as (wire, bus):
+            await profile_class(desc)(bus.slave(1)).move_relative(
+                300, MoveParams(600, 1000, 1000))
+            assert [f.data[1] for f in wire.requests()] == [16, 6, 3]  # block, start, ack
+            with anyio.fail_after(5):
+                while twin.is_moving():  # noqa: ASYNC110 - the twin is the judge
+                    await anyio.sleep(0.005)
+            return twin.position()
+
+    text = acknowledging(EDGE_START)
+    assert await move(text) == 300
+    with pytest.raises(StateError, match=r"EDGE-START: move_relative: 'control == 0' did not "
+                                         r"hold within 0\.5 s"):
+        await move(text.replace("set = { control = 0 }", ""))
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace("set = { control = 0 }", "set = { contrl = 0 }"),
+                   encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"twin\.on_write\[0\]\.set\.contrl: no register"):
+        load_description(bad)
