@@ -514,6 +514,20 @@ class DescribedProfile(DriveProfile):
             return
         await super().write(reg, value, priority=priority, idempotent=idempotent)
 
+    async def write_block(self, regs: Sequence[tuple[Register, int]], *,
+                          priority: Priority = Priority.CONFIG, idempotent: bool = True) -> None:
+        """Consecutive registers in as few FC16 as ``link.max_write`` allows (a 32-bit
+        value is never split between two)."""
+        limit = self.description.link.max_write
+        chunk: list[tuple[Register, int]] = []
+        for reg, value in regs:
+            if chunk and sum(r.words for r, _ in chunk) + reg.words > limit:
+                await super().write_block(chunk, priority=priority, idempotent=idempotent)
+                chunk = []
+            chunk.append((reg, value))
+        if chunk:
+            await super().write_block(chunk, priority=priority, idempotent=idempotent)
+
     async def _write(self, step: Step, run: _Run, prio: Priority) -> None:
         items = self._items(step, run)
         block = step.block is not None and bool(step.block(self._scope(run))) and \

@@ -457,6 +457,8 @@ class DescribedDrive(SimDrive):
 
     def check_write(self, address: int, values: list[int]) -> None:
         """Word by word, then each 32-bit register written whole against its range."""
+        if len(values) > self.description.link.max_write:
+            raise SlaveException(self.exception_codes.count)
         super().check_write(address, values)
         written = dict(zip(range(address, address + len(values)), values, strict=True))
         for a in written:
