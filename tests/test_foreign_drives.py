@@ -36,7 +36,7 @@ from drivebus import AxisState, LineSettings, open_machine
 from drivebus.drives.base import MoveParams
 from drivebus.drives.description import load_description
 from drivebus.drives.engine import profile_class
-from drivebus.errors import ConfigError, LimitViolation, StateError
+from drivebus.errors import ConfigError, LimitViolation, ModbusException, StateError
 from drivebus.sim import sim_bus
 from drivebus.sim.described import described_twin
 from pymodbus_servers import PYMODBUS
@@ -301,6 +301,14 @@ def machine(port: str, drive: Path = LEADSHINE) -> dict[str, Any]:
                        "accel": 600.0},
         }},
     }
+
+
+async def until_at(twin: Any, position: int) -> bool:
+    """Wait (bounded) for a twin to come to rest; whether it is at ``position``."""
+    with anyio.fail_after(5):
+        while twin.is_moving():  # noqa: ASYNC110 - the twin is the judge
+            await anyio.sleep(0.005)
+    return bool(twin.position() == position)
 
 
 async def until(cond: Any, timeout: float = 5.0) -> None:
@@ -848,9 +856,7 @@ async def test_a_start_on_a_rising_edge_and_a_twin_that_sees_it(tmp_path: Path) 
             out = []
             for _ in range(2):
                 await profile.move_relative(500, MoveParams(600, 1000, 1000))
-                with anyio.fail_after(5):
-                    while twin.is_moving():  # noqa: ASYNC110 - the twin is the judge
-                        await anyio.sleep(0.005)
+                await until_at(twin, 0)
                 out.append(twin.position())
             return out
 
@@ -916,9 +922,7 @@ async def test_an_acknowledge_handshake_and_a_wait_that_times_out(tmp_path: Path
             await profile_class(desc)(bus.slave(1)).move_relative(
                 300, MoveParams(600, 1000, 1000))
             assert [f.data[1] for f in wire.requests()] == [16, 6, 3]  # block, start, ack
-            with anyio.fail_after(5):
-                while twin.is_moving():  # noqa: ASYNC110 - the twin is the judge
-                    await anyio.sleep(0.005)
+            await until_at(twin, 0)
             return twin.position()
 
     text = acknowledging(EDGE_START)
@@ -931,3 +935,25 @@ async def test_an_acknowledge_handshake_and_a_wait_that_times_out(tmp_path: Path
                    encoding="utf-8")
     with pytest.raises(ConfigError, match=r"twin\.on_write\[0\]\.set\.contrl: no register"):
         load_description(bad)
+
+
+async def test_blocks_are_cut_to_the_drives_max_write(tmp_path: Path) -> None:
+    """``link.max_write``: a block longer than the drive takes goes in several FC16, never
+    splitting a 32-bit value; the twin refuses a longer write as the drive would."""
+    desc = load_description(variant(tmp_path, "max_read = 32\n", "max_read = 32\nmax_write = 2\n"))
+    twin = described_twin(desc)(1, FAST)
+    async with sim_bus([twin], FAST) as (wire, bus):
+        profile = profile_class(desc)(bus.slave(1))
+        await profile.run("enable")
+        wire.clear_log()
+        await profile.move_absolute(12345, MoveParams(300, 50, 50))
+        writes = [(f.data[1], int.from_bytes(f.data[2:4], "big"),
+                   int.from_bytes(f.data[4:6], "big")) for f in wire.requests()]
+        # mode alone (mode + the 32-bit position would be 3), the position, speed and
+        # acceleration, deceleration; then the trigger
+        assert writes == [(16, PR_MODE, 1), (16, PR_POS_HI, 2), (16, PR_SPEED, 2),
+                          (16, PR_DEC, 1), (6, TRIGGER, 0x10)]
+        assert await until_at(twin, 12345)
+        with pytest.raises(ModbusException) as exc:
+            await bus.slave(1).write_registers(PR_MODE, [1, 0, 0])
+        assert exc.value.code == 3
