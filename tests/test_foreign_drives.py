@@ -22,7 +22,7 @@ import re
 import subprocess
 import sys
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Collection
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -270,13 +270,15 @@ class Leadshine(Kinematic):
 
 
 @asynccontextmanager
-async def leadshine_on_a_pty(drive: Leadshine, unit: int = 1) -> AsyncIterator[str]:
-    """The emulated drive served by pymodbus on one end of a null modem; yields ours."""
+async def on_a_pty(drive: Leadshine | Kinco, read_only: Collection[int], unit: int = 1
+                   ) -> AsyncIterator[str]:
+    """An emulated drive (its ``regs`` and ``action``) served by pymodbus on one end of a
+    null modem; yields our end. Addresses it does not have answer exception 02."""
     from pymodbus.simulator import DataType, SimData, SimDevice
 
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-    data = [SimData(a, values=[v], datatype=DataType.REGISTERS, readonly=a in READ_ONLY)
-            for a, v in sorted(FACTORY.items())]
+    data = [SimData(a, values=[v], datatype=DataType.REGISTERS, readonly=a in read_only)
+            for a, v in sorted(drive.regs.items())]
     async with null_modem() as (ours, theirs):
         server = ModbusSerialServer([SimDevice(unit, simdata=data, action=drive.action)],
                                     port=theirs, baudrate=115200, parity="N", stopbits=1)
@@ -321,7 +323,7 @@ async def until(cond: Any, timeout: float = 5.0) -> None:
 async def test_the_leadshine_description_drives_an_independent_emulator() -> None:
     drive = Leadshine()
     with anyio.fail_after(60):
-        async with leadshine_on_a_pty(drive) as port, open_machine(machine(port)) as m:
+        async with on_a_pty(drive, READ_ONLY) as port, open_machine(machine(port)) as m:
             a = m.axes["a"]
             await a.enable()
             assert drive.enabled and drive.writes[0] == (PPR, [10000])  # setup: Pr0.00 first
@@ -598,31 +600,13 @@ class Kinco(Kinematic):
         return None
 
 
-@asynccontextmanager
-async def kinco_on_a_pty(drive: Kinco, unit: int = 1) -> AsyncIterator[str]:
-    """The emulated Kinco FD served by pymodbus on one end of a null modem."""
-    from pymodbus.simulator import DataType, SimData, SimDevice
-
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-    data = [SimData(a, values=[0], datatype=DataType.REGISTERS, readonly=a in K_READ_ONLY)
-            for a in sorted(drive.regs)]
-    async with null_modem() as (ours, theirs):
-        server = ModbusSerialServer([SimDevice(unit, simdata=data, action=drive.action)],
-                                    port=theirs, baudrate=115200, parity="N", stopbits=1)
-        await server.serve_forever(background=True)
-        try:
-            yield ours
-        finally:
-            await server.shutdown()
-
-
 async def test_the_kinco_description_drives_an_independent_cia402_emulator() -> None:
     drive = Kinco()
     cfg = machine("", KINCO)
     axis_cfg = cfg["axes"]["a"]
     axis_cfg["homing"]["method"] = "negative_limit"
     with anyio.fail_after(60):
-        async with kinco_on_a_pty(drive) as port:
+        async with on_a_pty(drive, K_READ_ONLY) as port:
             cfg["lines"]["rs485"]["port"] = port
             async with open_machine(cfg) as m:
                 a = m.axes["a"]
