@@ -399,10 +399,11 @@ K_CW, K_SW, K_QS_DEC, K_MODE, K_POS, K_VEL = 0x3100, 0x3200, 0x3300, 0x3500, 0x3
 K_TARGET, K_OFFSET, K_SPEED, K_ACC, K_DEC, K_METHOD = 0x4000, 0x4100, 0x4A00, 0x4B00, 0x4C00, \
     0x4D00
 K_HM_FAST, K_HM_SLOW, K_HM_ACC, K_DIN, K_TARGET_VEL = 0x5010, 0x5020, 0x5200, 0x6D00, 0x6F00
+K_MODE_SHOWN = 0x3600  # modes of operation display (6061)
 K_WIDE = {K_QS_DEC, K_POS, K_VEL, K_TARGET, K_OFFSET, K_SPEED, K_ACC, K_DEC, K_HM_FAST,
           K_HM_SLOW, K_HM_ACC, K_DIN, K_TARGET_VEL}
-K_ONE = {K_CW, K_SW, K_MODE, K_METHOD}
-K_READ_ONLY = {K_SW, K_POS, K_POS + 1, K_VEL, K_VEL + 1, K_DIN, K_DIN + 1}
+K_ONE = {K_CW, K_SW, K_MODE, K_MODE_SHOWN, K_METHOD}
+K_READ_ONLY = {K_SW, K_MODE_SHOWN, K_POS, K_POS + 1, K_VEL, K_VEL + 1, K_DIN, K_DIN + 1}
 SPEED_DEC = 2048 / 125  # DEC per pulse/s
 ACC_DEC = 256 / 15625  # DEC per pulse/s²
 # CiA 402 statusword: the state bits, remote (9), voltage enabled (4) and the mode bits.
@@ -419,6 +420,11 @@ class Kinco(Kinematic):
     homing methods 17, 18 and 35."""
 
     regs: dict[int, int] = field(default_factory=dict)
+    mode_lag: float = 0.0
+    """How long the drive takes to change modes (s): until then it works in the old mode
+    and its display (6061) shows that one."""
+    mode_set: tuple[float, int, int] = (0.0, 0, 0)
+    """(when, the mode before, the mode written) of the last mode written."""
     state: str = "switch_on_disabled"
     cw: int = 0
     ack: bool = False
@@ -450,7 +456,9 @@ class Kinco(Kinematic):
 
     @property
     def mode(self) -> int:
-        return _signed16(self.regs[K_MODE])
+        """The mode the drive works in (the one written, once it has changed to it)."""
+        when, before, written = self.mode_set
+        return written if self.t - when >= self.mode_lag else before
 
     def enter(self, state: str) -> None:
         if state != self.state:
@@ -575,6 +583,7 @@ class Kinco(Kinematic):
     def refresh(self, now: float) -> None:
         self.advance(now)
         self.regs[K_SW] = self.statusword()
+        self.regs[K_MODE_SHOWN] = self.mode & 0xFFFF
         self.put32(K_POS, self.position)
         self.put32(K_VEL, round(self.vel * SPEED_DEC))
         din = (1 if self.pos <= self.limit_negative else 0) | \
@@ -589,6 +598,8 @@ class Kinco(Kinematic):
             for i, v in enumerate(values):
                 self.regs[address + i] = v
             span = range(address, address + len(values))
+            if K_MODE in span:
+                self.mode_set = (self.t, self.mode, _signed16(self.regs[K_MODE]))
             if K_CW in span:
                 self.controlword(self.regs[K_CW])
             elif (K_TARGET_VEL in span and self.state == "enabled" and self.mode == 3
@@ -941,3 +952,29 @@ async def test_blocks_are_cut_to_the_drives_max_write(tmp_path: Path) -> None:
         with pytest.raises(ModbusException) as exc:
             await bus.slave(1).write_registers(PR_MODE, [1, 0, 0])
         assert exc.value.code == 3
+
+
+async def test_a_cia402_move_waits_for_the_drive_to_change_modes(tmp_path: Path) -> None:
+    """A drive that takes 50 ms to change modes loses a set-point sent before it has: with
+    its mode display (6061) described, the engine waits for it."""
+    text = KINCO.read_text(encoding="utf-8").replace("[registers.pos_actual]", """\
+[registers.operation_mode_display]
+address = 0x3600
+object = "6061"
+signed = true
+access = "R"
+
+[registers.pos_actual]""")
+    described = tmp_path / "kinco_display.toml"
+    described.write_text(text, encoding="utf-8")
+    drive = Kinco(mode_lag=0.05)
+    with anyio.fail_after(30):
+        async with on_a_pty(drive, K_READ_ONLY) as port, \
+                open_machine(machine(port, described)) as m:
+            a = m.axes["a"]
+            await a.enable()
+            await a.move_to(12.5)
+            assert drive.position == 12500 and drive.set_points == [(0x3F, 12500)]
+            await a.jog(-2.0, watchdog=None)  # a move to the soft limit, same mode
+            await until(lambda: drive.vel < 0)
+            await a.stop()
