@@ -379,12 +379,17 @@ async def test_the_leadshine_description_drives_an_independent_emulator() -> Non
             assert not drive.enabled
 
 
-def drive_try(path: Path) -> str:
-    """``drivebus drive try PATH`` as a user runs it: its table, after a zero exit."""
-    done = subprocess.run([sys.executable, "-m", "drivebus.cli", "drive", "try", str(path)],
+def drive(command: str, path: Path) -> str:
+    """``drivebus drive COMMAND PATH`` as a user runs it: its output, after a zero exit."""
+    done = subprocess.run([sys.executable, "-m", "drivebus.cli", "drive", command, str(path)],
                           capture_output=True, text=True, timeout=120, check=False, cwd=ROOT)
     assert done.returncode == 0, done.stdout + done.stderr
     return done.stdout
+
+
+def drive_try(path: Path) -> str:
+    """``drivebus drive try PATH``: its table of steps."""
+    return drive("try", path)
 
 
 def test_the_leadshine_description_passes_its_trial() -> None:
@@ -978,3 +983,17 @@ access = "R"
             await a.jog(-2.0, watchdog=None)  # a move to the soft limit, same mode
             await until(lambda: drive.vel < 0)
             await a.stop()
+
+
+def test_drive_check_warns_of_addresses_that_look_4xxxx_numbered(tmp_path: Path) -> None:
+    numbered = re.sub(r"^address = (\d+)$", lambda m: f"address = {40001 + int(m[1])}",
+                      EDGE_START, flags=re.M)
+    path = tmp_path / "edge4x.toml"
+    path.write_text(numbered, encoding="utf-8")
+    assert "every register address is in 40001..49999 (40001...40008): if the manual " \
+        "numbers registers 4xxxx, set [link] register_base = 40001" in drive("check", path)
+    path.write_text(numbered.replace("[link]\n", "[link]\nregister_base = 40001\n"),
+                    encoding="utf-8")
+    out = drive("check", path)
+    assert "40001..49999" not in out
+    assert "FC03 0 (0x0000)" in out  # the status poll at PDU address 0

@@ -129,6 +129,11 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
                                      f"reads {', '.join(ident.read)}, matches {ident.match}"
                                      if ident else "not described: a scan lists it as an "
                                      "unknown Modbus slave"))
+    numbers = [reg.d.address for reg in d.regs.values() if not reg.d.input]
+    if d.link.register_base == 0 and numbers and all(40001 <= a <= 49999 for a in numbers):
+        r.warnings.append(f"every register address is in 40001..49999 ({min(numbers)}..."
+                          f"{max(numbers)}): if the manual numbers registers 4xxxx, set "
+                          f"[link] register_base = 40001 (the frames carry the number - 40001)")
     if not d.twin.on_write:
         r.warnings.append("no [twin] on_write triggers: the simulated twin will not move "
                           "(drive try fails)")
