@@ -30,13 +30,19 @@ from typing import Any
 
 import anyio
 import pytest
-from pymodbus.server import ModbusSerialServer
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from drivebus import AxisState, LineSettings, open_machine
 from drivebus.drives.base import MoveParams
 from drivebus.drives.description import load_description
 from drivebus.drives.engine import profile_class
-from drivebus.errors import ConfigError, LimitViolation, ModbusException, StateError
+from drivebus.errors import (
+    ConfigError,
+    LimitViolation,
+    ModbusException,
+    MotionAborted,
+    StateError,
+)
 from drivebus.sim import sim_bus
 from drivebus.sim.described import described_twin
 from pymodbus_servers import PYMODBUS
@@ -45,6 +51,7 @@ from test_pymodbus_peer import null_modem
 ROOT = Path(__file__).resolve().parents[1]
 LEADSHINE = ROOT / "configs" / "drives" / "leadshine_pr.toml"
 FAST = LineSettings.parse("115200 8N1")
+HOST = "127.0.0.1"
 
 pytestmark = pytest.mark.skipif(PYMODBUS < (3, 13), reason="SimDevice actions: pymodbus 3.13+")
 
@@ -270,33 +277,44 @@ class Leadshine(Kinematic):
 
 
 @asynccontextmanager
-async def on_a_pty(drive: Leadshine | Kinco, read_only: Collection[int], unit: int = 1
-                   ) -> AsyncIterator[str]:
-    """An emulated drive (its ``regs`` and ``action``) served by pymodbus on one end of a
-    null modem; yields our end. Addresses it does not have answer exception 02."""
+async def served(drive: Leadshine | Kinco, read_only: Collection[int], transport: str = "rtu",
+                 unit: int = 1) -> AsyncIterator[dict[str, Any]]:
+    """An emulated drive (its ``regs`` and ``action``) served by pymodbus: RTU on one end of
+    a null modem, or Modbus TCP on loopback; yields the machine file's line for it.
+    Addresses it does not have answer exception 02."""
     from pymodbus.simulator import DataType, SimData, SimDevice
 
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     data = [SimData(a, values=[v], datatype=DataType.REGISTERS, readonly=a in read_only)
             for a, v in sorted(drive.regs.items())]
-    async with null_modem() as (ours, theirs):
-        server = ModbusSerialServer([SimDevice(unit, simdata=data, action=drive.action)],
-                                    port=theirs, baudrate=115200, parity="N", stopbits=1)
+    device = [SimDevice(unit, simdata=data, action=drive.action)]
+    line = {"timeout": 0.3, "retries": 1}
+    if transport == "tcp":
+        server: Any = ModbusTcpServer(device, address=(HOST, 0))
         await server.serve_forever(background=True)
         try:
-            yield ours
+            yield {"kind": "tcp", "host": HOST,
+                   "tcp_port": server.transport.sockets[0].getsockname()[1], **line}
+        finally:
+            await server.shutdown()
+        return
+    async with null_modem() as (ours, theirs):
+        server = ModbusSerialServer(device, port=theirs, baudrate=115200, parity="N",
+                                    stopbits=1)
+        await server.serve_forever(background=True)
+        try:
+            yield {"port": ours, "settings": "115200 8N1", **line}
         finally:
             await server.shutdown()
 
 
-def machine(port: str, drive: Path = LEADSHINE) -> dict[str, Any]:
+def machine(line: dict[str, Any], drive: Path = LEADSHINE) -> dict[str, Any]:
     """A machine file with one axis on the emulated drive, its description by path."""
     return {
         "name": "foreign",
-        "lines": {"rs485": {"port": port, "settings": "115200 8N1", "timeout": 0.3,
-                            "retries": 1}},
+        "lines": {"bus": line},
         "axes": {"a": {
-            "line": "rs485", "address": 1, "drive": str(drive), "pulses_per_rev": 10000,
+            "line": "bus", "address": 1, "drive": str(drive), "pulses_per_rev": 10000,
             "units_per_rev": 10.0, "unit": "mm", "speed": 60.0, "accel": 600.0,
             "decel": 600.0, "limits": [-20.0, 200.0], "poll": {"moving": 0.01, "idle": 0.05},
             "homing": {"method": "negative_limit", "speed": 60.0, "creep": 10.0,
@@ -320,10 +338,12 @@ async def until(cond: Any, timeout: float = 5.0) -> None:
             await anyio.sleep(0.005)
 
 
-async def test_the_leadshine_description_drives_an_independent_emulator() -> None:
+@pytest.mark.parametrize("transport", ["rtu", "tcp"])
+async def test_the_leadshine_description_drives_an_independent_emulator(transport: str) -> None:
     drive = Leadshine()
     with anyio.fail_after(60):
-        async with on_a_pty(drive, READ_ONLY) as port, open_machine(machine(port)) as m:
+        async with served(drive, READ_ONLY, transport) as line, \
+                open_machine(machine(line)) as m:
             a = m.axes["a"]
             await a.enable()
             assert drive.enabled and drive.writes[0] == (PPR, [10000])  # setup: Pr0.00 first
@@ -618,60 +638,57 @@ class Kinco(Kinematic):
 
 async def test_the_kinco_description_drives_an_independent_cia402_emulator() -> None:
     drive = Kinco()
-    cfg = machine("", KINCO)
-    axis_cfg = cfg["axes"]["a"]
-    axis_cfg["homing"]["method"] = "negative_limit"
     with anyio.fail_after(60):
-        async with on_a_pty(drive, K_READ_ONLY) as port:
-            cfg["lines"]["rs485"]["port"] = port
-            async with open_machine(cfg) as m:
-                a = m.axes["a"]
-                await a.enable()
-                assert drive.state == "enabled"
-                assert drive.states == ["ready", "switched_on", "enabled"] or \
-                    drive.states == ["ready", "enabled"]
-                await a.move_to(20.0)
-                assert drive.position == 20000 and a.state is AxisState.STANDSTILL
-                assert drive.set_points[-1][1] == 20000 and not drive.ack
-                await a.move_by(-5.0)
-                assert drive.position == 15000
-                # A stop mid-move, then a move elsewhere: the new set-point, not the old.
-                move = anyio.Event()
+        async with served(drive, K_READ_ONLY) as line, \
+                open_machine(machine(line, KINCO)) as m:
+            a = m.axes["a"]
+            await a.enable()
+            assert drive.state == "enabled"
+            assert drive.states == ["ready", "switched_on", "enabled"] or \
+                drive.states == ["ready", "enabled"]
+            await a.move_to(20.0)
+            assert drive.position == 20000 and a.state is AxisState.STANDSTILL
+            assert drive.set_points[-1][1] == 20000 and not drive.ack
+            await a.move_by(-5.0)
+            assert drive.position == 15000
+            # A stop mid-move, then a move elsewhere: the new set-point, not the old.
+            move = anyio.Event()
 
-                async def far() -> None:
-                    with pytest.raises(Exception):  # noqa: B017 - aborted by the stop
-                        await a.move_to(150.0)
-                    move.set()
+            async def far() -> None:
+                with pytest.raises(MotionAborted):
+                    await a.move_to(150.0)
+                move.set()
 
-                async with anyio.create_task_group() as tg:
-                    tg.start_soon(far)
-                    await until(lambda: drive.vel > 0)
-                    await a.stop()
-                    await move.wait()
-                stopped_at = drive.position
-                assert 15000 < stopped_at < 150000 and drive.motion is None
-                await a.move_to(10.0)
-                assert drive.position == 10000
-                # Homing on the negative limit switch (method 17): position = offset 0.
-                await a.home()
-                assert drive.homing_done and drive.position == 0 and a.homed
-                # A jog and an emergency stop (quick stop): the drive ramps down.
-                await a.jog(5.0, watchdog=None)
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(far)
                 await until(lambda: drive.vel > 0)
-                await a.halt_now()
-                await until(lambda: drive.motion is None, timeout=2.0)
-                # A fault, then the reset: fault reset is bit 7's rising edge.
-                await a.enable()
-                drive.raise_fault()
-                with anyio.fail_after(5):
-                    async for st in a.watch():
-                        if st.alarm:
-                            break
-                await a.reset()
-                assert drive.state != "fault"
-                await a.enable()
-                await a.move_to(5.0)
-                assert drive.position == 5000
+                await a.stop()
+                await move.wait()
+            stopped_at = drive.position
+            assert 15000 < stopped_at < 150000 and drive.motion is None
+            await a.move_to(10.0)
+            assert drive.position == 10000 and drive.set_points[-1] == (0x3F, 10000)
+            # Homing on the negative limit switch (method 17): position = offset 0.
+            await a.home()
+            assert drive.homing_done and drive.position == 0 and a.homed
+            # A jog and an emergency stop (quick stop): the drive ramps down.
+            await a.jog(5.0, watchdog=None)
+            await until(lambda: drive.vel > 0)
+            await a.halt_now()
+            await until(lambda: drive.motion is None, timeout=2.0)
+            assert drive.states[-2:] == ["quick_stop", "switch_on_disabled"]  # option code 2
+            # A fault, then the reset: fault reset is bit 7's rising edge.
+            await a.enable()
+            drive.raise_fault()
+            with anyio.fail_after(5):
+                async for st in a.watch():
+                    if st.alarm:
+                        break
+            await a.reset()
+            assert drive.state != "fault"
+            await a.enable()
+            await a.move_to(5.0)
+            assert drive.position == 5000
 
 
 # == what the format gained from these drives =================================================
@@ -974,8 +991,8 @@ access = "R"
     described.write_text(text, encoding="utf-8")
     drive = Kinco(mode_lag=0.05)
     with anyio.fail_after(30):
-        async with on_a_pty(drive, K_READ_ONLY) as port, \
-                open_machine(machine(port, described)) as m:
+        async with served(drive, K_READ_ONLY) as line, \
+                open_machine(machine(line, described)) as m:
             a = m.axes["a"]
             await a.enable()
             await a.move_to(12.5)
