@@ -84,8 +84,10 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         + (f"; tables {', '.join(tables)}" if tables else ""))
     plan = p._status_plan  # type: ignore[attr-defined]
     r.lines.append("  status poll: " + ", ".join(
-        [f"FC03 {start} (0x{start:04X}) ×{count}" for start, count in plan.blocks]
-        + [f"FC04 {start} (0x{start:04X}) ×{count}" for start, count in plan.input_blocks]))
+        f"FC{fc:02d} {start} (0x{start:04X}) ×{count}"
+        for fc, blocks in ((3, plan.blocks), (4, plan.input_blocks), (1, plan.coil_blocks),
+                           (2, plan.discrete_blocks))
+        for start, count in blocks))
     s = d.status
     if d.drive.engine == "cia402":
         _cia402_lines(fam, r)

@@ -199,7 +199,7 @@ class Link(_Model):
                                          "address (`drivebus commission`)")
     comms_note: str = Field("", description="how it takes a new address or line settings "
                             "(switches, a save, a power cycle)")
-    functions: list[Literal[3, 4, 6, 16]] = [3, 6, 16]
+    functions: list[Literal[1, 2, 3, 4, 5, 6, 16]] = [3, 6, 16]
     max_read: int = Field(125, ge=1, le=125)
     max_write: int = Field(123, ge=1, le=123)
     max_hole: int = Field(0, ge=0, le=124, description="largest gap a coalesced read spans")
@@ -326,6 +326,9 @@ class RegisterDef(_Model):
     defaults: list[int] = Field([], description="a table's defaults, entry by entry")
     access: Literal["R", "W", "RW"] = "RW"
     input: bool = Field(False, description="an input register (read with FC04, read-only)")
+    coil: bool = Field(False, description="a coil (read with FC01, written with FC05: 0/1)")
+    discrete: bool = Field(False, description="a discrete input (read with FC02, read-only: "
+                           "0/1)")
     eeprom: bool = False
     volatile: bool = False
     parameter: bool | str | None = Field(
@@ -366,6 +369,14 @@ class RegisterDef(_Model):
             raise ValueError("give a table or named values, not both")
         if self.input and self.access != "R":
             raise ValueError("an input register is read-only: access = \"R\"")
+        if sum((self.input, self.coil, self.discrete)) > 1:
+            raise ValueError("a register is one of input, coil or discrete (address spaces)")
+        if (self.coil or self.discrete) and (self.words != 1 or self.unit or self.bits or
+                                             self.signed):
+            raise ValueError("a coil or discrete input is one bit (0/1): no words, signed, "
+                             "unit or bits")
+        if self.discrete and self.access != "R":
+            raise ValueError("a discrete input is read-only: access = \"R\"")
         if self.names and len(self.names) != self.count:
             raise ValueError(f"names: {len(self.names)} names for {self.count} entries")
         if self.defaults and len(self.defaults) != self.count:
@@ -433,10 +444,20 @@ class Reg:
 
     def _register(self, name: str, address: int, low: int | None) -> Register:
         d = self.d
+        bit = d.coil or d.discrete
         return Register(
             name, address, d.words, signed=d.signed, order=self.order, unit=d.unit,
-            minimum=d.min, maximum=d.max, access=Access(d.access), low_address=low,
+            minimum=0 if bit and d.min is None else d.min,
+            maximum=1 if bit and d.max is None else d.max,
+            access=Access(d.access), low_address=low,
         )
+
+    @property
+    def space(self) -> int:
+        """Its address space: 0 holding registers, 1 input registers, 2 coils, 3 discrete
+        inputs."""
+        d = self.d
+        return 1 if d.input else 2 if d.coil else 3 if d.discrete else 0
 
     def addresses(self) -> Iterator[int]:
         """Every address it occupies (every word of every entry)."""
@@ -875,10 +896,12 @@ class Description(_Model):
         return out
 
     def register_base(self, d: RegisterDef) -> int:
-        """What ``d``'s numbers count from (``link.register_base``; 3xxxx for input
-        registers under 4xxxx numbering)."""
+        """What ``d``'s numbers count from (``link.register_base``; under 4xxxx numbering,
+        input registers 3xxxx, coils 0xxxx, discrete inputs 1xxxx)."""
         base = self.link.register_base
-        return base - 10000 if base == 40001 and d.input else base
+        if base != 40001:
+            return base
+        return 30001 if d.input else 1 if d.coil else 10001 if d.discrete else base
 
     def _pdu_addresses(self, d: RegisterDef) -> RegisterDef:
         """``d`` with PDU addresses (its numbers less the register base; a number below
@@ -945,7 +968,9 @@ class Description(_Model):
         for reg in self.regs.values():
             if reg.d.access == "W" or reg.array:
                 continue
-            if reg.d.means:
+            if reg.d.means and (reg.d.coil or reg.d.discrete):
+                bits.setdefault(reg.d.means, []).append(reg.key)  # a one-bit state
+            elif reg.d.means:
                 regs.setdefault(reg.d.means, []).append(reg.key)
             for name, b in reg.d.bits.items():
                 if b.means:
@@ -1161,7 +1186,7 @@ class _Checker:
                     d.max > _width_hi(d)):
                 self.out.append(f"{where}: range {lo}..{hi} does not fit {16 * d.words} "
                                 f"{'signed' if d.signed else 'unsigned'} bits")
-            space = 1 << 16 if d.input else 0  # input registers are an address space apart
+            space = reg.space << 16  # inputs, coils and discrete inputs: spaces apart
             for a in reg.addresses():
                 if a > 0xFFFF:
                     self.out.append(f"{where}: its words reach address {a}, beyond 65535")
@@ -1191,10 +1216,14 @@ class _Checker:
                 if unknown:
                     self.out.append(f"cia402.address_rule: {c.address_rule.source!r} may use "
                                     f"only index and sub, not {', '.join(sorted(unknown))}")
-        if 3 not in d.link.functions and any(not r.d.input for r in self.regs.values()):
-            self.out.append("link.functions: holding registers need function code 3")
-        if 4 not in d.link.functions and any(r.d.input for r in self.regs.values()):
-            self.out.append("link.functions: input registers need function code 4")
+        spaces = {r.space for r in self.regs.values()}
+        for space, fc, what in ((0, 3, "holding registers"), (1, 4, "input registers"),
+                                (2, 1, "coils"), (3, 2, "discrete inputs")):
+            if space in spaces and fc not in d.link.functions:
+                self.out.append(f"link.functions: {what} need function code {fc}")
+        if any(r.d.coil and r.d.access != "R" for r in self.regs.values()) and \
+                5 not in d.link.functions:
+            self.out.append("link.functions: writing coils needs function code 5")
         if d.drive.engine == "cia402":
             for needed in ("controlword", "statusword"):
                 if needed not in d.objects:
@@ -1324,6 +1353,10 @@ class _Checker:
                     self._span(f"{where}.read[{j}]", item)
         if step.modify is not None:
             self._target(f"{where}.modify", step.modify, params)
+            reg = self.regs.get(step.modify.split("[", 1)[0].strip())
+            if reg is not None and reg.space in (2, 3):
+                self.out.append(f"{where}.modify: {reg.key} is a coil or discrete input: "
+                                f"write it (0/1) instead")
         if step.call is not None and step.call not in self.d.procedures:
             self.out.append(f"{where}.call: no procedure {step.call!r}")
         for k, e in step.args.items():

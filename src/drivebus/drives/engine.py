@@ -76,6 +76,10 @@ class ReadPlan:
     """(register, table index) read, each decoded from the blocks' words."""
     input_blocks: tuple[tuple[int, int], ...] = ()
     """(first address, count) per FC04, for input registers."""
+    coil_blocks: tuple[tuple[int, int], ...] = ()
+    """(first address, count) per FC01, for coils."""
+    discrete_blocks: tuple[tuple[int, int], ...] = ()
+    """(first address, count) per FC02, for discrete inputs."""
 
 
 def plan_reads(
@@ -84,12 +88,12 @@ def plan_reads(
 ) -> ReadPlan:
     """Cover ``targets`` (and the address ``spans`` given whole) with as few reads as
     ``max_read`` registers per read and gaps of at most ``max_hole`` allow."""
-    wanted: set[int] = set()
-    inputs: set[int] = set()
+    spaces: tuple[set[int], ...] = (set(), set(), set(), set())
+    wanted, inputs = spaces[0], spaces[1]
     regs = []
     for reg, index in targets:
         r = reg.at(index) if reg.array else reg.register
-        space = inputs if reg.d.input else wanted
+        space = spaces[reg.space]
         space.add(r.address)
         if r.words == 2:
             space.add(r.low_address if r.low_address is not None else r.address + 1)
@@ -97,7 +101,8 @@ def plan_reads(
     for first, last in spans:
         wanted.update(range(first, last + 1))
     return ReadPlan(_blocks(wanted, max_read, max_hole), tuple(regs),
-                    _blocks(inputs, max_read, max_hole))
+                    _blocks(inputs, max_read, max_hole), _blocks(spaces[2], max_read, max_hole),
+                    _blocks(spaces[3], max_read, max_hole))
 
 
 def _blocks(addresses: set[int], max_read: int, max_hole: int) -> tuple[tuple[int, int], ...]:
@@ -173,6 +178,8 @@ class DescribedProfile(DriveProfile):
     _status_plan: ClassVar[ReadPlan]
     _identity_plan: ClassVar[ReadPlan | None]
     _extra_plans: ClassVar[tuple[tuple[Expr, ReadPlan], ...]]
+    _coils: ClassVar[frozenset[Register]] = frozenset()
+    """The codec registers that are coils (written with FC05)."""
 
     def __init__(
         self, slave: SlaveHandle, *, pulses_per_rev: int | None = None, **options: Any
@@ -501,6 +508,10 @@ class DescribedProfile(DriveProfile):
         """Write one register with the function codes the drive serves (FC06 where it has
         it, else FC16; a 32-bit value in one FC16, or word by word without FC16)."""
         fcs = self.description.link.functions
+        if reg in self._coils:
+            await self.slave.write_coil(reg.address, bool(reg.check(value)), priority=priority,
+                                        idempotent=idempotent)
+            return
         words = reg.encode(value)
         if len(words) == 1 and 6 not in fcs:
             await self.slave.write_registers(reg.address, words, priority=priority,
@@ -531,7 +542,8 @@ class DescribedProfile(DriveProfile):
     async def _write(self, step: Step, run: _Run, prio: Priority) -> None:
         items = self._items(step, run)
         block = step.block is not None and bool(step.block(self._scope(run))) and \
-            16 in self.description.link.functions
+            16 in self.description.link.functions and \
+            not any(it.register in self._coils for it in items)
         idem = step.idempotent
         if block:
             for group in _consecutive(items):
@@ -632,6 +644,12 @@ class DescribedProfile(DriveProfile):
         for start, count in plan.input_blocks:
             got = await self.slave.read_input_registers(start, count, priority=prio)
             words.update(zip(range(INPUT + start, INPUT + start + count), got, strict=True))
+        for space, blocks, read in ((2, plan.coil_blocks, self.slave.read_coils),
+                                    (3, plan.discrete_blocks, self.slave.read_discrete_inputs)):
+            for start, count in blocks:
+                got = await read(start, count, priority=prio)
+                base = (space << 16) + start
+                words.update(zip(range(base, base + count), got, strict=True))
         return words
 
     async def _poll_values(self, plan: ReadPlan, prio: Priority,
@@ -661,7 +679,7 @@ class DescribedProfile(DriveProfile):
                     out: dict[str, Any], tables: dict[str, dict[int, Any]],
                     raw_words: dict[str, list[int]] | None) -> None:
         r = reg.at(index)
-        base = INPUT if reg.d.input else 0
+        base = reg.space << 16  # input registers, coils, discrete inputs: spaces apart
         if r.words == 2:
             low = r.low_address if r.low_address is not None else r.address + 1
             ws = [words[base + r.address], words[base + low]]
@@ -1169,6 +1187,8 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "_status_plan": _status_plan(d),
         "_identity_plan": ident,
         "_extra_plans": extras,
+        "_coils": frozenset(reg.at(i) for reg in d.regs.values() if reg.d.coil
+                            for i in (reg.indices if reg.array else [None])),
     }
     attrs.update(_parameter_attrs(d))
     base: type[DescribedProfile] = DescribedProfile

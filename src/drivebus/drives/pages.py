@@ -389,6 +389,9 @@ def _reg_notes(reg: Reg) -> str:
     how = reg.codec.describe()
     if how and how != reg.d.unit:
         notes.append(how)
+    if reg.d.input or reg.d.coil or reg.d.discrete:
+        notes.append("input register (FC04)" if reg.d.input else "coil (FC01/FC05)"
+                     if reg.d.coil else "discrete input (FC02)")
     if reg.d.eeprom:
         notes.append("write wears EEPROM")
     if reg.d.volatile:
