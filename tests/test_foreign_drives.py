@@ -1014,3 +1014,178 @@ def test_drive_check_warns_of_addresses_that_look_4xxxx_numbered(tmp_path: Path)
     out = drive("check", path)
     assert "40001..49999" not in out
     assert "FC03 0 (0x0000)" in out  # the status poll at PDU address 0
+
+
+# == coils and discrete inputs (FC01, FC02, FC05) ===============================================
+
+COIL_DRIVE = """
+[drive]
+family = "COIL-DRIVE"
+description = "a servo switched on by a coil, its state in discrete inputs"
+
+[link]
+functions = [1, 2, 3, 5, 6, 16]
+
+[units.pulses_per_rev]
+default = 1000
+
+[registers.servo_on]
+address = 0x0060
+coil = true
+name = "SRV-ON"
+
+[registers.start]
+address = 0x0120
+coil = true
+name = "STB (block start on its rising edge)"
+
+[registers.ready]
+address = 0x0040
+discrete = true
+access = "R"
+means = "enabled"
+
+[registers.busy]
+address = 0x0041
+discrete = true
+access = "R"
+means = "moving"
+
+[registers.fault]
+address = 0x0042
+discrete = true
+access = "R"
+means = "alarm"
+
+[registers.distance]
+address = 0x4600
+words = 2
+signed = true
+unit = "pulses"
+
+[registers.speed]
+address = 0x4602
+unit = "rpm"
+min = 1
+max = 5000
+
+[registers.accel]
+address = 0x4603
+unit = "r/s²"
+min = 1
+max = 10000
+
+[registers.position]
+address = 0x4800
+words = 2
+signed = true
+unit = "pulses"
+access = "R"
+means = "position"
+
+[procedures.enable]
+steps = [{ write = { servo_on = 1 } }]
+
+[procedures.disable]
+steps = [{ write = { servo_on = 0 } }]
+
+[procedures.move_relative]
+steps = [
+  { write = { distance = "distance", speed = "speed", accel = "accel" }, block = true },
+  { write = { start = 0 } },
+  { write = { start = 1 }, idempotent = false },
+]
+
+[twin]
+enabled = false
+
+[[twin.on_write]]
+register = "servo_on"
+when = "value == 1"
+do = "enable"
+
+[[twin.on_write]]
+register = "servo_on"
+when = "value == 0"
+do = "disable"
+
+[[twin.on_write]]
+register = "start"
+when = "value == 1 and previous == 0"
+do = "move_relative"
+distance = "distance"
+speed = "speed"
+accel = "accel"
+decel = "accel"
+"""
+
+
+async def test_coils_and_discrete_inputs(tmp_path: Path) -> None:
+    """A drive switched on by a coil (FC05), started by a coil's rising edge, its state in
+    discrete inputs (FC02): the engine reads and writes each address space with its own
+    function codes, the twin answers them, and the checks name what a coil cannot be."""
+    path = tmp_path / "coil.toml"
+    path.write_text(COIL_DRIVE, encoding="utf-8")
+    desc = load_description(path)
+    twin = described_twin(desc)(1, FAST)
+    async with sim_bus([twin], FAST) as (wire, bus):
+        profile = profile_class(desc)(bus.slave(1))
+        st = await profile.read_status()
+        assert not st.enabled and not st.moving and st.position == 0
+        assert {f.data[1] for f in wire.requests()} == {2, 3}  # FC02 and FC03, no FC01
+        await profile.enable()
+        assert wire.requests()[-1].data[1:6].hex(" ") == "05 00 60 ff 00"
+        assert (await profile.read_status()).enabled and twin.enabled
+        wire.clear_log()
+        await profile.move_relative(-400, MoveParams(600, 1000, 1000))
+        assert [f.data[1] for f in wire.requests()] == [16, 5, 5]
+        assert (await profile.read_status()).moving
+        assert await until_at(twin, -400)
+        st = await profile.read_status()
+        assert st.position == -400 and not st.moving
+        await profile.disable()
+        assert not twin.enabled and wire.requests()[-1].data[1:6].hex(" ") == "05 00 60 00 00"
+        # the twin answers coils only where the description has them
+        with pytest.raises(ModbusException) as exc:
+            await bus.slave(1).read_coils(0x0061, 1)
+        assert exc.value.code == 2
+        assert await bus.slave(1).read_coils(0x0060, 1) == [0]
+    for old, new, problem in (
+        ("coil = true\nname = \"SRV-ON\"", "coil = true\nwords = 2\nname = \"SRV-ON\"",
+         r"registers\.servo_on: .*a coil or discrete input is one bit"),
+        ("functions = [1, 2, 3, 5, 6, 16]", "functions = [2, 3, 5, 6, 16]",
+         r"link\.functions: coils need function code 1"),
+        ("[procedures.enable]\nsteps = [{ write = { servo_on = 1 } }]",
+         '[procedures.enable]\nsteps = [{ modify = "servo_on", set_bits = 1 }]',
+         r"procedures\.enable\.steps\[0\]\.modify: servo_on is a coil"),
+    ):
+        path.write_text(COIL_DRIVE.replace(old, new), encoding="utf-8")
+        with pytest.raises(ConfigError, match=problem):
+            load_description(path)
+
+
+async def test_coil_and_discrete_input_frames_against_pymodbus() -> None:
+    """The FC01/FC02/FC05 frames against a third-party server (pymodbus on loopback)."""
+    from pymodbus.simulator import DataType, SimData, SimDevice
+
+    from drivebus import Bus
+    from drivebus.line.tcp import TcpLine
+
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    blocks = ([SimData(0, count=32, values=False, datatype=DataType.BITS)],
+              [SimData(0, values=[True, False, True] + [False] * 13, datatype=DataType.BITS)],
+              [SimData(0, values=[0], datatype=DataType.REGISTERS)],
+              [SimData(0, values=[0], datatype=DataType.REGISTERS)])
+    server = ModbusTcpServer([SimDevice(1, simdata=blocks)], address=(HOST, 0))
+    await server.serve_forever(background=True)
+    try:
+        port = server.transport.sockets[0].getsockname()[1]
+        async with Bus(TcpLine(HOST, port), timeout=1.0) as bus:
+            s = bus.slave(1)
+            assert await s.read_discrete_inputs(0, 3) == [1, 0, 1]
+            await s.write_coil(5, True)
+            assert await s.read_coils(0, 10) == [0, 0, 0, 0, 0, 1, 0, 0, 0, 0]
+            await s.write_coil(5, False)
+            assert await s.read_coils(4, 3) == [0, 0, 0]
+    finally:
+        await server.shutdown()
