@@ -120,6 +120,19 @@ def response_timeout(
     return v
 
 
+MAX_GUARD = 1.0
+"""The longest guard interval before a slave's frames, s."""
+
+
+def guard_interval(name: str, value: object, *, error: type[DrivebusError] = ConfigError
+                   ) -> float:
+    """A guard interval: finite, 0..``MAX_GUARD`` seconds."""
+    v = finite(name, value, error=error)
+    if not 0 <= v <= MAX_GUARD:
+        raise error(f"{name}: {value!r} s is outside 0..{MAX_GUARD:g} s")
+    return v
+
+
 def retry_count(name: str, value: object, *, error: type[DrivebusError] = ConfigError) -> int:
     """A retry count: a whole number 0..``MAX_RETRIES``."""
     return whole(name, value, 0, MAX_RETRIES, error=error)

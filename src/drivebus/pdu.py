@@ -14,24 +14,32 @@ from drivebus.checks import whole, words
 from drivebus.errors import ArgumentError, FrameError, ModbusException
 
 __all__ = [
+    "READ_COILS",
+    "READ_DISCRETE",
     "READ_HOLDING",
     "READ_INPUT",
+    "WRITE_COIL",
     "WRITE_MULTIPLE",
     "WRITE_SINGLE",
     "LengthPredictor",
     "check_exception",
+    "decode_bits_reply",
     "decode_read_reply",
     "decode_write_multiple_reply",
     "decode_write_single_reply",
     "read_request",
     "request_length",
     "response_length",
+    "write_coil_request",
     "write_multiple_request",
     "write_single_request",
 ]
 
+READ_COILS = 0x01
+READ_DISCRETE = 0x02
 READ_HOLDING = 0x03
 READ_INPUT = 0x04
+WRITE_COIL = 0x05
 WRITE_SINGLE = 0x06
 WRITE_MULTIPLE = 0x10
 
@@ -70,6 +78,12 @@ def write_single_request(address: int, value: int) -> bytes:
     """FC06 request writing one register."""
     a = whole("register address", address, 0, 0xFFFF)
     return _HDR.pack(WRITE_SINGLE, a, whole("register value", value, 0, 0xFFFF))
+
+
+def write_coil_request(address: int, on: bool) -> bytes:
+    """FC05 request switching one coil on (0xFF00) or off (0x0000)."""
+    a = whole("coil address", address, 0, 0xFFFF)
+    return _HDR.pack(WRITE_COIL, a, 0xFF00 if on else 0x0000)
 
 
 def write_multiple_request(address: int, values: Sequence[int]) -> bytes:
@@ -136,6 +150,23 @@ def decode_read_reply(pdu: bytes, function: int, count: int, *, slave: int | Non
             f"slave {slave}: reply carries {pdu[1]} bytes, {2 * count} expected", slave=slave
         )
     return list(_words(count).unpack_from(pdu, 2))
+
+
+def decode_bits_reply(pdu: bytes, function: int, count: int, *, slave: int | None
+                      ) -> list[int]:
+    """Coil or discrete input states (0/1) of an FC01/FC02 reply, checked against the
+    request."""
+    if len(pdu) < 2 or pdu[0] != function:
+        raise FrameError(
+            f"slave {slave}: reply function 0x{pdu[0] if pdu else 0:02X} to request "
+            f"0x{function:02X}",
+            slave=slave,
+        )
+    n = (count + 7) // 8
+    if pdu[1] != n or len(pdu) != 2 + n:
+        raise FrameError(f"slave {slave}: reply carries {pdu[1]} bytes, {n} expected",
+                         slave=slave)
+    return [(pdu[2 + i // 8] >> (i % 8)) & 1 for i in range(count)]
 
 
 def decode_write_single_reply(pdu: bytes, request: bytes, *, slave: int | None) -> None:

@@ -84,8 +84,10 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         + (f"; tables {', '.join(tables)}" if tables else ""))
     plan = p._status_plan  # type: ignore[attr-defined]
     r.lines.append("  status poll: " + ", ".join(
-        [f"FC03 {start} (0x{start:04X}) ×{count}" for start, count in plan.blocks]
-        + [f"FC04 {start} (0x{start:04X}) ×{count}" for start, count in plan.input_blocks]))
+        f"FC{fc:02d} {start} (0x{start:04X}) ×{count}"
+        for fc, blocks in ((3, plan.blocks), (4, plan.input_blocks), (1, plan.coil_blocks),
+                           (2, plan.discrete_blocks))
+        for start, count in blocks))
     s = d.status
     if d.drive.engine == "cia402":
         _cia402_lines(fam, r)
@@ -135,6 +137,11 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
                                      f"reads {', '.join(ident.read)}, matches {ident.match}"
                                      if ident else "not described: a scan lists it as an "
                                      "unknown Modbus slave"))
+    numbers = [reg.d.address for reg in d.regs.values() if not reg.d.input]
+    if d.link.register_base == 0 and numbers and all(40001 <= a <= 49999 for a in numbers):
+        r.warnings.append(f"every register address is in 40001..49999 ({min(numbers)}..."
+                          f"{max(numbers)}): if the manual numbers registers 4xxxx, set "
+                          f"[link] register_base = 40001 (the frames carry the number - 40001)")
     if not d.twin.on_write:
         r.warnings.append("no [twin] on_write triggers: the simulated twin will not move "
                           "(drive try fails)")

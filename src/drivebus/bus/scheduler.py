@@ -132,6 +132,11 @@ class Bus:
         self._open = False
         self._handles: dict[int, SlaveHandle] = {}
         self._observers: list[TransactionObserver] = []
+        self._last_end = 0.0
+        """When the last transaction ended (monotonic), for guard intervals on lines that
+        keep no silences of their own."""
+        self._trail = 0.0
+        """The frame timeout of the slave of the last transaction (s)."""
 
     # -- life cycle ------------------------------------------------------------------------
 
@@ -198,15 +203,21 @@ class Bus:
         timeout: float | None = None,
         retries: int | None = None,
         exception_texts: dict[int, str] | None = None,
+        guard: float = 0.0,
+        frame_timeout: float = 0.0,
     ) -> SlaveHandle:
-        """A handle for the slave at ``address`` (0 = broadcast) with its own settings."""
-        h = SlaveHandle(  # checks address, settings, timeout and retries
+        """A handle for the slave at ``address`` (0 = broadcast) with its own settings
+        (``guard``: extra quiet time before each of its frames, ``frame_timeout``: after
+        each of its replies, for bytes it trails; s)."""
+        h = SlaveHandle(  # checks address, settings, timeout, retries and guard
             self,
             address,
             settings=settings,
             timeout=self.timeout if timeout is None else timeout,
             retries=self.retries if retries is None else retries,
             exception_texts=exception_texts,
+            guard=guard,
+            frame_timeout=frame_timeout,
         )
         if h.settings is not None and h.settings != self.line.settings:
             if self.line.settings is None:
@@ -389,11 +400,20 @@ class Bus:
                 await self._work  # held: only an emergency request or the end of it
                 continue
             ready = line.ready_at(req.handle.settings)
+            guarded = False
+            extra = req.handle.guard + self._trail
+            if extra:
+                # This slave's guard interval and the frame timeout of the slave that
+                # answered last: the owner itself keeps the line quiet that much longer
+                # than its silence (since the last traffic) before the frame.
+                ready = max(ready, line.last_activity(), self._last_end) + extra
+                guarded = ready > now
             # A line that waits for its silence itself gets the request at once and
             # sends it right at the end of the silence; it gives it back if a more
             # urgent one comes, a hold begins or bytes arrive meanwhile. On a line
             # known to be noisy the owner waits itself, watching every deadline.
-            deferred = ready > now and line.waits_for_silence and noise.since is None
+            deferred = ready > now and line.waits_for_silence and noise.since is None \
+                and not guarded
             if ready > now and not deferred:
                 self._waiting_for = req
                 try:
@@ -449,6 +469,15 @@ class Bus:
         return nearest
 
     async def _run_one(self, req: _Request, noise: _NoiseWatch, *, withdrawable: bool) -> None:
+        try:
+            await self._transact(req, noise, withdrawable=withdrawable)
+        finally:
+            if req.sent or req.future.done():  # not for a frame taken back before it left
+                self._last_end = monotonic()
+                self._trail = req.handle.frame_timeout
+
+    async def _transact(self, req: _Request, noise: _NoiseWatch, *, withdrawable: bool
+                        ) -> None:
         h = req.handle
         st = self.stats.slave(h.address)
         try:

@@ -10,15 +10,19 @@ from drivebus.bus.priority import Priority
 from drivebus.errors import ArgumentError, ConfigError, ModbusException
 from drivebus.pdu import (
     MAX_PDU,
+    READ_COILS,
+    READ_DISCRETE,
     READ_HOLDING,
     READ_INPUT,
     LengthPredictor,
     check_exception,
+    decode_bits_reply,
     decode_read_reply,
     decode_write_multiple_reply,
     decode_write_single_reply,
     read_request,
     response_length,
+    write_coil_request,
     write_multiple_request,
     write_single_request,
 )
@@ -48,7 +52,8 @@ def _priority(priority: object) -> Priority:
 
 
 class SlaveHandle:
-    """One slave on a bus: its address, line settings, timeout, retries and exception texts."""
+    """One slave on a bus: its address, line settings, timeout, retries, guard interval,
+    frame timeout and exception texts."""
 
     def __init__(
         self,
@@ -59,6 +64,8 @@ class SlaveHandle:
         timeout: float,
         retries: int,
         exception_texts: dict[int, str] | None = None,
+        guard: float = 0.0,
+        frame_timeout: float = 0.0,
     ) -> None:
         self.address = checks.whole("slave address (0 = broadcast)", address, 0, 247,
                                     error=ConfigError)
@@ -72,6 +79,13 @@ class SlaveHandle:
         self.timeout = checks.response_timeout(f"slave {address}: response timeout", timeout)
         self.retries = checks.retry_count(f"slave {address}: retries", retries)
         self.exception_texts = dict(exception_texts or {})
+        self.guard = checks.guard_interval(f"slave {address}: guard", guard)
+        """Extra quiet time (s) the line keeps before each of this slave's frames, on top
+        of its silence (a slow drive's guard interval); 0: none."""
+        self.frame_timeout = checks.guard_interval(f"slave {address}: frame timeout",
+                                                   frame_timeout)
+        """Extra quiet time (s) after each of its replies, for bytes the drive trails after
+        its frame, before the line's next frame (to any slave); 0: none."""
 
     @property
     def is_broadcast(self) -> bool:
@@ -124,6 +138,39 @@ class SlaveHandle:
     ) -> list[int]:
         """Read ``count`` input registers (FC04); retried on timeout or bad frame."""
         return await self._read(READ_INPUT, address, count, priority)
+
+    async def read_coils(
+        self, address: int, count: int, *, priority: Priority = Priority.CONFIG
+    ) -> list[int]:
+        """Read ``count`` coils (FC01) as 0/1; retried on timeout or bad frame."""
+        return await self._read_bits(READ_COILS, address, count, priority)
+
+    async def read_discrete_inputs(
+        self, address: int, count: int, *, priority: Priority = Priority.CONFIG
+    ) -> list[int]:
+        """Read ``count`` discrete inputs (FC02) as 0/1; retried on timeout or bad frame."""
+        return await self._read_bits(READ_DISCRETE, address, count, priority)
+
+    async def _read_bits(self, function: int, address: int, count: int, priority: Priority
+                         ) -> list[int]:
+        self._no_broadcast_read()
+        req = read_request(function, address, count)
+        reply = await self.bus.execute(
+            self, req, expect=response_length, priority=_priority(priority), idempotent=True
+        )
+        return decode_bits_reply(reply, function, int(count), slave=self.address)
+
+    async def write_coil(
+        self,
+        address: int,
+        on: bool,
+        *,
+        priority: Priority = Priority.CONFIG,
+        idempotent: bool = True,
+    ) -> None:
+        """Switch one coil (FC05). Mark commands ``idempotent=False``: never retried."""
+        req = write_coil_request(address, bool(on))
+        await self._write(req, decode_write_single_reply, priority, idempotent)
 
     async def write_register(
         self,

@@ -265,6 +265,22 @@ class Cia402Profile(DescribedProfile):
         if procedure == "home" and self.description.homing is None:
             raise self.unsupported("home", "its description lists no homing method")
 
+    async def _set_mode(self, mode: int) -> None:
+        """Write the mode of operation; where the drive maps its display (6061), wait
+        (bounded) until it shows the mode: a set-point sent before the drive has changed
+        modes is lost."""
+        await self._write_objects([("modes_of_operation", mode)])
+        display = self.description.objects.get("modes_of_operation_display")
+        if display is None:
+            return
+        try:
+            with anyio.fail_after(self._timeout):
+                while await self.read(display.register) != mode:  # noqa: ASYNC110
+                    await anyio.sleep(0.002)  # the poll period; the drive's read decides
+        except TimeoutError:
+            raise StateError(f"{self.family}: the drive did not change to mode {mode} within "
+                             f"{self._timeout:g} s (its mode display)") from None
+
     async def _enabled_or_raise(self) -> None:
         state, _ = await self._state()
         if state is not State.OPERATION_ENABLED:
@@ -315,13 +331,17 @@ class Cia402Profile(DescribedProfile):
         self.check_move(params)
         self._raw("target_position", target)
         await self._enabled_or_raise()
-        await self._write_objects([("modes_of_operation", Mode.PROFILE_POSITION)])
+        await self._set_mode(Mode.PROFILE_POSITION)
         await self._write_objects([*self._move_values(params), ("target_position", target)])
 
     async def _set_point(self, *, relative: bool) -> None:
         c = self.description.cia402
         hs = SetPointHandshake(_ENABLED, relative=relative,
                                immediate=bool(c and c.change_set_immediately))
+        if self._last_cw is None or self._last_cw & Controlword.NEW_SET_POINT:
+            # The drive takes a set-point on bit 4's rising edge: a bit 4 left high (by a
+            # homing start, or unknown after a reconnect) goes low first.
+            await self._controlword((self._last_cw or _ENABLED) & ~Controlword.NEW_SET_POINT)
         try:
             with anyio.fail_after(self._timeout):
                 while not hs.accepted:
@@ -383,7 +403,7 @@ class Cia402Profile(DescribedProfile):
             await self.stop(decel_rps2)
             return
         await self._enabled_or_raise()
-        await self._write_objects([("modes_of_operation", Mode.PROFILE_VELOCITY)])
+        await self._set_mode(Mode.PROFILE_VELOCITY)
         await self._write_objects(values)
         await self._controlword(_ENABLED)  # halt clear: run
 
@@ -427,7 +447,7 @@ class Cia402Profile(DescribedProfile):
         for name, v in values:
             self._raw(name, v)
         await self._enabled_or_raise()
-        await self._write_objects([("modes_of_operation", Mode.HOMING)])
+        await self._set_mode(Mode.HOMING)
         await self._write_objects(values)
         await self._controlword(_ENABLED)
         self._homing, self._homed = True, False

@@ -172,8 +172,10 @@ class Timing(_Model):
     """Per-drive timing."""
 
     response_timeout: float | None = Field(None, gt=0, le=10, description="s")
-    guard: float = Field(0.0, ge=0, le=1, description="extra silence before its frames, s")
-    frame_timeout: float | None = Field(None, gt=0, le=1, description="s (trailing garbage)")
+    guard: float = Field(0.0, ge=0, le=1, description="extra silence before its frames, s "
+                         "(the bus keeps it, on top of the line's silence)")
+    frame_timeout: float | None = Field(None, gt=0, le=1, description="extra silence after "
+                                        "its replies, s, for bytes it trails after a frame")
 
 
 _LINE_KINDS = Literal["serial", "rtu-over-tcp", "tcp"]
@@ -201,11 +203,15 @@ class Link(_Model):
     register_addresses: tuple[int, int] | None = Field(
         None, description="the addresses address_register can give ('32..127'); the others "
         "are set another way (comms_note)")
-    functions: list[Literal[3, 4, 6, 16]] = [3, 6, 16]
+    functions: list[Literal[1, 2, 3, 4, 5, 6, 16]] = [3, 6, 16]
     max_read: int = Field(125, ge=1, le=125)
     max_write: int = Field(123, ge=1, le=123)
     max_hole: int = Field(0, ge=0, le=124, description="largest gap a coalesced read spans")
     word_order: Literal["high_first", "low_first"] = "high_first"
+    register_base: Literal[0, 1, 40001] = Field(
+        0, description="the number the manual gives the first register: 0 (PDU addresses, "
+        "as on the wire), 1 (1-based) or 40001 (4xxxx numbering; input registers 3xxxx); "
+        "[registers] addresses are then the manual's numbers")
     exceptions: Annotated[dict[int, str], IntKeyed] = {}
     refusals: Refusals = Refusals()
     timing: Timing = Timing()
@@ -327,6 +333,9 @@ class RegisterDef(_Model):
     defaults: list[int] = Field([], description="a table's defaults, entry by entry")
     access: Literal["R", "W", "RW"] = "RW"
     input: bool = Field(False, description="an input register (read with FC04, read-only)")
+    coil: bool = Field(False, description="a coil (read with FC01, written with FC05: 0/1)")
+    discrete: bool = Field(False, description="a discrete input (read with FC02, read-only: "
+                           "0/1)")
     eeprom: bool = False
     volatile: bool = False
     parameter: bool | str | None = Field(
@@ -370,6 +379,14 @@ class RegisterDef(_Model):
             raise ValueError("give a table or named values, not both")
         if self.input and self.access != "R":
             raise ValueError("an input register is read-only: access = \"R\"")
+        if sum((self.input, self.coil, self.discrete)) > 1:
+            raise ValueError("a register is one of input, coil or discrete (address spaces)")
+        if (self.coil or self.discrete) and (self.words != 1 or self.unit or self.bits or
+                                             self.signed):
+            raise ValueError("a coil or discrete input is one bit (0/1): no words, signed, "
+                             "unit or bits")
+        if self.discrete and self.access != "R":
+            raise ValueError("a discrete input is read-only: access = \"R\"")
         if self.names and len(self.names) != self.count:
             raise ValueError(f"names: {len(self.names)} names for {self.count} entries")
         if self.defaults and len(self.defaults) != self.count:
@@ -443,10 +460,20 @@ class Reg:
 
     def _register(self, name: str, address: int, low: int | None) -> Register:
         d = self.d
+        bit = d.coil or d.discrete
         return Register(
             name, address, d.words, signed=d.signed, order=self.order, unit=d.unit,
-            minimum=d.min, maximum=d.max, access=Access(d.access), low_address=low,
+            minimum=0 if bit and d.min is None else d.min,
+            maximum=1 if bit and d.max is None else d.max,
+            access=Access(d.access), low_address=low,
         )
+
+    @property
+    def space(self) -> int:
+        """Its address space: 0 holding registers, 1 input registers, 2 coils, 3 discrete
+        inputs."""
+        d = self.d
+        return 1 if d.input else 2 if d.coil else 3 if d.discrete else 0
 
     def addresses(self) -> Iterator[int]:
         """Every address it occupies (every word of every entry)."""
@@ -681,6 +708,8 @@ class WriteItem(_Model):
 
     value: E
     nonzero: bool = Field(False, description="the raw value must not be 0 (a move's speed)")
+    raw: bool = Field(False, description="the value is what the register holds (no unit "
+                      "conversion; still range-checked): a fastest ramp code, a bit pattern")
 
 
 def _item(v: Any) -> Any:
@@ -733,8 +762,9 @@ class Step(_Model):
 
     @model_validator(mode="after")
     def _one_action(self) -> Step:
-        given = [a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None
-                 and not (a == "read" and self.wait is not None)]  # a wait's reads
+        given = [a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None]
+        if self.wait is not None and "read" in given:
+            given.remove("read")  # a wait's `read`: what each of its polls reads
         if len(given) != 1:
             keys = ", ".join(a.rstrip("_") for a in _ACTIONS)
             got = f"got {', '.join(given)}" if given else "got none"
@@ -850,6 +880,9 @@ class Trigger(_Model):
     motion: str | None = Field(None, description="the motion kind it starts (mode register)")
     more: bool = Field(False, description="go on to the next triggers of the register")
     refuse: bool = Field(False, description="refuse with refusals.busy when it cannot start")
+    set: dict[str, E] = Field({}, description="registers the drive sets when the trigger "
+                              "fires, raw values (an acknowledge, a command register it "
+                              "clears)")
 
 
 class LimitsDef(_Model):
@@ -963,11 +996,30 @@ class Description(_Model):
     def regs(self) -> dict[str, Reg]:
         """Every register, by key (with those a CiA 402 address rule places)."""
         out = {}
-        for key, d in {**self.registers, **self._generated()}.items():
+        placed = {k: self._pdu_addresses(d) for k, d in self.registers.items()}
+        for key, d in {**placed, **self._generated()}.items():
             codec = UnitCodec.make(d.unit, d.scale, d.ramp, d.table, d.values)
             order = WordOrder(d.order) if d.order else self.link.order
             out[key] = Reg(key, d, codec, order)
         return out
+
+    def register_base(self, d: RegisterDef) -> int:
+        """What ``d``'s numbers count from (``link.register_base``; under 4xxxx numbering,
+        input registers 3xxxx, coils 0xxxx, discrete inputs 1xxxx)."""
+        base = self.link.register_base
+        if base != 40001:
+            return base
+        return 30001 if d.input else 1 if d.coil else 10001 if d.discrete else base
+
+    def _pdu_addresses(self, d: RegisterDef) -> RegisterDef:
+        """``d`` with PDU addresses (its numbers less the register base; a number below
+        the base stays as it is and the checks name it)."""
+        base = self.register_base(d)
+        if not base or d.address < base or (d.low_address is not None and
+                                            d.low_address < base):
+            return d
+        low = None if d.low_address is None else d.low_address - base
+        return d.model_copy(update={"address": d.address - base, "low_address": low})
 
     @cached_property
     def objects(self) -> dict[str, Reg]:
@@ -1024,7 +1076,9 @@ class Description(_Model):
         for reg in self.regs.values():
             if reg.d.access == "W" or reg.array:
                 continue
-            if reg.d.means:
+            if reg.d.means and (reg.d.coil or reg.d.discrete):
+                bits.setdefault(reg.d.means, []).append(reg.key)  # a one-bit state
+            elif reg.d.means:
                 regs.setdefault(reg.d.means, []).append(reg.key)
             for name, b in reg.d.bits.items():
                 if b.means:
@@ -1204,8 +1258,8 @@ _CONTEXT_NAMES = {
     "option", "state", "last", "words", "input", "output", "home", "pulses_per_rev",
     "value", "raw", "True", "False", "None", "input_functions", "output_functions",
 }
-_TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "raw", "speed_now",
-               "pulses_per_rev", "limit_positive", "limit_negative", "motion_decel",
+_TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "previous", "raw",
+               "speed_now", "pulses_per_rev", "limit_positive", "limit_negative", "motion_decel",
                "homing"}
 
 
@@ -1270,6 +1324,15 @@ class _Checker:
         if not self.regs:
             self.out.append("registers: none given (a description needs at least one)")
         owner: dict[int, str] = {}
+        for key, given in self.d.registers.items():
+            base = self.d.register_base(given)
+            for field in ("address", "low_address"):
+                number = getattr(given, field)
+                if number is not None and number < base:
+                    self.out.append(
+                        f"registers.{key}.{field}: {number} is below the first register, "
+                        f"{base} (link.register_base = {self.d.link.register_base}: "
+                        f"addresses are the manual's numbers)")
         for key, reg in self.regs.items():
             where = f"registers.{key}"
             d = reg.d
@@ -1292,7 +1355,7 @@ class _Checker:
                     d.max > _width_hi(d)):
                 self.out.append(f"{where}: range {lo}..{hi} does not fit {16 * d.words} "
                                 f"{'signed' if d.signed else 'unsigned'} bits")
-            space = 1 << 16 if d.input else 0  # input registers are an address space apart
+            space = reg.space << 16  # inputs, coils and discrete inputs: spaces apart
             for a in reg.addresses():
                 if a > 0xFFFF:
                     self.out.append(f"{where}: its words reach address {a}, beyond 65535")
@@ -1322,10 +1385,14 @@ class _Checker:
                 if unknown:
                     self.out.append(f"cia402.address_rule: {c.address_rule.source!r} may use "
                                     f"only index and sub, not {', '.join(sorted(unknown))}")
-        if 3 not in d.link.functions and any(not r.d.input for r in self.regs.values()):
-            self.out.append("link.functions: holding registers need function code 3")
-        if 4 not in d.link.functions and any(r.d.input for r in self.regs.values()):
-            self.out.append("link.functions: input registers need function code 4")
+        spaces = {r.space for r in self.regs.values()}
+        for space, fc, what in ((0, 3, "holding registers"), (1, 4, "input registers"),
+                                (2, 1, "coils"), (3, 2, "discrete inputs")):
+            if space in spaces and fc not in d.link.functions:
+                self.out.append(f"link.functions: {what} need function code {fc}")
+        if any(r.d.coil and r.d.access != "R" for r in self.regs.values()) and \
+                5 not in d.link.functions:
+            self.out.append("link.functions: writing coils needs function code 5")
         if d.drive.engine == "cia402":
             for needed in ("controlword", "statusword"):
                 if needed not in d.objects:
@@ -1477,6 +1544,10 @@ class _Checker:
                     self._span(f"{where}.read[{j}]", item)
         if step.modify is not None:
             self._target(f"{where}.modify", step.modify, params)
+            reg = self.regs.get(step.modify.split("[", 1)[0].strip())
+            if reg is not None and reg.space in (2, 3):
+                self.out.append(f"{where}.modify: {reg.key} is a coil or discrete input: "
+                                f"write it (0/1) instead")
         if step.call is not None and step.call not in self.d.procedures:
             self.out.append(f"{where}.call: no procedure {step.call!r}")
         for k, e in step.args.items():
@@ -1531,6 +1602,9 @@ class _Checker:
             where = f"twin.on_write[{i}]"
             self._reg_key(f"{where}.register", trig.reg)
             self._names(f"{where}.when", trig.when, names)
+            for key, e in trig.set.items():
+                self._reg_key(f"{where}.set.{key}", key)
+                self._names(f"{where}.set.{key}", e, names)
             allowed = TWIN_ACTIONS[trig.do]
             for field in ("target", "distance", "speed", "accel", "decel", "creep", "method",
                           "offset", "position"):

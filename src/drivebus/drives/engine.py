@@ -95,6 +95,10 @@ class ReadPlan:
     """(register, table index) read, each decoded from the blocks' words."""
     input_blocks: tuple[tuple[int, int], ...] = ()
     """(first address, count) per FC04, for input registers."""
+    coil_blocks: tuple[tuple[int, int], ...] = ()
+    """(first address, count) per FC01, for coils."""
+    discrete_blocks: tuple[tuple[int, int], ...] = ()
+    """(first address, count) per FC02, for discrete inputs."""
 
 
 def plan_reads(
@@ -103,12 +107,12 @@ def plan_reads(
 ) -> ReadPlan:
     """Cover ``targets`` (and the address ``spans`` given whole) with as few reads as
     ``max_read`` registers per read and gaps of at most ``max_hole`` allow."""
-    wanted: set[int] = set()
-    inputs: set[int] = set()
+    spaces: tuple[set[int], ...] = (set(), set(), set(), set())
+    wanted, inputs = spaces[0], spaces[1]
     regs = []
     for reg, index in targets:
         r = reg.at(index) if reg.array else reg.register
-        space = inputs if reg.d.input else wanted
+        space = spaces[reg.space]
         space.add(r.address)
         if r.words == 2:
             space.add(r.low_address if r.low_address is not None else r.address + 1)
@@ -116,7 +120,8 @@ def plan_reads(
     for first, last in spans:
         wanted.update(range(first, last + 1))
     return ReadPlan(_blocks(wanted, max_read, max_hole), tuple(regs),
-                    _blocks(inputs, max_read, max_hole))
+                    _blocks(inputs, max_read, max_hole), _blocks(spaces[2], max_read, max_hole),
+                    _blocks(spaces[3], max_read, max_hole))
 
 
 def _blocks(addresses: set[int], max_read: int, max_hole: int) -> tuple[tuple[int, int], ...]:
@@ -176,6 +181,7 @@ class _Item:
     value: Any
     source: Expr
     nonzero: bool
+    as_raw: bool = False
     raw: int = 0
     physical: Any = None
 
@@ -191,6 +197,8 @@ class DescribedProfile(DriveProfile):
     _status_plan: ClassVar[ReadPlan]
     _identity_plan: ClassVar[ReadPlan | None]
     _extra_plans: ClassVar[tuple[tuple[Expr, ReadPlan], ...]]
+    _coils: ClassVar[frozenset[Register]] = frozenset()
+    """The codec registers that are coils (written with FC05)."""
 
     def __init__(
         self, slave: SlaveHandle, *, pulses_per_rev: int | None = None, **options: Any
@@ -217,6 +225,9 @@ class DescribedProfile(DriveProfile):
         timeout = d.link.timing.response_timeout
         if timeout is not None and slave.timeout < timeout:
             slave.timeout = timeout
+        timing = d.link.timing
+        slave.guard = max(slave.guard, timing.guard)
+        slave.frame_timeout = max(slave.frame_timeout, timing.frame_timeout or 0.0)
 
     # -- declarations the base class and machine files use ---------------------------------
 
@@ -425,10 +436,11 @@ class DescribedProfile(DriveProfile):
             assert step.return_ is not None
             run.result = step.return_(self._scope(run))
 
-    def _fail_check(self, step: Step, run: _Run) -> None:
+    def _fail_check(self, step: Step, run: _Run, default: str | None = None) -> None:
+        """Raise the error ``step`` says (``error``), with its ``message`` or ``default``."""
         scope = self._scope(run)
         text = step.message(scope) if step.message is not None else \
-            f"check {step.check} failed after {run.proc}"
+            default or f"check {step.check} failed after {run.proc}"
         msg = f"{self.family}: {text}"
         if step.error == "alarm":
             code, alarm_text = self._alarm_of(scope)
@@ -478,7 +490,7 @@ class DescribedProfile(DriveProfile):
             for key, w in step.write.items():
                 reg, index = self._target(key, each)
                 value = w.value(each)
-                items.append(_Item(reg, index, reg.at(index), value, w.value, w.nonzero))
+                items.append(_Item(reg, index, reg.at(index), value, w.value, w.nonzero, w.raw))
         for item in items:  # ramp times last: they refer to the speeds written with them
             if item.reg.codec.kind is not Kind.RAMP:
                 self._encode(item, items, run)
@@ -498,7 +510,14 @@ class DescribedProfile(DriveProfile):
         if item.value is None:
             raise LimitViolation(f"no value for register {item.register.name} (address "
                                  f"{item.register.address}): {item.source} is not given")
-        raw = codec.to_raw(item.register, item.value, ppr=self.pulses_per_rev, ref_rpm=ref)
+        if item.as_raw:  # `raw = true`: the register's own value, range-checked only
+            if isinstance(item.value, bool | str) or not isinstance(item.value, int | float):
+                raise LimitViolation(f"raw value {item.value!r} for register "
+                                     f"{item.register.name} is not a whole number")
+            raw = item.register.check(item.value)  # type: ignore[arg-type]
+        else:
+            raw = codec.to_raw(item.register, item.value, ppr=self.pulses_per_rev,
+                               ref_rpm=ref)
         if item.nonzero and raw == 0:
             reg = item.register
             unit = f" {reg.unit}" if reg.unit else ""
@@ -527,6 +546,10 @@ class DescribedProfile(DriveProfile):
         """Write one register with the function codes the drive serves (FC06 where it has
         it, else FC16; a 32-bit value in one FC16, or word by word without FC16)."""
         fcs = self.description.link.functions
+        if reg in self._coils:
+            await self.slave.write_coil(reg.address, bool(reg.check(value)), priority=priority,
+                                        idempotent=idempotent)
+            return
         words = reg.encode(value)
         if len(words) == 1 and 6 not in fcs:
             await self.slave.write_registers(reg.address, words, priority=priority,
@@ -540,12 +563,27 @@ class DescribedProfile(DriveProfile):
             return
         await super().write(reg, value, priority=priority, idempotent=idempotent)
 
+    async def write_block(self, regs: Sequence[tuple[Register, int]], *,
+                          priority: Priority = Priority.CONFIG, idempotent: bool = True) -> None:
+        """Consecutive registers in as few FC16 as ``link.max_write`` allows (a 32-bit
+        value is never split between two)."""
+        limit = self.description.link.max_write
+        chunk: list[tuple[Register, int]] = []
+        for reg, value in regs:
+            if chunk and sum(r.words for r, _ in chunk) + reg.words > limit:
+                await super().write_block(chunk, priority=priority, idempotent=idempotent)
+                chunk = []
+            chunk.append((reg, value))
+        if chunk:
+            await super().write_block(chunk, priority=priority, idempotent=idempotent)
+
     async def _write(self, step: Step, run: _Run, prio: Priority) -> None:
         items = self._items(step, run)
         if step.if_changed:  # leave out what the drive already holds
             items = await self._changed(items, run, prio)
         block = step.block is not None and bool(step.block(self._scope(run))) and \
-            16 in self.description.link.functions
+            16 in self.description.link.functions and \
+            not any(it.register in self._coils for it in items)
         idem = step.idempotent
         if block:
             for group in _consecutive(items):
@@ -601,15 +639,19 @@ class DescribedProfile(DriveProfile):
         assert step.wait is not None
         timeout = float(step.timeout(self._scope(run)))
         targets = step.read
-        with anyio.fail_after(timeout):
-            while True:
-                if targets:
-                    run.values.update(await self._read_items(targets, run, prio))
-                else:
-                    run.values.update(await self._poll_values(self._status_plan, prio))
-                if step.wait(self._scope(run)):
-                    return
-                await anyio.sleep(step.every)  # poll period; the read is the condition
+        try:
+            with anyio.fail_after(timeout):
+                while True:
+                    if targets:
+                        run.values.update(await self._read_items(targets, run, prio))
+                    else:
+                        run.values.update(await self._poll_values(self._status_plan, prio))
+                    if step.wait(self._scope(run)):
+                        return
+                    await anyio.sleep(step.every)  # poll period; the read is the condition
+        except TimeoutError:  # a typed error naming the condition, not a bare timeout
+            self._fail_check(step, run, f"{run.proc}: {step.wait.source!r} did not hold "
+                                        f"within {timeout:g} s")
 
     # -- reads -----------------------------------------------------------------------------
 
@@ -657,6 +699,12 @@ class DescribedProfile(DriveProfile):
         for start, count in plan.input_blocks:
             got = await self.slave.read_input_registers(start, count, priority=prio)
             words.update(zip(range(INPUT + start, INPUT + start + count), got, strict=True))
+        for space, blocks, read in ((2, plan.coil_blocks, self.slave.read_coils),
+                                    (3, plan.discrete_blocks, self.slave.read_discrete_inputs)):
+            for start, count in blocks:
+                got = await read(start, count, priority=prio)
+                base = (space << 16) + start
+                words.update(zip(range(base, base + count), got, strict=True))
         return words
 
     async def _poll_values(self, plan: ReadPlan, prio: Priority,
@@ -686,7 +734,7 @@ class DescribedProfile(DriveProfile):
                     out: dict[str, Any], tables: dict[str, dict[int, Any]],
                     raw_words: dict[str, list[int]] | None) -> None:
         r = reg.at(index)
-        base = INPUT if reg.d.input else 0
+        base = reg.space << 16  # input registers, coils, discrete inputs: spaces apart
         if r.words == 2:
             low = r.low_address if r.low_address is not None else r.address + 1
             ws = [words[base + r.address], words[base + low]]
@@ -1337,6 +1385,8 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "_status_plan": _status_plan(d),
         "_identity_plan": ident,
         "_extra_plans": extras,
+        "_coils": frozenset(reg.at(i) for reg in d.regs.values() if reg.d.coil
+                            for i in (reg.indices if reg.array else [None])),
     }
     attrs.update(_parameter_attrs(d))
     attrs.update(_program_attrs(d))

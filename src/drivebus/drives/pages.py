@@ -410,6 +410,9 @@ def _reg_notes(reg: Reg) -> str:
     how = reg.codec.describe()
     if how and how != reg.d.unit:
         notes.append(how)
+    if reg.d.input or reg.d.coil or reg.d.discrete:
+        notes.append("input register (FC04)" if reg.d.input else "coil (FC01/FC05)"
+                     if reg.d.coil else "discrete input (FC02)")
     if reg.d.eeprom:
         notes.append("write wears EEPROM")
     if reg.d.volatile:
@@ -452,7 +455,8 @@ def registers_table(regs: Iterable[tuple[str, Register, str]], intro: str) -> st
 def _step_text(step: Step) -> str:
     a = step.action
     if a == "write" and step.write is not None:
-        body = ", ".join(f"{k} = {v.value}" for k, v in step.write.items())
+        body = ", ".join(f"{k} = {v.value}{' (raw)' if v.raw else ''}"
+                         for k, v in step.write.items())
         how = "" if step.block is None else " (one FC16)" if step.block.constant else \
             f" (one FC16 when {step.block})"
         text = f"write {body}{how}"

@@ -28,6 +28,7 @@ commission`` sets it.
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -48,7 +49,7 @@ from drivebus.drives.registers import Access
 from drivebus.drives.units import Kind
 from drivebus.drives.values import Attrs, RegValue, Table, reg_value
 from drivebus.errors import ArgumentError, ConfigError
-from drivebus.pdu import READ_HOLDING, READ_INPUT
+from drivebus.pdu import READ_COILS, READ_DISCRETE, READ_HOLDING, READ_INPUT, WRITE_COIL
 from drivebus.settings import LineSettings
 from drivebus.sim.cia402_device import Cia402Device, Cia402Setup
 from drivebus.sim.drive import HomeCam, SimDrive, Span, TwinSetup, time_or_present
@@ -176,6 +177,8 @@ class DescribedDrive(SimDrive):
     _pairs: ClassVar[dict[int, tuple[Reg, int | None]]]
     _input_specs: ClassVar[dict[int, RegisterSpec]]
     _input_words: ClassVar[dict[int, _Word]]
+    _bits: ClassVar[dict[tuple[int, int], _Word]]
+    """Coils (space 2) and discrete inputs (space 3) by (space, address)."""
     _triggers: ClassVar[dict[str, tuple[Trigger, ...]]]
     _map_end: ClassVar[int]
 
@@ -204,6 +207,8 @@ class DescribedDrive(SimDrive):
                               "names no [link] address_register")
         self.soft_address = soft_address
         """The address is the address register's saved value, taken at power-up."""
+        self.coils: dict[int, int] = {}
+        """Coil states by address (their own address space)."""
         self.factory = self._factory_words()
         for key, value in constants.items():
             reg = d.regs.get(key)
@@ -239,6 +244,8 @@ class DescribedDrive(SimDrive):
         self._ref: _RefHoming | None = None
         self._processed_until = 0.0
         self._last_event = -math.inf
+        self._previous: RegValue | None = None
+        """While a write's triggers run: what the register held before it."""
         self.enabled = bool(self._eval(d.twin.enabled, 0.0))
 
     # -- the description's map ---------------------------------------------------------------
@@ -269,8 +276,12 @@ class DescribedDrive(SimDrive):
     def _factory_words(self) -> dict[int, int]:
         words: dict[int, int] = {}
         for reg in self.description.regs.values():
-            if reg.d.input:
-                continue  # input registers are another address space: computed or fixed
+            if reg.space == 1 or reg.space == 3:
+                continue  # input registers, discrete inputs: computed or fixed
+            if reg.space == 2:  # coils: their own space, kept apart
+                self.coils.update({reg.at(i).address: reg.default_at(i) & 1
+                                   for i in (reg.indices if reg.array else [None])})
+                continue
             for index in (reg.indices if reg.array else [None]):
                 self._store(words, reg, index, reg.default_at(index))
         return words
@@ -290,9 +301,11 @@ class DescribedDrive(SimDrive):
             words[r.address], words[low_addr] = hi, lo
 
     def _raw(self, reg: Reg, index: int | None, words: Mapping[int, int] | None = None) -> int:
-        if reg.d.input:
+        if reg.d.input or reg.d.discrete:
             return reg.default_at(index)
         r = reg.at(index)
+        if reg.d.coil:
+            return (self.coils if words is None else words).get(r.address, 0)
         w = self.regs if words is None else words
         if r.words == 1:
             return r.decode([w[r.address]])
@@ -575,6 +588,46 @@ class DescribedDrive(SimDrive):
             out.append(words[a])
         return out
 
+    def answer(self, pdu: bytes, now: float) -> bytes:
+        """Coils (FC01, FC05) and discrete inputs (FC02) where the description has them;
+        registers as any twin."""
+        function = pdu[0]
+        fcs = self.description.link.functions
+        if function in (READ_COILS, READ_DISCRETE) and function in fcs:
+            address, count = struct.unpack_from(">HH", pdu, 1)
+            self.check_count(count)
+            space = 2 if function == READ_COILS else 3
+            states = [self._bit(space, a, now) for a in range(address, address + count)]
+            packed = bytearray((count + 7) // 8)
+            for i, on in enumerate(states):
+                packed[i // 8] |= on << (i % 8)
+            return bytes((function, len(packed))) + bytes(packed)
+        if function == WRITE_COIL and function in fcs:
+            address, value = struct.unpack_from(">HH", pdu, 1)
+            w = self._bits.get((2, address))
+            if w is None:
+                raise SlaveException(self.exception_codes.address)
+            if w.reg.d.access == "R":
+                raise SlaveException(self.exception_codes.access)
+            if value not in (0x0000, 0xFF00):
+                raise SlaveException(self.exception_codes.value)
+            before = dict(self.coils)
+            self.coils[address] = 1 if value else 0
+            self._act(w.reg, w.index, now, before)
+            return pdu[:5]
+        return super().answer(pdu, now)
+
+    def _bit(self, space: int, address: int, now: float) -> int:
+        """A coil's or discrete input's state: what it means now, else stored or fixed."""
+        w = self._bits.get((space, address))
+        if w is None:
+            raise SlaveException(self.exception_codes.address)
+        means = w.reg.d.means
+        signals = self._signals(now)
+        if means in signals:
+            return int(signals[means])
+        return self._raw(w.reg, w.index) & 1
+
     def read_register(self, address: int, now: float) -> int:
         """A stored word, or one computed now for registers that show the drive's state."""
         w = self._words[address]
@@ -683,6 +736,8 @@ class DescribedDrive(SimDrive):
 
     def check_write(self, address: int, values: list[int]) -> None:
         """Word by word, then each 32-bit register written whole against its range."""
+        if len(values) > self.description.link.max_write:
+            raise SlaveException(self.exception_codes.count)
         super().check_write(address, values)
         written = dict(zip(range(address, address + len(values)), values, strict=True))
         for a in written:
@@ -716,7 +771,7 @@ class DescribedDrive(SimDrive):
                 touched.append((w.reg, w.index))
         try:
             for reg, index in touched:
-                self._act(reg, index, now)
+                self._act(reg, index, now, before)
         except SlaveException:
             self.regs = before
             raise
@@ -733,17 +788,28 @@ class DescribedDrive(SimDrive):
         """One word (FC06): as a write of one register."""
         self.write_registers(address, [word], now)
 
-    def _act(self, reg: Reg, index: int | None, now: float) -> None:
+    def _act(self, reg: Reg, index: int | None, now: float,
+             before: Mapping[int, int] | None = None) -> None:
         triggers = self._triggers.get(reg.key, ())
         if not triggers:
             return
         value = RegValue(self._raw(reg, index), reg)
-        for trig in triggers:
-            if trig.when is not None and not self._eval(trig.when, now, value):
-                continue
-            self._do(trig, value, now)
-            if not trig.more:
-                return
+        # `previous`: what the register held before this write (a start on a 0->1 edge)
+        self._previous = RegValue(self._raw(reg, index, before), reg) if before is not None \
+            else value
+        try:
+            for trig in triggers:
+                if trig.when is not None and not self._eval(trig.when, now, value):
+                    continue
+                self._do(trig, value, now)
+                for key, e in trig.set.items():  # what the drive writes back itself
+                    target = self.description.regs[key]
+                    self._store(self.coils if target.d.coil else self.regs, target, None,
+                                int(self._eval(e, now, value)) & (1 if target.d.coil else -1))
+                if not trig.more:
+                    return
+        finally:
+            self._previous = None
 
     # -- evaluation ---------------------------------------------------------------------------
 
@@ -1200,6 +1266,8 @@ class DescribedDrive(SimDrive):
         super().power_restore()
         now = monotonic()
         self.regs = dict(self.eeprom)
+        self.coils = {}
+        self._factory_words()  # the coils' defaults
         for reg in self.description.regs.values():
             if reg.d.volatile:
                 for index in (reg.indices if reg.array else [None]):
@@ -1332,6 +1400,10 @@ class _Scope(Mapping[str, Any]):
             if self._value is None:
                 raise KeyError(key)
             return self._value
+        if key == "previous":
+            if t._previous is None:
+                raise KeyError(key)
+            return t._previous
         if key in d.constants:
             return d.constants[key]
         reg = d.regs.get(key)
@@ -1378,7 +1450,7 @@ def _map(d: Description, *, inputs: bool = False
     words: dict[int, _Word] = {}
     pairs: dict[int, tuple[Reg, int | None]] = {}
     for reg in d.regs.values():
-        if reg.d.input != inputs:
+        if reg.space != (1 if inputs else 0):  # coils and discrete inputs: _bits
             continue
         access = Access(reg.d.access)
         for index in (reg.indices if reg.array else [None]):
@@ -1423,6 +1495,8 @@ def described_twin(d: Description) -> type[DescribedDrive]:
         "_pairs": pairs,
         "_input_specs": input_specs,
         "_input_words": input_words,
+        "_bits": {(reg.space, reg.at(i).address): _Word(reg, i, 0) for reg in d.regs.values()
+                  if reg.space in (2, 3) for i in (reg.indices if reg.array else [None])},
         "_triggers": {k: tuple(v) for k, v in triggers.items()},
     }
     name = "Sim" + "".join(c if c.isalnum() else "_" for c in d.family)
