@@ -293,6 +293,8 @@ class BitDef(_Model):
     bit: int = Field(ge=0, le=31)
     width: int = Field(1, ge=1, le=32)
     means: str | None = None
+    twin: E | None = Field(None, description="twin: the bit's value as an expression over "
+                           "the twin's state (where no `means` fits)")
     doc: str = ""
 
     _means = field_validator("means")(_known_meaning)
@@ -577,6 +579,9 @@ class IoDef(_Model):
         "register's bits (digital I/O by name)")
     function_mask: int = Field(0xFFFF, ge=1, le=0xFFFF, description="the bits of a "
                                "`functions` entry that hold the function code")
+    polarity_bit: int | None = Field(None, ge=1, le=0xFFFF, description="a bit of each "
+                                     "`functions` entry that inverts its terminal before the "
+                                     "drive acts on it (`state` shows the terminals as wired)")
     function_names: Annotated[dict[int, str], IntKeyed] = Field(
         {}, description="the manual's name of each function code (what `io_points` says a "
         "terminal is set to do)")
@@ -817,7 +822,7 @@ TWIN_ACTIONS = {
     "run": ("speed", "accel", "decel"),
     "set_speed": ("speed",),
     "stop": ("decel",),
-    "emergency_stop": (),
+    "emergency_stop": ("decel",),
     "home": ("method", "speed", "creep", "accel", "offset"),
     "enable": (),
     "disable": (),
@@ -851,6 +856,14 @@ class Trigger(_Model):
     refuse: bool = Field(False, description="refuse with refusals.busy when it cannot start")
 
 
+class InputTrigger(Trigger):
+    """What the drive does when an input function turns active (or inactive)."""
+
+    reg: str = Field("", alias="register")
+    input: str = Field(description="the input function ([inputs] codes)")
+    edge: Literal["rise", "fall"] = "rise"
+
+
 class LimitsDef(_Model):
     """How the drive reacts at a limit switch."""
 
@@ -863,6 +876,11 @@ class TwinDef(_Model):
     """``[twin]``: how the drive behaves, for its simulated twin."""
 
     on_write: list[Trigger] = []
+    on_input: list[InputTrigger] = Field(
+        [], description="actions on an input function's edge (a terminal, its polarity bit "
+        "or its function changed)")
+    direct: list[Literal["home_switch", "limit_positive", "limit_negative"]] = Field(
+        [], description="switches the drive sees without an input terminal")
     starts: E = Expr.parse("enabled and not alarm")
     limits: LimitsDef = LimitsDef()
     eeprom_write_through: E | None = Field(
@@ -876,9 +894,10 @@ class TwinDef(_Model):
         "[inputs] polarity say")
     max_pulse_rate: float | None = Field(None, gt=0, description="pulses/s: the fastest "
                                          "the drive's pulse output runs (speeds above are capped)")
-    home_offset: Literal["origin", "move"] = Field(
+    home_offset: Literal["origin", "move", "travel"] = Field(
         "origin", description="origin: the origin edge takes the offset as its position; "
-        "move: the counter is 0 at the edge and a compensation move of the offset follows")
+        "move: the counter is 0 at the edge and a compensation move of the offset follows; "
+        "travel: the offset is travelled past the edge and the point reached is 0")
 
 
 # -- the CiA 402 engine ---------------------------------------------------------------
@@ -1205,7 +1224,7 @@ _CONTEXT_NAMES = {
 }
 _TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "raw", "speed_now",
                "pulses_per_rev", "limit_positive", "limit_negative", "motion_decel",
-               "homing"}
+               "homing", "stopping", "active", "at_speed", "stalled"}
 
 
 class _Checker:
@@ -1526,9 +1545,19 @@ class _Checker:
         self._names("twin.limits.decel", t.limits.decel, names)
         self._names("twin.eeprom_write_through", t.eeprom_write_through, names)
         self._names("twin.enabled", t.enabled, names)
-        for i, trig in enumerate(t.on_write):
-            where = f"twin.on_write[{i}]"
-            self._reg_key(f"{where}.register", trig.reg)
+        for key, reg in self.d.registers.items():
+            for bit, b in reg.bits.items():
+                self._names(f"registers.{key}.bits.{bit}.twin", b.twin, names)
+        codes = io.codes if io is not None else {}
+        for i, itrig in enumerate(t.on_input):
+            if itrig.input not in codes:
+                self.out.append(f"twin.on_input[{i}].input: no input function "
+                                f"{itrig.input!r} in inputs.codes ({', '.join(codes) or 'none'})")
+        triggers = [(f"twin.on_write[{i}]", trig) for i, trig in enumerate(t.on_write)]
+        triggers += [(f"twin.on_input[{i}]", trig) for i, trig in enumerate(t.on_input)]
+        for where, trig in triggers:
+            if trig.reg or not isinstance(trig, InputTrigger):
+                self._reg_key(f"{where}.register", trig.reg)
             self._names(f"{where}.when", trig.when, names)
             allowed = TWIN_ACTIONS[trig.do]
             for field in ("target", "distance", "speed", "accel", "decel", "creep", "method",

@@ -61,6 +61,8 @@ _COMPUTED = {"position", "velocity", "command_velocity", "alarm_code", "motion",
 _STARTS = {"move_absolute", "move_relative", "run", "home"}
 _VALUES = _COMPUTED | {"constant", "address", "direction"}
 """Meanings that are a register's value (the others are a state: 1 or 0)."""
+_SERIAL_TCP = LineSettings.parse("115200 8N1")
+"""The line settings a Modbus TCP drive's twin takes on a serial sim wire by default."""
 
 
 @dataclass(frozen=True)
@@ -194,6 +196,8 @@ class DescribedDrive(SimDrive):
         d = self.description
         if settings is None and d.link.protocol == "rtu":
             settings = LineSettings.parse(d.link.factory) if d.link.factory else LineSettings()
+        elif settings is None:
+            settings = _SERIAL_TCP  # a TCP drive served on a serial sim wire
         if settings is not None and d.link.protocol == "rtu":
             self._check_line(settings)
         super().__init__(address, settings, setup)
@@ -239,7 +243,15 @@ class DescribedDrive(SimDrive):
         self._ref: _RefHoming | None = None
         self._processed_until = 0.0
         self._last_event = -math.inf
+        self.stopping: str | None = None
+        """What stops the motion under way: stop, emergency_stop or limit (None: none)."""
+        self._functions_seen = self._input_functions(0.0)
         self.enabled = bool(self._eval(d.twin.enabled, 0.0))
+
+    @property
+    def params(self) -> dict[int, int]:
+        """The stored register words by address (the drive's parameters)."""
+        return self.regs
 
     # -- the description's map ---------------------------------------------------------------
 
@@ -416,14 +428,25 @@ class DescribedDrive(SimDrive):
         span = self._switch_span(index)
         return span is not None and span.active(p)
 
+    def _inverted(self, index: int, *, by_function: bool = True) -> bool:
+        """Terminal ``index`` is inverted by the ``[inputs] polarity`` register, or (with
+        ``by_function``) by the polarity bit of its function entry."""
+        d = self.description
+        io = d.inputs
+        if io is None:
+            return False
+        inverted = io.polarity is not None and bool(
+            self._raw(d.regs[io.polarity], None) >> index & 1)
+        if by_function and io.polarity_bit is not None and io.functions is not None:
+            reg = d.regs[io.functions]
+            if index < len(reg.indices):
+                inverted ^= bool(self._raw(reg, reg.indices[index]) & io.polarity_bit)
+        return inverted
+
     def _level(self, index: int, p: float) -> bool:
         """The valid level of terminal ``index`` at physical position ``p`` (after the
-        ``[inputs] polarity`` register)."""
-        io = self.description.inputs
-        inverted = False
-        if io is not None and io.polarity is not None:
-            inverted = bool(self._raw(self.description.regs[io.polarity], None) >> index & 1)
-        return self._physical(index, p) != inverted
+        ``[inputs] polarity`` register or polarity bit)."""
+        return self._physical(index, p) != self._inverted(index)
 
     def _carriers(self, signal: str) -> list[int]:
         """The terminals whose function is ``signal`` (or the one it is wired to)."""
@@ -433,33 +456,57 @@ class DescribedDrive(SimDrive):
             return [] if bit is None else [bit]
         reg = self.description.regs[io.functions]
         code = io.codes[signal]
-        return [n for n, i in enumerate(reg.indices) if self._raw(reg, i) == code]
+        mask = io.function_mask
+        return [n for n, i in enumerate(reg.indices) if self._raw(reg, i) & mask == code]
+
+    def _direct_span(self, signal: str) -> Span | None:
+        """The switch of ``signal`` if the drive sees it directly (``[twin] direct``)."""
+        if signal not in self.description.twin.direct:
+            return None
+        if signal == "home_switch":
+            return self.home_span()
+        return self.limit_span(1 if signal == "limit_positive" else -1)
 
     def _signal_at(self, signal: str, p: float) -> bool:
+        if signal in self.description.twin.direct:
+            span = self._direct_span(signal)
+            return span is not None and span.active(p)
         return any(self._level(i, p) for i in self._carriers(signal))
 
     def _signal_edge(self, signal: str, rising: bool, t0: float, t1: float) -> float | None:
         """First time in [t0, t1] a terminal carrying ``signal`` turns valid (or invalid)."""
-        found = [self._terminal_edge(i, rising, t0, t1) for i in self._carriers(signal)]
+        if signal in self.description.twin.direct:
+            span = self._direct_span(signal)
+            found = [] if span is None else [self._span_edge(span, span.active, rising, t0, t1)]
+        else:
+            found = [self._terminal_edge(i, rising, t0, t1) for i in self._carriers(signal)]
         times = [t for t in found if t is not None]
         return min(times) if times else None
 
     def _terminal_edge(self, index: int, rising: bool, t0: float, t1: float) -> float | None:
         span = self._switch_span(index)
-        xs = () if span is None else tuple(x for x in (span.lo, span.hi) if math.isfinite(x))
-        found = [self._threshold_edge(index, x + self._shift, rising, t0, t1) for x in xs]
+        if span is None:
+            return None
+        return self._span_edge(span, lambda p: self._level(index, p), rising, t0, t1)
+
+    def _span_edge(self, span: Span, level: Callable[[float], bool], rising: bool,
+                   t0: float, t1: float) -> float | None:
+        """First time in [t0, t1] ``level`` (of the physical position) turns valid (or
+        invalid) at an end of ``span``."""
+        xs = tuple(x for x in (span.lo, span.hi) if math.isfinite(x))
+        found = [self._threshold_edge(level, x + self._shift, rising, t0, t1) for x in xs]
         times = [t for t in found if t is not None]
         return min(times) if times else None
 
-    def _threshold_edge(self, index: int, x: float, rising: bool, t0: float, t1: float
-                        ) -> float | None:
-        """First time in [t0, t1] terminal ``index`` turns valid (or invalid) as the motor
-        passes ``x`` (counter frame)."""
+    def _threshold_edge(self, level: Callable[[float], bool], x: float, rising: bool,
+                        t0: float, t1: float) -> float | None:
+        """First time in [t0, t1] ``level`` turns valid (or invalid) as the motor passes
+        ``x`` (counter frame)."""
         t = t0
         while t <= t1:
             tc = self.kin.crossing(x, t, t1)
             if tc is None:
-                return self._boundary_edge(index, rising, t, t1)
+                return self._boundary_edge(level, rising, t, t1)
             # at a start from rest (or a turnaround) the way it leaves counts; resting on
             # the edge crosses nothing
             v = self.kin.velocity(tc) or self.kin.velocity(tc + 1e-6)
@@ -467,28 +514,28 @@ class DescribedDrive(SimDrive):
                 return None
             step = math.copysign(0.5, v)
             p = x - self._shift
-            if self._level(index, p - step) != self._level(index, p + step) and \
-                    self._level(index, p + step) == rising:
+            if level(p - step) != level(p + step) and level(p + step) == rising:
                 return tc
             t = tc + 1e-6
         return None
 
-    def _level_at(self, index: int, t: float) -> bool:
-        return self._level(index, self.physical_position(t))
-
-    def _boundary_edge(self, index: int, rising: bool, t0: float, t1: float) -> float | None:
+    def _boundary_edge(self, level: Callable[[float], bool], rising: bool, t0: float,
+                       t1: float) -> float | None:
         """An edge in [t0, t1] that ``Kinematics.crossing`` missed where one motion segment
         hands over to the next on the switch's end (float rounding): the levels at both
         ends differ, bisection finds the time."""
-        start = self._level_at(index, t0)
-        if start == self._level_at(index, t1) or self._level_at(index, t1) != rising:
+        def level_at(t: float) -> bool:
+            return level(self.physical_position(t))
+
+        start = level_at(t0)
+        if start == level_at(t1) or level_at(t1) != rising:
             return None
         lo, hi = t0, t1
         for _ in range(64):
             mid = 0.5 * (lo + hi)
             if mid in (lo, hi):
                 break
-            if self._level_at(index, mid) == start:
+            if level_at(mid) == start:
                 lo = mid
             else:
                 hi = mid
@@ -513,7 +560,7 @@ class DescribedDrive(SimDrive):
     def _wired(self, signal: str) -> bool:
         """True if an input carries ``signal`` (home_switch, limit_positive, ...)."""
         io = self.description.inputs
-        if io is None:
+        if io is None or signal in self.description.twin.direct:
             return True
         if signal in io.bits:
             return True
@@ -521,7 +568,7 @@ class DescribedDrive(SimDrive):
             return False
         reg = self.description.regs[io.functions]
         code = io.codes[signal]
-        return any(self._raw(reg, i) == code for i in reg.indices)
+        return any(self._raw(reg, i) & io.function_mask == code for i in reg.indices)
 
     def _span(self, edge: str) -> Span | None:
         """Where the switch of ``edge`` is active (physical), if the drive can see it."""
@@ -629,9 +676,12 @@ class DescribedDrive(SimDrive):
                     value |= b.mask
                 else:
                     value &= ~b.mask
+        for b in reg.d.bits.values():
+            if b.twin is not None:
+                value = value | b.mask if self._eval(b.twin, now) else value & ~b.mask
         return value
 
-    def set_input(self, terminal: int | str, closed: bool) -> None:
+    def set_input(self, terminal: int | str, closed: bool, now: float | None = None) -> None:
         """Drive an input terminal from outside (a sensor or a PLC wired to it): its bit
         number in the inputs' state register, or its name in ``[inputs] names``. The
         state register shows the terminal closed whatever the inversion register says
@@ -650,16 +700,43 @@ class DescribedDrive(SimDrive):
             raise ConfigError(f"input {terminal!r}: the simulated {self.family} has "
                               f"{f'inputs {shown}' if count else 'no inputs'}")
         bit = 1 << index
+        t = time_or_present(now)
+        self.advance(t)
         self._external = self._external | bit if closed else self._external & ~bit
+        self._functions_changed(t)
+
+    # -- input functions (``[twin] on_input``) -----------------------------------------------
+
+    def _input_functions(self, now: float) -> dict[str, bool]:
+        """Whether each input function an ``on_input`` trigger watches is active now."""
+        if not self.description.twin.on_input:
+            return {}
+        p = self.physical_position(now)
+        return {trig.input: self._signal_at(trig.input, p)
+                for trig in self.description.twin.on_input}
+
+    def _functions_changed(self, now: float) -> None:
+        """Act on the input functions that turned active (or inactive) since last seen."""
+        before = self._functions_seen
+        after = self._input_functions(now)
+        self._functions_seen = after
+        for trig in self.description.twin.on_input:
+            name = trig.input
+            if before.get(name) == after[name] or after[name] != (trig.edge == "rise"):
+                continue
+            if trig.when is not None and not self._eval(trig.when, now):
+                continue
+            self._do(trig, None, now)
 
     def _io_word(self, which: str, now: float) -> int:
         d = self.description
         io = d.inputs if which == "inputs" else d.outputs
         if io is None:
             return 0
-        if which == "inputs" and d.twin.wiring:  # the terminals' valid levels
+        if which == "inputs" and d.twin.wiring:  # the terminals' levels (polarity register)
             p = self.physical_position(now)
-            return sum(1 << i for i in self._terminals() if self._level(i, p))
+            return sum(1 << i for i in self._terminals()
+                       if self._physical(i, p) != self._inverted(i, by_function=False))
         signals = self._signals(now)
         active = {k: v for k, v in signals.items()}
         word = 0
@@ -720,6 +797,8 @@ class DescribedDrive(SimDrive):
         except SlaveException:
             self.regs = before
             raise
+        if self.description.twin.on_input:
+            self._functions_changed(now)
 
     def _write_through(self, now: float) -> bool:
         """True while a write to an ``eeprom`` register is stored."""
@@ -744,6 +823,12 @@ class DescribedDrive(SimDrive):
             self._do(trig, value, now)
             if not trig.more:
                 return
+
+    def _active(self, now: float) -> dict[str, bool]:
+        """Each input function of ``[inputs] codes``: active now."""
+        io = self.description.inputs
+        p = self.physical_position(now)
+        return {} if io is None else {s: self._signal_at(s, p) for s in io.codes}
 
     # -- evaluation ---------------------------------------------------------------------------
 
@@ -783,10 +868,8 @@ class DescribedDrive(SimDrive):
         if do in ("emergency_stop", "stop", "disable"):
             self._ref = None
             self._completes = False
-        if do == "emergency_stop":
-            self._homing = None
-            self.kin.stop(now, None)
-        elif do == "stop":
+        if do in ("emergency_stop", "stop"):  # an emergency stop without decel: at once
+            self.stopping = do
             self._homing = None
             decel = self._param(trig, "decel", now, value)
             self.kin.stop(now, _rate(decel, p))
@@ -868,8 +951,8 @@ class DescribedDrive(SimDrive):
         self._started(trig, "speed", now, dc)
 
     def _set_speed(self, trig: Trigger, value: Any, now: float) -> None:
-        if self.motion != "speed" or not self.kin.moving(now):
-            return
+        if self.motion != "speed" or not self.kin.moving(now) or self.stopping:
+            return  # a new speed does not restart a motor that is being stopped
         speed = float(self._param(trig, "speed", now, value) or 0.0)
         v = self.kin.velocity(now)
         signed = math.copysign(abs(speed), v) if v else speed
@@ -882,6 +965,7 @@ class DescribedDrive(SimDrive):
         self._motion_decel = decel
         self._homing = None
         self._ref = None
+        self.stopping = None
         self.reached = False
         self._completes = kind == "position"
         self._processed_until = max(self._processed_until, now)
@@ -919,6 +1003,7 @@ class DescribedDrive(SimDrive):
         self.motion = trig.motion or "homing"
         self.homed = False
         self.homing_failed = False
+        self.stopping = None
         if method.behaviour == "reference_edge":
             self._ref_home(method, speed, creep, accel, offset, now)
             return
@@ -1039,6 +1124,8 @@ class DescribedDrive(SimDrive):
             h.phase = "creep"
             self._ref_run(t, h.direction * h.creep)
         else:
+            if h.phase == "offset" and self.description.twin.home_offset == "travel":
+                self._set_counter(t, 0)  # the point the offset travel reached is 0
             self._ref_done()
 
     def _ref_done(self) -> None:
@@ -1075,14 +1162,16 @@ class DescribedDrive(SimDrive):
         offset as its position."""
         h = self._ref
         assert h is not None
-        self.kin.hold(t)
-        if self.description.twin.home_offset != "move":
+        self.kin.hold(t, self._on_edge(h.reference, self.kin.position(t)))
+        mode = self.description.twin.home_offset
+        if mode == "origin":
             self.kin.stop(t, h.rate)
             self._set_counter(t, h.offset)
             self._ref_done()
             return
-        self._set_counter(t, 0)
         offset = h.offset
+        if mode == "move" or not offset:
+            self._set_counter(t, 0)
         if not offset:
             self._ref_done()
             return
@@ -1093,6 +1182,17 @@ class DescribedDrive(SimDrive):
         h.phase = "offset"
         self.kin.move_to(t, self.kin.position(t) + offset, h.creep, h.rate, h.rate)
         self._last_dir = 1 if offset > 0 else -1
+
+    def _on_edge(self, signal: str, x: float) -> float:
+        """``x`` (counter frame) on the nearest end of ``signal``'s switch when it is that
+        close (the edge a crossing time found, without its float rounding)."""
+        span = self._direct_span(signal) if signal in self.description.twin.direct else \
+            next((self._switch_span(i) for i in self._carriers(signal)), None)
+        if span is None:
+            return x
+        ends = [e + self._shift for e in (span.lo, span.hi) if math.isfinite(e)]
+        near = min(ends, key=lambda e: abs(e - x), default=x)
+        return near if abs(near - x) < 1e-3 else x
 
     def _ref_limits(self, t0: float, t1: float, *, reverse: bool = False,
                     offset: bool = False) -> list[tuple[float | None, _Handler]]:
@@ -1131,6 +1231,7 @@ class DescribedDrive(SimDrive):
 
     def _wired_limit_stop(self, t: float) -> None:
         self.kin.stop(t, self._limit_rate(t))
+        self.stopping = "limit"
         self._completes = False
 
     def _advance_wired(self, now: float) -> None:
@@ -1168,7 +1269,8 @@ class DescribedDrive(SimDrive):
 
     def advance(self, now: float) -> None:
         """Bring homing legs and limit stops up to ``now`` (state is computed lazily)."""
-        if self.description.twin.wiring and self._homing is None:
+        twin = self.description.twin
+        if (twin.wiring or twin.direct or self._ref is not None) and self._homing is None:
             self._advance_wired(now)
             return
         if self._homing is not None:
@@ -1178,6 +1280,7 @@ class DescribedDrive(SimDrive):
             tc = self._limit_hit(now)
             if tc is not None:
                 self.kin.stop(tc, self._limit_rate(tc))
+                self.stopping = "limit"
                 self._watch_from = now
 
     def raise_alarm(self, code: int, now: float | None = None) -> None:
@@ -1219,6 +1322,8 @@ class DescribedDrive(SimDrive):
         self._ref = None
         self.reached = True
         self._completes = False
+        self.stopping = None
+        self._functions_seen = self._input_functions(now)
         self.enabled = bool(self._eval(self.description.twin.enabled, now))
 
     def _apply_baud_register(self, *, initial: bool) -> None:
@@ -1288,7 +1393,7 @@ def _formats_at(d: Description, baud: int) -> list[str]:
 
 def _computed(reg: Reg) -> bool:
     return reg.d.means is not None or any(
-        b.means is not None for b in reg.d.bits.values())
+        b.means is not None or b.twin is not None for b in reg.d.bits.values())
 
 
 def _clamp(reg: Reg, value: int) -> int:
@@ -1353,6 +1458,9 @@ class _Scope(Mapping[str, Any]):
             "pulses_per_rev": lambda: t.pulses_per_rev,
             "limit_positive": lambda: t.switch_states(now)[2],
             "limit_negative": lambda: t.switch_states(now)[1],
+            "stopping": lambda: t.stopping if t.kin.moving(now) else None,
+            "at_speed": lambda: t._signals(now)["at_speed"],
+            "active": lambda: Attrs("active", t._active(now)),
         }
         if key in state:
             return state[key]()

@@ -1,0 +1,224 @@
+"""The generic twin's behaviour the NT-family descriptions need (issue 22): input functions
+with a polarity bit in their function entries and actions on their edges (``on_input``),
+switches seen without a terminal (``direct``), an e-stop's deceleration changed while it
+runs (``stopping``), bits computed from expressions (``twin``), the offset travelled past
+the origin edge (``home_offset = "travel"``) and a TCP drive's default serial settings.
+Each on the twin of a small description, driven register by register at given times."""
+
+from __future__ import annotations
+
+import tomllib
+
+import pytest
+
+from drivebus import LineSettings
+from drivebus.drives.description import parse_description
+from drivebus.errors import ConfigError
+from drivebus.sim.described import DescribedDrive, described_twin
+from drivebus.sim.drive import TwinSetup
+from drivebus.sim.registers import SlaveException
+
+TOML = """
+[drive]
+family = "INFN"
+
+[link]
+protocol = "{protocol}"
+
+[link.refusals]
+busy = 4
+
+[units.pulses_per_rev]
+default = 1000
+
+[registers.status]
+address = 0
+access = "R"
+bits.ENA = {{ bit = 0, means = "enabled" }}
+bits.MOV = {{ bit = 1, means = "moving" }}
+bits.POW = {{ bit = 2, twin = "True" }}
+bits.RDY = {{ bit = 3, twin = "enabled and not alarm" }}
+
+[registers.inputs]
+address = 1
+access = "R"
+means = "inputs"
+
+[registers.position]
+address = 2
+words = 2
+signed = true
+access = "R"
+means = "position"
+
+[registers.command]
+address = 4
+max = 9
+
+[registers.speed]
+address = 5
+unit = "rpm"
+max = 3000
+default = 600
+
+[registers.decel]
+address = 6
+unit = "r/s²"
+min = 1
+max = 1000
+default = 10
+
+[registers.in_setting]
+address = 10
+count = 3
+first = 1
+defaults = [4, 5, 12]
+max = 0x3F
+
+[registers.home_offset]
+address = 20
+unit = "pulses"
+max = 1000
+default = 100
+
+[inputs]
+state = "inputs"
+functions = "in_setting"
+function_mask = 0x1F
+polarity_bit = 0x20
+names = ["IN1", "IN2", "IN3"]
+codes = {{ offline = 4, clear_fault = 5, start_homing = 12, limit_negative = 10 }}
+
+[homing.methods.limit_negative]
+code = 0
+behaviour = "reference_edge"
+reference = "limit_negative"
+direction = -1
+
+[twin]
+starts = "enabled and not alarm and not moving"
+enabled = "not active.offline"
+direct = ["limit_negative"]
+home_offset = "travel"
+
+[[twin.on_write]]
+register = "command"
+when = "value == 1"
+do = "run"
+speed = "speed"
+accel = "decel"
+decel = "decel"
+motion = "speed"
+refuse = true
+
+[[twin.on_write]]
+register = "command"
+when = "value == 5"
+do = "emergency_stop"
+decel = "decel"
+
+[[twin.on_write]]
+register = "speed"
+do = "set_speed"
+speed = "speed"
+
+[[twin.on_write]]
+register = "decel"
+when = "stopping == 'emergency_stop'"
+do = "emergency_stop"
+decel = "decel"
+
+[[twin.on_input]]
+input = "offline"
+do = "disable"
+
+[[twin.on_input]]
+input = "offline"
+edge = "fall"
+do = "enable"
+
+[[twin.on_input]]
+input = "clear_fault"
+do = "clear_alarm"
+
+[[twin.on_input]]
+input = "start_homing"
+do = "home"
+method = "0"
+speed = "speed"
+creep = "60"
+accel = "1000"
+offset = "home_offset"
+"""
+
+
+def twin_class(protocol: str = "rtu") -> type[DescribedDrive]:
+    data = tomllib.loads(TOML.format(protocol=protocol))
+    return described_twin(parse_description(data, "infn.toml"))
+
+
+def status(twin: DescribedDrive, t: float) -> int:
+    """The status register at ``t``, the twin brought up to ``t`` first (as a request)."""
+    twin.advance(t)
+    return twin.read_register(0, t)
+
+
+def test_a_polarity_bit_is_an_edge_of_the_inputs_function() -> None:
+    twin = twin_class()(1)
+    assert status(twin, 0.0) == 0b1101  # enabled, powered, ready
+    twin.write_register(10, 0x24, 0.1)  # IN1 'offline' inverted: active while open
+    assert not twin.enabled and status(twin, 0.1) == 0b0100
+    assert twin.read_register(1, 0.1) == 0  # the state shows the terminals as wired
+    twin.set_input("IN1", True, 0.2)  # closed and inverted: inactive
+    assert twin.enabled and twin.read_register(1, 0.2) == 0b001
+    twin.raise_alarm(1, 0.3)
+    assert not status(twin, 0.3) & 0b1000  # not ready in alarm
+    twin.write_register(11, 0x05, 0.4)  # IN2 rewritten with its function: no edge
+    assert twin.alarm_code == 1
+    twin.write_register(11, 0x25, 0.5)  # its polarity flipped: 'clear fault' rises
+    assert twin.alarm_code == 0 and status(twin, 0.5) == 0b1101
+    twin.write_register(11, 0x3F, 0.6)  # another function: the mask leaves 0x1F
+    with pytest.raises(ConfigError, match=r"inputs IN1\.\.IN3"):
+        twin.set_input(3, True)
+
+
+def test_a_new_deceleration_applies_to_an_emergency_stop_under_way() -> None:
+    twin = twin_class()(1)
+    twin.write_register(4, 1, 0.0)  # run at 600 rpm, 10 r/s²: 10 000 pulses/s
+    with pytest.raises(SlaveException) as err:
+        twin.write_register(4, 1, 0.5)  # a start while it moves
+    assert err.value.code == 4
+    twin.write_register(5, 300, 2.0)  # a speed change applies at once
+    assert twin.velocity(4.0) == pytest.approx(5000)
+    twin.write_register(4, 5, 4.0)  # e-stop at 10 r/s²: 0.5 s
+    assert twin.is_moving(4.2)
+    twin.write_register(5, 600, 4.2)  # no restart while it stops
+    twin.write_register(6, 1000, 4.2)  # faster: stopped at once
+    assert not twin.is_moving(4.21)
+    assert twin.velocity(4.3) == 0
+
+
+def test_homing_on_a_direct_limit_travels_the_offset_to_position_zero() -> None:
+    twin = twin_class()(1, setup=TwinSetup(position=0, limit_negative=-3000))
+    assert twin.read_register(1, 0.0) == 0  # a direct switch is on no terminal
+    twin.write_register(12, 0x2C, 0.0)  # IN3 'start homing' rises
+    t = 0.1
+    assert status(twin, t) & 0b10
+    while status(twin, t) & 0b10:
+        t += 0.05
+        assert t < 30
+    assert twin.homed and not twin.homing_failed
+    assert twin.physical_position(t) == -3000 + 100 and twin.position(t) == 0
+
+
+def test_a_tcp_drive_takes_115200_8n1_on_a_serial_sim_wire() -> None:
+    assert twin_class("tcp")(1).settings == LineSettings.parse("115200 8N1")
+    assert twin_class("tcp")(1, LineSettings.parse("9600 8E1")).settings.baudrate == 9600
+
+
+def test_an_on_input_trigger_names_a_known_function() -> None:
+    data = tomllib.loads(TOML.format(protocol="rtu").replace('input = "clear_fault"',
+                                                            'input = "clear_faults"'))
+    with pytest.raises(ConfigError, match=r"on_input\[2\]\.input: no input function "
+                                          r"'clear_faults'"):
+        parse_description(data, "infn.toml")
