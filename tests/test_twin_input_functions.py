@@ -24,6 +24,7 @@ family = "INFN"
 
 [link]
 protocol = "{protocol}"
+addresses = "1..31"
 
 [link.refusals]
 busy = 4
@@ -75,6 +76,34 @@ first = 1
 defaults = [4, 5, 12]
 max = 0x3F
 
+[registers.mode]
+address = 13
+max = 2
+
+[registers.outputs]
+address = 14
+access = "R"
+means = "outputs"
+
+[registers.out_setting]
+address = 15
+count = 2
+first = 1
+defaults = [1, 0]
+max = 0x1F
+
+[registers.output_values]
+address = 17
+max = 3
+
+[outputs]
+state = "outputs"
+functions = "out_setting"
+function_mask = 0x0F
+settable = 0
+values = "output_values"
+codes = {{ alarm = 1, enabled = 2 }}
+
 [registers.home_offset]
 address = 20
 unit = "pulses"
@@ -87,6 +116,7 @@ functions = "in_setting"
 function_mask = 0x1F
 polarity_bit = 0x20
 names = ["IN1", "IN2", "IN3"]
+first = 1
 codes = {{ offline = 4, clear_fault = 5, start_homing = 12, limit_negative = 10 }}
 
 [homing.methods.limit_negative]
@@ -100,6 +130,7 @@ starts = "enabled and not alarm and not moving"
 enabled = "not active.offline"
 direct = ["limit_negative"]
 home_offset = "travel"
+options = ["mode"]
 
 [[twin.on_write]]
 register = "command"
@@ -178,8 +209,12 @@ def test_a_polarity_bit_is_an_edge_of_the_inputs_function() -> None:
     twin.write_register(11, 0x25, 0.5)  # its polarity flipped: 'clear fault' rises
     assert twin.alarm_code == 0 and status(twin, 0.5) == 0b1101
     twin.write_register(11, 0x3F, 0.6)  # another function: the mask leaves 0x1F
+    twin.set_input(1, False, 0.7)  # IN1 counted from 1 ([inputs] first)
+    assert not twin.enabled and twin.read_register(1, 0.7) == 0
     with pytest.raises(ConfigError, match=r"inputs IN1\.\.IN3"):
-        twin.set_input(3, True)
+        twin.set_input(4, True)
+    with pytest.raises(ConfigError, match=r"inputs IN1\.\.IN3"):
+        twin.set_input(0, True)
 
 
 def test_a_new_deceleration_applies_to_an_emergency_stop_under_way() -> None:
@@ -222,3 +257,21 @@ def test_an_on_input_trigger_names_a_known_function() -> None:
     with pytest.raises(ConfigError, match=r"on_input\[2\]\.input: no input function "
                                           r"'clear_faults'"):
         parse_description(data, "infn.toml")
+
+
+def test_addresses_twin_options_and_outputs_switched_over_modbus() -> None:
+    cls = twin_class()
+    with pytest.raises(ConfigError, match=r"INFN address 32: it has addresses 1\.\.31"):
+        cls(32)
+    assert "mode" in cls.twin_options()
+    twin = cls(31, mode=2)
+    assert twin.read_register(13, 0.0) == 2
+    twin.write_register(13, 0, 0.0)
+    twin.write_register(17, 0b11, 0.0)  # OUT2 has function 0: it follows bit 1
+    assert twin.read_register(14, 0.0) == 0b10
+    twin.raise_alarm(1, 0.1)  # OUT1 shows the alarm
+    assert twin.read_register(14, 0.1) == 0b11
+    twin.write_register(15, 0x12, 0.2)  # OUT1 'enabled' (bit 4 is its polarity: masked)
+    assert twin.read_register(14, 0.2) == 0b11
+    with pytest.raises(ConfigError, match=r"no option 'speed'.*mode"):
+        cls(1, speed=3)

@@ -587,6 +587,10 @@ class IoDef(_Model):
         "terminal is set to do)")
     settable: int | None = Field(None, description="outputs: the function code under which "
                                  "Modbus switches the output (set_output)")
+    values: str | None = Field(None, description="outputs: the register whose bit n an output "
+                               "n follows while its function is `settable` (the twin)")
+    first: int = Field(0, ge=0, le=1, description="the number the twin's set_input gives the "
+                       "first terminal (1 where the manual counts IN1, IN2, ...)")
 
 
 class AlarmsDef(_Model):
@@ -881,6 +885,8 @@ class TwinDef(_Model):
         "or its function changed)")
     direct: list[Literal["home_switch", "limit_positive", "limit_negative"]] = Field(
         [], description="switches the drive sees without an input terminal")
+    options: list[str] = Field([], description="registers a twin option sets before "
+                               "power-up (a choice the machine's builder made: wiring, mode)")
     starts: E = Expr.parse("enabled and not alarm")
     limits: LimitsDef = LimitsDef()
     eeprom_write_through: E | None = Field(
@@ -1548,6 +1554,11 @@ class _Checker:
         for key, reg in self.d.registers.items():
             for bit, b in reg.bits.items():
                 self._names(f"registers.{key}.bits.{bit}.twin", b.twin, names)
+        for i, key in enumerate(t.options):
+            self._reg_key(f"twin.options[{i}]", key)
+        out = self.d.outputs
+        if out is not None and out.values is not None:
+            self._reg_key("outputs.values", out.values)
         codes = io.codes if io is not None else {}
         for i, itrig in enumerate(t.on_input):
             if itrig.input not in codes:

@@ -200,6 +200,7 @@ class DescribedDrive(SimDrive):
             settings = _SERIAL_TCP  # a TCP drive served on a serial sim wire
         if settings is not None and d.link.protocol == "rtu":
             self._check_line(settings)
+        self._check_address(address, soft_address=soft_address)
         super().__init__(address, settings, setup)
         self.set_home_shape(home_cam, home_switch_width)
         self.crc_error_reply = crc_error_reply
@@ -211,7 +212,7 @@ class DescribedDrive(SimDrive):
         self.factory = self._factory_words()
         for key, value in constants.items():
             reg = d.regs.get(key)
-            if reg is None or reg.d.means != "constant":
+            if reg is None or (reg.d.means != "constant" and key not in d.twin.options):
                 raise ConfigError(f"the simulated {d.family} has no option {key!r} (options: "
                                   f"{', '.join(self.twin_options())})")
             self._store(self.factory, reg, None, int(value))
@@ -261,7 +262,20 @@ class DescribedDrive(SimDrive):
         d = cls.description
         consts = [k for k, r in d.regs.items() if r.d.means == "constant"]
         soft = ["soft_address"] if d.link.address_register is not None else []
-        return ["home_switch_width", "home_cam", "crc_error_reply", *soft, *consts]
+        return ["home_switch_width", "home_cam", "crc_error_reply", *soft, *consts,
+                *d.twin.options]
+
+    def _check_address(self, address: int, *, soft_address: bool) -> None:
+        """An address the drive can have: ``[link] addresses`` (or, with
+        ``soft_address``, ``register_addresses`` too); ``ConfigError`` else."""
+        link = self.description.link
+        ranges = [link.addresses]
+        if soft_address and link.register_addresses is not None:
+            ranges.append(link.register_addresses)
+        if not any(lo <= address <= hi for lo, hi in ranges):
+            shown = " or ".join(f"{lo}..{hi}" for lo, hi in ranges)
+            raise ConfigError(f"{self.description.family} address {address}: it has "
+                              f"addresses {shown}")
 
     def _check_line(self, settings: LineSettings) -> None:
         d = self.description
@@ -683,7 +697,8 @@ class DescribedDrive(SimDrive):
 
     def set_input(self, terminal: int | str, closed: bool, now: float | None = None) -> None:
         """Drive an input terminal from outside (a sensor or a PLC wired to it): its bit
-        number in the inputs' state register, or its name in ``[inputs] names``. The
+        number in the inputs' state register (counted from ``[inputs] first``: IN1 = 1
+        where the manual numbers so), or its name in ``[inputs] names``. The
         state register shows the terminal closed whatever the inversion register says
         (it inverts what a closed terminal means to the drive's functions); the
         switches given in the setup stay as they are."""
@@ -691,12 +706,14 @@ class DescribedDrive(SimDrive):
         names = list(io.names) if io is not None else []
         reg = self.description.regs[io.state] if io is not None else None
         count = len(names) or (16 * reg.d.words if reg is not None else 0)
-        index = terminal
+        first = io.first if io is not None else 0
+        index = terminal - first if isinstance(terminal, int) and \
+            not isinstance(terminal, bool) else terminal
         if isinstance(terminal, str):
             upper = [n.upper() for n in names]
             index = upper.index(terminal.upper()) if terminal.upper() in upper else -1
         if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < count:
-            shown = f"{names[0]}..{names[-1]}" if names else f"0..{count - 1}"
+            shown = f"{names[0]}..{names[-1]}" if names else f"{first}..{count - 1 + first}"
             raise ConfigError(f"input {terminal!r}: the simulated {self.family} has "
                               f"{f'inputs {shown}' if count else 'no inputs'}")
         bit = 1 << index
@@ -743,8 +760,13 @@ class DescribedDrive(SimDrive):
         if io.functions is not None:
             reg = d.regs[io.functions]
             by_code = {c: s for s, c in io.codes.items()}
+            switched = self._raw(d.regs[io.values], None) if io.values is not None else 0
             for n, i in enumerate(reg.indices):
-                sig = by_code.get(self._raw(reg, i))
+                code = self._raw(reg, i) & io.function_mask
+                if io.values is not None and code == io.settable:
+                    word |= (switched >> n & 1) << n  # switched over Modbus
+                    continue
+                sig = by_code.get(code)
                 if sig is not None and active.get(sig, False):
                     word |= 1 << n
         for sig, bit in io.bits.items():
