@@ -125,6 +125,10 @@ behaviour = "reference_edge"
 reference = "limit_negative"
 direction = -1
 
+[homing.methods.electrical]
+code = 1
+behaviour = "move_to_offset"
+
 [twin]
 starts = "enabled and not alarm and not moving"
 enabled = "not active.offline"
@@ -147,6 +151,15 @@ register = "command"
 when = "value == 5"
 do = "emergency_stop"
 decel = "decel"
+
+[[twin.on_write]]
+register = "command"
+when = "value == 7"
+do = "home"
+method = "1"
+speed = "speed"
+accel = "1000"
+offset = "home_offset"
 
 [[twin.on_write]]
 register = "speed"
@@ -275,3 +288,16 @@ def test_addresses_twin_options_and_outputs_switched_over_modbus() -> None:
     assert twin.read_register(14, 0.2) == 0b11
     with pytest.raises(ConfigError, match=r"no option 'speed'.*mode"):
         cls(1, speed=3)
+
+
+def test_homing_by_a_move_to_the_offset_stops_at_a_limit_switch() -> None:
+    twin = twin_class()(1, setup=TwinSetup(position=500))
+    twin.write_register(4, 7, 0.0)  # move to 100 at 600 rpm (10 000 pulses/s)
+    assert status(twin, 0.01) & 0b10 and not twin.homed
+    assert not status(twin, 1.0) & 0b10
+    assert twin.homed and twin.position(1.0) == 100 == twin.physical_position(1.0)
+    twin = twin_class()(1, setup=TwinSetup(position=500, limit_negative=300))
+    twin.write_register(4, 7, 0.0)
+    assert not status(twin, 1.0) & 0b10
+    assert not twin.homed and twin.homing_failed
+    assert 300 - 1 >= twin.physical_position(1.0) >= 300 - 10_000**2 / (2 * 1e6) - 1

@@ -97,6 +97,8 @@ class _RefHoming:
     rate: float
     offset: float
     reversed: bool = False
+    final: float | None = None
+    """The counter's value where the offset travel ends (None: as it is)."""
 
 
 _Handler = Callable[[float], None]
@@ -1029,6 +1031,9 @@ class DescribedDrive(SimDrive):
         if method.behaviour == "reference_edge":
             self._ref_home(method, speed, creep, accel, offset, now)
             return
+        if method.behaviour == "move_to_offset":
+            self._offset_home(speed, accel, offset, now)
+            return
         number = method.cia402
         if method.behaviour == "set" or number in (33, 34, 35, 37):
             self._set_counter(now, offset)
@@ -1146,8 +1151,8 @@ class DescribedDrive(SimDrive):
             h.phase = "creep"
             self._ref_run(t, h.direction * h.creep)
         else:
-            if h.phase == "offset" and self.description.twin.home_offset == "travel":
-                self._set_counter(t, 0)  # the point the offset travel reached is 0
+            if h.phase == "offset" and h.final is not None:
+                self._set_counter(t, h.final)  # "travel": the point reached is 0
             self._ref_done()
 
     def _ref_done(self) -> None:
@@ -1202,8 +1207,36 @@ class DescribedDrive(SimDrive):
             self._ref_fail(t)  # the compensation would go into a limit switch
             return
         h.phase = "offset"
+        h.final = 0.0 if mode == "travel" else None
         self.kin.move_to(t, self.kin.position(t) + offset, h.creep, h.rate, h.rate)
         self._last_dir = 1 if offset > 0 else -1
+
+    def _offset_home(self, speed: float, accel: Any, offset: float, now: float) -> None:
+        """``behaviour = "move_to_offset"``: a move to the position ``offset`` at ``speed``;
+        there it is homed. A limit switch met on the way stops it (as ``[twin] limits``
+        say) and the homing fails."""
+        ppr = self.pulses_per_rev
+        rate = float(accel) * ppr if _finite_pos(accel) else math.inf
+        pps = self._pps(speed)
+        here = self.kin.position(now)
+        if pps <= 0 or offset == here:
+            self._set_counter(now, offset)
+            self.homed = True
+            return
+        towards = "limit_positive" if offset > here else "limit_negative"
+        if self._blocked(offset - here, now) or self._signal_at(
+                towards, self.physical_position(now) + math.copysign(0.5, offset - here)):
+            self.homing_failed = True
+            return
+        self._ref = _RefHoming("", "offset", 1.0 if offset > here else -1.0, pps, pps, rate,
+                               offset)
+        self._homing = None
+        self._motion_decel = rate
+        self.reached = False
+        self._completes = False
+        self._processed_until = max(self._processed_until, now)
+        self.kin.move_to(now, offset, pps, rate, rate)
+        self._last_dir = 1 if offset > here else -1
 
     def _on_edge(self, signal: str, x: float) -> float:
         """``x`` (counter frame) on the nearest end of ``signal``'s switch when it is that
