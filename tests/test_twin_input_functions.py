@@ -39,6 +39,7 @@ bits.ENA = {{ bit = 0, means = "enabled" }}
 bits.MOV = {{ bit = 1, means = "moving" }}
 bits.POW = {{ bit = 2, twin = "True" }}
 bits.RDY = {{ bit = 3, twin = "enabled and not alarm" }}
+bits.TC = {{ bit = 4, twin = "stalled" }}
 
 [registers.inputs]
 address = 1
@@ -129,7 +130,13 @@ direction = -1
 code = 1
 behaviour = "move_to_offset"
 
+[homing.methods.hard_stop_negative]
+code = 2
+behaviour = "hard_stop"
+direction = -1
+
 [twin]
+stall_time = "0.05"
 starts = "enabled and not alarm and not moving"
 enabled = "not active.offline"
 direct = ["limit_negative"]
@@ -158,6 +165,15 @@ when = "value == 7"
 do = "home"
 method = "1"
 speed = "speed"
+accel = "1000"
+offset = "home_offset"
+
+[[twin.on_write]]
+register = "command"
+when = "value == 8"
+do = "home"
+method = "2"
+creep = "60"
 accel = "1000"
 offset = "home_offset"
 
@@ -301,3 +317,25 @@ def test_homing_by_a_move_to_the_offset_stops_at_a_limit_switch() -> None:
     assert not status(twin, 1.0) & 0b10
     assert not twin.homed and twin.homing_failed
     assert 300 - 1 >= twin.physical_position(1.0) >= 300 - 10_000**2 / (2 * 1e6) - 1
+
+
+def test_hard_stop_homing_stalls_on_the_end_stop_for_the_stall_time() -> None:
+    cls = twin_class()
+    assert {"hard_stop_negative", "hard_stop_positive"} <= set(cls.twin_options())
+    twin = cls(1, hard_stop_negative=-700)
+    twin.write_register(4, 8, 0.0)  # creep at 60 rpm (1000 pulses/s) into the stop at -700
+    assert status(twin, 0.5) & 0b10 and not twin.stalled
+    assert status(twin, 0.72) & 0b10000 and twin.physical_position(0.72) == -700  # TC
+    assert not twin.homed and status(twin, 0.75) & 0b10000
+    assert status(twin, 0.8) & 0b10010 == 0b10  # 0.05 s stalled: the origin; then
+    assert not status(twin, 0.9) & 0b10  # 'travel': 100 pulses off it, that point is 0
+    assert twin.homed and twin.position(0.9) == 0 and twin.physical_position(0.9) == -600
+    twin = cls(1, setup=TwinSetup(limit_positive=50))
+    twin.write_register(4, 8, 0.0)  # no end stop: it creeps on until stopped
+    assert status(twin, 2.0) & 0b10 and not twin.homed
+    twin.write_register(4, 5, 2.0)
+    assert not status(twin, 3.0) & 0b10 and not twin.homed and not twin.homing_failed
+    twin = cls(1, setup=TwinSetup(limit_negative=-300), hard_stop_negative=-700)
+    twin.write_register(4, 8, 0.0)  # the limit switch before the end stop: it fails
+    assert not status(twin, 2.0) & 0b10 and not twin.homed and twin.homing_failed
+    assert -300 >= twin.physical_position(2.0) >= -301

@@ -655,11 +655,12 @@ class HomingMethod(BaseModel):
 
     code: int | None = None
     cia402: int | None = Field(None, description="the equivalent CiA 402 method (twin)")
-    behaviour: Literal["search", "set", "move_to_offset", "reference_edge"] | None = None
+    behaviour: Literal["search", "set", "move_to_offset", "reference_edge", "hard_stop"] | \
+        None = None
     reference: Literal["home_switch", "limit_positive", "limit_negative"] | None = Field(
         None, description="reference_edge: the signal whose rising edge is the origin")
-    direction: Literal[-1, 1] | None = Field(None, description="reference_edge: the search "
-                                             "direction")
+    direction: Literal[-1, 1] | None = Field(None, description="reference_edge, hard_stop: "
+                                             "the search direction")
     doc: str = ""
 
     @model_validator(mode="after")
@@ -667,6 +668,8 @@ class HomingMethod(BaseModel):
         if self.behaviour == "reference_edge" and (self.reference is None or
                                                    self.direction is None):
             raise ValueError("behaviour reference_edge needs 'reference' and 'direction'")
+        if self.behaviour == "hard_stop" and self.direction is None:
+            raise ValueError("behaviour hard_stop needs 'direction'")
         return self
 
     @property
@@ -887,6 +890,8 @@ class TwinDef(_Model):
         [], description="switches the drive sees without an input terminal")
     options: list[str] = Field([], description="registers a twin option sets before "
                                "power-up (a choice the machine's builder made: wiring, mode)")
+    stall_time: E = Field(Expr.parse(0.0), description="s: how long the motor stalls on a "
+                          "hard stop before the drive takes it as the origin (hard_stop)")
     starts: E = Expr.parse("enabled and not alarm")
     limits: LimitsDef = LimitsDef()
     eeprom_write_through: E | None = Field(
@@ -1551,6 +1556,7 @@ class _Checker:
         self._names("twin.limits.decel", t.limits.decel, names)
         self._names("twin.eeprom_write_through", t.eeprom_write_through, names)
         self._names("twin.enabled", t.enabled, names)
+        self._names("twin.stall_time", t.stall_time, names)
         for key, reg in self.d.registers.items():
             for bit, b in reg.bits.items():
                 self._names(f"registers.{key}.bits.{bit}.twin", b.twin, names)

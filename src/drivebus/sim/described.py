@@ -99,6 +99,10 @@ class _RefHoming:
     reversed: bool = False
     final: float | None = None
     """The counter's value where the offset travel ends (None: as it is)."""
+    stop: float | None = None
+    """hard_stop: the end stop's position (counter frame; None: none ahead)."""
+    until: float = math.inf
+    """hard_stop: when the stall on the end stop makes it the origin."""
 
 
 _Handler = Callable[[float], None]
@@ -193,6 +197,8 @@ class DescribedDrive(SimDrive):
         home_cam: HomeCam | None = None,
         crc_error_reply: bool = True,
         soft_address: bool = False,
+        hard_stop_negative: float | None = None,
+        hard_stop_positive: float | None = None,
         **constants: int,
     ) -> None:
         d = self.description
@@ -206,6 +212,11 @@ class DescribedDrive(SimDrive):
         super().__init__(address, settings, setup)
         self.set_home_shape(home_cam, home_switch_width)
         self.crc_error_reply = crc_error_reply
+        self.hard_stop_negative = hard_stop_negative
+        self.hard_stop_positive = hard_stop_positive
+        """Mechanical end stops (physical positions) a hard_stop homing creeps into."""
+        self.stalled = False
+        """The motor stalls on an end stop (a hard_stop homing's torque reached)."""
         if soft_address and d.link.address_register is None:
             raise ConfigError(f"the simulated {d.family} has no soft_address: its description "
                               "names no [link] address_register")
@@ -264,7 +275,9 @@ class DescribedDrive(SimDrive):
         d = cls.description
         consts = [k for k, r in d.regs.items() if r.d.means == "constant"]
         soft = ["soft_address"] if d.link.address_register is not None else []
-        return ["home_switch_width", "home_cam", "crc_error_reply", *soft, *consts,
+        stops = ["hard_stop_negative", "hard_stop_positive"] if d.homing is not None and any(
+            m.behaviour == "hard_stop" for m in d.homing.methods.values()) else []
+        return ["home_switch_width", "home_cam", "crc_error_reply", *soft, *stops, *consts,
                 *d.twin.options]
 
     def _check_address(self, address: int, *, soft_address: bool) -> None:
@@ -892,6 +905,7 @@ class DescribedDrive(SimDrive):
         if do in ("emergency_stop", "stop", "disable"):
             self._ref = None
             self._completes = False
+            self.stalled = False
         if do in ("emergency_stop", "stop"):  # an emergency stop without decel: at once
             self.stopping = do
             self._homing = None
@@ -1034,6 +1048,9 @@ class DescribedDrive(SimDrive):
         if method.behaviour == "move_to_offset":
             self._offset_home(speed, accel, offset, now)
             return
+        if method.behaviour == "hard_stop":
+            self._stop_home(method, creep, accel, offset, now)
+            return
         number = method.cia402
         if method.behaviour == "set" or number in (33, 34, 35, 37):
             self._set_counter(now, offset)
@@ -1159,6 +1176,44 @@ class DescribedDrive(SimDrive):
         self._ref = None
         self.homed = True
         self.reached = True
+        self.stalled = False
+
+    def _stop_home(self, method: MethodDef, creep: float, accel: Any, offset: float,
+                   now: float) -> None:
+        """``behaviour = "hard_stop"``: creep in the method's direction into the end stop
+        (``hard_stop_positive``/``_negative``), stall there for ``[twin] stall_time``:
+        that point is the origin (``home_offset`` as for an edge). A limit switch met
+        first stops the motor and fails the homing; with neither it creeps on."""
+        assert method.direction is not None
+        rate = float(accel) * self.pulses_per_rev if _finite_pos(accel) else math.inf
+        d = float(method.direction)
+        stop = self.hard_stop_positive if d > 0 else self.hard_stop_negative
+        h = _RefHoming("", "press", d, self._pps(creep), self._pps(creep), rate, offset)
+        h.stop = None if stop is None else stop + self._shift
+        self._ref = h
+        self._homing = None
+        self._motion_decel = rate
+        self.reached = False
+        self._completes = False
+        self._processed_until = max(self._processed_until, now)
+        if h.stop is not None and (h.stop - self.kin.position(now)) * d <= 0:
+            self._stall(now)  # on the end stop already
+            return
+        self._ref_run(now, d * h.creep)
+
+    def _stall(self, t: float) -> None:
+        h = self._ref
+        assert h is not None
+        self.kin.hold(t, h.stop)
+        self.stalled = True
+        h.phase = "stall"
+        h.until = t + float(self._eval(self.description.twin.stall_time, t) or 0.0)
+
+    def _press_end(self, t0: float, t1: float) -> float | None:
+        """When the motor reaches the end stop ahead in [t0, t1] (None: not yet)."""
+        h = self._ref
+        assert h is not None
+        return None if h.stop is None else self.kin.crossing(h.stop, t0, t1)
 
     def _ref_found(self, t: float) -> None:
         h = self._ref
@@ -1181,6 +1236,7 @@ class DescribedDrive(SimDrive):
             else (h.rate if h is not None else None)
         self.kin.stop(t, rate)
         self._ref = None
+        self.stalled = False
         self.homing_failed = True
 
     def _ref_origin(self, t: float) -> None:
@@ -1189,6 +1245,7 @@ class DescribedDrive(SimDrive):
         offset as its position."""
         h = self._ref
         assert h is not None
+        self.stalled = False
         self.kin.hold(t, self._on_edge(h.reference, self.kin.position(t)))
         mode = self.description.twin.home_offset
         if mode == "origin":
@@ -1277,6 +1334,11 @@ class DescribedDrive(SimDrive):
             if h.phase == "offset":
                 return _first((end if end <= t1 else None, self._ref_ramp_end),
                               *self._ref_limits(t0, t1, offset=True))
+            if h.phase == "press":
+                return _first((self._press_end(t0, t1), self._stall),
+                              *self._ref_limits(t0, t1))
+            if h.phase == "stall":
+                return (h.until, self._ref_origin) if h.until <= t1 else None
             return (end, self._ref_ramp_end) if end <= t1 else None
         if self._homing is None and self.motion in ("position", "speed") and \
                 self.kin.moving(t0):
@@ -1344,6 +1406,7 @@ class DescribedDrive(SimDrive):
         self.advance(t)
         self._homing = None
         self._ref = None
+        self.stalled = False
         self._completes = False
         super().raise_alarm(code, t)
 
@@ -1378,6 +1441,7 @@ class DescribedDrive(SimDrive):
         self.reached = True
         self._completes = False
         self.stopping = None
+        self.stalled = False
         self._functions_seen = self._input_functions(now)
         self.enabled = bool(self._eval(self.description.twin.enabled, now))
 
@@ -1515,6 +1579,7 @@ class _Scope(Mapping[str, Any]):
             "limit_negative": lambda: t.switch_states(now)[1],
             "stopping": lambda: t.stopping if t.kin.moving(now) else None,
             "at_speed": lambda: t._signals(now)["at_speed"],
+            "stalled": lambda: t.stalled,
             "active": lambda: Attrs("active", t._active(now)),
         }
         if key in state:
