@@ -1135,12 +1135,7 @@ class DescribedDrive(SimDrive):
         rate = float(accel) * ppr if _finite_pos(accel) else math.inf
         h = _RefHoming(method.reference, "search", float(method.direction),
                        self._pps(speed), self._pps(creep), rate, offset)
-        self._ref = h
-        self._homing = None
-        self._motion_decel = rate
-        self.reached = False
-        self._completes = False
-        self._processed_until = max(self._processed_until, now)
+        self._begin_ref(h, now)
         p = self.physical_position(now)
         if self._signal_at(h.reference, p):
             h.phase = "brake1"
@@ -1151,6 +1146,15 @@ class DescribedDrive(SimDrive):
             h.direction = -h.direction  # on a limit already: the turning reverses
             h.reversed = True
         self._ref_run(now, h.direction * h.speed)
+
+    def _begin_ref(self, h: _RefHoming, now: float) -> None:
+        """Homing ``h`` runs from ``now`` (its legs are followed as the twin advances)."""
+        self._ref = h
+        self._homing = None
+        self._motion_decel = h.rate
+        self.reached = False
+        self._completes = False
+        self._processed_until = max(self._processed_until, now)
 
     def _ref_run(self, t: float, pps: float) -> None:
         h = self._ref
@@ -1190,12 +1194,7 @@ class DescribedDrive(SimDrive):
         stop = self.hard_stop_positive if d > 0 else self.hard_stop_negative
         h = _RefHoming("", "press", d, self._pps(creep), self._pps(creep), rate, offset)
         h.stop = None if stop is None else stop + self._shift
-        self._ref = h
-        self._homing = None
-        self._motion_decel = rate
-        self.reached = False
-        self._completes = False
-        self._processed_until = max(self._processed_until, now)
+        self._begin_ref(h, now)
         if h.stop is not None and (h.stop - self.kin.position(now)) * d <= 0:
             self._stall(now)  # on the end stop already
             return
@@ -1285,13 +1284,8 @@ class DescribedDrive(SimDrive):
                 towards, self.physical_position(now) + math.copysign(0.5, offset - here)):
             self.homing_failed = True
             return
-        self._ref = _RefHoming("", "offset", 1.0 if offset > here else -1.0, pps, pps, rate,
-                               offset)
-        self._homing = None
-        self._motion_decel = rate
-        self.reached = False
-        self._completes = False
-        self._processed_until = max(self._processed_until, now)
+        self._begin_ref(_RefHoming("", "offset", 1.0 if offset > here else -1.0, pps, pps,
+                                   rate, offset), now)
         self.kin.move_to(now, offset, pps, rate, rate)
         self._last_dir = 1 if offset > here else -1
 
