@@ -4,6 +4,7 @@ its exports (CSV, JSONL, Parquet) read back to the same values with their units.
 from __future__ import annotations
 
 import csv
+import gc
 import io
 import json
 from pathlib import Path
@@ -37,6 +38,10 @@ def machine(name: str) -> MachineConfig:
 
 
 async def test_a_recorded_move_follows_the_twin_within_one_poll_period() -> None:
+    # A full garbage collection takes about 20 ms here, two poll periods: one falling in
+    # the move would stall a poll past the window checked below. Collect first (the next
+    # full collection then waits for the long-lived objects to grow by a quarter).
+    gc.collect()
     async with open_machine(machine("rec-twin")) as m:
         x, twin = m.axes["x"], m.sim_drives["x"]
         async with m.record(axes=["x"]) as rec:

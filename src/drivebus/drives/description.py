@@ -299,6 +299,8 @@ class BitDef(_Model):
     bit: int = Field(ge=0, le=31)
     width: int = Field(1, ge=1, le=32)
     means: str | None = None
+    twin: E | None = Field(None, description="twin: the bit's value as an expression over "
+                           "the twin's state (where no `means` fits)")
     doc: str = ""
 
     _means = field_validator("means")(_known_meaning)
@@ -605,11 +607,18 @@ class IoDef(_Model):
         "register's bits (digital I/O by name)")
     function_mask: int = Field(0xFFFF, ge=1, le=0xFFFF, description="the bits of a "
                                "`functions` entry that hold the function code")
+    polarity_bit: int | None = Field(None, ge=1, le=0xFFFF, description="a bit of each "
+                                     "`functions` entry that inverts its terminal before the "
+                                     "drive acts on it (`state` shows the terminals as wired)")
     function_names: Annotated[dict[int, str], IntKeyed] = Field(
         {}, description="the manual's name of each function code (what `io_points` says a "
         "terminal is set to do)")
     settable: int | None = Field(None, description="outputs: the function code under which "
                                  "Modbus switches the output (set_output)")
+    values: str | None = Field(None, description="outputs: the register whose bit n an output "
+                               "n follows while its function is `settable` (the twin)")
+    first: int = Field(0, ge=0, le=1, description="the number the twin's set_input gives the "
+                       "first terminal (1 where the manual counts IN1, IN2, ...)")
 
 
 class AlarmsDef(_Model):
@@ -674,11 +683,12 @@ class HomingMethod(BaseModel):
 
     code: int | None = None
     cia402: int | None = Field(None, description="the equivalent CiA 402 method (twin)")
-    behaviour: Literal["search", "set", "move_to_offset", "reference_edge"] | None = None
+    behaviour: Literal["search", "set", "move_to_offset", "reference_edge", "hard_stop"] | \
+        None = None
     reference: Literal["home_switch", "limit_positive", "limit_negative"] | None = Field(
         None, description="reference_edge: the signal whose rising edge is the origin")
-    direction: Literal[-1, 1] | None = Field(None, description="reference_edge: the search "
-                                             "direction")
+    direction: Literal[-1, 1] | None = Field(None, description="reference_edge, hard_stop: "
+                                             "the search direction")
     doc: str = ""
 
     @model_validator(mode="after")
@@ -686,6 +696,8 @@ class HomingMethod(BaseModel):
         if self.behaviour == "reference_edge" and (self.reference is None or
                                                    self.direction is None):
             raise ValueError("behaviour reference_edge needs 'reference' and 'direction'")
+        if self.behaviour == "hard_stop" and self.direction is None:
+            raise ValueError("behaviour hard_stop needs 'direction'")
         return self
 
     @property
@@ -848,7 +860,7 @@ TWIN_ACTIONS = {
     "run": ("speed", "accel", "decel"),
     "set_speed": ("speed",),
     "stop": ("decel",),
-    "emergency_stop": (),
+    "emergency_stop": ("decel",),
     "home": ("method", "speed", "creep", "accel", "offset"),
     "enable": (),
     "disable": (),
@@ -885,6 +897,14 @@ class Trigger(_Model):
                               "clears)")
 
 
+class InputTrigger(Trigger):
+    """What the drive does when an input function turns active (or inactive)."""
+
+    reg: str = Field("", alias="register")
+    input: str = Field(description="the input function ([inputs] codes)")
+    edge: Literal["rise", "fall"] = "rise"
+
+
 class LimitsDef(_Model):
     """How the drive reacts at a limit switch."""
 
@@ -897,6 +917,15 @@ class TwinDef(_Model):
     """``[twin]``: how the drive behaves, for its simulated twin."""
 
     on_write: list[Trigger] = []
+    on_input: list[InputTrigger] = Field(
+        [], description="actions on an input function's edge (a terminal, its polarity bit "
+        "or its function changed)")
+    direct: list[Literal["home_switch", "limit_positive", "limit_negative"]] = Field(
+        [], description="switches the drive sees without an input terminal")
+    options: list[str] = Field([], description="registers a twin option sets before "
+                               "power-up (a choice the machine's builder made: wiring, mode)")
+    stall_time: E = Field(Expr.parse(0.0), description="s: how long the motor stalls on a "
+                          "hard stop before the drive takes it as the origin (hard_stop)")
     starts: E = Expr.parse("enabled and not alarm")
     limits: LimitsDef = LimitsDef()
     eeprom_write_through: E | None = Field(
@@ -910,9 +939,10 @@ class TwinDef(_Model):
         "[inputs] polarity say")
     max_pulse_rate: float | None = Field(None, gt=0, description="pulses/s: the fastest "
                                          "the drive's pulse output runs (speeds above are capped)")
-    home_offset: Literal["origin", "move"] = Field(
+    home_offset: Literal["origin", "move", "travel"] = Field(
         "origin", description="origin: the origin edge takes the offset as its position; "
-        "move: the counter is 0 at the edge and a compensation move of the offset follows")
+        "move: the counter is 0 at the edge and a compensation move of the offset follows; "
+        "travel: the offset is travelled past the edge and the point reached is 0")
 
 
 # -- the CiA 402 engine ---------------------------------------------------------------
@@ -1260,7 +1290,7 @@ _CONTEXT_NAMES = {
 }
 _TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "previous", "raw",
                "speed_now", "pulses_per_rev", "limit_positive", "limit_negative", "motion_decel",
-               "homing"}
+               "homing", "stopping", "active", "at_speed", "stalled"}
 
 
 class _Checker:
@@ -1598,9 +1628,25 @@ class _Checker:
         self._names("twin.limits.decel", t.limits.decel, names)
         self._names("twin.eeprom_write_through", t.eeprom_write_through, names)
         self._names("twin.enabled", t.enabled, names)
-        for i, trig in enumerate(t.on_write):
-            where = f"twin.on_write[{i}]"
-            self._reg_key(f"{where}.register", trig.reg)
+        self._names("twin.stall_time", t.stall_time, names)
+        for key, reg in self.d.registers.items():
+            for bit, b in reg.bits.items():
+                self._names(f"registers.{key}.bits.{bit}.twin", b.twin, names)
+        for i, key in enumerate(t.options):
+            self._reg_key(f"twin.options[{i}]", key)
+        out = self.d.outputs
+        if out is not None and out.values is not None:
+            self._reg_key("outputs.values", out.values)
+        codes = io.codes if io is not None else {}
+        for i, itrig in enumerate(t.on_input):
+            if itrig.input not in codes:
+                self.out.append(f"twin.on_input[{i}].input: no input function "
+                                f"{itrig.input!r} in inputs.codes ({', '.join(codes) or 'none'})")
+        triggers = [(f"twin.on_write[{i}]", trig) for i, trig in enumerate(t.on_write)]
+        triggers += [(f"twin.on_input[{i}]", trig) for i, trig in enumerate(t.on_input)]
+        for where, trig in triggers:
+            if trig.reg or not isinstance(trig, InputTrigger):
+                self._reg_key(f"{where}.register", trig.reg)
             self._names(f"{where}.when", trig.when, names)
             for key, e in trig.set.items():
                 self._reg_key(f"{where}.set.{key}", key)

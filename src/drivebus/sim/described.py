@@ -62,6 +62,8 @@ _COMPUTED = {"position", "velocity", "command_velocity", "alarm_code", "motion",
 _STARTS = {"move_absolute", "move_relative", "run", "home"}
 _VALUES = _COMPUTED | {"constant", "address", "direction"}
 """Meanings that are a register's value (the others are a state: 1 or 0)."""
+_SERIAL_TCP = LineSettings.parse("115200 8N1")
+"""The line settings a Modbus TCP drive's twin takes on a serial sim wire by default."""
 
 
 @dataclass(frozen=True)
@@ -96,6 +98,12 @@ class _RefHoming:
     rate: float
     offset: float
     reversed: bool = False
+    final: float | None = None
+    """The counter's value where the offset travel ends (None: as it is)."""
+    stop: float | None = None
+    """hard_stop: the end stop's position (counter frame; None: none ahead)."""
+    until: float = math.inf
+    """hard_stop: when the stall on the end stop makes it the origin."""
 
 
 _Handler = Callable[[float], None]
@@ -192,16 +200,26 @@ class DescribedDrive(SimDrive):
         home_cam: HomeCam | None = None,
         crc_error_reply: bool = True,
         soft_address: bool = False,
+        hard_stop_negative: float | None = None,
+        hard_stop_positive: float | None = None,
         **constants: int,
     ) -> None:
         d = self.description
         if settings is None and d.link.protocol == "rtu":
             settings = LineSettings.parse(d.link.factory) if d.link.factory else LineSettings()
+        elif settings is None:
+            settings = _SERIAL_TCP  # a TCP drive served on a serial sim wire
         if settings is not None and d.link.protocol == "rtu":
             self._check_line(settings)
+        self._check_address(address, soft_address=soft_address)
         super().__init__(address, settings, setup)
         self.set_home_shape(home_cam, home_switch_width)
         self.crc_error_reply = crc_error_reply
+        self.hard_stop_negative = hard_stop_negative
+        self.hard_stop_positive = hard_stop_positive
+        """Mechanical end stops (physical positions) a hard_stop homing creeps into."""
+        self.stalled = False
+        """The motor stalls on an end stop (a hard_stop homing's torque reached)."""
         if soft_address and d.link.address_register is None:
             raise ConfigError(f"the simulated {d.family} has no soft_address: its description "
                               "names no [link] address_register")
@@ -212,7 +230,7 @@ class DescribedDrive(SimDrive):
         self.factory = self._factory_words()
         for key, value in constants.items():
             reg = d.regs.get(key)
-            if reg is None or reg.d.means != "constant":
+            if reg is None or (reg.d.means != "constant" and key not in d.twin.options):
                 raise ConfigError(f"the simulated {d.family} has no option {key!r} (options: "
                                   f"{', '.join(self.twin_options())})")
             self._store(self.factory, reg, None, int(value))
@@ -246,7 +264,15 @@ class DescribedDrive(SimDrive):
         self._last_event = -math.inf
         self._previous: RegValue | None = None
         """While a write's triggers run: what the register held before it."""
+        self.stopping: str | None = None
+        """What stops the motion under way: stop, emergency_stop or limit (None: none)."""
+        self._functions_seen = self._input_functions(0.0)
         self.enabled = bool(self._eval(d.twin.enabled, 0.0))
+
+    @property
+    def params(self) -> dict[int, int]:
+        """The stored register words by address (the drive's parameters)."""
+        return self.regs
 
     # -- the description's map ---------------------------------------------------------------
 
@@ -256,7 +282,22 @@ class DescribedDrive(SimDrive):
         d = cls.description
         consts = [k for k, r in d.regs.items() if r.d.means == "constant"]
         soft = ["soft_address"] if d.link.address_register is not None else []
-        return ["home_switch_width", "home_cam", "crc_error_reply", *soft, *consts]
+        stops = ["hard_stop_negative", "hard_stop_positive"] if d.homing is not None and any(
+            m.behaviour == "hard_stop" for m in d.homing.methods.values()) else []
+        return ["home_switch_width", "home_cam", "crc_error_reply", *soft, *stops, *consts,
+                *d.twin.options]
+
+    def _check_address(self, address: int, *, soft_address: bool) -> None:
+        """An address the drive can have: ``[link] addresses`` (or, with
+        ``soft_address``, ``register_addresses`` too); ``ConfigError`` else."""
+        link = self.description.link
+        ranges = [link.addresses]
+        if soft_address and link.register_addresses is not None:
+            ranges.append(link.register_addresses)
+        if not any(lo <= address <= hi for lo, hi in ranges):
+            shown = " or ".join(f"{lo}..{hi}" for lo, hi in ranges)
+            raise ConfigError(f"{self.description.family} address {address}: it has "
+                              f"addresses {shown}")
 
     def _check_line(self, settings: LineSettings) -> None:
         d = self.description
@@ -429,14 +470,25 @@ class DescribedDrive(SimDrive):
         span = self._switch_span(index)
         return span is not None and span.active(p)
 
+    def _inverted(self, index: int, *, by_function: bool = True) -> bool:
+        """Terminal ``index`` is inverted by the ``[inputs] polarity`` register, or (with
+        ``by_function``) by the polarity bit of its function entry."""
+        d = self.description
+        io = d.inputs
+        if io is None:
+            return False
+        inverted = io.polarity is not None and bool(
+            self._raw(d.regs[io.polarity], None) >> index & 1)
+        if by_function and io.polarity_bit is not None and io.functions is not None:
+            reg = d.regs[io.functions]
+            if index < len(reg.indices):
+                inverted ^= bool(self._raw(reg, reg.indices[index]) & io.polarity_bit)
+        return inverted
+
     def _level(self, index: int, p: float) -> bool:
         """The valid level of terminal ``index`` at physical position ``p`` (after the
-        ``[inputs] polarity`` register)."""
-        io = self.description.inputs
-        inverted = False
-        if io is not None and io.polarity is not None:
-            inverted = bool(self._raw(self.description.regs[io.polarity], None) >> index & 1)
-        return self._physical(index, p) != inverted
+        ``[inputs] polarity`` register or polarity bit)."""
+        return self._physical(index, p) != self._inverted(index)
 
     def _carriers(self, signal: str) -> list[int]:
         """The terminals whose function is ``signal`` (or the one it is wired to)."""
@@ -446,33 +498,57 @@ class DescribedDrive(SimDrive):
             return [] if bit is None else [bit]
         reg = self.description.regs[io.functions]
         code = io.codes[signal]
-        return [n for n, i in enumerate(reg.indices) if self._raw(reg, i) == code]
+        mask = io.function_mask
+        return [n for n, i in enumerate(reg.indices) if self._raw(reg, i) & mask == code]
+
+    def _direct_span(self, signal: str) -> Span | None:
+        """The switch of ``signal`` if the drive sees it directly (``[twin] direct``)."""
+        if signal not in self.description.twin.direct:
+            return None
+        if signal == "home_switch":
+            return self.home_span()
+        return self.limit_span(1 if signal == "limit_positive" else -1)
 
     def _signal_at(self, signal: str, p: float) -> bool:
+        if signal in self.description.twin.direct:
+            span = self._direct_span(signal)
+            return span is not None and span.active(p)
         return any(self._level(i, p) for i in self._carriers(signal))
 
     def _signal_edge(self, signal: str, rising: bool, t0: float, t1: float) -> float | None:
         """First time in [t0, t1] a terminal carrying ``signal`` turns valid (or invalid)."""
-        found = [self._terminal_edge(i, rising, t0, t1) for i in self._carriers(signal)]
+        if signal in self.description.twin.direct:
+            span = self._direct_span(signal)
+            found = [] if span is None else [self._span_edge(span, span.active, rising, t0, t1)]
+        else:
+            found = [self._terminal_edge(i, rising, t0, t1) for i in self._carriers(signal)]
         times = [t for t in found if t is not None]
         return min(times) if times else None
 
     def _terminal_edge(self, index: int, rising: bool, t0: float, t1: float) -> float | None:
         span = self._switch_span(index)
-        xs = () if span is None else tuple(x for x in (span.lo, span.hi) if math.isfinite(x))
-        found = [self._threshold_edge(index, x + self._shift, rising, t0, t1) for x in xs]
+        if span is None:
+            return None
+        return self._span_edge(span, lambda p: self._level(index, p), rising, t0, t1)
+
+    def _span_edge(self, span: Span, level: Callable[[float], bool], rising: bool,
+                   t0: float, t1: float) -> float | None:
+        """First time in [t0, t1] ``level`` (of the physical position) turns valid (or
+        invalid) at an end of ``span``."""
+        xs = tuple(x for x in (span.lo, span.hi) if math.isfinite(x))
+        found = [self._threshold_edge(level, x + self._shift, rising, t0, t1) for x in xs]
         times = [t for t in found if t is not None]
         return min(times) if times else None
 
-    def _threshold_edge(self, index: int, x: float, rising: bool, t0: float, t1: float
-                        ) -> float | None:
-        """First time in [t0, t1] terminal ``index`` turns valid (or invalid) as the motor
-        passes ``x`` (counter frame)."""
+    def _threshold_edge(self, level: Callable[[float], bool], x: float, rising: bool,
+                        t0: float, t1: float) -> float | None:
+        """First time in [t0, t1] ``level`` turns valid (or invalid) as the motor passes
+        ``x`` (counter frame)."""
         t = t0
         while t <= t1:
             tc = self.kin.crossing(x, t, t1)
             if tc is None:
-                return self._boundary_edge(index, rising, t, t1)
+                return self._boundary_edge(level, rising, t, t1)
             # at a start from rest (or a turnaround) the way it leaves counts; resting on
             # the edge crosses nothing
             v = self.kin.velocity(tc) or self.kin.velocity(tc + 1e-6)
@@ -480,28 +556,28 @@ class DescribedDrive(SimDrive):
                 return None
             step = math.copysign(0.5, v)
             p = x - self._shift
-            if self._level(index, p - step) != self._level(index, p + step) and \
-                    self._level(index, p + step) == rising:
+            if level(p - step) != level(p + step) and level(p + step) == rising:
                 return tc
             t = tc + 1e-6
         return None
 
-    def _level_at(self, index: int, t: float) -> bool:
-        return self._level(index, self.physical_position(t))
-
-    def _boundary_edge(self, index: int, rising: bool, t0: float, t1: float) -> float | None:
+    def _boundary_edge(self, level: Callable[[float], bool], rising: bool, t0: float,
+                       t1: float) -> float | None:
         """An edge in [t0, t1] that ``Kinematics.crossing`` missed where one motion segment
         hands over to the next on the switch's end (float rounding): the levels at both
         ends differ, bisection finds the time."""
-        start = self._level_at(index, t0)
-        if start == self._level_at(index, t1) or self._level_at(index, t1) != rising:
+        def level_at(t: float) -> bool:
+            return level(self.physical_position(t))
+
+        start = level_at(t0)
+        if start == level_at(t1) or level_at(t1) != rising:
             return None
         lo, hi = t0, t1
         for _ in range(64):
             mid = 0.5 * (lo + hi)
             if mid in (lo, hi):
                 break
-            if self._level_at(index, mid) == start:
+            if level_at(mid) == start:
                 lo = mid
             else:
                 hi = mid
@@ -526,7 +602,7 @@ class DescribedDrive(SimDrive):
     def _wired(self, signal: str) -> bool:
         """True if an input carries ``signal`` (home_switch, limit_positive, ...)."""
         io = self.description.inputs
-        if io is None:
+        if io is None or signal in self.description.twin.direct:
             return True
         if signal in io.bits:
             return True
@@ -534,7 +610,7 @@ class DescribedDrive(SimDrive):
             return False
         reg = self.description.regs[io.functions]
         code = io.codes[signal]
-        return any(self._raw(reg, i) == code for i in reg.indices)
+        return any(self._raw(reg, i) & io.function_mask == code for i in reg.indices)
 
     def _span(self, edge: str) -> Span | None:
         """Where the switch of ``edge`` is active (physical), if the drive can see it."""
@@ -682,11 +758,15 @@ class DescribedDrive(SimDrive):
                     value |= b.mask
                 else:
                     value &= ~b.mask
+        for b in reg.d.bits.values():
+            if b.twin is not None:
+                value = value | b.mask if self._eval(b.twin, now) else value & ~b.mask
         return value
 
-    def set_input(self, terminal: int | str, closed: bool) -> None:
+    def set_input(self, terminal: int | str, closed: bool, now: float | None = None) -> None:
         """Drive an input terminal from outside (a sensor or a PLC wired to it): its bit
-        number in the inputs' state register, or its name in ``[inputs] names``. The
+        number in the inputs' state register (counted from ``[inputs] first``: IN1 = 1
+        where the manual numbers so), or its name in ``[inputs] names``. The
         state register shows the terminal closed whatever the inversion register says
         (it inverts what a closed terminal means to the drive's functions); the
         switches given in the setup stay as they are."""
@@ -694,33 +774,67 @@ class DescribedDrive(SimDrive):
         names = list(io.names) if io is not None else []
         reg = self.description.regs[io.state] if io is not None else None
         count = len(names) or (16 * reg.d.words if reg is not None else 0)
-        index = terminal
+        first = io.first if io is not None else 0
+        index = terminal - first if isinstance(terminal, int) and \
+            not isinstance(terminal, bool) else terminal
         if isinstance(terminal, str):
             upper = [n.upper() for n in names]
             index = upper.index(terminal.upper()) if terminal.upper() in upper else -1
         if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < count:
-            shown = f"{names[0]}..{names[-1]}" if names else f"0..{count - 1}"
+            shown = f"{names[0]}..{names[-1]}" if names else f"{first}..{count - 1 + first}"
             raise ConfigError(f"input {terminal!r}: the simulated {self.family} has "
                               f"{f'inputs {shown}' if count else 'no inputs'}")
         bit = 1 << index
+        t = time_or_present(now)
+        self.advance(t)
         self._external = self._external | bit if closed else self._external & ~bit
+        self._functions_changed(t)
+
+    # -- input functions (``[twin] on_input``) -----------------------------------------------
+
+    def _input_functions(self, now: float) -> dict[str, bool]:
+        """Whether each input function an ``on_input`` trigger watches is active now."""
+        if not self.description.twin.on_input:
+            return {}
+        p = self.physical_position(now)
+        return {trig.input: self._signal_at(trig.input, p)
+                for trig in self.description.twin.on_input}
+
+    def _functions_changed(self, now: float) -> None:
+        """Act on the input functions that turned active (or inactive) since last seen."""
+        before = self._functions_seen
+        after = self._input_functions(now)
+        self._functions_seen = after
+        for trig in self.description.twin.on_input:
+            name = trig.input
+            if before.get(name) == after[name] or after[name] != (trig.edge == "rise"):
+                continue
+            if trig.when is not None and not self._eval(trig.when, now):
+                continue
+            self._do(trig, None, now)
 
     def _io_word(self, which: str, now: float) -> int:
         d = self.description
         io = d.inputs if which == "inputs" else d.outputs
         if io is None:
             return 0
-        if which == "inputs" and d.twin.wiring:  # the terminals' valid levels
+        if which == "inputs" and d.twin.wiring:  # the terminals' levels (polarity register)
             p = self.physical_position(now)
-            return sum(1 << i for i in self._terminals() if self._level(i, p))
+            return sum(1 << i for i in self._terminals()
+                       if self._physical(i, p) != self._inverted(i, by_function=False))
         signals = self._signals(now)
         active = {k: v for k, v in signals.items()}
         word = 0
         if io.functions is not None:
             reg = d.regs[io.functions]
             by_code = {c: s for s, c in io.codes.items()}
+            switched = self._raw(d.regs[io.values], None) if io.values is not None else 0
             for n, i in enumerate(reg.indices):
-                sig = by_code.get(self._raw(reg, i))
+                code = self._raw(reg, i) & io.function_mask
+                if io.values is not None and code == io.settable:
+                    word |= (switched >> n & 1) << n  # switched over Modbus
+                    continue
+                sig = by_code.get(code)
                 if sig is not None and active.get(sig, False):
                     word |= 1 << n
         for sig, bit in io.bits.items():
@@ -775,6 +889,8 @@ class DescribedDrive(SimDrive):
         except SlaveException:
             self.regs = before
             raise
+        if self.description.twin.on_input:
+            self._functions_changed(now)
 
     def _write_through(self, now: float) -> bool:
         """True while a write to an ``eeprom`` register is stored."""
@@ -810,6 +926,12 @@ class DescribedDrive(SimDrive):
                     return
         finally:
             self._previous = None
+
+    def _active(self, now: float) -> dict[str, bool]:
+        """Each input function of ``[inputs] codes``: active now."""
+        io = self.description.inputs
+        p = self.physical_position(now)
+        return {} if io is None else {s: self._signal_at(s, p) for s in io.codes}
 
     # -- evaluation ---------------------------------------------------------------------------
 
@@ -849,10 +971,9 @@ class DescribedDrive(SimDrive):
         if do in ("emergency_stop", "stop", "disable"):
             self._ref = None
             self._completes = False
-        if do == "emergency_stop":
-            self._homing = None
-            self.kin.stop(now, None)
-        elif do == "stop":
+            self.stalled = False
+        if do in ("emergency_stop", "stop"):  # an emergency stop without decel: at once
+            self.stopping = do
             self._homing = None
             decel = self._param(trig, "decel", now, value)
             self.kin.stop(now, _rate(decel, p))
@@ -934,8 +1055,8 @@ class DescribedDrive(SimDrive):
         self._started(trig, "speed", now, dc)
 
     def _set_speed(self, trig: Trigger, value: Any, now: float) -> None:
-        if self.motion != "speed" or not self.kin.moving(now):
-            return
+        if self.motion != "speed" or not self.kin.moving(now) or self.stopping:
+            return  # a new speed does not restart a motor that is being stopped
         speed = float(self._param(trig, "speed", now, value) or 0.0)
         v = self.kin.velocity(now)
         signed = math.copysign(abs(speed), v) if v else speed
@@ -948,6 +1069,7 @@ class DescribedDrive(SimDrive):
         self._motion_decel = decel
         self._homing = None
         self._ref = None
+        self.stopping = None
         self.reached = False
         self._completes = kind == "position"
         self._processed_until = max(self._processed_until, now)
@@ -985,8 +1107,15 @@ class DescribedDrive(SimDrive):
         self.motion = trig.motion or "homing"
         self.homed = False
         self.homing_failed = False
+        self.stopping = None
         if method.behaviour == "reference_edge":
             self._ref_home(method, speed, creep, accel, offset, now)
+            return
+        if method.behaviour == "move_to_offset":
+            self._offset_home(speed, accel, offset, now)
+            return
+        if method.behaviour == "hard_stop":
+            self._stop_home(method, creep, accel, offset, now)
             return
         number = method.cia402
         if method.behaviour == "set" or number in (33, 34, 35, 37):
@@ -1072,12 +1201,7 @@ class DescribedDrive(SimDrive):
         rate = float(accel) * ppr if _finite_pos(accel) else math.inf
         h = _RefHoming(method.reference, "search", float(method.direction),
                        self._pps(speed), self._pps(creep), rate, offset)
-        self._ref = h
-        self._homing = None
-        self._motion_decel = rate
-        self.reached = False
-        self._completes = False
-        self._processed_until = max(self._processed_until, now)
+        self._begin_ref(h, now)
         p = self.physical_position(now)
         if self._signal_at(h.reference, p):
             h.phase = "brake1"
@@ -1088,6 +1212,15 @@ class DescribedDrive(SimDrive):
             h.direction = -h.direction  # on a limit already: the turning reverses
             h.reversed = True
         self._ref_run(now, h.direction * h.speed)
+
+    def _begin_ref(self, h: _RefHoming, now: float) -> None:
+        """Homing ``h`` runs from ``now`` (its legs are followed as the twin advances)."""
+        self._ref = h
+        self._homing = None
+        self._motion_decel = h.rate
+        self.reached = False
+        self._completes = False
+        self._processed_until = max(self._processed_until, now)
 
     def _ref_run(self, t: float, pps: float) -> None:
         h = self._ref
@@ -1105,12 +1238,47 @@ class DescribedDrive(SimDrive):
             h.phase = "creep"
             self._ref_run(t, h.direction * h.creep)
         else:
+            if h.phase == "offset" and h.final is not None:
+                self._set_counter(t, h.final)  # "travel": the point reached is 0
             self._ref_done()
 
     def _ref_done(self) -> None:
         self._ref = None
         self.homed = True
         self.reached = True
+        self.stalled = False
+
+    def _stop_home(self, method: MethodDef, creep: float, accel: Any, offset: float,
+                   now: float) -> None:
+        """``behaviour = "hard_stop"``: creep in the method's direction into the end stop
+        (``hard_stop_positive``/``_negative``), stall there for ``[twin] stall_time``:
+        that point is the origin (``home_offset`` as for an edge). A limit switch met
+        first stops the motor and fails the homing; with neither it creeps on."""
+        assert method.direction is not None
+        rate = float(accel) * self.pulses_per_rev if _finite_pos(accel) else math.inf
+        d = float(method.direction)
+        stop = self.hard_stop_positive if d > 0 else self.hard_stop_negative
+        h = _RefHoming("", "press", d, self._pps(creep), self._pps(creep), rate, offset)
+        h.stop = None if stop is None else stop + self._shift
+        self._begin_ref(h, now)
+        if h.stop is not None and (h.stop - self.kin.position(now)) * d <= 0:
+            self._stall(now)  # on the end stop already
+            return
+        self._ref_run(now, d * h.creep)
+
+    def _stall(self, t: float) -> None:
+        h = self._ref
+        assert h is not None
+        self.kin.hold(t, h.stop)
+        self.stalled = True
+        h.phase = "stall"
+        h.until = t + float(self._eval(self.description.twin.stall_time, t) or 0.0)
+
+    def _press_end(self, t0: float, t1: float) -> float | None:
+        """When the motor reaches the end stop ahead in [t0, t1] (None: not yet)."""
+        h = self._ref
+        assert h is not None
+        return None if h.stop is None else self.kin.crossing(h.stop, t0, t1)
 
     def _ref_found(self, t: float) -> None:
         h = self._ref
@@ -1133,6 +1301,7 @@ class DescribedDrive(SimDrive):
             else (h.rate if h is not None else None)
         self.kin.stop(t, rate)
         self._ref = None
+        self.stalled = False
         self.homing_failed = True
 
     def _ref_origin(self, t: float) -> None:
@@ -1141,14 +1310,17 @@ class DescribedDrive(SimDrive):
         offset as its position."""
         h = self._ref
         assert h is not None
-        self.kin.hold(t)
-        if self.description.twin.home_offset != "move":
+        self.stalled = False
+        self.kin.hold(t, self._on_edge(h.reference, self.kin.position(t)))
+        mode = self.description.twin.home_offset
+        if mode == "origin":
             self.kin.stop(t, h.rate)
             self._set_counter(t, h.offset)
             self._ref_done()
             return
-        self._set_counter(t, 0)
         offset = h.offset
+        if mode == "move" or not offset:
+            self._set_counter(t, 0)
         if not offset:
             self._ref_done()
             return
@@ -1157,8 +1329,42 @@ class DescribedDrive(SimDrive):
             self._ref_fail(t)  # the compensation would go into a limit switch
             return
         h.phase = "offset"
+        h.final = 0.0 if mode == "travel" else None
         self.kin.move_to(t, self.kin.position(t) + offset, h.creep, h.rate, h.rate)
         self._last_dir = 1 if offset > 0 else -1
+
+    def _offset_home(self, speed: float, accel: Any, offset: float, now: float) -> None:
+        """``behaviour = "move_to_offset"``: a move to the position ``offset`` at ``speed``;
+        there it is homed. A limit switch met on the way stops it (as ``[twin] limits``
+        say) and the homing fails."""
+        ppr = self.pulses_per_rev
+        rate = float(accel) * ppr if _finite_pos(accel) else math.inf
+        pps = self._pps(speed)
+        here = self.kin.position(now)
+        if pps <= 0 or offset == here:
+            self._set_counter(now, offset)
+            self.homed = True
+            return
+        towards = "limit_positive" if offset > here else "limit_negative"
+        if self._blocked(offset - here, now) or self._signal_at(
+                towards, self.physical_position(now) + math.copysign(0.5, offset - here)):
+            self.homing_failed = True
+            return
+        self._begin_ref(_RefHoming("", "offset", 1.0 if offset > here else -1.0, pps, pps,
+                                   rate, offset), now)
+        self.kin.move_to(now, offset, pps, rate, rate)
+        self._last_dir = 1 if offset > here else -1
+
+    def _on_edge(self, signal: str, x: float) -> float:
+        """``x`` (counter frame) on the nearest end of ``signal``'s switch when it is that
+        close (the edge a crossing time found, without its float rounding)."""
+        span = self._direct_span(signal) if signal in self.description.twin.direct else \
+            next((self._switch_span(i) for i in self._carriers(signal)), None)
+        if span is None:
+            return x
+        ends = [e + self._shift for e in (span.lo, span.hi) if math.isfinite(e)]
+        near = min(ends, key=lambda e: abs(e - x), default=x)
+        return near if abs(near - x) < 1e-3 else x
 
     def _ref_limits(self, t0: float, t1: float, *, reverse: bool = False,
                     offset: bool = False) -> list[tuple[float | None, _Handler]]:
@@ -1188,6 +1394,11 @@ class DescribedDrive(SimDrive):
             if h.phase == "offset":
                 return _first((end if end <= t1 else None, self._ref_ramp_end),
                               *self._ref_limits(t0, t1, offset=True))
+            if h.phase == "press":
+                return _first((self._press_end(t0, t1), self._stall),
+                              *self._ref_limits(t0, t1))
+            if h.phase == "stall":
+                return (h.until, self._ref_origin) if h.until <= t1 else None
             return (end, self._ref_ramp_end) if end <= t1 else None
         if self._homing is None and self.motion in ("position", "speed") and \
                 self.kin.moving(t0):
@@ -1197,6 +1408,7 @@ class DescribedDrive(SimDrive):
 
     def _wired_limit_stop(self, t: float) -> None:
         self.kin.stop(t, self._limit_rate(t))
+        self.stopping = "limit"
         self._completes = False
 
     def _advance_wired(self, now: float) -> None:
@@ -1234,7 +1446,8 @@ class DescribedDrive(SimDrive):
 
     def advance(self, now: float) -> None:
         """Bring homing legs and limit stops up to ``now`` (state is computed lazily)."""
-        if self.description.twin.wiring and self._homing is None:
+        twin = self.description.twin
+        if (twin.wiring or twin.direct or self._ref is not None) and self._homing is None:
             self._advance_wired(now)
             return
         if self._homing is not None:
@@ -1244,6 +1457,7 @@ class DescribedDrive(SimDrive):
             tc = self._limit_hit(now)
             if tc is not None:
                 self.kin.stop(tc, self._limit_rate(tc))
+                self.stopping = "limit"
                 self._watch_from = now
 
     def raise_alarm(self, code: int, now: float | None = None) -> None:
@@ -1252,6 +1466,7 @@ class DescribedDrive(SimDrive):
         self.advance(t)
         self._homing = None
         self._ref = None
+        self.stalled = False
         self._completes = False
         super().raise_alarm(code, t)
 
@@ -1287,6 +1502,9 @@ class DescribedDrive(SimDrive):
         self._ref = None
         self.reached = True
         self._completes = False
+        self.stopping = None
+        self.stalled = False
+        self._functions_seen = self._input_functions(now)
         self.enabled = bool(self._eval(self.description.twin.enabled, now))
 
     def _apply_baud_register(self, *, initial: bool) -> None:
@@ -1356,7 +1574,7 @@ def _formats_at(d: Description, baud: int) -> list[str]:
 
 def _computed(reg: Reg) -> bool:
     return reg.d.means is not None or any(
-        b.means is not None for b in reg.d.bits.values())
+        b.means is not None or b.twin is not None for b in reg.d.bits.values())
 
 
 def _clamp(reg: Reg, value: int) -> int:
@@ -1425,6 +1643,10 @@ class _Scope(Mapping[str, Any]):
             "pulses_per_rev": lambda: t.pulses_per_rev,
             "limit_positive": lambda: t.switch_states(now)[2],
             "limit_negative": lambda: t.switch_states(now)[1],
+            "stopping": lambda: t.stopping if t.kin.moving(now) else None,
+            "at_speed": lambda: t._signals(now)["at_speed"],
+            "stalled": lambda: t.stalled,
+            "active": lambda: Attrs("active", t._active(now)),
         }
         if key in state:
             return state[key]()

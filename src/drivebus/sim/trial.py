@@ -108,7 +108,8 @@ async def try_description(d: Description, *, address: int | None = None) -> list
                       limit_positive=_LIMIT * ppr)
     twin = twin_cls(address, settings, setup)
     steps: list[TrialStep] = []
-    async with sim_bus([twin], settings or LineSettings(), timeout=0.2, retries=1) as (_, bus):
+    line = settings or twin.settings or LineSettings()  # a TCP drive: its twin's serial
+    async with sim_bus([twin], line, timeout=0.2, retries=1) as (_, bus):
         profile = profile_cls(bus.slave(address, settings=settings), pulses_per_rev=ppr)
         state: dict[str, MoveParams] = {}
 

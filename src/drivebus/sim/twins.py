@@ -11,14 +11,13 @@ from drivebus.drives.registry import FAMILIES, family
 from drivebus.errors import ConfigError
 from drivebus.sim.described import twin_of
 from drivebus.sim.drive import SimDrive
-from drivebus.sim.drives.nt_family import SimEPR60, SimNT86
+from drivebus.sim.drives.nt_family import SimNT86
 from drivebus.sim.drives.od_drive import SimODDrive
 
 __all__ = ["TWINS", "twin_class", "twin_of"]
 
 _CODED: dict[str, type[SimDrive]] = {
     "NT86": SimNT86,
-    "EPR60": SimEPR60,
     "OD2000": SimODDrive,
 }
 """The twins written as code, by the family's registry name."""

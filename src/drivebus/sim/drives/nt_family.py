@@ -1,4 +1,5 @@
-"""Simulated twins of the Rtelligent NT-family drives: ``SimNT86`` and ``SimEPR60``.
+"""Simulated twins of the Rtelligent NT-family drives: ``SimNT86`` and ``SimEPR60`` (the
+EPR60 is the generic twin of its description; the NT86 is still code here).
 
 They answer with the manuals' register maps (written out here independently of the
 profile's, so a profile mistake shows up), low-word-first 32-bit pairs, the status and
@@ -27,9 +28,11 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from drivebus.clock import monotonic
+from drivebus.drives.registry import builtin_description
 from drivebus.errors import ConfigError
 from drivebus.pdu import READ_HOLDING
 from drivebus.settings import LineSettings
+from drivebus.sim.described import DescribedDrive, twin_of
 from drivebus.sim.drive import HomeCam, SimDrive, Span, TwinSetup, time_or_present
 from drivebus.sim.registers import Access, RegisterSpec, SlaveException, signed32
 
@@ -161,28 +164,7 @@ def _nt86_map() -> tuple[dict[int, RegisterSpec], PairRanges]:
     return w, pairs
 
 
-def _epr60_map() -> tuple[dict[int, RegisterSpec], PairRanges]:
-    """The EPR60 manual's map: the common block with its own 20, 77, 79-83, 96/97, 170-212."""
-    w, pairs = _nt_common_map()
-    w.update({
-        20: RegisterSpec(0, 0, 11), 77: RegisterSpec(100, 0, 3000), 79: RegisterSpec(0, 0, 1),
-        80: RegisterSpec(200, 0, 600), 81: RegisterSpec(40, 0, 600),
-        82: RegisterSpec(100, 0, 1000), 83: RegisterSpec(100, 0, 1000), 96: RegisterSpec(4000),
-        97: RegisterSpec(0),
-    })
-    for a, default in zip(
-        range(170, 181), (192, 168, 0, 192, 168, 0, 1, 255, 255, 255, 0), strict=True
-    ):
-        w[a] = RegisterSpec(default, 0, 255)
-    # 190-212: named in the summary only, values undocumented: stored, no effect.
-    w.update({a: RegisterSpec(0) for a in (190, 191, 192, *range(200, 210), 212)})
-    pairs[73] = (-(1 << 31), (1 << 31) - 1)  # no documented range besides int32
-    pairs[96] = (200, 65535)
-    return w, pairs
-
-
 _NT86_MAP, _NT86_PAIRS = _nt86_map()
-_EPR60_MAP, _EPR60_PAIRS = _epr60_map()
 
 
 class SimNT86(SimDrive):
@@ -927,95 +909,6 @@ class SimNT86(SimDrive):
         return t
 
 
-class SimEPR60(SimNT86):
-    """Simulated Rtelligent EPR60/EPT60: the NT map as its own manual gives it.
-
-    Pulses/rev at 96/97; homing on a limit switch (79: 0 negative, 1 positive) with 80-83,
-    started by input function 12 while application mode 20 = 1; no 287-298. Registers
-    192/212 (alarm clear, motor enable) are stored without effect: their values are
-    undocumented. Served over TCP by the TCP simulator; on a serial sim wire it takes any
-    line settings (default 115200 8N1).
-
-    Homing sequence (assumption; the manual gives none): fast (80) towards the limit to
-    its edge, decelerate (82), back off slowly (81) to the edge where the limit releases,
-    stop at once, travel 83 pulses further away from the limit, and that point is 0. The
-    manual says nothing of the other limit switch: met while backing off or travelling
-    83, it stops homing (decelerating at 82), not homed. Without the limit switch homed
-    on, the search runs until stopped, as the drive would.
-    """
-
-    family: ClassVar[str] = "EPR60"
-    drive_id: ClassVar[int] = 60
-    drive_version: ClassVar[int] = 100
-    register_map = _EPR60_MAP
-    pair_ranges = _EPR60_PAIRS
-
-    @classmethod
-    def _check_line(cls, address: int, settings: LineSettings) -> None:
-        """Any unit id 1-247 and any serial settings (the real drive is on Ethernet)."""
-
-    @property
-    def pulses_per_rev(self) -> int:
-        """Microstep setting (registers 96/97)."""
-        return max(self._pair_value(96), 1)
-
-    def _getters(self) -> dict[int, Callable[[float], int]]:
-        g = super()._getters()
-        del g[281]
-        return g
-
-    def _actions(self) -> dict[int, Callable[[int, int, float], None]]:
-        acts = super()._actions()
-        for a in (281, 287):
-            del acts[a]
-        acts[20] = self._on_app_mode
-        return acts
-
-    def _on_app_mode(self, v: int, old: int, t: float) -> None:
-        """Leaving homing mode 1 while homing runs aborts it (decelerating at 82)."""
-        if v != 1 and self._program_kind == "homing":
-            self._abort_program(t)
-            self.kin.stop(t, self.pulse_acceleration(self.params[82]))
-
-    def _homing_aborted(self) -> None:
-        pass  # no trigger register to clear
-
-    def _on_start_homing_input(self, t: float) -> None:
-        if self.params[20] == 1 and self._may_start(t):
-            self.homed = False
-            self.homing_failed = False
-            self._jog = None
-            self._estopping = False
-            self._stop_decel = self.pulse_acceleration(self.params[82])
-            self._run_program(self._home_limit(), "homing", t)
-
-    def _home_limit(self) -> Program:
-        t = self._wait_from
-        d = 1 if self.params[79] == 1 else -1
-        span = self.limit_span(d)
-        fast, slow = self.pulse_rate(self.params[80]), self.pulse_rate(self.params[81])
-        acc = self.pulse_acceleration(self.params[82])
-        if span is None or not span.active(self._physical(t)):
-            self.kin.run(t, d * fast, acc, acc)
-            # Without that limit switch nothing ends this: the motor runs until stopped.
-            _, t = yield from self._until(d, _edge_of(span, d, rising=True), span)
-            self.kin.stop(t, acc)
-            _, t = yield _Wait(rest=True)
-        assert span is not None
-        edge = span.edge(-d, rising=False)
-        assert edge is not None  # a limit switch's inner end
-        self.kin.run(t, -d * slow, acc, acc)
-        # The other limit switch met stops homing (assumption: the manual is silent).
-        name, t = yield from self._until(-d, edge, span)
-        if name == "limit":
-            self._homing_failed(t, acc)
-            return
-        self.kin.hold(t, edge)
-        offset = self.params[83]
-        if offset and slow > 0 and acc > 0:
-            self.kin.move_to(t, self._physical(t) - d * offset, slow, acc, acc)
-            name, t = yield from self._until(-d, None, rest=True)
-            if name == "limit":
-                self._homing_failed(t, acc)
-                return
-        self._homing_done(t, 0)
+SimEPR60: type[DescribedDrive] = twin_of(builtin_description("EPR60"))
+"""Simulated Rtelligent EPR60/EPT60: the generic twin of its built-in description
+(``drivebus/drives/descriptions/epr60.toml``, whose ``[twin]`` section says how it behaves)."""
