@@ -24,6 +24,7 @@ from drivebus.settings import LineSettings
 from drivebus.sim.described import twin_of
 from drivebus.sim.drive import TwinSetup
 from drivebus.sim.harness import sim_bus
+from drivebus.sim.twins import coded_twin
 
 __all__ = ["TrialStep", "format_trial", "try_description"]
 
@@ -98,9 +99,10 @@ def _brief(st: DriveStatus | None) -> str:
 
 
 async def try_description(d: Description, *, address: int | None = None) -> list[TrialStep]:
-    """Run description ``d`` against its twin; one ``TrialStep`` per step."""
+    """Run description ``d`` against its twin (the generic twin of ``d``, or the twin
+    written as code of a built-in family that has one); one ``TrialStep`` per step."""
     profile_cls = profile_class(d)
-    twin_cls = twin_of(d)
+    twin_cls = coded_twin(d.drive.family) or twin_of(d)
     address = address or max(min(profile_cls.addresses), 1)
     settings = _settings(d)
     ppr = _trial_ppr(d, profile_cls.pulses_per_rev_allowed)

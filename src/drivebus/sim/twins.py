@@ -14,7 +14,7 @@ from drivebus.sim.drive import SimDrive
 from drivebus.sim.drives.nt_family import SimNT86
 from drivebus.sim.drives.od_drive import SimODDrive
 
-__all__ = ["TWINS", "twin_class", "twin_of"]
+__all__ = ["TWINS", "coded_twin", "twin_class", "twin_of"]
 
 _CODED: dict[str, type[SimDrive]] = {
     "NT86": SimNT86,
@@ -29,6 +29,12 @@ TWINS: dict[str, type[SimDrive]] = {
 }
 """The twin class of each built-in family, by the family's registry name (a twin written
 as code plays its family even where the profile runs a description)."""
+
+
+def coded_twin(family_name: str) -> type[SimDrive] | None:
+    """The twin written as code of built-in family ``family_name`` (the NT86's, whose
+    description has no ``[twin]`` yet), or None: its description's generic twin plays it."""
+    return _CODED.get(family_name.upper())
 
 
 def twin_class(drive: str) -> type[SimDrive]:
