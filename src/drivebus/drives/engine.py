@@ -249,6 +249,12 @@ class DescribedProfile(DriveProfile):
         the options does not hold)."""
         self._procedure(procedure, {})
 
+    def _steps_of(self, name: str) -> Procedure | None:
+        """The description's procedure ``name`` where it has steps (None: absent, or
+        marked unsupported)."""
+        proc = self.description.procedures.get(name)
+        return proc if proc is not None and proc.unsupported is None else None
+
     def _procedure(self, name: str, args: Mapping[str, Any]) -> Procedure:
         d = self.description
         proc = d.procedures.get(name)
@@ -758,8 +764,8 @@ class DescribedProfile(DriveProfile):
 
     async def learn(self) -> None:
         """Read what decoding needs (the description's ``learn`` reads); never writes."""
-        proc = self.description.procedures.get("learn")
-        if proc is not None and proc.unsupported is None:
+        proc = self._steps_of("learn")
+        if proc is not None:
             run = _Run("learn", {}, False, Priority.CONFIG)
             await self._steps(proc.steps, run)
             self.learned.update(run.values)
@@ -767,17 +773,16 @@ class DescribedProfile(DriveProfile):
 
     async def setup(self) -> None:
         """The description's ``setup`` writes (before the first command), then ``learn``."""
-        proc = self.description.procedures.get("setup")
         self._learned = False
-        if proc is not None and proc.unsupported is None:
+        if self._steps_of("setup") is not None:
             await self._run("setup", {})
         if not self._learned:  # unless setup called it where the drive needs it
             await self.learn()
 
     def volatile_settings(self) -> list[tuple[Register, int]]:
         """The (register, value) pairs of the setup steps marked volatile."""
-        proc = self.description.procedures.get("setup")
-        if proc is None or proc.unsupported is not None:
+        proc = self._steps_of("setup")
+        if proc is None:
             return []
         out: list[tuple[Register, int]] = []
         run = _Run("setup", {}, True, Priority.CONFIG)
@@ -1137,8 +1142,7 @@ class DescribedProfile(DriveProfile):
         """The description's ``prepare_table`` with ``rows`` (``rows[i]['position']``,
         ``'speed'``, ``'accel'``, ``'decel'``, ``'wait'`` in s), ``trigger`` (an input's
         name) and ``input`` (its number, from 1)."""
-        proc = self.description.procedures.get("prepare_table")
-        if proc is None or proc.unsupported is not None:
+        if self._steps_of("prepare_table") is None:
             await super().prepare_table(rows, trigger)
             return
         table = [{"position": int(p), "speed": m.speed_rpm, "accel": m.accel_rps2,
@@ -1148,8 +1152,7 @@ class DescribedProfile(DriveProfile):
 
     async def start_table(self) -> None:
         """The description's ``start_table``."""
-        proc = self.description.procedures.get("start_table")
-        if proc is None or proc.unsupported is not None:
+        if self._steps_of("start_table") is None:
             await super().start_table()
             return
         await self.run("start_table")
@@ -1157,8 +1160,7 @@ class DescribedProfile(DriveProfile):
     async def set_output(self, name: str, state: bool) -> None:
         """The description's ``set_output`` with ``output`` (the name), ``index`` (its
         number, from 1) and ``state``."""
-        proc = self.description.procedures.get("set_output")
-        if proc is None or proc.unsupported is not None:
+        if self._steps_of("set_output") is None:
             await super().set_output(name, state)
             return
         await self.run("set_output", output=name, index=self.io_outputs.index(name) + 1,
