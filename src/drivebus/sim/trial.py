@@ -111,8 +111,7 @@ async def try_description(d: Description, *, address: int | None = None) -> list
     twin = twin_cls(address, settings, setup)
     steps: list[TrialStep] = []
     line = settings or twin.settings or LineSettings()  # a TCP drive: its twin's serial
-    # a lenient response timeout: a loaded machine (a CI runner) must not fail a trial
-    async with sim_bus([twin], line, timeout=0.5, retries=2) as (_, bus):
+    async with sim_bus([twin], line, timeout=0.2, retries=1) as (_, bus):
         profile = profile_cls(bus.slave(address, settings=settings), pulses_per_rev=ppr)
         state: dict[str, MoveParams] = {}
 
