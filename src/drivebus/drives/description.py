@@ -869,6 +869,8 @@ TWIN_ACTIONS = {
     "set_position": ("position",),
     "save": (),
     "factory_reset": (),
+    "run_table": ("rows", "target", "distance", "speed", "accel", "decel", "wait", "repeat"),
+    "refuse": (),
     "none": (),
 }
 """What a twin does on a trigger, and the parameters each action takes."""
@@ -889,12 +891,20 @@ class Trigger(_Model):
     method: E | None = None
     offset: E | None = None
     position: E | None = None
+    rows: E | None = Field(None, description="run_table: how many rows run (`row` counts "
+                           "from 1 in the row expressions)")
+    wait: E | None = Field(None, description="run_table: s to wait after a row's move")
+    repeat: E | None = Field(None, description="run_table: run the rows again and again "
+                             "(the last row's wait kept) until stopped")
     motion: str | None = Field(None, description="the motion kind it starts (mode register)")
     more: bool = Field(False, description="go on to the next triggers of the register")
     refuse: bool = Field(False, description="refuse with refusals.busy when it cannot start")
     set: dict[str, E] = Field({}, description="registers the drive sets when the trigger "
                               "fires, raw values (an acknowledge, a command register it "
                               "clears)")
+    ends: dict[str, E] = Field({}, description="registers the drive sets once the motion "
+                               "the trigger started is over (done, failed or stopped), raw "
+                               "values (a command register that reads back while it runs)")
 
 
 class InputTrigger(Trigger):
@@ -911,6 +921,27 @@ class LimitsDef(_Model):
     stop: E = Expr.parse("'decelerate'")
     decel: E | None = None
     block_start: bool = True
+
+
+class TwinHomingDef(_Model):
+    """``[twin.homing]``: how a ``reference_edge`` homing leaves its reference and what a
+    limit switch in the search does."""
+
+    backoff: Literal["speed", "creep"] = Field(
+        "speed", description="the speed of the leg that backs off the reference")
+    backoff_stop: Literal["brake", "at_once"] = Field(
+        "brake", description="where the back-off leaves the reference: brake at the homing "
+        "acceleration, or stop at once on the edge")
+    reverse_at_limit: E = Field(Expr.parse(True), description="a limit switch met ahead in "
+                                "the search reverses it (else the homing fails there)")
+    after_reversal: Literal["other_edge", "same_edge"] = Field(
+        "other_edge", description="after a reversal: search the reference's other edge, or "
+        "pass through the reference and creep back to the edge the search looked for")
+    offset: E | None = Field(None, description="what the offset does, chosen when the homing "
+                             "starts: an expression giving 'origin', 'move' or 'travel' "
+                             "(default: [twin] home_offset)")
+    offset_speed: Literal["creep", "speed"] = Field(
+        "creep", description="the speed of an offset travelled after the origin")
 
 
 class TwinDef(_Model):
@@ -943,6 +974,7 @@ class TwinDef(_Model):
         "origin", description="origin: the origin edge takes the offset as its position; "
         "move: the counter is 0 at the edge and a compensation move of the offset follows; "
         "travel: the offset is travelled past the edge and the point reached is 0")
+    homing: TwinHomingDef = TwinHomingDef()
 
 
 # -- the CiA 402 engine ---------------------------------------------------------------
@@ -1290,7 +1322,7 @@ _CONTEXT_NAMES = {
 }
 _TWIN_NAMES = {"enabled", "moving", "alarm", "homed", "motion", "value", "previous", "raw",
                "speed_now", "pulses_per_rev", "limit_positive", "limit_negative", "motion_decel",
-               "homing", "stopping", "active", "at_speed", "stalled"}
+               "homing", "stopping", "active", "at_speed", "stalled", "cruising"}
 
 
 class _Checker:
@@ -1629,6 +1661,8 @@ class _Checker:
         self._names("twin.eeprom_write_through", t.eeprom_write_through, names)
         self._names("twin.enabled", t.enabled, names)
         self._names("twin.stall_time", t.stall_time, names)
+        self._names("twin.homing.reverse_at_limit", t.homing.reverse_at_limit, names)
+        self._names("twin.homing.offset", t.homing.offset, names)
         for key, reg in self.d.registers.items():
             for bit, b in reg.bits.items():
                 self._names(f"registers.{key}.bits.{bit}.twin", b.twin, names)
@@ -1648,19 +1682,25 @@ class _Checker:
             if trig.reg or not isinstance(trig, InputTrigger):
                 self._reg_key(f"{where}.register", trig.reg)
             self._names(f"{where}.when", trig.when, names)
-            for key, e in trig.set.items():
-                self._reg_key(f"{where}.set.{key}", key)
-                self._names(f"{where}.set.{key}", e, names)
+            for kind, sets in (("set", trig.set), ("ends", trig.ends)):
+                for key, e in sets.items():
+                    self._reg_key(f"{where}.{kind}.{key}", key)
+                    self._names(f"{where}.{kind}.{key}", e, names)
             allowed = TWIN_ACTIONS[trig.do]
+            row_names = names | {"row"} if trig.do == "run_table" else names
             for field in ("target", "distance", "speed", "accel", "decel", "creep", "method",
-                          "offset", "position"):
+                          "offset", "position", "rows", "wait", "repeat"):
                 e = getattr(trig, field)
                 if e is None:
                     continue
                 if field not in allowed:
                     self.out.append(f"{where}.{field}: action {trig.do} takes "
                                     f"{', '.join(allowed) or 'no parameters'}")
-                self._names(f"{where}.{field}", e, names)
+                self._names(f"{where}.{field}", e, row_names)
+            if trig.do == "run_table" and (trig.rows is None or trig.speed is None or
+                                           (trig.target is None and trig.distance is None)):
+                self.out.append(f"{where}: run_table needs rows, speed and a target or "
+                                "distance")
 
 
 def _object_kind(name: str) -> str | None:

@@ -59,7 +59,7 @@ __all__ = ["DescribedCia402Drive", "DescribedDrive", "described_twin", "twin_of"
 
 _COMPUTED = {"position", "velocity", "command_velocity", "alarm_code", "motion", "inputs",
              "outputs"}
-_STARTS = {"move_absolute", "move_relative", "run", "home"}
+_STARTS = {"move_absolute", "move_relative", "run", "home", "run_table"}
 _VALUES = _COMPUTED | {"constant", "address", "direction"}
 """Meanings that are a register's value (the others are a state: 1 or 0)."""
 _SERIAL_TCP = LineSettings.parse("115200 8N1")
@@ -104,9 +104,27 @@ class _RefHoming:
     """hard_stop: the end stop's position (counter frame; None: none ahead)."""
     until: float = math.inf
     """hard_stop: when the stall on the end stop makes it the origin."""
+    may_reverse: bool = True
+    """A limit switch met ahead in the search reverses it (``[twin.homing]``)."""
+    offset_mode: str = "origin"
+    """What the offset does: origin, move or travel (chosen as the homing starts)."""
 
 
 _Handler = Callable[[float], None]
+
+
+@dataclass
+class _TableRun:
+    """A ``run_table`` under way: the trigger and value that started it, the rows, the row
+    running (0-based) and whether it moves or waits."""
+
+    trig: Trigger
+    value: Any
+    rows: int
+    repeat: bool
+    row: int = 0
+    phase: str = "move"
+    until: float = math.inf
 
 
 @dataclass
@@ -206,7 +224,7 @@ class DescribedDrive(SimDrive):
     ) -> None:
         d = self.description
         if settings is None and d.link.protocol == "rtu":
-            settings = LineSettings.parse(d.link.factory) if d.link.factory else LineSettings()
+            settings = _factory_settings(d)
         elif settings is None:
             settings = _SERIAL_TCP  # a TCP drive served on a serial sim wire
         if settings is not None and d.link.protocol == "rtu":
@@ -266,6 +284,9 @@ class DescribedDrive(SimDrive):
         """While a write's triggers run: what the register held before it."""
         self.stopping: str | None = None
         """What stops the motion under way: stop, emergency_stop or limit (None: none)."""
+        self._table: _TableRun | None = None
+        self._ends: tuple[Trigger, Any] | None = None
+        """The trigger whose ``ends`` registers are set once its motion is over."""
         self._functions_seen = self._input_functions(0.0)
         self.enabled = bool(self._eval(d.twin.enabled, 0.0))
 
@@ -302,12 +323,13 @@ class DescribedDrive(SimDrive):
     def _check_line(self, settings: LineSettings) -> None:
         d = self.description
         link = d.link
+        bauds = ", ".join(map(str, link.baud_rates))
         if link.baud_rates and settings.baudrate not in link.baud_rates:
-            raise ConfigError(f"{d.family} baud rate {settings.baudrate} is not one of "
-                              f"{tuple(link.baud_rates)}")
+            raise ConfigError(f"{d.family} baud rate {settings.baudrate}: it runs at {bauds} "
+                              "baud")
         if link.formats and settings.format not in link.formats:
-            raise ConfigError(f"{d.family} line format {settings.format} is not one of "
-                              f"{tuple(link.formats)}")
+            raise ConfigError(f"{d.family} line format {settings.format}: it runs "
+                              f"{', '.join(link.formats)} only")
         for rule in link.format_rules:
             if settings.baudrate in rule.baud_rates and settings.format not in rule.formats:
                 why = f" ({rule.why})" if rule.why else ""
@@ -391,12 +413,29 @@ class DescribedDrive(SimDrive):
     # -- the position counter ----------------------------------------------------------------
 
     def position(self, now: float | None = None) -> int:
-        """The drive's 32-bit position counter (it wraps at ±2^31)."""
-        return signed32(super().position(now))
+        """The drive's 32-bit position counter (it wraps at ±2^31), events up to ``now``
+        processed."""
+        t = time_or_present(now)
+        self.advance(t)
+        return signed32(super().position(t))
 
     def physical_position(self, now: float | None = None) -> float:
-        """Where the axis physically is (the frame of the switch positions)."""
-        return self.kin.position(time_or_present(now)) - self._shift
+        """Where the axis physically is (the frame of the switch positions), events up to
+        ``now`` processed."""
+        t = time_or_present(now)
+        self.advance(t)
+        return self._phys(t)
+
+    def _phys(self, t: float) -> float:
+        """The physical position at ``t`` as planned (no events processed)."""
+        return self.kin.position(t) - self._shift
+
+    def is_moving(self, now: float | None = None) -> bool:
+        """True while the motor turns or a homing or table runs (events up to ``now``
+        processed)."""
+        t = time_or_present(now)
+        self.advance(t)
+        return self._running(t)
 
     def _set_counter(self, t: float, value: float) -> None:
         old = self.kin.position(t)
@@ -415,7 +454,7 @@ class DescribedDrive(SimDrive):
     def switch_states(self, now: float) -> tuple[bool, bool, bool]:
         """(home, limit negative, limit positive) at the physical position (with
         ``[twin] wiring``: as the drive sees them through its input functions)."""
-        p = self.physical_position(now)
+        p = self._phys(now)
         if self.description.twin.wiring:
             return (self._signal_at("home_switch", p), self._signal_at("limit_negative", p),
                     self._signal_at("limit_positive", p))
@@ -567,7 +606,7 @@ class DescribedDrive(SimDrive):
         hands over to the next on the switch's end (float rounding): the levels at both
         ends differ, bisection finds the time."""
         def level_at(t: float) -> bool:
-            return level(self.physical_position(t))
+            return level(self._phys(t))
 
         start = level_at(t0)
         if start == level_at(t1) or level_at(t1) != rising:
@@ -632,7 +671,7 @@ class DescribedDrive(SimDrive):
 
     def _signals(self, now: float) -> dict[str, bool]:
         home, neg, pos = self.switch_states(now)
-        moving = self.kin.moving(now)
+        moving = self.kin.moving(now) or self._table is not None
         alarm = bool(self.alarm_code)
         at_speed = moving and self.motion == "speed" and self.kin.cruising(now)
         return {
@@ -796,7 +835,7 @@ class DescribedDrive(SimDrive):
         """Whether each input function an ``on_input`` trigger watches is active now."""
         if not self.description.twin.on_input:
             return {}
-        p = self.physical_position(now)
+        p = self._phys(now)
         return {trig.input: self._signal_at(trig.input, p)
                 for trig in self.description.twin.on_input}
 
@@ -819,7 +858,7 @@ class DescribedDrive(SimDrive):
         if io is None:
             return 0
         if which == "inputs" and d.twin.wiring:  # the terminals' levels (polarity register)
-            p = self.physical_position(now)
+            p = self._phys(now)
             return sum(1 << i for i in self._terminals()
                        if self._physical(i, p) != self._inverted(i, by_function=False))
         signals = self._signals(now)
@@ -917,30 +956,52 @@ class DescribedDrive(SimDrive):
             for trig in triggers:
                 if trig.when is not None and not self._eval(trig.when, now, value):
                     continue
-                self._do(trig, value, now)
-                for key, e in trig.set.items():  # what the drive writes back itself
-                    target = self.description.regs[key]
-                    self._store(self.coils if target.d.coil else self.regs, target, None,
-                                int(self._eval(e, now, value)) & (1 if target.d.coil else -1))
+                started = self._do(trig, value, now)
+                self._set_registers(trig.set, now, value)  # what the drive writes back
+                if trig.ends:
+                    self._ends = (trig, value)
+                    if not started:
+                        self._settle(now)
                 if not trig.more:
                     return
         finally:
             self._previous = None
 
+    def _set_registers(self, sets: Mapping[str, Expr], now: float, value: Any) -> None:
+        """Store raw values the drive writes itself (a trigger's ``set`` or ``ends``)."""
+        for key, e in sets.items():
+            target = self.description.regs[key]
+            self._store(self.coils if target.d.coil else self.regs, target, None,
+                        int(self._eval(e, now, value)) & (1 if target.d.coil else -1))
+
+    def _running(self, now: float) -> bool:
+        """A motion, homing or table runs (or the motor still turns)."""
+        return self._homing is not None or self._ref is not None or \
+            self._table is not None or self.kin.moving(now)
+
+    def _settle(self, now: float) -> None:
+        """Set the ``ends`` registers of the trigger whose motion is over by ``now``."""
+        if self._ends is not None and not self._running(now):
+            trig, value = self._ends
+            self._ends = None
+            self._set_registers(trig.ends, now, value)
+
     def _active(self, now: float) -> dict[str, bool]:
         """Each input function of ``[inputs] codes``: active now."""
         io = self.description.inputs
-        p = self.physical_position(now)
+        p = self._phys(now)
         return {} if io is None else {s: self._signal_at(s, p) for s in io.codes}
 
     # -- evaluation ---------------------------------------------------------------------------
 
-    def _scope(self, now: float, value: Any = None) -> _Scope:
-        return _Scope(self, now, value)
+    def _scope(self, now: float, value: Any = None,
+               extra: Mapping[str, Any] | None = None) -> _Scope:
+        return _Scope(self, now, value, extra)
 
-    def _eval(self, e: Expr, now: float, value: Any = None) -> Any:
+    def _eval(self, e: Expr, now: float, value: Any = None,
+              extra: Mapping[str, Any] | None = None) -> Any:
         try:
-            return e(self._scope(now, value))
+            return e(self._scope(now, value, extra))
         except Unknown as exc:
             raise ExprError(f"{e.source!r}: {exc}") from None
 
@@ -961,15 +1022,21 @@ class DescribedDrive(SimDrive):
         e = getattr(trig, name)
         return None if e is None else self._eval(e, now, value)
 
-    def _do(self, trig: Trigger, value: Any, now: float) -> None:
+    def _do(self, trig: Trigger, value: Any, now: float) -> bool:
+        """Carry out ``trig``'s action; False if it is a start the drive did not obey."""
         do = trig.do
+        refusals = self.description.link.refusals
+        if do == "refuse":
+            raise SlaveException(refusals.busy if refusals.busy is not None
+                                 else refusals.value)
         if do in _STARTS and not self._eval(self.description.twin.starts, now, value):
-            if trig.refuse and self.description.link.refusals.busy is not None:
-                raise SlaveException(self.description.link.refusals.busy)
-            return
+            if trig.refuse and refusals.busy is not None:
+                raise SlaveException(refusals.busy)
+            return False
         p = self.pulses_per_rev
         if do in ("emergency_stop", "stop", "disable"):
             self._ref = None
+            self._table = None
             self._completes = False
             self.stalled = False
         if do in ("emergency_stop", "stop"):  # an emergency stop without decel: at once
@@ -1004,6 +1071,9 @@ class DescribedDrive(SimDrive):
             self._set_speed(trig, value, now)
         elif do == "home":
             self._home(trig, value, now)
+        elif do == "run_table":
+            self._start_table(trig, value, now)
+        return True
 
     def _clear_rule(self, code: int) -> str:
         alarms = self.description.alarms
@@ -1069,6 +1139,7 @@ class DescribedDrive(SimDrive):
         self._motion_decel = decel
         self._homing = None
         self._ref = None
+        self._table = None
         self.stopping = None
         self.reached = False
         self._completes = kind == "position"
@@ -1108,6 +1179,7 @@ class DescribedDrive(SimDrive):
         self.homed = False
         self.homing_failed = False
         self.stopping = None
+        self._table = None
         if method.behaviour == "reference_edge":
             self._ref_home(method, speed, creep, accel, offset, now)
             return
@@ -1115,7 +1187,7 @@ class DescribedDrive(SimDrive):
             self._offset_home(speed, accel, offset, now)
             return
         if method.behaviour == "hard_stop":
-            self._stop_home(method, creep, accel, offset, now)
+            self._stop_home(method, speed, creep, accel, offset, now)
             return
         number = method.cia402
         if method.behaviour == "set" or number in (33, 34, 35, 37):
@@ -1156,7 +1228,7 @@ class DescribedDrive(SimDrive):
         for name, nxt in events:
             span = self._span(name)
             if name == ahead and span is not None and t_from <= now and \
-                    span.active(self.physical_position(t_from)):
+                    span.active(self._phys(t_from)):
                 return t_from, nxt  # the limit ahead is active as the leg sets off
             boundary = self._boundary(name)
             if boundary is None:
@@ -1192,26 +1264,46 @@ class DescribedDrive(SimDrive):
     def _ref_home(self, method: MethodDef, speed: float, creep: float, accel: Any,
                   offset: float, now: float) -> None:
         """Search at ``speed`` in the method's direction until its reference input turns
-        active, brake, back off at ``speed`` until it turns inactive, brake, creep back
-        until it turns active: that edge is the origin. A limit switch ahead in the search
-        reverses it once; any other stops the motor (as ``[twin] limits`` say) and the
-        homing fails. Started on the reference, the twin backs off first."""
+        active, brake, back off (``[twin.homing]``: at ``speed`` or the creep speed) until
+        it turns inactive, brake, creep back until it turns active: that edge is the
+        origin (backing off with ``backoff_stop = "at_once"``, the edge it leaves is the
+        origin). A limit switch ahead in the search reverses it once (where
+        ``reverse_at_limit`` holds; else the homing fails there); any other stops the
+        motor (as ``[twin] limits`` say) and the homing fails. Started on the reference,
+        the twin backs off first."""
         ppr = self.pulses_per_rev
         assert method.reference is not None and method.direction is not None
         rate = float(accel) * ppr if _finite_pos(accel) else math.inf
+        hd = self.description.twin.homing
         h = _RefHoming(method.reference, "search", float(method.direction),
-                       self._pps(speed), self._pps(creep), rate, offset)
+                       self._pps(speed), self._pps(creep), rate, offset,
+                       may_reverse=bool(self._eval(hd.reverse_at_limit, now)),
+                       offset_mode=self._offset_mode(now))
         self._begin_ref(h, now)
-        p = self.physical_position(now)
+        p = self._phys(now)
         if self._signal_at(h.reference, p):
             h.phase = "brake1"
             self._ref_ramp_end(now)
             return
         ahead = "limit_positive" if h.direction > 0 else "limit_negative"
         if ahead != h.reference and self._signal_at(ahead, p):
-            h.direction = -h.direction  # on a limit already: the turning reverses
-            h.reversed = True
+            if h.may_reverse:
+                self._ref_reverse(now)  # on a limit already: the turning reverses
+            else:
+                self._ref_fail(now)
+            return
         self._ref_run(now, h.direction * h.speed)
+
+    def _offset_mode(self, now: float) -> str:
+        """What a homing's offset does (``[twin.homing] offset``, else ``home_offset``)."""
+        t = self.description.twin
+        if t.homing.offset is None:
+            return t.home_offset
+        mode = self._eval(t.homing.offset, now)
+        if mode not in ("origin", "move", "travel"):
+            raise ExprError(f"twin.homing.offset {t.homing.offset.source!r} gave {mode!r}, "
+                            "not 'origin', 'move' or 'travel'")
+        return str(mode)
 
     def _begin_ref(self, h: _RefHoming, now: float) -> None:
         """Homing ``h`` runs from ``now`` (its legs are followed as the twin advances)."""
@@ -1233,7 +1325,8 @@ class DescribedDrive(SimDrive):
         assert h is not None
         if h.phase == "brake1":
             h.phase = "backoff"
-            self._ref_run(t, -h.direction * h.speed)
+            back = h.creep if self.description.twin.homing.backoff == "creep" else h.speed
+            self._ref_run(t, -h.direction * back)
         elif h.phase == "brake2":
             h.phase = "creep"
             self._ref_run(t, h.direction * h.creep)
@@ -1248,8 +1341,8 @@ class DescribedDrive(SimDrive):
         self.reached = True
         self.stalled = False
 
-    def _stop_home(self, method: MethodDef, creep: float, accel: Any, offset: float,
-                   now: float) -> None:
+    def _stop_home(self, method: MethodDef, speed: float, creep: float, accel: Any,
+                   offset: float, now: float) -> None:
         """``behaviour = "hard_stop"``: creep in the method's direction into the end stop
         (``hard_stop_positive``/``_negative``), stall there for ``[twin] stall_time``:
         that point is the origin (``home_offset`` as for an edge). A limit switch met
@@ -1258,7 +1351,8 @@ class DescribedDrive(SimDrive):
         rate = float(accel) * self.pulses_per_rev if _finite_pos(accel) else math.inf
         d = float(method.direction)
         stop = self.hard_stop_positive if d > 0 else self.hard_stop_negative
-        h = _RefHoming("", "press", d, self._pps(creep), self._pps(creep), rate, offset)
+        h = _RefHoming("", "press", d, self._pps(speed), self._pps(creep), rate, offset,
+                       offset_mode=self._offset_mode(now))
         h.stop = None if stop is None else stop + self._shift
         self._begin_ref(h, now)
         if h.stop is not None and (h.stop - self.kin.position(now)) * d <= 0:
@@ -1287,11 +1381,33 @@ class DescribedDrive(SimDrive):
         h.phase = "brake1" if h.phase == "search" else "brake2"
 
     def _ref_reverse(self, t: float) -> None:
+        """The search met the limit switch ahead: search the other way (``[twin.homing]
+        after_reversal = "other_edge"``), or pass back through the reference to creep to
+        the edge the search looked for (``"same_edge"``)."""
         h = self._ref
         assert h is not None
         h.reversed = True
+        if self.description.twin.homing.after_reversal == "same_edge":
+            h.phase = "pass"
+            self._ref_run(t, -h.direction * h.speed)
+            return
         h.direction = -h.direction
         self._ref_run(t, h.direction * h.speed)
+
+    def _ref_passed(self, t: float) -> None:
+        """Back through the reference after a reversal: brake, then creep back onto it."""
+        h = self._ref
+        assert h is not None
+        self.kin.stop(t, h.rate)
+        h.phase = "brake2"
+
+    def _ref_left(self, t: float) -> None:
+        """The back-off left the reference: brake and creep back, or (``backoff_stop =
+        "at_once"``) stop at once on the edge, the origin."""
+        if self.description.twin.homing.backoff_stop == "at_once":
+            self._ref_origin(t)
+        else:
+            self._ref_found(t)
 
     def _ref_fail(self, t: float) -> None:
         """A limit switch met while homing (not the search's first): stop as ``[twin]
@@ -1311,8 +1427,9 @@ class DescribedDrive(SimDrive):
         h = self._ref
         assert h is not None
         self.stalled = False
-        self.kin.hold(t, self._on_edge(h.reference, self.kin.position(t)))
-        mode = self.description.twin.home_offset
+        if h.reference:
+            self.kin.hold(t, self._on_edge(h.reference, self.kin.position(t)))
+        mode = h.offset_mode
         if mode == "origin":
             self.kin.stop(t, h.rate)
             self._set_counter(t, h.offset)
@@ -1325,12 +1442,14 @@ class DescribedDrive(SimDrive):
             self._ref_done()
             return
         towards = "limit_positive" if offset > 0 else "limit_negative"
-        if self._signal_at(towards, self.physical_position(t) + math.copysign(0.5, offset)):
+        if self._signal_at(towards, self._phys(t) + math.copysign(0.5, offset)):
             self._ref_fail(t)  # the compensation would go into a limit switch
             return
         h.phase = "offset"
         h.final = 0.0 if mode == "travel" else None
-        self.kin.move_to(t, self.kin.position(t) + offset, h.creep, h.rate, h.rate)
+        speed = h.speed if self.description.twin.homing.offset_speed == "speed" else h.creep
+        self.kin.move_to(t, self.kin.position(t) + offset, speed if speed > 0 else 1.0,
+                         h.rate, h.rate)
         self._last_dir = 1 if offset > 0 else -1
 
     def _offset_home(self, speed: float, accel: Any, offset: float, now: float) -> None:
@@ -1347,7 +1466,7 @@ class DescribedDrive(SimDrive):
             return
         towards = "limit_positive" if offset > here else "limit_negative"
         if self._blocked(offset - here, now) or self._signal_at(
-                towards, self.physical_position(now) + math.copysign(0.5, offset - here)):
+                towards, self._phys(now) + math.copysign(0.5, offset - here)):
             self.homing_failed = True
             return
         self._begin_ref(_RefHoming("", "offset", 1.0 if offset > here else -1.0, pps, pps,
@@ -1380,14 +1499,25 @@ class DescribedDrive(SimDrive):
         if t1 < t0:
             return None
         end = self.kin.end_time()
+        tr = self._table
+        if tr is not None:
+            if tr.phase == "wait":
+                return (max(tr.until, t0), self._table_waited) if tr.until <= t1 else None
+            return _first((max(end, t0) if end <= t1 else None, self._table_moved),
+                          *((self._signal_edge(lim, True, t0, t1), self._table_limit)
+                            for lim in ("limit_positive", "limit_negative")))
         h = self._ref
         if h is not None:
             if h.phase == "search":
                 return _first((self._signal_edge(h.reference, True, t0, t1), self._ref_found),
-                              *self._ref_limits(t0, t1, reverse=not h.reversed))
+                              *self._ref_limits(t0, t1,
+                                                reverse=h.may_reverse and not h.reversed))
             if h.phase == "backoff":
-                return _first((self._signal_edge(h.reference, False, t0, t1), self._ref_found),
+                return _first((self._signal_edge(h.reference, False, t0, t1), self._ref_left),
                               *self._ref_limits(t0, t1))
+            if h.phase == "pass":
+                return _first((self._signal_edge(h.reference, False, t0, t1),
+                               self._ref_passed), *self._ref_limits(t0, t1))
             if h.phase == "creep":
                 return _first((self._signal_edge(h.reference, True, t0, t1), self._ref_origin),
                               *self._ref_limits(t0, t1))
@@ -1405,6 +1535,111 @@ class DescribedDrive(SimDrive):
             return _first(*((self._signal_edge(lim, True, t0, t1), self._wired_limit_stop)
                             for lim in ("limit_positive", "limit_negative")))
         return None
+
+    # -- a table of moves (``do = "run_table"``) ------------------------------------------
+
+    def _start_table(self, trig: Trigger, value: Any, now: float) -> None:
+        """Run rows 1..``rows``: each a move (``target``, or ``distance`` where the target
+        is None) at its speed and rates, then its ``wait``; the last row's wait only when
+        the table repeats. The drive reports moving from start to end, waits included; a
+        limit switch met stops the motor (as ``[twin] limits`` say) and the table."""
+        rows = int(self._param(trig, "rows", now, value) or 0)
+        if rows <= 0:
+            return
+        repeat = bool(self._param(trig, "repeat", now, value))
+        self._wrap(now)
+        self._table = _TableRun(trig, value, rows, repeat)
+        self.motion = trig.motion or "table"
+        self.stopping = None
+        self._homing = None
+        self._ref = None
+        self.reached = False
+        self._completes = False
+        self._processed_until = max(self._processed_until, now)
+        self._table_row(now)
+
+    def _row(self, name: str, t: float) -> Any:
+        """A row expression of the running table, with ``row`` its number (from 1)."""
+        tr = self._table
+        assert tr is not None
+        e = getattr(tr.trig, name)
+        return None if e is None else self._eval(e, t, tr.value, {"row": tr.row + 1})
+
+    def _table_move(self, t: float) -> bool:
+        """Start the present row's move; False if it has none (no distance, no speed)."""
+        tr = self._table
+        assert tr is not None
+        ppr = self.pulses_per_rev
+        speed, accel = self._row("speed", t), self._row("accel", t)
+        decel = self._row("decel", t) if tr.trig.decel is not None else accel
+        here = self.kin.position(t)
+        target = self._row("target", t)
+        if target is None and tr.trig.distance is not None:
+            target = round(here) + float(self._row("distance", t))
+        if target is None or not _usable(speed, accel, decel) or \
+                abs(float(target) - here) < 0.5:
+            return False
+        if self._blocked(float(target) - here, t):
+            self._table_end(t)
+            return True
+        a, dc = float(accel) * ppr, float(decel) * ppr
+        self.kin.move_to(t, float(target), self._pps(abs(float(speed))), a, dc)
+        self._motion_decel = dc
+        self._last_dir = 1 if float(target) > here else -1
+        tr.phase = "move"
+        return True
+
+    def _table_wait(self, t: float) -> bool:
+        """Begin the present row's wait, if it has one (the last row's only when the
+        table repeats)."""
+        tr = self._table
+        assert tr is not None
+        if tr.row == tr.rows - 1 and not tr.repeat:
+            return False
+        wait = float(self._row("wait", t) or 0.0)
+        if wait <= 0:
+            return False
+        tr.phase, tr.until = "wait", t + wait
+        return True
+
+    def _table_next(self, t: float) -> bool:
+        """Go on to the next row (the first again when it repeats); False at the end."""
+        tr = self._table
+        assert tr is not None
+        tr.row += 1
+        if tr.row >= tr.rows:
+            if not tr.repeat:
+                self._table_end(t)
+                return False
+            tr.row = 0
+        return True
+
+    def _table_row(self, t: float) -> None:
+        """Run rows from the present one until one moves or waits (a whole pass without
+        either ends the table)."""
+        tr = self._table
+        assert tr is not None
+        for _ in range(tr.rows + 1):
+            if self._table_move(t) or self._table_wait(t) or not self._table_next(t):
+                return
+        self._table_end(t)
+
+    def _table_moved(self, t: float) -> None:
+        if not self._table_wait(t) and self._table_next(t):
+            self._table_row(t)
+
+    def _table_waited(self, t: float) -> None:
+        if self._table_next(t):
+            self._table_row(t)
+
+    def _table_limit(self, t: float) -> None:
+        self.kin.stop(t, self._limit_rate(t))
+        self.stopping = "limit"
+        self._table = None
+
+    def _table_end(self, t: float) -> None:
+        self._table = None
+        self.reached = True
 
     def _wired_limit_stop(self, t: float) -> None:
         self.kin.stop(t, self._limit_rate(t))
@@ -1445,9 +1680,16 @@ class DescribedDrive(SimDrive):
         return min(hits) if hits else None
 
     def advance(self, now: float) -> None:
-        """Bring homing legs and limit stops up to ``now`` (state is computed lazily)."""
+        """Bring homing legs, tables and limit stops up to ``now`` (state is computed
+        lazily), then set the ``ends`` registers of a motion that is over."""
+        self._advance(now)
+        if self._ends is not None:
+            self._settle(now)
+
+    def _advance(self, now: float) -> None:
         twin = self.description.twin
-        if (twin.wiring or twin.direct or self._ref is not None) and self._homing is None:
+        if (twin.wiring or twin.direct or self._ref is not None or
+                self._table is not None) and self._homing is None:
             self._advance_wired(now)
             return
         if self._homing is not None:
@@ -1466,9 +1708,21 @@ class DescribedDrive(SimDrive):
         self.advance(t)
         self._homing = None
         self._ref = None
+        self._table = None
         self.stalled = False
         self._completes = False
+        alarms = self.description.alarms
+        if alarms is not None and alarms.kind == "flags":
+            code |= self.alarm_code  # flags latch side by side
         super().raise_alarm(code, t)
+
+    def power_loss(self) -> None:
+        """Power cut: motion, homing and tables end with it (silent until restored)."""
+        self.advance(monotonic())
+        self._homing = None
+        self._ref = None
+        self._table = None
+        super().power_loss()
 
     def supply_recovered(self) -> None:
         """The supply is back in range: alarms that clear with the supply clear."""
@@ -1500,6 +1754,8 @@ class DescribedDrive(SimDrive):
         self.homed = False
         self._homing = None
         self._ref = None
+        self._table = None
+        self._ends = None
         self.reached = True
         self._completes = False
         self.stopping = None
@@ -1547,6 +1803,20 @@ class DescribedDrive(SimDrive):
         fmt = names.get(self._raw(reg, None))
         if fmt is not None and fmt in allowed:
             self.settings = LineSettings.parse(fmt, baudrate=self.settings.baudrate)
+
+
+def _factory_settings(d: Description) -> LineSettings:
+    """A twin's line settings when none are given: ``[link] factory``, else the Modbus
+    default (19200 8E1) where the drive runs it, else its fastest rate in its first
+    format (the manual states no default: the switches all off, for the NT86)."""
+    if d.link.factory:
+        return LineSettings.parse(d.link.factory)
+    default = LineSettings()
+    bauds, formats = d.link.baud_rates, d.link.formats
+    if (not bauds or default.baudrate in bauds) and (not formats or default.format in formats):
+        return default
+    return LineSettings.parse(formats[0] if formats else default.format,
+                              baudrate=max(bauds) if bauds else default.baudrate)
 
 
 def _first(*candidates: tuple[float | None, _Handler]) -> tuple[float, _Handler] | None:
@@ -1606,14 +1876,18 @@ class _Scope(Mapping[str, Any]):
     """The names a twin expression sees: registers (physical values), constants, the
     written ``value`` and the twin's state."""
 
-    def __init__(self, twin: DescribedDrive, now: float, value: Any) -> None:
+    def __init__(self, twin: DescribedDrive, now: float, value: Any,
+                 extra: Mapping[str, Any] | None = None) -> None:
         self._twin = twin
         self._now = now
         self._value = value
+        self._extra = extra or {}
 
     def __getitem__(self, key: str) -> Any:
         t = self._twin
         d = t.description
+        if key in self._extra:
+            return self._extra[key]
         if key == "value":
             if self._value is None:
                 raise KeyError(key)
@@ -1632,7 +1906,7 @@ class _Scope(Mapping[str, Any]):
         now = self._now
         state = {
             "enabled": lambda: t.enabled,
-            "moving": lambda: t.kin.moving(now),
+            "moving": lambda: t.kin.moving(now) or t._table is not None,
             "alarm": lambda: bool(t.alarm_code),
             "homed": lambda: t.homed,
             "homing": lambda: t._homing is not None or t._ref is not None,
@@ -1645,6 +1919,7 @@ class _Scope(Mapping[str, Any]):
             "limit_negative": lambda: t.switch_states(now)[1],
             "stopping": lambda: t.stopping if t.kin.moving(now) else None,
             "at_speed": lambda: t._signals(now)["at_speed"],
+            "cruising": lambda: t.kin.steady(now),
             "stalled": lambda: t.stalled,
             "active": lambda: Attrs("active", t._active(now)),
         }
@@ -1799,6 +2074,16 @@ class DescribedCia402Drive(DescribedDrive):
         if device is not None and value == 0:
             device.error_code = 0
 
+    @property  # type: ignore[override]
+    def homed(self) -> bool:
+        """A homing of the device completed (its reference is set)."""
+        device = getattr(self, "device", None)
+        return device is not None and device.homed
+
+    @homed.setter
+    def homed(self, value: bool) -> None:
+        pass  # the device's homing decides
+
     def position(self, now: float | None = None) -> int:
         return signed32(round(self.device.position(time_or_present(now))))
 
@@ -1843,8 +2128,14 @@ class DescribedCia402Drive(DescribedDrive):
         if name is None:
             return super().read_register(address, now)
         reg = self._words[address].reg
+        value = self.device.read(name, now)
+        for b in reg.d.bits.values():  # a drive's own flags beside the object's bits
+            on = self._eval(b.twin, now) if b.twin is not None else \
+                self._signals(now).get(b.means, None) if b.means == "homed" else None
+            if on is not None:
+                value = value | b.mask if on else value & ~b.mask
         words: dict[int, int] = {}
-        self._store(words, reg, None, self.device.read(name, now))
+        self._store(words, reg, None, value)
         return words[address]
 
     def write_registers(self, address: int, values: list[int], now: float) -> None:

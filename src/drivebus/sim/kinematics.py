@@ -99,6 +99,15 @@ class Kinematics:
         last = self._segments[-1]
         return t >= last.t0 and last.a == 0.0 and last.v0 != 0.0
 
+    def steady(self, t: float) -> bool:
+        """True if at ``t`` the axis runs at a constant, non-zero speed (a move's cruise,
+        a speed run at its speed)."""
+        for seg in self._segments:
+            if t < seg.t1:
+                return seg.a == 0.0 and seg.v0 != 0.0
+        last = self._segments[-1]
+        return last.a == 0.0 and last.v0 != 0.0
+
     def end_time(self) -> float:
         """When the planned motion comes to rest (inf for a speed run)."""
         last = self._segments[-1]

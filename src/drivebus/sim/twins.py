@@ -11,20 +11,22 @@ from drivebus.drives.registry import FAMILIES, family
 from drivebus.errors import ConfigError
 from drivebus.sim.described import twin_of
 from drivebus.sim.drive import SimDrive
-from drivebus.sim.drives.nt_family import SimNT86
+from drivebus.sim.drives.nt_family import SimEPR60, SimNT86
 from drivebus.sim.drives.od_drive import SimODDrive
 
 __all__ = ["TWINS", "coded_twin", "twin_class", "twin_of"]
 
 _CODED: dict[str, type[SimDrive]] = {
-    "NT86": SimNT86,
     "OD2000": SimODDrive,
 }
 """The twins written as code, by the family's registry name."""
 
+_NAMED: dict[str, type[SimDrive]] = {"NT86": SimNT86, "EPR60": SimEPR60}
+"""Generic twins given a class of their own (``drive_id``: what register 93 reads)."""
+
 
 TWINS: dict[str, type[SimDrive]] = {
-    name: _CODED[name] if name in _CODED else twin_of(f.spec)  # type: ignore[arg-type]
+    name: _CODED.get(name) or _NAMED.get(name) or twin_of(f.spec)  # type: ignore[arg-type]
     for name, f in FAMILIES.items() if f.spec is not None or name in _CODED
 }
 """The twin class of each built-in family, by the family's registry name (a twin written
@@ -32,8 +34,8 @@ as code plays its family even where the profile runs a description)."""
 
 
 def coded_twin(family_name: str) -> type[SimDrive] | None:
-    """The twin written as code of built-in family ``family_name`` (the NT86's, whose
-    description has no ``[twin]`` yet), or None: its description's generic twin plays it."""
+    """The twin written as code of built-in family ``family_name`` (the OD2000's, whose
+    frames are not Modbus frames), or None: its description's generic twin plays it."""
     return _CODED.get(family_name.upper())
 
 
