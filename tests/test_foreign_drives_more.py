@@ -28,8 +28,13 @@ from typing import Any
 import anyio
 import pytest
 
-from drivebus import AxisState, open_machine
-from drivebus.errors import LimitViolation, StateError
+from drivebus import AxisState, LineSettings, open_machine
+from drivebus.drives.base import HomingParams
+from drivebus.drives.description import load_description
+from drivebus.drives.engine import profile_class
+from drivebus.errors import LimitViolation, NotSupported, StateError
+from drivebus.sim import sim_bus
+from drivebus.sim.described import described_twin
 from pymodbus_servers import PYMODBUS
 from test_foreign_drives import drive, served, until
 
@@ -39,6 +44,7 @@ AZ = ROOT / "configs" / "drives" / "oriental_az.toml"
 pytestmark = pytest.mark.skipif(PYMODBUS < (3, 13), reason="SimDevice actions: pymodbus 3.13+")
 
 TICK = 0.001  # the emulators' time step, s
+FAST = LineSettings.parse("115200 8N1")
 
 
 def _s32(hi: int, lo: int) -> int:
@@ -373,3 +379,371 @@ async def test_the_oriental_az_runs_at_a_speed_and_presets_its_position() -> Non
 def test_the_oriental_az_description_passes_its_check_and_trial() -> None:
     assert "ORIENTAL-AZ (command engine)" in drive("check", AZ)
     assert "12 passed, 0 failed, 0 skipped" in drive("try", AZ)
+
+
+# == Schneider Lexium 32: CiA 402 device control at the parameters' Modbus addresses ========
+
+LEXIUM = ROOT / "configs" / "drives" / "lexium32.toml"
+# Modbus address of each parameter (two registers each, high word first)
+L_CONTROL, L_STATUS, L_OPMODE, L_OPMODE_ACT = 6914, 6916, 6918, 6920
+L_HM_METHOD, L_PV_TARGET, L_PP_TARGET, L_PP_V = 6936, 6938, 6940, 6942
+L_ACC, L_DEC, L_P_ACT, L_V_ACT, L_ERROR = 1556, 1558, 7706, 7744, 7178
+L_HM_V, L_HM_V_OUT, L_HM_HOME = 10248, 10250, 10262
+L_PARAMS = [L_CONTROL, L_STATUS, L_OPMODE, L_OPMODE_ACT, L_HM_METHOD, L_PV_TARGET,
+            L_PP_TARGET, L_PP_V, L_ACC, L_DEC, L_P_ACT, L_V_ACT, L_ERROR, L_HM_V, L_HM_V_OUT,
+            L_HM_HOME]
+L_READ_ONLY = {a + i for a in (L_STATUS, L_OPMODE_ACT, L_P_ACT, L_V_ACT, L_ERROR)
+               for i in (0, 1)}
+INC_PER_RPM = 16384 / 60  # usr_p/s per rpm (and usr_p/s² per rpm/s)
+# CiA 402 states: statusword pattern (bits 0-3, 5, 6) and voltage enabled (bit 4)
+L_STATES = {"not_ready": 0x00, "switch_on_disabled": 0x40, "ready": 0x31, "switched_on": 0x33,
+            "operation_enabled": 0x37, "quick_stop_active": 0x17, "fault": 0x08}
+# (state, command) -> next state; commands decoded from the controlword as CiA 402 says
+L_TRANSITIONS = {
+    ("switch_on_disabled", "shutdown"): "ready",
+    ("ready", "switch_on"): "switched_on", ("ready", "enable"): "operation_enabled",
+    ("switched_on", "enable"): "operation_enabled", ("switched_on", "shutdown"): "ready",
+    ("operation_enabled", "switch_on"): "switched_on", ("operation_enabled", "shutdown"): "ready",
+    ("operation_enabled", "quick_stop"): "quick_stop_active",
+    ("quick_stop_active", "enable"): "operation_enabled",  # 16: quick stop option code 5-8
+}
+QUICK_STOP_RAMP = 6000.0  # rpm/s, RAMPquickstop's factory value (not mapped here)
+L_LIMIT_NEGATIVE = -40000.0  # usr_p, where the negative limit switch sits
+
+
+def _command(cw: int) -> str:
+    if not cw & 0x02:
+        return "disable_voltage"
+    if not cw & 0x04:
+        return "quick_stop"
+    if cw & 0x0F == 0x06 or not cw & 0x01:
+        return "shutdown"
+    return "enable" if cw & 0x08 else "switch_on"
+
+
+@dataclass
+class Lexium32(Shaft):
+    """A Lexium 32 as its manuals say: every parameter 32 bits, read and written whole
+    (a request that splits one is refused); the CiA 402 state machine on DCOMcontrol with
+    quick stop reaction 6 (ramp down, stay in Quick Stop Active); profile position (bit 4
+    edge, acknowledge bit 12, change immediately bit 5, relative bit 6), profile velocity,
+    homing methods 17, 18 and 35 (HMp_home is the position at the reference point, ref_ok
+    bit 15 says a home is set), halt (bit 8) with RAMP_v_dec, fault reset on bit 7's edge."""
+
+    regs: dict[int, int] = field(default_factory=dict)
+    state: str = "switch_on_disabled"
+    cw: int = 0
+    mode: int = 0
+    mode_lag: float = 0.02
+    """s: how long the drive takes to change modes (its display shows the old one)."""
+    mode_at: float = 0.0
+    ack: bool = False
+    halted: bool = False
+    homing: bool = False
+    homed: bool = False
+    ref_ok: bool = False
+    error: int = 0
+    states: list[str] = field(default_factory=list)
+    writes: list[tuple[int, list[int]]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        for a in L_PARAMS:
+            self.regs[a], self.regs[a + 1] = 0, 0
+        for a, v in ((L_PP_V, 60), (L_ACC, 600), (L_DEC, 600), (L_HM_V, 60), (L_HM_V_OUT, 6)):
+            self.regs[a], self.regs[a + 1] = _words(v)
+
+    def get(self, a: int) -> int:
+        return _s32(self.regs[a], self.regs[a + 1])
+
+    def enter(self, state: str) -> None:
+        self.state = state
+        self.states.append(state)
+        if state not in ("operation_enabled", "quick_stop_active"):
+            self.settle(self.pos)  # no torque: the brake holds the motor
+
+    def fault(self, code: int) -> None:
+        self.error = code
+        self.enter("fault")
+
+    def ramps(self) -> tuple[float, float]:
+        return self.get(L_ACC) * INC_PER_RPM, self.get(L_DEC) * INC_PER_RPM
+
+    # -- DCOMcontrol ------------------------------------------------------------------------
+
+    def control(self, cw: int) -> None:
+        prev, self.cw = self.cw, cw
+        if self.state == "fault":
+            if cw & 0x80 and not prev & 0x80:
+                self.error = 0
+                self.enter("switch_on_disabled")
+            return
+        command = _command(cw)
+        if command == "disable_voltage":
+            if self.state != "switch_on_disabled":
+                self.enter("switch_on_disabled")
+            return
+        nxt = L_TRANSITIONS.get((self.state, command))
+        if nxt is None and command == "quick_stop" and self.state in ("ready", "switched_on"):
+            nxt = "switch_on_disabled"
+        if nxt is not None and nxt != self.state:
+            self.enter(nxt)
+            if nxt == "quick_stop_active":
+                self.homing = False
+                self.brake(QUICK_STOP_RAMP * INC_PER_RPM)
+                return
+        if self.state == "operation_enabled":
+            self.operate(prev, cw)
+
+    def operate(self, prev: int, cw: int) -> None:
+        if not cw & 0x10:
+            self.ack = False
+        edge = bool(cw & 0x10 and not prev & 0x10)
+        if cw & 0x100:
+            if not self.halted:
+                self.halted, self.homing = True, False
+                self.brake(self.ramps()[1])
+            return
+        self.halted = False
+        mode = self.mode_now()
+        if mode == 1 and edge:
+            if self.goal == "to" and not cw & 0x20:
+                return  # no set-point buffer here: refused while one runs
+            base = (self.target if self.goal == "to" else self.pos) if cw & 0x40 else 0.0
+            acc, dec = self.ramps()
+            self.go_to(base + self.get(L_PP_TARGET), self.get(L_PP_V) * INC_PER_RPM, acc, dec)
+            self.ack = True
+        elif mode == 3:
+            acc, dec = self.ramps()
+            self.run(self.get(L_PV_TARGET) * INC_PER_RPM, acc, dec)
+        elif mode == 6 and edge:
+            self.start_homing()
+
+    def start_homing(self) -> None:
+        method = self.get(L_HM_METHOD)
+        self.ref_ok = self.homed = False
+        if method == 35:
+            self.pos, self.homed = float(self.get(L_HM_HOME)), True
+            self.ref_ok = True
+            return
+        if method not in (17, 18):
+            return
+        self.homing = True
+        acc = self.ramps()[0]
+        self.run((-1 if method == 17 else 1) * self.get(L_HM_V) * INC_PER_RPM, acc, acc)
+
+    def mode_now(self) -> int:
+        return self.get(L_OPMODE) if self.clock - self.mode_at >= self.mode_lag else self.mode
+
+    def tick_homing(self) -> None:
+        """The negative limit switch reached in a homing search: that is the reference."""
+        if self.homing and self.pos <= L_LIMIT_NEGATIVE:
+            self.homing = False
+            self.settle(float(self.get(L_HM_HOME)))
+            self.homed = self.ref_ok = True
+
+    def _tick(self) -> None:
+        super()._tick()
+        self.tick_homing()
+
+    # -- DCOMstatus ---------------------------------------------------------------------------
+
+    def status(self) -> int:
+        sw = L_STATES[self.state] | 0x0200 | (0x8000 if self.ref_ok else 0)
+        if self.state != "operation_enabled":
+            return sw
+        mode = self.mode_now()
+        at_rest = not self.moving
+        if mode == 1:
+            sw |= 0x1000 if self.ack else 0
+            sw |= 0x0400 if at_rest else 0
+        elif mode == 3:
+            sw |= 0x0400 if self.vel == self.speed or (self.halted and at_rest) else 0
+        elif mode == 6:
+            sw |= 0x1400 if self.homed else (0x0400 if at_rest and self.halted else 0)
+        return sw | (0x0100 if self.halted and self.moving else 0)
+
+    async def action(self, function: int, start: int, address: int, count: int,
+                     registers: list[int], values: Any) -> Any:
+        """pymodbus's hook: a request must take whole parameters; writes act."""
+        from pymodbus.constants import ExcCodes
+
+        firsts = set(L_PARAMS)
+        if address not in firsts or (address + count) not in firsts | {a + 2 for a in firsts}:
+            return ExcCodes.ILLEGAL_ADDRESS  # "two consecutive 16 bit ... must be read"
+        self.advance(time.monotonic())
+        if values is not None:
+            self.writes.append((address, list(values)))
+            for i, v in enumerate(values):
+                self.regs[address + i] = v
+            span = range(address, address + len(values))
+            if L_OPMODE in span:
+                self.mode, self.mode_at = self.mode_now(), self.clock
+            if L_CONTROL in span:
+                self.control(self.get(L_CONTROL))
+            elif L_PV_TARGET in span and self.state == "operation_enabled" and \
+                    self.mode_now() == 3 and not self.halted:
+                self.run(self.get(L_PV_TARGET) * INC_PER_RPM, *self.ramps())
+        for a, v in ((L_STATUS, self.status()), (L_OPMODE_ACT, self.mode_now()),
+                     (L_P_ACT, self.position), (L_V_ACT, round(self.vel / INC_PER_RPM)),
+                     (L_ERROR, self.error)):
+            self.regs[a], self.regs[a + 1] = _words(v)
+        for a, v in self.regs.items():
+            registers[a - start] = v
+        return None
+
+
+def lexium_machine(line: dict[str, Any], limits: bool = True,
+                   drive_file: Path = LEXIUM) -> dict[str, Any]:
+    """One axis on the emulated Lexium 32: 16384 usr_p per revolution, 10 mm per
+    revolution."""
+    axis: dict[str, Any] = {
+        "line": "bus", "address": 1, "drive": str(drive_file), "pulses_per_rev": 16384,
+        "units_per_rev": 10.0, "unit": "mm", "speed": 60.0, "accel": 600.0, "decel": 600.0,
+        "poll": {"moving": 0.01, "idle": 0.05},
+        "homing": {"method": "negative_limit", "speed": 60.0, "creep": 10.0, "accel": 600.0},
+    }
+    if limits:
+        axis["limits"] = [-20.0, 200.0]
+    return {"name": "lexium", "lines": {"bus": line}, "axes": {"a": axis}}
+
+
+async def test_the_lexium32_description_drives_an_independent_cia402_emulator() -> None:
+    lx = Lexium32()
+    with anyio.fail_after(60):
+        async with served(lx, L_READ_ONLY, "tcp") as line, \
+                open_machine(lexium_machine(line)) as m:
+            a = m.axes["a"]
+            await a.enable()
+            assert lx.states == ["ready", "switched_on", "operation_enabled"] or \
+                lx.states == ["ready", "operation_enabled"]
+            # every controlword is one FC16 of two registers, high word first
+            assert all(len(v) == 2 and v[0] == 0 for addr, v in lx.writes if addr == L_CONTROL)
+            await a.move_to(20.0)
+            assert lx.position == 32768 and a.position == 20.0
+            assert a.state is AxisState.STANDSTILL
+            # 60 mm/s = 360 rpm; 600 mm/s² = 3600 rpm/s; the target in usr_p
+            assert (lx.get(L_PP_V), lx.get(L_ACC), lx.get(L_DEC)) == (360, 3600, 3600)
+            assert (L_CONTROL, [0, 0x3F]) in lx.writes
+            await a.move_by(-5.0)
+            assert lx.position == 24576
+            # A jog within soft limits is a move to the limit; stop is a halt (bit 8).
+            await a.jog(-5.0, watchdog=None)
+            await until(lambda: lx.vel < 0)
+            await a.stop()
+            assert not lx.moving and lx.writes[-1] == (L_CONTROL, [0, 0x10F])
+            # Homing on the negative limit switch (method 17): HMp_home there, ref_ok set.
+            await a.home()
+            assert lx.ref_ok and lx.position == 0 and a.homed and lx.get(L_HM_METHOD) == 17
+            # Soft limits: nothing is written for a move beyond them.
+            sent = len(lx.writes)
+            with pytest.raises(LimitViolation):
+                await a.move_to(500.0)
+            assert len(lx.writes) == sent
+            # A fault with the manual's text; fault reset is bit 7's rising edge.
+            lx.fault(0x3200)
+            st = await first_alarm(a)
+            assert st.alarm_code == 0x3200 and st.alarm_text == "DC bus overvoltage"
+            await a.reset()
+            assert lx.state == "switch_on_disabled" and lx.error == 0
+            # The emergency stop is a quick stop: the drive ramps down and stays in Quick
+            # Stop Active (reaction 6); enabling again goes through Switch on disabled.
+            await a.enable()
+            await a.jog(5.0, watchdog=None)
+            await until(lambda: lx.vel > 0)
+            await a.halt_now()
+            await until(lambda: not lx.moving, timeout=2.0)
+            assert lx.state == "quick_stop_active" and lx.writes[-1] == (L_CONTROL, [0, 0x02])
+            assert not (await a.refresh()).enabled
+            await a.enable()
+            assert lx.state == "operation_enabled"
+            await a.move_to(5.0)
+            assert lx.position == 8192
+    # A new session on the same drive: homed at once, from ref_ok.
+    async with served(lx, L_READ_ONLY, "tcp") as line, open_machine(lexium_machine(line)) as m:
+        assert (await m.axes["a"].refresh()).homed
+
+
+async def test_the_lexium32_runs_at_a_speed_in_profile_velocity() -> None:
+    """Without soft limits a jog is profile velocity (mode 3) at a signed speed in rpm."""
+    lx = Lexium32()
+    with anyio.fail_after(60):
+        async with served(lx, L_READ_ONLY, "tcp") as line, \
+                open_machine(lexium_machine(line, limits=False)) as m:
+            a = m.axes["a"]
+            await a.enable()
+            await a.jog(-20.0, watchdog=None)
+            await until(lambda: lx.vel == -120 * INC_PER_RPM)
+            assert lx.get(L_OPMODE) == 3 and lx.get(L_PV_TARGET) == -120
+            await a.stop()
+            assert not lx.moving and lx.halted
+
+
+def test_the_lexium32_description_passes_its_check_and_trial() -> None:
+    assert "LEXIUM-32 (cia402 engine)" in drive("check", LEXIUM)
+    assert "12 passed, 0 failed, 0 skipped" in drive("try", LEXIUM)
+
+
+async def test_a_cia402_home_offset_without_its_object_is_refused(tmp_path: Path) -> None:
+    """A homing offset the description has no register for (607C) is NotSupported before
+    any frame, not dropped; with the register the offset is written."""
+    text = LEXIUM.read_text(encoding="utf-8")
+    start = text.index("[registers.hm_p_home]")
+    path = tmp_path / "lexium_no_offset.toml"
+    path.write_text(text[:start] + text[text.index("[homing.methods]"):], encoding="utf-8")
+    for desc, refused in ((load_description(path), True), (load_description(LEXIUM), False)):
+        twin = described_twin(desc)(1, FAST)
+        async with sim_bus([twin], FAST) as (wire, bus):
+            profile = profile_class(desc)(bus.slave(1))
+            await profile.enable()
+            wire.clear_log()
+            params = HomingParams("position_setting", offset=100)
+            if refused:
+                with pytest.raises(NotSupported, match=r"cannot home with an offset of 100 "
+                                                       r"pulses .*maps no register to "
+                                                       r"home_offset \(607C\)"):
+                    await profile.start_homing(params)
+                assert wire.requests() == []
+            else:
+                await profile.start_homing(params)
+                assert any(f.data[2:4] == L_HM_HOME.to_bytes(2, "big")
+                           for f in wire.requests())
+
+
+# == both beside a seed drive ==================================================================
+
+
+async def test_the_az_and_the_lexium32_share_a_machine_with_a_seed_drive() -> None:
+    """The NT86 (simulated line), the AZ (emulator on a pty) and the Lexium 32 (emulator on
+    Modbus TCP) in one machine: a group move, then every axis jogging and an emergency
+    stop, judged by the twin and the emulators."""
+    az, lx = AzDriver(), Lexium32()
+
+    def axis(line: str, drive_ref: str | Path, ppr: int) -> dict[str, Any]:
+        return {"line": line, "address": 1, "drive": str(drive_ref), "pulses_per_rev": ppr,
+                "units_per_rev": 10.0, "speed": 50.0, "accel": 500.0, "decel": 500.0,
+                "limits": [-100.0, 300.0], "poll": {"moving": 0.01, "idle": 0.05}}
+
+    with anyio.fail_after(60):
+        async with served(az, AZ_READ_ONLY, "rtu") as az_line, \
+                served(lx, L_READ_ONLY, "tcp") as lx_line:
+            cfg = {"name": "more-mixed",
+                   "lines": {"rs485": {"port": "sim://more-mixed", "settings": "115200 8N1",
+                                       "timeout": 0.1},
+                             "az": az_line, "lx": lx_line},
+                   "axes": {"x": axis("rs485", "NT86", 4000), "o": axis("az", AZ, 1000),
+                            "s": axis("lx", LEXIUM, 16384)}}
+            async with open_machine(cfg) as m:
+                for a in m.axes.values():
+                    await a.enable()
+                await m.group("x", "o", "s").move_to({"x": 40.0, "o": 25.0, "s": -12.5})
+                nt86 = m.sim_drives["x"]
+                assert (nt86.position(), az.position, lx.position) == (16000, 2500, -20480)
+                assert all(a.state is AxisState.STANDSTILL for a in m.axes.values())
+                for a in m.axes.values():
+                    await a.jog(5.0, watchdog=None)
+                await until(lambda: nt86.is_moving() and az.vel > 0 and lx.vel > 0)
+                async with anyio.create_task_group() as tg:
+                    for a in m.axes.values():
+                        tg.start_soon(a.halt_now)
+                assert not nt86.is_moving() and not az.moving and not lx.moving
+                assert lx.state == "quick_stop_active"
