@@ -32,7 +32,7 @@ from drivebus import AxisState, LineSettings, open_machine
 from drivebus.drives.base import HomingParams
 from drivebus.drives.description import load_description
 from drivebus.drives.engine import profile_class
-from drivebus.errors import LimitViolation, NotSupported, StateError
+from drivebus.errors import ConfigError, LimitViolation, NotSupported, StateError
 from drivebus.sim import sim_bus
 from drivebus.sim.described import described_twin
 from pymodbus_servers import PYMODBUS
@@ -747,3 +747,54 @@ async def test_the_az_and_the_lexium32_share_a_machine_with_a_seed_drive() -> No
                         tg.start_soon(a.halt_now)
                 assert not nt86.is_moving() and not az.moving and not lx.moving
                 assert lx.state == "quick_stop_active"
+
+
+def placed_by_rule(tmp_path: Path, rule: str, words: str = "words = 2\n") -> Path:
+    """The Lexium 32 description with its objects placed by ``[cia402] address_rule``
+    instead of one register each (a drive whose manual gives a formula of index and
+    sub-index), every object 32 bits wide."""
+    text = LEXIUM.read_text(encoding="utf-8")
+    text = text[:text.index("[registers.dcom_control]")] + text[text.index("[homing.methods]"):]
+    text = text.replace("[cia402]\n", f"""[cia402]
+address_rule = "{rule}"
+objects = ["6040", "6041", "6060", "6061", "6064", "606C", "607A", "6081", "6083", "6084",
+           "6098", "6099:01", "6099:02", "60FF", "603F"]
+velocity = {{ unit = "rpm" }}
+acceleration = {{ unit = "rpm/s" }}
+{words}""").replace('register = "last_error"', 'register = "error_code"')
+    path = tmp_path / "by_rule.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+async def test_objects_placed_by_a_rule_can_all_be_32_bits_wide(tmp_path: Path) -> None:
+    """``[cia402] words = 2``: every object the address rule places takes two registers
+    (16-bit ones too); objects the rule places on each other are named."""
+    from drivebus.drives.base import MoveParams
+
+    desc = load_description(placed_by_rule(tmp_path, "(index - 0x6000) * 4 + sub * 2"))
+    cw = desc.objects["controlword"]
+    assert (cw.register.address, cw.register.words) == (0x100, 2)
+    assert desc.objects["modes_of_operation"].register.words == 2
+    twin = described_twin(desc)(1, FAST)
+    async with sim_bus([twin], FAST) as (wire, bus):
+        profile = profile_class(desc)(bus.slave(1))
+        await profile.enable()
+        frames = [f.data for f in wire.requests() if f.data[2:4] == b"\x01\x00"]
+        assert frames and all(f[1] == 16 and f[4:6] == b"\x00\x02" for f in frames)
+        await profile.move_absolute(8192, MoveParams(300, 50, 50))
+        assert await until_rest(twin) == 8192
+    plain = load_description(placed_by_rule(tmp_path, "(index - 0x6000) * 4 + sub * 2", ""))
+    assert plain.objects["controlword"].register.words == 1
+    with pytest.raises(ConfigError, match=r"cia402\.address_rule: .* both take register 308"):
+        load_description(placed_by_rule(tmp_path, "(index - 0x6000) * 2 + sub"))
+    with pytest.raises(ConfigError, match=r"by_rule\.toml: cia402\.words"):
+        load_description(placed_by_rule(tmp_path, "(index - 0x6000) * 4", "words = 3\n"))
+
+
+async def until_rest(twin: Any) -> int:
+    """A twin's position once it has come to rest (bounded)."""
+    with anyio.fail_after(10):
+        while twin.is_moving():  # noqa: ASYNC110 - the twin is the judge
+            await anyio.sleep(0.005)
+    return int(twin.position())
