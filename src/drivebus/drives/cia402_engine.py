@@ -39,7 +39,7 @@ from drivebus.drives.cia402 import (
 from drivebus.drives.description import Reg
 from drivebus.drives.engine import DescribedProfile, plan_reads
 from drivebus.drives.status import DriveStatus
-from drivebus.drives.values import Attrs
+from drivebus.drives.values import Attrs, Unread
 from drivebus.errors import LimitViolation, StateError
 
 __all__ = ["STATUS_OBJECTS", "Cia402Profile"]
@@ -193,7 +193,7 @@ class Cia402Profile(DescribedProfile):
             enabled=enabled,
             moving=moving,
             in_position=not moving and not fault and (reached or not enabled),
-            homed=self._homed,
+            homed=self._homed or self._bit_says("homed", values),
             alarm=fault,
             alarm_code=int(code) if fault and code is not None else (0 if fault else None),
             alarm_text=self.alarm_text(int(code)) if fault and code else "",
@@ -210,6 +210,18 @@ class Cia402Profile(DescribedProfile):
             timestamp=monotonic(),
         )
         return self._overrides(st, values)
+
+    def _bit_says(self, meaning: str, values: Mapping[str, Any]) -> bool:
+        """Whether a bit of a polled register that ``means`` it is set: a drive's own flag
+        beside the state machine (the Lexium 32's ref_ok, statusword bit 15: homed, also
+        after a reconnect or a homing the engine did not run)."""
+        for reg in self.description.regs.values():
+            v = values.get(reg.key)
+            if v is None or isinstance(v, Unread):
+                continue
+            if any(b.means == meaning and int(v) & b.mask for b in reg.d.bits.values()):
+                return True
+        return False
 
     def _overrides(self, st: DriveStatus, values: Mapping[str, Any]) -> DriveStatus:
         s = self.description.status
@@ -446,6 +458,9 @@ class Cia402Profile(DescribedProfile):
                 values.append((name, v))
         for name, v in values:
             self._raw(name, v)
+        if params.offset and "home_offset" not in self.description.objects:
+            raise self.unsupported(f"home with an offset of {params.offset:g} pulses",
+                                   "its description maps no register to home_offset (607C)")
         await self._enabled_or_raise()
         await self._set_mode(Mode.HOMING)
         await self._write_objects(values)

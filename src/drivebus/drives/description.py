@@ -993,6 +993,10 @@ class Cia402Def(_Model):
     address_rule: E | None = Field(None, description="the address of an object from its "
                                    "`index` and `sub` (for the objects listed in `objects`)")
     objects: list[str] = Field([], description="objects whose registers the rule places")
+    words: Literal[2] | None = Field(None, description="2: every object the rule places "
+                                     "takes two registers, 16-bit ones too (a drive that "
+                                     "stores each parameter in 32 bits); default: by the "
+                                     "object's width")
     position: ObjectUnit = ObjectUnit(unit="pulses")
     velocity: ObjectUnit = ObjectUnit(unit="pulses/s")
     acceleration: ObjectUnit = ObjectUnit(unit="pulses/s²")
@@ -1115,7 +1119,8 @@ class Description(_Model):
             kind = _object_kind(name)
             unit = getattr(c, kind) if kind else None
             out[name] = RegisterDef(
-                address=address, words=2 if info.bits > 16 else 1, signed=info.signed,
+                address=address, words=2 if info.bits > 16 or c.words == 2 else 1,
+                signed=info.signed,
                 access="RW" if info.writable else "R", object=name,
                 unit=unit.unit if unit else "", scale=unit.scale if unit else 1.0,
                 name=info.text)
@@ -1447,6 +1452,7 @@ class _Checker:
                 if unknown:
                     self.out.append(f"cia402.address_rule: {c.address_rule.source!r} may use "
                                     f"only index and sub, not {', '.join(sorted(unknown))}")
+                self._placed_overlaps()
         spaces = {r.space for r in self.regs.values()}
         for space, fc, what in ((0, 3, "holding registers"), (1, 4, "input registers"),
                                 (2, 1, "coils"), (3, 2, "discrete inputs")):
@@ -1462,6 +1468,21 @@ class _Checker:
                                     f"(a register with object = \"{needed}\")")
         elif c is not None:
             self.out.append("cia402: only for drive.engine = \"cia402\"")
+
+    def _placed_overlaps(self) -> None:
+        """Registers the address rule places must not share an address with another."""
+        placed = self.d._generated()
+        owner: dict[int, str] = {}
+        for key, reg in self.d.regs.items():
+            if reg.space != 0:
+                continue
+            for a in reg.addresses():
+                other = owner.setdefault(a, key)
+                if other != key and (key in placed or other in placed):
+                    self.out.append(f"cia402.address_rule: {other} and {key} both take "
+                                    f"register {a} (the rule must space the objects by the "
+                                    f"registers each takes)")
+                    return
 
     def _units(self) -> None:
         ppr = self.d.units.pulses_per_rev
