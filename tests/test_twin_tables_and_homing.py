@@ -9,12 +9,17 @@ is read from the twin's registers and its motion trace."""
 from __future__ import annotations
 
 import tomllib
+from pathlib import Path
 
+import anyio
 import pytest
 
-from drivebus.drives.description import parse_description
+from drivebus import LineSettings
+from drivebus.drives.description import load_description, parse_description
+from drivebus.drives.engine import profile_class
 from drivebus.drives.expr import ExprError
 from drivebus.errors import ConfigError
+from drivebus.sim import sim_bus
 from drivebus.sim.described import DescribedDrive, described_twin
 from drivebus.sim.drive import TwinSetup
 from drivebus.sim.registers import SlaveException
@@ -162,6 +167,7 @@ refuse = true
 ends = { trigger = 0 }
 """
 
+ROOT = Path(__file__).resolve().parents[1]
 SPEED = 10_000.0  # 600 rpm at 1000 pulses/rev, pulses/s
 CREEP = 1_000.0  # 60 rpm
 
@@ -320,3 +326,27 @@ def test_a_homing_offset_mode_must_be_one_of_three() -> None:
 
 def test_a_twin_without_line_settings_takes_the_fastest_rate_in_its_format() -> None:
     assert str(twin_class()(1).settings) == "115200 8N1"
+
+
+# -- a CiA 402 twin's own flags beside the statusword's state bits --------------------------
+
+
+async def test_a_cia402_twin_shows_a_homed_flag_the_description_gives_its_statusword() -> None:
+    """The Lexium 32's DCOMstatus bit 15 (ref_ok, ``means = "homed"``): clear until a
+    homing completes, then set, as the drive's own flag beside the CiA 402 state bits."""
+    desc = load_description(ROOT / "configs" / "drives" / "lexium32.toml")
+    twin = described_twin(desc)(1)
+    async with sim_bus([twin], LineSettings.parse("115200 8N1")) as (_, bus):
+        profile = profile_class(desc)(bus.slave(1))
+        await profile.setup()
+        await profile.enable()
+        word = (await bus.slave(1).read_holding_registers(6916, 2))[1]
+        assert not word & 0x8000 and not (await profile.read_status()).homed
+        await profile.home("position_setting", speed_rpm=60, creep_rpm=10, accel_rps2=10)
+        with anyio.fail_after(5):
+            while True:  # poll the drive as an axis does, until the homing is over
+                if not (await profile.read_status()).homing:
+                    break
+                await anyio.sleep(0.005)
+        word = (await bus.slave(1).read_holding_registers(6916, 2))[1]
+        assert word & 0x8000 and twin.homed
