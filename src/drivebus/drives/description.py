@@ -437,14 +437,26 @@ class Reg:
                 raise LimitViolation(f"{self.name}: no entry {index!r} (it has {shown})")
             index = d.first + d.names.index(index)
         if self.array:
+            entry = self._entries.get(index) if isinstance(index, int) and \
+                not isinstance(index, bool) else None
+            if entry is not None:
+                return entry
             if index is None or isinstance(index, bool) or index not in self.indices:
                 lo, hi = self.indices.start, self.indices.stop - 1
                 raise LimitViolation(f"{self.name}: entry {index!r} is outside {lo}..{hi}")
             n = index - d.first
             name = self._entry_name(index) if "{" in self.name else f"{self.name} {index}"
-            return self._register(name, d.address + n * d.stride,
-                                  None if d.low_address is None else d.low_address + n * d.stride)
+            entry = self._register(name, d.address + n * d.stride,
+                                   None if d.low_address is None else
+                                   d.low_address + n * d.stride)
+            self._entries[index] = entry
+            return entry
         return self.register
+
+    @cached_property
+    def _entries(self) -> dict[int, Register]:
+        """A table's codec registers made so far, by index (each is made once)."""
+        return {}
 
     @cached_property
     def register(self) -> Register:
