@@ -23,6 +23,15 @@ closed-loop stepper drive. What it documents, and what this profile therefore of
   damaged frame silently, its example shows the reply ``01 83 01 80 F0``. Either way the
   frame was *not* executed, so the profile copes with both: silence is a timeout (the bus
   retries reads), exception 01 is retried here for any request, up to the slave's retries.
+
+**Why this is code and not a drive description** (``drivebus/drives/descriptions/``):
+a description's link speaks Modbus function codes over 16-bit register addresses; this
+drive's requests carry an index *and* a sub-index byte, so none of its frames is a Modbus
+PDU. Declaring them as a framing of the link would add a second frame grammar to the
+bus's transaction rules (reply-length prediction, CRC and exception handling) for one
+drive that has no motion objects to describe; its own codec here is shorter and is the
+one place that knows the format. Its twin (``drivebus.sim.drives.od_drive``) is code for
+the same reason.
 """
 
 from __future__ import annotations
