@@ -1,8 +1,8 @@
 """Which simulated twin plays each drive family (the simulator's own registry).
 
 A described family (``drivebus.drives.registry``: a description file) is played by the
-generic twin built from the same description (``drivebus.sim.described``); a family whose
-profile is still code has a twin of its own here.
+generic twin built from the same description (``drivebus.sim.described``); the family whose
+profile is still code (the OD2000) has a twin of its own here.
 """
 
 from __future__ import annotations
