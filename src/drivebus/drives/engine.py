@@ -1303,18 +1303,18 @@ def _ppr_allowed(d: Description) -> Any:
 def _status_plan(d: Description) -> ReadPlan:
     s = d.status
     link = d.link
-    items: list[str | list[str]] = list(s.poll)
-    if not items:
-        names: set[str] = set()
-        for e in (*d.status_exprs.values(), *s.raw.values(), *s.track.values()):
-            names |= e.names
-        for io in (d.inputs,):
-            if io is not None and {"input"} & names:
-                names.add(io.state)
-                if io.invert is not None:
-                    names.add(io.invert)
-        learned = _learned_keys(d)
-        items = sorted(n for n in names if n in d.regs and n not in learned)
+    if s.poll:  # read in the order listed
+        return _plan(d, list(s.poll), link.max_read, link.max_hole, listed=True)
+    names: set[str] = set()
+    for e in (*d.status_exprs.values(), *s.raw.values(), *s.track.values()):
+        names |= e.names
+    for io in (d.inputs,):
+        if io is not None and {"input"} & names:
+            names.add(io.state)
+            if io.invert is not None:
+                names.add(io.invert)
+    learned = _learned_keys(d)
+    items: list[str | list[str]] = sorted(n for n in names if n in d.regs and n not in learned)
     return _plan(d, items, link.max_read, link.max_hole)
 
 
@@ -1331,7 +1331,7 @@ def _learned_keys(d: Description) -> set[str]:
 
 
 def _plan(d: Description, items: Sequence[str | list[str]], max_read: int,
-          max_hole: int) -> ReadPlan:
+          max_hole: int, listed: bool = False) -> ReadPlan:
     targets: list[tuple[Reg, int | None]] = []
     spans: list[tuple[int, int]] = []
     regs = d.regs
@@ -1351,7 +1351,8 @@ def _plan(d: Description, items: Sequence[str | list[str]], max_read: int,
             reg = regs[item.split("[", 1)[0]]
             targets.extend((reg, i) for i in (reg.indices if reg.array else [None]))
     plan = plan_reads(targets, max_read=max_read, max_hole=max_hole, spans=spans)
-    return _in_listed_order(plan, [(d.regs[_item_key(i)], i) for i in items])
+    return _in_listed_order(plan, [(d.regs[_item_key(i)], i) for i in items]) if listed \
+        else plan
 
 
 def _item_key(item: str | list[str]) -> str:
