@@ -182,6 +182,47 @@ _LINE_KINDS = Literal["serial", "rtu-over-tcp", "tcp"]
 _FORMAT = r"^[5-8][NEO][12]$"
 
 
+class ParameterNumbers(_Model):
+    """``[link] parameter_numbers``: how the manual's parameter numbers (``"P5-07"``) give
+    register addresses, for a manual that lists parameters by group and number."""
+
+    pattern: str = Field(description="the numbers' form, its parts in braces: 'P{group}-{number}'")
+    address: E = Field(description="the address of a number, an expression of its parts: "
+                       "'group * 0x100 + number * 2'")
+
+    @model_validator(mode="after")
+    def _check(self) -> ParameterNumbers:
+        parts = re.findall(r"{([A-Za-z_]\w*)}", self.pattern)
+        if not parts:
+            raise ValueError(f"pattern {self.pattern!r}: name its numbered parts in braces, "
+                             "'P{group}-{number}'")
+        unknown = self.address.names - set(parts) - set(FUNCTIONS)
+        if unknown:
+            raise ValueError(f"address {self.address.source!r}: {', '.join(sorted(unknown))} "
+                             f"is not a part of the pattern {self.pattern!r}")
+        return self
+
+    def regex(self) -> re.Pattern[str]:
+        """The pattern as a regular expression (each part a decimal number)."""
+        out = ""
+        for literal, part in re.findall(r"([^{]*)(?:{([A-Za-z_]\w*)})?", self.pattern):
+            out += re.escape(literal) + (f"(?P<{part}>[0-9]+)" if part else "")
+        return re.compile(out, re.IGNORECASE)
+
+    def resolve(self, number: str) -> int:
+        """The register address of the manual's parameter ``number``; ``ValueError`` if it
+        is not of the pattern's form or its address is not a register's."""
+        m = self.regex().fullmatch(number.strip())
+        if m is None:
+            raise ValueError(f"{number!r} is not a parameter number of the form "
+                             f"{self.pattern!r} (link.parameter_numbers)")
+        address = self.address({k: int(v) for k, v in m.groupdict().items()})
+        if not isinstance(address, int) or not 0 <= address <= 0xFFFF:
+            raise ValueError(f"{number!r}: link.parameter_numbers gives {address!r}, not a "
+                             "register address (0..65535)")
+        return address
+
+
 class Link(_Model):
     """``[link]``: how the drive is reached and what it accepts."""
 
@@ -212,6 +253,9 @@ class Link(_Model):
         0, description="the number the manual gives the first register: 0 (PDU addresses, "
         "as on the wire), 1 (1-based) or 40001 (4xxxx numbering; input registers 3xxxx); "
         "[registers] addresses are then the manual's numbers")
+    parameter_numbers: ParameterNumbers | None = Field(
+        None, description="registers' addresses from the manual's parameter numbers: "
+        "address = \"P5-07\"")
     exceptions: Annotated[dict[int, str], IntKeyed] = {}
     refusals: Refusals = Refusals()
     timing: Timing = Timing()
@@ -1263,6 +1307,7 @@ class _KeyName(str):
 def parse_description(data: Mapping[str, Any], source: str = "description") -> Description:
     """Validate a description mapping; one ``ConfigError`` names ``source``, each key
     path and the problem."""
+    data = _numbered(data, source)
     try:
         desc = Description.model_validate(dict(data))
     except ValidationError as exc:
@@ -1273,6 +1318,52 @@ def parse_description(data: Mapping[str, Any], source: str = "description") -> D
         shown = problems[:8] + ([f"and {len(problems) - 8} more"] if len(problems) > 8 else [])
         raise ConfigError(f"{source}: {'; '.join(shown)}")
     return desc
+
+
+def _numbered(data: Mapping[str, Any], source: str) -> dict[str, Any]:
+    """``data`` with each register address given as the manual's parameter number
+    (``address = "P5-07"``) replaced by the address ``[link] parameter_numbers`` gives it;
+    one ``ConfigError`` naming the register's key otherwise."""
+    registers = data.get("registers")
+    out = dict(data)
+    if not isinstance(registers, dict) or not any(
+            isinstance(r, dict) and any(isinstance(r.get(f), str) for f in _NUMBERED)
+            for r in registers.values()):
+        return out
+    link = data.get("link", {})
+    rule = link.get("parameter_numbers") if isinstance(link, dict) else None
+    try:
+        numbers = ParameterNumbers.model_validate(rule) if rule is not None else None
+    except ValidationError as exc:
+        problems = "; ".join(validation_problems(exc, model=ParameterNumbers,
+                                                 prefix="link.parameter_numbers"))
+        raise ConfigError(f"{source}: {problems}") from None
+    resolved = {}
+    for key, reg in registers.items():
+        if isinstance(reg, dict):
+            reg = dict(reg)
+            for f in _NUMBERED:
+                number = reg.get(f)
+                if not isinstance(number, str):
+                    continue
+                if numbers is None:
+                    raise ConfigError(
+                        f"{source}: registers.{key}.{f}: {number!r} is a parameter number: "
+                        "say how numbers give addresses in [link] parameter_numbers = "
+                        "{ pattern = 'P{group}-{number}', address = 'group * 0x100 + "
+                        "number * 2' } (or give the address)")
+                try:
+                    reg[f] = numbers.resolve(number)
+                except (ValueError, ExprError) as exc:
+                    raise ConfigError(f"{source}: registers.{key}.{f}: {exc}") from None
+                if f == "address":
+                    reg.setdefault("name", number)
+        resolved[key] = reg
+    out["registers"] = resolved
+    return out
+
+
+_NUMBERED = ("address", "low_address")
 
 
 def read_toml(p: Path, noun: str) -> dict[str, Any]:

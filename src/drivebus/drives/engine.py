@@ -17,7 +17,7 @@ import inspect
 import math
 import re
 from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Annotated, Any, ClassVar, Literal
 
 import anyio
@@ -1303,18 +1303,18 @@ def _ppr_allowed(d: Description) -> Any:
 def _status_plan(d: Description) -> ReadPlan:
     s = d.status
     link = d.link
-    items: list[str | list[str]] = list(s.poll)
-    if not items:
-        names: set[str] = set()
-        for e in (*d.status_exprs.values(), *s.raw.values(), *s.track.values()):
-            names |= e.names
-        for io in (d.inputs,):
-            if io is not None and {"input"} & names:
-                names.add(io.state)
-                if io.invert is not None:
-                    names.add(io.invert)
-        learned = _learned_keys(d)
-        items = sorted(n for n in names if n in d.regs and n not in learned)
+    if s.poll:  # read in the order listed
+        return _plan(d, list(s.poll), link.max_read, link.max_hole, listed=True)
+    names: set[str] = set()
+    for e in (*d.status_exprs.values(), *s.raw.values(), *s.track.values()):
+        names |= e.names
+    for io in (d.inputs,):
+        if io is not None and {"input"} & names:
+            names.add(io.state)
+            if io.invert is not None:
+                names.add(io.invert)
+    learned = _learned_keys(d)
+    items: list[str | list[str]] = sorted(n for n in names if n in d.regs and n not in learned)
     return _plan(d, items, link.max_read, link.max_hole)
 
 
@@ -1331,7 +1331,7 @@ def _learned_keys(d: Description) -> set[str]:
 
 
 def _plan(d: Description, items: Sequence[str | list[str]], max_read: int,
-          max_hole: int) -> ReadPlan:
+          max_hole: int, listed: bool = False) -> ReadPlan:
     targets: list[tuple[Reg, int | None]] = []
     spans: list[tuple[int, int]] = []
     regs = d.regs
@@ -1350,7 +1350,31 @@ def _plan(d: Description, items: Sequence[str | list[str]], max_read: int,
         else:
             reg = regs[item.split("[", 1)[0]]
             targets.extend((reg, i) for i in (reg.indices if reg.array else [None]))
-    return plan_reads(targets, max_read=max_read, max_hole=max_hole, spans=spans)
+    plan = plan_reads(targets, max_read=max_read, max_hole=max_hole, spans=spans)
+    return _in_listed_order(plan, [(d.regs[_item_key(i)], i) for i in items]) if listed \
+        else plan
+
+
+def _item_key(item: str | list[str]) -> str:
+    return (item[0] if isinstance(item, list) else item).split("[", 1)[0].strip()
+
+
+def _in_listed_order(plan: ReadPlan, listed: Sequence[tuple[Reg, str | list[str]]]
+                     ) -> ReadPlan:
+    """``plan`` with its reads of each kind in the order their registers are listed (a
+    drive whose status takes several reads: the poll reads its motion state before the
+    position, so a position read after the drive has come to rest is its final one)."""
+    def rank(blocks: tuple[tuple[int, int], ...], space: int) -> tuple[tuple[int, int], ...]:
+        def first_listed(block: tuple[int, int]) -> int:
+            start, count = block
+            for n, (reg, _) in enumerate(listed):
+                if reg.space == space and start <= reg.register.address < start + count:
+                    return n
+            return len(listed)
+        return tuple(sorted(blocks, key=first_listed))
+    return replace(
+        plan, blocks=rank(plan.blocks, 0), input_blocks=rank(plan.input_blocks, 1),
+        coil_blocks=rank(plan.coil_blocks, 2), discrete_blocks=rank(plan.discrete_blocks, 3))
 
 
 def _static_target(d: Description, key: str) -> Register:
