@@ -448,3 +448,40 @@ def test_parameter_numbers_give_addresses_and_bad_ones_are_named(tmp_path: Path)
 def test_the_delta_asda_b2_description_passes_its_check() -> None:
     out = drive("check", DELTA)
     assert "DELTA-ASDA-B2 (command engine)" in out and "FC03 1294" not in out
+
+
+def test_the_delta_asda_b2_description_passes_its_trial() -> None:
+    """``drivebus drive try``: the description against the generic twin of its ``[twin]``
+    section (written from the parameter chapter apart from the procedures)."""
+    assert "12 passed, 0 failed, 0 skipped" in drive("try", DELTA)
+
+
+async def test_the_delta_asda_b2_shares_a_machine_with_a_seed_drive() -> None:
+    """The NT86 (simulated line) and the ASDA-B2 (emulator on Modbus TCP) in one machine:
+    a group move, then both jogging and an emergency stop, judged by the twin and the
+    emulator."""
+    dv = DeltaB2()
+    with anyio.fail_after(60):
+        async with delta_served(dv, "tcp") as line:
+            cfg = delta_machine(line)
+            cfg["name"] = "delta-mixed"
+            cfg["lines"]["rs485"] = {"port": "sim://delta-mixed", "settings": "115200 8N1",
+                                     "timeout": 0.1}
+            cfg["axes"]["x"] = {"line": "rs485", "address": 1, "drive": "NT86",
+                                "pulses_per_rev": 4000, "units_per_rev": 10.0, "speed": 50.0,
+                                "accel": 500.0, "decel": 500.0, "limits": [-100.0, 300.0],
+                                "poll": {"moving": 0.01, "idle": 0.05}}
+            async with open_machine(cfg) as m:
+                for a in m.axes.values():
+                    await a.enable()
+                await m.group("x", "a").move_to({"x": 40.0, "a": 25.0})
+                nt86 = m.sim_drives["x"]
+                assert (nt86.position(), round(dv.pos)) == (16000, 250000)
+                assert all(a.state is AxisState.STANDSTILL for a in m.axes.values())
+                for a in m.axes.values():
+                    await a.jog(5.0, watchdog=None)
+                await until(lambda: nt86.is_moving() and dv.vel > 0)
+                async with anyio.create_task_group() as tg:
+                    for a in m.axes.values():
+                        tg.start_soon(a.halt_now)
+                assert not nt86.is_moving() and not dv.moving
