@@ -132,6 +132,14 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
      ("registers.other.parameter", "key 'x' is also registers.enable's")),
     ("address register", MINIMAL + "\n[link]\naddress_register = 'addr'\n",
      ("link.address_register", "no register 'addr'")),
+    ("write read-only", MINIMAL.replace("write = { enable = 1 }", "write = { status = 1 }"),
+     ("procedures.enable.steps[0].write", "register status is read-only")),
+    ("modify read-only", MINIMAL + "\n[procedures.stop]\nsteps = [{ modify = 'status', "
+     "set_bits = '1' }]\n", ("procedures.stop.steps[0].modify", "register status is read-only")),
+    ("procedure name", MINIMAL.replace("[procedures.enable]", "[procedures.enabel]"),
+     ("procedures.enabel", "did you mean 'enable'")),
+    ("not an address", MINIMAL.replace("address = 1", "address = 'one'"),
+     ("registers.enable.address", "'one' is not an address")),
 ]
 
 

@@ -15,6 +15,8 @@ file: any mistake is one ``ConfigError`` naming the file, the key path and the p
 
 from __future__ import annotations
 
+import difflib
+
 import re
 import tomllib
 from collections.abc import Iterable, Iterator, Mapping
@@ -906,6 +908,9 @@ PROCEDURES: dict[str, tuple[str, tuple[str, ...]]] = {
 }
 """The common procedures: what a NotSupported error says, and the names they pass."""
 
+EXTRA_PROCEDURES = ("set_output", "prepare_table", "start_table")
+"""Procedures the engine runs besides the common ones (I/O and motion programs)."""
+
 
 # -- the twin -----------------------------------------------------------------------------
 
@@ -1348,10 +1353,11 @@ def _numbered(data: Mapping[str, Any], source: str) -> dict[str, Any]:
                     continue
                 if numbers is None:
                     raise ConfigError(
-                        f"{source}: registers.{key}.{f}: {number!r} is a parameter number: "
-                        "say how numbers give addresses in [link] parameter_numbers = "
-                        "{ pattern = 'P{group}-{number}', address = 'group * 0x100 + "
-                        "number * 2' } (or give the address)")
+                        f"{source}: registers.{key}.{f}: {number!r} is not an address: give "
+                        "a number (6, 0x0006) or, where the manual numbers its parameters "
+                        "(a parameter number such as 'P5-07'), say how numbers give "
+                        "addresses in [link] parameter_numbers = { pattern = "
+                        "'P{group}-{number}', address = 'group * 0x100 + number * 2' }")
                 try:
                     reg[f] = numbers.resolve(number)
                 except (ValueError, ExprError) as exc:
@@ -1454,8 +1460,17 @@ class _Checker:
             self._reg_key("alarms.register", d.alarms.reg)
         for name, sig in d.signals.items():
             self._reg_key(f"signals.{name}.register", sig.reg)
+        called = {step.call for proc in d.procedures.values() for step in proc.steps
+                  if step.call is not None}
         for name, proc in d.procedures.items():
             self._procedure(name, proc)
+            known = [*PROCEDURES, *EXTRA_PROCEDURES]
+            close = difflib.get_close_matches(name, known, n=1, cutoff=0.8)
+            if name not in known and name not in called and close:
+                # the drive's own procedure (profile.NAME), but named like a common one
+                self.out.append(f"procedures.{name}: did you mean {close[0]!r}? (the engine "
+                                f"runs {close[0]}; a procedure of the drive's own needs a "
+                                "name of its own)")
         for i, oc in enumerate(d.option_checks):
             self._names(f"option_checks[{i}].check", oc.check)
             self._names(f"option_checks[{i}].message", oc.message)
@@ -1720,7 +1735,7 @@ class _Checker:
                 self._names(f"{where}.each", Expr.parse(source), params)
                 params = params | {name.strip()}
             for key, item in step.write.items():
-                self._target(f"{where}.write", key, params)
+                self._target(f"{where}.write", key, params, writes=True)
                 self._names(f"{where}.write.{key}", item.value, params)
         if step.read is not None:
             for j, item in enumerate(step.read):
@@ -1729,7 +1744,7 @@ class _Checker:
                 else:
                     self._span(f"{where}.read[{j}]", item)
         if step.modify is not None:
-            self._target(f"{where}.modify", step.modify, params)
+            self._target(f"{where}.modify", step.modify, params, writes=True)
             reg = self.regs.get(step.modify.split("[", 1)[0].strip())
             if reg is not None and reg.space in (2, 3):
                 self.out.append(f"{where}.modify: {reg.key} is a coil or discrete input: "
@@ -1745,8 +1760,10 @@ class _Checker:
                                     f"in [state])")
                 self._names(f"{where}.set.{k}", e, params)
 
-    def _target(self, where: str, key: str, params: set[str]) -> None:
-        """A written register: ``key`` or ``key[index expression]``."""
+    def _target(self, where: str, key: str, params: set[str], *, writes: bool = False
+                ) -> None:
+        """A register a step names: ``key`` or ``key[index expression]`` (with ``writes``:
+        one the drive takes writes to)."""
         m = re.fullmatch(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[(.+)\])?", key.strip())
         if m is None:
             self.out.append(f"{where}: {key!r} is not a register (KEY or KEY[index])")
@@ -1756,6 +1773,10 @@ class _Checker:
             self.out.append(f"{where}: no register {base!r} (registers: {_some(self.regs)})")
             return
         reg = self.regs[base]
+        if writes and (reg.d.access == "R" or reg.space in (1, 3)):
+            self.out.append(f"{where}: register {base} is read-only (access = \"R\", an input "
+                            "register or a discrete input): a procedure cannot write it")
+            return
         if index is None and reg.array:
             self.out.append(f"{where}: register {base} is a table: name an entry, "
                             f"{base}[index]")
