@@ -16,7 +16,6 @@ file: any mistake is one ``ConfigError`` naming the file, the key path and the p
 from __future__ import annotations
 
 import difflib
-
 import re
 import tomllib
 from collections.abc import Iterable, Iterator, Mapping
