@@ -18,6 +18,9 @@ kinematic of its own (the ``Shaft`` of test_foreign_drives_more): nothing of
 from __future__ import annotations
 
 import logging
+import re
+import subprocess
+import sys
 import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -31,7 +34,15 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from drivebus import AxisState, open_machine
-from drivebus.errors import DriveAlarm, LimitViolation, ModbusException
+from drivebus.drives.description import load_description
+from drivebus.errors import (
+    ConfigError,
+    DriveAlarm,
+    LimitViolation,
+    ModbusException,
+    NotSupported,
+    StateError,
+)
 from pymodbus_servers import PYMODBUS
 from test_foreign_drives import HOST, drive, until
 from test_foreign_drives_more import Shaft, _s32, _words
@@ -453,3 +464,310 @@ async def test_the_iai_shares_a_machine_with_a_seed_drive() -> None:
                         tg.start_soon(a.halt_now)
                 await until(lambda: not rc.moving, timeout=2.0)
                 assert not nt86.is_moving() and rc.remaining is None
+
+
+# == SMC LECP6/LECA6: running with specified step data (from the LEC6 serial manual's words) =
+
+LEC = ROOT / "configs" / "drives" / "smc_lec6.toml"
+# Coils (Y) and discrete inputs (X)
+HOLD, SVON, DRIVE, RESET, SETUP, JOG_M, JOG_P, INPUT_INVALID = (
+    0x18, 0x19, 0x1A, 0x1B, 0x1C, 0x1D, 0x1E, 0x30)
+Y_COILS = (*range(0x10, 0x16), HOLD, SVON, DRIVE, RESET, SETUP, JOG_M, JOG_P, INPUT_INVALID)
+BUSY, SVRE, SETON, INP, AREA, WAREA, ESTOP, ALARM = range(0x48, 0x50)
+X_INPUTS = (*range(0x40, 0x46), *range(0x48, 0x50))
+# Holding registers (D)
+D_POS, D_SPEED, D_THRUST, D_TARGET, D_DATA_NO = 0x9000, 0x9002, 0x9003, 0x9004, 0x9006
+D_START, D_MODE = 0x9100, 0x9102
+D_STEP = range(0x9102, 0x9112)
+D_MONITOR = range(0x9000, 0x9007)
+OP_START = 0x0100
+
+
+@dataclass
+class LecController(Shaft):
+    """An LEC6 controller's serial side, as its manual says it: the coils act only in serial
+    driving mode (Y30 on, lost at power-up); SVON gives SVRE; SETUP's rising edge returns to
+    origin (SETON); D9100 = 0100h starts the step data D9102.. (absolute, or relative to the
+    present position) and reads 0 once taken, which needs SVRE and SETON (else it stays
+    0100h); HOLD decelerates and holds, its release resumes; RESET's edge resets an alarm
+    and interrupts a movement or a hold (the rest is cancelled). FC06 is refused (01)."""
+
+    regs: dict[int, int] = field(default_factory=dict)
+    coils: dict[int, bool] = field(default_factory=lambda: dict.fromkeys(Y_COILS, False))
+    svre: bool = False
+    seton: bool = False
+    alarm: bool = False
+    inp: bool = False
+    phase: str = ""
+    remaining: tuple[float, float, float, float] | None = None
+    frames: list[tuple[int, int, list[int]]] = field(default_factory=list)
+    reads: list[tuple[int, int]] = field(default_factory=list)
+    """Every read received: (function code, address). (pymodbus tells an action how many
+    16-bit words a bit read spans, not how many bits.)"""
+
+    def __post_init__(self) -> None:
+        for a in (*D_MONITOR, D_START, *D_STEP):
+            self.regs[a] = 0
+        self.pos = -777.0  # no absolute encoder: the counter means nothing before SETUP
+
+    def simdata(self) -> tuple[list[Any], list[Any], list[Any], list[Any]]:
+        from pymodbus.simulator import DataType, SimData
+
+        return ([SimData(0x10, count=0x21, values=False, datatype=DataType.BITS)],
+                [SimData(0x40, count=16, values=False, datatype=DataType.BITS)],
+                [SimData(a, values=[v], datatype=DataType.REGISTERS, readonly=a in D_MONITOR)
+                 for a, v in sorted(self.regs.items())],
+                [SimData(0, values=[0], datatype=DataType.REGISTERS)])
+
+    def get(self, a: int) -> int:
+        return _s32(self.regs[a], self.regs[a + 1])
+
+    def coil_writes(self, address: int) -> list[bool]:
+        return [bool(v[0]) for fc, a, v in self.frames if fc == 5 and a == address]
+
+    def raise_alarm(self) -> None:
+        self.alarm, self.phase, self.remaining = True, "", None
+        self.settle(self.pos)
+
+    def landed(self) -> None:
+        if self.phase == "end":
+            self.pos, self.phase = float(END), "back"
+            self.go_to(0.0, HOME_CREEP, self.acc, self.dec)
+            return
+        if self.phase == "back":
+            self.phase, self.seton = "", True
+        self.inp = True
+
+    def _tick(self) -> None:
+        if self.phase == "end" and self.pos <= END - 1000:  # the stroke's end
+            self.settle(self.pos)
+            self.landed()
+            return
+        super()._tick()
+
+    def coil(self, address: int, on: bool) -> None:
+        if address != INPUT_INVALID and not self.coils[INPUT_INVALID]:
+            return  # "only valid when in serial driving mode"
+        before, self.coils[address] = self.coils[address], on
+        rising = on and not before
+        dec = self.regs[D_MODE + 5] * 100.0 or 100000.0
+        if address == SVON:
+            self.svre = on and not self.alarm
+            if not on:
+                self.inp, self.phase, self.remaining = False, "", None
+                self.settle(self.pos)
+        elif address == SETUP and rising and self.svre and not self.coils[HOLD]:
+            self.seton, self.inp, self.phase = False, False, "end"
+            self.go_to(self.pos - 1e7, HOME_SPEED, 100000.0, 100000.0)
+        elif address == HOLD:
+            if rising and self.moving:
+                if self.goal == "to":
+                    self.remaining = (self.target, self.vmax, self.acc, self.dec)
+                self.brake(dec)
+            elif not on and self.remaining is not None:
+                target, vmax, acc, dec = self.remaining
+                self.remaining = None
+                self.go_to(target, vmax, acc, dec)
+        elif address == RESET and rising:
+            self.alarm = False
+            self.remaining, self.phase = None, ""
+            self.brake(dec)
+
+    def start(self) -> None:
+        """D9100 written: the step data starts if the controller can take it."""
+        if self.regs[D_START] != OP_START or not self.svre or not self.seton or self.alarm \
+                or self.coils[HOLD] or self.moving:
+            return  # not taken: D9100 keeps 0100h
+        self.regs[D_START] = 0  # "returns to 0 after processed"
+        mode, value = self.regs[D_MODE], float(self.get(0x9104))
+        target = value if mode == 1 else self.pos + value
+        speed, acc, dec = (self.regs[a] * 100.0 for a in (0x9103, 0x9106, 0x9107))
+        self.inp = False
+        self.go_to(target, speed, acc, dec)
+
+    def check(self, address: int, values: list[int]) -> ExcCodes | None:
+        w = {**self.regs, **dict(zip(range(address, address + len(values)), values,
+                                     strict=True))}
+        if w[D_MODE] not in (0, 1, 2) or w[0x9108] > 100 or w[0x9109] > 100 \
+                or w[0x910B] > 300 or (address <= 0x9103 < address + len(values)
+                                       and not w[0x9103]):
+            return ExcCodes.ILLEGAL_VALUE
+        return None
+
+    def inputs(self) -> dict[int, bool]:
+        return {BUSY: self.moving, SVRE: self.svre, SETON: self.seton,
+                INP: self.inp and not self.moving and self.svre, AREA: False, WAREA: False,
+                ESTOP: False, ALARM: self.alarm}
+
+    async def action(self, function: int, start: int, address: int, count: int,
+                     registers: list[int], values: Any) -> Any:
+        """pymodbus's hook on every access."""
+        self.advance(time.monotonic())
+        if function == 6:
+            return ExcCodes.ILLEGAL_FUNCTION  # "doesn't accept individual register writes"
+        if function in (1, 2, 5):
+            bits, valid = (self.coils, Y_COILS) if function in (1, 5) else \
+                (self.inputs(), X_INPUTS)
+            if address not in valid:
+                return ExcCodes.ILLEGAL_ADDRESS
+            if function == 5:
+                if values is None:
+                    return None  # (pymodbus reads the coil back)
+                on = bool(values[0] if isinstance(values, list) else values)
+                self.frames.append((5, address, [int(on)]))
+                self.coil(address, on)
+                return None
+            self.reads.append((function, address))
+            for a, on in bits.items():  # the block's words, bit a % 16 of word a // 16
+                i = a // 16 - start
+                if 0 <= i < len(registers):
+                    registers[i] = registers[i] & ~(1 << a % 16) | (int(on) << a % 16)
+            return None
+        if values is not None:
+            values = list(values)
+            refused = self.check(address, values)
+            if refused is not None:
+                return refused
+            self.frames.append((function, address, values))
+            self.regs.update(zip(range(address, address + len(values)), values, strict=True))
+            if address == D_START:
+                self.start()
+        else:
+            self.reads.append((function, address))
+        hi, lo = _words(self.position)
+        self.regs.update({D_POS: hi, D_POS + 1: lo, D_SPEED: round(self.vel / 100) & 0xFFFF})
+        for a in range(start, start + len(registers)):
+            if a in self.regs:
+                registers[a - start] = self.regs[a]
+        return None
+
+
+def lec_machine(line: dict[str, Any], limits: bool = True) -> dict[str, Any]:
+    """One axis on the emulated controller: a 10 mm lead, 0.01 mm per pulse."""
+    axis: dict[str, Any] = {
+        "line": "bus", "address": 1, "drive": str(LEC), "pulses_per_rev": 1000,
+        "units_per_rev": 10.0, "unit": "mm", "speed": 60.0, "accel": 600.0, "decel": 600.0,
+        "poll": {"moving": 0.01, "idle": 0.05},
+        "homing": {"method": "return_to_origin", "speed": 20.0, "creep": 5.0, "accel": 600.0},
+    }
+    if limits:
+        axis["limits"] = [0.0, 250.0]
+    return {"name": "lec", "lines": {"bus": line}, "axes": {"a": axis}}
+
+
+@pytest.mark.parametrize("transport", ["rtu", "tcp"])
+async def test_the_smc_lec6_description_drives_an_independent_emulator(transport: str) -> None:
+    lec = LecController()
+    with anyio.fail_after(60):
+        async with served(lec, transport) as line, open_machine(lec_machine(line)) as m:
+            a = m.axes["a"]
+            assert not (await a.refresh()).enabled
+            # the status poll: the discrete inputs BUSY..ALARM (FC02), then the position
+            # and speed (FC03): a position read after BUSY fell is the final one
+            assert lec.reads[-2:] == [(2, BUSY), (3, D_POS)]
+            await a.enable()
+            # setup: the serial driving mode first (the coils act only with it on)
+            assert [f[1:] for f in lec.frames] == [(INPUT_INVALID, [1]), (HOLD, [0]),
+                                                   (SVON, [1])]
+            assert lec.svre
+            # Before the return to origin the controller does not take the step data:
+            # D9100 keeps 0100h, and the profile says so.
+            with pytest.raises(StateError, match="did not take the step data"):
+                await a.move_to(20.0)
+            assert not lec.moving and lec.position == -777
+            await a.reset()
+            await a.enable()
+            await a.home()
+            assert lec.seton and lec.position == 0 and a.homed
+            assert lec.coil_writes(SETUP)[-2:] == [False, True]
+            # The step data in one FC16 (absolute, 60 mm/s, 20.00 mm, 600 mm/s² both ways,
+            # no push, moving force 100 %, in position 0.10 mm), then D9100 = 0100h, also
+            # with FC16: the controller has no FC06.
+            await a.move_to(20.0)
+            assert lec.position == 2000 and a.position == 20.0
+            assert lec.frames[-2:] == [
+                (16, D_MODE, [1, 60, 0, 2000, 600, 600, 0, 0, 1, 100, 0, 0, 0, 0, 0, 10]),
+                (16, D_START, [OP_START])]
+            await a.move_by(-5.0)
+            assert lec.position == 1500 and lec.frames[-2][2][:4] == [2, 60, *_words(-500)]
+            # A jog within the soft limits is a move to the limit; stop = RESET's edge.
+            await a.jog(-5.0, watchdog=None)
+            await until(lambda: lec.vel < 0)
+            await a.stop()
+            assert not lec.moving and 0 < lec.position < 1500
+            assert [f[1:] for f in lec.frames[-2:]] == [(RESET, [1]), (RESET, [0])]
+            sent = len(lec.frames)
+            with pytest.raises(LimitViolation):
+                await a.move_to(500.0)
+            assert len(lec.frames) == sent
+            # The ALARM flag (no code over Modbus) with the description's text; RESET.
+            lec.raise_alarm()
+            st = await first_alarm(a)
+            assert st.alarm_text.startswith("controller alarm")
+            await a.reset()
+            assert not lec.alarm
+            # The emergency stop: HOLD, RESET's edge cancels the rest, HOLD off.
+            await a.enable()
+            await a.jog(5.0, watchdog=None)
+            await until(lambda: lec.vel > 0)
+            await a.halt_now()
+            assert [f[1:] for f in lec.frames[-4:]] == [(HOLD, [1]), (RESET, [1]),
+                                                        (RESET, [0]), (HOLD, [0])]
+            await until(lambda: not lec.moving, timeout=2.0)
+            assert lec.remaining is None and not (await a.refresh()).moving
+            # the controller's own refusals: FC06 (01), a monitor register (02)
+            with pytest.raises(ModbusException) as exc:
+                await a.profile.slave.write_register(0x9103, 10)
+            assert exc.value.code == 1
+            with pytest.raises(ModbusException) as exc:
+                await a.profile.slave.write_registers(D_POS, [0, 0])
+            assert exc.value.code == 2
+            await a.disable()
+            assert not lec.svre and lec.frames[-1] == (5, SVON, [0])
+
+
+async def test_the_smc_lec6_cannot_jog_at_a_speed_and_says_why() -> None:
+    """Without soft limits a jog needs the speed run the LEC6 has not: NotSupported with the
+    manual's reason, before any frame; a power cycle drops the serial driving mode and the
+    axis sets it up again before its next command."""
+    lec = LecController()
+    with anyio.fail_after(60):
+        async with served(lec) as line, open_machine(lec_machine(line, limits=False)) as m:
+            a = m.axes["a"]
+            await a.enable()
+            sent = len(lec.frames)
+            with pytest.raises(NotSupported, match="no speed mode"):
+                await a.jog(5.0, watchdog=None)
+            assert len(lec.frames) == sent
+            assert await a.profile.lost_settings() == []
+            lec.coils[INPUT_INVALID] = False  # a power cycle: parallel input mode again
+            assert await a.profile.lost_settings() == [
+                "Y30 input invalid flag (1: serial input driving mode) (48) = 0, not 1"]
+
+
+def test_the_smc_lec6_description_passes_its_check_and_all_but_one_trial_step() -> None:
+    """The trial's emergency stop runs a speed run first (sim/trial.py), which the LEC6 has
+    not: that step fails with the NotSupported reason; every other step passes."""
+    assert "SMC-LEC6 (command engine)" in drive("check", LEC)
+    done = subprocess.run([sys.executable, "-m", "drivebus.cli", "drive", "try", str(LEC)],
+                          capture_output=True, text=True, timeout=120, check=False, cwd=ROOT)
+    out = done.stdout
+    assert done.returncode == 1 and "10 passed, 1 failed, 1 skipped" in out, out
+    assert re.search(r"emergency stop\s+FAIL\s+NotSupported: .*no speed mode", out)
+
+
+def test_a_span_reads_its_own_address_space(tmp_path: Path) -> None:
+    """A [status] poll span of discrete inputs is read with FC02 (not FC03 at the same
+    numbers); a span whose ends lie in different address spaces is a ConfigError."""
+    poll = next(line for line in drive("check", LEC).splitlines() if "status poll" in line)
+    assert poll.split(": ", 1)[1].split(", ") == ["FC03 36864 (0x9000) ×3",
+                                                  "FC02 72 (0x0048) ×8"]
+    text = LEC.read_text(encoding="utf-8").replace(
+        'poll = [["busy", "alarm"], ["position", "speed_now"]]',
+        'poll = [["busy", "position"], "speed_now"]')
+    bad = tmp_path / "lec.toml"
+    bad.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"status\.poll\[0\]: a span reads one address "
+                                          r"space; busy is a discrete input and position a "
+                                          r"holding register"):
+        load_description(bad)
