@@ -22,11 +22,11 @@ import re
 import subprocess
 import sys
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Collection
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import anyio
 import pytest
@@ -45,7 +45,7 @@ from drivebus.errors import (
 )
 from pymodbus_servers import PYMODBUS
 from test_foreign_drives import HOST, drive, until
-from test_foreign_drives_more import Shaft, _s32, _words
+from test_foreign_drives_more import Shaft, _s32, _words, first_alarm
 from test_pymodbus_peer import null_modem
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -112,7 +112,148 @@ RESETTABLE = {0x080, 0x082, 0x083, 0x084, 0x0D8, 0x0E0}
 
 
 @dataclass
-class RoboCylinder(Shaft):
+class Controller(Shaft):
+    """What both actuator controllers share: their registers and coils, the frames written
+    to them, and the return to origin (to the stroke's end on the negative side, then back
+    at the creep speed to the point that becomes 0), in 0.01 mm."""
+
+    COIL_BLOCK: ClassVar[tuple[int, int]]
+    """(first coil address, count) pymodbus serves; the emulator refuses undocumented ones."""
+    INPUT_BLOCK: ClassVar[tuple[int, int]] = (0, 1)
+    READ_ONLY: ClassVar[Collection[int]]
+    REFUSED: ClassVar[frozenset[int]] = frozenset()
+    """Function codes answered with exception 01."""
+
+    regs: dict[int, int] = field(default_factory=dict)
+    coils: dict[int, bool] = field(default_factory=dict)
+    phase: str = ""
+    """The return to origin's phase: "" (none), "end" (to the stroke's end), "back"."""
+    remaining: tuple[float, float, float, float] | None = None
+    """A paused movement's (target, speed, acc, dec), resumed when the pause ends."""
+    frames: list[tuple[int, int, list[int]]] = field(default_factory=list)
+    """Every write received: (function code, address, values)."""
+    reads: list[tuple[int, int]] = field(default_factory=list)
+    """Every read received: (function code, address)."""
+
+    def simdata(self) -> tuple[list[Any], list[Any], list[Any], list[Any]]:
+        """pymodbus blocks: coils, discrete inputs (bit addresses), holding registers and
+        an input register nobody uses."""
+        from pymodbus.simulator import DataType, SimData
+
+        (c0, cn), (d0, dn) = self.COIL_BLOCK, self.INPUT_BLOCK
+        return ([SimData(c0, count=cn, values=False, datatype=DataType.BITS)],
+                [SimData(d0, count=dn, values=False, datatype=DataType.BITS)],
+                [SimData(a, values=[v], datatype=DataType.REGISTERS,
+                         readonly=a in self.READ_ONLY) for a, v in sorted(self.regs.items())],
+                [SimData(0, values=[0], datatype=DataType.REGISTERS)])
+
+    def get(self, a: int) -> int:
+        return _s32(self.regs[a], self.regs[a + 1])
+
+    def coil_writes(self, address: int) -> list[bool]:
+        return [bool(v[0]) for fc, a, v in self.frames if fc == 5 and a == address]
+
+    def return_to_origin(self, acc: float) -> None:
+        self.phase = "end"
+        self.go_to(self.pos - 1e7, HOME_SPEED, acc, acc)
+
+    def pause(self, dec: float) -> None:
+        """Decelerate and stop, keeping the rest of a position movement to resume."""
+        if self.moving:
+            if self.goal == "to":
+                self.remaining = (self.target, self.vmax, self.acc, self.dec)
+            self.brake(dec)
+
+    def resume(self) -> None:
+        if self.remaining is not None:
+            target, vmax, acc, dec = self.remaining
+            self.remaining = None
+            self.go_to(target, vmax, acc, dec)
+
+    def _tick(self) -> None:
+        if self.phase == "end" and self.pos <= END - 1000:  # the stroke's end, far from 0
+            self.settle(self.pos)
+            self.landed()
+            return
+        super()._tick()
+
+    def landed(self) -> None:
+        if self.phase == "end":  # at the end: reverse, creep to the origin
+            self.pos, self.phase = float(END), "back"
+            self.go_to(0.0, HOME_CREEP, self.acc, self.dec)
+            return
+        if self.phase == "back":
+            self.phase = ""
+            self.at_origin()
+        self.arrived()
+
+    def coil(self, address: int, on: bool) -> None:
+        """A coil written (FC05)."""
+
+    def check(self, address: int, values: list[int]) -> ExcCodes | None:
+        """The exception a register write gets (None: taken)."""
+        return None
+
+    def written(self, address: int, values: list[int]) -> None:
+        """Registers written (FC16), stored: what they do."""
+
+    def inputs(self) -> dict[int, bool]:
+        """The discrete inputs now."""
+        return {}
+
+    def status(self) -> dict[int, int]:
+        """The monitor registers now."""
+        return {}
+
+    async def action(self, function: int, start: int, address: int, count: int,
+                     registers: list[int], values: Any) -> Any:
+        """pymodbus's hook on every access: the monitors up to date, writes act. (For bits
+        pymodbus gives the words of its block, and how many words a read spans.)"""
+        self.advance(time.monotonic())
+        if function in self.REFUSED:
+            return ExcCodes.ILLEGAL_FUNCTION
+        if function in (1, 2, 5):
+            bits = self.inputs() if function == 2 else self.coils
+            if address not in bits:
+                return ExcCodes.ILLEGAL_ADDRESS
+            if function == 5:
+                if values is None:
+                    return None  # pymodbus reads the coil back
+                on = bool(values[0] if isinstance(values, list) else values)  # or False
+                self.frames.append((5, address, [int(on)]))
+                self.coil(address, on)
+                return None
+            self.reads.append((function, address))
+            for a, on in bits.items():  # bit a % 16 of word a // 16
+                i = a // 16 - start
+                if 0 <= i < len(registers):
+                    registers[i] = registers[i] & ~(1 << a % 16) | (int(on) << a % 16)
+            return None
+        if values is not None:
+            values = list(values)
+            refused = self.check(address, values)
+            if refused is not None:
+                return refused
+            self.frames.append((function, address, values))
+            self.regs.update(zip(range(address, address + len(values)), values, strict=True))
+            self.written(address, values)
+        else:
+            self.reads.append((function, address))
+        self.regs.update(self.status())
+        for a in range(start, start + len(registers)):
+            if a in self.regs:
+                registers[a - start] = self.regs[a]
+        return None
+
+    def at_origin(self) -> None:
+        """The return to origin is done."""
+
+    def arrived(self) -> None:
+        """A position movement (or the return to origin) is done."""
+
+
+@dataclass
+class RoboCylinder(Controller):
     """A ROBO Cylinder controller's Modbus side, as its manual says it: the servo coil; the
     alarm reset on its edge (while paused it cancels the remaining travel); the pause
     decelerates and stops, holds every movement while on and resumes the remaining
@@ -123,19 +264,15 @@ class RoboCylinder(Shaft):
     cleared after each movement, a target beyond the soft limits stops 0.2 mm inside them.
     A movement without the servo on, before a home return or during one is an alarm."""
 
-    regs: dict[int, int] = field(default_factory=dict)
+    COIL_BLOCK: ClassVar[tuple[int, int]] = (0x0400, 48)
+    READ_ONLY: ClassVar[Collection[int]] = MONITOR
+
     coils: dict[int, bool] = field(default_factory=lambda: dict.fromkeys(COILS, False))
     servo: bool = False
     alarm: int = 0
     hend: bool = False
     pend: bool = False
-    phase: str = ""
-    """The home return's phase: "" (none), "end" (to the mechanical end), "back"."""
     last_target: float = 0.0
-    remaining: tuple[float, float, float, float] | None = None
-    """A paused movement's (target, speed, acc, dec)."""
-    frames: list[tuple[int, int, list[int]]] = field(default_factory=list)
-    """Every write received: (function code, address, values)."""
 
     def __post_init__(self) -> None:
         for a in (*MONITOR, *COMMAND):
@@ -145,37 +282,15 @@ class RoboCylinder(Shaft):
         self.regs[ACMD] = 30
         self.pos = 1234.0  # no absolute encoder: the counter means nothing before a home
 
-    def simdata(self) -> tuple[list[Any], list[Any], list[Any], list[Any]]:
-        """pymodbus blocks: the coils 0400h..042Fh (bit addresses), a discrete input and an
-        input register nobody uses, the monitor and command registers."""
-        from pymodbus.simulator import DataType, SimData
-
-        return ([SimData(0x0400, count=48, values=False, datatype=DataType.BITS)],
-                [SimData(0, values=[0], datatype=DataType.BITS)],
-                [SimData(a, values=[v], datatype=DataType.REGISTERS, readonly=a in MONITOR)
-                 for a, v in sorted(self.regs.items())],
-                [SimData(0, values=[0], datatype=DataType.REGISTERS)])
-
-    def get(self, a: int) -> int:
-        return _s32(self.regs[a], self.regs[a + 1])
-
-    def coil_writes(self, address: int) -> list[bool]:
-        return [bool(v[0]) for fc, a, v in self.frames if fc == 5 and a == address]
-
     def raise_alarm(self, code: int) -> None:
         self.alarm, self.phase, self.remaining = code, "", None
         self.settle(self.pos)
 
-    def landed(self) -> None:
-        if self.phase == "end":  # the mechanical end: reverse, creep to the origin
-            self.pos, self.phase = float(END), "back"
-            self.go_to(0.0, HOME_CREEP, self.acc, self.dec)
-        elif self.phase == "back":
-            self.phase, self.hend = "", True
-            self.last_target = 0.0
-            self.pend = True
-        else:
-            self.pend = True
+    def at_origin(self) -> None:
+        self.hend, self.last_target = True, 0.0
+
+    def arrived(self) -> None:
+        self.pend = True
 
     # -- coils ---------------------------------------------------------------------------------
 
@@ -194,20 +309,16 @@ class RoboCylinder(Shaft):
             if self.coils[STP]:
                 self.remaining = None  # "the remaining travel will be cancelled"
         elif address == STP:
-            if rising and self.moving:
-                if self.goal == "to":
-                    self.remaining = (self.target, self.vmax, self.acc, self.dec)
-                self.brake(self.dec)
-            elif not on and self.remaining is not None:
-                target, vmax, acc, dec = self.remaining
-                self.remaining = None
-                self.go_to(target, vmax, acc, dec)  # resumes the remaining distance
+            if rising:
+                self.pause(self.dec)
+            elif not on:
+                self.resume()  # "resumes moving for the remaining distance"
         elif address == HOME and rising:
             if not self.servo:
                 self.raise_alarm(0x080)
             elif not self.coils[STP]:
-                self.hend, self.pend, self.phase = False, False, "end"
-                self.go_to(self.pos - 1e7, HOME_SPEED, self.acc_g(), self.acc_g())
+                self.hend = self.pend = False
+                self.return_to_origin(self.acc_g())
         elif address == STOP and rising:
             self.remaining, self.phase = None, ""
             self.brake(self.dec)
@@ -215,13 +326,6 @@ class RoboCylinder(Shaft):
 
     def acc_g(self) -> float:
         return self.regs[ACMD] * G
-
-    def _tick(self) -> None:
-        if self.phase == "end" and self.pos <= END - 1000:  # a stroke's end, far from 0
-            self.settle(self.pos)
-            self.landed()
-            return
-        super()._tick()
 
     # -- the numerical movement command --------------------------------------------------------
 
@@ -234,6 +338,10 @@ class RoboCylinder(Shaft):
                 or not -999999 <= _s32(words[PCMD], words[PCMD + 1]) <= 999999:
             return ExcCodes.ILLEGAL_VALUE
         return None
+
+    def written(self, address: int, values: list[int]) -> None:
+        if STARTS & set(range(address, address + len(values))):
+            self.command()
 
     def command(self) -> None:
         """A movement command (the message wrote a register that starts one)."""
@@ -267,56 +375,23 @@ class RoboCylinder(Shaft):
         return {PNOW: hi, PNOW + 1: lo, ALMC: self.alarm, DSS1: dss1, DSSE: dsse,
                 VNOW: vhi, VNOW + 1: vlo}
 
-    async def action(self, function: int, start: int, address: int, count: int,
-                     registers: list[int], values: Any) -> Any:
-        """pymodbus's hook on every access: the monitors up to date, writes act."""
-        self.advance(time.monotonic())
-        if function == 5 and values is not None:  # (pymodbus reads the coil back: None)
-            if address not in COILS:
-                return ExcCodes.ILLEGAL_ADDRESS
-            on = bool(values[0] if isinstance(values, list) else values)  # pymodbus: False
-            self.frames.append((5, address, [int(on)]))
-            self.coil(address, on)
-            return None
-        if function in (1, 2, 5):
-            return None
-        if values is not None:
-            values = list(values)
-            refused = self.check(address, values)
-            if refused is not None:
-                return refused
-            self.frames.append((function, address, values))
-            for i, v in enumerate(values):
-                self.regs[address + i] = v
-            if STARTS & set(range(address, address + len(values))):
-                self.command()
-        self.regs.update(self.status())
-        for a in range(start, start + len(registers)):
-            if a in self.regs:
-                registers[a - start] = self.regs[a]
-        return None
-
-
-def iai_machine(line: dict[str, Any], limits: bool = True) -> dict[str, Any]:
-    """One axis on the emulated controller: a 10 mm lead, 0.01 mm per pulse."""
+def actuator(line: dict[str, Any], drive_file: Path, homing: str, limits: bool = True
+             ) -> dict[str, Any]:
+    """A machine with one axis on an emulated actuator controller: a 10 mm lead, 0.01 mm
+    per pulse, homed by ``homing``; soft limits 0..250 mm, or none."""
     axis: dict[str, Any] = {
-        "line": "bus", "address": 1, "drive": str(IAI), "pulses_per_rev": 1000,
+        "line": "bus", "address": 1, "drive": str(drive_file), "pulses_per_rev": 1000,
         "units_per_rev": 10.0, "unit": "mm", "speed": 60.0, "accel": 600.0, "decel": 600.0,
         "poll": {"moving": 0.01, "idle": 0.05},
-        "homing": {"method": "mechanical_end", "speed": 20.0, "creep": 5.0, "accel": 600.0},
+        "homing": {"method": homing, "speed": 20.0, "creep": 5.0, "accel": 600.0},
     }
     if limits:
         axis["limits"] = [0.0, 250.0]
-    return {"name": "iai", "lines": {"bus": line}, "axes": {"a": axis}}
+    return {"name": drive_file.stem, "lines": {"bus": line}, "axes": {"a": axis}}
 
 
-async def first_alarm(axis: Any) -> Any:
-    """The first status the axis shows with an alarm (bounded)."""
-    with anyio.fail_after(5):
-        async for st in axis.watch():
-            if st.alarm:
-                return st
-    raise AssertionError("no alarm")
+def iai_machine(line: dict[str, Any], limits: bool = True) -> dict[str, Any]:
+    return actuator(line, IAI, "mechanical_end", limits)
 
 
 @pytest.mark.parametrize("transport", ["rtu", "tcp"])
@@ -484,7 +559,7 @@ OP_START = 0x0100
 
 
 @dataclass
-class LecController(Shaft):
+class LecController(Controller):
     """An LEC6 controller's serial side, as its manual says it: the coils act only in serial
     driving mode (Y30 on, lost at power-up); SVON gives SVRE; SETUP's rising edge returns to
     origin (SETON); D9100 = 0100h starts the step data D9102.. (absolute, or relative to the
@@ -492,58 +567,32 @@ class LecController(Shaft):
     0100h); HOLD decelerates and holds, its release resumes; RESET's edge resets an alarm
     and interrupts a movement or a hold (the rest is cancelled). FC06 is refused (01)."""
 
-    regs: dict[int, int] = field(default_factory=dict)
+    COIL_BLOCK: ClassVar[tuple[int, int]] = (0x10, 0x21)
+    INPUT_BLOCK: ClassVar[tuple[int, int]] = (0x40, 16)
+    READ_ONLY: ClassVar[Collection[int]] = D_MONITOR
+    REFUSED: ClassVar[frozenset[int]] = frozenset({6})  # "doesn't accept individual
+    # register writes"
+
     coils: dict[int, bool] = field(default_factory=lambda: dict.fromkeys(Y_COILS, False))
     svre: bool = False
     seton: bool = False
     alarm: bool = False
     inp: bool = False
-    phase: str = ""
-    remaining: tuple[float, float, float, float] | None = None
-    frames: list[tuple[int, int, list[int]]] = field(default_factory=list)
-    reads: list[tuple[int, int]] = field(default_factory=list)
-    """Every read received: (function code, address). (pymodbus tells an action how many
-    16-bit words a bit read spans, not how many bits.)"""
 
     def __post_init__(self) -> None:
         for a in (*D_MONITOR, D_START, *D_STEP):
             self.regs[a] = 0
         self.pos = -777.0  # no absolute encoder: the counter means nothing before SETUP
 
-    def simdata(self) -> tuple[list[Any], list[Any], list[Any], list[Any]]:
-        from pymodbus.simulator import DataType, SimData
-
-        return ([SimData(0x10, count=0x21, values=False, datatype=DataType.BITS)],
-                [SimData(0x40, count=16, values=False, datatype=DataType.BITS)],
-                [SimData(a, values=[v], datatype=DataType.REGISTERS, readonly=a in D_MONITOR)
-                 for a, v in sorted(self.regs.items())],
-                [SimData(0, values=[0], datatype=DataType.REGISTERS)])
-
-    def get(self, a: int) -> int:
-        return _s32(self.regs[a], self.regs[a + 1])
-
-    def coil_writes(self, address: int) -> list[bool]:
-        return [bool(v[0]) for fc, a, v in self.frames if fc == 5 and a == address]
-
     def raise_alarm(self) -> None:
         self.alarm, self.phase, self.remaining = True, "", None
         self.settle(self.pos)
 
-    def landed(self) -> None:
-        if self.phase == "end":
-            self.pos, self.phase = float(END), "back"
-            self.go_to(0.0, HOME_CREEP, self.acc, self.dec)
-            return
-        if self.phase == "back":
-            self.phase, self.seton = "", True
-        self.inp = True
+    def at_origin(self) -> None:
+        self.seton = True
 
-    def _tick(self) -> None:
-        if self.phase == "end" and self.pos <= END - 1000:  # the stroke's end
-            self.settle(self.pos)
-            self.landed()
-            return
-        super()._tick()
+    def arrived(self) -> None:
+        self.inp = True
 
     def coil(self, address: int, on: bool) -> None:
         if address != INPUT_INVALID and not self.coils[INPUT_INVALID]:
@@ -557,21 +606,25 @@ class LecController(Shaft):
                 self.inp, self.phase, self.remaining = False, "", None
                 self.settle(self.pos)
         elif address == SETUP and rising and self.svre and not self.coils[HOLD]:
-            self.seton, self.inp, self.phase = False, False, "end"
-            self.go_to(self.pos - 1e7, HOME_SPEED, 100000.0, 100000.0)
+            self.seton = self.inp = False
+            self.return_to_origin(100000.0)
         elif address == HOLD:
-            if rising and self.moving:
-                if self.goal == "to":
-                    self.remaining = (self.target, self.vmax, self.acc, self.dec)
-                self.brake(dec)
-            elif not on and self.remaining is not None:
-                target, vmax, acc, dec = self.remaining
-                self.remaining = None
-                self.go_to(target, vmax, acc, dec)
+            if rising:
+                self.pause(dec)
+            elif not on:
+                self.resume()
         elif address == RESET and rising:
             self.alarm = False
             self.remaining, self.phase = None, ""
             self.brake(dec)
+
+    def written(self, address: int, values: list[int]) -> None:
+        if address == D_START:
+            self.start()
+
+    def status(self) -> dict[int, int]:
+        hi, lo = _words(self.position)
+        return {D_POS: hi, D_POS + 1: lo, D_SPEED: round(self.vel / 100) & 0xFFFF}
 
     def start(self) -> None:
         """D9100 written: the step data starts if the controller can take it."""
@@ -595,64 +648,12 @@ class LecController(Shaft):
         return None
 
     def inputs(self) -> dict[int, bool]:
-        return {BUSY: self.moving, SVRE: self.svre, SETON: self.seton,
-                INP: self.inp and not self.moving and self.svre, AREA: False, WAREA: False,
-                ESTOP: False, ALARM: self.alarm}
-
-    async def action(self, function: int, start: int, address: int, count: int,
-                     registers: list[int], values: Any) -> Any:
-        """pymodbus's hook on every access."""
-        self.advance(time.monotonic())
-        if function == 6:
-            return ExcCodes.ILLEGAL_FUNCTION  # "doesn't accept individual register writes"
-        if function in (1, 2, 5):
-            bits, valid = (self.coils, Y_COILS) if function in (1, 5) else \
-                (self.inputs(), X_INPUTS)
-            if address not in valid:
-                return ExcCodes.ILLEGAL_ADDRESS
-            if function == 5:
-                if values is None:
-                    return None  # (pymodbus reads the coil back)
-                on = bool(values[0] if isinstance(values, list) else values)
-                self.frames.append((5, address, [int(on)]))
-                self.coil(address, on)
-                return None
-            self.reads.append((function, address))
-            for a, on in bits.items():  # the block's words, bit a % 16 of word a // 16
-                i = a // 16 - start
-                if 0 <= i < len(registers):
-                    registers[i] = registers[i] & ~(1 << a % 16) | (int(on) << a % 16)
-            return None
-        if values is not None:
-            values = list(values)
-            refused = self.check(address, values)
-            if refused is not None:
-                return refused
-            self.frames.append((function, address, values))
-            self.regs.update(zip(range(address, address + len(values)), values, strict=True))
-            if address == D_START:
-                self.start()
-        else:
-            self.reads.append((function, address))
-        hi, lo = _words(self.position)
-        self.regs.update({D_POS: hi, D_POS + 1: lo, D_SPEED: round(self.vel / 100) & 0xFFFF})
-        for a in range(start, start + len(registers)):
-            if a in self.regs:
-                registers[a - start] = self.regs[a]
-        return None
-
+        return {**dict.fromkeys(X_INPUTS, False), BUSY: self.moving, SVRE: self.svre,
+                SETON: self.seton, INP: self.inp and not self.moving and self.svre,
+                ALARM: self.alarm}
 
 def lec_machine(line: dict[str, Any], limits: bool = True) -> dict[str, Any]:
-    """One axis on the emulated controller: a 10 mm lead, 0.01 mm per pulse."""
-    axis: dict[str, Any] = {
-        "line": "bus", "address": 1, "drive": str(LEC), "pulses_per_rev": 1000,
-        "units_per_rev": 10.0, "unit": "mm", "speed": 60.0, "accel": 600.0, "decel": 600.0,
-        "poll": {"moving": 0.01, "idle": 0.05},
-        "homing": {"method": "return_to_origin", "speed": 20.0, "creep": 5.0, "accel": 600.0},
-    }
-    if limits:
-        axis["limits"] = [0.0, 250.0]
-    return {"name": "lec", "lines": {"bus": line}, "axes": {"a": axis}}
+    return actuator(line, LEC, "return_to_origin", limits)
 
 
 @pytest.mark.parametrize("transport", ["rtu", "tcp"])
