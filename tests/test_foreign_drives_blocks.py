@@ -8,11 +8,16 @@ emulators (the hidden test of issue 22, played once more).
   speed, acceleration (0.01 G), push current and control flags written from 9900h in one
   FC16, the write itself starting it; positions in 0.01 mm; moves refused (an alarm) before
   a home return; no speed mode.
+* The SMC LECP6/LECA6 controllers (configs/drives/smc_lec6.toml), the brief's fallback for
+  the Panasonic MINAS A6 whose Modbus block-operation tables were not findable: step data
+  written to D9102.. in one FC16 and started by D9100 = 0100h, which reads 0 once the
+  controller took it; no FC06; coils that act only in serial driving mode (Y30, lost at a
+  power cycle); the status in discrete inputs (FC02) read before the position.
 
-The emulator is a pymodbus server (RTU over a pty null-modem, or Modbus TCP on loopback)
-with coils and registers, whose behaviour is written from the manual's words with a
-kinematic of its own (the ``Shaft`` of test_foreign_drives_more): nothing of
-``drivebus.sim`` is used. The machine files name the description by path, as a user's do.
+Each emulator is a pymodbus server (RTU over a pty null-modem, or Modbus TCP on loopback)
+with coils, discrete inputs and registers, whose behaviour is written from the manual's
+words with a kinematic of its own (the ``Shaft`` of test_foreign_drives_more): nothing of
+``drivebus.sim`` is used. The machine files name the descriptions by path, as a user's do.
 """
 
 from __future__ import annotations
@@ -506,41 +511,6 @@ def test_the_iai_description_passes_its_check_and_trial() -> None:
     assert "12 passed, 0 failed, 0 skipped" in drive("try", IAI)
 
 
-async def test_the_iai_shares_a_machine_with_a_seed_drive() -> None:
-    """The NT86 on a simulated line and the ROBO Cylinder (emulator on a pty) in one
-    machine: homed, a group move, then both jogging and an emergency stop, judged by the
-    twin and the emulator."""
-    rc = RoboCylinder()
-
-    def axis(line: str, drive_ref: str | Path, ppr: int) -> dict[str, Any]:
-        return {"line": line, "address": 1, "drive": str(drive_ref), "pulses_per_rev": ppr,
-                "units_per_rev": 10.0, "speed": 50.0, "accel": 500.0, "decel": 500.0,
-                "limits": [-100.0, 200.0], "poll": {"moving": 0.01, "idle": 0.05}}
-
-    with anyio.fail_after(60):
-        async with served(rc, "rtu") as rc_line:
-            cfg = {"name": "blocks-mixed",
-                   "lines": {"rs485": {"port": "sim://blocks-mixed", "settings": "115200 8N1",
-                                       "timeout": 0.1}, "rc": rc_line},
-                   "axes": {"x": axis("rs485", "NT86", 4000), "c": axis("rc", IAI, 1000)}}
-            async with open_machine(cfg) as m:
-                for a in m.axes.values():
-                    await a.enable()
-                await m.axes["c"].home()
-                await m.group("x", "c").move_to({"x": 40.0, "c": 25.0})
-                nt86 = m.sim_drives["x"]
-                assert (nt86.position(), rc.position) == (16000, 2500)
-                assert all(a.state is AxisState.STANDSTILL for a in m.axes.values())
-                for a in m.axes.values():
-                    await a.jog(5.0, watchdog=None)
-                await until(lambda: nt86.is_moving() and rc.vel > 0)
-                async with anyio.create_task_group() as tg:
-                    for a in m.axes.values():
-                        tg.start_soon(a.halt_now)
-                await until(lambda: not rc.moving, timeout=2.0)
-                assert not nt86.is_moving() and rc.remaining is None
-
-
 # == SMC LECP6/LECA6: running with specified step data (from the LEC6 serial manual's words) =
 
 LEC = ROOT / "configs" / "drives" / "smc_lec6.toml"
@@ -772,3 +742,39 @@ def test_a_span_reads_its_own_address_space(tmp_path: Path) -> None:
                                           r"space; busy is a discrete input and position a "
                                           r"holding register"):
         load_description(bad)
+
+
+async def test_both_share_a_machine_with_a_seed_drive() -> None:
+    """The NT86 on a simulated line, the ROBO Cylinder (emulator on a pty) and the LEC6
+    (emulator on Modbus TCP) in one machine: returned to origin, a group move, then all
+    jogging and an emergency stop, judged by the twin and the emulators."""
+    rc, lec = RoboCylinder(), LecController()
+
+    def axis(line: str, drive_ref: str | Path, ppr: int) -> dict[str, Any]:
+        return {"line": line, "address": 1, "drive": str(drive_ref), "pulses_per_rev": ppr,
+                "units_per_rev": 10.0, "speed": 50.0, "accel": 500.0, "decel": 500.0,
+                "limits": [-100.0, 200.0], "poll": {"moving": 0.01, "idle": 0.05}}
+
+    with anyio.fail_after(60):
+        async with served(rc, "rtu") as rc_line, served(lec, "tcp") as lec_line:
+            cfg = {"name": "blocks-mixed",
+                   "lines": {"rs485": {"port": "sim://blocks-mixed", "settings": "115200 8N1",
+                                       "timeout": 0.1}, "rc": rc_line, "lec": lec_line},
+                   "axes": {"x": axis("rs485", "NT86", 4000), "c": axis("rc", IAI, 1000),
+                            "l": axis("lec", LEC, 1000)}}
+            async with open_machine(cfg) as m:
+                for a in m.axes.values():
+                    await a.enable()
+                await m.group("c", "l").home()
+                await m.group("x", "c", "l").move_to({"x": 40.0, "c": 25.0, "l": 12.5})
+                nt86 = m.sim_drives["x"]
+                assert (nt86.position(), rc.position, lec.position) == (16000, 2500, 1250)
+                assert all(a.state is AxisState.STANDSTILL for a in m.axes.values())
+                for a in m.axes.values():
+                    await a.jog(5.0, watchdog=None)
+                await until(lambda: nt86.is_moving() and rc.vel > 0 and lec.vel > 0)
+                async with anyio.create_task_group() as tg:
+                    for a in m.axes.values():
+                        tg.start_soon(a.halt_now)
+                await until(lambda: not rc.moving and not lec.moving, timeout=2.0)
+                assert not nt86.is_moving() and rc.remaining is None and lec.remaining is None
