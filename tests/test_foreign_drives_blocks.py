@@ -439,7 +439,7 @@ async def test_the_iai_robo_cylinder_description_drives_an_independent_emulator(
             # A jog within the soft limits is a move to the limit; stop = the deceleration
             # stop coil, which the controller resets.
             await a.jog(-5.0, watchdog=None)
-            await until(lambda: rc.vel < 0)
+            await until(lambda: rc.position < 1500)  # under way by a pulse at least
             assert rc.target == 0 and rc.vmax == 500  # the axis's limit, at 5 mm/s
             await a.stop()
             assert not rc.moving and rc.frames[-1] == (5, STOP, [1])
@@ -663,7 +663,7 @@ async def test_the_smc_lec6_description_drives_an_independent_emulator(transport
             assert lec.position == 1500 and lec.frames[-2][2][:4] == [2, 60, *_words(-500)]
             # A jog within the soft limits is a move to the limit; stop = RESET's edge.
             await a.jog(-5.0, watchdog=None)
-            await until(lambda: lec.vel < 0)
+            await until(lambda: lec.position < 1500)  # under way by a pulse at least
             await a.stop()
             assert not lec.moving and 0 < lec.position < 1500
             assert [f[1:] for f in lec.frames[-2:]] == [(RESET, [1]), (RESET, [0])]
