@@ -1369,6 +1369,8 @@ def _numbered(data: Mapping[str, Any], source: str) -> dict[str, Any]:
 
 
 _NUMBERED = ("address", "low_address")
+_SPACE_NAMES = ("a holding register", "an input register", "a coil", "a discrete input")
+"""What a register of each address space (``Reg.space``) is, in errors."""
 
 
 def read_toml(p: Path, noun: str) -> dict[str, Any]:
@@ -1659,6 +1661,14 @@ class _Checker:
             self.out.append(f"{where}: a span is [first, last] register")
         for k in keys:
             self._reg_key(where, k)
+        ends = [self.d.regs.get(k.split("[", 1)[0].strip()) for k in keys]
+        if isinstance(item, list) and len(ends) == 2 and None not in ends:
+            first, last = ends
+            assert first is not None and last is not None
+            if first.space != last.space:
+                self.out.append(
+                    f"{where}: a span reads one address space; {first.key} is "
+                    f"{_SPACE_NAMES[first.space]} and {last.key} {_SPACE_NAMES[last.space]}")
 
     def _status(self) -> None:
         s = self.d.status

@@ -16,7 +16,7 @@ from __future__ import annotations
 import inspect
 import math
 import re
-from collections.abc import Awaitable, Callable, Iterable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Annotated, Any, ClassVar, Literal
 
@@ -99,14 +99,22 @@ class ReadPlan:
     """(first address, count) per FC01, for coils."""
     discrete_blocks: tuple[tuple[int, int], ...] = ()
     """(first address, count) per FC02, for discrete inputs."""
+    space_order: tuple[int, ...] = (0, 1, 2, 3)
+    """The address spaces in the order they are read (a listed poll: as listed)."""
+
+
+Span = tuple[int, int, int]
+"""A read given whole: (address space, first address, last address); the spaces as
+``Reg.space`` numbers them (0 holding, 1 input registers, 2 coils, 3 discrete inputs)."""
 
 
 def plan_reads(
     targets: Iterable[tuple[Reg, int | None]], *, max_read: int, max_hole: int,
-    spans: Iterable[tuple[int, int]] = (),
+    spans: Iterable[Span] = (),
 ) -> ReadPlan:
-    """Cover ``targets`` (and the address ``spans`` given whole) with as few reads as
-    ``max_read`` registers per read and gaps of at most ``max_hole`` allow."""
+    """Cover ``targets`` (and the address ``spans`` given whole, each in its own address
+    space) with as few reads as ``max_read`` registers per read and gaps of at most
+    ``max_hole`` allow."""
     spaces: tuple[set[int], ...] = (set(), set(), set(), set())
     wanted, inputs = spaces[0], spaces[1]
     regs = []
@@ -117,8 +125,8 @@ def plan_reads(
         if r.words == 2:
             space.add(r.low_address if r.low_address is not None else r.address + 1)
         regs.append((reg, index))
-    for first, last in spans:
-        wanted.update(range(first, last + 1))
+    for space_no, first, last in spans:
+        spaces[space_no].update(range(first, last + 1))
     return ReadPlan(_blocks(wanted, max_read, max_hole), tuple(regs),
                     _blocks(inputs, max_read, max_hole), _blocks(spaces[2], max_read, max_hole),
                     _blocks(spaces[3], max_read, max_hole))
@@ -663,24 +671,20 @@ class DescribedProfile(DriveProfile):
 
     def _read_targets(self, items: Sequence[str | list[str]],
                       scope: Mapping[str, Any]) -> tuple[list[tuple[Reg, int | None]],
-                                                         list[tuple[int, int]]]:
+                                                         list[Span]]:
         regs = self.description.regs
         targets: list[tuple[Reg, int | None]] = []
-        spans: list[tuple[int, int]] = []
+        spans: list[Span] = []
         for item in items:
             if isinstance(item, list):
                 first_reg, first_i = self._target(item[0], scope)
                 last_reg, last_i = self._target(item[1], scope)
-                a = first_reg.at(first_i).address
                 last = last_reg.at(last_i)
-                b = (last.low_address if last.low_address is not None else
-                     last.address + last.words - 1)
-                spans.append((a, b))
-                for reg in regs.values():
-                    for index in (reg.indices if reg.array else [None]):
-                        r = reg.at(index)
-                        if a <= r.address <= b:
-                            targets.append((reg, index))
+                span = (first_reg.space, first_reg.at(first_i).address,
+                        last.low_address if last.low_address is not None else
+                        last.address + last.words - 1)
+                spans.append(span)
+                targets.extend(_in_span(regs.values(), span))
             elif "[" in item:
                 targets.append(self._target(item, scope))
             else:
@@ -699,17 +703,15 @@ class DescribedProfile(DriveProfile):
         """The words of ``plan``: holding registers by address, input registers by
         ``INPUT + address``."""
         words: dict[int, int] = {}
-        for start, count in plan.blocks:
-            got = await self.slave.read_holding_registers(start, count, priority=prio)
-            words.update(zip(range(start, start + count), got, strict=True))
-        for start, count in plan.input_blocks:
-            got = await self.slave.read_input_registers(start, count, priority=prio)
-            words.update(zip(range(INPUT + start, INPUT + start + count), got, strict=True))
-        for space, blocks, read in ((2, plan.coil_blocks, self.slave.read_coils),
-                                    (3, plan.discrete_blocks, self.slave.read_discrete_inputs)):
+        reads = {0: (plan.blocks, self.slave.read_holding_registers),
+                 1: (plan.input_blocks, self.slave.read_input_registers),
+                 2: (plan.coil_blocks, self.slave.read_coils),
+                 3: (plan.discrete_blocks, self.slave.read_discrete_inputs)}
+        for space in plan.space_order:
+            blocks, read = reads[space]
             for start, count in blocks:
                 got = await read(start, count, priority=prio)
-                base = (space << 16) + start
+                base = (space << 16) + start  # INPUT for input registers
                 words.update(zip(range(base, base + count), got, strict=True))
         return words
 
@@ -781,17 +783,41 @@ class DescribedProfile(DriveProfile):
 
     def volatile_settings(self) -> list[tuple[Register, int]]:
         """The (register, value) pairs of the setup steps marked volatile."""
+        return [(it.register, it.raw) for it in self._volatile_items()]
+
+    def _volatile_items(self) -> list[_Item]:
         proc = self._steps_of("setup")
         if proc is None:
             return []
-        out: list[tuple[Register, int]] = []
+        out: list[_Item] = []
         run = _Run("setup", {}, True, Priority.CONFIG)
         for step in proc.steps:
             if step.when is not None and not step.when(self._scope(run)):
                 continue
             if step.action == "write" and step.volatile:
-                out.extend((it.register, it.raw) for it in self._items(step, run))
+                out.extend(self._items(step, run))
         return out
+
+    async def lost_settings(self, *, priority: Priority = Priority.COMMAND) -> list[str]:
+        """The volatile settings the drive no longer holds, each read back with its address
+        space's function code (a coil with FC01, an input register never: it is not
+        written); holding registers as every profile reads them."""
+        items = self._volatile_items()
+        if all(it.reg.space == 0 for it in items):
+            return await super().lost_settings(priority=priority)
+        link = self.description.link
+        plan = plan_reads([(it.reg, it.index) for it in items], max_read=link.max_read,
+                          max_hole=0)
+        words = await self._read_words(plan, priority)
+        lost = []
+        for it in items:
+            r, base = it.register, it.reg.space << 16
+            addresses = [r.address] if r.words == 1 else \
+                [r.address, r.low_address if r.low_address is not None else r.address + 1]
+            seen = r.decode([words[base + a] for a in addresses])
+            if seen != it.raw:
+                lost.append(f"{r.name} ({r.address}) = {seen}, not {it.raw}")
+        return lost
 
     # -- status ------------------------------------------------------------------------------
 
@@ -1333,20 +1359,17 @@ def _learned_keys(d: Description) -> set[str]:
 def _plan(d: Description, items: Sequence[str | list[str]], max_read: int,
           max_hole: int, listed: bool = False) -> ReadPlan:
     targets: list[tuple[Reg, int | None]] = []
-    spans: list[tuple[int, int]] = []
+    spans: list[Span] = []
     regs = d.regs
     for item in items:
         if isinstance(item, list):
             first = _static_target(d, item[0])
             last = _static_target(d, item[1])
-            a = first.address
-            b = last.low_address if last.low_address is not None else \
-                last.address + last.words - 1
-            spans.append((a, b))
-            for reg in regs.values():
-                for index in (reg.indices if reg.array else [None]):
-                    if a <= reg.at(index).address <= b:
-                        targets.append((reg, index))
+            span = (regs[_item_key(item)].space, first.address,
+                    last.low_address if last.low_address is not None else
+                    last.address + last.words - 1)
+            spans.append(span)
+            targets.extend(_in_span(regs.values(), span))
         else:
             reg = regs[item.split("[", 1)[0]]
             targets.extend((reg, i) for i in (reg.indices if reg.array else [None]))
@@ -1355,15 +1378,28 @@ def _plan(d: Description, items: Sequence[str | list[str]], max_read: int,
         else plan
 
 
+def _in_span(regs: Iterable[Reg], span: Span) -> Iterator[tuple[Reg, int | None]]:
+    """The registers (and table entries) of ``span``'s address space within its
+    addresses: a span of discrete inputs reads no holding register of the same numbers."""
+    space, first, last = span
+    for reg in regs:
+        if reg.space != space:
+            continue
+        for index in (reg.indices if reg.array else [None]):
+            if first <= reg.at(index).address <= last:
+                yield reg, index
+
+
 def _item_key(item: str | list[str]) -> str:
     return (item[0] if isinstance(item, list) else item).split("[", 1)[0].strip()
 
 
 def _in_listed_order(plan: ReadPlan, listed: Sequence[tuple[Reg, str | list[str]]]
                      ) -> ReadPlan:
-    """``plan`` with its reads of each kind in the order their registers are listed (a
-    drive whose status takes several reads: the poll reads its motion state before the
-    position, so a position read after the drive has come to rest is its final one)."""
+    """``plan`` with its reads of each kind, and the kinds (FC03, FC04, FC01, FC02), in the
+    order their registers are listed (a drive whose status takes several reads: the poll
+    reads its motion state before the position, so a position read after the drive has
+    come to rest is its final one, its motion state a discrete input or not)."""
     def rank(blocks: tuple[tuple[int, int], ...], space: int) -> tuple[tuple[int, int], ...]:
         def first_listed(block: tuple[int, int]) -> int:
             start, count = block
@@ -1372,9 +1408,11 @@ def _in_listed_order(plan: ReadPlan, listed: Sequence[tuple[Reg, str | list[str]
                     return n
             return len(listed)
         return tuple(sorted(blocks, key=first_listed))
+    order = list(dict.fromkeys(reg.space for reg, _ in listed))
     return replace(
         plan, blocks=rank(plan.blocks, 0), input_blocks=rank(plan.input_blocks, 1),
-        coil_blocks=rank(plan.coil_blocks, 2), discrete_blocks=rank(plan.discrete_blocks, 3))
+        coil_blocks=rank(plan.coil_blocks, 2), discrete_blocks=rank(plan.discrete_blocks, 3),
+        space_order=(*order, *(s for s in (0, 1, 2, 3) if s not in order)))
 
 
 def _static_target(d: Description, key: str) -> Register:
