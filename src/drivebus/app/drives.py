@@ -83,10 +83,11 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         f"wear EEPROM, {sum(x.d.volatile for x in regs)} volatile)"
         + (f"; tables {', '.join(tables)}" if tables else ""))
     plan = p._status_plan  # type: ignore[attr-defined]
-    r.lines.append("  status poll: " + ", ".join(
+    by_space = {0: (3, plan.blocks), 1: (4, plan.input_blocks), 2: (1, plan.coil_blocks),
+                3: (2, plan.discrete_blocks)}
+    r.lines.append("  status poll: " + ", ".join(  # in the order the poll reads them
         f"FC{fc:02d} {start} (0x{start:04X}) ×{count}"
-        for fc, blocks in ((3, plan.blocks), (4, plan.input_blocks), (1, plan.coil_blocks),
-                           (2, plan.discrete_blocks))
+        for fc, blocks in (by_space[space] for space in plan.space_order)
         for start, count in blocks))
     s = d.status
     if d.drive.engine == "cia402":

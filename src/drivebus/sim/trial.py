@@ -205,7 +205,12 @@ async def try_description(d: Description, *, address: int | None = None) -> list
 
         async def estop() -> str:
             p = move()
-            await profile.speed_run(-p.speed_rpm, p.accel_rps2, p.decel_rps2)
+            try:
+                profile.check_supported("speed_run")
+            except NotSupported:  # a drive without speed runs: stop a long move instead
+                await profile.move_relative(-4 * ppr, p)
+            else:
+                await profile.speed_run(-p.speed_rpm, p.accel_rps2, p.decel_rps2)
             await _wait(profile, lambda s: s.moving, "moving")
             await profile.emergency_stop()
             st = await _wait(profile, lambda s: not s.moving, "at rest", timeout=2.0)
