@@ -730,10 +730,11 @@ def test_the_smc_lec6_description_passes_its_check_and_its_trial() -> None:
 
 def test_a_span_reads_its_own_address_space(tmp_path: Path) -> None:
     """A [status] poll span of discrete inputs is read with FC02 (not FC03 at the same
-    numbers); a span whose ends lie in different address spaces is a ConfigError."""
+    numbers), before the position as the poll lists them (``drive check`` shows the reads
+    in that order); a span whose ends lie in different address spaces is a ConfigError."""
     poll = next(line for line in drive("check", LEC).splitlines() if "status poll" in line)
-    assert poll.split(": ", 1)[1].split(", ") == ["FC03 36864 (0x9000) ×3",
-                                                  "FC02 72 (0x0048) ×8"]
+    assert poll.split(": ", 1)[1].split(", ") == ["FC02 72 (0x0048) ×8",
+                                                  "FC03 36864 (0x9000) ×3"]
     text = LEC.read_text(encoding="utf-8").replace(
         'poll = [["busy", "alarm"], ["position", "speed_now"]]',
         'poll = [["busy", "position"], "speed_now"]')
