@@ -277,17 +277,13 @@ class Leadshine(Kinematic):
 
 
 @asynccontextmanager
-async def served(drive: Leadshine | Kinco, read_only: Collection[int], transport: str = "rtu",
-                 unit: int = 1) -> AsyncIterator[dict[str, Any]]:
-    """An emulated drive (its ``regs`` and ``action``) served by pymodbus: RTU on one end of
-    a null modem, or Modbus TCP on loopback; yields the machine file's line for it.
-    Addresses it does not have answer exception 02."""
-    from pymodbus.simulator import DataType, SimData, SimDevice
-
+async def serving(device: list[Any], transport: str = "rtu",
+                  settings: tuple[int, str, int] = (115200, "N", 1)
+                  ) -> AsyncIterator[dict[str, Any]]:
+    """pymodbus serving ``device`` (its ``SimDevice`` list): RTU on one end of a null modem
+    at ``settings`` (baud, parity, stop bits), or Modbus TCP on loopback; yields the
+    machine file's line for it."""
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-    data = [SimData(a, values=[v], datatype=DataType.REGISTERS, readonly=a in read_only)
-            for a, v in sorted(drive.regs.items())]
-    device = [SimDevice(unit, simdata=data, action=drive.action)]
     line = {"timeout": 0.3, "retries": 1}
     if transport == "tcp":
         server: Any = ModbusTcpServer(device, address=(HOST, 0))
@@ -298,14 +294,36 @@ async def served(drive: Leadshine | Kinco, read_only: Collection[int], transport
         finally:
             await server.shutdown()
         return
+    baud, parity, stop = settings
     async with null_modem() as (ours, theirs):
-        server = ModbusSerialServer(device, port=theirs, baudrate=115200, parity="N",
-                                    stopbits=1)
+        server = ModbusSerialServer(device, port=theirs, baudrate=baud, parity=parity,
+                                    stopbits=stop)
         await server.serve_forever(background=True)
         try:
-            yield {"port": ours, "settings": "115200 8N1", **line}
+            yield {"port": ours, "settings": f"{baud} 8{parity}{stop}", **line}
         finally:
             await server.shutdown()
+
+
+def register_device(regs: dict[int, int], action: Any, read_only: Collection[int],
+                    unit: int = 1) -> list[Any]:
+    """A pymodbus device of holding registers ``regs`` with the hook ``action``; addresses
+    it does not have answer exception 02."""
+    from pymodbus.simulator import DataType, SimData, SimDevice
+
+    data = [SimData(a, values=[v], datatype=DataType.REGISTERS, readonly=a in read_only)
+            for a, v in sorted(regs.items())]
+    return [SimDevice(unit, simdata=data, action=action)]
+
+
+@asynccontextmanager
+async def served(drive: Any, read_only: Collection[int], transport: str = "rtu",
+                 unit: int = 1) -> AsyncIterator[dict[str, Any]]:
+    """An emulated drive (its ``regs`` and ``action``) served by pymodbus at 115200 8N1 or
+    over TCP; yields the machine file's line for it."""
+    async with serving(register_device(drive.regs, drive.action, read_only, unit),
+                       transport) as line:
+        yield line
 
 
 def machine(line: dict[str, Any], drive: Path = LEADSHINE) -> dict[str, Any]:

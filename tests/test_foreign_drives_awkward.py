@@ -17,130 +17,25 @@ registers a request: exception 03; addresses it lacks: 02; writes to read-only m
 
 from __future__ import annotations
 
-import logging
-import math
 import time
-from collections.abc import AsyncIterator, Collection
-from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import anyio
 import pytest
-from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from drivebus import AxisState, open_machine
 from drivebus.drives.description import load_description
 from drivebus.errors import ConfigError, LimitViolation, StateError
 from pymodbus_servers import PYMODBUS
-from test_foreign_drives import drive, until
-from test_pymodbus_peer import null_modem
+from test_foreign_drives import drive, register_device, serving, until
+from test_foreign_drives_more import Shaft, _s32
 
 ROOT = Path(__file__).resolve().parents[1]
 DELTA = ROOT / "configs" / "drives" / "delta_asda_b2.toml"
-HOST = "127.0.0.1"
-TICK = 0.001  # the emulators' time step, s
 
 pytestmark = pytest.mark.skipif(PYMODBUS < (3, 13), reason="SimDevice actions: pymodbus 3.13+")
-
-
-@asynccontextmanager
-async def serving(regs: dict[int, int], action: Any, read_only: Collection[int],
-                  transport: str, settings: tuple[int, str, int]) -> AsyncIterator[
-                      dict[str, Any]]:
-    """Holding registers ``regs`` served by pymodbus with the hook ``action``: RTU on one end
-    of a null modem at ``settings`` (baud, parity, stop bits), or Modbus TCP on loopback;
-    yields the machine file's line. Addresses it lacks answer exception 02."""
-    from pymodbus.simulator import DataType, SimData, SimDevice
-
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-    data = [SimData(a, values=[v], datatype=DataType.REGISTERS, readonly=a in read_only)
-            for a, v in sorted(regs.items())]
-    device = [SimDevice(1, simdata=data, action=action)]
-    line = {"timeout": 0.3, "retries": 1}
-    if transport == "tcp":
-        server: Any = ModbusTcpServer(device, address=(HOST, 0))
-        await server.serve_forever(background=True)
-        try:
-            yield {"kind": "tcp", "host": HOST,
-                   "tcp_port": server.transport.sockets[0].getsockname()[1], **line}
-        finally:
-            await server.shutdown()
-        return
-    baud, parity, stop = settings
-    async with null_modem() as (ours, theirs):
-        server = ModbusSerialServer(device, port=theirs, baudrate=baud, parity=parity,
-                                    stopbits=stop)
-        await server.serve_forever(background=True)
-        try:
-            yield {"port": ours, "settings": f"{baud} 8{parity}{stop}", **line}
-        finally:
-            await server.shutdown()
-
-
-def _s32(lo: int, hi: int) -> int:
-    v = hi << 16 | lo
-    return v - (1 << 32) if v & 0x80000000 else v
-
-
-@dataclass
-class Motor:
-    """A servo motor's shaft in PUU: its speed follows the goal at the set rates in 1 ms
-    ticks up to each access; a position goal brakes in time to land on its target."""
-
-    pos: float = 0.0
-    vel: float = 0.0
-    goal: str = "rest"
-    """"rest", "to" (a target), "run" (a speed) or "brake"."""
-    target: float = 0.0
-    vmax: float = 0.0
-    run_speed: float = 0.0
-    acc: float = 1e6
-    dec: float = 1e6
-    clock: float = field(default_factory=time.monotonic)
-
-    @property
-    def moving(self) -> bool:
-        return self.goal != "rest"
-
-    def advance(self, now: float) -> None:
-        while now - self.clock >= TICK:
-            self.clock += TICK
-            self.step()
-
-    def step(self) -> None:
-        if self.goal == "to":
-            gap = self.target - self.pos
-            if self.vel * gap < 0:
-                self.ramp_to(0.0)
-                return
-            v = min(self.vmax, abs(self.vel) + self.acc * TICK,
-                    math.sqrt(2.0 * self.dec * abs(gap)))
-            if abs(gap) < 0.5 or v * TICK >= abs(gap):
-                self.rest(self.target)
-                self.arrived()
-                return
-            self.vel = math.copysign(v, gap)
-            self.pos += self.vel * TICK
-        elif self.goal == "run":
-            self.ramp_to(self.run_speed)
-        elif self.goal == "brake":
-            self.ramp_to(0.0)
-            if self.vel == 0.0:
-                self.rest(self.pos)
-
-    def ramp_to(self, v: float) -> None:
-        rate = self.acc if abs(v) > abs(self.vel) and v * self.vel >= 0 else self.dec
-        dv = v - self.vel
-        self.vel = v if abs(dv) <= rate * TICK else self.vel + math.copysign(rate * TICK, dv)
-        self.pos += self.vel * TICK
-
-    def rest(self, pos: float) -> None:
-        self.pos, self.vel, self.goal = pos, 0.0, "rest"
-
-    def arrived(self) -> None:
-        """A position goal was reached."""
 
 
 # == Delta ASDA-B2, PR mode (from the manual's parameter chapter) ============================
@@ -181,7 +76,7 @@ def rate(ms: int) -> float:
 
 
 @dataclass
-class DeltaB2(Motor):
+class DeltaB2(Shaft):
     """An ASDA-B2 in PR mode as its manual says: P5-07 = n runs PR#n (here PR#1: its
     definition P6-02 and data P6-03), 0 homes by P5-04, 1000 stops with the path's
     deceleration time; a position path with INS interrupts the running one. Digital inputs
@@ -208,7 +103,7 @@ class DeltaB2(Motor):
             self.regs[a] = v
 
     def get(self, a: int) -> int:
-        return _s32(self.regs[a], self.regs[a + 1])
+        return _s32(self.regs[a + 1], self.regs[a])  # low word first
 
     def di(self, function: int) -> bool:
         """Whether the input assigned ``function`` is on (software or terminal: the
@@ -221,17 +116,17 @@ class DeltaB2(Motor):
 
     def raise_alarm(self, code: int) -> None:
         self.alarm, self.servo_on, self.homing = code, False, False
-        self.rest(self.pos)  # servo off: the dynamic brake stops the motor
+        self.settle(self.pos)  # servo off: the dynamic brake stops the motor
 
-    def arrived(self) -> None:
+    def landed(self) -> None:
         if self.homing:
             self.homing, self.homed = False, True
 
-    def step(self) -> None:
-        super().step()
+    def _tick(self) -> None:
+        super()._tick()
         if self.homing and self.pos <= NEGATIVE_LIMIT:  # NL reached: that is the origin
             self.homing, self.homed = False, True
-            self.rest(float(self.get(ODAT)))
+            self.settle(float(self.get(ODAT)))
         if self.moving and not self.homing and not NEGATIVE_LIMIT <= self.pos <= POSITIVE_LIMIT:
             self.raise_alarm(0x14 if self.pos < 0 else 0x15)
 
@@ -243,7 +138,7 @@ class DeltaB2(Motor):
             self.servo_on = True
         elif not son and before_son:
             self.servo_on = False
-            self.rest(self.pos)
+            self.settle(self.pos)
 
     def trigger(self, value: int) -> None:
         if value == 1000:
@@ -259,14 +154,14 @@ class DeltaB2(Motor):
             method = self.regs[HMOV] & 0xF
             if method == 1:  # reverse to NL at the first homing speed
                 self.homing, self.homed = True, False
-                self.goal, self.run_speed, self.acc, self.dec = \
+                self.goal, self.speed, self.acc, self.dec = \
                     "run", -puu_s(self.regs[HSPD1]), acc, dec
             return
         if value != 1 or (self.moving and not self.regs[PDEF1] & 0x80):
             return  # another path, or one without INS while a path runs
         kind, data = self.regs[PDEF1] & 0xF, self.get(PDAT1)
         if kind == 1:  # SPEED: the data is the target speed in 0.1 r/min
-            self.goal, self.run_speed, self.acc, self.dec = "run", puu_s(data), acc, dec
+            self.goal, self.speed, self.acc, self.dec = "run", puu_s(data), acc, dec
         elif kind == 2:  # SINGLE: absolute, or relative to the present command
             base = (self.target if self.goal == "to" else self.pos) \
                 if self.regs[PDEF1] & 0x30 == 0x10 else 0.0
@@ -323,7 +218,8 @@ def delta_machine(line: dict[str, Any], limits: bool = True) -> dict[str, Any]:
 
 
 def delta_served(dv: DeltaB2, transport: str = "rtu") -> Any:
-    return serving(dv.regs, dv.action, DELTA_READ_ONLY, transport, (115200, "N", 2))
+    return serving(register_device(dv.regs, dv.action, DELTA_READ_ONLY), transport,
+                   (115200, "N", 2))
 
 
 async def first_alarm(axis: Any) -> Any:

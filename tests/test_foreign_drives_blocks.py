@@ -22,7 +22,6 @@ words with a kinematic of its own (the ``Shaft`` of test_foreign_drives_more): n
 
 from __future__ import annotations
 
-import logging
 import re
 import subprocess
 import sys
@@ -36,7 +35,6 @@ from typing import Any, ClassVar
 import anyio
 import pytest
 from pymodbus.constants import ExcCodes
-from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from drivebus import AxisState, open_machine
 from drivebus.drives.description import load_description
@@ -49,9 +47,8 @@ from drivebus.errors import (
     StateError,
 )
 from pymodbus_servers import PYMODBUS
-from test_foreign_drives import HOST, drive, until
+from test_foreign_drives import drive, serving, until
 from test_foreign_drives_more import Shaft, _s32, _words, first_alarm
-from test_pymodbus_peer import null_modem
 
 ROOT = Path(__file__).resolve().parents[1]
 IAI = ROOT / "configs" / "drives" / "iai_robo_cylinder.toml"
@@ -62,31 +59,13 @@ pytestmark = pytest.mark.skipif(PYMODBUS < (3, 13), reason="SimDevice actions: p
 @asynccontextmanager
 async def served(emulator: Any, transport: str = "rtu", unit: int = 1
                  ) -> AsyncIterator[dict[str, Any]]:
-    """An emulator with coils and holding registers served by pymodbus: RTU on one end of a
-    null modem, or Modbus TCP on loopback; yields the machine file's line for it. The
-    emulator gives its blocks (``simdata()``) and its ``action``."""
+    """An emulator with coils and holding registers served by pymodbus at 115200 8N1 or
+    over TCP (its blocks ``simdata()`` and its ``action``); yields the machine file's line."""
     from pymodbus.simulator import SimDevice
 
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     device = [SimDevice(unit, simdata=emulator.simdata(), action=emulator.action)]
-    line = {"timeout": 0.3, "retries": 1}
-    if transport == "tcp":
-        server: Any = ModbusTcpServer(device, address=(HOST, 0))
-        await server.serve_forever(background=True)
-        try:
-            yield {"kind": "tcp", "host": HOST,
-                   "tcp_port": server.transport.sockets[0].getsockname()[1], **line}
-        finally:
-            await server.shutdown()
-        return
-    async with null_modem() as (ours, theirs):
-        server = ModbusSerialServer(device, port=theirs, baudrate=115200, parity="N",
-                                    stopbits=1)
-        await server.serve_forever(background=True)
-        try:
-            yield {"port": ours, "settings": "115200 8N1", **line}
-        finally:
-            await server.shutdown()
+    async with serving(device, transport) as line:
+        yield line
 
 
 # == IAI ROBO Cylinder: numerical value movement commands (from the Modbus manual's words) ====
