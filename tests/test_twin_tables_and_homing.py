@@ -23,6 +23,7 @@ from drivebus.sim import sim_bus
 from drivebus.sim.described import DescribedDrive, described_twin
 from drivebus.sim.drive import TwinSetup
 from drivebus.sim.registers import SlaveException
+from test_twin_input_functions import status
 
 TOML = """
 [drive]
@@ -174,12 +175,6 @@ CREEP = 1_000.0  # 60 rpm
 
 def twin_class(toml: str = TOML) -> type[DescribedDrive]:
     return described_twin(parse_description(tomllib.loads(toml), "tbl.toml"))
-
-
-def status(twin: DescribedDrive, t: float) -> int:
-    """The status register at ``t``, the twin brought up to ``t`` first (as a request)."""
-    twin.advance(t)
-    return twin.read_register(0, t)
 
 
 def rests(twin: DescribedDrive, t0: float, t1: float) -> list[tuple[float, float, float]]:

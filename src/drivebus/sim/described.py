@@ -2131,7 +2131,7 @@ class DescribedCia402Drive(DescribedDrive):
         value = self.device.read(name, now)
         for b in reg.d.bits.values():  # a drive's own flags beside the object's bits
             on = self._eval(b.twin, now) if b.twin is not None else \
-                self._signals(now).get(b.means, None) if b.means == "homed" else None
+                self.homed if b.means == "homed" else None
             if on is not None:
                 value = value | b.mask if on else value & ~b.mask
         words: dict[int, int] = {}
