@@ -30,13 +30,13 @@ import serial
 from typer.testing import CliRunner
 
 from drivebus.app.scan import scan_settings
-from drivebus.cli import _fail, app, explain
+from drivebus.cli.root import _fail, app, explain
+from drivebus.cli.terminal import Out, check_config, scan_line
 from drivebus.config import load_config
 from drivebus.errors import ConfigError, DriveOffline, LineClosed
 from drivebus.line.rtu import frame
 from drivebus.settings import LineSettings
 from drivebus.sim.machine import start_simulators
-from drivebus.terminal import Out, check_config, scan_line
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "configs" / "demo.toml"

@@ -1,7 +1,7 @@
 """One-shot operations on a machine file: what the CLI's commands do, as plain coroutines.
 
 Each opens only the axes it needs, returns results as data and raises typed errors; the
-CLI renders them (``drivebus.terminal``), a script may call them directly.
+CLI renders them (``drivebus.cli.terminal``), a script may call them directly.
 """
 
 from __future__ import annotations

@@ -12,15 +12,15 @@ import anyio
 from rich.console import Console
 from rich.live import Live
 
+from drivebus.cli.views import axes_table
 from drivebus.config import load_config
 from drivebus.errors import ConfigError, MotionAborted, NotSupported
 from drivebus.motion import Axis, Machine, open_machine
 from drivebus.motion.state import AxisState
-from drivebus.views import axes_table
 
 __all__ = ["DEFAULT_CONFIG", "axes_table", "run_demo"]
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "demo.toml"
+DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "configs" / "demo.toml"
 
 
 async def _step(log: Callable[[str], None], what: str, fn: Callable[[], Awaitable[object]]) -> None:

@@ -15,13 +15,13 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from drivebus.cli_options import ConfigArg, JsonOpt, LocalOpt, ServerOpt, TokenOpt
-from drivebus.cli_options import owner as _owner
+from drivebus.cli.options import ConfigArg, JsonOpt, LocalOpt, ServerOpt, TokenOpt
+from drivebus.cli.options import owner as _owner
 from drivebus.errors import ArgumentError
 
 if TYPE_CHECKING:
+    from drivebus.cli.terminal import Out
     from drivebus.service.client import ServiceClient
-    from drivebus.terminal import Out
 
 __all__ = ["move_position", "positions", "teach"]
 
@@ -41,7 +41,7 @@ async def _teach_here(out: Out, config: Path, name: str, axes: list[str]) -> int
 
 
 async def _teach_remote(out: Out, client: ServiceClient, name: str, axes: list[str]) -> int:
-    from drivebus.terminal import _call
+    from drivebus.cli.terminal import _call
 
     result = await _call(client.request, "POST", f"/positions/{name}/teach",
                          {"axes": axes} if axes else {})
@@ -65,7 +65,7 @@ def teach(
     local: LocalOpt = False,
 ) -> None:
     """Store the axes' present positions as POSITION in the machine file (comments kept)."""
-    from drivebus.terminal import Out, run_guarded
+    from drivebus.cli.terminal import Out, run_guarded
 
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
@@ -92,7 +92,7 @@ async def _move_here(out: Out, config: Path, name: str, speed: float | None) -> 
 
 
 async def _move_remote(out: Out, client: ServiceClient, name: str, speed: float | None) -> int:
-    from drivebus.terminal import remote_motion
+    from drivebus.cli.terminal import remote_motion
 
     body = {} if speed is None else {"speed": speed}
     return await remote_motion(out, client, "", f"move to {name}",
@@ -102,7 +102,7 @@ async def _move_remote(out: Out, client: ServiceClient, name: str, speed: float 
 def move_position(config: Path, name: str, speed: float | None, as_json: bool,
                   server: str | None, token: str | None, local: bool) -> int:
     """``drivebus move MACHINE POSITION``: the position's axes there, together."""
-    from drivebus.terminal import Out, run_guarded
+    from drivebus.cli.terminal import Out, run_guarded
 
     if not name or name[0].isdigit() or name[0] in "+-.":
         raise ArgumentError(f"drivebus move {config} {name}: give AXIS TARGET, or the name "
@@ -128,7 +128,7 @@ async def _list(out: Out, config: Path) -> int:
 
 def positions(config: ConfigArg, as_json: JsonOpt = False) -> None:
     """List the machine's taught positions (reads the files only, no drive is opened)."""
-    from drivebus.terminal import Out, run_guarded
+    from drivebus.cli.terminal import Out, run_guarded
 
     out = Out(as_json=as_json)
     raise typer.Exit(run_guarded(lambda: _list(out, config)))

@@ -16,14 +16,14 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from drivebus.cli_args import LocalOpt, ServerOpt, TokenOpt
-from drivebus.cli_options import JsonOpt
+from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
+from drivebus.cli.options import JsonOpt
 from drivebus.errors import ArgumentError, ConfigError, LimitViolation
 
 if TYPE_CHECKING:
     from drivebus.app.params import Difference, ParameterSet
+    from drivebus.cli.terminal import Out
     from drivebus.service.client import ServiceClient
-    from drivebus.terminal import Out
 
 __all__ = ["commission", "params_app"]
 
@@ -41,13 +41,13 @@ MachineOpt = Annotated[Path | None, typer.Option(
 
 def _owner(config: Path, server: str | None, token: str | None, local: bool
            ) -> ServiceClient | None:
-    from drivebus.terminal import service_owner
+    from drivebus.cli.terminal import service_owner
 
     return service_owner(config, server, token, local)
 
 
 def _run(fn: Any, *, interrupt_ok: bool = False) -> None:
-    from drivebus.terminal import run_guarded
+    from drivebus.cli.terminal import run_guarded
 
     raise typer.Exit(run_guarded(fn, interrupt_ok=interrupt_ok))
 
@@ -70,8 +70,8 @@ def dump(
     """Read every documented parameter of AXIS's drive (value, unit, register, whether a
     save stores it) into a parameter file. Reads only: nothing is written to the drive."""
     from drivebus.app.params import ParameterSet, about_axis, open_drive, read_parameters
+    from drivebus.cli.terminal import Out
     from drivebus.config import load_config
-    from drivebus.terminal import Out
 
     cfg = load_config(config)
     if axis not in cfg.axes:
@@ -177,7 +177,7 @@ def diff(
     """Show the parameters that differ between FILE and a drive (or a second file).
     Reads only: nothing is written to the drive."""
     from drivebus.app.params import ParameterSet, diff_parameters
-    from drivebus.terminal import Out
+    from drivebus.cli.terminal import Out
 
     a = ParameterSet.load(file)
     out = Out(as_json=as_json)
@@ -243,7 +243,7 @@ def load(
     written). With --save the drive stores them once at the end. An interrupted load says
     which parameters were written."""
     from drivebus.app.params import LoadReport, ParameterSet, load_parameters, open_drive
-    from drivebus.terminal import Out
+    from drivebus.cli.terminal import Out
 
     wanted = ParameterSet.load(file)
     axis = _axis_of(wanted, axis, file)
@@ -340,8 +340,8 @@ def commission(
     drive to answer there: power-cycle it when told. Drives set by DIP switches say so."""
     from drivebus import checks
     from drivebus.app.commission import commission as run_commission
+    from drivebus.cli.terminal import Out
     from drivebus.settings import LineSettings
-    from drivebus.terminal import Out
 
     now = None if settings is None else LineSettings.parse(settings)
     new = None if to_settings is None else LineSettings.parse(to_settings)

@@ -164,7 +164,7 @@ def record(
 ) -> None:
     """Record the axes' positions, velocities and events and the lines' transactions while
     --during steps run; write a self-contained HTML report (-o run.html) and exports."""
-    from drivebus.terminal import run_guarded
+    from drivebus.cli.terminal import run_guarded
 
     steps = [parse_step(s) for s in during or []]
     if seconds is not None:

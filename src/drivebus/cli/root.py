@@ -20,15 +20,15 @@ import typer
 import typer.main
 
 from drivebus import checks
-from drivebus.cli_args import LocalOpt, ServerOpt, TokenOpt
-from drivebus.cli_options import ConfigArg, JsonOpt
-from drivebus.cli_options import owner as _owner
-from drivebus.cli_positions import positions, teach
-from drivebus.cli_record import record
-from drivebus.commissioning import commission as commission_command
-from drivebus.commissioning import params_app
+from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
+from drivebus.cli.commissioning import commission as commission_command
+from drivebus.cli.commissioning import params_app
+from drivebus.cli.options import ConfigArg, JsonOpt
+from drivebus.cli.options import owner as _owner
+from drivebus.cli.positions import positions, teach
+from drivebus.cli.record import record
+from drivebus.cli.terminal import explain
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
-from drivebus.terminal import explain
 
 if TYPE_CHECKING:
     pass
@@ -49,7 +49,7 @@ app = typer.Typer(
     rich_markup_mode=None,
 )
 
-from drivebus.cli_drive import drive_app  # noqa: E402  (drivebus drive check/doc/try)
+from drivebus.cli.drive import drive_app  # noqa: E402  (drivebus drive check/doc/try)
 
 app.add_typer(drive_app)
 
@@ -87,7 +87,7 @@ def _options(
         if log_level.lower() not in _LEVELS:
             raise ArgumentError(f"--log-level: {log_level!r} is not one of {', '.join(_LEVELS)}")
         level = log_level.lower()
-    from drivebus.terminal import configure_logging
+    from drivebus.cli.terminal import configure_logging
 
     configure_logging(level, trace=trace)
 
@@ -152,7 +152,7 @@ def demo(
         help="a simulated machine file (default: the built-in demo machine)")] = None,
 ) -> None:
     """Run the demo job on the simulator: home, group moves, a jog, a stop."""
-    from drivebus.demo import run_demo
+    from drivebus.cli.demo import run_demo
 
     raise typer.Exit(anyio.run(run_demo, config))
 
@@ -208,8 +208,8 @@ def scan(
     """
     from drivebus.app import scan as sc
     from drivebus.app.targets import parse_target
+    from drivebus.cli.terminal import Out, run_guarded, scan_line
     from drivebus.settings import LineSettings
-    from drivebus.terminal import Out, run_guarded, scan_line
 
     t = parse_target(target)
     if one is not None:
@@ -311,7 +311,7 @@ def read(
 ) -> None:
     """Read COUNT registers (or values of --format) of the slave at ADDR on TARGET."""
     from drivebus.app.registers import words_per_value
-    from drivebus.terminal import Out, read_registers, remote_read, run_guarded
+    from drivebus.cli.terminal import Out, read_registers, remote_read, run_guarded
 
     # The poll's own arguments, checked whoever reads (this process or a service).
     words_per_value(fmt)
@@ -363,7 +363,7 @@ def write(
     """Write VALUEs from register REG of the slave at ADDR on TARGET (one: FC06, more: FC16;
     never retried, a write may be a command). ADDR 0 broadcasts to every slave (no reply)."""
     from drivebus.app.registers import encode
-    from drivebus.terminal import Out, remote_write, run_guarded, write_registers
+    from drivebus.cli.terminal import Out, remote_write, run_guarded, write_registers
 
     if server is not None:
         from drivebus.service.client import ServiceClient
@@ -393,7 +393,7 @@ def status(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False,
     """Show every axis (or the named ones): state, position, velocity, flags, alarm; an axis
     whose drive does not answer is shown Offline with the reason (exit 1 then, and on an
     alarm)."""
-    from drivebus.terminal import Out, remote_status, run_guarded, show_status
+    from drivebus.cli.terminal import Out, remote_status, run_guarded, show_status
 
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
@@ -420,10 +420,10 @@ def move(
 ) -> None:
     """Move an axis to TARGET (or by it), or the axes of a taught POSITION there together,
     and wait until they are there; Ctrl-C stops them."""
-    from drivebus.terminal import Out, move_axis, remote_motion, run_guarded
+    from drivebus.cli.terminal import Out, move_axis, remote_motion, run_guarded
 
     if target is None:
-        from drivebus.cli_positions import move_position
+        from drivebus.cli.positions import move_position
         from drivebus.config import load_config
 
         if by or axis in load_config(config).axes:  # an axis needs its TARGET
@@ -448,7 +448,7 @@ def move(
 def home(config: ConfigArg, axis: AxisArg, as_json: JsonOpt = False, server: ServerOpt = None,
          token: TokenOpt = None, local: LocalOpt = False) -> None:
     """Run the axis's configured homing procedure; Ctrl-C stops it."""
-    from drivebus.terminal import Out, home_axis, remote_motion, run_guarded
+    from drivebus.cli.terminal import Out, home_axis, remote_motion, run_guarded
 
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
@@ -472,7 +472,7 @@ def jog(
     local: LocalOpt = False,
 ) -> None:
     """Jog an axis at SPEED until Ctrl-C (or for --for seconds), then stop it."""
-    from drivebus.terminal import Out, jog_axis, remote_jog, run_guarded
+    from drivebus.cli.terminal import Out, jog_axis, remote_jog, run_guarded
 
     if checks.finite("SPEED", speed) == 0:
         raise ArgumentError("SPEED: must not be 0 (units/s; its sign is the direction)")
@@ -492,7 +492,7 @@ def jog(
 def stop(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False,
          server: ServerOpt = None, token: TokenOpt = None, local: LocalOpt = False) -> None:
     """Stop the axes (all if none are named) with their decelerating stop."""
-    from drivebus.terminal import Out, remote_stop, run_guarded, stop_axes
+    from drivebus.cli.terminal import Out, remote_stop, run_guarded, stop_axes
 
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
@@ -519,8 +519,8 @@ def monitor(
     On a terminal this is a live table; otherwise one line per axis and per slave at
     every update, each prefixed with the time (--json: one JSON line per update).
     """
-    from drivebus.terminal import Out, run_guarded
-    from drivebus.terminal import monitor as run_monitor
+    from drivebus.cli.terminal import Out, run_guarded
+    from drivebus.cli.terminal import monitor as run_monitor
 
     checks.positive("--interval", interval, unit="s")
     if count is not None and count < 1:
@@ -528,7 +528,7 @@ def monitor(
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
     if owner is not None:
-        from drivebus.terminal import remote_monitor
+        from drivebus.cli.terminal import remote_monitor
 
         raise typer.Exit(run_guarded(lambda: remote_monitor(out, owner, interval, count),
                                      interrupt_ok=True))
@@ -552,7 +552,7 @@ def sim(
     status CONFIG`, `read`/`scan sim://NAME`, `SerialLine("sim://NAME")`): the line's
     format channel carries the parity, and the command says it reached this simulator.
     """
-    from drivebus.terminal import Out, run_guarded, serve_sim
+    from drivebus.cli.terminal import Out, run_guarded, serve_sim
 
     out = Out()
     raise typer.Exit(run_guarded(lambda: serve_sim(out, config, log), interrupt_ok=True))
@@ -626,12 +626,12 @@ def check(config: ConfigArg, as_json: JsonOpt = False, probe: Annotated[bool, ty
     simulated. With --probe each drive is asked who it is. Exit status 1 if a line or a
     drive cannot work, 2 if the file is invalid.
     """
-    from drivebus.terminal import Out, check_config
+    from drivebus.cli.terminal import Out, check_config
 
     raise typer.Exit(check_config(Out(as_json=as_json), config, probe=probe))
 
 
-# -- commissioning (drivebus.commissioning) -------------------------------------------------------
+# -- commissioning (drivebus.cli.commissioning) ----------------------------------------
 
 app.add_typer(params_app, name="params")
 app.command(name="commission")(commission_command)
@@ -684,7 +684,7 @@ def main() -> None:
     Exit status: 0 done, 1 a runtime failure (a port, a drive, a motion), 2 a usage or
     configuration error, 130 interrupted (after stopping what the command started).
     """
-    from drivebus.cli_args import hoist_global_options, parse_command_line
+    from drivebus.cli.args import hoist_global_options, parse_command_line
 
     debug = "--debug" in sys.argv
     if debug:  # anywhere on the command line, not only before the command
@@ -712,7 +712,7 @@ def main() -> None:
 def _json_error(exc: BaseException) -> None:
     """With ``--json``, a failure is a JSON object on stdout too (unless the command
     already printed its result there)."""
-    from drivebus.terminal import Out
+    from drivebus.cli.terminal import Out
 
     if Out.results:
         return
@@ -725,5 +725,3 @@ def _json_error(exc: BaseException) -> None:
 
 __all__ = ["app", "main"]
 
-if __name__ == "__main__":
-    main()

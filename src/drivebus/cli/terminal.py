@@ -56,6 +56,7 @@ from drivebus.app.operations import (
 from drivebus.app.registers import RegisterValues, open_slave
 from drivebus.app.scan import Found, scan
 from drivebus.app.snapshots import machine_snapshot
+from drivebus.cli.views import axes_table, axis_line, axis_record, slaves_table, stats_lines
 from drivebus.errors import (
     ArgumentError,
     ConfigError,
@@ -68,7 +69,6 @@ from drivebus.motion import Axis, AxisState, Machine
 from drivebus.service.client import ServiceClient
 from drivebus.settings import LineSettings
 from drivebus.sim.serve import serve_simulators
-from drivebus.views import axes_table, axis_line, axis_record, slaves_table, stats_lines
 
 __all__ = [
     "Out",

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from drivebus.cli_args import LocalOpt, ServerOpt, TokenOpt
+from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
 
 if TYPE_CHECKING:
     from drivebus.service.client import ServiceClient
@@ -24,6 +24,6 @@ def owner(
 ) -> ServiceClient | None:
     """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
     through the file), as a client; None to open the machine here."""
-    from drivebus.terminal import service_owner
+    from drivebus.cli.terminal import service_owner
 
     return service_owner(config, server, token, local)

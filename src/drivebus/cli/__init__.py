@@ -1,0 +1,20 @@
+"""The ``drivebus`` command line, one module per concern: ``root`` (the commands and the
+entry point), ``args``/``options`` (parsing), ``terminal`` (output, signals, progress),
+``views`` (tables of a running machine), ``commissioning``, ``positions``, ``record``,
+``drive`` (``drivebus drive check/doc/try``) and ``demo``.
+
+``main`` is the console script's entry point; importing this package imports nothing else,
+so a command pays only for what it uses.
+"""
+
+from __future__ import annotations
+
+
+def main() -> None:
+    """Console-script entry point (``drivebus``): see ``drivebus.cli.root.main``."""
+    from drivebus.cli.root import main as run
+
+    run()
+
+
+__all__ = ["main"]
