@@ -140,6 +140,15 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
      ("procedures.enabel", "did you mean 'enable'")),
     ("not an address", MINIMAL.replace("address = 1", "address = 'one'"),
      ("registers.enable.address", "'one' is not an address")),
+    # issue 32 item 1: a unit whose scale would silently not apply
+    ("unit with a factor", MINIMAL.replace("address = 1", "address = 1\nunit = '0.1 A'"),
+     ("registers.enable.unit", "write unit = 'A', scale = 0.1")),
+    ("unknown unit", MINIMAL.replace("address = 1", "address = 1\nunit = 'furlongs'\n"
+                                     "scale = 2"),
+     ("registers.enable.unit", "'furlongs' is not one drivebus knows", "count")),
+    ("scale of a table", MINIMAL.replace("address = 1", "address = 1\ntable = [200, 400]\n"
+                                         "scale = 2"),
+     ("registers.enable", "scale does not apply to a table")),
 ]
 
 

@@ -54,6 +54,8 @@ class DriveOptions(BaseModel):
 def describe_values(values: Collection[int]) -> str:
     """``lo..hi`` for a range, else the values listed."""
     if isinstance(values, range):
+        if values.step != 1:
+            return f"{values.start}..{values[-1]} in steps of {values.step}"
         return f"{values.start}..{values.stop - 1}"
     return ", ".join(map(str, values))
 

@@ -38,7 +38,7 @@ from drivebus.checks import validation_problems
 from drivebus.drives.expr import FUNCTIONS, Expr, ExprError, Template
 from drivebus.drives.programs import ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
-from drivebus.drives.units import Kind, UnitCodec, parse_scale
+from drivebus.drives.units import Kind, UnitCodec, check_unit, parse_scale
 from drivebus.errors import ConfigError, LimitViolation
 from drivebus.settings import LineSettings
 
@@ -98,7 +98,12 @@ def _scale(v: Any) -> float:
         raise ValueError(str(exc)) from None
 
 
+def _unit(v: Any) -> Any:
+    return check_unit(v) if isinstance(v, str) else v
+
+
 E = Annotated[Expr, BeforeValidator(_expr)]
+Unit = Annotated[str, BeforeValidator(_unit)]
 T = Annotated[Template, BeforeValidator(_template)]
 Scale = Annotated[float, BeforeValidator(_scale)]
 IntKeyed = BeforeValidator(_int_keys)
@@ -369,7 +374,7 @@ class RegisterDef(_Model):
     signed: bool = False
     order: Literal["high_first", "low_first"] | None = None
     low_address: Word | None = None
-    unit: str = ""
+    unit: Unit = ""
     scale: Scale = 1.0
     ramp: str | float | None = None
     table: list[int] = []
@@ -424,6 +429,9 @@ class RegisterDef(_Model):
             raise ValueError(f"min {self.min} is above max {self.max}")
         if self.table and self.values:
             raise ValueError("give a table or named values, not both")
+        if (self.table or self.values) and self.scale != 1.0:
+            raise ValueError("scale does not apply to a table or named values (the table "
+                             "gives each raw value's meaning)")
         if self.input and self.access != "R":
             raise ValueError("an input register is read-only: access = \"R\"")
         if sum((self.input, self.coil, self.discrete)) > 1:
@@ -521,7 +529,8 @@ class Reg:
         d = self.d
         bit = d.coil or d.discrete
         return Register(
-            name, address, d.words, signed=d.signed, order=self.order, unit=d.unit,
+            name, address, d.words, signed=d.signed, order=self.order,
+            unit=self.codec.raw_unit(),
             minimum=0 if bit and d.min is None else d.min,
             maximum=1 if bit and d.max is None else d.max,
             access=Access(d.access), low_address=low,
@@ -1043,7 +1052,7 @@ class TwinDef(_Model):
 class ObjectUnit(_Model):
     """How the registers of one kind of CiA 402 object hold their values."""
 
-    unit: str
+    unit: Unit
     scale: Scale = 1.0
 
 

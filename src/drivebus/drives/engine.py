@@ -1322,8 +1322,24 @@ def _ppr_allowed(d: Description) -> Any:
         reg = d.regs[p.reg]
         if reg.codec.table:
             return tuple(sorted(reg.codec.table))
-        return range(max(reg.register.lo, 1), reg.register.hi + 1)
+        return scaled_range(max(reg.register.lo, 1), reg.register.hi, reg.codec.scale)
     return range(1, 1 << 31)
+
+
+def scaled_range(lo: int, hi: int, scale: float) -> Any:
+    """The whole values ``raw × scale`` for raw in ``lo..hi``: what a register of that
+    range and scale can be set to, in the user's units (pulses/rev through EG/2)."""
+    if scale == 1.0:
+        return range(lo, hi + 1)
+    if scale == int(scale):
+        s = int(scale)
+        return range(lo * s, hi * s + 1, s)
+    inverse = 1.0 / scale
+    if abs(inverse - round(inverse)) < 1e-9:
+        n = round(inverse)
+        return range(-(-lo // n), hi // n + 1)
+    return tuple(sorted({round(raw * scale) for raw in range(lo, hi + 1)
+                         if abs(raw * scale - round(raw * scale)) < 1e-9}))
 
 
 def _status_plan(d: Description) -> ReadPlan:

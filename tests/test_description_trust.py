@@ -1,0 +1,149 @@
+"""Descriptions a user can trust on real hardware (issue 32): every value through its
+scale whatever its unit, ranges in the user's units, conversions shown, writes that never
+merge what the manual keeps apart, object-addressed maps, Modbus TCP unit ids, stops
+that say what they can take; each on the real engine, its generic twin and the CLI."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+import pytest
+
+from drivebus import LineSettings, Priority
+from drivebus.config import load_config
+from drivebus.drives.description import Description, load_description
+from drivebus.drives.engine import DescribedProfile, profile_class
+from drivebus.errors import ConfigError
+from drivebus.sim import VirtualWire, sim_bus
+from drivebus.sim.described import DescribedDrive, described_twin
+
+ROOT = Path(__file__).resolve().parents[1]
+FAST = LineSettings.parse("115200 8N1")
+
+SCALED = """
+[drive]
+family = "SCALED"
+
+[units.pulses_per_rev]
+default = 20000
+register = "steps_per_rev"
+
+[registers.status]
+address = 0
+access = "R"
+bits.ENABLED = { bit = 0, means = "enabled" }
+bits.MOVING = { bit = 1, means = "moving" }
+
+[registers.steps_per_rev]     # the manual: "EG/2: steps per revolution / 2"
+address = 52
+unit = "steps/rev"
+scale = 2
+min = 100
+max = 25600
+default = 10000
+
+[registers.current]
+address = 60
+unit = "A"
+scale = 0.1
+max = 80
+default = 20
+
+[registers.speed]
+address = 29
+unit = "rps"
+scale = "1/240"
+min = 1
+max = 19200
+
+[registers.accel]
+address = 27
+unit = "rps/s"
+scale = "1/6"
+min = 1
+max = 30000
+
+[registers.control]
+address = 1
+
+[procedures.setup]
+steps = [{ write = { steps_per_rev = "pulses_per_rev", current = 1.5 } }]
+
+[procedures.enable]
+steps = [{ write = { control = 1 } }]
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "drive.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text), encoding="utf-8")
+    return p
+
+
+def hexframes(wire: VirtualWire) -> list[str]:
+    return [f.data.hex(" ").upper() for f in wire.requests()]
+
+
+def cli(*args: str | Path, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    """Run ``drivebus ARGS`` as a user does."""
+    return subprocess.run([sys.executable, "-m", "drivebus.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=timeout, check=False,
+                          cwd=ROOT)
+
+
+@asynccontextmanager
+async def rig(d: Description, address: int = 1, **kwargs: object
+              ) -> AsyncIterator[tuple[DescribedDrive, VirtualWire, DescribedProfile]]:
+    twin = described_twin(d)(address, FAST)
+    async with sim_bus([twin], FAST) as (wire, bus):
+        yield twin, wire, profile_class(d)(bus.slave(address), **kwargs)  # type: ignore[arg-type]
+
+
+# -- item 1: every value goes through its scale, whatever its unit's name -------------------
+
+
+async def test_a_scale_applies_whatever_the_units_name(tmp_path: Path) -> None:
+    d = load_description(write(tmp_path, SCALED))
+    async with rig(d, pulses_per_rev=20000) as (twin, wire, profile):
+        await profile.setup()
+        # EG/2: 20 000 steps/rev is 10 000 (0x2710); 1.5 A in 0.1 A is 15 (0x000F)
+        assert hexframes(wire)[:2] == ["01 06 00 34 27 10 D2 38", "01 06 00 3C 00 0F 09 C2"]
+        assert twin.regs[52] == 10000 and twin.regs[60] == 15
+        # the twin runs what the register says: 2 × 10 000 pulses a revolution
+        assert twin.pulses_per_rev == 20000
+        values = await profile._read_items(["steps_per_rev", "current"], None,
+                                           Priority.CONFIG)
+        assert values["steps_per_rev"] == 20000 and values["current"] == pytest.approx(1.5)
+
+
+# -- item 2: ranges in the user's units, through the scale ----------------------------------
+
+
+def test_pulses_per_rev_is_checked_through_its_registers_scale(tmp_path: Path) -> None:
+    drive = write(tmp_path, SCALED, "scaled.toml")
+    machine = """
+        [lines.bus]
+        port = "sim://scaled-ppr"
+        [axes.a]
+        line = "bus"
+        address = 1
+        drive = "scaled.toml"
+        pulses_per_rev = PPR
+    """
+    ok = write(tmp_path, machine.replace("PPR", "51200"), "ok.toml")
+    assert load_config(ok).axes["a"].pulses_per_rev == 51200
+    for bad in ("150", "20001", "51202"):  # raw 75 (below 100), not a whole raw, raw 25601
+        path = write(tmp_path, machine.replace("PPR", bad), f"bad{bad}.toml")
+        with pytest.raises(ConfigError, match=r"axes\.a\.pulses_per_rev.*allowed: "
+                                              r"200\.\.51200 in steps of 2"):
+            load_config(path)
+    done = cli("check", write(tmp_path, machine.replace("PPR", "150"), "cli.toml"))
+    assert done.returncode == 2 and "200..51200 in steps of 2" in done.stderr, done.stderr
+    done = cli("drive", "check", drive)
+    assert done.returncode == 0, done.stderr
+    assert "allowed 200..51200 in steps of 2" in done.stdout, done.stdout
