@@ -147,3 +147,18 @@ def test_pulses_per_rev_is_checked_through_its_registers_scale(tmp_path: Path) -
     done = cli("drive", "check", drive)
     assert done.returncode == 0, done.stderr
     assert "allowed 200..51200 in steps of 2" in done.stdout, done.stdout
+
+
+# -- item 3: drive check shows every conversion on example values ---------------------------
+
+
+def test_drive_check_shows_each_conversion_on_an_example_value(tmp_path: Path) -> None:
+    done = cli("drive", "check", write(tmp_path, SCALED))
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    for line in ("steps_per_rev          20000 steps/rev → 52 (0x0034) = 10000   "
+                 "(steps/rev × 2)",
+                 "current                2 A → 60 (0x003C) = 20   (A × 0.1)",
+                 "speed                  120 rpm (2 rev/s) → 29 (0x001D) = 480   (rps × 1/240)",
+                 "accel                  100 rev/s² → 27 (0x001B) = 600   (rps/s × 1/6)"):
+        assert line in out, (line, out)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivebus.drives.base import _PROCEDURES, DriveProfile, describe_values
-from drivebus.drives.description import PROCEDURES, load_description
+from drivebus.drives.description import PROCEDURES, Description, load_description
 from drivebus.drives.pages import family_page
 from drivebus.drives.registry import (
     DriveFamily,
@@ -20,6 +20,8 @@ from drivebus.drives.registry import (
     family_from_description,
     is_file_reference,
 )
+from drivebus.drives.units import Kind
+from drivebus.errors import LimitViolation
 
 __all__ = ["DescriptionReport", "check_report", "doc_page", "load"]
 
@@ -82,6 +84,7 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         f"{sum(x.d.access == 'W' for x in regs)} write-only, {sum(x.d.eeprom for x in regs)} "
         f"wear EEPROM, {sum(x.d.volatile for x in regs)} volatile)"
         + (f"; tables {', '.join(tables)}" if tables else ""))
+    r.lines += conversion_lines(d)
     plan = p._status_plan  # type: ignore[attr-defined]
     by_space = {0: (3, plan.blocks), 1: (4, plan.input_blocks), 2: (1, plan.coil_blocks),
                 3: (2, plan.discrete_blocks)}
@@ -150,6 +153,48 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         regs_t = sorted({t.reg for t in d.twin.on_write})
         r.lines.append(f"  twin: {len(d.twin.on_write)} triggers on {', '.join(regs_t)}")
     return r
+
+
+_EXAMPLES = {Kind.SPEED: (120.0, "rpm (2 rev/s)"), Kind.ACCEL: (100.0, "rev/s²"),
+             Kind.RAMP: (100.0, "rev/s²")}
+"""The example value of each kind of register in the conversions ``drive check`` shows."""
+
+
+def conversion_lines(d: Description) -> list[str]:
+    """How every register with a unit or a scale converts an example value (a revolution,
+    2 rev/s, 100 rev/s², its default, the pulses per revolution), so that a reader sees
+    the scale at work: ``steps_per_rev  20000 steps/rev → 52 (0x0034) = 10000``."""
+    ppr = d.units.pulses_per_rev
+    out: list[str] = []
+    for key, reg in d.regs.items():
+        codec = reg.codec
+        if (not codec.physical and key != ppr.reg) or codec.kind is Kind.TABLE:
+            continue
+        r = reg.at(reg.d.first) if reg.array else reg.register
+        ref = None
+        if key == ppr.reg:
+            value: float = ppr.default
+            unit = codec.unit or "pulses/rev"
+        elif codec.kind is Kind.POSITION:
+            value, unit = float(ppr.default), f"pulses (1 rev at {ppr.default} pulses/rev)"
+        elif codec.kind in _EXAMPLES:
+            value, unit = _EXAMPLES[codec.kind]
+            if codec.kind is Kind.RAMP and not isinstance(codec.ramp, int | float):
+                ref, unit = 600.0, f"rev/s² reaching 600 rpm (in {codec.ramp})"
+        else:
+            raw_example = reg.default_at(reg.d.first if reg.array else None) or 100
+            value = codec.to_physical(raw_example)
+            unit = codec.unit or "count"
+        number = r.address + d.register_base(reg.d)
+        where = f"{number} (0x{r.address:04X})" if d.link.register_base else \
+            f"{r.address} (0x{r.address:04X})"
+        try:
+            raw: str = str(codec.to_raw(r, value, ppr=ppr.default, ref_rpm=ref))
+        except LimitViolation as exc:
+            raw = f"refused: {exc}"
+        out.append(f"    {key:<22} {value:g} {unit} → {where} = {raw}   ({codec.describe()})")
+    return ["  conversions (an example value of each register with a unit or scale):",
+            *out] if out else []
 
 
 def _cia402_lines(fam: DriveFamily, r: DescriptionReport) -> None:

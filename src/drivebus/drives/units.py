@@ -97,11 +97,13 @@ def scale_text(scale: float) -> str:
     """``scale`` as the manual would write it: ``2``, ``0.1``, ``1/240``."""
     if scale == int(scale):
         return str(int(scale))
+    short = f"{scale:g}"
+    if len(short.replace("0.", "", 1)) <= 4:  # 0.1, 0.25, 0.001
+        return short
     frac = Fraction(scale).limit_denominator(100000)
-    if abs(float(frac) - scale) < 1e-12 * scale and frac.denominator > 10 and \
-            frac.numerator < 1000:
+    if abs(float(frac) - scale) < 1e-12 * scale and frac.numerator < 1000:
         return f"{frac.numerator}/{frac.denominator}"
-    return f"{scale:g}"
+    return short
 
 
 def unit_kind(unit: str, *, ramp: bool) -> Kind:
