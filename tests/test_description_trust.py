@@ -162,3 +162,138 @@ def test_drive_check_shows_each_conversion_on_an_example_value(tmp_path: Path) -
                  "speed                  120 rpm (2 rev/s) → 29 (0x001D) = 480   (rps × 1/240)",
                  "accel                  100 rev/s² → 27 (0x001B) = 600   (rps/s × 1/6)"):
         assert line in out, (line, out)
+
+
+# -- item 4: writes never merge what the manual keeps apart; exceptions name registers ------
+
+FLAT402 = """
+[drive]
+family = "FLAT402"
+engine = "cia402"
+
+[units.pulses_per_rev]
+default = 4000
+
+[link]
+word_order = "high_first"
+
+[registers.controlword]
+address = 0x100
+object = "6040"
+[registers.statusword]
+address = 0x101
+object = "6041"
+access = "R"
+[registers.mode]
+address = 0x102
+object = "6060"
+signed = true
+[registers.mode_display]
+address = 0x103
+object = "6061"
+signed = true
+access = "R"
+[registers.position]
+address = 0x104
+object = "6064"
+words = 2
+signed = true
+unit = "pulses"
+access = "R"
+[registers.velocity]
+address = 0x106
+object = "606C"
+words = 2
+signed = true
+unit = "rpm"
+access = "R"
+[registers.target]
+address = 0x108
+object = "607A"
+words = 2
+signed = true
+unit = "pulses"
+[registers.profile_velocity]
+address = 0x10A
+object = "6081"
+words = 2
+unit = "rpm"
+[registers.profile_acceleration]
+address = 0x10C
+object = "6083"
+words = 2
+unit = "rps/s"
+[registers.profile_deceleration]
+address = 0x10E
+object = "6084"
+words = 2
+unit = "rps/s"
+"""
+
+
+def fc16_starts(wire: VirtualWire) -> list[tuple[int, int]]:
+    """(first address, count) of every FC16 on the wire."""
+    return [(int.from_bytes(f.data[2:4], "big"), int.from_bytes(f.data[4:6], "big"))
+            for f in wire.requests() if f.data[1] == 0x10]
+
+
+async def test_cia402_objects_are_written_one_by_one_unless_a_block_says_so(
+        tmp_path: Path) -> None:
+    from drivebus.drives.base import MoveParams
+
+    apart = load_description(write(tmp_path, FLAT402, "apart.toml"))
+    async with rig(apart) as (_, wire, profile):
+        await profile.enable()
+        await profile.move_absolute(4000, MoveParams(60, 10, 10))
+        # 6081, 6083, 6084 and 607A side by side, yet each in its own request
+        assert {(0x10A, 2), (0x10C, 2), (0x10E, 2), (0x108, 2)} <= set(fc16_starts(wire))
+        assert not [s for s in fc16_starts(wire) if s[1] > 2]
+    together = load_description(write(tmp_path, FLAT402 + """
+[cia402]
+blocks = [["6081", "6083", "profile_deceleration"]]
+""", "together.toml"))
+    async with rig(together) as (_, wire, profile):
+        await profile.enable()
+        await profile.move_absolute(4000, MoveParams(60, 10, 10))
+        assert (0x10A, 6) in fc16_starts(wire) and (0x108, 2) in fc16_starts(wire)
+    with pytest.raises(ConfigError, match=r"cia402\.blocks\[0\]: profile_velocity .* and "
+                                          r"target .* are not adjacent"):
+        load_description(write(tmp_path, FLAT402 + """
+[cia402]
+blocks = [["6081", "607A"], ["6083", "6084"]]
+""", "gap.toml"))
+
+
+async def test_a_modbus_exception_names_function_addresses_and_registers(
+        tmp_path: Path) -> None:
+    from drivebus.errors import ModbusException
+
+    text = SCALED + """
+[registers.gain]
+address = 40
+name = "position gain (P1-01)"
+valid = "value < 1000"
+
+[registers.filter]
+address = 41
+name = "position filter (P1-02)"
+
+[procedures.tune]
+params = ["gain", "filter"]
+steps = [{ write = { gain = "gain", filter = "filter" }, block = true }]
+
+[procedures.set_gain]
+params = ["gain"]
+steps = [{ write = { gain = "gain" } }]
+"""
+    d = load_description(write(tmp_path, text))
+    async with rig(d) as (_, _, profile):
+        with pytest.raises(ModbusException) as err:
+            await profile.tune(1500, 3)
+        exc = err.value
+        assert (exc.function, exc.address, exc.count, exc.code) == (0x10, 40, 2, 3)
+        assert ("answered function 0x10 at 40..41 (0x0028..0x0029): position gain (P1-01), "
+                "position filter (P1-02) with exception 0x03") in str(exc), str(exc)
+        with pytest.raises(ModbusException, match=r"function 0x06 at 40 \(0x0028\): "
+                                                  r"position gain \(P1-01\) with exception"):
+            await profile.set_gain(1500)

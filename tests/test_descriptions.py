@@ -146,6 +146,12 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
     ("unknown unit", MINIMAL.replace("address = 1", "address = 1\nunit = 'furlongs'\n"
                                      "scale = 2"),
      ("registers.enable.unit", "'furlongs' is not one drivebus knows", "count")),
+    # issue 32 item 4: a block only where the registers follow on
+    ("block with a gap", MINIMAL + "\n[registers.speed]\naddress = 5\n[registers.accel]\n"
+     "address = 7\n[procedures.move_relative]\nsteps = [{ write = { speed = 'speed', "
+     "accel = 'accel' }, block = true }]\n",
+     ("procedures.move_relative.steps[0].block", "speed (5, 0x0005, 1 word) and accel (7, "
+      "0x0007, 1 word) are not adjacent")),
     ("scale of a table", MINIMAL.replace("address = 1", "address = 1\ntable = [200, 400]\n"
                                          "scale = 2"),
      ("registers.enable", "scale does not apply to a table")),

@@ -279,7 +279,7 @@ class Bus:
         self._kick(req)
         reply = await req.future  # cancelling us cancels the future: the owner skips it
         if reply[:1] and reply[0] & 0x80:
-            handle.raise_exception(reply)
+            handle.raise_exception(reply, pdu)
         return reply
 
     def _wake_owner(self) -> None:

@@ -78,17 +78,23 @@ class Cia402Profile(DescribedProfile):
     async def _write_objects(self, values: Sequence[tuple[str, float | int]], *,
                              priority: Priority = Priority.COMMAND,
                              idempotent: bool = True) -> None:
-        """Write objects (values in drive units), all range-checked first; registers side by
-        side go in one FC16."""
-        items = [(self._obj(n).register, self._raw(n, v)) for n, v in values]
+        """Write objects (values in drive units), all range-checked first; objects of one
+        of ``[cia402] blocks`` side by side go in one FC16, every other object in a request
+        of its own (a drive answers a write across objects its manual keeps apart with an
+        exception)."""
+        c = self.description.cia402
+        items = [(self._obj(n).register, self._raw(n, v), n) for n, v in values]
         groups: list[list[tuple[Any, int]]] = []
-        for r, raw in sorted(items, key=lambda x: x[0].address) if len(items) > 1 else items:
-            if groups:
+        block: int | None = None
+        for r, raw, name in sorted(items, key=lambda x: x[0].address):
+            mine = c.block_of(name) if c is not None else None
+            if groups and mine is not None and mine == block:
                 last = groups[-1][-1][0]
                 if last.contiguous and r.contiguous and r.address == last.address + last.words:
                     groups[-1].append((r, raw))
                     continue
             groups.append([(r, raw)])
+            block = mine
         for group in groups:
             if len(group) == 1:
                 await self.write(group[0][0], group[0][1], priority=priority,

@@ -1074,6 +1074,17 @@ class Cia402Def(_Model):
                                          "one at once (controlword bit 5)")
     timeout: float = Field(1.0, gt=0, le=30, description="s, for a state change or a "
                            "set-point acknowledge")
+    blocks: list[Annotated[list[str], Field(min_length=2)]] = Field(
+        [], description="objects the drive takes in one FC16, each list at registers that "
+        "follow on ('profile_velocity', 'profile_acceleration'); every other object is "
+        "written in a request of its own")
+
+    def block_of(self, name: str) -> int | None:
+        """The index of the block of ``blocks`` object ``name`` belongs to (None: none)."""
+        for i, block in enumerate(self.blocks):
+            if any(object_name(ref) == name for ref in block):
+                return i
+        return None
 
 
 def object_name(ref: str) -> str | None:
@@ -1575,6 +1586,7 @@ class _Checker:
             if c.objects and c.address_rule is None:
                 self.out.append("cia402.objects: needs address_rule (how an object's index "
                                 "and sub-index give its address)")
+            self._cia402_blocks(c)
             if c.address_rule is not None:
                 unknown = c.address_rule.names - {"index", "sub"} - set(FUNCTIONS)
                 if unknown:
@@ -1596,6 +1608,28 @@ class _Checker:
                                     f"(a register with object = \"{needed}\")")
         elif c is not None:
             self.out.append("cia402: only for drive.engine = \"cia402\"")
+
+    def _cia402_blocks(self, c: Cia402Def) -> None:
+        from drivebus.drives.mapping import adjacent
+
+        seen: dict[str, int] = {}
+        for i, block in enumerate(c.blocks):
+            regs = []
+            for ref in block:
+                name = object_name(ref)
+                if name is None or name not in self.d.objects:
+                    self.out.append(f"cia402.blocks[{i}]: {ref!r} is no object mapped to a "
+                                    f"register")
+                    return
+                if name in seen:
+                    self.out.append(f"cia402.blocks[{i}]: {name} is also in "
+                                    f"cia402.blocks[{seen[name]}]")
+                seen[name] = i
+                regs.append(self.d.objects[name])
+            gap = adjacent(regs)
+            if gap is not None:
+                self.out.append(f"cia402.blocks[{i}]: {gap[0]} and {gap[1]} are not "
+                                f"adjacent, so one FC16 cannot write them")
 
     def _placed_overlaps(self) -> None:
         """Registers the address rule places must not share an address with another."""
@@ -1755,6 +1789,8 @@ class _Checker:
             for key, item in step.write.items():
                 self._target(f"{where}.write", key, params, writes=True)
                 self._names(f"{where}.write.{key}", item.value, params)
+            if step.block is not None and step.each is None:
+                self._block(where, list(step.write))
         if step.read is not None:
             for j, item in enumerate(step.read):
                 if isinstance(item, str) and "[" in item:
@@ -1777,6 +1813,30 @@ class _Checker:
                     self.out.append(f"{where}.set.{k}: no state variable {k!r} (declare it "
                                     f"in [state])")
                 self._names(f"{where}.set.{k}", e, params)
+
+    def _block(self, where: str, keys: list[str]) -> None:
+        """A step's ``block``: its registers must follow on from each other in the order
+        listed (one FC16 writes them; anything else would merge what the manual keeps
+        apart, or silently become several writes)."""
+        from drivebus.drives.mapping import adjacent
+
+        pairs: list[tuple[Reg, int | None]] = []
+        for key in keys:
+            m = re.fullmatch(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[\s*(\d+)\s*\])?", key.strip())
+            reg = self.regs.get(m.group(1)) if m is not None else None
+            if m is None or reg is None or (reg.array and m.group(2) is None):
+                return  # an index only the run knows, or a mistake named elsewhere
+            index = int(m.group(2)) if m.group(2) is not None else None
+            if index is not None and (not reg.array or index not in reg.indices):
+                return
+            pairs.append((reg, index))
+        gap = adjacent(pairs)
+        if gap is not None:
+            self.out.append(
+                f"{where}.block: {gap[0]} and {gap[1]} are not adjacent, so one FC16 "
+                f"cannot write them: list a block's registers in address order with no "
+                f"gap (and only where the manual lets them be written together), or "
+                f"write them in separate steps")
 
     def _target(self, where: str, key: str, params: set[str], *, writes: bool = False
                 ) -> None:

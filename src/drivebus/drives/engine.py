@@ -45,6 +45,7 @@ from drivebus.drives.base import (
 from drivebus.drives.description import PROCEDURES, Description, Procedure, Reg, Step
 from drivebus.drives.expr import Expr, ExprError, Unknown
 from drivebus.drives.io import IOPoint, function_text
+from drivebus.drives.mapping import register_namer
 from drivebus.drives.programs import Completion
 from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
@@ -233,6 +234,7 @@ class DescribedProfile(DriveProfile):
         timeout = d.link.timing.response_timeout
         if timeout is not None and slave.timeout < timeout:
             slave.timeout = timeout
+        slave.register_names = register_namer(d)
         timing = d.link.timing
         slave.guard = max(slave.guard, timing.guard)
         slave.frame_timeout = max(slave.frame_timeout, timing.frame_timeout or 0.0)
