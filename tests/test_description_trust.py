@@ -297,3 +297,92 @@ steps = [{ write = { gain = "gain" } }]
         with pytest.raises(ModbusException, match=r"function 0x06 at 40 \(0x0028\): "
                                                   r"position gain \(P1-01\) with exception"):
             await profile.set_gain(1500)
+
+
+# -- item 6: a Modbus TCP unit id is 0..255, an RTU address 1..247; address lists ------------
+
+TCP_FF = """
+[drive]
+family = "UNIT-FF"
+
+[link]
+protocol = "tcp"
+addresses = [255]          # the manual: "Unit Identifier: set FFh"
+
+[units.pulses_per_rev]
+default = 1000
+
+[registers.status]
+address = 0
+access = "R"
+bits.ENABLED = { bit = 0, means = "enabled" }
+bits.MOVING = { bit = 1, means = "moving" }
+
+[registers.control]
+address = 1
+
+[procedures.enable]
+steps = [{ write = { control = 1 } }]
+
+[[twin.on_write]]
+register = "control"
+when = "value == 1"
+do = "enable"
+"""
+
+
+def machine(tmp_path: Path, kind: str, address: int, name: str) -> Path:
+    line = (f'kind = "tcp"\nhost = "sim://{name}"' if kind == "tcp" else
+            f'port = "sim://{name}"\nsettings = "115200 8N1"')
+    return write(tmp_path, f"""
+[lines.l]
+{line}
+[axes.a]
+line = "l"
+address = {address}
+drive = "unit_ff.toml"
+""", f"{name}.toml")
+
+
+async def test_a_modbus_tcp_unit_id_255_reaches_the_wire(tmp_path: Path) -> None:
+    import anyio
+
+    from drivebus import open_machine
+
+    write(tmp_path, TCP_FF, "unit_ff.toml")
+    cfg = load_config(machine(tmp_path, "tcp", 255, "unit-ff"))
+    with anyio.fail_after(20):
+        async with open_machine(cfg) as m:
+            await m.axes["a"].enable()
+            server = m.wires["l"]
+            assert server.log and {r.unit for r in server.log} == {255}  # type: ignore[attr-defined]
+
+
+def test_unit_ids_and_rtu_addresses_are_checked_naming_file_and_key(tmp_path: Path) -> None:
+    write(tmp_path, TCP_FF, "unit_ff.toml")
+    with pytest.raises(ConfigError, match=r"tcp-254\.toml: axes\.a\.address: the UNIT-FF "
+                                          r"drive has addresses 255, not 254"):
+        load_config(machine(tmp_path, "tcp", 254, "tcp-254"))
+    rtu = write(tmp_path, TCP_FF.replace('protocol = "tcp"', 'protocol = "rtu"'), "rtu.toml")
+    with pytest.raises(ConfigError, match=rf"{rtu}: link: .*addresses: 255 is outside "
+                                          r"1\.\.247: an RTU address is 1\.\.247"):
+        load_description(rtu)
+    write(tmp_path, TCP_FF.replace('protocol = "tcp"\naddresses = [255]',
+                                   'addresses = [1, 31]'), "unit_ff.toml")
+    with pytest.raises(ConfigError, match=r"rtu-255\.toml: axes\.a\.address: 255 is outside "
+                                          r"1\.\.247 \(an RTU address on serial line l"):
+        load_config(machine(tmp_path, "serial", 255, "rtu-255"))
+    # a list is the addresses themselves: [1, 31] is 1 and 31, not 1..31
+    assert load_config(machine(tmp_path, "serial", 31, "rtu-31")).axes["a"].address == 31
+    with pytest.raises(ConfigError, match=r"has addresses 1, 31, not 5"):
+        load_config(machine(tmp_path, "serial", 5, "rtu-5"))
+
+
+def test_drive_check_lists_the_line_kinds_the_description_allows(tmp_path: Path) -> None:
+    done = cli("drive", "check", write(tmp_path, TCP_FF, "unit_ff.toml"))
+    assert done.returncode == 0, done.stderr
+    assert "Modbus TCP on lines tcp (Modbus TCP); unit ids 255;" in done.stdout, done.stdout
+    done = cli("drive", "check", write(tmp_path, SCALED))
+    assert ("Modbus RTU on lines serial (RS-485), rtu-over-tcp (RS-485 behind a transparent "
+            "serial server), tcp (Modbus TCP through a Modbus TCP/RTU gateway); addresses "
+            "1..247;") in done.stdout, done.stdout

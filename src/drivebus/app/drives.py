@@ -67,9 +67,13 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         f"{d.family} ({d.drive.engine} engine): {d.drive.description or d.drive.model}",
         f"  source: {fam.source}",
         f"  link: {'Modbus RTU' if link.protocol == 'rtu' else 'Modbus TCP'} on "
-        f"{', '.join(sorted(p.line_kinds))} lines; addresses {describe_values(p.addresses)}; "
-        f"baud {', '.join(map(str, link.baud_rates)) or 'any'}; formats "
-        f"{', '.join(link.formats) or 'any'}; 32-bit values "
+        f"{line_kinds_text(link.protocol, p.line_kinds)}; "
+        f"{'unit ids' if link.protocol == 'tcp' else 'addresses'} "
+        f"{describe_values(p.addresses)}; "
+        + ("" if link.protocol == "tcp" else
+           f"baud {', '.join(map(str, link.baud_rates)) or 'any'}; formats "
+           f"{', '.join(link.formats) or 'any'}; ")
+        + f"32-bit values "
         f"{link.word_order.replace('_', ' ')}; function codes "
         f"{', '.join(f'{c:02d}' for c in link.functions)}; at most {link.max_read} registers "
         f"per read",
@@ -153,6 +157,16 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         regs_t = sorted({t.reg for t in d.twin.on_write})
         r.lines.append(f"  twin: {len(d.twin.on_write)} triggers on {', '.join(regs_t)}")
     return r
+
+
+def line_kinds_text(protocol: str, kinds: frozenset[str]) -> str:
+    """The kinds of line that reach a drive, each said with what it means."""
+    said = {"serial": "serial (RS-485)",
+            "rtu-over-tcp": "rtu-over-tcp (RS-485 behind a transparent serial server)",
+            "tcp": "tcp (Modbus TCP" + (" through a Modbus TCP/RTU gateway)"
+                                       if protocol == "rtu" else ")")}
+    order = ("serial", "rtu-over-tcp", "tcp")
+    return "lines " + ", ".join(said[k] for k in order if k in kinds)
 
 
 _EXAMPLES = {Kind.SPEED: (120.0, "rpm (2 rev/s)"), Kind.ACCEL: (100.0, "rev/s²"),

@@ -218,6 +218,7 @@ class Bus:
             exception_texts=exception_texts,
             guard=guard,
             frame_timeout=frame_timeout,
+            max_address=max(getattr(self.line, "unit_ids", range(248))),
         )
         if h.settings is not None and h.settings != self.line.settings:
             if self.line.settings is None:

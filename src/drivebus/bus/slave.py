@@ -66,9 +66,11 @@ class SlaveHandle:
         exception_texts: dict[int, str] | None = None,
         guard: float = 0.0,
         frame_timeout: float = 0.0,
+        max_address: int = 247,
     ) -> None:
-        self.address = checks.whole("slave address (0 = broadcast)", address, 0, 247,
-                                    error=ConfigError)
+        what = "slave address (0 = broadcast)" if max_address == 247 else \
+            "Modbus TCP unit id"
+        self.address = checks.whole(what, address, 0, max_address, error=ConfigError)
         if settings is not None and not isinstance(settings, LineSettings):
             raise ConfigError(
                 f"slave {address}: settings must be LineSettings (e.g. "

@@ -30,6 +30,7 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -234,7 +235,9 @@ class Link(_Model):
 
     protocol: Literal["rtu", "tcp"] = "rtu"
     kinds: list[_LINE_KINDS] | None = None
-    addresses: tuple[int, int] = (1, 247)
+    addresses: tuple[int, int] | list[int] = Field(
+        (1, 247), description="'LO..HI' (a range), or a list of the addresses it can have "
+        "([255]: only 255)")
     baud_rates: list[Annotated[int, Field(gt=0)]] = []
     formats: list[Annotated[str, Field(pattern=_FORMAT)]] = []
     format_rules: list[FormatRule] = []
@@ -268,23 +271,45 @@ class Link(_Model):
 
     @field_validator("addresses", "register_addresses", mode="before")
     @classmethod
-    def _addresses(cls, v: Any) -> Any:
-        if isinstance(v, str) and ".." in v:
-            lo, _, hi = v.partition("..")
+    def _addresses(cls, v: Any, info: ValidationInfo) -> Any:
+        if isinstance(v, str):
+            lo, sep, hi = v.partition("..")
             try:
-                return (int(lo, 0), int(hi, 0))
+                return (int(lo, 0), int(hi, 0)) if sep else [int(v, 0)]
             except ValueError:
                 raise ValueError(f"{v!r}: expected 'LO..HI' like '1..31'") from None
+        if isinstance(v, list | tuple) and info.field_name == "addresses":
+            return list(v)  # a list: the addresses themselves, not a range
         return v
 
     @model_validator(mode="after")
     def _check(self) -> Link:
-        lo, hi = self.addresses
-        if not 0 <= lo <= hi <= 255:
-            raise ValueError(f"addresses {lo}..{hi}: expected 0 <= lo <= hi <= 255")
+        if isinstance(self.addresses, tuple):
+            lo, hi = self.addresses
+            if lo > hi:
+                raise ValueError(f"addresses {lo}..{hi}: the first is above the last")
+            given = [lo, hi]
+        else:
+            if not self.addresses:
+                raise ValueError("addresses: an empty list (give 'LO..HI' or the addresses)")
+            given = self.addresses
+        first, last = (0, 255) if self.protocol == "tcp" else (1, 247)
+        bad = [a for a in given if not first <= a <= last]
+        if bad:
+            what = "a Modbus TCP unit id is 0..255" if self.protocol == "tcp" else \
+                "an RTU address is 1..247 (0 is broadcast); a Modbus TCP unit id is 0..255 " \
+                "(protocol = \"tcp\")"
+            raise ValueError(f"addresses: {bad[0]} is outside {first}..{last}: {what}")
         if self.factory is not None:
             LineSettings.parse(self.factory)
         return self
+
+    @property
+    def address_set(self) -> range | tuple[int, ...]:
+        """The addresses (unit ids) the drive can have."""
+        if isinstance(self.addresses, tuple):
+            return range(self.addresses[0], self.addresses[1] + 1)
+        return tuple(sorted(set(self.addresses)))
 
     @property
     def line_kinds(self) -> frozenset[str]:
@@ -292,8 +317,8 @@ class Link(_Model):
         if self.kinds is not None:
             return frozenset(self.kinds)
         if self.protocol == "tcp":
-            return frozenset({"tcp", "rtu-over-tcp"})
-        return frozenset({"serial", "rtu-over-tcp", "tcp"})
+            return frozenset({"tcp"})  # MBAP only: no RTU frames over its socket
+        return frozenset({"serial", "rtu-over-tcp", "tcp"})  # tcp: through a gateway
 
     @property
     def order(self) -> WordOrder:

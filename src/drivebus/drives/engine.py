@@ -1460,7 +1460,7 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "homing_methods": homing,
         "options": options_model(d),
         "pulses_per_rev_allowed": _ppr_allowed(d),
-        "addresses": range(link.addresses[0], link.addresses[1] + 1),
+        "addresses": link.address_set,
         "line_kinds": link.line_kinds,
         "baud_rates": tuple(link.baud_rates),
         "line_formats": tuple(link.formats),

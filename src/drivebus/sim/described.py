@@ -29,11 +29,12 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Collection, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from drivebus.clock import monotonic
+from drivebus.drives.base import describe_values
 from drivebus.drives.cia402 import (
     OBJECTS,
     HomeSignal,
@@ -312,11 +313,12 @@ class DescribedDrive(SimDrive):
         """An address the drive can have: ``[link] addresses`` (or, with
         ``soft_address``, ``register_addresses`` too); ``ConfigError`` else."""
         link = self.description.link
-        ranges = [link.addresses]
+        sets: list[Collection[int]] = [link.address_set]
         if soft_address and link.register_addresses is not None:
-            ranges.append(link.register_addresses)
-        if not any(lo <= address <= hi for lo, hi in ranges):
-            shown = " or ".join(f"{lo}..{hi}" for lo, hi in ranges)
+            lo, hi = link.register_addresses
+            sets.append(range(lo, hi + 1))
+        if not any(address in s for s in sets):
+            shown = " or ".join(describe_values(s) for s in sets)
             raise ConfigError(f"{self.description.family} address {address}: it has "
                               f"addresses {shown}")
 
