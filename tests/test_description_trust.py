@@ -386,3 +386,121 @@ def test_drive_check_lists_the_line_kinds_the_description_allows(tmp_path: Path)
     assert ("Modbus RTU on lines serial (RS-485), rtu-over-tcp (RS-485 behind a transparent "
             "serial server), tcp (Modbus TCP through a Modbus TCP/RTU gateway); addresses "
             "1..247;") in done.stdout, done.stdout
+
+
+# -- item 7: a stop says what it can take; drive try names the key to add -------------------
+
+RELEASE = """
+[drive]
+family = "RELEASE"
+
+[units.pulses_per_rev]
+default = 1000
+
+[registers.status]
+address = 0
+access = "R"
+bits.ENABLED = { bit = 0, means = "enabled" }
+bits.MOVING = { bit = 1, means = "moving" }
+
+[registers.control]
+address = 1
+bits.RELEASE = 0
+
+[registers.speed]
+address = 2
+unit = "rpm"
+min = 1
+max = 3000
+signed = true
+
+[registers.target]
+address = 4
+words = 2
+signed = true
+unit = "pulses"
+
+[procedures.enable]
+steps = [{ write = { control = 0 } }]
+
+[procedures.move_absolute]
+steps = [{ write = { target = "target", speed = { value = "speed", nonzero = true } } },
+         { write = { control = 3 } }]
+
+[procedures.speed_run]
+steps = [{ write = { speed = "speed" } }, { write = { control = 1 } }]
+
+[procedures.stop]
+doc = "clearing the release bit: the drive ramps down on its own fixed ramp"
+steps = [{ write = { control = 0 } }]
+
+[[twin.on_write]]
+register = "control"
+when = "value == 3"
+do = "move_absolute"
+target = "target"
+speed = "speed"
+accel = 10
+decel = 10
+
+[[twin.on_write]]
+register = "control"
+when = "value & 1"
+do = "run"
+speed = "speed"
+accel = 10
+decel = 10
+
+[[twin.on_write]]
+register = "control"
+when = "not value & 1"
+do = "stop"
+decel = 10
+"""
+
+
+async def test_a_stop_that_takes_no_deceleration_refuses_one_before_sending(
+        tmp_path: Path) -> None:
+    import anyio
+
+    from drivebus import open_machine
+    from drivebus.errors import NotSupported
+
+    write(tmp_path, RELEASE, "release.toml")
+    cfg = load_config(write(tmp_path, """
+[lines.l]
+port = "sim://release-stop"
+settings = "115200 8N1"
+[axes.a]
+line = "l"
+address = 1
+drive = "release.toml"
+pulses_per_rev = 1000
+""", "m.toml"))
+    with anyio.fail_after(20):
+        async with open_machine(cfg) as m:
+            a, wire = m.axes["a"], m.wires["l"]
+            await a.enable()
+            async with a.jogging(2.0):
+                with pytest.raises(NotSupported, match=r"stop with a deceleration of .* its "
+                                                       r"stop takes no deceleration"):
+                    await a.stop(decel=5.0)
+                writes = [f for f in wire.requests() if f.data[1] in (0x06, 0x10)]  # type: ignore[attr-defined]
+                assert writes[-1].data[2:6] == bytes([0, 1, 0, 1])  # still the release: run
+            await a.stop()
+    d = load_description(write(tmp_path, RELEASE.replace(
+        'doc = "clearing', 'takes = ["decel"]\ndoc = "clearing'), "claims.toml"))
+    assert d.procedures["stop"].honours("decel")  # said so: taken (and passed to the steps)
+    assert not load_description(tmp_path / "release.toml").procedures["stop"].honours("decel")
+
+
+def test_drive_try_names_the_key_a_failing_step_needs(tmp_path: Path) -> None:
+    moons = (ROOT / "configs" / "drives" / "moons_stf.toml").read_text(encoding="utf-8")
+    lacking = moons.replace('bits.IN_POSITION = { bit = 3, means = "in_position" }',
+                            'bits.IN_POSITION = { bit = 3 }')
+    assert lacking != moons
+    done = cli("drive", "try", write(tmp_path, lacking, "moons_lacking.toml"))
+    assert done.returncode == 1
+    line = next(x for x in done.stdout.splitlines() if x.strip().startswith("move absolute"))
+    assert "FAIL" in line and 'add means = "in_position" (or "reached": a move ran to its ' \
+        'end) (or twin = "...") to registers.status.bits.IN_POSITION' in line, line

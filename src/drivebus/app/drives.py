@@ -118,7 +118,11 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
             cond = f" when {proc.supported}" if proc.supported is not None else ""
             params = ", ".join(x.name for x in proc.params)
             head = f"{name}({params})" if params else name
-            r.lines.append(f"    {head:<22} {len(proc.steps)} step(s){cond}{what}")
+            takes = ""
+            if name == "stop":
+                takes = "; takes a deceleration" if proc.honours("decel") else \
+                    "; takes no deceleration (stop(decel=...) is refused)"
+            r.lines.append(f"    {head:<22} {len(proc.steps)} step(s){cond}{what}{takes}")
     missing = [n for n in _PROCEDURES if n not in d.procedures]
     if missing:
         r.lines.append("  not described (NotSupported): " + ", ".join(missing))

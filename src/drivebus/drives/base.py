@@ -417,6 +417,19 @@ class DriveProfile:
         if getattr(type(self), method) is getattr(DriveProfile, method):
             raise self.unsupported(what)
 
+    def check_stop(self, decel_rps2: float | None) -> None:
+        """``NotSupported`` (before anything is sent) if ``stop`` cannot honour
+        ``decel_rps2``: a drive whose stop takes no deceleration (its ramp is fixed, or it
+        stops by clearing a release bit) refuses one rather than ignore it."""
+        if decel_rps2 is not None and not self.stop_takes_decel():
+            raise self.unsupported(f"stop with a deceleration of {decel_rps2:g} rev/s²",
+                                   "its stop takes no deceleration (it stops on its own "
+                                   "ramp): call stop() without decel")
+
+    def stop_takes_decel(self) -> bool:
+        """Whether ``stop`` honours a deceleration (the default: it does)."""
+        return True
+
     def volatile_settings(self) -> list[tuple[Register, int]]:
         """The (register, value) pairs this profile wrote that a power cycle undoes.
 

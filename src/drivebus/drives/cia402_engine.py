@@ -425,11 +425,18 @@ class Cia402Profile(DescribedProfile):
         await self._write_objects(values)
         await self._controlword(_ENABLED)  # halt clear: run
 
+    def stop_takes_decel(self) -> bool:
+        """The halt takes the profile deceleration where the description maps it."""
+        if self._described("stop"):
+            return super().stop_takes_decel()
+        return "profile_deceleration" in self.description.objects
+
     async def stop(self, decel_rps2: float | None = None) -> None:
         """Halt (controlword bit 8), with ``decel_rps2`` as the profile deceleration."""
         if self._described("stop"):
             await super().stop(decel_rps2)
             return
+        self.check_stop(decel_rps2)
         prio = Priority.EMERGENCY
         if decel_rps2 is not None and "profile_deceleration" in self.description.objects:
             await self._write_objects([("profile_deceleration", decel_rps2)], priority=prio)

@@ -911,7 +911,29 @@ class Procedure(_Model):
     supported: E | None = Field(None, description="a condition on the options")
     why: str = ""
     priority: Priorities | None = None
+    takes: list[str] | None = Field(None, description="the parameters it honours (default: "
+                                    "those its steps use); a stop that takes no decel refuses "
+                                    "one before anything is sent")
     doc: str = ""
+
+    def uses(self) -> set[str]:
+        """The names its steps' expressions use (what it honours of its parameters)."""
+        names: set[str] = set()
+        for step in self.steps:
+            for value in step.__dict__.values():
+                if isinstance(value, Expr | Template):
+                    names |= value.names
+            for item in (step.write or {}).values():
+                names |= item.value.names
+            for e in (*(step.set or {}).values(), *step.args.values()):
+                names |= e.names
+            if step.each is not None:
+                names |= Expr.parse(step.each.split(" in ", 1)[1]).names
+        return names
+
+    def honours(self, param: str) -> bool:
+        """Whether it takes parameter ``param`` (``takes``, else its steps use it)."""
+        return param in self.takes if self.takes is not None else param in self.uses()
 
     @model_validator(mode="after")
     def _check(self) -> Procedure:
@@ -1790,6 +1812,10 @@ class _Checker:
     def _procedure(self, name: str, proc: Procedure) -> None:
         where = f"procedures.{name}"
         params = set(PROCEDURES.get(name, ("", ()))[1]) | {p.name for p in proc.params}
+        for i, taken in enumerate(proc.takes or []):
+            if taken not in params:
+                self.out.append(f"{where}.takes[{i}]: {taken!r} is no parameter of {name} "
+                                f"({', '.join(sorted(params)) or 'it has none'})")
         self._names(f"{where}.supported", proc.supported)
         self._names(f"{where}.what", proc.what, params)
         if name == "learn":

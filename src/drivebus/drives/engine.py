@@ -1034,8 +1034,15 @@ class DescribedProfile(DriveProfile):
         """The description's ``speed_run`` (signed speed)."""
         await self.run("speed_run", speed=speed_rpm, accel=accel_rps2, decel=decel_rps2)
 
+    def stop_takes_decel(self) -> bool:
+        """Whether the description's stop honours a deceleration: its ``takes``, else
+        whether its steps use ``decel`` (or pass it to a procedure they call)."""
+        proc = self._steps_of("stop")
+        return proc is not None and proc.honours("decel")
+
     async def stop(self, decel_rps2: float | None = None) -> None:
-        """The description's ``stop``."""
+        """The description's ``stop`` (a deceleration it cannot honour is refused first)."""
+        self.check_stop(decel_rps2)
         await self.run("stop", decel=decel_rps2)
 
     async def emergency_stop(self) -> None:

@@ -1571,6 +1571,7 @@ class Axis(ProgramRunner, AxisIO):
         if decel is not None:
             decel_rps2 = self.units.to_rps2(checks.positive(f"axis {self.name}: decel", decel,
                                                            unit="units/s²"))
+            self.profile.check_stop(decel_rps2)  # one it cannot honour: refused, none sent
         await self._halt(emergency=False, decel_rps2=decel_rps2)
 
     async def halt_now(self) -> None:
