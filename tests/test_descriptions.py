@@ -155,6 +155,12 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
     # issue 32 item 7: what a procedure takes is one of its parameters
     ("takes", MINIMAL + "\n[procedures.stop]\ntakes = ['speed']\nsteps = [{ write = { "
      "enable = 0 } }]\n", ("procedures.stop.takes[0]", "'speed' is no parameter of stop")),
+    # issue 32 item 5: sub-indices at an offset belong to an object-addressed map
+    ("offset in a word map", MINIMAL.replace("address = 1", "address = 1\noffset = 2"),
+     ("registers.enable.offset", "an offset is for a sub-index of an object-addressed map")),
+    ("span in an object map", MINIMAL.replace("[status]\n", "[status]\npoll = [['status', "
+                                              "'enable']]\n") + "\n[link]\nmap = 'objects'\n",
+     ("status.poll[0]", "reads each object by itself")),
     ("scale of a table", MINIMAL.replace("address = 1", "address = 1\ntable = [200, 400]\n"
                                          "scale = 2"),
      ("registers.enable", "scale does not apply to a table")),

@@ -90,8 +90,8 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         + (f"; tables {', '.join(tables)}" if tables else ""))
     r.lines += conversion_lines(d)
     plan = p._status_plan  # type: ignore[attr-defined]
-    by_space = {0: (3, plan.blocks), 1: (4, plan.input_blocks), 2: (1, plan.coil_blocks),
-                3: (2, plan.discrete_blocks)}
+    by_space = {0: (3, plan.blocks + plan.object_blocks), 1: (4, plan.input_blocks),
+                2: (1, plan.coil_blocks), 3: (2, plan.discrete_blocks)}
     r.lines.append("  status poll: " + ", ".join(  # in the order the poll reads them
         f"FC{fc:02d} {start} (0x{start:04X}) ×{count}"
         for fc, blocks in (by_space[space] for space in plan.space_order)

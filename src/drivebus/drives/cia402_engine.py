@@ -86,13 +86,12 @@ class Cia402Profile(DescribedProfile):
         items = [(self._obj(n).register, self._raw(n, v), n) for n, v in values]
         groups: list[list[tuple[Any, int]]] = []
         block: int | None = None
-        for r, raw, name in sorted(items, key=lambda x: x[0].address):
+        for r, raw, name in sorted(items, key=lambda x: (x[0].address, x[0].offset)):
             mine = c.block_of(name) if c is not None else None
-            if groups and mine is not None and mine == block:
-                last = groups[-1][-1][0]
-                if last.contiguous and r.contiguous and r.address == last.address + last.words:
-                    groups[-1].append((r, raw))
-                    continue
+            if groups and r.follows(groups[-1][-1][0]) and (
+                    r.objects or (mine is not None and mine == block)):
+                groups[-1].append((r, raw))  # a block, or the sub-indices of one object
+                continue
             groups.append([(r, raw)])
             block = mine
         for group in groups:

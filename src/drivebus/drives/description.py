@@ -262,6 +262,11 @@ class Link(_Model):
         0, description="the number the manual gives the first register: 0 (PDU addresses, "
         "as on the wire), 1 (1-based) or 40001 (4xxxx numbering; input registers 3xxxx); "
         "[registers] addresses are then the manual's numbers")
+    map: Literal["words", "objects"] = Field(
+        "words", description="words: a flat array of 16-bit registers (a 32-bit value "
+        "takes its address and the next); objects: an address per object, each read and "
+        "written with its own address and width (a sub-index at an offset behind it, or at "
+        "an address of its own), never merged with the next address")
     parameter_numbers: ParameterNumbers | None = Field(
         None, description="registers' addresses from the manual's parameter numbers: "
         "address = \"P5-07\"")
@@ -399,6 +404,8 @@ class RegisterDef(_Model):
     signed: bool = False
     order: Literal["high_first", "low_first"] | None = None
     low_address: Word | None = None
+    offset: int = Field(0, ge=0, le=120, description="object-addressed map: the words of "
+                        "the object before it (a sub-index behind the object's address)")
     unit: Unit = ""
     scale: Scale = 1.0
     ramp: str | float | None = None
@@ -489,6 +496,8 @@ class Reg:
     d: RegisterDef
     codec: UnitCodec
     order: WordOrder
+    objects: bool = False
+    """In an object-addressed map (``[link] map = "objects"``)."""
 
     @property
     def name(self) -> str:
@@ -559,6 +568,7 @@ class Reg:
             minimum=0 if bit and d.min is None else d.min,
             maximum=1 if bit and d.max is None else d.max,
             access=Access(d.access), low_address=low,
+            objects=self.objects and self.space == 0, offset=d.offset,
         )
 
     @property
@@ -569,8 +579,14 @@ class Reg:
         return 1 if d.input else 2 if d.coil else 3 if d.discrete else 0
 
     def addresses(self) -> Iterator[int]:
-        """Every address it occupies (every word of every entry)."""
+        """Every address it occupies (every word of every entry); in an object-addressed
+        map, ``(address << 8) + word`` for each word of the object it is part of."""
         d = self.d
+        if self.objects and self.space == 0:
+            for n in range(d.count):
+                base = d.address + n * d.stride
+                yield from ((base << 8) + d.offset + w for w in range(d.words))
+            return
         for n in range(d.count):
             base = d.address + n * d.stride
             yield base
@@ -1193,7 +1209,7 @@ class Description(_Model):
         for key, d in {**placed, **self._generated()}.items():
             codec = UnitCodec.make(d.unit, d.scale, d.ramp, d.table, d.values)
             order = WordOrder(d.order) if d.order else self.link.order
-            out[key] = Reg(key, d, codec, order)
+            out[key] = Reg(key, d, codec, order, objects=self.link.map == "objects")
         return out
 
     def register_base(self, d: RegisterDef) -> int:
@@ -1608,14 +1624,19 @@ class _Checker:
                     d.max > _width_hi(d)):
                 self.out.append(f"{where}: range {lo}..{hi} does not fit {16 * d.words} "
                                 f"{'signed' if d.signed else 'unsigned'} bits")
-            space = reg.space << 16  # inputs, coils and discrete inputs: spaces apart
+            if d.offset and not reg.objects:
+                self.out.append(f"{where}.offset: an offset is for a sub-index of an "
+                                f"object-addressed map ([link] map = \"objects\")")
+            space = reg.space << 24  # inputs, coils and discrete inputs: spaces apart
             for a in reg.addresses():
-                if a > 0xFFFF:
-                    self.out.append(f"{where}: its words reach address {a}, beyond 65535")
+                shown = a >> 8 if reg.objects else a
+                if shown > 0xFFFF:
+                    self.out.append(f"{where}: its words reach address {shown}, beyond 65535")
                     break
                 if space + a in owner and owner[space + a] != key:
-                    self.out.append(f"{where}.address: address {a} (0x{a:04X}) is also "
-                                    f"register {owner[space + a]}")
+                    word = f", word {a & 0xFF} of the object" if reg.objects else ""
+                    self.out.append(f"{where}.address: address {shown} (0x{shown:04X}{word}) "
+                                    f"is also register {owner[space + a]}")
                     break
                 owner[space + a] = key
 
@@ -1645,6 +1666,11 @@ class _Checker:
                                 (2, 1, "coils"), (3, 2, "discrete inputs")):
             if space in spaces and fc not in d.link.functions:
                 self.out.append(f"link.functions: {what} need function code {fc}")
+        if d.link.map == "objects" and 16 not in d.link.functions and any(
+                r.d.words == 2 or r.d.offset for r in self.regs.values()):
+            self.out.append("link.functions: an object-addressed map writes a 32-bit object "
+                            "or a sub-index with function code 16 (its words go with its one "
+                            "address)")
         if any(r.d.coil and r.d.access != "R" for r in self.regs.values()) and \
                 5 not in d.link.functions:
             self.out.append("link.functions: writing coils needs function code 5")
@@ -1749,6 +1775,9 @@ class _Checker:
         keys = [item] if isinstance(item, str) else item
         if isinstance(item, list) and len(item) != 2:
             self.out.append(f"{where}: a span is [first, last] register")
+        if isinstance(item, list) and self.d.link.map == "objects":
+            self.out.append(f"{where}: an object-addressed map reads each object by itself: "
+                            f"list the registers, not a span")
         for k in keys:
             self._reg_key(where, k)
         ends = [self.d.regs.get(k.split("[", 1)[0].strip()) for k in keys]

@@ -79,6 +79,9 @@ _DEFAULT_PRIORITY = {
 }
 INPUT = 1 << 16
 """Where input registers' words sit in a read's words (``INPUT + address``)."""
+OBJECT = 1 << 40
+"""Where an object-addressed map's words sit in a read's words (``OBJECT + (address << 8)
++ word``): objects at consecutive addresses do not share words."""
 _TARGET = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[(.+)\])?")
 _MAX_DEPTH = 8
 
@@ -102,6 +105,9 @@ class ReadPlan:
     """(first address, count) per FC02, for discrete inputs."""
     space_order: tuple[int, ...] = (0, 1, 2, 3)
     """The address spaces in the order they are read (a listed poll: as listed)."""
+    object_blocks: tuple[tuple[int, int], ...] = ()
+    """(object address, count) per FC03 of an object-addressed map: each object read by
+    itself, with its address (with the holding registers)."""
 
 
 Span = tuple[int, int, int]
@@ -118,9 +124,14 @@ def plan_reads(
     ``max_hole`` allow."""
     spaces: tuple[set[int], ...] = (set(), set(), set(), set())
     wanted, inputs = spaces[0], spaces[1]
+    objects: dict[int, int] = {}
     regs = []
     for reg, index in targets:
         r = reg.at(index) if reg.array else reg.register
+        if r.objects:  # its object by itself, through its last word
+            objects[r.address] = max(objects.get(r.address, 0), r.offset + r.words)
+            regs.append((reg, index))
+            continue
         space = spaces[reg.space]
         space.add(r.address)
         if r.words == 2:
@@ -130,7 +141,8 @@ def plan_reads(
         spaces[space_no].update(range(first, last + 1))
     return ReadPlan(_blocks(wanted, max_read, max_hole), tuple(regs),
                     _blocks(inputs, max_read, max_hole), _blocks(spaces[2], max_read, max_hole),
-                    _blocks(spaces[3], max_read, max_hole))
+                    _blocks(spaces[3], max_read, max_hole),
+                    object_blocks=tuple(sorted(objects.items())))
 
 
 def _blocks(addresses: set[int], max_read: int, max_hole: int) -> tuple[tuple[int, int], ...]:
@@ -566,6 +578,9 @@ class DescribedProfile(DriveProfile):
             await self.slave.write_coil(reg.address, bool(reg.check(value)), priority=priority,
                                         idempotent=idempotent)
             return
+        if reg.offset:  # a sub-index behind its object's address: with the words before it
+            await super().write(reg, value, priority=priority, idempotent=idempotent)
+            return
         words = reg.encode(value)
         if len(words) == 1 and 6 not in fcs:
             await self.slave.write_registers(reg.address, words, priority=priority,
@@ -715,6 +730,12 @@ class DescribedProfile(DriveProfile):
                 got = await read(start, count, priority=prio)
                 base = (space << 16) + start  # INPUT for input registers
                 words.update(zip(range(base, base + count), got, strict=True))
+            if space == 0:
+                for address, count in plan.object_blocks:
+                    got = await self.slave.read_holding_registers(address, count,
+                                                                  priority=prio)
+                    base = OBJECT + (address << 8)
+                    words.update(zip(range(base, base + count), got, strict=True))
         return words
 
     async def _poll_values(self, plan: ReadPlan, prio: Priority,
@@ -745,7 +766,10 @@ class DescribedProfile(DriveProfile):
                     raw_words: dict[str, list[int]] | None) -> None:
         r = reg.at(index)
         base = reg.space << 16  # input registers, coils, discrete inputs: spaces apart
-        if r.words == 2:
+        if r.objects:
+            at = OBJECT + (r.address << 8) + r.offset
+            ws = [words[at + j] for j in range(r.words)]
+        elif r.words == 2:
             low = r.low_address if r.low_address is not None else r.address + 1
             ws = [words[base + r.address], words[base + low]]
         else:
@@ -814,8 +838,11 @@ class DescribedProfile(DriveProfile):
         lost = []
         for it in items:
             r, base = it.register, it.reg.space << 16
-            addresses = [r.address] if r.words == 1 else \
-                [r.address, r.low_address if r.low_address is not None else r.address + 1]
+            if r.objects:
+                base, addresses = OBJECT + (r.address << 8) + r.offset, list(range(r.words))
+            else:
+                addresses = [r.address] if r.words == 1 else \
+                    [r.address, r.low_address if r.low_address is not None else r.address + 1]
             seen = r.decode([words[base + a] for a in addresses])
             if seen != it.raw:
                 lost.append(f"{r.name} ({r.address}) = {seen}, not {it.raw}")
@@ -1244,15 +1271,12 @@ def _raw_values(raw: Mapping[str, Expr], scope: Mapping[str, Any]) -> dict[str, 
 
 
 def _consecutive(items: Sequence[_Item]) -> list[list[_Item]]:
-    """Items grouped into runs of consecutive, contiguous registers (one FC16 each)."""
+    """Items grouped into runs of registers that follow on (one FC16 each)."""
     groups: list[list[_Item]] = []
     for it in items:
-        r = it.register
-        if groups:
-            last = groups[-1][-1].register
-            if last.contiguous and r.contiguous and r.address == last.address + last.words:
-                groups[-1].append(it)
-                continue
+        if groups and it.register.follows(groups[-1][-1].register):
+            groups[-1].append(it)
+            continue
         groups.append([it])
     return groups
 

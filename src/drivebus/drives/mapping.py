@@ -31,7 +31,7 @@ def names_at(d: Description, space: int, first: int, count: int) -> list[str]:
             continue
         for index in reg.indices if reg.array else [None]:
             r = reg.at(index)
-            words = [r.address] if r.words == 1 else \
+            words = [r.address] if r.words == 1 or r.objects else \
                 [r.address, r.low_address if r.low_address is not None else r.address + 1]
             if any(first <= a <= last for a in words):
                 hits.append((r.address, r.name))
@@ -51,15 +51,14 @@ def register_namer(d: Description) -> Callable[[int, int, int], str]:
 
 
 def adjacent(regs: Sequence[Reg | tuple[Reg, int | None]]) -> tuple[str, str] | None:
-    """The first two registers (in the order given) where the next does not start at
-    the address after the last word of the one before, so that one FC16 cannot write
+    """The first two registers (in the order given) where the next does not follow on
+    from the one before (``Register.follows``: the next address of a flat map, the next
+    words of the same object of an object-addressed one), so that one FC16 cannot write
     them; None if they follow on."""
     pairs: list[tuple[Reg, int | None]] = [
         r if isinstance(r, tuple) else (r, None) for r in regs]
     for (a, ia), (b, ib) in itertools.pairwise(pairs):
-        ra, rb = a.at(ia), b.at(ib)
-        if not (ra.contiguous and rb.contiguous and a.space == b.space == 0
-                and rb.address == ra.address + ra.words):
+        if not (a.space == b.space == 0 and b.at(ib).follows(a.at(ia))):
             return (_label(a, ia), _label(b, ib))
     return None
 
@@ -67,4 +66,7 @@ def adjacent(regs: Sequence[Reg | tuple[Reg, int | None]]) -> tuple[str, str] | 
 def _label(reg: Reg, index: int | None) -> str:
     r = reg.at(index)
     key = reg.key if index is None else f"{reg.key}[{index}]"
-    return f"{key} ({r.address}, 0x{r.address:04X}, {r.words} word{'s' * (r.words > 1)})"
+    at = f", offset {r.offset}" if r.offset else ""
+    kind = "object " if r.objects else ""
+    return (f"{key} ({kind}{r.address}, 0x{r.address:04X}{at}, {r.words} "
+            f"word{'s' * (r.words > 1)})")

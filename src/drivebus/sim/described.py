@@ -1971,6 +1971,10 @@ def _map(d: Description, *, inputs: bool = False
 
 def described_twin(d: Description) -> type[DescribedDrive]:
     """The twin class of description ``d``."""
+    if d.link.map == "objects":
+        raise ConfigError(f"{d.family}: the generic twin serves a flat word map only; an "
+                          f"object-addressed map ([link] map = \"objects\") runs against "
+                          f"its drive or an emulator of it")
     specs, words, pairs = _map(d)
     input_specs, input_words, _ = _map(d, inputs=True)
     r = d.link.refusals
