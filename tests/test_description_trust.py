@@ -504,3 +504,79 @@ def test_drive_try_names_the_key_a_failing_step_needs(tmp_path: Path) -> None:
     line = next(x for x in done.stdout.splitlines() if x.strip().startswith("move absolute"))
     assert "FAIL" in line and 'add means = "in_position" (or "reached": a move ran to its ' \
         'end) (or twin = "...") to registers.status.bits.IN_POSITION' in line, line
+
+
+# -- items 8 and 9: every item's source, the manual's example frames as self-tests ----------
+
+EXAMPLES = SCALED.replace('[drive]\nfamily = "SCALED"\n', '''[drive]
+family = "SCALED"
+source = "manual: ACME-ST Modbus manual, chapter 4 (register list)"
+''').replace('[registers.current]\n', '''[registers.current]
+source = "inferred: the manual prints 'current' without a unit; 0.1 A from the dip-switch table"
+''') + '''
+[[examples]]
+doc = "set the electronic gearing to 20000 steps/rev"
+source = "manual: 4.3, p. 27"
+request = "01 06 00 34 27 10 D2 38"
+write = { steps_per_rev = 20000 }
+
+[[examples]]
+doc = "read the current: 1.5 A"
+request = "01 03 00 3C 00 01 44 06"
+reply = "01 03 02 00 0F F8 40"
+read = ["current"]
+values = { current = 1.5 }
+
+[[examples]]
+doc = "enable"
+request = "01 06 00 01 00 01 19 CA"
+procedure = "enable"
+
+[[examples]]
+doc = "EG = 0 as printed (CRC misprinted: C8 05)"
+request = "01 06 00 34 00 00 C8 05"
+erratum = "the printed CRC is C8 05; the frame's is C8 04"
+write = { steps_per_rev = 0 }
+'''
+
+
+def test_drive_check_counts_sources_and_verifies_the_manuals_example_frames(
+        tmp_path: Path) -> None:
+    done = cli("drive", "check", write(tmp_path, EXAMPLES, "examples.toml"))
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    # 6 registers, 2 bits, 2 procedures: all from the manual but the inferred current
+    assert "provenance of 10 registers, bits, procedures and homing methods: 9 manual, " \
+        "0 code, 1 inferred, 0 unnamed" in out, out
+    assert "inferred (not from the manual or public code): registers.current" in out
+    assert "examples: 3 of 4 of the manual's example frames verified" in out, out
+    assert "ok   examples[0] (set the electronic gearing to 20000 steps/rev): 1 frame as " \
+        "printed" in out
+    assert "ok   examples[1] (read the current: 1.5 A): 1 frame as printed, 1 reply decoded" \
+        in out
+    assert "ok   examples[2] (enable): 1 frame as printed" in out
+    # EG/2 = 0 is below the register's 100: the engine refuses what the manual printed
+    assert "FAIL examples[3]" in out and "outside its range 100..25600" in out, out
+    # a wrong scale is caught by the manual's own frame
+    wrong = EXAMPLES.replace("scale = 2\n", "", 1)
+    done = cli("drive", "check", write(tmp_path, wrong, "wrong.toml"))
+    assert "FAIL examples[0] (set the electronic gearing to 20000 steps/rev): printed " \
+        "01 06 00 34 27 10 D2 38, the engine sends 01 06 00 34 4E 20" in done.stdout, done.stdout
+    misread = EXAMPLES.replace("values = { current = 1.5 }", "values = { current = 15 }")
+    done = cli("drive", "check", write(tmp_path, misread, "misread.toml"))
+    assert "FAIL examples[1] (read the current: 1.5 A): the reply decodes to current = 1.5, " \
+        "printed 15" in done.stdout, done.stdout
+
+
+def test_the_drive_page_names_each_registers_source_and_the_inferred_items(
+        tmp_path: Path) -> None:
+    done = cli("drive", "doc", write(tmp_path, EXAMPLES, "examples.toml"))
+    assert done.returncode == 0, done.stderr
+    page = done.stdout
+    assert "**1 items are inferred** (neither the manual nor public code says them; check " \
+        "them on the drive): `registers.current`." in page, page
+    assert "source: inferred: the manual prints 'current' without a unit" in page
+    assert "source: manual: ACME-ST Modbus manual, chapter 4 (register list) |" in page
+    assert "## The manual's example frames" in page
+    assert "| set the electronic gearing to 20000 steps/rev (manual: 4.3, p. 27) | " \
+        "`01 06 00 34 27 10 D2 38` | - | write steps_per_rev = 20000 |" in page

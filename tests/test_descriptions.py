@@ -161,6 +161,16 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
     ("span in an object map", MINIMAL.replace("[status]\n", "[status]\npoll = [['status', "
                                               "'enable']]\n") + "\n[link]\nmap = 'objects'\n",
      ("status.poll[0]", "reads each object by itself")),
+    # issue 32 items 8-9: sources and example frames
+    ("source", MINIMAL.replace("address = 1", "address = 1\nsource = 'page 12'"),
+     ("registers.enable.source", "starting with manual, code or inferred")),
+    ("example action", MINIMAL + "\n[[examples]]\nrequest = '01 06 00 01 00 01 19 CA'\n"
+     "write = { enable = 1 }\nprocedure = 'enable'\n",
+     ("examples[0]", "exactly one of write, read or procedure")),
+    ("example register", MINIMAL + "\n[[examples]]\nrequest = '01 06 00 01 00 01 19 CA'\n"
+     "write = { enabel = 1 }\n", ("examples[0].write", "no register 'enabel'")),
+    ("example frame", MINIMAL + "\n[[examples]]\nrequest = '01 06 0G'\nprocedure = "
+     "'enable'\n", ("examples[0]", "is not a frame of hex bytes")),
     ("scale of a table", MINIMAL.replace("address = 1", "address = 1\ntable = [200, 400]\n"
                                          "scale = 2"),
      ("registers.enable", "scale does not apply to a table")),

@@ -88,6 +88,7 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         f"{sum(x.d.access == 'W' for x in regs)} write-only, {sum(x.d.eeprom for x in regs)} "
         f"wear EEPROM, {sum(x.d.volatile for x in regs)} volatile)"
         + (f"; tables {', '.join(tables)}" if tables else ""))
+    r.lines += provenance_lines(d, r)
     r.lines += conversion_lines(d)
     plan = p._status_plan  # type: ignore[attr-defined]
     by_space = {0: (3, plan.blocks + plan.object_blocks), 1: (4, plan.input_blocks),
@@ -161,6 +162,40 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         regs_t = sorted({t.reg for t in d.twin.on_write})
         r.lines.append(f"  twin: {len(d.twin.on_write)} triggers on {', '.join(regs_t)}")
     return r
+
+
+def provenance_lines(d: Description, r: DescriptionReport) -> list[str]:
+    """Where the registers, bits, procedures and homing methods come from (counts of
+    each kind), the inferred ones named, and the manual's example frames verified."""
+    prov = d.provenance()
+    total = sum(len(v) for v in prov.values())
+    lines = [f"  provenance of {total} registers, bits, procedures and homing methods: "
+             + ", ".join(f"{len(prov[k])} {k}" for k in ("manual", "code", "inferred",
+                                                         "unnamed"))]
+    if prov["inferred"]:
+        lines.append("    inferred (not from the manual or public code): "
+                     + ", ".join(prov["inferred"][:12])
+                     + (f", and {len(prov['inferred']) - 12} more"
+                        if len(prov["inferred"]) > 12 else ""))
+    if prov["unnamed"]:
+        r.warnings.append(f"{len(prov['unnamed'])} items name no source (give [drive] "
+                          f"source or each its own source = 'manual: ...'): "
+                          + ", ".join(prov["unnamed"][:6])
+                          + (", ..." if len(prov["unnamed"]) > 6 else ""))
+    if d.examples:
+        from drivebus.drives.examples import verify_examples
+
+        results = verify_examples(d)
+        ok = sum(x.ok for x in results)
+        lines.append(f"  examples: {ok} of {len(results)} of the manual's example frames "
+                     f"verified")
+        for x in results:
+            lines.append(f"    {'ok  ' if x.ok else 'FAIL'} {x.where}: {x.detail}")
+            if not x.ok:
+                r.warnings.append(f"{x.where}: {x.detail}")
+    else:
+        lines.append("  examples: none (add the manual's example frames as [[examples]])")
+    return lines
 
 
 def line_kinds_text(protocol: str, kinds: frozenset[str]) -> str:

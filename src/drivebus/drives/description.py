@@ -45,13 +45,16 @@ from drivebus.settings import LineSettings
 
 __all__ = [
     "PROCEDURES",
+    "SOURCE_KINDS",
     "TWIN_ACTIONS",
     "TWIN_MEANINGS",
     "Description",
+    "ExampleDef",
     "Reg",
     "Step",
     "load_description",
     "parse_description",
+    "source_kind",
 ]
 
 FORMAT_VERSION = 1
@@ -103,7 +106,31 @@ def _unit(v: Any) -> Any:
     return check_unit(v) if isinstance(v, str) else v
 
 
+SOURCE_KINDS = ("manual", "code", "inferred")
+"""Where an item of a description comes from: the manual (document, section or page),
+public code that drives the drive, or inferred (the description's author's reading)."""
+
+
+def _source(v: Any) -> Any:
+    if not isinstance(v, str):
+        return v
+    kind = re.split(r"[\s:]", v.strip(), maxsplit=1)[0].lower()
+    if kind not in SOURCE_KINDS or not v.strip()[len(kind):].strip(" :"):
+        raise ValueError(f"source {v!r}: say where it comes from, starting with manual, "
+                         f"code or inferred: 'manual: 920-0176 App. 5, p. 110', 'code: "
+                         f"github.com/owner/repo driver.py', 'inferred: why'")
+    return v.strip()
+
+
+def source_kind(source: str | None) -> str:
+    """``manual``, ``code`` or ``inferred`` of a ``source`` text; ``unnamed`` for None."""
+    if not source:
+        return "unnamed"
+    return re.split(r"[\s:]", source, maxsplit=1)[0].lower()
+
+
 E = Annotated[Expr, BeforeValidator(_expr)]
+Source = Annotated[str, BeforeValidator(_source)]
 Unit = Annotated[str, BeforeValidator(_unit)]
 T = Annotated[Template, BeforeValidator(_template)]
 Scale = Annotated[float, BeforeValidator(_scale)]
@@ -131,6 +158,9 @@ class DriveInfo(_Model):
     description: str = Field("", description="one line, as in drive tables")
     engine: Literal["command", "cia402"] = "command"
     manual: str = Field("", description="where the register tables come from")
+    source: Source | None = Field(None, description="where every item without a source of "
+                                  "its own comes from ('manual: ...', 'code: ...', "
+                                  "'inferred: ...')")
     about: str = Field("", description="what the docs page says about the drive (markdown)")
 
 
@@ -382,6 +412,7 @@ class BitDef(_Model):
     twin: E | None = Field(None, description="twin: the bit's value as an expression over "
                            "the twin's state (where no `means` fits)")
     doc: str = ""
+    source: Source | None = None
 
     _means = field_validator("means")(_known_meaning)
 
@@ -438,6 +469,8 @@ class RegisterDef(_Model):
                             "(beyond the range); a write that fails it is refused with "
                             "refusals.value")
     doc: str = ""
+    source: Source | None = Field(None, description="where it comes from: 'manual: "
+                                  "section, page', 'code: ...' or 'inferred: why'")
 
     _means = field_validator("means")(_known_meaning)
 
@@ -797,6 +830,7 @@ class HomingMethod(BaseModel):
     direction: Literal[-1, 1] | None = Field(None, description="reference_edge, hard_stop: "
                                              "the search direction")
     doc: str = ""
+    source: Source | None = None
 
     @model_validator(mode="after")
     def _reference(self) -> HomingMethod:
@@ -931,6 +965,7 @@ class Procedure(_Model):
                                     "those its steps use); a stop that takes no decel refuses "
                                     "one before anything is sent")
     doc: str = ""
+    source: Source | None = None
 
     def uses(self) -> set[str]:
         """The names its steps' expressions use (what it honours of its parameters)."""
@@ -1171,6 +1206,55 @@ def object_name(ref: str) -> str | None:
     return None
 
 
+# -- the manual's example frames -----------------------------------------------------------
+
+
+def _frames(v: Any) -> Any:
+    return [v] if isinstance(v, str) else v
+
+
+class ExampleDef(_Model):
+    """``[[examples]]``: a frame the manual prints and what it stands for; ``drivebus
+    drive check`` verifies that the engine sends exactly those bytes for it and decodes
+    the printed reply to the printed values (``drivebus.drives.examples``)."""
+
+    doc: str = Field("", description="what the manual says the frame does")
+    source: Source | None = Field(None, description="where the manual prints it")
+    request: Annotated[list[str], BeforeValidator(_frames)] = Field(
+        min_length=1, description="the request frame(s) as printed: '01 06 00 1D 02 58 D9 8B' "
+        "(RTU, CRC included) or an MBAP frame; several: in the order the engine sends them")
+    reply: Annotated[list[str], BeforeValidator(_frames)] = Field(
+        [], description="the reply frame(s) as printed, for the requests in order")
+    write: dict[str, Any] | None = Field(None, description="what the request writes: "
+                                         "register = value (physical, as a procedure's)")
+    raw: bool = Field(False, description="write: the values are what the registers hold")
+    block: bool = Field(False, description="write: in one FC16 (the registers form a block)")
+    read: list[str] | None = Field(None, description="what the request reads: register keys")
+    procedure: str | None = Field(None, description="the procedure the frames stand for")
+    args: dict[str, Any] = Field({}, description="procedure: its arguments (drive units)")
+    values: dict[str, Any] = Field({}, description="read: what the reply decodes to "
+                                   "(physical values)")
+    pulses_per_rev: int | None = Field(None, gt=0, description="the pulses per revolution "
+                                       "the example assumes (default: the description's)")
+    options: dict[str, Any] = Field({}, description="drive_options the example assumes")
+    erratum: str = Field("", description="what the manual got wrong in it (a printed CRC, "
+                         "an address of another model's map): a wrong CRC is then checked "
+                         "as corrected, and an example that stands for nothing the drive "
+                         "does is listed, not run")
+
+    @model_validator(mode="after")
+    def _one(self) -> ExampleDef:
+        given = [k for k in ("write", "read", "procedure") if getattr(self, k) is not None]
+        if not given and self.erratum:
+            return self  # printed, but standing for nothing this drive does: said, not run
+        if len(given) != 1:
+            raise ValueError("an example stands for exactly one of write, read or procedure "
+                             f"(got {', '.join(given) or 'none'})")
+        if self.values and self.read is None:
+            raise ValueError("values are what a read's reply decodes to: give read")
+        return self
+
+
 # -- the whole description ---------------------------------------------------------------
 
 
@@ -1198,6 +1282,24 @@ class Description(_Model):
     cia402: Cia402Def | None = None
     procedures: dict[Annotated[str, Field(pattern=_KEY)], Procedure] = {}
     twin: TwinDef = TwinDef()
+    examples: list[ExampleDef] = []
+
+    def provenance(self) -> dict[str, list[str]]:
+        """Where every register, bit, procedure and homing method comes from, by kind
+        (``manual``, ``code``, ``inferred``, ``unnamed``): the item's own ``source``, else
+        the register's (for its bits), else ``[drive] source``."""
+        default = self.drive.source
+        out: dict[str, list[str]] = {k: [] for k in (*SOURCE_KINDS, "unnamed")}
+        for key, r in self.registers.items():
+            out[source_kind(r.source or default)].append(f"registers.{key}")
+            for bit, b in r.bits.items():
+                out[source_kind(b.source or r.source or default)].append(
+                    f"registers.{key}.bits.{bit}")
+        for name, p in self.procedures.items():
+            out[source_kind(p.source or default)].append(f"procedures.{name}")
+        for name, m in (self.homing.methods.items() if self.homing else ()):
+            out[source_kind(m.source or default)].append(f"homing.methods.{name}")
+        return out
 
     # -- compiled views ---------------------------------------------------------------------
 
@@ -1570,7 +1672,30 @@ class _Checker:
             self._reg_key("eeprom.write_through.register", d.eeprom.write_through.reg)
         self._cia402()
         self._parameters()
+        self._examples()
         yield from self.out
+
+    def _examples(self) -> None:
+        for i, ex in enumerate(self.d.examples):
+            where = f"examples[{i}]"
+            for frame in [*ex.request, *ex.reply]:
+                if not re.fullmatch(r"\s*(?:(?:0x)?[0-9A-Fa-f]{2}h?[\s,]*)+", frame):
+                    self.out.append(f"{where}: {frame!r} is not a frame of hex bytes "
+                                    f"('01 06 00 1D 02 58 D9 8B')")
+                    break
+            for key in ex.write or {}:
+                self._target(f"{where}.write", key, set(), writes=True)
+            for key in ex.read or []:
+                if "[" in key:
+                    self._target(f"{where}.read", key, set())
+                else:
+                    self._reg_key(f"{where}.read", key)
+            for key in ex.values:
+                if key not in (ex.read or []):
+                    self.out.append(f"{where}.values.{key}: not one of the registers read")
+            if ex.procedure is not None and ex.procedure not in self.d.procedures and \
+                    (self.d.drive.engine != "cia402" or ex.procedure not in PROCEDURES):
+                self.out.append(f"{where}.procedure: no procedure {ex.procedure!r}")
 
     def _programs(self) -> None:
         proc = self.d.procedures.get("retarget_absolute")

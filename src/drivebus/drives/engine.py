@@ -634,6 +634,19 @@ class DescribedProfile(DriveProfile):
         for it in items:
             self.last[it.key] = it.physical
 
+    async def write_values(self, values: Mapping[str, Any], *, raw: bool = False,
+                           block: bool = False,
+                           priority: Priority = Priority.CONFIG) -> None:
+        """Write registers (``KEY`` or ``KEY[i]`` = a physical value, or the raw value with
+        ``raw``) as one write step of a procedure would: converted and range-checked
+        before the first frame, in one FC16 with ``block``."""
+        step = Step.model_validate({
+            "write": {k: {"value": Expr.parse(repr(v) if isinstance(v, str) else v),
+                          "raw": raw} for k, v in values.items()},
+            **({"block": Expr.parse(True)} if block else {})})
+        self._items(step, _Run("write", {}, True, priority))  # checked before any frame
+        await self._write(step, _Run("write", {}, False, priority), priority)
+
     async def _changed(self, items: list[_Item], run: _Run, prio: Priority) -> list[_Item]:
         """The items whose raw value differs from the drive's (read in this run, else now)."""
         out = []
