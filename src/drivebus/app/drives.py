@@ -186,11 +186,13 @@ def provenance_lines(d: Description, r: DescriptionReport) -> list[str]:
         from drivebus.drives.examples import verify_examples
 
         results = verify_examples(d)
-        ok = sum(x.ok for x in results)
+        ok = sum(x.ok and x.ran for x in results)
+        errata = sum(not x.ran for x in results)
         lines.append(f"  examples: {ok} of {len(results)} of the manual's example frames "
-                     f"verified")
+                     f"verified" + (f", {errata} listed, not run" if errata else ""))
         for x in results:
-            lines.append(f"    {'ok  ' if x.ok else 'FAIL'} {x.where}: {x.detail}")
+            mark = "ok  " if x.ok and x.ran else "said" if x.ok else "FAIL"
+            lines.append(f"    {mark} {x.where}: {x.detail}")
             if not x.ok:
                 r.warnings.append(f"{x.where}: {x.detail}")
     else:

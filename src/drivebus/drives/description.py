@@ -1229,7 +1229,8 @@ class ExampleDef(_Model):
                                          "register = value (physical, as a procedure's)")
     raw: bool = Field(False, description="write: the values are what the registers hold")
     block: bool = Field(False, description="write: in one FC16 (the registers form a block)")
-    read: list[str] | None = Field(None, description="what the request reads: register keys")
+    read: list[str | list[str]] | None = Field(None, description="what the request reads: "
+                                               "register keys, or spans [first, last]")
     procedure: str | None = Field(None, description="the procedure the frames stand for")
     args: dict[str, Any] = Field({}, description="procedure: its arguments (drive units)")
     values: dict[str, Any] = Field({}, description="read: what the reply decodes to "
@@ -1242,10 +1243,14 @@ class ExampleDef(_Model):
                          "as corrected, and an example that stands for nothing the drive "
                          "does is listed, not run")
 
+    listed: str = Field("", description="why the example is listed but not run (a frame "
+                        "with a bad CRC on purpose, an address the description leaves out, a "
+                        "value the engine refuses before sending)")
+
     @model_validator(mode="after")
     def _one(self) -> ExampleDef:
         given = [k for k in ("write", "read", "procedure") if getattr(self, k) is not None]
-        if not given and self.erratum:
+        if not given and (self.erratum or self.listed):
             return self  # printed, but standing for nothing this drive does: said, not run
         if len(given) != 1:
             raise ValueError("an example stands for exactly one of write, read or procedure "
@@ -1685,13 +1690,16 @@ class _Checker:
                     break
             for key in ex.write or {}:
                 self._target(f"{where}.write", key, set(), writes=True)
-            for key in ex.read or []:
-                if "[" in key:
-                    self._target(f"{where}.read", key, set())
+            for item in ex.read or []:
+                if isinstance(item, str) and "[" in item:
+                    self._target(f"{where}.read", item, set())
                 else:
-                    self._reg_key(f"{where}.read", key)
+                    self._span(f"{where}.read", item)
+            read_keys = {k for item in ex.read or [] for k in
+                         ([item] if isinstance(item, str) else item)}
             for key in ex.values:
-                if key not in (ex.read or []):
+                if key not in read_keys and ex.read and not any(
+                        isinstance(item, list) for item in ex.read):
                     self.out.append(f"{where}.values.{key}: not one of the registers read")
             if ex.procedure is not None and ex.procedure not in self.d.procedures and \
                     (self.d.drive.engine != "cia402" or ex.procedure not in PROCEDURES):

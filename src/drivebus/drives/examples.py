@@ -23,7 +23,7 @@ from drivebus.bus import Priority, SlaveHandle
 from drivebus.drives.description import Description, ExampleDef
 from drivebus.drives.engine import DescribedProfile, profile_class
 from drivebus.drives.values import RegValue, Table
-from drivebus.errors import DrivebusError
+from drivebus.errors import DrivebusError, ModbusException
 from drivebus.line.rtu import crc16, crc_ok
 from drivebus.pdu import LengthPredictor
 
@@ -81,6 +81,8 @@ class ExampleResult:
     where: str
     ok: bool
     detail: str
+    ran: bool = True
+    """False for an erratum that stands for nothing the drive does (listed, not run)."""
 
 
 class _Recorder:
@@ -153,9 +155,16 @@ def _check(d: Description, i: int, ex: ExampleDef) -> ExampleResult:
     except ValueError as exc:
         return ExampleResult(where, False, str(exc))
     if ex.write is None and ex.read is None and ex.procedure is None:
-        return ExampleResult(where, True, f"erratum, not run: {ex.erratum}")
+        why = f"erratum: {ex.erratum}" if ex.erratum else ex.listed
+        return ExampleResult(where, True, f"listed, not run: {why}", ran=False)
     try:
         sent, values = anyio.run(_run, d, ex, requests, replies)
+    except ModbusException as exc:  # a printed exception reply: the drive refuses it
+        printed = [r.pdu[1] for r in replies if r.pdu[:1] and r.pdu[0] & 0x80]
+        if exc.code in printed:
+            return ExampleResult(where, True, f"exception 0x{exc.code:02X} as printed: "
+                                              f"{exc.text}")
+        return ExampleResult(where, False, f"the engine refused it: {exc}")
     except (DrivebusError, ValueError, TypeError, TimeoutError) as exc:
         return ExampleResult(where, False, f"the engine refused it: {type(exc).__name__}: "
                                            f"{exc}")

@@ -136,7 +136,8 @@ def _examples(d: Description) -> str:
     rows = ["| Example | Request | Reply | Stands for |", "|---|---|---|---|"]
     for ex in d.examples:
         what = (f"write {', '.join(f'{k} = {v}' for k, v in (ex.write or {}).items())}"
-                if ex.write is not None else f"read {', '.join(ex.read)}"
+                if ex.write is not None else "read " + ", ".join(
+                    x if isinstance(x, str) else "..".join(x) for x in ex.read)
                 if ex.read is not None else f"{ex.procedure}("
                 + ", ".join(f"{k}={v}" for k, v in ex.args.items()) + ")"
                 if ex.procedure is not None else "nothing this drive does")
