@@ -580,3 +580,18 @@ def test_the_drive_page_names_each_registers_source_and_the_inferred_items(
     assert "## The manual's example frames" in page
     assert "| set the electronic gearing to 20000 steps/rev (manual: 4.3, p. 27) | " \
         "`01 06 00 34 27 10 D2 38` | - | write steps_per_rev = 20000 |" in page
+
+
+# -- item 10: the shipped descriptions re-checked against their manuals ---------------------
+
+
+async def test_the_stf_seeks_home_on_the_edge_its_sensor_type_gives() -> None:
+    """920-0176: SH's condition is an edge of the input: a normally-open sensor reached
+    closes it (F), a normally-closed one opens it (R); the wrong one runs past it."""
+    d = load_description(ROOT / "configs" / "drives" / "moons_stf.toml")
+    for options, edge in (({}, 0x46), ({"home_sensor": "normally_closed"}, 0x52)):
+        async with rig(d, **options) as (_, wire, profile):
+            await profile.enable()
+            await profile.home(speed_rpm=60, creep_rpm=10, accel_rps2=10)
+            params = [f.data for f in wire.requests() if f.data[1] == 0x10 and f.data[3] == 125]
+            assert params and params[-1][7:11] == bytes([0, 0x33, 0, edge]), params

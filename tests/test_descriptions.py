@@ -383,25 +383,27 @@ async def test_the_twin_answers_only_what_the_description_documents() -> None:
         with pytest.raises(ModbusException) as exc:
             await slave.read_holding_registers(200, 1)  # no register there
         assert exc.value.code == 2 and exc.value.text == "illegal data address"
+        # the vendor's codes (920-0176 App. 5): 0x11 no read, 0x12 no write, 0x13 range
         with pytest.raises(ModbusException) as exc:
             await slave.write_register(1, 5)  # the status code is read-only
-        assert exc.value.code == 2
+        assert exc.value.code == 0x12 and exc.value.text == "register does not support write"
         with pytest.raises(ModbusException) as exc:
             await slave.write_register(29, 0)  # VE is 1..19200
-        assert exc.value.code == 3 and exc.value.text == "illegal data value"
+        assert exc.value.code == 0x13 and exc.value.text == "value exceeds the range"
         with pytest.raises(ModbusException) as exc:
             await slave.read_holding_registers(124, 1)  # the opcode register is write-only
-        assert exc.value.code == 2
+        assert exc.value.code == 0x11 and exc.value.text == "register does not support read"
 
 
 async def test_a_power_cycle_loses_the_volatile_setup_and_setup_restores_it() -> None:
     async with rig(pulses_per_rev=4000) as (twin, _, profile):
         await profile.setup()
-        assert twin.regs[52] == 4000 and await profile.lost_settings() == []
+        # 40053 holds EG/2 (920-0176 App. 5): 4000 steps/rev is 2000
+        assert twin.regs[52] == 2000 and await profile.lost_settings() == []
         twin.power_loss()
         twin.power_restore()
         lost = await profile.lost_settings()
-        assert lost and "electronic gearing" in lost[0] and "not 4000" in lost[0]
+        assert lost and "electronic gearing" in lost[0] and "not 2000" in lost[0]
         assert not (await profile.read_status()).enabled  # the drive powers up disabled
         await profile.setup()
         assert await profile.lost_settings() == []
@@ -803,14 +805,14 @@ async def test_an_axis_sets_a_described_drive_up_again_after_a_power_cycle() -> 
     async with open_machine(config) as m:
         axis, twin = m.axes["m"], m.sim_drives["m"]
         await axis.enable()
-        assert twin.regs[52] == 4000  # set up with the first command
+        assert twin.regs[52] == 2000  # set up with the first command (EG/2: 4000 steps/rev)
         twin.power_loss()
         await state_becomes(axis, lambda s: s is AxisState.OFFLINE)
         twin.power_restore()
         await state_becomes(axis, lambda s: s is not AxisState.OFFLINE)
-        assert twin.regs[52] == 20000  # the drive forgot it
+        assert twin.regs[52] == 10000  # the drive forgot it: its factory 20000 steps/rev
         await axis.enable()  # the next command sets it up again
-        assert twin.regs[52] == 4000
+        assert twin.regs[52] == 2000
         assert any("electronic gearing" in c for c in axis.setup_changes)
 
 

@@ -199,6 +199,8 @@ class Refusals(_Model):
     address: int = Field(2, ge=1, le=255)
     outside: int | None = Field(None, ge=1, le=255, description="an address outside its map")
     access: int = Field(2, ge=1, le=255)
+    read_access: int | None = Field(None, ge=1, le=255, description="a read of a write-only "
+                                    "register, where it differs from access")
     value: int = Field(3, ge=1, le=255)
     count: int = Field(3, ge=1, le=255)
     crc: int | None = Field(None, ge=1, le=255, description="reply to a bad CRC (else silence)")

@@ -1979,7 +1979,7 @@ def described_twin(d: Description) -> type[DescribedDrive]:
     input_specs, input_words, _ = _map(d, inputs=True)
     r = d.link.refusals
     codes = ExceptionCodes(function=r.function, address=r.address, access=r.access,
-                           value=r.value, count=r.count, crc=r.crc)
+                           value=r.value, count=r.count, crc=r.crc, read_access=r.read_access)
     reads = frozenset(f for f in (READ_HOLDING, READ_INPUT) if f in d.link.functions)
     triggers: dict[str, list[Trigger]] = {}
     for trig in d.twin.on_write:
