@@ -194,6 +194,10 @@ class Cia402Profile(DescribedProfile):
             moving = turning or (self._homing and hs is not HomingStatus.COMPLETED)
         inputs = obj.get("digital_inputs")
         code = obj.get("error_code")
+        alarms, sw_reg = d.alarms, d.objects.get("statusword")
+        if alarms is not None and (sw_reg is None or alarms.reg != sw_reg.key) and \
+                values.get(alarms.reg) is not None:  # the drive's own error register
+            code = values[alarms.reg]
         st = DriveStatus(
             enabled=enabled,
             moving=moving,
@@ -514,6 +518,10 @@ def cia402_attrs(d: Any) -> dict[str, Any]:
     if "modes_of_operation_display" not in d.objects and "modes_of_operation" in d.objects:
         names.append("modes_of_operation")
     regs = [(d.objects[n], None) for n in names]
+    alarms = d.alarms
+    if alarms is not None and all(r.key != alarms.reg for r, _ in regs):
+        regs.append((d.regs[alarms.reg], None))  # the drive's own error register (Kinco's
+        # Error_State): the alarm code where it is not the CiA 402 error code
     link = d.link
     return {"_status_plan": plan_reads(regs, max_read=link.max_read, max_hole=link.max_hole),
             "_status_objects": tuple(names)}

@@ -101,7 +101,7 @@ def scale_text(scale: float) -> str:
     if len(short.replace("0.", "", 1)) <= 4:  # 0.1, 0.25, 0.001
         return short
     frac = Fraction(scale).limit_denominator(100000)
-    if abs(float(frac) - scale) < 1e-12 * scale and frac.numerator < 1000:
+    if abs(float(frac) - scale) < 1e-12 * scale and frac.numerator < 100000:
         return f"{frac.numerator}/{frac.denominator}"
     return short
 
