@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Literal
 
 import anyio
+import anyio.lowlevel
 
 from drivebus import checks
 from drivebus.errors import ArgumentError, DrivebusError, GroupMotionError, StateError
@@ -182,7 +183,7 @@ async def run_path(
     plans: list[_GroupPlan] = []
     for k in range(len(points) - 1):
         movers = [n for n in names if points[k + 1][n] != points[k][n]]
-        plans.append(group._plan(
+        plans.append(await group._plan(
             {n: points[k + 1][n] for n in movers}, {n: points[k][n] for n in movers},
             speed=speed, accel=accel, decel=decel,
             offsets=None if k == 0 else dict.fromkeys(movers, 0.0)))
@@ -190,6 +191,7 @@ async def run_path(
     reasons: list[str] = []
     ahead = _from_rest(group, plans[0], 0.0)
     for k in range(1, len(plans)):
+        await anyio.lowlevel.checkpoint()  # a long path's corners: no long hold of the loop
         tau, reason = _corner(group, ahead, plans[k - 1], plans[k], blend)
         taus.append(tau)
         reasons.append(reason)
@@ -232,7 +234,7 @@ async def queue_group_move(
     movers = {n: t for n, t in targets.items() if t != starts[n]}
     if not movers:
         raise ArgumentError("every axis of the group move is at its target already")
-    plan = group._plan(movers, {n: starts[n] for n in movers},
+    plan = await group._plan(movers, {n: starts[n] for n in movers},
                        offsets=None if not busy else dict.fromkeys(movers, 0.0),
                        **shape)  # type: ignore[arg-type]
     reason = ""
