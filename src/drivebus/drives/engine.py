@@ -828,26 +828,36 @@ class DescribedProfile(DriveProfile):
         if not self._learned and self.description.status.learn_first:
             await self.learn()
         raw_words: dict[str, list[int]] = {}
+        requested = monotonic()
         values = await self._poll_values(self._status_plan, priority, raw_words)
         try:
             for when, plan in self._extra_plans:
                 if when(self._scope(None, values)):
                     values.update(await self._poll_values(plan, priority, raw_words))
             await self._read_due_signals(priority)
-            return self.decode_status(values, raw_words)
+            return self.decode_status(values, raw_words, requested_at=requested)
         except Unknown as exc:
             raise ConfigError(f"{self.family}: its status decoding uses what the poll does "
                               f"not read ({exc}): add it to [status] poll") from None
 
+    def fresh(self, requested_at: float | None) -> bool:
+        """True if a status requested at ``requested_at`` (None: not known) left after
+        the reply to the last write: only such a status may change what the profile
+        tracks of a command (a homing under way, a motion started)."""
+        slave = self.__dict__.get("slave")
+        return requested_at is None or slave is None or requested_at > slave.wrote_at
+
     def decode_status(self, values: Mapping[str, Any],
-                      raw_words: Mapping[str, list[int]] | None = None) -> DriveStatus:
-        """A ``DriveStatus`` from the polled register values."""
+                      raw_words: Mapping[str, list[int]] | None = None, *,
+                      requested_at: float | None = None) -> DriveStatus:
+        """A ``DriveStatus`` from the polled register values. Its state trackers take
+        only a status requested after the last write's reply (``fresh``)."""
         d = self.description
         s = d.status
         fields = d.status_exprs
         scope = self._scope(None, values)
         scope["words"] = Attrs("words", dict(raw_words or {}))
-        if s.track:  # state trackers first: the fields see this poll's state
+        if s.track and self.fresh(requested_at):  # trackers first: the fields see them
             updates = {k: e(scope) for k, e in s.track.items()}
             self.state.update(updates)
             scope = self._scope(None, values)
@@ -880,10 +890,12 @@ class DescribedProfile(DriveProfile):
             limit_positive=flag("limit_positive"),
             limit_negative=flag("limit_negative"),
             homing=flag("homing"),
+            homing_error=flag("homing_error"),
             position=None if position is None else int(position),
             velocity_rpm=None if velocity is None else float(velocity),
             raw=raw,
             timestamp=monotonic(),
+            requested_at=requested_at or 0.0,
         )
 
     def alarm_text(self, code: int) -> str:

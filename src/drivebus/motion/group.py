@@ -24,7 +24,13 @@ import anyio.lowlevel
 from drivebus import checks
 from drivebus.bus import Bus
 from drivebus.clock import monotonic
-from drivebus.errors import ArgumentError, DrivebusError, GroupMotionError, LimitViolation
+from drivebus.errors import (
+    ArgumentError,
+    DrivebusError,
+    GroupMotionError,
+    LimitViolation,
+    MotionAborted,
+)
 from drivebus.motion.axis import Axis, MotionPlan
 from drivebus.motion.handle import BufferMode, check_buffer
 from drivebus.settings import LineSettings
@@ -303,6 +309,19 @@ class AxisGroup:
                 self.axes[n].check_free("group move")
         return checked
 
+    def stops(self, names: Iterable[str]) -> dict[str, int]:
+        """How many stops each named axis has had (``Axis.stops``): a command that plans
+        before it takes its axes notes them first and calls ``check_not_stopped`` after."""
+        return {n: self.axes[n].stops for n in names}
+
+    def check_not_stopped(self, before: Mapping[str, int], what: str) -> None:
+        """``MotionAborted`` if an axis was stopped since ``before`` (``stops``): a stop
+        issued while a command is planned wins, and the command starts nothing."""
+        for n, count in before.items():
+            if self.axes[n].stops != count:
+                raise MotionAborted(f"the {what} was aborted: axis {n} was stopped while it "
+                                    f"was being planned")
+
     async def _positions(self, names: Iterable[str]) -> dict[str, float]:
         """The named axes' present positions (user units), read from the drives at once."""
         found: dict[str, float] = {}
@@ -341,11 +360,14 @@ class AxisGroup:
         for name, t in targets.items():
             self.axes[name].check_limits(t)
         shape = {"speed": speed, "accel": accel, "decel": decel, "duration": duration}
+        stops = self.stops(targets)
         if buffer != "aborting":
             from drivebus.motion.path import queue_group_move
 
-            return await queue_group_move(self, targets, buffer, accepted, **shape)
-        return await self._move(targets, await self._positions(targets), accepted, **shape)
+            return await queue_group_move(self, targets, buffer, accepted, stops=stops,
+                                          **shape)
+        return await self._move(targets, await self._positions(targets), accepted,
+                                stops=stops, **shape)
 
     async def move_by(
         self,
@@ -360,12 +382,13 @@ class AxisGroup:
         """Move the named axes by their distances, together (the rest: as for
         ``move_to``)."""
         distances = self._check(distances, "distances")
+        stops = self.stops(distances)
         starts = await self._positions(distances)
         targets = {n: starts[n] + d for n, d in distances.items()}
         for name, t in targets.items():
             self.axes[name].check_limits(t)
-        return await self._move(targets, starts, accepted, speed=speed, accel=accel,
-                                decel=decel, duration=duration)
+        return await self._move(targets, starts, accepted, stops=stops, speed=speed,
+                                accel=accel, decel=decel, duration=duration)
 
     async def path(
         self,
@@ -558,11 +581,14 @@ class AxisGroup:
         targets: Mapping[str, float],
         starts: Mapping[str, float],
         accepted: Callable[[], object] | None = None,
+        *,
+        stops: Mapping[str, int],
         **shape: float | None,
     ) -> GroupMoveReport:
         plan = await self._plan(targets, starts, **shape)  # type: ignore[arg-type]
         plans, offsets, distances = plan.plans, plan.offsets, plan.distances
         gate = self.start_gate(plan)
+        self.check_not_stopped(stops, "group move")
         for n in targets:
             self.axes[n].check_free("group move")
         if accepted is not None:

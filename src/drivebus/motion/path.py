@@ -172,6 +172,7 @@ async def run_path(
         raise ArgumentError("a path needs a list of waypoints (mappings of axis to position)")
     names = list(group.axes)
     checked = [group._check(wp, f"waypoint {i + 1}") for i, wp in enumerate(waypoints)]
+    stops = group.stops(names)
     points = [await group._positions(names)]
     for i, wp in enumerate(checked):
         point = {**points[-1], **wp}
@@ -200,6 +201,7 @@ async def run_path(
         else:
             ahead = _synchronise_blend(group, ahead, plans[k], tau)
     reasons.append("")
+    group.check_not_stopped(stops, "path")
     for n in names:
         group.axes[n].check_free("path")
     run = _PathRun(group, points, plans, taus, reasons, [])
@@ -213,6 +215,8 @@ async def queue_group_move(
     targets: Mapping[str, float],
     buffer: BufferMode,
     accepted: Any,
+    *,
+    stops: Mapping[str, int],
     **shape: float | None,
 ) -> GroupHandle:
     """``AxisGroup.move_to`` with a buffer mode: one segment queued behind what the
@@ -237,6 +241,7 @@ async def queue_group_move(
     plan = await group._plan(movers, {n: starts[n] for n in movers},
                        offsets=None if not busy else dict.fromkeys(movers, 0.0),
                        **shape)  # type: ignore[arg-type]
+    group.check_not_stopped(stops, "group move")
     reason = ""
     if buffer == "blending":
         for n in movers:
