@@ -152,6 +152,9 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
      "accel = 'accel' }, block = true }]\n",
      ("procedures.move_relative.steps[0].block", "speed (5, 0x0005, 1 word) and accel (7, "
       "0x0007, 1 word) are not adjacent")),
+    # issue 32 item 6: an RTU address is 1..247 (a TCP unit id 0..255); a list is addresses
+    ("rtu address", MINIMAL + "\n[link]\naddresses = [255]\n",
+     ("link", "addresses: 255 is outside 1..247: an RTU address is 1..247")),
     # issue 32 item 7: what a procedure takes is one of its parameters
     ("takes", MINIMAL + "\n[procedures.stop]\ntakes = ['speed']\nsteps = [{ write = { "
      "enable = 0 } }]\n", ("procedures.stop.takes[0]", "'speed' is no parameter of stop")),
