@@ -958,8 +958,12 @@ class Axis(ProgramRunner, AxisIO):
         if not moving and self.state is not AxisState.STOPPING:
             return
         try:
-            await self._wait_rest(monotonic(), "after the motion failed" if error else
-                                  "after the motion was cancelled")
+            st = await self._wait_rest(monotonic(), "after the motion failed" if error else
+                                       "after the motion was cancelled")
+            if error is None:
+                where = "" if st.position is None else \
+                    f" at {self.units.from_pulses(st.position):.4f} {self.config.unit}"
+                log.warning("axis %s: stopped%s (at rest)", self.name, where)
         except DrivebusError as exc:
             if error is not None:
                 error.args = (f"{error} (and the axis did not come to rest: {exc})",
@@ -975,7 +979,12 @@ class Axis(ProgramRunner, AxisIO):
             m.committing and not isinstance(exc, _REFUSALS)
         )
         if maybe_moving:
-            await self._stop_now(f"the {m.what} failed: {exc!r}", error=exc)
+            cancelled = isinstance(exc, anyio.get_cancelled_exc_class())
+            if cancelled:
+                log.warning("axis %s: the %s was cancelled: stopping the axis", self.name,
+                            m.what)
+            await self._stop_now(f"the {m.what} was cancelled" if cancelled else
+                                 f"the {m.what} failed: {exc!r}", error=exc)
             return
         m.finish(exc)
         if self._motion is m:  # refused before anything moved: back to where it was
