@@ -49,6 +49,8 @@ STATUS_OBJECTS = ("statusword", "modes_of_operation_display", "position_actual_v
 """The objects the status poll reads, where the description maps them."""
 
 _ENABLED = COMMAND_WORDS[Command.ENABLE_OPERATION]
+_HALTED = _ENABLED | Controlword.HALT
+"""Enable operation with halt set: Operation enabled, the axis held where it is."""
 
 
 class Cia402Profile(DescribedProfile):
@@ -61,6 +63,8 @@ class Cia402Profile(DescribedProfile):
         self._last_cw: int | None = None
         self._homing = False
         self._homed = False
+        self._velocity_set = False
+        """A speed run of this session left a target velocity (60FFh) other than 0."""
 
     # -- objects ---------------------------------------------------------------------------
 
@@ -114,7 +118,9 @@ class Cia402Profile(DescribedProfile):
 
     async def goto(self, goal: State) -> None:
         """Walk the state machine to ``goal`` (bounded: each step is confirmed within the
-        description's timeout, and no more steps than the profile can need)."""
+        description's timeout, and no more steps than the profile can need). Enable
+        operation goes with halt set: Operation enabled holds the axis (a set-point a halt
+        interrupted does not resume); the next motion command clears halt as it starts."""
         timeout = self._timeout
         for _ in range(MAX_STEPS + 2):
             state, _ = await self._state()
@@ -122,7 +128,10 @@ class Cia402Profile(DescribedProfile):
             if step is None:
                 return
             if step.controlword is not None:
-                await self._controlword(step.controlword, idempotent=True)
+                word = step.controlword
+                if step.command is Command.ENABLE_OPERATION:
+                    word |= Controlword.HALT
+                await self._controlword(word, idempotent=True)
             try:
                 with anyio.fail_after(timeout):
                     while True:
@@ -240,11 +249,24 @@ class Cia402Profile(DescribedProfile):
 
     async def enable(self) -> None:
         """Shutdown, switch on, enable operation, as the state machine needs (or the
-        description's own ``enable``)."""
+        description's own ``enable``); a target velocity left in the drive is zeroed
+        first and Operation enabled is reached with halt set, so enabling starts nothing."""
         if self._described("enable"):
             await super().enable()
             return
+        state, _ = await self._state()
+        if state is not State.OPERATION_ENABLED:
+            await self._zero_target_velocity(Priority.COMMAND)
         await self.goto(State.OPERATION_ENABLED)
+
+    async def _zero_target_velocity(self, priority: Priority) -> None:
+        """Target velocity (60FFh) 0, where mapped: in profile velocity the drive runs at
+        it whenever it is in Operation enabled with halt clear (the mode has no start bit,
+        CiA 402-2 profile velocity mode), so none is left for an enable or a mode change
+        to start."""
+        if "target_velocity" in self.description.objects:
+            await self._write_objects([("target_velocity", 0)], priority=priority)
+            self._velocity_set = False
 
     async def disable(self) -> None:
         """Shutdown: Ready to switch on, the motor released (or the description's own)."""
@@ -415,8 +437,11 @@ class Cia402Profile(DescribedProfile):
             await self.stop(decel_rps2)
             return
         await self._enabled_or_raise()
-        await self._set_mode(Mode.PROFILE_VELOCITY)
+        # The target first: the mode change to profile velocity then runs at this speed,
+        # never at one left from before (halt may be clear, the mode has no start bit).
         await self._write_objects(values)
+        self._velocity_set = True
+        await self._set_mode(Mode.PROFILE_VELOCITY)
         await self._controlword(_ENABLED)  # halt clear: run
 
     async def stop(self, decel_rps2: float | None = None) -> None:
@@ -428,7 +453,9 @@ class Cia402Profile(DescribedProfile):
         if decel_rps2 is not None and "profile_deceleration" in self.description.objects:
             await self._write_objects([("profile_deceleration", decel_rps2)], priority=prio)
         self._homing = False
-        await self._controlword(_ENABLED | Controlword.HALT, priority=prio, idempotent=True)
+        await self._controlword(_HALTED, priority=prio, idempotent=True)
+        if self._velocity_set:  # after the halt: the stop is on the wire first
+            await self._zero_target_velocity(prio)
 
     async def emergency_stop(self) -> None:
         """Quick stop (or halt, as ``[cia402] emergency_stop`` says)."""
@@ -437,9 +464,11 @@ class Cia402Profile(DescribedProfile):
             return
         c = self.description.cia402
         self._homing = False
-        word = (_ENABLED | Controlword.HALT if c is not None and c.emergency_stop == "halt"
+        word = (_HALTED if c is not None and c.emergency_stop == "halt"
                 else COMMAND_WORDS[Command.QUICK_STOP])
         await self._controlword(word, priority=Priority.EMERGENCY, idempotent=True)
+        if self._velocity_set:  # after the stop: it is on the wire first
+            await self._zero_target_velocity(Priority.EMERGENCY)
 
     async def start_homing(self, params: HomingParams) -> None:
         """Homing mode with the method's number, speeds, acceleration and offset, then the
