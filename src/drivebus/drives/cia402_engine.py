@@ -13,6 +13,7 @@ the description's own procedures, ``setup`` and ``learn`` run as in the command 
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
@@ -40,13 +41,15 @@ from drivebus.drives.description import Reg
 from drivebus.drives.engine import DescribedProfile, plan_reads
 from drivebus.drives.status import DriveStatus
 from drivebus.drives.values import Attrs, Unread
-from drivebus.errors import LimitViolation, StateError
+from drivebus.errors import LimitViolation, StateError, TransactionError
 
 __all__ = ["STATUS_OBJECTS", "Cia402Profile"]
 
 STATUS_OBJECTS = ("statusword", "modes_of_operation_display", "position_actual_value",
                   "velocity_actual_value", "error_code", "digital_inputs")
 """The objects the status poll reads, where the description maps them."""
+
+log = logging.getLogger(__name__)
 
 _ENABLED = COMMAND_WORDS[Command.ENABLE_OPERATION]
 _HALTED = _ENABLED | Controlword.HALT
@@ -268,6 +271,18 @@ class Cia402Profile(DescribedProfile):
             await self._write_objects([("target_velocity", 0)], priority=priority)
             self._velocity_set = False
 
+    async def _after_stop(self) -> None:
+        """After the stop of a speed run (on the wire already): target velocity 0. The
+        stop has done its work if this write fails; it is logged and tried again at the
+        next stop, and enable zeroes it anyway."""
+        if not self._velocity_set:
+            return
+        try:
+            await self._zero_target_velocity(Priority.EMERGENCY)
+        except TransactionError as exc:
+            log.warning("%s: the stop went out, but target velocity (60FFh) was not zeroed "
+                        "after it: %s", self.family, exc)
+
     async def disable(self) -> None:
         """Shutdown: Ready to switch on, the motor released (or the description's own)."""
         if self._described("disable"):
@@ -454,8 +469,7 @@ class Cia402Profile(DescribedProfile):
             await self._write_objects([("profile_deceleration", decel_rps2)], priority=prio)
         self._homing = False
         await self._controlword(_HALTED, priority=prio, idempotent=True)
-        if self._velocity_set:  # after the halt: the stop is on the wire first
-            await self._zero_target_velocity(prio)
+        await self._after_stop()
 
     async def emergency_stop(self) -> None:
         """Quick stop (or halt, as ``[cia402] emergency_stop`` says)."""
@@ -467,8 +481,7 @@ class Cia402Profile(DescribedProfile):
         word = (_HALTED if c is not None and c.emergency_stop == "halt"
                 else COMMAND_WORDS[Command.QUICK_STOP])
         await self._controlword(word, priority=Priority.EMERGENCY, idempotent=True)
-        if self._velocity_set:  # after the stop: it is on the wire first
-            await self._zero_target_velocity(Priority.EMERGENCY)
+        await self._after_stop()
 
     async def start_homing(self, params: HomingParams) -> None:
         """Homing mode with the method's number, speeds, acceleration and offset, then the
