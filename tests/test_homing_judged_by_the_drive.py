@@ -12,8 +12,9 @@ over a pty, written from the manual; nothing of ``drivebus.sim``).
   The description here has no homed flag of its own (the Kinco's bit 15 is left out), so
   the homing record alone decides.
 
-Both wait for the lead's fix of the axis layer and are marked ``xfail(strict=True)``
-until then: each fails today for the reason it states, bounded well under a minute.
+Both failed before the fix of the axis and the engines (DriveStatus.homing_error and
+requested_at) for the reason each states, bounded well under a minute: item 2 waited out
+the homing timeout (here cut at 5 s), item 3 timed out while the drive showed attained.
 """
 
 from __future__ import annotations
@@ -65,12 +66,10 @@ def without_the_homed_bit(tmp_path: Path) -> Path:
     return path
 
 
-@pytest.mark.xfail(strict=True, raises=TimeoutError,
-                   reason="issue 31 item 2: the axis fix lands from the lead")
 async def test_a_homing_error_from_the_first_poll_ends_home_at_once() -> None:
     """The emulator has no home switch to home on (method 24): homing error (statusword bit
     13) from the first status after the start. home() raises within 5 s, well inside the
-    30 s homing timeout, an error naming the homing error; today it waits the timeout."""
+    30 s homing timeout, an error naming the homing error (it waited the timeout)."""
     drive = Kinco()
     with anyio.fail_after(50):
         async with served(drive, K_READ_ONLY) as line:
@@ -91,8 +90,6 @@ async def test_a_homing_error_from_the_first_poll_ends_home_at_once() -> None:
                 assert not a.homed
 
 
-@pytest.mark.xfail(strict=True, raises=MotionTimeout,
-                   reason="issue 31 item 3: the axis fix lands from the lead")
 async def test_a_status_read_before_the_homing_start_does_not_decide_it(
         tmp_path: Path) -> None:
     """A homing stopped half-way leaves the drive in homing mode, interrupted (statusword
@@ -101,8 +98,8 @@ async def test_a_status_read_before_the_homing_start_does_not_decide_it(
     start's frames and its status is decoded after the start; the drive answers the mode
     write 130 ms late. The homing (method 17, to the negative limit switch, about half a
     second) completes and the drive reports attained: home() returns and the axis is
-    homed. Today that older "interrupted" status clears the homing record, and home()
-    times out (6 s here) while the drive shows attained."""
+    homed. (That older "interrupted" status cleared the homing record, and home() timed
+    out, 6 s here, while the drive showed attained.)"""
     drive = SlowModeKinco()
     with anyio.fail_after(40):
         async with served(drive, K_READ_ONLY) as line:
