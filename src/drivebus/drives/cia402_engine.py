@@ -492,12 +492,15 @@ class Cia402Profile(DescribedProfile):
         await self._controlword(word, priority=Priority.EMERGENCY, idempotent=True)
         await self._after_stop()
 
-    async def start_homing(self, params: HomingParams) -> None:
-        """Homing mode with the method's number, speeds, acceleration and offset, then the
-        rising edge of controlword bit 4."""
+    def check_homing(self, params: HomingParams) -> None:
+        """The method known, its values within range, an offset only with home_offset."""
         if self._described("home"):
-            await super().start_homing(params)
+            super().check_homing(params)
             return
+        self._homing_values(params)
+
+    def _homing_values(self, params: HomingParams) -> list[tuple[str, float | int]]:
+        """The objects a homing writes, range-checked (no I/O)."""
         _, m = self._home_method(params.method)
         number = m.cia402 if m.cia402 is not None else m.code
         values: list[tuple[str, float | int]] = [("homing_method", number)]
@@ -512,6 +515,15 @@ class Cia402Profile(DescribedProfile):
         if params.offset and "home_offset" not in self.description.objects:
             raise self.unsupported(f"home with an offset of {params.offset:g} pulses",
                                    "its description maps no register to home_offset (607C)")
+        return values
+
+    async def start_homing(self, params: HomingParams) -> None:
+        """Homing mode with the method's number, speeds, acceleration and offset, then the
+        rising edge of controlword bit 4."""
+        if self._described("home"):
+            await super().start_homing(params)
+            return
+        values = self._homing_values(params)
         await self._enabled_or_raise()
         await self._set_mode(Mode.HOMING)
         await self._write_objects(values)

@@ -1165,10 +1165,23 @@ class DescribedProfile(DriveProfile):
         return Attrs("home", {"name": name, "method": name, "code": m.code,
                               "cia402": m.cia402, **m.extras})
 
+    def _homing_args(self, params: HomingParams) -> dict[str, Any]:
+        return {"method": params.method, "speed": params.speed_rpm,
+                "creep": params.creep_rpm, "accel": params.accel_rps2,
+                "offset": params.offset}
+
     async def start_homing(self, params: HomingParams) -> None:
         """The description's ``home`` with the method's code and extras as ``home.*``."""
-        await self.run("home", method=params.method, speed=params.speed_rpm,
-                       creep=params.creep_rpm, accel=params.accel_rps2, offset=params.offset)
+        await self.run("home", **self._homing_args(params))
+
+    def check_homing(self, params: HomingParams) -> None:
+        """The method known, and what ``home`` writes within range (a dry run)."""
+        proc_d = self.description.procedures.get("home")
+        args = {**{p.name: p.default for p in (proc_d.params if proc_d else [])},
+                **self._homing_args(params)}
+        proc = self._procedure("home", args)
+        self._dry(proc, _Run("home", args, True, self._priority("home", proc),
+                             home=self._home_attrs(args)))
 
     async def clear_alarm(self) -> None:
         """The description's ``clear_alarm``."""
@@ -1276,6 +1289,26 @@ class DescribedProfile(DriveProfile):
             return
         await self.run("set_output", output=name, index=self.io_outputs.index(name) + 1,
                        state=bool(state))
+
+    async def check_output(self, name: str, state: bool) -> None:
+        """The refusals of the description's ``set_output`` that its reads decide (its
+        read, check and fail steps before its first write), nothing written."""
+        self.check_supported("set_output")
+        await self.preflight("set_output", output=name,
+                             index=self.io_outputs.index(name) + 1, state=bool(state))
+
+    async def preflight(self, name: str, **args: Any) -> None:
+        """Run procedure ``name``'s steps up to its first step that writes or waits
+        (reads, checks and fails only): a refusal it can decide from reads comes before
+        anything is written."""
+        proc = self._procedure(name, args)
+        run = _Run(name, dict(args), False, self._priority(name, proc))
+        for step in proc.steps:
+            if step.action not in ("read", "check", "fail"):
+                return
+            if step.when is not None and not step.when(self._scope(run)):
+                continue
+            await self._step(step, run)
 
     def __getattr__(self, name: str) -> Callable[..., Awaitable[Any]]:
         """The description's own procedures as methods (``profile.write_position_path(...)``)."""

@@ -807,14 +807,24 @@ class Axis(ProgramRunner, AxisIO):
     # -- the command lane ------------------------------------------------------------------------
 
     async def _exclusive(
-        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None
+        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None,
+        setup_first: bool = True,
     ) -> None:
-        """Run ``io`` alone on the axis; a motion's I/O can be cancelled by a stop."""
+        """Run ``io`` alone on the axis; a motion's I/O can be cancelled by a stop. The
+        drive is set up (if due) before ``io``; with ``setup_first=False``, ``io`` does it
+        itself (``set_up_if_due``) after the refusals it decides from reads."""
         async with self._lane:
-            await self._locked_io(io, motion=motion)
+            await self._locked_io(io, motion=motion, setup_first=setup_first)
+
+    async def set_up_if_due(self) -> None:
+        """Set the drive up (or check it still is) if that is due: a command's I/O calls
+        it before its first write, once every refusal is decided. Only in the lane."""
+        if self._check_due or self._setup_due:
+            await self._verify_settings()
 
     async def _locked_io(
-        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None
+        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None,
+        setup_first: bool = True,
     ) -> None:
         """``_exclusive``'s body, for a caller that holds the lane."""
         if motion is not None and motion.over:
@@ -824,8 +834,8 @@ class Axis(ProgramRunner, AxisIO):
             motion.io, motion.io_done = scope, done
         try:
             with scope:
-                if self._check_due or self._setup_due:
-                    await self._verify_settings()
+                if setup_first:
+                    await self.set_up_if_due()
                 await io()
         finally:
             if motion is not None:
@@ -884,15 +894,17 @@ class Axis(ProgramRunner, AxisIO):
         *,
         timeout: float | None,
         wait: bool = True,
+        setup_first: bool = True,
     ) -> None:
-        """Start ``m`` with ``io`` and (``wait``) await its outcome; clean up on any failure.
+        """Start ``m`` with ``io`` and (``wait``) await its outcome; clean up on any failure
+        (``setup_first``: as for ``_exclusive``).
 
         A motion error (a timeout, a limit, an alarm, a drive that stopped short) is
         raised once the axis is at rest, so the next command finds it there (or the error
         says that it is still braking); a cancellation stops the axis and is re-raised at
         once."""
         try:
-            await self._exclusive(io, motion=m)
+            await self._exclusive(io, motion=m, setup_first=setup_first)
             if not wait:
                 return
             self._waiters += 1
@@ -908,8 +920,8 @@ class Axis(ProgramRunner, AxisIO):
         except BaseException as exc:
             with anyio.CancelScope(shield=True):
                 await self._after_failure(m, exc)
-                if isinstance(exc, DrivebusError) and not isinstance(exc, _NO_REST_WAIT):
-                    await self._come_to_rest(exc)
+                if not isinstance(exc, _NO_REST_WAIT):  # an error, or a cancellation
+                    await self._come_to_rest(exc if isinstance(exc, DrivebusError) else None)
             raise
 
     async def _outcome(self, m: _Motion, timeout: float | None) -> None:
@@ -938,17 +950,26 @@ class Axis(ProgramRunner, AxisIO):
             with anyio.move_on_after(left):
                 await m.finished.wait()
 
-    async def _come_to_rest(self, error: DrivebusError) -> None:
-        """After a motion error: wait (bounded) for a status showing the drive at rest,
-        so the error is raised with the axis there; if it is not, the error says so."""
+    async def _come_to_rest(self, error: DrivebusError | None) -> None:
+        """After a motion error (None: a cancellation) that stopped the axis: wait
+        (bounded) for a status showing the drive at rest, so the caller goes on with the
+        axis there; an error that it is not says so."""
         moving = self.status is not None and self.status.moving
-        if not moving and self.state not in (AxisState.STOPPING,):
+        if not moving and self.state is not AxisState.STOPPING:
             return
         try:
-            await self._wait_rest(monotonic(), f"after the {type(error).__name__}")
+            st = await self._wait_rest(monotonic(), "after the motion failed" if error else
+                                       "after the motion was cancelled")
+            if error is None:
+                where = "" if st.position is None else \
+                    f" at {self.units.from_pulses(st.position):.4f} {self.config.unit}"
+                log.warning("axis %s: stopped%s (at rest)", self.name, where)
         except DrivebusError as exc:
-            error.args = (f"{error} (and the axis did not come to rest: {exc})",
-                          *error.args[1:])
+            if error is not None:
+                error.args = (f"{error} (and the axis did not come to rest: {exc})",
+                              *error.args[1:])
+            else:
+                log.error("axis %s: %s", self.name, exc)
 
     async def _after_failure(self, m: _Motion, exc: BaseException) -> None:
         """Leave the axis right after ``m`` failed: unchanged if nothing moved, else stopped."""
@@ -958,7 +979,12 @@ class Axis(ProgramRunner, AxisIO):
             m.committing and not isinstance(exc, _REFUSALS)
         )
         if maybe_moving:
-            await self._stop_now(f"the {m.what} failed: {exc!r}", error=exc)
+            cancelled = isinstance(exc, anyio.get_cancelled_exc_class())
+            if cancelled:
+                log.warning("axis %s: the %s was cancelled: stopping the axis", self.name,
+                            m.what)
+            await self._stop_now(f"the {m.what} was cancelled" if cancelled else
+                                 f"the {m.what} failed: {exc!r}", error=exc)
             return
         m.finish(exc)
         if self._motion is m:  # refused before anything moved: back to where it was
@@ -1113,6 +1139,7 @@ class Axis(ProgramRunner, AxisIO):
                 if st.position is not None:
                     m.direction = (target_p > st.position) - (target_p < st.position)
                 self.envelope.check_switch(m.direction, st)
+            await self.set_up_if_due()
             await prepare()
             if ready is not None:
                 await ready()
@@ -1125,11 +1152,12 @@ class Axis(ProgramRunner, AxisIO):
         self, m: _Motion, io: Callable[[], Awaitable[None]], timeout: float
     ) -> MotionHandle | None:
         """Start ``m``: aborting, await it (None); else return its handle once started
-        (its deadline kept by the actor)."""
+        (its deadline kept by the actor). ``io`` sets the drive up itself, after the
+        refusals it decides from a fresh status (``set_up_if_due``)."""
         if m.buffer == "aborting":
-            await self._run_motion(m, io, timeout=timeout)
+            await self._run_motion(m, io, timeout=timeout, setup_first=False)
             return None
-        await self._run_motion(m, io, timeout=None, wait=False)
+        await self._run_motion(m, io, timeout=None, wait=False, setup_first=False)
         m.deadline = monotonic() + timeout
         return self._handle(m)
 
@@ -1347,6 +1375,7 @@ class Axis(ProgramRunner, AxisIO):
             self.envelope.check_switch(direction, st)
             target = self.envelope.pulses(self.units.from_pulses(start) + distance)
             m.start, m.target = start, target
+            await self.set_up_if_due()
             await self._commit(m, lambda: self.profile.move_relative(target - start, params))
 
         return await self._run_or_hand(m, io, self.envelope.motion_timeout(plan, distance))
@@ -1429,8 +1458,11 @@ class Axis(ProgramRunner, AxisIO):
         h = self.config.homing
         self.profile.check_supported("home")
         switches = self.profile.homing_switches(h.method)
-        m = self._begin("home", "homing", AxisState.HOMING, accepted=accepted)
         u = self.units
+        params = HomingParams(h.method, speed_rpm=u.to_rpm(h.speed), creep_rpm=u.to_rpm(h.creep),
+                              accel_rps2=u.to_rps2(h.accel), offset=u.to_pulses(h.offset))
+        self.profile.check_homing(params)  # every refusal before anything is sent
+        m = self._begin("home", "homing", AxisState.HOMING, accepted=accepted)
         m.switches = switches
         # A reversing drive brakes into its switch, seen up to two polls late.
         travel = h.speed * h.speed / (2 * h.accel) + h.speed * 2 * self.config.poll.moving
@@ -1442,13 +1474,7 @@ class Axis(ProgramRunner, AxisIO):
                                                          (-1, st.limit_negative)) if on}
 
         async def io() -> None:
-            await self._commit(m, lambda: self.profile.start_homing(HomingParams(
-                h.method,
-                speed_rpm=u.to_rpm(h.speed),
-                creep_rpm=u.to_rpm(h.creep),
-                accel_rps2=u.to_rps2(h.accel),
-                offset=u.to_pulses(h.offset),
-            )))
+            await self._commit(m, lambda: self.profile.start_homing(params))
 
         await self._run_motion(m, io, timeout=h.timeout)
 
@@ -1766,10 +1792,11 @@ class Axis(ProgramRunner, AxisIO):
             if st.enabled and not st.alarm:
                 return
             self.profile.check_supported("enable")
+            await self.set_up_if_due()
             await self.profile.enable()
             await self.refresh()
 
-        await self._exclusive(io)
+        await self._exclusive(io, setup_first=False)
 
     async def disable(self) -> None:
         """De-energise the motor (only at rest)."""
@@ -1799,6 +1826,7 @@ class Axis(ProgramRunner, AxisIO):
             st = await self.refresh()
             if st.alarm:
                 self.profile.check_supported("clear_alarm")
+                await self.set_up_if_due()
                 await self.profile.clear_alarm()
                 st = await self.refresh()
                 if st.alarm:
@@ -1813,7 +1841,7 @@ class Axis(ProgramRunner, AxisIO):
                 self.state = AxisState.STANDSTILL if st.enabled else AxisState.DISABLED
             self._publish()
 
-        await self._exclusive(io)
+        await self._exclusive(io, setup_first=False)
 
     async def reset_alarm(self) -> None:
         """Clear the drive's alarm and leave ErrorStop (the same as ``reset()``)."""
