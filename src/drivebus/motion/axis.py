@@ -1497,8 +1497,10 @@ class Axis(ProgramRunner, AxisIO):
         the limit in its direction, so it comes to rest on the limit at the latest.
 
         Called again while jogging with the same values it feeds the watchdog; with
-        another speed or direction it changes the jog (towards a limit: on the fly where
-        the drive takes a new target while it moves, else by a stop and a new start).
+        another speed or direction it changes the jog: on the fly where the description
+        says the drive takes it (``[programs] jog_speed``: a new speed in the same
+        direction; ``retarget``: towards a limit, a new target), else by a decelerating
+        stop and a new start.
 
         ``buffer="buffered"`` (or ``"blending"``) queues the jog behind the motions under
         way, as for ``move_to``, and returns a ``MotionHandle``; its watchdog starts with
@@ -1580,15 +1582,18 @@ class Axis(ProgramRunner, AxisIO):
         self, m: _Motion, speed: float, plan: MotionPlan, bound: int | None,
         watchdog: float | None,
     ) -> None:
-        """A running jog at a new speed or direction (a stop first where the drive needs it)."""
+        """A running jog at a new speed or direction: on the fly where the description says
+        the drive takes it (``[programs] jog_speed``, ``retarget``), else a decelerating
+        stop and a new start (a drive that obeys no second start while it runs)."""
         direction = self.envelope.drive_direction(speed)
+        programs = self.profile.programs
 
         async def io() -> None:
-            if bound is None and direction == m.direction:
+            if bound is None and direction == m.direction and programs.jog_speed:
                 params = self.drive_params(plan)
                 rpm = math.copysign(params.speed_rpm, direction)
                 await self.profile.speed_run(rpm, params.accel_rps2, params.decel_rps2)
-            elif bound is not None and direction == m.direction and self.profile.programs.blends:
+            elif bound is not None and direction == m.direction and programs.blends:
                 # towards the same limit at another speed, given on the fly
                 await self.profile.retarget_absolute(bound, self.drive_params(plan))
                 before, limit = m.trajectory, self.units.from_pulses(bound)
