@@ -226,7 +226,7 @@ async def test_an_object_addressed_cia402_servo_is_driven_object_by_object(
 
     servo = ObjectServo()
     drive = write(tmp_path, MRJEC)
-    device = [SimDevice(255, simdata=[SimData(0x6000, values=[0] * 0x100,
+    device = [SimDevice(255, simdata=[SimData(0x6000, values=[0] * 0x110,
                                               datatype=DataType.REGISTERS)],
                         action=servo.action)]
     with anyio.fail_after(60):
