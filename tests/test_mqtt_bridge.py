@@ -142,6 +142,36 @@ BAD = [
 ]
 
 
+async def test_a_move_takes_a_buffer_mode_and_aborting_takes_over_on_the_fly(
+    broker: Broker,
+) -> None:
+    async with bridged(DEMO, broker.url) as (s, _), probe(broker.url) as p:
+        z, twin = s.axis("z"), s.machine.sim_drives["z"]
+        # the axis's worker takes the second up as soon as the first was accepted
+        first = await p.send("demo", "z", "move", {"target": 90.0})
+        second = await p.send("demo", "z", "move", {"target": 10.0})
+        replies = await p.final(first)
+        assert replies[-1]["status"] == "aborted", replies
+        assert "aborted by the move to 10" in replies[-1]["error"]["message"]
+        assert [r["status"] for r in await p.final(second)] == ["accepted", "done"]
+        assert twin.position() == z.units.to_pulses(10.0)
+
+        t0 = anyio.current_time()
+        first = await p.send("demo", "z", "move", {"target": 30.0})
+        second = await p.send("demo", "z", "move", {"target": 2.0, "buffer": "buffered"})
+        assert [r["status"] for r in await p.final(first)] == ["accepted", "done"]
+        done = (await p.final(second))[-1]
+        assert done["status"] == "done" and done["result"]["runs"] == "buffered", done
+        assert twin.position() == z.units.to_pulses(2.0)
+        here = z.units.to_pulses(30.0)
+        assert any(abs(seg.p0 - here) < 1 for seg in twin.kin.trace(t0, anyio.current_time()))
+
+        bad = await p.command("demo", "z", "move", {"target": 5.0, "buffer": "sideways"})
+        assert len(bad) == 1 and bad[0]["status"] == "failed"
+        assert "not a buffer mode" in bad[0]["error"]["message"]
+        assert not twin.is_moving()
+
+
 async def test_malformed_commands_get_one_failed_reply_naming_the_problem(
     broker: Broker,
 ) -> None:

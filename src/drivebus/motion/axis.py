@@ -137,6 +137,8 @@ class _Motion:
     io_done: anyio.Event | None = None
     """Set when the command I/O that ``io`` belongs to has ended."""
     finished: anyio.Event = field(default_factory=anyio.Event)
+    committed: anyio.Event = field(default_factory=anyio.Event)
+    """Set once the drive took its start (``accepted_at``) or its outcome is decided."""
     outcome: BaseException | None = None
     trajectory: Trajectory | None = None
     """Where it will be when (user units, monotonic s), planned once the drive took it."""
@@ -194,6 +196,7 @@ class _Motion:
             return
         self.outcome = error
         self.finished.set()
+        self.committed.set()
         if self.io is not None:
             self.io.cancel()
 
@@ -943,6 +946,7 @@ class Axis(ProgramRunner, AxisIO):
                          self.name, m.what, exc)
                 await start()
         m.accepted_at = self.command_started_at = monotonic()
+        m.committed.set()
         log.debug("axis %s: %s started (target %s pulses)", self.name, m.what, m.target)
         drive_start = m.began = self._drive_started(m.accepted_at)
         if trajectory is not None:
@@ -1037,6 +1041,8 @@ class Axis(ProgramRunner, AxisIO):
         params = self.drive_params(plan)
         self.check_drive(plan)
         what = f"move to {target:g}"
+        if buffer == "aborting":
+            await self._start_on_its_way()
         if buffer != "aborting" and (self._motion is not None or self._queue):
             return self._queue_move(what, target_p, base, buffer, accepted)
         if buffer == "aborting" and self._may_take_over():
@@ -1183,6 +1189,16 @@ class Axis(ProgramRunner, AxisIO):
             return self.position
         return None if last.target is None else self.units.from_pulses(last.target)
 
+    async def _start_on_its_way(self) -> None:
+        """Aborting: wait for a move or jog whose start is still on its way to the drive
+        (taken, its start not yet acknowledged), where the drive takes a new target on the
+        fly, so that the new move takes it over instead of being refused. Bounded by that
+        start's I/O; a stop meanwhile is not held up."""
+        m = self._motion
+        if (m is not None and not m.over and m.accepted_at is None
+                and m.kind in ("move", "jog") and self.profile.programs.blends):
+            await m.committed.wait()
+
     def _may_take_over(self) -> bool:
         """True if a new move may replace the motion under way on the fly (aborting)."""
         m = self._motion
@@ -1255,6 +1271,8 @@ class Axis(ProgramRunner, AxisIO):
         base = self.plan(speed, accel, decel)
         plan = self._effective(base)
         what = f"move by {distance:g}"
+        if buffer == "aborting":
+            await self._start_on_its_way()
         if (buffer != "aborting" and (self._motion is not None or self._queue)) or (
             buffer == "aborting" and self._may_take_over()
         ):

@@ -529,7 +529,8 @@ class Bridge:
                 rec = await s.start_move(
                     a, target=cmd.args.get("target"), by=cmd.args.get("by"),
                     speed=cmd.args.get("speed"), accel=cmd.args.get("accel"),
-                    decel=cmd.args.get("decel"), client=client)
+                    decel=cmd.args.get("decel"),
+                    buffer=cmd.values.get("buffer", "aborting"), client=client)
             elif cmd.verb == "home":
                 rec = await s.start_home(a, client=client)
             else:

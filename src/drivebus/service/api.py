@@ -162,9 +162,13 @@ async def get_line(line: str, session: Session, _: Reader) -> dict[str, Any]:
 async def move(
     name: str, body: MoveRequest, session: Session, who: Commander, response: Response
 ) -> dict[str, Any]:
-    """Start a move; ``202`` once the axis accepted it, with ``Location`` of its motion."""
+    """Start a move; ``202`` once the axis accepted it, with ``Location`` of its motion.
+    ``buffer`` (default ``aborting``) says what it does to a motion under way: take it
+    over on the fly where the drive can (the motion under way ends ``aborted``; ``409``
+    where the drive cannot), or queue behind it (``buffered``, ``blending``)."""
     rec = await session.start_move(name, target=body.target, by=body.by, speed=body.speed,
-                                   accel=body.accel, decel=body.decel, client=who.name)
+                                   accel=body.accel, decel=body.decel, buffer=body.buffer,
+                                   client=who.name)
     _accepted(response, rec.id)
     return rec.as_dict()
 
