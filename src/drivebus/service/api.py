@@ -89,18 +89,20 @@ Session = Annotated[MachineSession, Depends(_session)]
 Reader = Annotated[Principal, Depends(_reader)]
 Commander = Annotated[Principal, Depends(_commander)]
 
-_ERRORS: dict[int | str, dict[str, Any]] = {
-    status: {"description": text, "content": {problems.PROBLEM: {}}}
-    for status, text in (
-        (401, "no or unknown bearer token"),
-        (403, "the token's scope does not allow this"),
-        (404, "no such axis, line or motion"),
-        (409, "StateError, or LeaseHeld naming the holder"),
-        (422, "ArgumentError, LimitViolation, or an invalid request body"),
-        (501, "NotSupported by this drive"),
-        (503, "DriveOffline"),
-    )
-}
+def _error_responses() -> dict[int | str, dict[str, Any]]:
+    """The problem+json answers every route may give, by status, naming the typed errors
+    behind each (from ``problems.STATUS``: one place)."""
+    names: dict[int, list[str]] = {401: ["Unauthorized (no or unknown bearer token)"],
+                                   403: ["Forbidden (the token's scope does not allow it)"],
+                                   422: ["an invalid request body"]}
+    for cls, status in problems.STATUS.items():
+        if status != 500:
+            names.setdefault(status, []).append(cls.__name__)
+    return {status: {"description": ", ".join(sorted(names[status], key=str.lower)),
+                     "content": {problems.PROBLEM: {}}} for status in sorted(names)}
+
+
+_ERRORS = _error_responses()
 
 router = APIRouter(prefix="/api", responses=_ERRORS)
 
