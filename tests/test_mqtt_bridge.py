@@ -60,6 +60,24 @@ async def test_state_topics_update_during_a_move(broker: Broker) -> None:
                 "alarm_text", "units_per_rev", "ts"} <= set(got[0][1])
 
 
+async def test_home_assistant_position_sensors_carry_the_axis_unit(broker: Broker) -> None:
+    async with bridged(DEMO, broker.url) as (s, _):
+        lines = await broker.sub("homeassistant/sensor/drivebus_demo/+/config",
+                                 "drivebus/demo/axes/+/state", count=15)  # retained
+        got = dict(_messages(lines))
+        prefix = "homeassistant/sensor/drivebus_demo"
+        for axis, unit in (("x", "mm"), ("y", "mm"), ("z", "mm"), ("r", "deg"),
+                           ("aux", "units")):
+            assert unit == s.axis(axis).config.unit
+            sensor = got[f"{prefix}/{axis}_position/config"]
+            assert sensor["unit_of_measurement"] == unit, sensor
+            assert sensor.get("device_class") == ("distance" if unit == "mm" else None)
+            assert sensor["state_topic"] == f"drivebus/demo/axes/{axis}/state"
+            assert "unit_of_measurement" not in got[f"{prefix}/{axis}_state/config"]
+        # the state the sensor reads is in that unit: x stands at 12 mm
+        assert got["drivebus/demo/axes/x/state"]["position"] == pytest.approx(12.0)
+
+
 async def test_every_verb_gets_accepted_then_its_final_reply(broker: Broker) -> None:
     async with bridged(DEMO, broker.url) as (s, _), probe(broker.url) as p:
         twins = s.machine.sim_drives
