@@ -446,6 +446,10 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     async def dashboard() -> FileResponse:
         return FileResponse(STATIC / "index.html")
 
+    @app.get("/favicon.ico", include_in_schema=False)
+    async def favicon() -> FileResponse:
+        return FileResponse(STATIC / "favicon.ico", media_type="image/x-icon")
+
     @app.get("/docs", include_in_schema=False)
     async def swagger_ui() -> HTMLResponse:
         return _local_only(get_swagger_ui_html(
