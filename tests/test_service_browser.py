@@ -18,13 +18,14 @@ from pathlib import Path
 import pytest
 from anyio.from_thread import BlockingPortal, start_blocking_portal
 
-from browser_rig import chromium, needs_chromium, screenshot, wait, webdriver
+from browser_rig import chromium, drawn_held, needs_chromium, screenshot, wait, webdriver
 from drivebus import AxisState
 from drivebus.service import Service, TokenStore
 from service_rig import TOKENS, auth, running, token_file, until
 
 ActionChains = pytest.importorskip("selenium.webdriver.common.action_chains").ActionChains
 By = pytest.importorskip("selenium.webdriver.common.by").By
+Select = pytest.importorskip("selenium.webdriver.support.select").Select
 
 pytestmark = needs_chromium
 
@@ -232,23 +233,37 @@ def test_the_dashboard_charts_what_the_service_recorded() -> None:
         m = Machine(portal, svc)
         browser.get(f"{svc.url}/")
         wait(browser, lambda d: text(d, "conn") == "live", "the page never went live")
+        Select(browser.find_element(By.ID, "window")).select_by_value("10")  # finer
         browser.find_element(By.ID, "record").click()
         wait(browser, lambda d: d.find_element(By.ID, "record").get_attribute("data-id"),
              "the Record button started no recording")
         rec_id = str(browser.find_element(By.ID, "record").get_attribute("data-id"))
         portal.call(lambda: client.post("/api/machine/group-move", json={
             "targets": {"x": 150.0, "y": 60.0, "z": 40.0, "r": 270.0}}))
-        plotted = "return DrivebusCharts.registry.get('axis-x').data()[0].length"
-        seen = int(browser.execute_script(plotted))
-
-        def drawn_moving(d: webdriver.Chrome) -> bool:
-            return int(d.execute_script(plotted)) >= seen + 8 and text(d, "state-x") == (
-                "DiscreteMotion")
-
-        wait(browser, drawn_moving, "the chart of x did not follow the move")
+        # the chart's points of x while it moved (the chart's data and the page's states
+        # of the same polls): they come while it moves, whether or not the table still
+        # shows the motion when the browser is asked
+        moving_points = """
+            const n = DrivebusCharts.registry.get('axis-x').data()[0].length;
+            return state.series.get('x').state.slice(-n)
+                .filter((s) => s === 'DiscreteMotion').length;"""
+        wait(browser, lambda d: int(d.execute_script(moving_points)) >= 8,
+             "the chart of x did not follow the move")
         screenshot(browser, "dashboard-move")
         m.until(lambda: m.at_rest("x", "y", "z", "r"), "the group move did not end")
         wait(browser, lambda d: text(d, "state-x") == "Standstill", "the page missed the end")
+        browser.find_element(By.ID, "pause").click()  # the charts hold still to be read
+        telling = checked = 0
+        # position and velocity (the BHSS of y reports none): each poll held until the next
+        for name, series in (("x", 1), ("x", 2), ("y", 1), ("r", 1), ("r", 2)):
+            drawn = drawn_held(browser, f"axis-{name}", series)
+            assert drawn["wrong"] == [], (name, series, drawn["wrong"][:5])
+            assert drawn["checked"] >= 3, (name, series, drawn)
+            telling, checked = telling + drawn["telling"], checked + drawn["checked"]
+        # and where a straight line would have drawn motion that did not happen
+        assert checked >= 20 and telling >= 1, (checked, telling)
+        legend = browser.find_element(By.ID, "marks")
+        assert "arrived" in legend.text and "DiscreteMotion" in legend.text
         browser.find_element(By.ID, "record").click()
         wait(browser, lambda d: d.find_element(By.ID, "report-link").get_attribute("data-id")
              == rec_id, "no report was downloaded")

@@ -532,5 +532,6 @@ $("window").addEventListener("change", () => {
 $("pause").addEventListener("click", () => pause(!state.paused));
 $("record").addEventListener("click", toggleRecording);
 window.addEventListener("resize", () => DrivebusCharts.fit());
+DrivebusCharts.legend($("marks"));
 setInterval(draw, DRAW_EVERY);
 authenticate();
