@@ -118,7 +118,8 @@ COMMANDS = [
         [far(m, "x", 0.3), far(m, "x", 0.6), far(m, "x", 0.4)], speed=60.0,
         trigger_input="IN5"), "z",
             lambda m: m.axes["y"].run_table([10.0, 20.0], trigger_input="X3")),
-    Command("set_output", (), None, None, lambda m: m.axes["y"].set_output("OUT1", True)),
+    Command("set_output", (), None, None, lambda m: m.axes["y"].set_output("Y1", True)),
+    Command("set_output CL86R", (), None, None, lambda m: m.axes["z"].set_output("Y0", True)),
     Command("params load", (), None, None, load_out_of_range),
 ]
 

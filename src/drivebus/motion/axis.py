@@ -961,8 +961,12 @@ class Axis(ProgramRunner, AxisIO):
         if not moving and self.state is not AxisState.STOPPING:
             return
         try:
-            await self._wait_rest(monotonic(), "after the motion failed" if error else
-                                  "after the motion was cancelled")
+            st = await self._wait_rest(monotonic(), "after the motion failed" if error else
+                                       "after the motion was cancelled")
+            if error is None:
+                where = "" if st.position is None else \
+                    f" at {self.units.from_pulses(st.position):.4f} {self.config.unit}"
+                log.warning("axis %s: stopped%s (at rest)", self.name, where)
         except DrivebusError as exc:
             if error is not None:
                 error.args = (f"{error} (and the axis did not come to rest: {exc})",
@@ -978,7 +982,12 @@ class Axis(ProgramRunner, AxisIO):
             m.committing and not isinstance(exc, _REFUSALS)
         )
         if maybe_moving:
-            await self._stop_now(f"the {m.what} failed: {exc!r}", error=exc)
+            cancelled = isinstance(exc, anyio.get_cancelled_exc_class())
+            if cancelled:
+                log.warning("axis %s: the %s was cancelled: stopping the axis", self.name,
+                            m.what)
+            await self._stop_now(f"the {m.what} was cancelled" if cancelled else
+                                 f"the {m.what} failed: {exc!r}", error=exc)
             return
         m.finish(exc)
         if self._motion is m:  # refused before anything moved: back to where it was
@@ -1506,8 +1515,10 @@ class Axis(ProgramRunner, AxisIO):
         the limit in its direction, so it comes to rest on the limit at the latest.
 
         Called again while jogging with the same values it feeds the watchdog; with
-        another speed or direction it changes the jog (towards a limit: on the fly where
-        the drive takes a new target while it moves, else by a stop and a new start).
+        another speed or direction it changes the jog: on the fly where the description
+        says the drive takes it (``[programs] jog_speed``: a new speed in the same
+        direction; ``retarget``: towards a limit, a new target), else by a decelerating
+        stop and a new start.
 
         ``buffer="buffered"`` (or ``"blending"``) queues the jog behind the motions under
         way, as for ``move_to``, and returns a ``MotionHandle``; its watchdog starts with
@@ -1589,15 +1600,18 @@ class Axis(ProgramRunner, AxisIO):
         self, m: _Motion, speed: float, plan: MotionPlan, bound: int | None,
         watchdog: float | None,
     ) -> None:
-        """A running jog at a new speed or direction (a stop first where the drive needs it)."""
+        """A running jog at a new speed or direction: on the fly where the description says
+        the drive takes it (``[programs] jog_speed``, ``retarget``), else a decelerating
+        stop and a new start (a drive that obeys no second start while it runs)."""
         direction = self.envelope.drive_direction(speed)
+        programs = self.profile.programs
 
         async def io() -> None:
-            if bound is None and direction == m.direction:
+            if bound is None and direction == m.direction and programs.jog_speed:
                 params = self.drive_params(plan)
                 rpm = math.copysign(params.speed_rpm, direction)
                 await self.profile.speed_run(rpm, params.accel_rps2, params.decel_rps2)
-            elif bound is not None and direction == m.direction and self.profile.programs.blends:
+            elif bound is not None and direction == m.direction and programs.blends:
                 # towards the same limit at another speed, given on the fly
                 await self.profile.retarget_absolute(bound, self.drive_params(plan))
                 before, limit = m.trajectory, self.units.from_pulses(bound)

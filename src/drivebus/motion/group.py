@@ -54,6 +54,8 @@ _HOLD_LEAD = 0.05
 """A delayed start holds its line this long before, so no poll is in flight then, seconds."""
 _NETWORK_DELAY = 0.0003
 """Assumed delay of a start command on a Modbus TCP line, seconds."""
+_FIT_MEMO = 512
+"""Fits remembered per axis (``fit_plan``) before the memo starts afresh."""
 
 
 @dataclass(frozen=True)
@@ -158,12 +160,29 @@ def fit_plan(
     closest that takes no less than ``duration`` (a coarse drive sets the pace then).
 
     ``ceiling``: the most speed and ramps it may use (default: the axis's own).
-    ``LimitViolation`` if no plan fits the drive at all.
+    ``LimitViolation`` if no plan fits the drive at all. Fits are remembered per axis (a
+    path's repeated segments, a group's re-plans ask the same again).
     """
     d = abs(distance)
     own = ceiling or axis.plan()
     if d == 0:
         return own
+    memo: dict[tuple[object, ...], MotionPlan] = axis.__dict__.setdefault("_fits", {})
+    key = (d, duration, shape, at_least, own)
+    found_before = memo.get(key)
+    if found_before is not None:
+        return found_before
+    plan = _fit(axis, d, duration, shape, at_least, own)
+    if len(memo) >= _FIT_MEMO:
+        memo.clear()
+    memo[key] = plan
+    return plan
+
+
+def _fit(axis: Axis, d: float, duration: float, shape: MotionPlan, at_least: bool,
+         own: MotionPlan) -> MotionPlan:
+    """``fit_plan``'s search (see there)."""
+    axis.profile.quantize(axis.drive_params(own))  # a plan it takes: the fast rounding
     u, profile = axis.units, axis.profile
     found: list[tuple[float, float, MotionPlan]] = []
     seen: set[tuple[float, float, float]] = set()
@@ -203,8 +222,8 @@ def fit_plan(
             if k > 0:
                 scales.append((1 + 1 / ratio) / (2 * k))
             for scale in scales:
-                for j in range(-12, 13):
-                    a = scale * (1 + 0.002 * j)
+                for j in range(-6, 7):  # ±2.4 %: the drive's neighbouring ramp steps
+                    a = scale * (1 + 0.004 * j)
                     consider(v, a, a * ratio)
             consider(v, a0, b0)
         consider(v0, a0, b0)

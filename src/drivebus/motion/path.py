@@ -12,6 +12,7 @@ the plans the drives took (their trajectories from the moments they took them).
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -152,7 +153,7 @@ class _PathRun:
             name, exc = failure[0]
             raise GroupMotionError(f"axis {name} failed, the group was stopped: {exc}",
                                    axis=name) from exc
-        return report(self)
+        return await report(self)
 
 
 async def run_path(
@@ -275,6 +276,7 @@ async def _queue_and_start(run: _PathRun, gate: _StartGate) -> None:
     gates = [SegmentGate(list(p.targets)) for p in plans]
     try:
         for k, plan in enumerate(plans):
+            await anyio.lowlevel.checkpoint()  # a long path: no long hold of the loop
             tau = run.taus[k]
             parts: dict[str, MotionHandle] = {}
             for n, target in plan.targets.items():
@@ -410,23 +412,28 @@ def _off_path(p: Mapping[str, float],
     return min(_off_segment(p, a, b) for a, b in lines)
 
 
-def report(run: _PathRun) -> PathReport:
-    """The path's report from its plans and the trajectories its parts ran."""
+async def report(run: _PathRun) -> PathReport:
+    """The path's report from its plans and the trajectories its parts ran (computed a
+    segment per event-loop turn: a long path's report holds nothing up)."""
     names = list(run.group.axes)
     timeline: dict[str, list[tuple[float, Trajectory]]] = {n: [] for n in names}
     for parts in run.handles:
         for n, h in parts.items():
             if h.began is not None and h.trajectory is not None:
                 timeline[n].append((h.began, h.trajectory))
+    for n in names:
+        timeline[n].sort(key=lambda bt: bt[0])
+    starts = {n: [began for began, _ in timeline[n]] for n in names}
 
     def where(n: str, t: float, k: int) -> float:
-        active = [tr for began, tr in timeline[n] if began <= t]
-        return active[-1].position(t) if active else run.points[k][n]
+        i = bisect.bisect_right(starts[n], t)
+        return timeline[n][i - 1][1].position(t) if i else run.points[k][n]
 
     segments: list[SegmentReport] = []
     first_start = math.inf
     last_end = 0.0
     for k, (plan, parts) in enumerate(zip(run.plans, run.handles, strict=True)):
+        await anyio.lowlevel.checkpoint()
         began = [h.began for h in parts.values() if h.began is not None]
         ends = {n: h.trajectory.end for n, h in parts.items() if h.trajectory is not None}
         nxt = run.handles[k + 1] if k + 1 < len(run.handles) else {}
