@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import anyio
+import anyio.to_thread
 from fastapi import APIRouter, Depends, FastAPI, Header, Request, Response
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse
@@ -407,6 +408,34 @@ def _local_only(page: HTMLResponse) -> HTMLResponse:
     return page
 
 
+_NOWHERE = "/.drivebus-route-once"
+"""A path no route has: a request to it visits every route."""
+
+
+def _route_once(app: FastAPI) -> None:
+    """Route one request through ``app`` in this (worker) thread, on an event loop of its
+    own, and build the OpenAPI schema: FastAPI builds its routing tables on the first
+    request and the schema on the first ``/openapi.json`` (35-75 ms of CPU each), which
+    would otherwise hold the service's event loop, and every stop behind it, at a
+    client's request. The request matches nothing (404) and touches no machine."""
+
+    async def call() -> None:
+        async def receive() -> dict[str, Any]:
+            return {"type": "http.request", "body": b"", "more_body": False}
+
+        async def send(_: Any) -> None:
+            return None
+
+        await app({"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1",
+                   "method": "GET", "scheme": "http", "path": _NOWHERE,
+                   "raw_path": _NOWHERE.encode(), "query_string": b"", "root_path": "",
+                   "headers": [], "client": ("127.0.0.1", 0), "server": ("127.0.0.1", 0)},
+                  receive, send)
+
+    anyio.run(call)
+    app.openapi()  # kept by the app (openapi_schema)
+
+
 def create_app(session: MachineSession, tokens: TokenStore | None = None) -> FastAPI:
     """The service's ASGI application over ``session`` (no tokens: no authentication)."""
     from drivebus.service.ws import websocket_endpoint
@@ -415,7 +444,8 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     state = ServiceState(session, tokens)
 
     @asynccontextmanager
-    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        await anyio.to_thread.run_sync(_route_once, app)
         async with anyio.create_task_group() as tg:
             await tg.start(state.fanout.run, name="drivebus service: websocket fan-out")
             yield
