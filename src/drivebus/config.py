@@ -35,7 +35,6 @@ from pydantic import (
 )
 
 from drivebus.checks import MAX_RETRIES, MAX_TIMEOUT, validation_problems
-from drivebus.drives.description import read_toml
 from drivebus.errors import ConfigError
 from drivebus.providers import line_provider, scheme_of
 from drivebus.settings import LineSettings
@@ -431,6 +430,8 @@ def load_config(path: str | Path) -> MachineConfig:
     if not isinstance(path, str | os.PathLike):
         raise ConfigError(f"a machine file is a path, not {path!r}")
     p = Path(path)
+    from drivebus.drives.description import read_toml  # the descriptions' parser: on use
+
     config = parse_config(read_toml(p, "config file"), str(p), base=p.parent)
     config._source = p.resolve()
     return config

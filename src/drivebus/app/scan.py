@@ -149,6 +149,7 @@ async def scan(
         raise ConfigError("nothing to scan: no line settings given")
     todo = list(dict.fromkeys(addresses))
     found: list[Found] = []
+    all_families()  # every description parsed before the line opens, not between probes
     line = make_line(t.line_config(tried[0], timeout=timeout))
     async with Bus(line, timeout=timeout, retries=0) as bus:
         for s in tried:

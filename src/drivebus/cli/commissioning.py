@@ -41,7 +41,7 @@ MachineOpt = Annotated[Path | None, typer.Option(
 
 def _owner(config: Path, server: str | None, token: str | None, local: bool
            ) -> ServiceClient | None:
-    from drivebus.cli.terminal import service_owner
+    from drivebus.cli.remote import service_owner
 
     return service_owner(config, server, token, local)
 

@@ -24,6 +24,6 @@ def owner(
 ) -> ServiceClient | None:
     """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
     through the file), as a client; None to open the machine here."""
-    from drivebus.cli.terminal import service_owner
+    from drivebus.cli.remote import service_owner
 
     return service_owner(config, server, token, local)

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
-import anyio
 import typer
 
 from drivebus import checks
@@ -73,6 +72,8 @@ def parse_step(text: str) -> Step:
 
 
 def _runner(step: Step, machine: object) -> Callable[[], Awaitable[object]]:
+    import anyio
+
     from drivebus.motion import Machine
 
     assert isinstance(machine, Machine)
@@ -110,6 +111,8 @@ def _runner(step: Step, machine: object) -> Callable[[], Awaitable[object]]:
 
 async def _record(config: Path, axes: list[str], steps: list[Step], seconds: float | None,
                   outputs: list[Path], png: Path | None) -> int:
+    import anyio
+
     from drivebus.motion import open_machine
     from drivebus.service.report import report_html, report_png
 
