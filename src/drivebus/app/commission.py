@@ -18,6 +18,7 @@ from typing import Any
 
 import anyio
 
+from drivebus import text
 from drivebus.app.scan import Found, probe
 from drivebus.app.targets import parse_target
 from drivebus.bus import Bus
@@ -234,7 +235,7 @@ async def _probe_axis(bus: Bus, name: str, ax: Any, kind: str) -> AxisProbe:
         return rec
     here = f"address {ax.address}" + (f" at {settings}" if settings else "")
     if hit is not None:
-        rec.problem = f"a {hit.family} answers at {here}, not a {fam.name}"
+        rec.problem = f"{text.a(hit.family)} answers at {here}, not {text.a(fam.name)}"
         return rec
     others: list[tuple[int, LineSettings | None]] = []
     if kind != "tcp" and settings is not None:
@@ -248,7 +249,7 @@ async def _probe_axis(bus: Bus, name: str, ax: Any, kind: str) -> AxisProbe:
         found = await probe(bus, a, s, line_kind=kind)
         if found is not None and found.family == fam.name:
             where = f"address {a}" + (f" at {s}" if s else "")
-            rec.problem = (f"no drive answers at {here}; a {fam.name} answers at {where}: "
+            rec.problem = (f"no drive answers at {here}; {text.a(fam.name)} answers at {where}: "
                            f"fix the machine file's address/settings (or the drive's)")
             return rec
     rec.problem = (f"no {fam.name} answers at {here}, nor at its other settings or "

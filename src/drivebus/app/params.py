@@ -25,6 +25,7 @@ from typing import Any
 
 import anyio
 
+from drivebus import text
 from drivebus.bus import Bus, Priority
 from drivebus.config import MachineConfig, machine_config
 from drivebus.drives.base import DriveProfile, Parameter
@@ -81,7 +82,7 @@ class ParameterSet:
     def to_toml(self) -> str:
         """The set as a parameter file."""
         params = self.params
-        head = [f"# drivebus parameters of a {self.family} drive"]
+        head = [f"# drivebus parameters of {text.a(self.family)} drive"]
         if "axis" in self.about:
             head[0] += f": axis {self.about['axis']}"
         head.append("# restore: drivebus params load FILE [AXIS] [--save]; compare: "
@@ -194,8 +195,8 @@ class Difference:
 def diff_parameters(a: ParameterSet, b: ParameterSet) -> list[Difference]:
     """What differs between ``a`` and ``b`` (same family), in the manual's order."""
     if a.family != b.family:
-        raise ConfigError(f"cannot compare a {a.family} drive's parameters with a "
-                          f"{b.family} drive's")
+        raise ConfigError(f"cannot compare {text.a(a.family)} drive's parameters with "
+                          f"{text.a(b.family)} drive's")
     out = []
     for key, p in a.params.items():
         va, vb = a.values.get(key), b.values.get(key)
@@ -247,8 +248,8 @@ def plan_load(
     written then), read-only parameters that differ refused, comms ones skipped unless
     ``include_comms``."""
     if wanted.family != profile.family:
-        raise ConfigError(f"the parameters are a {wanted.family} drive's; this drive is a "
-                          f"{profile.family}")
+        raise ConfigError(f"the parameters are {text.a(wanted.family)} drive's; this drive "
+                          f"is {text.a(profile.family)}")
     params = {p.key: p for p in profile.parameters()}
     problems = []
     for key, p in params.items():  # the manual's order

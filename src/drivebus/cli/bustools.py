@@ -8,9 +8,10 @@ or the simulator: a register read starts as fast as the serial stack it uses.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Iterator, Sequence
 from typing import TYPE_CHECKING
 
 import anyio
@@ -18,7 +19,9 @@ import anyio.to_thread
 
 from drivebus.app import registers
 from drivebus.app.registers import RegisterValues, open_slave
+from drivebus.app.targets import parse_target
 from drivebus.cli.terminal import Out
+from drivebus.errors import ResponseTimeout
 from drivebus.settings import LineSettings
 
 if TYPE_CHECKING:
@@ -90,11 +93,28 @@ async def read_registers(
     async with open_slave(target, address, settings=settings, timeout=timeout) as slave:
 
         async def read() -> RegisterValues:
-            words, values = await registers.read_registers(
-                slave, register, count, input=input_table, fmt=fmt)
+            with _naming_settings(target, settings):
+                words, values = await registers.read_registers(
+                    slave, register, count, input=input_table, fmt=fmt)
             return RegisterValues(target, address, register, input_table, words, fmt, values)
 
         return await _poll_registers(out, read, interval, polls)
+
+
+@contextlib.contextmanager
+def _naming_settings(target: str, settings: LineSettings | None) -> Iterator[None]:
+    """A slave that does not reply is named with the line settings it was asked at, and
+    when they were the default, with the option that gives the slave's own."""
+    try:
+        yield
+    except ResponseTimeout as exc:
+        if parse_target(target).kind == "tcp":
+            raise
+        used = settings or LineSettings()
+        how = "" if settings is not None else (
+            " (the default: give the slave's own with --settings, e.g. -S \"115200 8N1\", "
+            "or -b/-P/-s as mbpoll takes them)")
+        raise ResponseTimeout(f"{exc} at {used}{how}", slave=exc.slave) from None
 
 
 async def _poll_registers(
@@ -127,7 +147,8 @@ async def write_registers(
     assert settings is None or isinstance(settings, LineSettings)
     async with open_slave(target, address, settings=settings, timeout=timeout,
                           broadcast=True) as slave:
-        words = await registers.write_registers(slave, register, values, fmt=fmt)
+        with _naming_settings(target, settings):
+            words = await registers.write_registers(slave, register, values, fmt=fmt)
     whom = "every slave (broadcast, no reply)" if address == 0 else f"slave {address}"
     out.line(f"wrote {len(words)} register{'' if len(words) == 1 else 's'} from "
              f"[{register}] of {whom} on {target}: "

@@ -9,6 +9,7 @@ this module parses and renders.
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import time
 from pathlib import Path
@@ -17,7 +18,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
-from drivebus.cli.options import JsonOpt
+from drivebus.cli.options import ConfigArg, JsonOpt
 from drivebus.errors import ArgumentError, ConfigError, LimitViolation
 
 if TYPE_CHECKING:
@@ -57,7 +58,7 @@ def _run(fn: Any, *, interrupt_ok: bool = False) -> None:
 
 @params_app.command()
 def dump(
-    config: Annotated[Path, typer.Argument(metavar="CONFIG", help="machine file (TOML)")],
+    config: ConfigArg,
     axis: Annotated[str, typer.Argument(metavar="AXIS", help="axis name")],
     output: Annotated[Path | None, typer.Option(
         "--output", "-o", metavar="FILE", help="write the parameter file here (default: "
@@ -77,6 +78,8 @@ def dump(
     if axis not in cfg.axes:
         raise ConfigError(f"no axis {axis!r} in machine {cfg.name} (axes: "
                           f"{', '.join(cfg.axes)})")
+    if output is not None:
+        _check_output(output)  # before the drive is read
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
     source = str(config.resolve())
@@ -102,9 +105,28 @@ def dump(
     _run(run)
 
 
+def _check_output(output: Path) -> None:
+    """``--output`` names a file that can be written: its directory exists and takes it
+    (``ArgumentError`` naming the path otherwise, before anything is read)."""
+    where = output.parent
+    if output.is_dir():
+        raise ArgumentError(f"--output {output}: is a directory: give a file's name "
+                            f"(e.g. {output / 'axis.toml'})")
+    if not where.is_dir():
+        raise ArgumentError(f"--output {output}: no such directory {where}: create it "
+                            f"first, or write the file elsewhere")
+    if not os.access(where, os.W_OK | os.X_OK) or (
+            output.exists() and not os.access(output, os.W_OK)):
+        raise ArgumentError(f"--output {output}: not writable by this user (in {where})")
+
+
 def _write_set(out: Out, pset: ParameterSet, output: Path | None) -> None:
     if output is not None:
-        output.write_text(pset.to_toml())
+        try:
+            output.write_text(pset.to_toml())
+        except OSError as exc:
+            raise ArgumentError(f"--output {output}: cannot write it: "
+                                f"{exc.strerror or exc}") from None
         out.result(pset.as_dict())
     elif out.as_json:
         out.result(pset.as_dict())
@@ -253,6 +275,8 @@ def load(
     report = LoadReport(wanted.family, [])
 
     def said(w: Any) -> None:
+        if len(report.written) == 1:  # the first write: every value passed its checks
+            out.line(f"loading {file} into axis {axis} ({report.family}):")
         unit = f" {w.parameter.unit}" if w.parameter.unit else ""
         out.line(f"  {w.parameter.key}: {w.old} -> {w.new}{unit}")
 
@@ -265,8 +289,6 @@ def load(
                 _show_load(out, data, axis, remote=True)
                 return 0
             async with open_drive(config, axis) as profile:
-                if not dry_run:
-                    out.line(f"loading {file} into axis {axis} ({profile.family}):")
                 await load_parameters(profile, wanted, save=save, dry_run=dry_run,
                                       include_comms=include_comms, report=report,
                                       on_write=None if dry_run else said)

@@ -31,10 +31,11 @@ from drivebus.app.operations import Operation, jog_ended_by_axis, opened, run_op
 from drivebus.app.operations import check_config as check_machine_file
 from drivebus.app.snapshots import machine_snapshot
 from drivebus.cli.remote import announce_sim_lines
-from drivebus.cli.terminal import Out, count, explain, fmt_number
+from drivebus.cli.terminal import Out, explain, fmt_number
 from drivebus.cli.views import axes_table, axis_line, axis_record, slaves_table, stats_lines
 from drivebus.errors import ArgumentError
 from drivebus.motion import Axis, AxisState, Machine
+from drivebus.text import count
 
 __all__ = [
     "check_config",

@@ -17,6 +17,7 @@ from typing import Annotated
 import typer
 
 from drivebus import checks
+from drivebus.cli.options import ConfigArg
 from drivebus.errors import ArgumentError, ConfigError
 
 __all__ = ["Step", "parse_step", "record"]
@@ -146,7 +147,7 @@ async def _record(config: Path, axes: list[str], steps: list[Step], seconds: flo
 
 
 def record(
-    config: Annotated[Path, typer.Argument(help="machine file (TOML)", metavar="CONFIG")],
+    config: ConfigArg,
     axes: Annotated[list[str] | None, typer.Argument(
         help="axes to record (default: all)", metavar="[AXIS]...")] = None,
     seconds: Annotated[float | None, typer.Option(

@@ -1,0 +1,33 @@
+"""Words in messages: a drive's name with its article, a count with its noun.
+
+One place for the small grammar every message needs, so that a refusal reads "an NT86"
+and "1 axis" wherever it is written.
+"""
+
+from __future__ import annotations
+
+import re
+
+__all__ = ["a", "count"]
+
+_LETTERS = re.compile(r"[A-Za-z]*")
+_SAID_WITH_A_VOWEL = frozenset("AEFHILMNORSX")
+"""Letters whose names start with a vowel sound (an F, an H, an NT86)."""
+
+
+def a(name: str) -> str:
+    """``name`` after its indefinite article as it is read aloud: a model code spelt out
+    letter by letter ("an NT86", "an EPR60", "a BHSS", "a CL86R", "an OD2000") or a word
+    ("a Lexium32", "a MOONS-STF", "an Oriental")."""
+    head = _LETTERS.match(name)
+    letters = head.group(0) if head else ""
+    if not letters:
+        return f"a {name}"
+    if letters.isupper() and len(letters) <= 4:  # an initialism: its letters are read
+        return f"{'an' if letters[0] in _SAID_WITH_A_VOWEL else 'a'} {name}"
+    return f"{'an' if letters[0].upper() in 'AEIOU' else 'a'} {name}"
+
+
+def count(n: int, one: str, many: str) -> str:
+    """``n`` and the noun in its number: "1 axis", "2 axes"."""
+    return f"{n} {one if n == 1 else many}"

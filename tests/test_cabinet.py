@@ -1,0 +1,133 @@
+"""At the cabinet with the command line only (issue 35): refusals that print only the
+refusal, errors that name what to do (the output path, the settings a read used, the
+token option), a line given where a machine file belongs.
+
+Every check runs the real ``drivebus`` command in a subprocess and reads its exit status
+and what it printed; subprocesses are synchronised on their output, never on sleeps.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+from service_rig import TOKENS, token_file
+from test_cli import DEMO, SINGLE, drivebus, sim_server
+from test_service_cli import Served
+
+CLI = [sys.executable, "-m", "drivebus.cli"]
+
+
+# -- params: a refusal is all that is printed (35.4), the output path is named (35.5) ---------
+
+
+def test_a_refused_params_load_prints_only_the_refusal(tmp_path: Path) -> None:
+    nt86 = tmp_path / "x.toml"
+    r = drivebus("params", "dump", DEMO, "x", "-o", nt86)
+    assert r.returncode == 0, r.stderr
+    assert nt86.read_text().startswith("# drivebus parameters of an NT86 drive: axis x")
+    r = drivebus("params", "load", nt86, "z", "--save")
+    assert r.returncode == 2, r.stderr
+    assert r.stdout == ""  # no "loading ... into axis z" before the refusal
+    assert r.stderr == ("error: the parameters are an NT86 drive's; this drive is a CL86R\n")
+    # a value out of range: the refusal only, and nothing written
+    cl86r = tmp_path / "z.toml"
+    assert drivebus("params", "dump", DEMO, "z", "-o", cl86r).returncode == 0
+    text = cl86r.read_text()
+    cl86r.write_text(re.sub(r"^jog_speed = \{ value = \d+", "jog_speed = { value = 99999",
+                            text, flags=re.M))
+    r = drivebus("params", "load", cl86r, "--save")
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.startswith(f"error: {cl86r}: nothing written: jog_speed: value 99999")
+
+
+def test_params_dump_names_an_unusable_output_path_before_it_reads_the_drive(
+        tmp_path: Path) -> None:
+    # the machine's port does not exist: had the drive been read first, that would be the error
+    absent = tmp_path / "absent.toml"
+    absent.write_text(SINGLE.read_text().replace("sim://single", "/dev/ttyDRIVEBUS-NONE"))
+    r = drivebus("params", "dump", absent, "x", "-o", "/nonexistent/dir/z.toml")
+    assert r.returncode == 2, r.stderr
+    assert r.stderr == ("error: --output /nonexistent/dir/z.toml: no such directory "
+                        "/nonexistent/dir: create it first, or write the file elsewhere\n")
+    r = drivebus("params", "dump", absent, "x", "-o", tmp_path)
+    assert r.returncode == 2 and f"--output {tmp_path}: is a directory" in r.stderr
+    r = drivebus("params", "dump", absent, "x", "-o", tmp_path / "x.toml")
+    assert r.returncode == 1 and "cannot open /dev/ttyDRIVEBUS-NONE" in r.stderr  # then the port
+    assert not (tmp_path / "x.toml").exists()
+
+
+# -- a line where a machine file belongs (35.7) -------------------------------------------------
+
+
+def test_a_line_given_for_a_machine_file_is_named_as_a_line() -> None:
+    r = drivebus("params", "dump", "sim://demo-rs485", "4")
+    assert r.returncode == 2
+    assert r.stderr.startswith(
+        "error: CONFIG: sim://demo-rs485 is a line, not a machine file: `drivebus params "
+        "dump` takes a machine file (TOML) and an axis: `drivebus params dump MACHINE.toml "
+        "AXIS`; a slave on a line is read with `drivebus read sim://demo-rs485 ADDR REG -S "
+        "SETTINGS`"), r.stderr
+    r = drivebus("status", "tcp://192.0.2.1")
+    assert r.returncode == 2
+    assert "tcp://192.0.2.1 is a line, not a machine file: `drivebus status` takes a " \
+           "machine file (TOML)" in r.stderr
+    assert "no such config file" not in r.stderr
+
+
+# -- read: no reply names the settings it was asked at (35.8) -----------------------------------
+
+
+def test_no_reply_names_the_settings_and_the_option_that_sets_them() -> None:
+    with sim_server(DEMO):  # the CL86R z talks 38400 8N2; a read at the default meets silence
+        r = drivebus("read", "sim://demo-rs485", "4", "0", "-t", "0.1")
+        assert r.returncode == 1
+        assert r.stderr.startswith(
+            "error: slave 4 on sim://demo-rs485: no reply at 19200 8E1 (the default: give the "
+            "slave's own with --settings, e.g. -S \"115200 8N1\""), r.stderr
+        r = drivebus("read", "sim://demo-rs485", "4", "0", "-t", "0.1", "-S", "9600 8N1")
+        assert r.returncode == 1
+        assert r.stderr.startswith("error: slave 4 on sim://demo-rs485: no reply at 9600 8N1;")
+        r = drivebus("read", "sim://demo-rs485", "4", "0", "-S", "38400 8N2")
+        assert r.returncode == 0 and r.stdout == "[0]: 862\n"  # where it is
+
+
+# -- a service with tokens: the command line's options are named (35.9) --------------------------
+
+
+def test_a_service_that_wants_a_token_names_the_option_and_the_variable(
+        tmp_path: Path) -> None:
+    served = Served(DEMO, "--port", "0", "--token-file", token_file(tmp_path))
+    try:
+        served.url()
+        env = {k: v for k, v in os.environ.items() if k != "DRIVEBUS_TOKEN"}
+        run = [*CLI, "status", str(DEMO), "x"]
+        r = subprocess.run(run, capture_output=True, text=True, timeout=60, env=env)
+        assert r.returncode == 1
+        error = r.stderr.splitlines()[-1]
+        assert re.fullmatch(r"error: the drivebus service at http://127\.0\.0\.1:\d+ needs a "
+                            r"token and none was given; give one of its token file with "
+                            r"--token TOKEN or in the environment, DRIVEBUS_TOKEN=TOKEN .*",
+                            error), error
+        assert "Authorization" not in r.stderr
+        r = subprocess.run([*run, "--token", "not-a-token-of-its-file"], capture_output=True,
+                           text=True, timeout=60, env=env)
+        assert r.returncode == 1 and "does not know the token given; give one" in r.stderr
+        viewer = {**env, "DRIVEBUS_TOKEN": TOKENS["viewer"][1]}
+        r = subprocess.run(run, capture_output=True, text=True, timeout=60, env=viewer)
+        assert r.returncode == 0, r.stderr
+        assert json.loads(subprocess.run([*run, "--json"], capture_output=True, text=True,
+                                         timeout=60, env=viewer).stdout)[0]["axis"] == "x"
+        r = subprocess.run([*CLI, "stop", str(DEMO), "x"], capture_output=True, text=True,
+                           timeout=60, env=viewer)
+        assert r.returncode == 1
+        assert "a token of scope 'command' with --token TOKEN or DRIVEBUS_TOKEN" in r.stderr
+        code, _, err = served.end(signal.SIGTERM)
+        assert code == 0, err
+    finally:
+        served.kill()
