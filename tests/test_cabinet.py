@@ -131,3 +131,51 @@ def test_a_service_that_wants_a_token_names_the_option_and_the_variable(
         assert code == 0, err
     finally:
         served.kill()
+
+
+# -- params files show what each value takes; diff flags what is out of range (35.3) -------------
+
+
+def test_a_parameter_file_shows_ranges_units_and_a_table_index_as_one(tmp_path: Path) -> None:
+    backup = tmp_path / "y.toml"
+    r = drivebus("params", "dump", DEMO, "y", "-o", backup)
+    assert r.returncode == 0, r.stderr
+    lines = {ln.split(" = ", 1)[0]: ln for ln in backup.read_text().splitlines()
+             if " = { value = " in ln}
+    ranges = json.loads(drivebus("params", "dump", DEMO, "y", "--json").stdout)["parameters"]
+    assert set(lines) == set(ranges)
+    for key, p in ranges.items():  # every value has its range (and unit) beside it
+        lo, hi = p["range"]
+        assert re.search(rf"# .*; allowed {lo}\.\.{hi}\b", lines[key]), lines[key]
+    # the BHSS microstep is an index into a table of pulses/rev: both are said
+    assert lines["microstep"].startswith(
+        'microstep = { value = 8, unit = "table index", register = "17 (0x0011)"')
+    assert lines["microstep"].endswith(
+        "# microstep setting: 8 = 1000 pulses/rev; allowed 0..15, a table index selecting "
+        "400, 800, 1600, 3200, 6400, 12800, 25600, 51200, 1000, 2000, 4000, 5000, 8000, "
+        "10000, 20000, 40000 pulses/rev")
+    assert ranges["microstep"]["meaning"] == "1000 pulses/rev"
+    assert lines["accel_time"].endswith("# acceleration time; allowed 0..2000 ms")
+    assert lines["data_format"].endswith(
+        "# serial data format: 2 = 8E1; allowed 0..3: 0 = 8N1, 1 = 8N2, 2 = 8E1, 3 = 8O1")
+    # diff flags a value outside its range, against the drive and against another file
+    edited = tmp_path / "y-edited.toml"
+    edited.write_text(backup.read_text().replace("accel_time = { value = 100",
+                                                 "accel_time = { value = 5000").replace(
+        "microstep = { value = 8", "microstep = { value = 9"))
+    r = drivebus("params", "diff", edited)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[1:] == [
+        "  microstep: < 9 (2000 pulses/rev) > 8 (1000 pulses/rev) table index  "
+        "(microstep setting)",
+        "  accel_time: < 5000 > 100 ms  (acceleration time)",
+        f"    ! outside its range in {edited}: allowed 0..2000 ms (params load refuses it)"]
+    assert r.stderr == "warning: 1 value outside its range: accel_time\n"
+    r = drivebus("params", "diff", backup, edited, "--json", "--exit-code")
+    assert r.returncode == 1
+    found = {d["key"]: d for d in json.loads(r.stdout)["differences"]}
+    assert found["accel_time"]["outside_range"] == ["b"]
+    assert found["accel_time"]["range"] == [0, 2000]
+    assert found["microstep"]["outside_range"] == []
+    r = drivebus("params", "load", edited)
+    assert r.returncode == 2 and "accel_time: value 5000 ms" in r.stderr and r.stdout == ""

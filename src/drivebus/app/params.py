@@ -71,12 +71,7 @@ class ParameterSet:
         params = self.params
         return {
             "family": self.family, **{k: v for k, v in self.about.items() if k != "family"},
-            "parameters": {
-                k: {"value": v, "name": params[k].name, "unit": params[k].unit,
-                    "register": params[k].location, "stored": params[k].stored,
-                    "comms": params[k].comms}
-                for k, v in self.values.items()
-            },
+            "parameters": {k: _parameter_dict(params[k], v) for k, v in self.values.items()},
         }
 
     def to_toml(self) -> str:
@@ -93,12 +88,12 @@ class ParameterSet:
         for k, v in self.values.items():
             p = params[k]
             fields = [f"value = {v}"]
-            if p.unit:
-                fields.append(f"unit = {_toml(p.unit)}")
+            if p.value_unit:
+                fields.append(f"unit = {_toml(p.value_unit)}")
             fields += [f"register = {_toml(p.location)}", f"stored = {_toml(p.stored)}"]
             if p.comms:
                 fields.append("comms = true")
-            out.append(f"{k} = {{ {', '.join(fields)} }}  # {p.name}")
+            out.append(f"{k} = {{ {', '.join(fields)} }}  # {_comment(p, v)}")
         return "\n".join(out) + "\n"
 
     @classmethod
@@ -155,6 +150,27 @@ class ParameterSet:
         return cls.from_toml(text, str(p))
 
 
+def _parameter_dict(p: Parameter, value: int) -> dict[str, Any]:
+    """One parameter of a set as JSON-ready data: its value and what it takes."""
+    out: dict[str, Any] = {
+        "value": value, "name": p.name, "unit": p.unit, "register": p.location,
+        "stored": p.stored, "comms": p.comms, "range": [p.register.lo, p.register.hi],
+        "in_range": p.in_range(value)}
+    if p.table:
+        out["table"] = list(p.table)
+    if meaning := p.meaning(value):
+        out["meaning"] = meaning
+    return out
+
+
+def _comment(p: Parameter, value: int) -> str:
+    """A parameter line's comment: its name, what the value means, what it takes."""
+    meaning = p.meaning(value)
+    now = f": {value} = {meaning}" if meaning else ""
+    outside = "" if p.in_range(value) else " (OUTSIDE its range: a load refuses it)"
+    return f"{p.name}{now}; allowed {p.allowed()}{outside}"
+
+
 def _toml(v: object) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
@@ -179,21 +195,37 @@ async def read_parameters(
 
 @dataclass(frozen=True)
 class Difference:
-    """One parameter that differs between two sets (None: absent from that set)."""
+    """One parameter that differs between two sets (None: absent from that set), with
+    the sides whose value is outside the parameter's range."""
 
     key: str
     name: str
     unit: str
     a: int | None
     b: int | None
+    parameter: Parameter | None = None
+    outside: tuple[str, ...] = ()
+    """"a", "b": the sides holding a value the parameter does not take."""
+
+    def shown(self, value: int | None) -> str:
+        """A side's value as a person reads it: "(absent)", "8 (1000 pulses/rev)"."""
+        if value is None:
+            return "(absent)"
+        meaning = self.parameter.meaning(value) if self.parameter is not None else ""
+        return f"{value} ({meaning})" if meaning else str(value)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready data."""
-        return {"key": self.key, "name": self.name, "unit": self.unit, "a": self.a, "b": self.b}
+        p = self.parameter
+        return {"key": self.key, "name": self.name, "unit": self.unit, "a": self.a,
+                "b": self.b, "outside_range": list(self.outside),
+                **({"range": [p.register.lo, p.register.hi], "allowed": p.allowed()}
+                   if p is not None else {})}
 
 
 def diff_parameters(a: ParameterSet, b: ParameterSet) -> list[Difference]:
-    """What differs between ``a`` and ``b`` (same family), in the manual's order."""
+    """What differs between ``a`` and ``b`` (same family), in the manual's order; a value
+    outside its parameter's range is flagged (``Difference.outside``)."""
     if a.family != b.family:
         raise ConfigError(f"cannot compare {text.a(a.family)} drive's parameters with "
                           f"{text.a(b.family)} drive's")
@@ -201,7 +233,9 @@ def diff_parameters(a: ParameterSet, b: ParameterSet) -> list[Difference]:
     for key, p in a.params.items():
         va, vb = a.values.get(key), b.values.get(key)
         if va != vb:
-            out.append(Difference(key, p.name, p.unit, va, vb))
+            outside = tuple(side for side, v in (("a", va), ("b", vb))
+                            if v is not None and not p.in_range(v))
+            out.append(Difference(key, p.name, p.value_unit, va, vb, p, outside))
     return out
 
 

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from drivebus import text
 from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
 from drivebus.cli.options import ConfigArg, JsonOpt
 from drivebus.errors import ArgumentError, ConfigError, LimitViolation
@@ -230,11 +231,15 @@ def _show_diff(out: Out, changes: list[Difference], a: str, b: str) -> None:
              f"between {a} (<) and {b} (>):")
     for c in changes:
         unit = f" {c.unit}" if c.unit else ""
-        out.line(f"  {c.key}: < {_v(c.a)} > {_v(c.b)}{unit}  ({c.name})")
-
-
-def _v(value: int | None) -> str:
-    return "(absent)" if value is None else str(value)
+        out.line(f"  {c.key}: < {c.shown(c.a)} > {c.shown(c.b)}{unit}  ({c.name})")
+        if c.outside and c.parameter is not None:
+            sides = " and ".join({"a": a, "b": b}[side] for side in c.outside)
+            out.line(f"    ! outside its range in {sides}: allowed {c.parameter.allowed()} "
+                     f"(params load refuses it)")
+    outside = [c.key for c in changes if c.outside]
+    if outside:
+        _note(f"warning: {text.count(len(outside), 'value', 'values')} outside its range: "
+              f"{', '.join(outside)}")
 
 
 # -- params load ----------------------------------------------------------------------------------
