@@ -8,16 +8,19 @@ and what it printed; subprocesses are synchronised on their output, never on sle
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
 import signal
 import subprocess
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 from service_rig import TOKENS, token_file
-from test_cli import DEMO, SINGLE, drivebus, sim_server
+from test_cli import DEMO, SINGLE, Proc, drivebus, sim_server, spawn
 from test_service_cli import Served
 
 CLI = [sys.executable, "-m", "drivebus.cli"]
@@ -179,3 +182,127 @@ def test_a_parameter_file_shows_ranges_units_and_a_table_index_as_one(tmp_path: 
     assert found["microstep"]["outside_range"] == []
     r = drivebus("params", "load", edited)
     assert r.returncode == 2 and "accel_time: value 5000 ms" in r.stderr and r.stdout == ""
+
+
+# -- commission: an occupied address at any setting (35.1), a power cycle in the sim (35.2) -----
+
+CABINET = """
+name = "cabinet"
+
+[lines.rs485]
+port = "sim://cabinet"
+settings = "115200 8N1"
+
+[axes.x]                 # an NT86 on its switches: address 2 at 115200 8N1
+line = "rs485"
+address = 2
+drive = "NT86"
+settings = "115200 8N1"
+pulses_per_rev = 4000
+
+[axes.z]                 # a CL86R with SW1-SW5 ON: its address is register 0x0020's
+line = "rs485"
+address = 4
+drive = "CL86R"
+settings = "38400 8N2"
+pulses_per_rev = 1000
+sim = { options = { soft_address = true } }
+"""
+
+
+def logged_writes(lines: list[str]) -> list[str]:
+    """The write requests (FC06/FC16) among ``drivebus sim --log`` lines."""
+    return [x for x in lines if " request " in x and re.search(r"ms [0-9a-f]{2} (06|10) ", x)]
+
+
+def test_commission_refuses_an_address_taken_at_another_rate_before_writing(
+        tmp_path: Path) -> None:
+    machine = tmp_path / "cabinet.toml"
+    machine.write_text(CABINET)
+    with sim_server(machine, "--log") as (sim, _):
+        # the NT86 answers at 2 at 115200 8N1; the CL86R talks 38400 8N2: refused all the same
+        r = drivebus("commission", "sim://cabinet", "--drive", "CL86R", "--address", "4",
+                     "-S", "38400 8N2", "--to-address", "2", "--wait", "5", timeout=60)
+        assert r.returncode == 1, r.stdout + r.stderr
+        assert r.stderr.startswith("error: another slave already answers at address 2 at "
+                                   "115200 8N1 on sim://cabinet (an NT86, "), r.stderr
+        assert r.stderr.endswith("give the drive a free address (nothing was written)\n")
+        m = re.search(r"checking that no other slave answers at address 2 at (\d+) line "
+                      r"settings", r.stdout)
+        assert m is not None and int(m.group(1)) >= 20, r.stdout  # every rate and format
+        # nothing was written: the wire log up to a marker read has no write request
+        assert drivebus("read", "sim://cabinet", "4", "0", "-S", "38400 8N2").returncode == 0
+        sim.expect(r"request addr=4 38400-8N2 gap=\S+ 04 03 00 00 00 01 ")
+        assert logged_writes(sim.seen) == []
+        assert any("request addr=2 115200-8N1" in x for x in sim.seen)  # it looked there
+
+
+@contextlib.contextmanager
+def sim_at_a_terminal(machine: Path) -> Iterator[tuple[Proc, int]]:
+    """``drivebus sim MACHINE`` with a terminal on its stdin (a pty, as when a technician
+    runs it): the process (stdout read line by line) and the terminal's end to type on."""
+    console, stdin = os.openpty()
+    p = subprocess.Popen([*CLI, "sim", str(machine)], stdin=stdin, stdout=subprocess.PIPE,
+                         stderr=subprocess.STDOUT, text=True)
+    os.close(stdin)
+    proc = Proc(p)
+
+    def pump() -> None:
+        assert p.stdout is not None
+        for line in p.stdout:
+            proc.lines.put(line.rstrip("\n"))
+
+    reader = threading.Thread(target=pump, daemon=True)
+    reader.start()
+    try:
+        yield proc, console
+    finally:
+        os.close(console)
+        if p.poll() is None:
+            p.kill()
+            p.wait(10)
+        reader.join(5)
+
+
+def test_commission_finishes_on_drivebus_sim_power_cycled_from_the_command_line_and_console(
+        tmp_path: Path) -> None:
+    machine = tmp_path / "cabinet.toml"
+    machine.write_text(CABINET)
+    with sim_at_a_terminal(machine) as (sim, console):
+        sim.expect(r"^simulating machine cabinet")
+        sim.expect(r"^console: type `power-cycle AXIS`")
+        # 1. from another terminal: drivebus sim CONFIG --power-cycle ADDRESS
+        with spawn("commission", "sim://cabinet", "--drive", "CL86R", "--address", "4",
+                   "-S", "38400 8N2", "--to-address", "6", "--to-settings", "38400 8E1",
+                   "--wait", "30") as commission:
+            asked = commission.expect(r"power-cycle the CL86R now", timeout=30).string
+            assert asked == (
+                "written and saved; power-cycle the CL86R now; waiting for it at address 6 at "
+                "38400 8E1 on sim://cabinet (up to 30 s; it takes them at power-up); on this "
+                "drivebus sim: type `power-cycle 4` at its console, or run `drivebus sim "
+                "MACHINE.toml --power-cycle 4`"), asked
+            r = drivebus("sim", machine, "--power-cycle", "4")
+            assert r.returncode == 0, r.stderr
+            assert r.stdout == ("power-cycled axis z (CL86R): it answers at address 6 at "
+                                "38400 8E1 on line rs485\n")
+            commission.expect(r"^the CL86R answers at address 6 at 38400 8E1 \(after ",
+                              timeout=30)
+            assert commission.popen.wait(30) == 0
+        r = drivebus("read", "sim://cabinet", "6", "0", "-S", "38400 8E1")
+        assert r.returncode == 0 and r.stdout == "[0]: 862\n"
+        # 2. at drivebus sim's console: back to 4 at 38400 8N2
+        with spawn("commission", "sim://cabinet", "--drive", "CL86R", "--address", "6",
+                   "-S", "38400 8E1", "--to-address", "4", "--to-settings", "38400 8N2",
+                   "--wait", "30") as commission:
+            commission.expect(r"power-cycle the CL86R now", timeout=30)
+            os.write(console, b"power-cycle z\n")
+            sim.expect(r"^power-cycled axis z \(CL86R\): it answers at address 4 at 38400 8N2 "
+                       r"on line rs485$")
+            commission.expect(r"^the CL86R answers at address 4 at 38400 8N2", timeout=30)
+            assert commission.popen.wait(30) == 0
+        os.write(console, b"power-cycle w\n")
+        sim.expect(r"^error: no axis 'w' \(axes: x, z\)$")
+        r = drivebus("sim", machine, "--power-cycle", "9")
+        assert r.returncode == 2
+        assert r.stderr == "error: no axis '9' and no drive at that address (axes: x, z)\n"
+        assert sim.interrupt() == 0

@@ -19,22 +19,23 @@ from typing import Any
 import anyio
 
 from drivebus import text
-from drivebus.app.scan import Found, probe
+from drivebus.app.scan import Found, is_pty, probe, pty_usable
 from drivebus.app.targets import parse_target
 from drivebus.bus import Bus
 from drivebus.drives.base import DriveProfile
-from drivebus.drives.registry import family
+from drivebus.drives.registry import all_families, family
 from drivebus.errors import (
     ArgumentError,
     ConfigError,
     DriveOffline,
+    LineConfigError,
     NotSupported,
     StateError,
 )
 from drivebus.motion.lines import make_line
 from drivebus.settings import LineSettings
 
-__all__ = ["AxisProbe", "CommissionReport", "commission", "probe_axes"]
+__all__ = ["AxisProbe", "CommissionReport", "commission", "occupancy_settings", "probe_axes"]
 
 
 @dataclass
@@ -81,12 +82,14 @@ async def commission(
     timeout: float = 0.2,
     wait: float = 60.0,
     say: Callable[[str], None] = lambda _: None,
+    power_hint: str = "",
 ) -> CommissionReport:
     """Give the ``drive`` at ``address`` (talking ``settings``) on ``target`` the address
     ``to_address`` and settings ``to_settings`` (None: keep), then wait up to ``wait`` s for
-    it to answer there (``say`` tells the technician to power-cycle it). Raises before any
-    write if the drive is not found, cannot take the change (``NotSupported``) or another
-    slave answers at the new address (``StateError``)."""
+    it to answer there (``say`` tells the technician to power-cycle it, and how:
+    ``power_hint``). Raises before any write if the drive is not found, cannot take the
+    change (``NotSupported``) or another slave answers at the new address at any setting
+    a drive on the line could use (``StateError``)."""
     fam = family(drive)
     t = parse_target(target)
     if t.kind == "tcp":
@@ -118,22 +121,20 @@ async def commission(
                                f"slaves that answer)")
         report.identity = ident.model or fam.name
         if (new_address, new_settings) != (address, settings):
-            for s in dict.fromkeys((settings, new_settings)):
-                if new_address == address and s == settings:
-                    continue
-                other = await probe(bus, new_address, s, line_kind=t.kind)
-                if other is not None:
-                    raise StateError(
-                        f"another slave already answers at address {new_address} at {s} on "
-                        f"{target} ({other.family}{f', {other.detail}' if other.detail else ''}"
-                        f"): give the drive a free address (nothing was written)")
+            pty = t.kind == "serial" and is_pty(target)
+            tried = [s for s in occupancy_settings(settings, new_settings, pty=pty,
+                                                   fixed=t.kind == "rtu-over-tcp")
+                     if not (new_address == address and s == settings)]
+            await _refuse_occupied(bus, new_address, tried, t.kind, target,
+                                   min(timeout, OCCUPANCY_TIMEOUT), say)
         await _write(profile, writes)
         report.writes = [(f"{r.name} ({r.address})", v) for r, v in writes]
         report.saved = True
         if wait <= 0:
             return report
-        say(f"written and saved; power-cycle the {fam.name} now: it takes address "
-            f"{new_address} at {new_settings} at power-up (waiting up to {wait:g} s)")
+        say(f"written and saved; power-cycle the {fam.name} now; waiting for it at address "
+            f"{new_address} at {new_settings} on {target} (up to {wait:g} s; it takes them "
+            f"at power-up){power_hint}")
         started = time.monotonic()
         with anyio.move_on_after(wait):
             while True:
@@ -146,6 +147,55 @@ async def commission(
         report.answers_at_new = False
         old = await probe(bus, address, settings, line_kind=t.kind)
         raise DriveOffline(_not_there(fam.name, report, old, profile.comms_note))
+
+
+OCCUPANCY_TIMEOUT = 0.05
+"""Seconds a slave has to answer the check for an occupied address (a reply of a few bytes
+takes under 15 ms at 9600 baud), so that the whole check takes a few seconds."""
+
+COMMON_RATES = (9600, 19200, 38400, 57600, 115200)
+"""The baud rates drives on an RS-485 line commonly use, beside each family's own."""
+
+LINE_FORMATS = ("8N1", "8E1", "8O1", "8N2")
+
+
+def occupancy_settings(now: LineSettings, new: LineSettings, *, pty: bool = False,
+                       fixed: bool = False) -> list[LineSettings]:
+    """The settings at which another slave could already answer at a drive's new address:
+    the new ones and the present ones first, then every rate (the common ones and each
+    known family's) with every format, those a pty cannot carry left out (``pty``);
+    through a serial device server (``fixed``) only the two, its port runs one setting."""
+    first = [new, now]
+    if fixed:
+        return list(dict.fromkeys(first))
+    rates = sorted({*COMMON_RATES, *(b for f in all_families() for b in f.profile.baud_rates)})
+    rest = [LineSettings.parse(f, baudrate=b) for b in rates for f in LINE_FORMATS]
+    if pty:
+        rest = pty_usable(rest)[0]
+    return list(dict.fromkeys([*first, *rest]))
+
+
+async def _refuse_occupied(bus: Bus, address: int, tried: list[LineSettings], kind: str,
+                           target: str, timeout: float, say: Callable[[str], None]) -> None:
+    """``StateError`` (before anything is written) if a slave answers at ``address`` at
+    any of ``tried``; a setting the port cannot run is said and skipped."""
+    say(f"checking that no other slave answers at address {address} at {len(tried)} line "
+        f"settings (every rate and format a drive on the line could use)")
+    skipped = []
+    for s in tried:
+        try:
+            other = await probe(bus, address, s, line_kind=kind, timeout=timeout, retries=0)
+        except LineConfigError:
+            skipped.append(str(s))
+            continue
+        if other is not None:
+            detail = f", {other.detail}" if other.detail else ""
+            raise StateError(
+                f"another slave already answers at address {address} at {s} on {target} "
+                f"({text.a(other.family)}{detail}): give the drive a free address (nothing "
+                f"was written)")
+    if skipped:
+        say(f"not checked at {', '.join(skipped)}: the port cannot run them")
 
 
 async def _write(profile: DriveProfile, writes: list[tuple[Any, int]]) -> None:

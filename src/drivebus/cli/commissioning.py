@@ -380,10 +380,12 @@ def commission(
         raise ArgumentError(f"--wait: {wait!r} s is negative")
     out = Out(as_json=as_json)
 
+    hint = _power_hint(target, address)
+
     async def run() -> int:
         report = await run_commission(target, drive, address, now, to_address=to_address,
                                       to_settings=new, timeout=timeout, wait=wait,
-                                      say=out.line)
+                                      say=out.line, power_hint=hint)
         out.result(report.as_dict())
         for name, value in report.writes:
             out.line(f"  wrote {name} = {value}")
@@ -395,3 +397,15 @@ def commission(
         return 0
 
     _run(run)
+
+
+def _power_hint(target: str, address: int) -> str:
+    """How to power-cycle the drive when ``target`` is a running ``drivebus sim``'s line."""
+    if not target.startswith("sim://"):
+        return ""
+    from drivebus.sim.serve import published
+
+    if published(target.removeprefix("sim://").strip("/")) is None:
+        return ""
+    return (f"; on this drivebus sim: type `power-cycle {address}` at its console, or run "
+            f"`drivebus sim MACHINE.toml --power-cycle {address}`")

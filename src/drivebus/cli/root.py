@@ -552,12 +552,20 @@ def monitor(
 def sim(
     config: ConfigArg,
     log: Annotated[bool, typer.Option("--log", help="print every frame on the wire")] = False,
+    power_cycle: Annotated[str | None, typer.Option(
+        "--power-cycle", metavar="AXIS|ADDR",
+        help="switch a drive of the running drivebus sim of CONFIG off and on (it takes "
+        "an address or line settings it was given), then exit")] = None,
 ) -> None:
     """Serve the machine's simulated drives (its sim:// lines) to outside masters.
 
     Prints one `line NAME KIND WHERE` per simulated line (WHERE is the pty path for a
     serial line, 127.0.0.1:PORT for TCP), then the slaves on it, and serves until Ctrl-C
-    or SIGTERM. Point mbpoll, a PLC or pymodbus at the pty (`mbpoll -m rtu -b 115200 -P
+    or SIGTERM. Run in a terminal, it takes commands typed there: `power-cycle AXIS` (or
+    the address a drive answers at) switches a drive off and on, as `drivebus commission`
+    asks; `drivebus sim CONFIG --power-cycle AXIS` does it from another terminal.
+
+    Point mbpoll, a PLC or pymodbus at the pty (`mbpoll -m rtu -b 115200 -P
     none -a 1 /dev/pts/N`): a pty carries baud rate and stop bits but not parity or byte
     size, so such a master reaches only the slaves at 8N1 or 8N2. drivebus in another
     process reaches every slave by sim://NAME (a machine file's sim:// line, `drivebus
@@ -567,6 +575,11 @@ def sim(
     from drivebus.cli.machine import serve_sim
     from drivebus.cli.terminal import Out, run_guarded
 
+    if power_cycle is not None:
+        from drivebus.sim.serve import ask_running_sim
+
+        typer.echo(ask_running_sim(config, power_cycle))
+        raise typer.Exit(0)
     out = Out()
     raise typer.Exit(run_guarded(lambda: serve_sim(out, config, log), interrupt_ok=True))
 
