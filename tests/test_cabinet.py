@@ -184,6 +184,36 @@ def test_a_parameter_file_shows_ranges_units_and_a_table_index_as_one(tmp_path: 
     assert r.returncode == 2 and "accel_time: value 5000 ms" in r.stderr and r.stdout == ""
 
 
+# -- check --probe: an axis that does not answer is reported, the others still checked (35.6) ----
+
+
+def test_check_probe_reports_an_axis_that_does_not_answer_and_goes_on(tmp_path: Path) -> None:
+    with sim_server(DEMO) as (_, ends):
+        # the demo's line by its pty (without the 8E1 BHSS: a pty carries no parity), the
+        # CL86R z put at the wrong rate (115200, it talks 38400), then also at the wrong
+        # address: a pty carries 8N1 and 8N2 only, and the search says so
+        text = re.sub(r"\[axes\.y\].*?(?=\[axes\.z\])", "", DEMO.read_text(), flags=re.S)
+        text = text.replace("sim://demo-rs485", ends["rs485"])
+        wrong_rate = tmp_path / "rate.toml"
+        wrong_rate.write_text(text.replace('settings = "38400 8N2"', 'settings = "115200 8N2"'))
+        r = drivebus("check", wrong_rate, "--probe", timeout=120)
+        assert r.returncode == 1, r.stderr
+        ok = [ln for ln in r.stdout.splitlines() if ln.startswith("axis ")]
+        assert [ln.split(":")[0] for ln in ok] == ["axis x", "axis aux", "axis r"]
+        errors = [ln for ln in r.stderr.splitlines() if ln.startswith("error: ")]
+        assert errors == [("error: axis z: no drive answers at address 4 at 115200 8N2; a "
+                             "CL86R answers at address 4 at 38400 8N2: fix the machine file's "
+                             "address/settings (or the drive's)")]
+        wrong_both = tmp_path / "both.toml"
+        wrong_both.write_text(wrong_rate.read_text().replace("address = 4\n", "address = 9\n"))
+        r = drivebus("check", wrong_both, "--probe", timeout=120)
+        assert r.returncode == 1, r.stderr
+        assert "axis aux: OD2000 answers at address 1 at 9600 8N1" in r.stdout  # went on
+        assert ("error: axis z: no CL86R answers at address 9 at 115200 8N2; tried address 9 "
+                "at 9600, 19200, 38400, 115200 baud with 8N1, 8N2 and addresses 1-8, 10-31 at "
+                "115200 8N2: check power, wiring and termination") in r.stderr.splitlines()
+
+
 # -- commission: an occupied address at any setting (35.1), a power cycle in the sim (35.2) -----
 
 CABINET = """

@@ -270,38 +270,80 @@ async def probe_axes(config: Any, *, timeout: float = 0.1) -> list[AxisProbe]:
             line, _ = await open_line(cfg, name, stack)
             bus = await stack.enter_async_context(Bus(line, timeout=timeout, retries=1))
             for n, ax in axes.items():
-                out.append(await _probe_axis(bus, n, ax, line_cfg.kind))
+                out.append(await _probe_axis(bus, n, ax, line_cfg.kind, line_cfg.port or ""))
     return out
 
 
-async def _probe_axis(bus: Bus, name: str, ax: Any, kind: str) -> AxisProbe:
+async def _probe_axis(bus: Bus, name: str, ax: Any, kind: str, port: str) -> AxisProbe:
     fam = family(ax.drive)
     settings = ax.settings or (bus.line.settings if kind != "tcp" else None)
     rec = AxisProbe(name, fam.name, ax.address, None if settings is None else str(settings),
                     False)
-    hit = await probe(bus, ax.address, settings, line_kind=kind)
+    here = f"address {ax.address}" + (f" at {settings}" if settings else "")
+    try:
+        hit = await probe(bus, ax.address, settings, line_kind=kind)
+    except LineConfigError as exc:
+        rec.problem = f"not probed at {here}: {exc}"
+        return rec
     if hit is not None and hit.family == fam.name:
         rec.ok, rec.identity = True, hit.detail or hit.family
         return rec
-    here = f"address {ax.address}" + (f" at {settings}" if settings else "")
     if hit is not None:
         rec.problem = f"{text.a(hit.family)} answers at {here}, not {text.a(fam.name)}"
         return rec
-    others: list[tuple[int, LineSettings | None]] = []
-    if kind != "tcp" and settings is not None:
-        others += [(ax.address, LineSettings.parse(f, baudrate=b))
-                   for b in (fam.profile.baud_rates or (settings.baudrate,))
-                   for f in (fam.profile.line_formats or (settings.format,))]
-    others += [(a, settings) for a in fam.profile.addresses if a != ax.address][:31]
+    rates, formats, addresses = _elsewhere(fam.profile, ax.address, settings, kind,
+                                           pty=kind == "serial" and is_pty(port))
+    others = [(ax.address, LineSettings.parse(f, baudrate=b)) for b in rates for f in formats]
+    others += [(a, settings) for a in addresses]
+    skipped: list[str] = []
     for a, s in others:
         if (a, s) == (ax.address, settings):
             continue
-        found = await probe(bus, a, s, line_kind=kind)
+        try:
+            found = await probe(bus, a, s, line_kind=kind)
+        except LineConfigError:  # this port cannot run it: try the rest
+            skipped.append(str(s))
+            continue
         if found is not None and found.family == fam.name:
             where = f"address {a}" + (f" at {s}" if s else "")
             rec.problem = (f"no drive answers at {here}; {text.a(fam.name)} answers at {where}: "
                            f"fix the machine file's address/settings (or the drive's)")
             return rec
-    rec.problem = (f"no {fam.name} answers at {here}, nor at its other settings or "
-                   f"addresses: check power, wiring and termination")
+    tried = []
+    if rates:
+        tried.append(f"address {ax.address} at {', '.join(map(str, rates))} baud with "
+                     f"{', '.join(formats)}")
+    if addresses:
+        tried.append(f"addresses {_ranges(addresses)}" + (f" at {settings}" if settings else ""))
+    cannot = f" ({', '.join(dict.fromkeys(skipped))}: the port cannot run them)" if skipped \
+        else ""
+    rec.problem = (f"no {fam.name} answers at {here}; tried {' and '.join(tried) or 'nothing else'}"
+                   f"{cannot}: check power, wiring and termination")
     return rec
+
+
+def _elsewhere(profile: type[DriveProfile], address: int, settings: LineSettings | None,
+               kind: str, *, pty: bool) -> tuple[list[int], list[str], list[int]]:
+    """Where else a drive of ``profile`` missing at ``address``/``settings`` may answer:
+    the rates and formats it runs (at its address; a pty's formats only: 8N1, 8N2) and
+    up to 31 other addresses (at its settings)."""
+    rates: list[int] = []
+    formats: list[str] = []
+    if kind != "tcp" and settings is not None:
+        rates = list(profile.baud_rates or (settings.baudrate,))
+        formats = list(profile.line_formats or (settings.format,))
+        if pty:
+            formats = [f for f in formats if f in ("8N1", "8N2")] or formats[:0]
+    addresses = [a for a in profile.addresses if a != address][:31]
+    return rates, formats, addresses
+
+
+def _ranges(values: list[int]) -> str:
+    """1, 2, 3, 5 -> "1-3, 5"."""
+    out: list[str] = []
+    for v in values:
+        if out and (last := out[-1].split("-")[-1]).isdigit() and int(last) == v - 1:
+            out[-1] = f"{out[-1].split('-')[0]}-{v}"
+        else:
+            out.append(str(v))
+    return ", ".join(out)
