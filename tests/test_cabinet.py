@@ -214,6 +214,48 @@ def test_check_probe_reports_an_axis_that_does_not_answer_and_goes_on(tmp_path: 
                 "115200 8N2: check power, wiring and termination") in r.stderr.splitlines()
 
 
+# -- scan: progress on stderr when piped, rich where a terminal shows it (35.10) ------------------
+
+
+def test_scan_shows_its_progress_on_stderr_when_piped_and_rich_on_a_terminal() -> None:
+    scan = ["scan", "sim://demo-rs485", "-b", "9600,115200", "-f", "8N1,8N2", "-a", "1-4,7"]
+    with sim_server(DEMO):
+        r = drivebus(*scan)  # stdout and stderr both pipes
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.splitlines() == [
+            "found address 1 at 9600 8N1: OD2000 (OD2000, firmware software 1)",
+            "found address 2 at 115200 8N1: NT86 (NT86 (drive ID 86), firmware 100)",
+            "2 slaves found on sim://demo-rs485"]
+        progress = [ln for ln in r.stderr.splitlines() if ln.startswith("scanning ")]
+        assert progress == [
+            "scanning 9600 8N1 (1 of 4 settings): addresses 1-4, 7, 0 found so far",
+            "scanning 9600 8N2 (2 of 4 settings): addresses 1-4, 7, 1 found so far",
+            "scanning 115200 8N1 (3 of 4 settings): addresses 1-4, 7, 1 found so far",
+            "scanning 115200 8N2 (4 of 4 settings): addresses 1-4, 7, 2 found so far"]
+        # stdout into a file, stderr on a terminal: the terminal gets rich's progress bar
+        terminal, stderr = os.openpty()
+        with subprocess.Popen([*CLI, *scan], stdout=subprocess.PIPE, stderr=stderr,
+                              text=True) as p:
+            os.close(stderr)
+            shown = b""
+            while True:
+                try:
+                    chunk = os.read(terminal, 4096)
+                except OSError:  # the terminal closed with the process
+                    break
+                if not chunk:
+                    break
+                shown += chunk
+            out, _ = p.communicate(timeout=60)
+        os.close(terminal)
+        assert p.returncode == 0
+        assert out.splitlines()[:2] == r.stdout.splitlines()[:2]  # the result on stdout
+        screen = shown.decode(errors="replace")
+        assert "\x1b[" in screen and "━" in screen  # rich: cursor control and a bar
+        assert re.search(r"scanning 115200 8N2 address\s+7", screen), screen[-500:]
+        assert "found address" not in screen
+
+
 # -- commission: an occupied address at any setting (35.1), a power cycle in the sim (35.2) -----
 
 CABINET = """

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["a", "count"]
+__all__ = ["a", "count", "ranges"]
 
 _LETTERS = re.compile(r"[A-Za-z]*")
 _SAID_WITH_A_VOWEL = frozenset("AEFHILMNORSX")
@@ -31,3 +31,14 @@ def a(name: str) -> str:
 def count(n: int, one: str, many: str) -> str:
     """``n`` and the noun in its number: "1 axis", "2 axes"."""
     return f"{n} {one if n == 1 else many}"
+
+
+def ranges(values: list[int]) -> str:
+    """Whole numbers as runs: [1, 2, 3, 5] -> "1-3, 5"."""
+    runs: list[list[int]] = []
+    for v in values:
+        if runs and v == runs[-1][-1] + 1:
+            runs[-1].append(v)
+        else:
+            runs.append([v])
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 1 else str(r[0]) for r in runs)

@@ -314,7 +314,8 @@ async def _probe_axis(bus: Bus, name: str, ax: Any, kind: str, port: str) -> Axi
         tried.append(f"address {ax.address} at {', '.join(map(str, rates))} baud with "
                      f"{', '.join(formats)}")
     if addresses:
-        tried.append(f"addresses {_ranges(addresses)}" + (f" at {settings}" if settings else ""))
+        at = f" at {settings}" if settings else ""
+        tried.append(f"addresses {text.ranges(addresses)}{at}")
     cannot = f" ({', '.join(dict.fromkeys(skipped))}: the port cannot run them)" if skipped \
         else ""
     rec.problem = (f"no {fam.name} answers at {here}; tried {' and '.join(tried) or 'nothing else'}"
@@ -336,14 +337,3 @@ def _elsewhere(profile: type[DriveProfile], address: int, settings: LineSettings
             formats = [f for f in formats if f in ("8N1", "8N2")] or formats[:0]
     addresses = [a for a in profile.addresses if a != address][:31]
     return rates, formats, addresses
-
-
-def _ranges(values: list[int]) -> str:
-    """1, 2, 3, 5 -> "1-3, 5"."""
-    out: list[str] = []
-    for v in values:
-        if out and (last := out[-1].split("-")[-1]).isdigit() and int(last) == v - 1:
-            out[-1] = f"{out[-1].split('-')[0]}-{v}"
-        else:
-            out.append(str(v))
-    return ", ".join(out)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import sys
 import time
 from collections.abc import Awaitable, Callable, Iterator, Sequence
 from typing import TYPE_CHECKING
@@ -17,6 +18,7 @@ from typing import TYPE_CHECKING
 import anyio
 import anyio.to_thread
 
+from drivebus import text
 from drivebus.app import registers
 from drivebus.app.registers import RegisterValues, open_slave
 from drivebus.app.targets import parse_target
@@ -25,6 +27,8 @@ from drivebus.errors import ResponseTimeout
 from drivebus.settings import LineSettings
 
 if TYPE_CHECKING:
+    from rich.console import Console
+
     from drivebus.app.scan import Found
     from drivebus.service.client import ServiceClient
 
@@ -52,20 +56,19 @@ async def scan_line(
     out: Out, port: str, settings: list[LineSettings], addresses: list[int], timeout: float,
     *, quiet: bool = False,
 ) -> list[Found]:
-    """Scan ``port`` (any target) with a progress bar (terminal) or a line per slave found."""
+    """Scan ``port`` (any target) showing its progress: a rich progress bar where a terminal
+    shows it (stdout's, else stderr's), else a line on stderr as each setting is begun; a
+    slave found is a line on stdout (``quiet``, as with ``--json``: no lines but the bar)."""
     from drivebus.app.scan import scan
 
-    if quiet or not out.interactive:
-
-        def report(a: int, s: LineSettings | None, hit: Found | None) -> None:
-            if hit is not None and not quiet:
-                print(f"found {found_line(hit)}", flush=True)
-
-        return await scan(port, settings, addresses, timeout=timeout, on_probe=report)
+    console = out.console if out.interactive else _stderr_console()
+    if console is None:
+        return await scan(port, settings, addresses, timeout=timeout,
+                          on_probe=_plain_progress(settings, addresses, quiet))
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  console=out.console) as prog:
+                  console=console, redirect_stdout=out.interactive) as prog:
         rounds = len(settings) if settings else 1
         task = prog.add_task("scanning", total=rounds * len(addresses))
 
@@ -74,11 +77,47 @@ async def scan_line(
             if hit is not None:
                 if s is not None:
                     extra = len(settings) - settings.index(s) - 1  # not probed again
-                prog.console.print(f"found {found_line(hit)}", markup=False)
+                if out.interactive:
+                    prog.console.print(f"found {found_line(hit)}", markup=False)
+                elif not quiet:
+                    print(f"found {found_line(hit)}", flush=True)
             where = "unit" if s is None else f"{s} address"
             prog.update(task, advance=1 + extra, description=f"scanning {where} {a:>3}")
 
         return await scan(port, settings, addresses, timeout=timeout, on_probe=show)
+
+
+def _stderr_console() -> Console | None:
+    """A rich console on stderr when stderr is a terminal (stdout is not: a pipe, a file)."""
+    if not sys.stderr.isatty():
+        return None
+    from rich.console import Console
+
+    return Console(stderr=True, highlight=False)
+
+
+def _plain_progress(settings: list[LineSettings], addresses: list[int], quiet: bool
+                    ) -> Callable[[int, LineSettings | None, Found | None], None]:
+    """A scan's progress as lines for a pipe: one on stderr as each setting is begun (none
+    with ``quiet``), a slave found on stdout."""
+    begun: set[str] = set()
+    found = 0
+    n = len(settings)
+    where = text.ranges(addresses)
+
+    def report(a: int, s: LineSettings | None, hit: Found | None) -> None:
+        nonlocal found
+        if quiet:
+            return
+        if s is not None and str(s) not in begun:
+            begun.add(str(s))
+            print(f"scanning {s} ({len(begun)} of {n} settings): addresses {where}, {found} "
+                  f"found so far", file=sys.stderr, flush=True)
+        if hit is not None:
+            found += 1
+            print(f"found {found_line(hit)}", flush=True)
+
+    return report
 
 
 # -- register tools ------------------------------------------------------------------------------
