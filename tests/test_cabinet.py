@@ -256,6 +256,45 @@ def test_scan_shows_its_progress_on_stderr_when_piped_and_rich_on_a_terminal() -
         assert "found address" not in screen
 
 
+# -- status and monitor: each axis in its own unit (35.19) ---------------------------------------
+
+
+def test_status_and_monitor_show_each_axis_in_its_unit(tmp_path: Path) -> None:
+    want = {"x": "mm", "y": "mm", "z": "mm", "r": "deg", "aux": "units"}  # as configured
+
+    def check(lines: list[str]) -> None:
+        seen = {}
+        for line in lines:
+            m = re.search(r"(\w+): \S+ line=.* position=-?[\d.]+([a-z]+) "
+                          r"velocity=(?:-|-?[\d.]+([a-z]+)/s) ", line)
+            assert m is not None, line
+            seen[m.group(1)] = m.group(2)
+            assert m.group(3) in (None, m.group(2)), line  # velocity in the same unit/s
+        assert seen == want
+
+    with sim_server(DEMO):
+        r = drivebus("status", DEMO)
+        assert r.returncode == 0, r.stderr
+        check(r.stdout.splitlines())
+        assert "position=12.000mm velocity=0.000mm/s" in r.stdout
+        r = drivebus("monitor", DEMO, "--count", "1")
+        assert r.returncode == 0, r.stderr
+        check([ln.split(" ", 1)[1] for ln in r.stdout.splitlines() if " line=" in ln])
+        records = json.loads(drivebus("status", DEMO, "--json").stdout)
+        assert {a["axis"]: a["unit"] for a in records} == want
+    # through a running drivebus serve: the same units
+    served = Served(DEMO, "--port", "0")
+    try:
+        served.url()
+        r = drivebus("status", DEMO)
+        assert r.returncode == 0, r.stderr
+        assert "is served by a running drivebus serve" in r.stderr
+        check(r.stdout.splitlines())
+        assert served.end(signal.SIGTERM)[0] == 0
+    finally:
+        served.kill()
+
+
 # -- commission: an occupied address at any setting (35.1), a power cycle in the sim (35.2) -----
 
 CABINET = """

@@ -1,14 +1,15 @@
-"""Words in messages: a drive's name with its article, a count with its noun.
+"""Words in messages: a drive's name with its article, a count with its noun, a number
+with its unit.
 
-One place for the small grammar every message needs, so that a refusal reads "an NT86"
-and "1 axis" wherever it is written.
+One place for the small grammar every message needs, so that a refusal reads "an NT86",
+"1 axis" and "12.000mm" wherever it is written.
 """
 
 from __future__ import annotations
 
 import re
 
-__all__ = ["a", "count", "ranges"]
+__all__ = ["a", "count", "quantity", "ranges"]
 
 _LETTERS = re.compile(r"[A-Za-z]*")
 _SAID_WITH_A_VOWEL = frozenset("AEFHILMNORSX")
@@ -42,3 +43,8 @@ def ranges(values: list[int]) -> str:
         else:
             runs.append([v])
     return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 1 else str(r[0]) for r in runs)
+
+
+def quantity(value: float | None, unit: str, digits: int = 3, sep: str = "") -> str:
+    """A value in its unit: "12.000mm" (``sep`` between them: "12.000 mm"), "-" unknown."""
+    return "-" if value is None else f"{value:.{digits}f}{sep}{unit}"

@@ -24,6 +24,7 @@ import anyio.to_thread
 from drivebus import errors
 from drivebus.cli.terminal import Out, fmt_number
 from drivebus.errors import ConfigError, DrivebusError
+from drivebus.text import quantity
 
 if TYPE_CHECKING:
     from drivebus.service.client import ServiceClient
@@ -102,9 +103,11 @@ def _remote_line(a: dict[str, Any]) -> str:
         extra = f" alarm={a.get('alarm_code')} {a.get('alarm_text', '')}".rstrip()
     elif a.get("error"):
         extra = f" error={a['error'].get('message')!r}"
+    unit = str(a.get("units") or "")
     return (f"{a['name']}: {a['drive']} line={a['line']} address={a['address']} "
-            f"state={a['state']} position={fmt_number(a.get('position'))} "
-            f"velocity={fmt_number(a.get('velocity'))} flags={','.join(flags) or '-'}{extra}")
+            f"state={a['state']} position={quantity(a.get('position'), unit)} "
+            f"velocity={quantity(a.get('velocity'), unit + '/s')} "
+            f"flags={','.join(flags) or '-'}{extra}")
 
 
 async def remote_status(out: Out, client: ServiceClient, axes: Sequence[str], as_json: bool
