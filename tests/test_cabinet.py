@@ -19,6 +19,7 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
+from mqtt_helpers import running_broker
 from service_rig import TOKENS, token_file
 from test_cli import DEMO, SINGLE, Proc, drivebus, sim_server, spawn
 from test_service_cli import Served
@@ -293,6 +294,31 @@ def test_status_and_monitor_show_each_axis_in_its_unit(tmp_path: Path) -> None:
         assert served.end(signal.SIGTERM)[0] == 0
     finally:
         served.kill()
+
+
+# -- serve --mqtt: the start line says the bridge runs and where (35.15) -------------------------
+
+
+def test_serve_with_mqtt_says_where_its_bridge_publishes(tmp_path: Path) -> None:
+    with contextlib.contextmanager(running_broker)(tmp_path) as broker:
+        served = Served(DEMO, "--port", "0", "--mqtt", broker.url, "--node", "cabinet")
+        try:
+            served.url()
+            start = served.out[0]
+            assert re.fullmatch(
+                r"drivebus serve: machine demo on http://127\.0\.0\.1:\d+/ \(API /api, docs "
+                rf"/docs\); MQTT bridge to mqtt://127\.0\.0\.1:{broker.port} as node cabinet "
+                r"\(topics drivebus/cabinet/\.\.\., Home Assistant discovery\); Ctrl-C or "
+                r"SIGTERM stops it", start), start
+            # and it does: mosquitto_sub sees the node's retained status there
+            seen = subprocess.run(
+                [broker.sub_exe, "-h", "127.0.0.1", "-p", str(broker.port), "-t",
+                 "drivebus/cabinet/status", "-C", "1", "-W", "30"],
+                capture_output=True, text=True, timeout=60)
+            assert seen.stdout.strip() == "online", seen.stderr
+            assert served.end(signal.SIGTERM)[0] == 0
+        finally:
+            served.kill()
 
 
 # -- commission: an occupied address at any setting (35.1), a power cycle in the sim (35.2) -----

@@ -625,15 +625,21 @@ def serve(
         raise ArgumentError("--no-http: with no HTTP service there must be an MQTT bridge "
                             "(--mqtt URL, or [mqtt] url in the machine file)")
     extra = []
+    also = ""
     if bridge:
-        from drivebus.mqtt import run_configured_bridge
+        from drivebus.mqtt import BridgeOptions, run_configured_bridge
 
+        discovery = False if no_discovery else None
+        opts = BridgeOptions.resolve(cfg, url=mqtt, node=node, discovery=discovery)
+        ha = ", Home Assistant discovery" if opts.discovery else ""
+        also = (f"MQTT bridge to {opts.broker} as node {opts.node} (topics "
+                f"drivebus/{opts.node}/...{ha})")
         extra.append(functools.partial(run_configured_bridge, url=mqtt, node=node,
-                                       discovery=False if no_discovery else None))
+                                       discovery=discovery))
     elif node is not None or no_discovery:
         raise ArgumentError("--node and --no-discovery go with an MQTT bridge (--mqtt URL)")
     raise typer.Exit(run(config, host=host, port=port, token_file=token_file,
-                         http=not no_http, extra=extra))
+                         http=not no_http, extra=extra, also=also))
 
 
 app.command()(record)  # drivebus record: in its own module
