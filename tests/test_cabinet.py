@@ -19,6 +19,10 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
+import pytest
+
+from drivebus import Recording
 from mqtt_helpers import running_broker
 from service_rig import TOKENS, token_file
 from test_cli import DEMO, SINGLE, Proc, drivebus, sim_server, spawn
@@ -319,6 +323,41 @@ def test_serve_with_mqtt_says_where_its_bridge_publishes(tmp_path: Path) -> None
             assert served.end(signal.SIGTERM)[0] == 0
         finally:
             served.kill()
+
+
+# -- record while serve runs: through its recordings API (35.14) ---------------------------------
+
+
+def test_record_while_serve_runs_records_through_the_service(tmp_path: Path) -> None:
+    html, jsonl = tmp_path / "run.html", tmp_path / "run.jsonl"
+    served = Served(DEMO, "--port", "0")
+    try:
+        url = served.url()
+        r = drivebus("record", DEMO, "x", "y", "--during", "move x 30 y 20", "--during",
+                     "move-by x -5", "--during", "move-by x 1 y 1", "-o", html, "-o", jsonl,
+                     timeout=120)
+        assert r.returncode == 0, r.stderr
+        assert f"is served by a running drivebus serve at {url}: talking to it" in r.stderr
+        assert r.stdout.splitlines()[0] == f"recorded through {url} (recording r1)"
+        assert f"wrote {html}" in r.stdout and "5 moves" in r.stdout  # 2 + 1 + 2
+        rec = Recording.from_jsonl(jsonl)
+        assert list(rec.axes) == ["x", "y"]
+        arrived = [(a.axis, a.what) for a in rec.arrivals() if a.outcome == "in_position"]
+        assert ("x", "move by -5") in arrived and len(arrived) == 5, arrived
+        assert "window.DRIVEBUS_REPORT" in html.read_text()
+        with httpx.Client(base_url=url, timeout=30) as client:  # the service moved and kept it
+            kept = client.get("/api/recordings").json()
+            assert [(k["id"], k["running"], k["axes"]) for k in kept] == [("r1", False,
+                                                                          ["x", "y"])]
+            assert client.get("/api/axes/x").json()["position"] == pytest.approx(26.0, abs=0.01)
+            assert client.get("/api/axes/y").json()["position"] == pytest.approx(21.0, abs=0.01)
+        # a step naming no axis of the machine: refused before anything is recorded
+        r = drivebus("record", DEMO, "--during", "move w 3", "-o", tmp_path / "a.html")
+        assert r.returncode == 2 and "no axis 'w'" in r.stderr
+        assert not (tmp_path / "a.html").exists()
+        assert served.end(signal.SIGTERM)[0] == 0
+    finally:
+        served.kill()
 
 
 # -- commission: an occupied address at any setting (35.1), a power cycle in the sim (35.2) -----

@@ -14,7 +14,7 @@ import logging
 import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -32,6 +32,8 @@ if TYPE_CHECKING:
 __all__ = [
     "announce_sim_lines",
     "call",
+    "follow_motion",
+    "motion_error",
     "remote_jog",
     "remote_monitor",
     "remote_motion",
@@ -125,41 +127,70 @@ async def remote_status(out: Out, client: ServiceClient, axes: Sequence[str], as
     return 1 if faults else 0
 
 
+async def follow_motion(
+    client: ServiceClient, path: str, body: object = None,
+    tick: Callable[[dict[str, Any]], Awaitable[None]] | None = None,
+) -> dict[str, Any]:
+    """Start a motion on the service (``POST path``) and follow it to its end: its last
+    record (``tick`` gets each running one, the first included). Cancelled (Ctrl-C), the
+    motion is cancelled, its axes stopped, before this re-raises."""
+    record: dict[str, Any] = await call(client.start, path, body)
+    try:
+        while record.get("state") == "running":
+            if tick is not None:
+                await tick(record)
+            await anyio.sleep(0.05)
+            record = await call(client.request, "GET", f"/motions/{record['id']}")
+    except BaseException:
+        with anyio.CancelScope(shield=True):
+            await call(client.cancel, record["id"])
+        raise
+    return record
+
+
+def motion_error(record: dict[str, Any], what: str) -> DrivebusError:
+    """The typed error a motion that did not complete (aborted, failed) ended with."""
+    err = record.get("error") or {}
+    kind = getattr(errors, str(err.get("type")), DrivebusError)
+    if not (isinstance(kind, type) and issubclass(kind, DrivebusError)):
+        kind = DrivebusError
+    return kind(str(err.get("message", f"the {what} ended {record['state']}")))
+
+
 async def remote_motion(out: Out, client: ServiceClient, axis: str, what: str, path: str,
                         body: object = None) -> int:
     """Start a motion on the service and wait for it; cancelled (Ctrl-C), cancel it.
     ``axis`` is the axis shown while it runs ("": the motion's own axes, not shown)."""
-    record = await call(client.start, path, body)
     started = shown = time.monotonic()
-    axis = axis or ",".join(record.get("axes") or [])
+    names = [axis] if axis else []
+
+    async def tick(record: dict[str, Any]) -> None:
+        nonlocal shown
+        if not names:
+            names.extend(record.get("axes") or [])
+        if time.monotonic() - shown >= 0.2 and len(names) == 1:
+            shown = time.monotonic()
+            a = await call(client.axis, names[0])
+            out.line(f"{names[0]}: position={fmt_number(a.get('position'))} "
+                     f"velocity={fmt_number(a.get('velocity'))} state={a['state']}")
+
     try:
-        while record.get("state") == "running":
-            await anyio.sleep(0.05)
-            record = await call(client.request, "GET", f"/motions/{record['id']}")
-            if time.monotonic() - shown >= 0.2 and record.get("state") == "running" and (
-                "," not in axis
-            ):
-                shown = time.monotonic()
-                a = await call(client.axis, axis)
-                out.line(f"{axis}: position={fmt_number(a.get('position'))} "
-                         f"velocity={fmt_number(a.get('velocity'))} state={a['state']}")
+        record = await follow_motion(client, path, body, tick)
     except BaseException:
         with anyio.CancelScope(shield=True):
-            record = await call(client.cancel, record["id"])
-            for name in axis.split(","):
+            for name in names:
                 a = await call(client.axis, name)
                 out.line(f"{name}: {what} stopped after {time.monotonic() - started:.2f} s, "
                          f"position={fmt_number(a.get('position'))} state={a['state']}")
         raise
-    seen = {name: await call(client.axis, name) for name in axis.split(",")}
+    names = names or list(record.get("axes") or [])
+    seen = {name: await call(client.axis, name) for name in names}
     a = next(iter(seen.values()))
-    op = {"axis": axis, "what": what, "done": record["state"] == "done",
+    op = {"axis": ",".join(names), "what": what, "done": record["state"] == "done",
           "seconds": round(time.monotonic() - started, 4), "position": a.get("position"),
           "state": a["state"], "motion": record}
     if record["state"] != "done":
-        err = record.get("error") or {}
-        kind = getattr(errors, str(err.get("type")), DrivebusError)
-        raise kind(str(err.get("message", f"the {what} ended {record['state']}")))
+        raise motion_error(record, what)
     for name, a in seen.items():
         out.line(f"{name}: {what} done in {op['seconds']:.2f} s, "
                  f"position={fmt_number(a.get('position'))} state={a['state']}")

@@ -54,6 +54,14 @@ class ServiceClient:
 
     def request(self, method: str, path: str, body: object = None) -> Any:
         """One request; the decoded JSON reply, or the typed error of a problem reply."""
+        return json.loads(self._send(method, path, body) or "null")
+
+    def text(self, path: str) -> str:
+        """``GET /api/PATH`` of a reply that is not JSON (a recording's JSON lines, its
+        report); the typed error of a problem reply."""
+        return self._send("GET", path, None)
+
+    def _send(self, method: str, path: str, body: object) -> str:
         data = None if body is None else json.dumps(body).encode()
         req = urllib.request.Request(f"{self.url}/api{path}", data=data, method=method)
         req.add_header("Accept", "application/json")
@@ -65,14 +73,14 @@ class ServiceClient:
             req.add_header("X-Drivebus-Client", self.client)
         try:
             with urllib.request.urlopen(req, timeout=self.timeout) as reply:
-                text = reply.read().decode() or "null"
+                text: str = reply.read().decode()
         except urllib.error.HTTPError as exc:
             raise self._problem(exc) from None
         except (urllib.error.URLError, OSError) as exc:
             reason = getattr(exc, "reason", exc)
             raise ServiceUnreachable(f"the drivebus service at {self.url} cannot be reached: "
                                      f"{reason}") from None
-        return json.loads(text)
+        return text
 
     def _problem(self, exc: urllib.error.HTTPError) -> DrivebusError:
         try:
