@@ -17,11 +17,14 @@ the ``built_once`` fixture. Plain ``pytest`` (no ``-n``) runs everything in one 
 
 from __future__ import annotations
 
+import asyncio
 import fcntl
 import gc
 import os
 import shutil
-from collections.abc import Callable
+import sys
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -76,3 +79,61 @@ def built_once(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, Build
         return out
 
     return once
+
+
+# -- the loop-step guard ------------------------------------------------------------------
+
+LOOP_STEP_LIMIT = 0.020
+"""The most thread CPU time one event-loop step may take in a test, seconds: a step that
+holds the loop longer delays every stop behind it (promise 1). CPU time, not wall time, so
+a loaded machine does not trip it."""
+
+
+class _LoopSteps:
+    """The steps of the running test's event loops that took longer than the limit."""
+
+    def __init__(self) -> None:
+        self.slow: list[tuple[float, str]] = []
+
+
+_STEPS: _LoopSteps | None = None
+
+
+def _guarded_run(run: Callable[[asyncio.Handle], None]) -> Callable[[asyncio.Handle], None]:
+    def _run(self: asyncio.Handle) -> None:
+        steps = _STEPS
+        if steps is None:
+            run(self)
+            return
+        modules = len(sys.modules)
+        started = time.thread_time()
+        try:
+            run(self)
+        finally:
+            took = time.thread_time() - started
+            # A step that imported modules (a lazy import, once per process) is not the
+            # code under test holding the loop.
+            if took > LOOP_STEP_LIMIT and len(sys.modules) == modules:
+                steps.slow.append((took, repr(self)[:300]))
+
+    return _run
+
+
+asyncio.events.Handle._run = _guarded_run(asyncio.events.Handle._run)  # type: ignore[method-assign]
+
+
+@pytest.fixture(autouse=True)
+def _loop_steps(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Fail a test in which one event-loop step used more than ``LOOP_STEP_LIMIT`` of CPU
+    time (``@pytest.mark.holds_loop(reason)`` exempts a test whose own code must)."""
+    global _STEPS
+    steps = _STEPS = _LoopSteps()
+    try:
+        yield
+    finally:
+        _STEPS = None
+    if steps.slow and request.node.get_closest_marker("holds_loop") is None:
+        took, step = max(steps.slow)
+        pytest.fail(f"an event-loop step used {took * 1e3:.0f} ms of CPU time (limit "
+                    f"{LOOP_STEP_LIMIT * 1e3:.0f} ms; {len(steps.slow)} such steps): {step}",
+                    pytrace=False)
