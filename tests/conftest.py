@@ -23,6 +23,7 @@ import gc
 import os
 import shutil
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -99,27 +100,67 @@ class _LoopSteps:
 _STEPS: _LoopSteps | None = None
 
 
+class _GcTime:
+    """Thread CPU time spent in the garbage collector so far (``gc.callbacks``)."""
+
+    def __init__(self) -> None:
+        self.spent = 0.0
+        self._began = 0.0
+
+    def __call__(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._began = time.thread_time()
+        else:
+            self.spent += time.thread_time() - self._began
+
+
+_GC = _GcTime()
+gc.callbacks.append(_GC)
+_MAIN_THREAD = threading.get_ident()
+
+
 def _guarded_run(run: Callable[[asyncio.Handle], None]) -> Callable[[asyncio.Handle], None]:
     def _run(self: asyncio.Handle) -> None:
         steps = _STEPS
-        if steps is None:
-            run(self)
+        if steps is None or threading.get_ident() != _MAIN_THREAD:
+            run(self)  # a loop of a worker thread (work moved off the test's loop) is free
             return
         modules = len(sys.modules)
+        collected = _GC.spent
         started = time.thread_time()
         try:
             run(self)
         finally:
-            took = time.thread_time() - started
+            # The garbage collector's pauses land in whichever step allocates: they are
+            # the interpreter's, not the code's, and are not counted.
+            took = time.thread_time() - started - (_GC.spent - collected)
             # A step that imported modules (a lazy import, once per process) is not the
             # code under test holding the loop.
             if took > LOOP_STEP_LIMIT and len(sys.modules) == modules:
-                steps.slow.append((took, repr(self)[:300]))
+                steps.slow.append((took, _describe(self)))
 
     return _run
 
 
 asyncio.events.Handle._run = _guarded_run(asyncio.events.Handle._run)  # type: ignore[method-assign]
+
+
+def _describe(handle: asyncio.Handle) -> str:
+    """The step's callback and, for a task's step, where its coroutine stopped after it
+    (the await that ended the step: the code that ran is just before it)."""
+    text = repr(handle)[:200]
+    task = getattr(getattr(handle, "_callback", None), "__self__", None)
+    if isinstance(task, asyncio.Task):
+        coro = task.get_coro()
+        frames = []
+        while coro is not None and len(frames) < 12:
+            frame = getattr(coro, "cr_frame", None) or getattr(coro, "gi_frame", None)
+            if frame is None:
+                break
+            frames.append(f"{frame.f_code.co_qualname}:{frame.f_lineno}")
+            coro = getattr(coro, "cr_await", None) or getattr(coro, "gi_yieldfrom", None)
+        text += f" task {task.get_name()!r} now at " + " > ".join(frames)
+    return text
 
 
 @pytest.fixture(autouse=True)

@@ -13,6 +13,7 @@ the description's own procedures, ``setup`` and ``learn`` run as in the command 
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
@@ -40,7 +41,7 @@ from drivebus.drives.description import Reg
 from drivebus.drives.engine import DescribedProfile, plan_reads
 from drivebus.drives.status import DriveStatus
 from drivebus.drives.values import Attrs, Unread
-from drivebus.errors import LimitViolation, StateError
+from drivebus.errors import LimitViolation, StateError, TransactionError
 
 __all__ = ["STATUS_OBJECTS", "Cia402Profile"]
 
@@ -48,7 +49,11 @@ STATUS_OBJECTS = ("statusword", "modes_of_operation_display", "position_actual_v
                   "velocity_actual_value", "error_code", "digital_inputs")
 """The objects the status poll reads, where the description maps them."""
 
+log = logging.getLogger(__name__)
+
 _ENABLED = COMMAND_WORDS[Command.ENABLE_OPERATION]
+_HALTED = _ENABLED | Controlword.HALT
+"""Enable operation with halt set: Operation enabled, the axis held where it is."""
 
 
 class Cia402Profile(DescribedProfile):
@@ -61,6 +66,8 @@ class Cia402Profile(DescribedProfile):
         self._last_cw: int | None = None
         self._homing = False
         self._homed = False
+        self._velocity_set = False
+        """A speed run of this session left a target velocity (60FFh) other than 0."""
 
     # -- objects ---------------------------------------------------------------------------
 
@@ -114,7 +121,9 @@ class Cia402Profile(DescribedProfile):
 
     async def goto(self, goal: State) -> None:
         """Walk the state machine to ``goal`` (bounded: each step is confirmed within the
-        description's timeout, and no more steps than the profile can need)."""
+        description's timeout, and no more steps than the profile can need). Enable
+        operation goes with halt set: Operation enabled holds the axis (a set-point a halt
+        interrupted does not resume); the next motion command clears halt as it starts."""
         timeout = self._timeout
         for _ in range(MAX_STEPS + 2):
             state, _ = await self._state()
@@ -122,7 +131,10 @@ class Cia402Profile(DescribedProfile):
             if step is None:
                 return
             if step.controlword is not None:
-                await self._controlword(step.controlword, idempotent=True)
+                word = step.controlword
+                if step.command is Command.ENABLE_OPERATION:
+                    word |= Controlword.HALT
+                await self._controlword(word, idempotent=True)
             try:
                 with anyio.fail_after(timeout):
                     while True:
@@ -249,11 +261,36 @@ class Cia402Profile(DescribedProfile):
 
     async def enable(self) -> None:
         """Shutdown, switch on, enable operation, as the state machine needs (or the
-        description's own ``enable``)."""
+        description's own ``enable``); a target velocity left in the drive is zeroed
+        first and Operation enabled is reached with halt set, so enabling starts nothing."""
         if self._described("enable"):
             await super().enable()
             return
+        state, _ = await self._state()
+        if state is not State.OPERATION_ENABLED:
+            await self._zero_target_velocity(Priority.COMMAND)
         await self.goto(State.OPERATION_ENABLED)
+
+    async def _zero_target_velocity(self, priority: Priority) -> None:
+        """Target velocity (60FFh) 0, where mapped: in profile velocity the drive runs at
+        it whenever it is in Operation enabled with halt clear (the mode has no start bit,
+        CiA 402-2 profile velocity mode), so none is left for an enable or a mode change
+        to start."""
+        if "target_velocity" in self.description.objects:
+            await self._write_objects([("target_velocity", 0)], priority=priority)
+            self._velocity_set = False
+
+    async def _after_stop(self) -> None:
+        """After the stop of a speed run (on the wire already): target velocity 0. The
+        stop has done its work if this write fails; it is logged and tried again at the
+        next stop, and enable zeroes it anyway."""
+        if not self._velocity_set:
+            return
+        try:
+            await self._zero_target_velocity(Priority.EMERGENCY)
+        except TransactionError as exc:
+            log.warning("%s: the stop went out, but target velocity (60FFh) was not zeroed "
+                        "after it: %s", self.family, exc)
 
     async def disable(self) -> None:
         """Shutdown: Ready to switch on, the motor released (or the description's own)."""
@@ -424,8 +461,11 @@ class Cia402Profile(DescribedProfile):
             await self.stop(decel_rps2)
             return
         await self._enabled_or_raise()
-        await self._set_mode(Mode.PROFILE_VELOCITY)
+        # The target first: the mode change to profile velocity then runs at this speed,
+        # never at one left from before (halt may be clear, the mode has no start bit).
         await self._write_objects(values)
+        self._velocity_set = True
+        await self._set_mode(Mode.PROFILE_VELOCITY)
         await self._controlword(_ENABLED)  # halt clear: run
 
     async def stop(self, decel_rps2: float | None = None) -> None:
@@ -437,7 +477,8 @@ class Cia402Profile(DescribedProfile):
         if decel_rps2 is not None and "profile_deceleration" in self.description.objects:
             await self._write_objects([("profile_deceleration", decel_rps2)], priority=prio)
         self._homing = False
-        await self._controlword(_ENABLED | Controlword.HALT, priority=prio, idempotent=True)
+        await self._controlword(_HALTED, priority=prio, idempotent=True)
+        await self._after_stop()
 
     async def emergency_stop(self) -> None:
         """Quick stop (or halt, as ``[cia402] emergency_stop`` says)."""
@@ -446,9 +487,10 @@ class Cia402Profile(DescribedProfile):
             return
         c = self.description.cia402
         self._homing = False
-        word = (_ENABLED | Controlword.HALT if c is not None and c.emergency_stop == "halt"
+        word = (_HALTED if c is not None and c.emergency_stop == "halt"
                 else COMMAND_WORDS[Command.QUICK_STOP])
         await self._controlword(word, priority=Priority.EMERGENCY, idempotent=True)
+        await self._after_stop()
 
     def check_homing(self, params: HomingParams) -> None:
         """The method known, its values within range, an offset only with home_offset."""
