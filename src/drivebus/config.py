@@ -485,3 +485,16 @@ def machine_config(config: str | Path | Mapping[str, Any] | MachineConfig) -> Ma
     if isinstance(config, Mapping):
         return parse_config(dict(config))
     return load_config(config)
+
+
+async def machine_config_in_thread(
+    config: str | Path | Mapping[str, Any] | MachineConfig,
+) -> MachineConfig:
+    """``machine_config`` from a coroutine: reading and validating a machine file parses
+    the descriptions of the drives it names (tens of ms of CPU the first time), done in a
+    worker thread so that no event-loop step holds a stop behind it (promise 1)."""
+    if isinstance(config, MachineConfig):
+        return config
+    import anyio.to_thread
+
+    return await anyio.to_thread.run_sync(machine_config, config)

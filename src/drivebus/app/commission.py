@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import anyio
+import anyio.to_thread
 
 from drivebus import text
 from drivebus.app.scan import Found, is_pty, probe, pty_usable
@@ -90,7 +91,7 @@ async def commission(
     ``power_hint``). Raises before any write if the drive is not found, cannot take the
     change (``NotSupported``) or another slave answers at the new address at any setting
     a drive on the line could use (``StateError``)."""
-    fam = family(drive)
+    fam = await anyio.to_thread.run_sync(family, drive)  # parsing it: off the loop
     t = parse_target(target)
     if t.kind == "tcp":
         raise ArgumentError(f"{target}: drivebus commission is for serial lines (RS-485)")
@@ -257,10 +258,10 @@ async def probe_axes(config: Any, *, timeout: float = 0.1) -> list[AxisProbe]:
     the configured settings and at its other settings at the configured address."""
     from contextlib import AsyncExitStack
 
-    from drivebus.config import machine_config
+    from drivebus.config import machine_config_in_thread
     from drivebus.motion.lines import open_line
 
-    cfg = machine_config(config)
+    cfg = await machine_config_in_thread(config)  # parsing descriptions: off the loop
     out: list[AxisProbe] = []
     async with AsyncExitStack() as stack:
         for name, line_cfg in cfg.lines.items():

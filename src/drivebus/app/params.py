@@ -28,7 +28,7 @@ import anyio
 from drivebus import text
 from drivebus.bus import Bus, Priority
 from drivebus.bus.sent import sent_requests
-from drivebus.config import MachineConfig, machine_config
+from drivebus.config import MachineConfig, machine_config_in_thread
 from drivebus.drives.base import DriveProfile, Parameter
 from drivebus.drives.registry import family
 from drivebus.errors import (
@@ -397,7 +397,7 @@ async def open_drive(
     """The profile of ``axis``'s drive on its own line, for the block: only that line is
     opened (a ``sim://`` line reaches a running ``drivebus sim`` or starts its simulator),
     and nothing is written to the drive (no set-up, no axis actor)."""
-    cfg = machine_config(config)
+    cfg = await machine_config_in_thread(config)  # parsing descriptions: off the loop
     ax = cfg.axes.get(axis)
     if ax is None:
         raise ConfigError(f"no axis {axis!r} in machine {cfg.name} (axes: "

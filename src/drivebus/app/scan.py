@@ -14,6 +14,8 @@ import os
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
+import anyio.to_thread
+
 from drivebus.app.targets import parse_target
 from drivebus.bus import Bus, SlaveHandle
 from drivebus.drives.registry import DriveFamily, all_families
@@ -151,7 +153,8 @@ async def scan(
         raise ConfigError("nothing to scan: no line settings given")
     todo = list(dict.fromkeys(addresses))
     found: list[Found] = []
-    all_families()  # every description parsed before the line opens, not between probes
+    # every description parsed before the line opens (not between probes), off the loop
+    await anyio.to_thread.run_sync(all_families)
     line = make_line(t.line_config(tried[0], timeout=timeout))
     async with Bus(line, timeout=timeout, retries=0) as bus:
         for s in tried:

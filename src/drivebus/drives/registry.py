@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import re
+import threading
 import tomllib
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
@@ -102,6 +103,9 @@ _PROFILES: tuple[DriveFamily, ...] = (
 _ORDER = ("NT86", "EPR60", "BHSS", "CL86R", "OD2000")
 """How the built-in families are listed (the others after them, by name)."""
 
+_PARSING = threading.RLock()
+"""Held while a description is parsed (machine files are validated in worker threads)."""
+
 _DECLARED = re.compile(r'^family\s*=\s*"([^"\n]+)"', re.M)
 
 
@@ -130,6 +134,13 @@ class BuiltinFamilies(Mapping[str, DriveFamily]):
         return self._names
 
     def __getitem__(self, name: str) -> DriveFamily:
+        fam = self._loaded.get(name)
+        if fam is not None:
+            return fam
+        with _PARSING:  # one parse per family, whichever thread asks first
+            return self._load(name)
+
+    def _load(self, name: str) -> DriveFamily:
         fam = self._loaded.get(name)
         if fam is not None:
             return fam
@@ -203,12 +214,13 @@ def _from_file(path: Path) -> DriveFamily:
         mtime = p.stat().st_mtime
     except OSError:
         raise ConfigError(f"{path}: no such drive description") from None
-    cached = _file_cache.get(p)
-    if cached is not None and cached[0] == mtime:
-        return cached[1]
-    fam = family_from_description(load_description(p), str(p))
-    _file_cache[p] = (mtime, fam)
-    return fam
+    with _PARSING:
+        cached = _file_cache.get(p)
+        if cached is not None and cached[0] == mtime:
+            return cached[1]
+        fam = family_from_description(load_description(p), str(p))
+        _file_cache[p] = (mtime, fam)
+        return fam
 
 
 def _family_name(path: Path) -> str | None:

@@ -30,7 +30,7 @@ import anyio.abc
 import anyio.streams.buffered
 
 from drivebus import runtime
-from drivebus.config import MachineConfig, load_config
+from drivebus.config import MachineConfig, load_config, machine_config_in_thread
 from drivebus.errors import ConfigError, DrivebusError
 from drivebus.sim.drive import SimDrive
 from drivebus.sim.machine import SimLine, start_simulators
@@ -311,7 +311,7 @@ async def serve_simulators(
 ) -> None:
     """Serve the ``sim://`` lines of ``config`` (a twin per axis) until cancelled; with
     ``console`` and a terminal on stdin, answer what is typed there (``power-cycle z``)."""
-    cfg = load_config(config)
+    cfg = await machine_config_in_thread(config)  # parsing descriptions: off the loop
     for ln in cfg.lines.values():
         if ln.simulated and (other := published(ln.sim_name)):
             raise DrivebusError(
