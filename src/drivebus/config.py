@@ -207,7 +207,8 @@ class AxisConfig(_Model):
     """One axis: which drive on which line, its units, defaults and limits."""
 
     line: str
-    address: StrictInt = Field(ge=1, le=247)
+    address: StrictInt = Field(ge=0, le=255, description="the slave address: 1..247 on "
+                               "RS-485 and RTU over TCP, a unit id 0..255 on Modbus TCP")
     drive: str
     settings: LineSettings | None = None
     pulses_per_rev: StrictInt = Field(10000, gt=0)
@@ -419,6 +420,11 @@ class MachineConfig(_Model):
                            f"on line {ax.line}")
             seen[key] = name
             line = self.lines[ax.line]
+            if line.kind != "tcp" and not 1 <= ax.address <= 247:
+                out.append(f"{where}.address: {ax.address} is outside 1..247 (an RTU "
+                           f"address on {line.kind} line {ax.line}; a Modbus TCP unit id is "
+                           f"0..255)")
+                continue
             if line.kind == "tcp" and ax.settings is not None:
                 out.append(f"{where}.settings: line {ax.line} is Modbus TCP: no serial settings")
             if line.kind == "rtu-over-tcp" and ax.settings not in (None, line.settings):
