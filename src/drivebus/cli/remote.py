@@ -32,6 +32,7 @@ if TYPE_CHECKING:
 __all__ = [
     "announce_sim_lines",
     "call",
+    "command_line_client",
     "follow_motion",
     "motion_error",
     "remote_jog",
@@ -80,7 +81,7 @@ def service_owner(
 ) -> ServiceClient | None:
     """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
     through the file), as a client; None to open the machine here."""
-    from drivebus.service.client import ServiceClient, find_service
+    from drivebus.service.client import find_service
 
     url = None if local else server or find_service(config)
     if url is None:
@@ -89,7 +90,32 @@ def service_owner(
     if server is None:
         print(f"note: {config} is served by a running drivebus serve at {url}: talking to "
               f"it (--local opens the machine here)", file=sys.stderr, flush=True)
-    return ServiceClient(url, token=token)
+    return command_line_client(url, token)
+
+
+def command_line_client(url: str, token: str | None) -> ServiceClient:
+    """A client of the ``drivebus serve`` at ``url`` for the command line: a refusal for
+    want of a token (401) or of its scope (403) names the option and the variable that
+    give one, not an HTTP header."""
+    from drivebus.service.client import ServiceClient
+
+    class CommandLineClient(ServiceClient):
+        def refused(self, status: int, name: str, detail: str) -> DrivebusError:
+            where = f"the drivebus service at {self.url}"
+            if status == 403:
+                return DrivebusError(
+                    f"{where} refused the request: {detail}; give a token of scope 'command' "
+                    f"with --token TOKEN or DRIVEBUS_TOKEN=TOKEN")
+            if status == 401:
+                why = ("does not know the token given" if self.token else
+                       "needs a token and none was given")
+                return DrivebusError(
+                    f"{where} {why}; give one of its token file with --token TOKEN or in the "
+                    f"environment, DRIVEBUS_TOKEN=TOKEN (a line 'NAME read|command TOKEN' of "
+                    f"the file its --token-file names)")
+            return super().refused(status, name, detail)
+
+    return CommandLineClient(url, token=token)
 
 
 async def call(fn: Callable[..., Any], *args: Any) -> Any:

@@ -322,9 +322,9 @@ def read(
     if polls is not None and polls < 1:
         raise ArgumentError(f"--count: must be at least 1 poll, not {polls}")
     if server is not None:
-        from drivebus.service.client import ServiceClient
+        from drivebus.cli.remote import command_line_client
 
-        client = ServiceClient(server, token=token)
+        client = command_line_client(server, token)
         raise typer.Exit(run_guarded(
             lambda: remote_read(Out(as_json=as_json), client, target, address, register,
                                 count, input_registers, fmt, interval, polls),
@@ -368,10 +368,10 @@ def write(
     from drivebus.cli.terminal import Out, run_guarded
 
     if server is not None:
-        from drivebus.service.client import ServiceClient
+        from drivebus.cli.remote import command_line_client
 
         words = encode(values, fmt)
-        client = ServiceClient(server, token=token)
+        client = command_line_client(server, token)
         raise typer.Exit(run_guarded(lambda: remote_write(
             Out(as_json=as_json), client, target, address, register, words)))
 

@@ -142,31 +142,10 @@ def _errno(exc: BaseException) -> int | None:
     return None
 
 
-def _refused(exc: BaseException) -> str | None:
-    """What to do about a running service's refusal, on the command line (None: it is
-    not one the command line can help with)."""
-    from drivebus.service.client import ServiceRefused
-
-    if not isinstance(exc, ServiceRefused) or exc.status not in (401, 403):
-        return None
-    where = f"the drivebus service at {exc.url}"
-    if exc.status == 403:
-        return (f"error: {where} refused the request: {exc.detail}; give a token of scope "
-                f"'command' with --token TOKEN or DRIVEBUS_TOKEN=TOKEN")
-    given = "unknown" in exc.detail
-    return (f"error: {where} " + ("does not know the token given" if given else
-                                  "needs a token and none was given")
-            + "; give one of its token file with --token TOKEN or in the environment, "
-            "DRIVEBUS_TOKEN=TOKEN (a line 'NAME read|command TOKEN' of the file its "
-            "--token-file names)")
-
-
 def explain(exc: BaseException) -> tuple[str, int]:
     """The one line to print for ``exc`` (cause; what to do) and the exit status."""
     if isinstance(exc, ConfigError | ArgumentError):
         return f"error: {exc}", 2
-    if (refused := _refused(exc)) is not None:
-        return refused, 1
     code = _errno(exc)
     if isinstance(exc, LineClosed | OSError) and code in _PORT_HINTS:
         port = getattr(exc, "filename", None)

@@ -18,22 +18,10 @@ from typing import Any
 from drivebus import errors, runtime
 from drivebus.errors import DrivebusError, LeaseHeld, ServiceUnreachable
 
-__all__ = ["ServiceClient", "ServiceRefused", "find_service"]
+__all__ = ["ServiceClient", "find_service"]
 
 _POLL = 0.05
 """Seconds between two looks at a running motion."""
-
-
-class ServiceRefused(DrivebusError):
-    """The service refused a request with a status no drivebus error names: 401 (no token,
-    or one it does not know), 403 (beyond the token's scope), ... A front end says what
-    to do from ``status``; ``detail`` is the service's own word, ``url`` where it runs."""
-
-    def __init__(self, message: str, *, status: int, detail: str = "", url: str = "") -> None:
-        super().__init__(message)
-        self.status = status
-        self.detail = detail
-        self.url = url
 
 
 def find_service(config: str | os.PathLike[str]) -> str | None:
@@ -98,8 +86,14 @@ class ServiceClient:
                 return kind(detail + where)
             except TypeError:  # an error type whose constructor wants more than a message
                 pass
-        return ServiceRefused(f"HTTP {exc.code} {name or exc.reason}: {detail}{where}",
-                              status=exc.code, detail=detail, url=self.url)
+        return self.refused(exc.code, name or str(exc.reason), detail)
+
+    def refused(self, status: int, name: str, detail: str) -> DrivebusError:
+        """The error of a problem reply no drivebus error names (401 without a token or
+        with an unknown one, 403 beyond the token's scope, ...); a front end's client says
+        there what its user does about it."""
+        return DrivebusError(f"HTTP {status} {name}: {detail} (from the drivebus service at "
+                             f"{self.url})")
 
     # -- reading ------------------------------------------------------------------------------
 
