@@ -6,16 +6,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import (
-    BeforeValidator,
-    Field,
-    model_validator,
-)
+from pydantic import BeforeValidator, Field, model_validator
 
-from drivebus.drives.description.fields import (
-    Source,
-    _Model,
-)
+from drivebus.drives.description.fields import Source, _Model
 
 
 def _frames(v: Any) -> Any:

@@ -9,12 +9,7 @@ import re
 from collections.abc import Mapping
 from typing import Annotated, Any
 
-from pydantic import (
-    BaseModel,
-    BeforeValidator,
-    ConfigDict,
-    Field,
-)
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
 from drivebus.drives.expr import Expr, ExprError, Template
 from drivebus.drives.units import check_unit, parse_scale

@@ -6,17 +6,9 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    model_validator,
-)
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from drivebus.drives.description.fields import (
-    Source,
-    _Model,
-)
+from drivebus.drives.description.fields import Source, _Model
 
 
 class HomingMethod(BaseModel):

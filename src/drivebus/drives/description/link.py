@@ -8,20 +8,9 @@ from __future__ import annotations
 import re
 from typing import Annotated, Any, Literal
 
-from pydantic import (
-    Field,
-    ValidationInfo,
-    field_validator,
-    model_validator,
-)
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
-from drivebus.drives.description.fields import (
-    E,
-    IntKeyed,
-    Source,
-    T,
-    _Model,
-)
+from drivebus.drives.description.fields import E, IntKeyed, Source, T, _Model
 from drivebus.drives.expr import FUNCTIONS, Template
 from drivebus.drives.registers import WordOrder
 from drivebus.settings import LineSettings

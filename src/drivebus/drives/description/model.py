@@ -8,9 +8,7 @@ from __future__ import annotations
 from functools import cached_property
 from typing import Annotated, Literal
 
-from pydantic import (
-    Field,
-)
+from pydantic import Field
 
 from drivebus.drives.description.examples import ExampleDef
 from drivebus.drives.description.fields import _KEY, SOURCE_KINDS, _Model, source_kind

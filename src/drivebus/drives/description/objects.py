@@ -6,16 +6,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import (
-    Field,
-)
+from pydantic import Field
 
-from drivebus.drives.description.fields import (
-    E,
-    Scale,
-    Unit,
-    _Model,
-)
+from drivebus.drives.description.fields import E, Scale, Unit, _Model
 
 
 class ObjectUnit(_Model):

@@ -6,16 +6,9 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import (
-    Field,
-    model_validator,
-)
+from pydantic import Field, model_validator
 
-from drivebus.drives.description.fields import (
-    E,
-    T,
-    _Model,
-)
+from drivebus.drives.description.fields import E, T, _Model
 from drivebus.drives.programs import ProgramSupport
 
 

@@ -8,20 +8,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
-from pydantic import (
-    BeforeValidator,
-    ConfigDict,
-    Field,
-    model_validator,
-)
+from pydantic import BeforeValidator, ConfigDict, Field, model_validator
 
-from drivebus.drives.description.fields import (
-    _KEY,
-    E,
-    Source,
-    T,
-    _Model,
-)
+from drivebus.drives.description.fields import _KEY, E, Source, T, _Model
 from drivebus.drives.expr import Expr, Template
 
 

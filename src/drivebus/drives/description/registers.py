@@ -11,21 +11,9 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Annotated, Any, Literal
 
-from pydantic import (
-    BeforeValidator,
-    Field,
-    field_validator,
-    model_validator,
-)
+from pydantic import BeforeValidator, Field, field_validator, model_validator
 
-from drivebus.drives.description.fields import (
-    E,
-    Scale,
-    Source,
-    Unit,
-    Word,
-    _Model,
-)
+from drivebus.drives.description.fields import E, Scale, Source, Unit, Word, _Model
 from drivebus.drives.registers import Access, Register, WordOrder
 from drivebus.drives.units import UnitCodec
 from drivebus.errors import LimitViolation

@@ -7,16 +7,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import (
-    Field,
-)
+from pydantic import Field
 
-from drivebus.drives.description.fields import (
-    E,
-    IntKeyed,
-    T,
-    _Model,
-)
+from drivebus.drives.description.fields import E, IntKeyed, T, _Model
 from drivebus.drives.expr import Template
 
 

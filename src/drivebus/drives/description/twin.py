@@ -7,14 +7,9 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import (
-    Field,
-)
+from pydantic import Field
 
-from drivebus.drives.description.fields import (
-    E,
-    _Model,
-)
+from drivebus.drives.description.fields import E, _Model
 from drivebus.drives.expr import Expr
 
 TWIN_ACTIONS = {

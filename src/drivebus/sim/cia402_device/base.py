@@ -7,13 +7,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Literal
 
-from drivebus.drives.cia402 import (
-    OBJECTS,
-    DigitalInput,
-    Mode,
-    State,
-    Statusword,
-)
+from drivebus.drives.cia402 import OBJECTS, DigitalInput, Mode, State, Statusword
 from drivebus.sim.cia402_device.state import (
     _HALT_OPTIONS,
     _QUICK_STOP_OPTIONS,

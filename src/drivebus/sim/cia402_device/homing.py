@@ -8,22 +8,9 @@ import functools
 import math
 from typing import Literal
 
-from drivebus.drives.cia402 import (
-    HOMING_METHODS,
-    HomeSignal,
-    HomeSwitch,
-    HomingMethod,
-    Statusword,
-)
+from drivebus.drives.cia402 import HOMING_METHODS, HomeSignal, HomeSwitch, HomingMethod, Statusword
 from drivebus.sim.cia402_device.base import DeviceBase
-from drivebus.sim.cia402_device.state import (
-    _BAND,
-    _Action,
-    _Edge,
-    _Events,
-    _Homing,
-    _Watch,
-)
+from drivebus.sim.cia402_device.state import _BAND, _Action, _Edge, _Events, _Homing, _Watch
 
 
 class Homing(DeviceBase):

@@ -5,20 +5,9 @@ up to now, in order.
 
 from __future__ import annotations
 
-from drivebus.drives.cia402 import (
-    Command,
-    Controlword,
-    Mode,
-    State,
-    decode_command,
-    transition,
-)
+from drivebus.drives.cia402 import Command, Controlword, Mode, State, decode_command, transition
 from drivebus.sim.cia402_device.base import DeviceBase
-from drivebus.sim.cia402_device.state import (
-    _Action,
-    _Events,
-    _Profile,
-)
+from drivebus.sim.cia402_device.state import _Action, _Events, _Profile
 
 
 class StateMachine(DeviceBase):

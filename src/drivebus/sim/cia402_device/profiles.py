@@ -6,16 +6,9 @@ from __future__ import annotations
 
 import math
 
-from drivebus.drives.cia402 import (
-    Controlword,
-    Statusword,
-)
+from drivebus.drives.cia402 import Controlword, Statusword
 from drivebus.sim.cia402_device.base import DeviceBase
-from drivebus.sim.cia402_device.state import (
-    _AT_ONCE,
-    _Edge,
-    _PointSet,
-)
+from drivebus.sim.cia402_device.state import _AT_ONCE, _Edge, _PointSet
 
 
 class Profiles(DeviceBase):

@@ -9,11 +9,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Literal
 
-from drivebus.drives.cia402 import (
-    HOMING_METHODS,
-    HomingMethod,
-    Mode,
-)
+from drivebus.drives.cia402 import HOMING_METHODS, HomingMethod, Mode
 
 FACTORY_VALUES: Mapping[str, int] = {
     "controlword": 0,

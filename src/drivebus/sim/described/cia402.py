@@ -7,10 +7,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 from drivebus.clock import monotonic
-from drivebus.drives.cia402 import (
-    OBJECTS,
-    State,
-)
+from drivebus.drives.cia402 import OBJECTS, State
 from drivebus.drives.description import Description, Reg, object_name
 from drivebus.drives.units import Kind
 from drivebus.settings import LineSettings

@@ -8,20 +8,12 @@ import math
 from typing import Any
 
 from drivebus.clock import monotonic
-from drivebus.drives.cia402 import (
-    HomeSignal,
-    HomeSwitch,
-    HomingMethod,
-    homing_method,
-)
+from drivebus.drives.cia402 import HomeSignal, HomeSwitch, HomingMethod, homing_method
 from drivebus.drives.description import HomingMethod as MethodDef
 from drivebus.drives.description import Trigger
 from drivebus.drives.expr import ExprError
 from drivebus.errors import ArgumentError
-from drivebus.sim.described.base import (
-    TwinBase,
-    _finite_pos,
-)
+from drivebus.sim.described.base import TwinBase, _finite_pos
 from drivebus.sim.described.state import _Homing, _Phase
 
 

@@ -6,9 +6,7 @@ inputs' and outputs' registers show.
 from __future__ import annotations
 
 from drivebus.errors import ConfigError
-from drivebus.sim.described.base import (
-    TwinBase,
-)
+from drivebus.sim.described.base import TwinBase
 from drivebus.sim.drive import time_or_present
 
 

@@ -9,12 +9,7 @@ import math
 from typing import Any
 
 from drivebus.drives.description import Trigger
-from drivebus.sim.described.base import (
-    TwinBase,
-    _finite_pos,
-    _rate,
-    _usable,
-)
+from drivebus.sim.described.base import TwinBase, _finite_pos, _rate, _usable
 from drivebus.sim.described.state import _Handler
 
 

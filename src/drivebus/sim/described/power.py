@@ -6,10 +6,7 @@ from __future__ import annotations
 
 from drivebus.clock import monotonic
 from drivebus.settings import LineSettings
-from drivebus.sim.described.base import (
-    TwinBase,
-    _formats_at,
-)
+from drivebus.sim.described.base import TwinBase, _formats_at
 from drivebus.sim.drive import time_or_present
 
 

@@ -11,10 +11,7 @@ from typing import Any
 
 from drivebus.drives.description import HomingMethod as MethodDef
 from drivebus.drives.expr import ExprError
-from drivebus.sim.described.base import (
-    TwinBase,
-    _finite_pos,
-)
+from drivebus.sim.described.base import TwinBase, _finite_pos
 from drivebus.sim.described.state import _Handler, _RefHoming
 
 

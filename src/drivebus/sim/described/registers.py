@@ -11,9 +11,7 @@ from drivebus.drives.description import TWIN_MEANINGS, Reg
 from drivebus.drives.units import Kind
 from drivebus.drives.values import reg_value
 from drivebus.pdu import READ_COILS, READ_DISCRETE, READ_INPUT, WRITE_COIL
-from drivebus.sim.described.base import (
-    TwinBase,
-)
+from drivebus.sim.described.base import TwinBase
 from drivebus.sim.registers import SlaveException, signed32
 
 _COMPUTED = {"position", "velocity", "command_velocity", "alarm_code", "motion", "inputs",

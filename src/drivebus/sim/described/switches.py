@@ -8,9 +8,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-from drivebus.sim.described.base import (
-    TwinBase,
-)
+from drivebus.sim.described.base import TwinBase
 from drivebus.sim.drive import Span
 
 

@@ -7,10 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 from drivebus.drives.description import Trigger
-from drivebus.sim.described.base import (
-    TwinBase,
-    _usable,
-)
+from drivebus.sim.described.base import TwinBase, _usable
 from drivebus.sim.described.state import _TableRun
 
 

@@ -12,10 +12,7 @@ from typing import Any
 from drivebus.drives.description import Reg, Trigger
 from drivebus.drives.expr import Expr, ExprError, Unknown
 from drivebus.drives.values import Attrs, RegValue, Table
-from drivebus.sim.described.base import (
-    TwinBase,
-    _rate,
-)
+from drivebus.sim.described.base import TwinBase, _rate
 from drivebus.sim.registers import SlaveException
 
 _STARTS = {"move_absolute", "move_relative", "run", "home", "run_table"}
