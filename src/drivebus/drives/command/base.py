@@ -13,8 +13,8 @@ from drivebus.drives.base import DriveProfile
 from drivebus.drives.command.reads import ReadPlan
 from drivebus.drives.command.runs import _Last, _Run
 from drivebus.drives.description import Description, Procedure
+from drivebus.drives.description.mapping import register_namer
 from drivebus.drives.expr import Expr, ExprError, Unknown
-from drivebus.drives.mapping import register_namer
 from drivebus.drives.registers import Register
 from drivebus.drives.values import Attrs, FunctionNames, IoSignals, Unread
 

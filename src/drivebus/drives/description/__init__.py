@@ -17,9 +17,10 @@ sections use), ``link`` (``[drive]``, ``[identify]``, ``[link]``), ``registers``
 ``options`` (``[options]``, ``[units]``, ``[eeprom]``, ``[programs]``), ``status``
 (``[status]``, ``[inputs]``/``[outputs]``, ``[alarms]``, ``[signals]``), ``homing``,
 ``procedures``, ``twin``, ``objects`` (``[cia402]``), ``examples``; ``model`` (the whole
-``Description`` and its views); ``checks`` (the cross-checks, which need the whole
-description, one room per section); ``loading`` (files, ``extends``, parsing). This
-package's names are the format's public names.
+``Description`` and its views); ``mapping`` (where its registers sit on the wire: the
+names of an address range, the blocks a write may merge); ``checks`` (the cross-checks,
+which need the whole description, one room per section); ``loading`` (files, ``extends``,
+parsing). This package's names are the format's public names.
 """
 
 from drivebus.drives.description.examples import ExampleDef

@@ -81,7 +81,7 @@ class ProcedureChecks(CheckCore):
         """A step's ``block``: its registers must follow on from each other in the order
         listed (one FC16 writes them; anything else would merge what the manual keeps
         apart, or silently become several writes)."""
-        from drivebus.drives.mapping import adjacent
+        from drivebus.drives.description.mapping import adjacent
 
         pairs: list[tuple[Reg, int | None]] = []
         for key in keys:

@@ -120,7 +120,7 @@ class RegisterChecks(CheckCore):
             self.out.append("cia402: only for drive.engine = \"cia402\"")
 
     def _cia402_blocks(self, c: Cia402Def) -> None:
-        from drivebus.drives.mapping import adjacent
+        from drivebus.drives.description.mapping import adjacent
 
         seen: dict[str, int] = {}
         for i, block in enumerate(c.blocks):
