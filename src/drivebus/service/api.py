@@ -8,26 +8,31 @@ checks arguments, states and the lease and raises typed errors, which
 
 # No ``from __future__ import annotations`` here: FastAPI reads the annotations at runtime.
 
-import itertools
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import anyio
 import anyio.to_thread
-from fastapi import APIRouter, Depends, FastAPI, Header, Request, Response
+from fastapi import APIRouter, FastAPI, Request, Response
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse
-from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.staticfiles import StaticFiles
 
 from drivebus.app import MachineSession
 from drivebus.service import metrics, problems
-from drivebus.service.auth import Principal, TokenStore, require_command
-from drivebus.service.encoding import EventEncoder
-from drivebus.service.fanout import Fanout
+from drivebus.service.auth import TokenStore
+from drivebus.service.deps import (
+    ERRORS,
+    Commander,
+    Reader,
+    ServiceState,
+    Session,
+    accepted,
+    reader,
+    service_state,
+)
 from drivebus.service.models import (
     GroupMoveRequest,
     JogRequest,
@@ -45,67 +50,7 @@ __all__ = ["STATIC", "ServiceState", "create_app"]
 STATIC = Path(__file__).resolve().parent / "static"
 """The dashboard's files (shipped as package data)."""
 
-_bearer = HTTPBearer(auto_error=False, description="a token from the service's token file")
-
-
-@dataclass
-class ServiceState:
-    """What the routes share: the session, the tokens, one JSON encoder for events."""
-
-    session: MachineSession
-    tokens: TokenStore
-    encoder: EventEncoder = field(default_factory=EventEncoder)
-    connections: itertools.count = field(default_factory=lambda: itertools.count(1))
-    fanout: Fanout = field(init=False)
-    """The session's events to the WebSocket connections (run by the app's lifespan)."""
-
-    def __post_init__(self) -> None:
-        self.fanout = Fanout(self.session.events)
-
-
-def _state(request: Request) -> ServiceState:
-    state: ServiceState = request.app.state.drivebus
-    return state
-
-
-def _session(request: Request) -> MachineSession:
-    return _state(request).session
-
-
-def _reader(
-    request: Request,
-    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-    x_drivebus_client: Annotated[str | None, Header(
-        description="the client's name when the service runs without tokens")] = None,
-) -> Principal:
-    token = None if credentials is None else credentials.credentials
-    return _state(request).tokens.authenticate(token, x_drivebus_client)
-
-
-def _commander(principal: Annotated[Principal, Depends(_reader)]) -> Principal:
-    return require_command(principal)
-
-
-Session = Annotated[MachineSession, Depends(_session)]
-Reader = Annotated[Principal, Depends(_reader)]
-Commander = Annotated[Principal, Depends(_commander)]
-
-def _error_responses() -> dict[int | str, dict[str, Any]]:
-    """The problem+json answers every route may give, by status, naming the typed errors
-    behind each (from ``problems.STATUS``: one place)."""
-    names: dict[int, list[str]] = {401: ["Unauthorized (no or unknown bearer token)"],
-                                   403: ["Forbidden (the token's scope does not allow it)"],
-                                   422: ["an invalid request body"]}
-    for cls, status in problems.STATUS.items():
-        if status != 500:
-            names.setdefault(status, []).append(cls.__name__)
-    return {status: {"description": ", ".join(sorted(names[status], key=str.lower)),
-                     "content": {problems.PROBLEM: {}}} for status in sorted(names)}
-
-
-_ERRORS = _error_responses()
-
-router = APIRouter(prefix="/api", responses=_ERRORS)
+router = APIRouter(prefix="/api", responses=ERRORS)
 
 
 def _lease(session: MachineSession) -> dict[str, Any]:
@@ -113,10 +58,6 @@ def _lease(session: MachineSession) -> dict[str, Any]:
     if lease is None:
         return {"holder": None, "remaining": None}
     return {"holder": lease.holder, "remaining": round(lease.remaining, 3)}
-
-
-def _accepted(response: Response, record_id: str) -> None:
-    response.headers["Location"] = f"/api/motions/{record_id}"
 
 
 # -- looking ----------------------------------------------------------------------------------
@@ -134,7 +75,7 @@ async def get_machine(session: Session, _: Reader) -> dict[str, Any]:
 @router.get("/client", tags=["machine"])
 async def get_client(request: Request, who: Reader) -> dict[str, Any]:
     """Who the caller is to this service: its name and scope, and whether tokens are on."""
-    state = _state(request)
+    state = service_state(request)
     return {"client": who.name, "scope": who.scope, "tokens": state.tokens.enabled,
             "machine": state.session.name}
 
@@ -172,7 +113,7 @@ async def move(
     rec = await session.start_move(name, target=body.target, by=body.by, speed=body.speed,
                                    accel=body.accel, decel=body.decel, buffer=body.buffer,
                                    client=who.name)
-    _accepted(response, rec.id)
+    accepted(response, rec.id)
     return rec.as_dict()
 
 
@@ -181,7 +122,7 @@ async def home(name: str, session: Session, who: Commander, response: Response
                ) -> dict[str, Any]:
     """Start the axis's homing procedure; ``202`` once accepted."""
     rec = await session.start_home(name, client=who.name)
-    _accepted(response, rec.id)
+    accepted(response, rec.id)
     return rec.as_dict()
 
 
@@ -190,7 +131,7 @@ async def group_move(body: GroupMoveRequest, session: Session, who: Commander,
                      response: Response) -> dict[str, Any]:
     """Start a coordinated move: the axes arrive at their targets together."""
     rec = await session.start_group_move(body.targets, client=who.name)
-    _accepted(response, rec.id)
+    accepted(response, rec.id)
     return rec.as_dict()
 
 
@@ -464,7 +405,7 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     problems.install(app)
     app.include_router(router)
     root = APIRouter()
-    metrics.install(root, _reader)  # GET /metrics, for Prometheus
+    metrics.install(root, reader)  # GET /metrics, for Prometheus
     app.include_router(root)
     from drivebus.service.programs_api import router as programs
 

@@ -266,9 +266,11 @@ async def serve(
     extra: Sequence[SiblingTask] = (),
     say: Callable[[str], object] = print,
     on_stop: Callable[[Service], object] | None = None,
+    also: str = "",
 ) -> None:
     """Serve until cancelled (see ``open_service``); ``say`` gets one line when it is
-    ready and one after it stopped every moving axis, ``on_stop`` the ended service.
+    ready (with ``also``: what else runs, e.g. the MQTT bridge and where) and one after
+    it stopped every moving axis, ``on_stop`` the ended service.
 
     Served from a machine file, its URL is published under that file (``drivebus.runtime``)
     so that one-shot commands on the same file talk to this process, the line's one owner.
@@ -286,7 +288,7 @@ async def serve(
                 for p in problems:
                     say(f"drivebus serve: warning: {p}")
                 say(f"drivebus serve: machine {service.session.name} {where}; "
-                    f"Ctrl-C or SIGTERM stops it")
+                    + (f"{also}; " if also else "") + "Ctrl-C or SIGTERM stops it")
                 systemd.notify(f"READY=1\nSTATUS=serving {service.session.name} {where}")
                 try:
                     period = systemd.watchdog_period()
@@ -329,10 +331,11 @@ def run(
     token_file: str | Path | None = None,
     http: bool = True,
     extra: Sequence[SiblingTask] = (),
+    also: str = "",
 ) -> int:
     """``drivebus serve``: serve until SIGINT or SIGTERM, then stop every moving axis and
-    return the exit status (0; 1 if an axis could not be brought to rest). Bad
-    arguments raise ``ConfigError`` before anything is opened."""
+    return the exit status (0; 1 if an axis could not be brought to rest); ``also`` goes
+    in the start line. Bad arguments raise ``ConfigError`` before anything is opened."""
     tokens = TokenStore.load(token_file) if token_file is not None else TokenStore()
     if http:
         check_host(host, tokens)
@@ -356,7 +359,7 @@ def run(
 
                 tg.start_soon(watch)
                 await serve(config, host=host, port=port, tokens=tokens, http=http,
-                            extra=extra, say=say, on_stop=ended.append)
+                            extra=extra, say=say, on_stop=ended.append, also=also)
 
     anyio.run(main)
     return 0 if ended and ended[0].at_rest else 1
