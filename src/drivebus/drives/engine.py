@@ -24,7 +24,6 @@ from pydantic import (
 
 from drivebus.bus import SlaveHandle
 from drivebus.drives.base import DriveOptions, Parameter, WriteThrough
-from drivebus.drives.cia402_engine import Cia402Profile, cia402_attrs
 from drivebus.drives.command.profile import DescribedProfile
 from drivebus.drives.command.reads import ReadPlan, _plan, _status_plan, plan_reads
 from drivebus.drives.description import Description
@@ -150,6 +149,8 @@ def profile_class(d: Description) -> type[DescribedProfile]:
     attrs.update(_program_attrs(d))
     base: type[DescribedProfile] = DescribedProfile
     if d.drive.engine == "cia402":
+        from drivebus.drives.cia402_engine import Cia402Profile, cia402_attrs  # on use
+
         base = Cia402Profile
         attrs.update(cia402_attrs(d))
     name = re.sub(r"\W", "_", d.family) + "Profile"
