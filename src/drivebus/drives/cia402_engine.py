@@ -37,8 +37,9 @@ from drivebus.drives.cia402 import (
     homing_status,
     next_step,
 )
+from drivebus.drives.command.profile import DescribedProfile
+from drivebus.drives.command.reads import plan_reads
 from drivebus.drives.description import Reg
-from drivebus.drives.engine import DescribedProfile, plan_reads
 from drivebus.drives.status import DriveStatus
 from drivebus.drives.values import Attrs, Unread
 from drivebus.errors import LimitViolation, StateError, TransactionError

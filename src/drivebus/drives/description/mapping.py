@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
 
-if TYPE_CHECKING:
-    from drivebus.drives.description import Description, Reg
+from drivebus.drives.description.model import Description
+from drivebus.drives.description.registers import Reg
 
 __all__ = ["FUNCTION_SPACE", "adjacent", "names_at", "register_namer"]
 
