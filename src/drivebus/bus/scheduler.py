@@ -41,7 +41,7 @@ trace = logging.getLogger("drivebus.trace")
 
 __all__ = ["Bus", "Priority"]
 
-@dataclass(eq=False)
+@dataclass(eq=False, slots=True)
 class _Request:
     priority: int
     seq: int
@@ -137,6 +137,10 @@ class Bus:
         keep no silences of their own."""
         self._trail = 0.0
         """The frame timeout of the slave of the last transaction (s)."""
+        self._replying: _Request | None = None
+        """The request whose exchange the line's ``on_reply`` (``_replied``) will bring."""
+        self._replying_noise: _NoiseWatch | None = None
+        self._on_reply = self._replied  # one bound method, not one per transaction
 
     # -- life cycle ------------------------------------------------------------------------
 
@@ -377,6 +381,7 @@ class Bus:
         """One transaction at a time, highest priority first, each after its silence."""
         loop = asyncio.get_running_loop()
         line = self.line
+        waits = line.waits_for_silence
         noise = _NoiseWatch(line)
         while True:
             if not self._queue:
@@ -399,28 +404,31 @@ class Bus:
                 self._work = loop.create_future()
                 await self._work  # held: only an emergency request or the end of it
                 continue
-            ready = line.ready_at(req.handle.settings)
-            guarded = False
             extra = req.handle.guard + self._trail
-            if extra:
-                # This slave's guard interval and the frame timeout of the slave that
-                # answered last: the owner itself keeps the line quiet that much longer
-                # than its silence (since the last traffic) before the frame.
-                ready = max(ready, line.last_activity(), self._last_end) + extra
-                guarded = ready > now
-            # A line that waits for its silence itself gets the request at once and
-            # sends it right at the end of the silence; it gives it back if a more
-            # urgent one comes, a hold begins or bytes arrive meanwhile. On a line
-            # known to be noisy the owner waits itself, watching every deadline.
-            deferred = ready > now and line.waits_for_silence and noise.since is None \
-                and not guarded
-            if ready > now and not deferred:
-                self._waiting_for = req
-                try:
-                    await self._timer.sleep_until(min(ready, next_expiry))
-                finally:
-                    self._waiting_for = None
-                continue  # the queue's head may have changed meanwhile
+            if waits and not extra and noise.since is None:
+                # The line waits for the silence itself and sends right at its end (at
+                # once if it has passed); it gives the request back if a more urgent one
+                # comes, a hold begins or bytes arrive meanwhile.
+                deferred = True
+            else:
+                ready = line.ready_at(req.handle.settings)
+                guarded = False
+                if extra:
+                    # This slave's guard interval and the frame timeout of the slave that
+                    # answered last: the owner itself keeps the line quiet that much longer
+                    # than its silence (since the last traffic) before the frame.
+                    ready = max(ready, line.last_activity(), self._last_end) + extra
+                    guarded = ready > now
+                # On a line known to be noisy (or with a guard to keep) the owner waits
+                # itself, watching every deadline.
+                deferred = ready > now and waits and noise.since is None and not guarded
+                if ready > now and not deferred:
+                    self._waiting_for = req
+                    try:
+                        await self._timer.sleep_until(min(ready, next_expiry))
+                    finally:
+                        self._waiting_for = None
+                    continue  # the queue's head may have changed meanwhile
             heapq.heappop(self._queue)
             self._flying.add(req)
             self._waiting_for = req if deferred else None
@@ -429,11 +437,8 @@ class Bus:
             finally:
                 self._waiting_for = None
             self._landed(req)
-            if not self._queue:
-                # The caller just woken often asks again at once: let it run first (it
-                # is scheduled before us), so that its request is found here without
-                # a wake-up of its own.
-                await asyncio.sleep(0)
+            # No yield here: a reply that came in whole woke its caller from the line's
+            # callback before us, so a request it makes at once is in the queue already.
 
     def _expire_noisy(self, since: float, now: float) -> float:
         """Fail the queued requests whose time to see the noisy line quiet has run out;
@@ -479,18 +484,32 @@ class Bus:
     async def _transact(self, req: _Request, noise: _NoiseWatch, *, withdrawable: bool
                         ) -> None:
         h = req.handle
-        st = self.stats.slave(h.address)
+        line = self.line
         try:
-            # Only lines that declare waits_for_silence take the withdrawable keyword.
-            extra = {"withdrawable": True} if withdrawable else {}
-            ex = await self.line.transact(
+            if line.waits_for_silence:
+                # Such a line takes ``withdrawable`` and tells ``_replied`` of the exchange
+                # as soon as it is complete (from its receiver's callback): the caller is
+                # woken from there, before this task.
+                self._replying = req
+                self._replying_noise = noise
+                await line.transact(  # type: ignore[call-arg]
+                    h.address,
+                    req.pdu,
+                    expect=req.expect,
+                    settings=h.settings,
+                    timeout=h.timeout,
+                    quiet_by=noise.deadline(req),
+                    withdrawable=withdrawable,
+                    on_reply=self._on_reply,
+                )
+                return
+            ex = await line.transact(
                 h.address,
                 req.pdu,
                 expect=req.expect,
                 settings=h.settings,
                 timeout=h.timeout,
                 quiet_by=noise.deadline(req),
-                **extra,
             )
         except SendWithdrawn:
             # Taken back before its frame went out: it keeps its place (same seq) and the
@@ -504,6 +523,7 @@ class Bus:
         except LineNoise as exc:
             if trace.isEnabledFor(logging.DEBUG):
                 self._trace_failure(req, exc)
+            st = self.stats.slave(h.address)
             noise.noted(monotonic())
             if exc.sent:
                 self.stats.transactions += 1
@@ -523,6 +543,7 @@ class Bus:
         except TransactionError as exc:
             if trace.isEnabledFor(logging.DEBUG):
                 self._trace_failure(req, exc)
+            st = self.stats.slave(h.address)
             noise.reset()
             req.sent = req.sent or not isinstance(exc, LineConfigError)
             self.stats.transactions += 1
@@ -547,20 +568,34 @@ class Bus:
             if not req.future.done():
                 req.future.set_exception(err)
             raise err from exc
+        self._succeeded(req, noise, ex)
+
+    def _replied(self, ex: Exchange) -> None:
+        """The line's ``on_reply``: the transaction under way has its exchange."""
+        req, noise = self._replying, self._replying_noise
+        assert req is not None and noise is not None
+        self._replying = self._replying_noise = None
+        self._succeeded(req, noise, ex)
+
+    def _succeeded(self, req: _Request, noise: _NoiseWatch, ex: Exchange) -> None:
+        """Count ``req``'s exchange, tell the observers, give its caller the reply."""
         if trace.isEnabledFor(logging.DEBUG):
             self._trace_exchange(req, ex)
         noise.reset()
-        self.stats.transactions += 1
-        self.stats.wire_time += ex.wire_time
+        stats = self.stats
+        stats.transactions += 1
+        stats.wire_time += ex.wire_time
         outcome: Outcome = "ok"
         if req.expect is None:
-            st.broadcasts += 1
+            stats.slave(req.handle.address).broadcasts += 1
             outcome = "broadcast"
         else:
+            st = stats.slave(req.handle.address)
             st.transactions += 1
-            self.stats.replies += 1
-            self.stats.reply_time += ex.rx_end - ex.tx_end
-            st.latency.add(ex.rx_end - ex.tx_end)
+            stats.replies += 1
+            latency = ex.rx_end - ex.tx_end
+            stats.reply_time += latency
+            st.latency.add(latency)
             if ex.reply and ex.reply[0] & 0x80:
                 st.exceptions += 1
                 outcome = "exception"

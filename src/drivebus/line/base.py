@@ -64,9 +64,10 @@ class Line(abc.ABC):
 
     waits_for_silence: bool = False
     """``transact`` waits for the line's silence itself, sends the frame right at its end,
-    and accepts ``withdrawable=True``: until the frame is out the request can be taken
-    back (``withdraw()``), and bytes arriving during the silence end it (``SendWithdrawn``
-    both). A bus hands such a line its next request at once instead of sleeping first."""
+    tells ``on_reply`` of a complete exchange and accepts ``withdrawable=True``: until the
+    frame is out the request can be taken back (``withdraw()``), and bytes arriving during
+    the silence end it (``SendWithdrawn`` both). A bus hands such a line its next request
+    at once instead of sleeping first."""
 
     def withdraw(self) -> bool:
         """Take back the ``withdrawable`` transaction waiting for its silence, if its frame
@@ -115,7 +116,10 @@ class Line(abc.ABC):
         keeps silences bounds the wait before it too: if received bytes keep it busy
         until ``quiet_by`` (default: ``timeout`` from now), ``LineNoise`` with
         ``sent=False``. A reply drowned in noise is ``LineNoise`` with ``sent=True``.
-        Lines that declare ``waits_for_silence`` also take ``withdrawable`` (keyword).
+        Lines that declare ``waits_for_silence`` also take ``withdrawable`` and
+        ``on_reply`` (keywords): ``on_reply(exchange)`` is called once the exchange is
+        complete, before ``transact`` returns it (from the callback that received the
+        reply's last byte, where it can), so a scheduler can wake the caller from there.
         """
 
     async def __aenter__(self) -> Line:

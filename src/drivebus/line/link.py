@@ -8,10 +8,14 @@ The wait for silence is bounded: bytes that keep the line busy past the caller's
 ``quiet_by`` end it with ``LineNoise`` (nothing sent).
 
 The frame goes out from the silence timer's own callback, right at the end of the
-silence (no task switch between the deadline and the write), and the waiting task is
-woken once, by the reply's first bytes. Until the frame has gone out a transaction
-started ``withdrawable`` can be taken back (``withdraw()``, or bytes arriving during its
-silence): it then ends with ``SendWithdrawn`` and its owner plans again.
+silence (no task switch between the deadline and the write); the reply is assembled by
+the receiver as its bytes arrive, and once it is complete and sound the exchange is
+finished in that same callback: ``on_reply`` hears of it there (the bus wakes the caller
+from it), and the waiting task is woken once, with nothing left to do. A reply that is
+not (noise, a bad CRC, a late or short frame) is judged by the task with ``read_reply``.
+Until the frame has gone out a transaction started ``withdrawable`` can be taken back
+(``withdraw()``, or bytes arriving during a silence it had to wait for): it then ends
+with ``SendWithdrawn`` and its owner plans again.
 """
 
 from __future__ import annotations
@@ -30,23 +34,25 @@ from drivebus.timing import Timing
 
 __all__ = ["RtuLink"]
 
-_FIRST_BYTES = 3
-"""Reply bytes that end the wait for a reply: address, function code and a byte count
-(the shortest reply has 4 bytes)."""
+ReplyHook = Callable[[Exchange], None]
+"""Told of a transaction's exchange as soon as it is complete, before ``transact``
+returns it: from the receiver's callback when the reply came in whole."""
 
 
 class _Job:
-    """One frame waiting for its silence, then for the first bytes of its reply."""
+    """One frame waiting for its silence, then for its reply."""
 
     __slots__ = (
-        "adu", "future", "quiet_by", "reply_wait", "rx", "seen", "send", "sent", "silence",
-        "started", "timeout", "tm", "tx_end", "tx_start", "unit", "withdrawable",
+        "adu", "exchange", "expect", "future", "on_reply", "quiet_by", "reply_wait", "rx",
+        "seen", "send", "sent", "silence", "started", "timeout", "tm", "tx_end", "tx_start",
+        "unit", "waited", "withdrawable",
     )
 
     def __init__(
         self, rx: RtuReceiver, send: Callable[[bytes], None], unit: int, adu: bytes,
-        tm: Timing, silence: float, quiet_by: float, timeout: float, *, reply_wait: bool,
-        withdrawable: bool, seen: float, future: asyncio.Future[None],
+        tm: Timing, silence: float, quiet_by: float, timeout: float,
+        expect: LengthPredictor | None, *, reply_wait: bool, withdrawable: bool,
+        seen: float, future: asyncio.Future[None], on_reply: ReplyHook | None, now: float,
     ) -> None:
         self.rx = rx
         self.send = send
@@ -56,13 +62,19 @@ class _Job:
         self.silence = silence
         self.quiet_by = quiet_by
         self.timeout = timeout
+        self.expect = expect
         self.reply_wait = reply_wait
-        """After the frame, wait for the reply's first bytes (else: wake at once)."""
+        """After the frame, wait for the reply (else: wake at once)."""
         self.withdrawable = withdrawable
+        self.waited = False
+        """It had to wait for its silence (only then can it be withdrawn)."""
         self.seen = seen
         """The line's last activity when the job began."""
         self.future = future
-        self.started = monotonic()
+        self.on_reply = on_reply
+        self.exchange: Exchange | None = None
+        """The exchange, once the receiver's callback finished it."""
+        self.started = now
         self.sent = False
         self.tx_start = 0.0
         self.tx_end = 0.0
@@ -116,37 +128,58 @@ class RtuLink:
     def _try_send(self, job: _Job) -> None:
         rx = job.rx
         while True:
-            quiet = self.last_activity(rx)
-            if job.withdrawable and quiet > job.seen:
+            quiet = rx.last_rx if rx.last_rx > self.quiet_since else self.quiet_since
+            if job.waited and job.withdrawable and quiet > job.seen:
                 raise SendWithdrawn("bytes arrived during the silence")
             ready = quiet + job.silence
             now = monotonic()
             if ready > job.quiet_by and rx.last_rx > self.quiet_since:
                 if now >= job.quiet_by:
                     raise self._noise(rx, job.unit, job.silence, now - job.started)
+                job.waited = True
                 self.timer.call_at(job.quiet_by, lambda: self._step(job))  # perhaps it stops
                 return
             if ready > now:
+                job.waited = True
                 self.timer.call_at(ready, lambda: self._step(job))
                 return
             # Bytes received but not delivered yet (a slave answering late) count too.
             rx.take_pending()
             if rx.last_rx <= quiet:
                 break  # nothing arrived while we waited
-            if job.withdrawable:
+            if job.waited and job.withdrawable:
                 raise SendWithdrawn("bytes arrived during the silence")
         rx.discard()
         self._job = None
-        job.tx_start = monotonic()
+        job.tx_start = now = monotonic()
         job.sent = True
         job.send(job.adu)
-        job.tx_end = job.tx_start + job.tm.frame_time(len(job.adu))
+        job.tx_end = now + job.tm.frame_time(len(job.adu))
         self.quiet_since = job.tx_end
         self.traffic = job.tm.settings
         if job.reply_wait:
-            rx.expect_bytes(_FIRST_BYTES, job.tx_end + job.timeout, job.future)
+            assert job.expect is not None
+            rx.expect_reply(job.unit, job.expect, job.tx_end + job.timeout, job.future,
+                            lambda pdu: self._replied(job, pdu))
         else:
             job.future.set_result(None)
+
+    def _replied(self, job: _Job, reply: bytes) -> None:
+        """The receiver has ``job``'s whole reply: finish the exchange here and now."""
+        rx = job.rx
+        self.quiet_since = rx_end = rx.last_rx
+        n = len(reply) + 3
+        nbytes = len(job.adu)
+        ex = Exchange(reply, job.tx_start, job.tx_end, rx_end, nbytes, n,
+                      job.tm.frame_time(nbytes + n))
+        job.exchange = ex
+        if job.on_reply is not None:
+            try:
+                job.on_reply(ex)
+            except Exception as exc:  # an observer that failed: the waiting task raises it
+                job.future.set_exception(exc)
+                return
+        job.future.set_result(None)
 
     def withdraw(self) -> bool:
         """Take back the transaction waiting for its silence, if it was started
@@ -177,26 +210,30 @@ class RtuLink:
         broadcast_delay: float,
         local_echo: bool = False,
         withdrawable: bool = False,
+        on_reply: ReplyHook | None = None,
     ) -> Exchange:
         """Wait for ``silence`` since the last activity, send one frame and read its reply
         by length (``expect=None``: a broadcast, no reply).
 
         Bytes received meanwhile are activity and restart the silence (``withdrawable``:
-        they end the wait with ``SendWithdrawn``); if they keep the line busy until
-        ``quiet_by``, ``LineNoise`` with nothing sent.
+        they end a wait for it with ``SendWithdrawn``); if they keep the line busy until
+        ``quiet_by``, ``LineNoise`` with nothing sent. ``on_reply`` is told of the
+        exchange as soon as it is complete, before this returns it.
         """
-        adu = frame(unit, pdu)
+        now = monotonic()
         job = _Job(
-            rx, send, unit, adu, tm, silence, quiet_by, timeout,
+            rx, send, unit, frame(unit, pdu), tm, silence, quiet_by, timeout, expect,
             reply_wait=expect is not None and not local_echo,
             withdrawable=withdrawable,
             seen=self.last_activity(rx),
             future=asyncio.get_running_loop().create_future(),
+            on_reply=on_reply,
+            now=now,
         )
         self._job = job
         try:
             self._step(job)
-            await job.future  # the frame is out and (with a reply to come) its first bytes
+            await job.future  # the frame is out and (with a reply to come) the reply is in
         except BaseException:
             if self._job is job:
                 self._job = None
@@ -208,24 +245,29 @@ class RtuLink:
         finally:
             if job.reply_wait and job.sent:
                 rx.release()  # whatever woke us, the reply's bytes are read below
+        if job.exchange is not None:
+            return job.exchange  # finished by the receiver's callback (``_replied``)
+        adu = job.adu
         try:
             if local_echo:
                 await rx.take_echo(adu, job.tx_end + tm.t35 + 0.05)
             if expect is None:
                 self.quiet_since = job.tx_end + self.latency + broadcast_delay
-                return Exchange(b"", job.tx_start, job.tx_end, job.tx_end, len(adu), 0,
-                                tm.frame_time(len(adu)))
-            reply = await rx.read_reply(unit, expect, job.tx_end + timeout, tm.char_time,
-                                        tm.t35)
+                ex = Exchange(b"", job.tx_start, job.tx_end, job.tx_end, len(adu), 0,
+                              tm.frame_time(len(adu)))
+            else:
+                reply = await rx.read_reply(unit, expect, job.tx_end + timeout, tm.char_time,
+                                            tm.t35)
+                self.quiet_since = rx.last_rx
+                n = len(reply) + 3
+                ex = Exchange(reply, job.tx_start, job.tx_end, rx.last_rx, len(adu), n,
+                              tm.frame_time(len(adu) + n))
         except BaseException:
             self.quiet_since = max(self.quiet_since + self.latency, monotonic())
             raise
-        self.quiet_since = rx.last_rx
-        n = len(reply) + 3
-        return Exchange(
-            reply, job.tx_start, job.tx_end, rx.last_rx, len(adu), n,
-            tm.frame_time(len(adu) + n),
-        )
+        if on_reply is not None:
+            on_reply(ex)
+        return ex
 
     def close(self) -> None:
         """Release the timer."""

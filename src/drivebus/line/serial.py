@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import asyncio
-import functools
 import os
 import termios
+from collections.abc import Coroutine
+from typing import Any
 
 import serial
 import serial.rs485
@@ -15,8 +16,8 @@ from drivebus.clock import monotonic
 from drivebus.errors import ConfigError, LineClosed, LineConfigError
 from drivebus.line.base import Exchange, Line
 from drivebus.line.baud import port_baudrate, rate_matches
-from drivebus.line.link import RtuLink
-from drivebus.line.receiver import RtuReceiver, read_waiting
+from drivebus.line.link import ReplyHook, RtuLink
+from drivebus.line.receiver import RtuReceiver, WaitingReader
 from drivebus.pdu import LengthPredictor
 from drivebus.providers import line_provider, scheme_of
 from drivebus.settings import LineSettings
@@ -160,7 +161,7 @@ class SerialLine(Line):
         self.low_latency = _ask_low_latency(port)
         self._serial = port
         self._fd = port.fileno()
-        rx.pending_bytes = functools.partial(read_waiting, self._fd)
+        rx.pending_bytes = WaitingReader(self._fd)
         self._rx = rx
         self._current = s
         if self.rs485:
@@ -250,7 +251,7 @@ class SerialLine(Line):
             assert self._rx is not None
             self._rx.send(adu[written:])
 
-    async def transact(
+    def transact(  # a coroutine function: it returns the link's, one frame less per step
         self,
         unit: int,
         pdu: bytes,
@@ -260,9 +261,11 @@ class SerialLine(Line):
         timeout: float = 0.1,
         quiet_by: float | None = None,
         withdrawable: bool = False,
-    ) -> Exchange:
+        on_reply: ReplyHook | None = None,
+    ) -> Coroutine[Any, Any, Exchange]:
         """Send one frame after the silence and, unless ``expect`` is None, read its reply
-        by length (``LineNoise`` if the line is not quiet by ``quiet_by``).
+        by length (``LineNoise`` if the line is not quiet by ``quiet_by``); ``on_reply``
+        is told of the exchange as soon as it is complete.
 
         The port is switched to ``settings`` before the silence, not after it: the
         silence is counted at the slower of the last frame's settings and these, and
@@ -270,26 +273,34 @@ class SerialLine(Line):
         path between the end of the silence and the first byte.
         """
         if self._closed or self._rx is None:
-            raise LineClosed(f"serial line {self.port} is closed")
+            return _fail(LineClosed(f"serial line {self.port} is closed"))
         target = self._canonical(settings)
         if target is not self._current:
-            self._reconfigure(target, unit)
-        return await self._link.transact(
+            try:
+                self._reconfigure(target, unit)
+            except (LineConfigError, LineClosed) as exc:
+                return _fail(exc)
+        link = self._link
+        return link.transact(
             self._rx,
             self._send,
             unit,
             pdu,
             expect,
             timing(target),
-            silence=switch_silence(self._link.traffic, target),
+            silence=switch_silence(link.traffic, target),
             quiet_by=monotonic() + timeout if quiet_by is None else quiet_by,
             timeout=timeout,
             broadcast_delay=self.broadcast_delay,
             local_echo=self.local_echo,
             withdrawable=withdrawable,
+            on_reply=on_reply,
         )
 
     def __repr__(self) -> str:
         return f"SerialLine({self.port!r}, {self.settings})"
 
 
+async def _fail(exc: BaseException) -> Exchange:
+    """A transaction refused before anything was sent: raises ``exc`` when awaited."""
+    raise exc
