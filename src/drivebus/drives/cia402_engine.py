@@ -151,14 +151,18 @@ class Cia402Profile(DescribedProfile):
         """The mapped status objects in as few reads as the drive allows."""
         if not self._learned and self.description.status.learn_first:
             await self.learn()
+        requested = monotonic()
         values = await self._poll_values(self._status_plan, priority)
         await self._read_due_signals(priority)
-        return self.decode_status(values)
+        return self.decode_status(values, requested_at=requested)
 
     def decode_status(self, values: Mapping[str, Any],
-                      raw_words: Mapping[str, list[int]] | None = None) -> DriveStatus:
+                      raw_words: Mapping[str, list[int]] | None = None, *,
+                      requested_at: float | None = None) -> DriveStatus:
         """A ``DriveStatus`` from the objects read (the description's ``[status]`` fields,
-        where it gives them, replace the engine's)."""
+        where it gives them, replace the engine's). The homing under way is judged only
+        by a status requested after the last write's reply (``fresh``): a poll that left
+        before the homing's start cannot end it."""
         d = self.description
         obj = {n: values.get(r.key) for n, r in d.objects.items()}
         sw = int(obj.get("statusword") or 0)
@@ -175,7 +179,9 @@ class Cia402Profile(DescribedProfile):
         fault = state in (State.FAULT, State.FAULT_REACTION_ACTIVE)
         homing_mode = mode is not None and int(mode) == Mode.HOMING
         hs = homing_status(sw) if homing_mode else None
-        if self._homing and hs is not None:
+        if not self.fresh(requested_at):
+            pass  # older than the last command's reply: it tells nothing of the homing
+        elif self._homing and hs is not None:
             if hs is HomingStatus.COMPLETED:
                 self._homing, self._homed = False, True
             elif hs.error or hs is HomingStatus.INTERRUPTED:
@@ -200,9 +206,11 @@ class Cia402Profile(DescribedProfile):
             limit_positive=bool(inputs is not None and int(inputs) & DigitalInput.POSITIVE_LIMIT),
             limit_negative=bool(inputs is not None and int(inputs) & DigitalInput.NEGATIVE_LIMIT),
             homing=self._homing,
+            homing_error=hs is not None and hs.error,
             position=None if obj.get("position_actual_value") is None else
             int(obj["position_actual_value"]),
             velocity_rpm=None if velocity is None else float(velocity),
+            requested_at=requested_at or 0.0,
             raw={"statusword": sw, "state": list(State).index(state) if state else -1,
                  **({"mode": int(mode)} if mode is not None else {}),
                  **({"error_code": int(code)} if code is not None else {}),
@@ -226,7 +234,8 @@ class Cia402Profile(DescribedProfile):
     def _overrides(self, st: DriveStatus, values: Mapping[str, Any]) -> DriveStatus:
         s = self.description.status
         fields = {k: getattr(s, k) for k in ("enabled", "moving", "in_position", "homed",
-                                              "homing", "alarm", "limit_positive",
+                                              "homing", "homing_error", "alarm",
+                                              "limit_positive",
                                               "limit_negative")
                   if getattr(s, k) is not None}
         if not fields:

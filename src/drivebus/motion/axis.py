@@ -210,6 +210,11 @@ class _RestWait:
 _REFUSALS = (LimitViolation, StateError, ArgumentError, NotSupported, ConfigError, ModbusException)
 """Errors that mean nothing was started: raised before any frame, or the drive's own no."""
 
+_NO_REST_WAIT = (StateError, ArgumentError, NotSupported, ConfigError, MotionAborted,
+                 DriveOffline, TransactionError)
+"""Errors a motion raises at once: refusals (nothing moved), an abort (whoever stopped the
+axis waits for its rest), a drive that does not answer (no status could show rest)."""
+
 
 class Axis(ProgramRunner, AxisIO):
     """A named axis: a drive profile, user units, limits, state and its actor."""
@@ -264,6 +269,10 @@ class Axis(ProgramRunner, AxisIO):
         self.machine_override: Callable[[], float] = lambda: 1.0
         """The machine's speed override (set by the machine that owns the axis)."""
         self._override_due = False  # the sequencer applies a new override to the motion
+        self._actor_running = False  # the actor polls: a stop waits on its polls
+        self.stops = 0
+        """How many times ``stop()`` or ``halt_now()`` was called: a command that plans
+        before it takes the axis (a group move) is aborted by a stop meanwhile."""
 
     # -- reading -----------------------------------------------------------------------------
 
@@ -360,9 +369,13 @@ class Axis(ProgramRunner, AxisIO):
     async def run(self) -> None:
         """Poll the drive, keep its safety rules and run its queue until cancelled; owned
         by the machine."""
-        async with anyio.create_task_group() as tg:
-            tg.start_soon(self._sequence, name=f"drivebus axis {self.name} queue")
-            await self._poll_forever()
+        self._actor_running = True
+        try:
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(self._sequence, name=f"drivebus axis {self.name} queue")
+                await self._poll_forever()
+        finally:
+            self._actor_running = False
 
     async def _poll_forever(self) -> None:
         fails = 0
@@ -400,6 +413,7 @@ class Axis(ProgramRunner, AxisIO):
                     # A stop waits on this poll to tell it the drive is at rest: it goes
                     # ahead of the other axes' routine polls.
                     st = await self.profile.read_status(priority=priority)
+                    issued = st.requested_at or issued  # when its request was queued
             except TransactionError as exc:
                 fails += 1
                 self._check_due = True  # it may be a power cycle
@@ -565,6 +579,15 @@ class Axis(ProgramRunner, AxisIO):
         homing stops it at once (LimitViolation, ErrorStop) unless the method homes on it;
         one where the drive reverses (or that was active at the start) may be run into by
         the braking distance, and not met again once left (the home switch is missing)."""
+        if st.homing_error:
+            self.error = MotionError(f"axis {self.name}: the drive reports a homing error "
+                                     f"(the homing failed at "
+                                     f"{self.units.from_pulses(st.position or 0):.4f}); "
+                                     f"reset() the axis before the next command")
+            self._end_motion(m, self.error, AxisState.ERROR_STOP)
+            if st.moving:
+                self._stop_due = "homing error"
+            return
         if st.moving:
             m.seen_motion = True
         elif st.homed and not st.homing:
@@ -622,6 +645,10 @@ class Axis(ProgramRunner, AxisIO):
         command."""
         if error is not None and not isinstance(error, MotionAborted):
             self._check_due = True
+        if error is not None and m.kind == "home" and not m.over:
+            # A homing that failed, timed out or was stopped homed nothing: the axis is
+            # not homed until one completes, whatever the drive's flag says meanwhile.
+            self._homed_lost = True
         if not m.over:
             log.debug("axis %s: %s ends: %s", self.name, m.what, error or detail or "done")
             if self._listeners:
@@ -654,7 +681,7 @@ class Axis(ProgramRunner, AxisIO):
         reason = self._stop_due
         m = self._motion
         if (reason is None and m is not None and m.deadline is not None and not m.over
-                and monotonic() > m.deadline):
+                and self._status_issued > m.deadline):  # a status requested after it
             timeout = MotionTimeout(f"axis {self.name}: the {m.what} did not complete in time "
                                     f"(its deadline passed {monotonic() - m.deadline:.1f} s ago)")
             log.warning("%s", timeout)
@@ -858,7 +885,12 @@ class Axis(ProgramRunner, AxisIO):
         timeout: float | None,
         wait: bool = True,
     ) -> None:
-        """Start ``m`` with ``io`` and (``wait``) await its outcome; clean up on any failure."""
+        """Start ``m`` with ``io`` and (``wait``) await its outcome; clean up on any failure.
+
+        A motion error (a timeout, a limit, an alarm, a drive that stopped short) is
+        raised once the axis is at rest, so the next command finds it there (or the error
+        says that it is still braking); a cancellation stops the axis and is re-raised at
+        once."""
         try:
             await self._exclusive(io, motion=m)
             if not wait:
@@ -868,13 +900,29 @@ class Axis(ProgramRunner, AxisIO):
             if timeout is not None and m.deadline is None:
                 m.deadline = monotonic() + timeout  # a speed override may push it back
             try:
-                while not m.finished.is_set():
-                    left = None if m.deadline is None else m.deadline - monotonic()
-                    if left is not None and left <= 0:
-                        raise TimeoutError
-                    with anyio.move_on_after(left):
-                        await m.finished.wait()
-            except TimeoutError:
+                await self._outcome(m, timeout)
+            finally:
+                self._waiters -= 1
+            if m.outcome is not None:
+                raise m.outcome
+        except BaseException as exc:
+            with anyio.CancelScope(shield=True):
+                await self._after_failure(m, exc)
+                if isinstance(exc, DrivebusError) and not isinstance(exc, _NO_REST_WAIT):
+                    await self._come_to_rest(exc)
+            raise
+
+    async def _outcome(self, m: _Motion, timeout: float | None) -> None:
+        """Wait until ``m``'s outcome is decided. At its deadline the drive is asked once
+        more (a status requested after the deadline): ``MotionTimeout`` only if that too
+        shows the motion unfinished, so a slow poll on a busy machine is no timeout."""
+        while not m.finished.is_set():
+            left = None if m.deadline is None else m.deadline - monotonic()
+            if left is not None and left <= 0:
+                with contextlib.suppress(TransactionError):  # the actor sees to Offline
+                    await self.refresh()
+                if m.finished.is_set():
+                    return
                 st = self.status
                 where = "unknown" if st is None or st.position is None else (
                     f"{self.units.from_pulses(st.position):.4f} {self.config.unit}"
@@ -886,15 +934,21 @@ class Axis(ProgramRunner, AxisIO):
                 raise MotionTimeout(
                     f"axis {self.name}: the {m.what} did not complete within "
                     f"{timeout or 0:.1f} s{last}"
-                ) from None
-            finally:
-                self._waiters -= 1
-            if m.outcome is not None:
-                raise m.outcome
-        except BaseException as exc:
-            with anyio.CancelScope(shield=True):
-                await self._after_failure(m, exc)
-            raise
+                )
+            with anyio.move_on_after(left):
+                await m.finished.wait()
+
+    async def _come_to_rest(self, error: DrivebusError) -> None:
+        """After a motion error: wait (bounded) for a status showing the drive at rest,
+        so the error is raised with the axis there; if it is not, the error says so."""
+        moving = self.status is not None and self.status.moving
+        if not moving and self.state not in (AxisState.STOPPING,):
+            return
+        try:
+            await self._wait_rest(monotonic(), f"after the {type(error).__name__}")
+        except DrivebusError as exc:
+            error.args = (f"{error} (and the axis did not come to rest: {exc})",
+                          *error.args[1:])
 
     async def _after_failure(self, m: _Motion, exc: BaseException) -> None:
         """Leave the axis right after ``m`` failed: unchanged if nothing moved, else stopped."""
@@ -995,7 +1049,7 @@ class Axis(ProgramRunner, AxisIO):
         """Read the drive's status now (at command priority) and take it in."""
         issued = monotonic()
         st = await self.profile.read_status(priority=Priority.COMMAND)
-        self._apply(st, issued)
+        self._apply(st, st.requested_at or issued)
         return st
 
     # -- motion commands -------------------------------------------------------------------------
@@ -1579,6 +1633,7 @@ class Axis(ProgramRunner, AxisIO):
 
     async def _halt(self, *, emergency: bool, decel_rps2: float | None) -> None:
         by = "halt_now()" if emergency else "stop()"
+        self.stops += 1
         log.debug("axis %s: %s in state %s", self.name, by, self.state)
         offline = self.state is AxisState.OFFLINE
         m = self._motion
@@ -1641,7 +1696,10 @@ class Axis(ProgramRunner, AxisIO):
             self._poke_now()
 
     async def _wait_rest(self, after: float, what: str) -> DriveStatus:
-        """Wait for a status polled after ``after`` that shows the drive at rest."""
+        """Wait for a status polled after ``after`` that shows the drive at rest (polled
+        here where no actor runs: a machine whose tasks were cancelled from outside)."""
+        if not self._actor_running:
+            return await self._poll_rest(after, what)
         w = _RestWait(after)
         self._rest_waits.append(w)
         self._waiters += 1
@@ -1662,6 +1720,17 @@ class Axis(ProgramRunner, AxisIO):
             raise w.error
         assert self.status is not None
         return self.status
+
+    async def _poll_rest(self, after: float, what: str) -> DriveStatus:
+        """``_wait_rest`` without the actor: poll until a status shows the drive at rest."""
+        with anyio.move_on_after(_STOP_TIMEOUT):
+            while True:
+                st = await self.refresh()  # sent now: after ``after``
+                if not st.moving:
+                    return st
+                await anyio.sleep(self.config.poll.moving)
+        raise MotionTimeout(f"axis {self.name}: {what}: the drive still reports motion "
+                            f"after {_STOP_TIMEOUT:.0f} s")
 
     # -- other commands --------------------------------------------------------------------------
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Literal
 
 import anyio
+import anyio.lowlevel
 
 from drivebus import checks
 from drivebus.errors import ArgumentError, DrivebusError, GroupMotionError, StateError
@@ -171,6 +172,7 @@ async def run_path(
         raise ArgumentError("a path needs a list of waypoints (mappings of axis to position)")
     names = list(group.axes)
     checked = [group._check(wp, f"waypoint {i + 1}") for i, wp in enumerate(waypoints)]
+    stops = group.stops(names)
     points = [await group._positions(names)]
     for i, wp in enumerate(checked):
         point = {**points[-1], **wp}
@@ -182,7 +184,7 @@ async def run_path(
     plans: list[_GroupPlan] = []
     for k in range(len(points) - 1):
         movers = [n for n in names if points[k + 1][n] != points[k][n]]
-        plans.append(group._plan(
+        plans.append(await group._plan(
             {n: points[k + 1][n] for n in movers}, {n: points[k][n] for n in movers},
             speed=speed, accel=accel, decel=decel,
             offsets=None if k == 0 else dict.fromkeys(movers, 0.0)))
@@ -190,6 +192,7 @@ async def run_path(
     reasons: list[str] = []
     ahead = _from_rest(group, plans[0], 0.0)
     for k in range(1, len(plans)):
+        await anyio.lowlevel.checkpoint()  # a long path's corners: no long hold of the loop
         tau, reason = _corner(group, ahead, plans[k - 1], plans[k], blend)
         taus.append(tau)
         reasons.append(reason)
@@ -198,6 +201,7 @@ async def run_path(
         else:
             ahead = _synchronise_blend(group, ahead, plans[k], tau)
     reasons.append("")
+    group.check_not_stopped(stops, "path")
     for n in names:
         group.axes[n].check_free("path")
     run = _PathRun(group, points, plans, taus, reasons, [])
@@ -211,6 +215,8 @@ async def queue_group_move(
     targets: Mapping[str, float],
     buffer: BufferMode,
     accepted: Any,
+    *,
+    stops: Mapping[str, int],
     **shape: float | None,
 ) -> GroupHandle:
     """``AxisGroup.move_to`` with a buffer mode: one segment queued behind what the
@@ -232,9 +238,10 @@ async def queue_group_move(
     movers = {n: t for n, t in targets.items() if t != starts[n]}
     if not movers:
         raise ArgumentError("every axis of the group move is at its target already")
-    plan = group._plan(movers, {n: starts[n] for n in movers},
+    plan = await group._plan(movers, {n: starts[n] for n in movers},
                        offsets=None if not busy else dict.fromkeys(movers, 0.0),
                        **shape)  # type: ignore[arg-type]
+    group.check_not_stopped(stops, "group move")
     reason = ""
     if buffer == "blending":
         for n in movers:
