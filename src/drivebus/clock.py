@@ -61,18 +61,16 @@ class PreciseTimer:
 
     The kernel and the event loop wake us some tens of microseconds after the timer
     fires. The timer therefore fires ``lead`` seconds early and the rest is spun on the
-    clock; ``lead`` adapts to the wake-up latency seen (shared by every timer of the
-    process), so the spin stays short and the deadline is met, never anticipated. Each
-    wake-up moves ``lead`` by at most a few microseconds (``_STEP``): a wake-up that a
-    busy machine delays by a millisecond says nothing about the next one, and must not
-    make every later wait spin for hundreds of microseconds.
+    clock; ``lead`` follows the median wake-up latency seen (shared by every timer of the
+    process): each early wake-up shortens it by ``_STEP``, each late one lengthens it by as
+    much. The spin then stays a few microseconds on an idle machine, and a wake-up that a
+    busy machine delays by a millisecond counts as one late wake-up, not as a reason to
+    spin hundreds of microseconds before every frame (which cannot make up for it).
     """
 
     lead = 50e-6
     _LEAD_MAX = 300e-6
-    _STEP = 2e-6
-    """The most one early wake-up shortens ``lead`` by; a late one lengthens it by up to
-    three times this, so that about three wake-ups in four come before their deadline."""
+    _STEP = 1e-6
 
     def __init__(self) -> None:
         self._fd: int | None = None
@@ -197,17 +195,15 @@ class PreciseTimer:
     @staticmethod
     def _reach(deadline: float, *, adapt: bool) -> None:
         """Spin to ``deadline`` if we woke early; with ``adapt``, move ``lead`` toward the
-        wake-up latency seen (a wait shorter than the lead says nothing about it)."""
-        now = monotonic()
-        if now < deadline:
-            if adapt:  # woke before the deadline: the lead is more than the latency; shave it
-                PreciseTimer.lead = max(0.0, PreciseTimer.lead
-                                        - min(0.25 * (deadline - now), PreciseTimer._STEP))
+        median wake-up latency (a wait shorter than the lead says nothing about it)."""
+        if monotonic() < deadline:
+            if adapt:  # woke before the deadline: the lead is more than the latency
+                PreciseTimer.lead = max(0.0, PreciseTimer.lead - PreciseTimer._STEP)
             while monotonic() < deadline:
                 pass
         elif adapt:
-            step = min(0.25 * (now - deadline), 3 * PreciseTimer._STEP)
-            PreciseTimer.lead = min(PreciseTimer._LEAD_MAX, PreciseTimer.lead + step)
+            PreciseTimer.lead = min(PreciseTimer._LEAD_MAX,
+                                    PreciseTimer.lead + PreciseTimer._STEP)
 
     def wake(self) -> None:
         """End the sleep in progress now (the owner has something more urgent to do)."""

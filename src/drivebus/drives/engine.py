@@ -831,11 +831,17 @@ class DescribedProfile(DriveProfile):
         requested = monotonic()
         values = await self._poll_values(self._status_plan, priority, raw_words)
         try:
+            scope: dict[str, Any] | None = None
             for when, plan in self._extra_plans:
-                if when(self._scope(None, values)):
+                if scope is None:
+                    scope = self._scope(None, values)
+                if when(scope):
                     values.update(await self._poll_values(plan, priority, raw_words))
+                    scope = None  # made again with what the extra read brought
             await self._read_due_signals(priority)
-            return self.decode_status(values, raw_words, requested_at=requested)
+            if type(self).decode_status is not DescribedProfile.decode_status:
+                return self.decode_status(values, raw_words, requested_at=requested)
+            return self._decode_status(values, raw_words, requested, scope)
         except Unknown as exc:
             raise ConfigError(f"{self.family}: its status decoding uses what the poll does "
                               f"not read ({exc}): add it to [status] poll") from None
@@ -852,16 +858,24 @@ class DescribedProfile(DriveProfile):
                       requested_at: float | None = None) -> DriveStatus:
         """A ``DriveStatus`` from the polled register values. Its state trackers take
         only a status requested after the last write's reply (``fresh``)."""
+        return self._decode_status(values, raw_words, requested_at, None)
+
+    def _decode_status(self, values: Mapping[str, Any],
+                       raw_words: Mapping[str, list[int]] | None,
+                       requested_at: float | None, scope: dict[str, Any] | None
+                       ) -> DriveStatus:
+        """``decode_status``, with the scope of ``values`` if the caller has it: one scope
+        per poll (its ``state.NAME`` reads the profile's state itself, so what the trackers
+        update is seen by the fields without making it again)."""
         d = self.description
         s = d.status
         fields = d.status_exprs
-        scope = self._scope(None, values)
+        if scope is None:
+            scope = self._scope(None, values)
         scope["words"] = Attrs("words", dict(raw_words or {}))
         if s.track and self.fresh(requested_at):  # trackers first: the fields see them
             updates = {k: e(scope) for k, e in s.track.items()}
             self.state.update(updates)
-            scope = self._scope(None, values)
-            scope["words"] = Attrs("words", dict(raw_words or {}))
 
         def flag(name: str) -> bool:
             e = fields.get(name)

@@ -8,18 +8,30 @@ probing the object.
 from __future__ import annotations
 
 import abc
+import asyncio
 from dataclasses import dataclass
 from types import TracebackType
+from typing import Protocol
 
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 
-__all__ = ["Exchange", "Line", "SendWithdrawn"]
+__all__ = ["Begun", "Exchange", "Line", "SendWithdrawn"]
 
 
 class SendWithdrawn(Exception):
     """A request taken back before its frame went out (``Line.withdraw``, or bytes during
     its silence on a ``withdrawable`` transaction): nothing was sent; plan again."""
+
+
+class Begun(Protocol):
+    """A transaction started with ``Line.begin``: its ``future`` is done once it needs
+    its owner no more (a sound reply, told to ``on_reply``) or needs ``Line.finish``."""
+
+    @property
+    def future(self) -> asyncio.Future[None]:
+        """Done when the transaction needs its owner no more, or needs ``finish``."""
+        ...
 
 
 @dataclass(slots=True)
@@ -68,6 +80,14 @@ class Line(abc.ABC):
     frame is out the request can be taken back (``withdraw()``), and bytes arriving during
     the silence end it (``SendWithdrawn`` both). A bus hands such a line its next request
     at once instead of sleeping first."""
+
+    begins: bool = False
+    """The line also offers ``transact`` in two halves: ``begin`` (the same arguments,
+    ``withdrawable`` and ``on_reply`` included) starts it from the caller and returns at
+    once, the frame going out from the silence timer's callback; its ``future`` is done
+    when the transaction needs its owner no more (``on_reply`` has had a sound exchange)
+    or needs ``finish(begun)``, awaited, to judge what came (and raise what failed). A
+    scheduler can thus run the line from callbacks while every transaction goes well."""
 
     def withdraw(self) -> bool:
         """Take back the ``withdrawable`` transaction waiting for its silence, if its frame

@@ -18,8 +18,8 @@ from typing import cast
 
 from drivebus.clock import monotonic
 from drivebus.errors import FrameError, LineClosed, LineNoise, ResponseTimeout, WrongResponder
-from drivebus.line.rtu import crc_ok
-from drivebus.pdu import LengthPredictor
+from drivebus.line.rtu import crc16_value, crc_ok
+from drivebus.pdu import LengthPredictor, response_length
 
 __all__ = [
     "BUFFER_LIMIT",
@@ -37,6 +37,13 @@ BUFFER_LIMIT = 2 * MAX_ADU
 """Received bytes kept at most: a reply and as much junk before it; older bytes go."""
 SCAN_CRC_BUDGET = 8 * 1024
 """Bytes of CRC computed at most when looking for a frame in junk (a few ms of CPU)."""
+_KIND = tuple(
+    1 if fc in (0x01, 0x02, 0x03, 0x04, 0x17) else 2 if fc in (0x05, 0x06, 0x08, 0x0F, 0x10)
+    else 3 if fc & 0x80 else 0
+    for fc in range(256)
+)
+"""By function code, the length of a standard reply (``response_length``'s): 1 its data's
+byte count in its third byte, 2 eight bytes, 3 an exception (five), 0 not known."""
 _NEVER = BUFFER_LIMIT + 1
 """A byte count the buffer never reaches: ``wait_for(_NEVER, t)`` waits for ``t`` only."""
 
@@ -254,28 +261,35 @@ class RtuReceiver(StreamProtocol):
         if buf[0] != self._unit:
             w.set_result(None)  # not the frame asked for (yet): read_reply resynchronises
             return
-        need = 3
-        while True:
-            length = expect(bytes(buf[1:need]))
-            if length is not None:
-                break
-            need += 1
-            if len(buf) < need:
-                self.need = need
-                return
-        total = length + 3
-        if len(buf) < total:
+        kind = _KIND[buf[1]] if expect is response_length else 0
+        if kind == 1:  # the standard replies' lengths, as response_length has them
+            total = buf[2] + 5
+        elif kind:
+            total = 8 if kind == 2 else 5
+        else:
+            need = 3
+            while True:
+                length = expect(bytes(buf[1:need]))
+                if length is not None:
+                    break
+                need += 1
+                if len(buf) < need:
+                    self.need = need
+                    return
+            total = length + 3
+        n = len(buf)
+        if n < total:
             self.need = total
             return
-        adu = bytes(buf[:total])
-        if not crc_ok(adu):
+        if crc16_value(buf if n == total else buf[:total]):  # not 0: a bad CRC
             w.set_result(None)  # read_reply resynchronises
             return
+        pdu = bytes(buf[1:total - 2])
         del buf[:total]  # anything after it is garbage, dropped before the next frame
         on_frame = self._on_frame
         self._expect = self._on_frame = None
         assert on_frame is not None
-        on_frame(adu[1:-2])
+        on_frame(pdu)
 
     def release(self) -> None:
         """Stop resolving the waiter of ``expect_bytes`` or ``expect_reply`` (its timer

@@ -2,12 +2,16 @@
 
 The CRC is the one of "MODBUS over Serial Line" v1.02 (section 6.2.2 and its appendix B):
 CRC-16 with polynomial 0xA001 (0x8005 reflected), initial value 0xFFFF, sent low byte
-first. It is computed from a 256-entry table, one lookup per byte, as the spec's own
-table-driven form does. Built frames are cached: a poll sends the same few frames again
+first. It is computed from tables: the spec's 256-entry one (one lookup per byte), and
+one of the register after two bytes (one lookup per two bytes: a third of the Python work
+per byte). Built frames are cached: a poll sends the same few frames again
 and again, so each one's CRC is computed once.
 """
 
 from __future__ import annotations
+
+import struct
+from array import array
 
 __all__ = ["crc16", "crc16_value", "crc_ok", "frame"]
 
@@ -32,12 +36,40 @@ _FRAMES: dict[tuple[int, bytes], bytes] = {}
 _FRAMES_MAX = 4096
 
 
+def _pair_table() -> array:
+    """The register after two bytes, by register XOR the two bytes (low byte first): two
+    table steps depend only on that, so a frame is checked two bytes per lookup."""
+    t = _TABLE
+    out = array("H", bytes(2 * 65536))
+    for x in range(65536):
+        first = t[x & 0xFF]
+        out[x] = (first >> 8) ^ t[((x >> 8) ^ first) & 0xFF]
+    return out
+
+
+_PAIRS: array | None = None
+"""``_pair_table()``, made on first use (128 KiB, some milliseconds)."""
+_UNPACK = tuple(struct.Struct(f"<{k}H").unpack_from for k in range(129))
+"""The little-endian 16-bit words of the first 2k bytes, by k (a frame has at most 256)."""
+
+
 def crc16_value(data: bytes | bytearray | memoryview) -> int:
     """The Modbus CRC-16 of ``data`` as a number (e.g. 0x1241 for ``02 07``)."""
+    global _PAIRS
+    pairs = _PAIRS
+    if pairs is None:
+        pairs = _PAIRS = _pair_table()
     crc = 0xFFFF
-    table = _TABLE
-    for b in data:
-        crc = (crc >> 8) ^ table[(crc ^ b) & 0xFF]
+    n = len(data)
+    start = 0
+    while n - start >= 256:  # longer than a frame: a block of 128 pairs at a time
+        for w in _UNPACK[128](data, start):
+            crc = pairs[crc ^ w]
+        start += 256
+    for w in _UNPACK[(n - start) >> 1](data, start):
+        crc = pairs[crc ^ w]
+    if n & 1:
+        crc = (crc >> 8) ^ _TABLE[(crc ^ data[n - 1]) & 0xFF]
     return crc
 
 
