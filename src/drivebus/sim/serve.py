@@ -16,6 +16,8 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import math
+import os
+import secrets
 import sys
 import tempfile
 from collections.abc import Callable, Iterator
@@ -31,6 +33,7 @@ from drivebus.config import MachineConfig, load_config
 from drivebus.errors import ConfigError, DrivebusError
 from drivebus.sim.machine import SimLine, start_simulators
 from drivebus.sim.wire import VirtualWire, WireFrame
+from drivebus.tasks import ServiceTasks
 
 __all__ = [
     "PublishedSim",
@@ -95,8 +98,10 @@ def _channel_path(name: str) -> Path:
     return Path(tempfile.gettempdir()) / f"drivebus-{hashlib.sha256(key).hexdigest()[:20]}.sock"
 
 
-async def _serve_format_channel(wire: VirtualWire, path: Path) -> None:
-    """Answer the format messages of masters in other processes until cancelled."""
+async def _serve_format_channel(wire: VirtualWire, path: Path,
+                                ready: anyio.Event | None = None) -> None:
+    """Answer the format messages of masters in other processes until cancelled
+    (``ready`` is set once the socket listens)."""
 
     async def client(stream: anyio.abc.SocketStream) -> None:
         buffered = anyio.streams.buffered.BufferedByteReceiveStream(stream)
@@ -118,11 +123,29 @@ async def _serve_format_channel(wire: VirtualWire, path: Path) -> None:
 
     await anyio.Path(path).unlink(missing_ok=True)
     listener = await anyio.create_unix_listener(path)
+    if ready is not None:
+        ready.set()
     try:
         await listener.serve(client)
     finally:
         with anyio.CancelScope(shield=True):
             await anyio.Path(path).unlink(missing_ok=True)
+
+
+async def serve_format_channel(wire: VirtualWire, stack: contextlib.AsyncExitStack) -> str:
+    """Answer the format messages of a master in another process (a machine's worker)
+    for ``wire`` until ``stack`` closes; the Unix socket's path (private to this
+    process: nothing is published)."""
+    path = Path(tempfile.gettempdir()) / f"drivebus-{os.getpid()}-{secrets.token_hex(6)}.sock"
+    tasks = await stack.enter_async_context(ServiceTasks())
+    ready = anyio.Event()
+
+    async def serve() -> None:
+        await _serve_format_channel(wire, path, ready)
+
+    tasks.start_soon(serve, name=f"sim wire {wire.name} format channel")
+    await ready.wait()
+    return str(path)
 
 
 @contextlib.contextmanager
