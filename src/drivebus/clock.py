@@ -57,7 +57,8 @@ _libc = _load_libc()
 
 
 class PreciseTimer:
-    """One re-armable timer per owner (a line, a simulated wire); not shared across tasks.
+    """One re-armable timer per owner (a line, a simulated wire); not shared across tasks,
+    and used in one event loop (``close()`` it before another uses it).
 
     The kernel and the event loop wake us some tens of microseconds after the timer
     fires. The timer therefore fires ``lead`` seconds early and the rest is spun on the
@@ -119,7 +120,15 @@ class PreciseTimer:
             return
         callback, self._callback = self._callback, None
         if callback is not None:
-            self._reach(self._deadline, adapt=self._adapt_on_fire)
+            deadline = self._deadline
+            if monotonic() < deadline:  # ``_reach``, written out: it runs per transaction
+                if self._adapt_on_fire:
+                    PreciseTimer.lead = max(0.0, PreciseTimer.lead - PreciseTimer._STEP)
+                while monotonic() < deadline:
+                    pass
+            elif self._adapt_on_fire:
+                PreciseTimer.lead = min(PreciseTimer._LEAD_MAX,
+                                        PreciseTimer.lead + PreciseTimer._STEP)
             callback()
             return
         waiter, self._waiter = self._waiter, None
@@ -145,7 +154,7 @@ class PreciseTimer:
         if deadline <= now:
             callback()
             return
-        precise = self._ensure()
+        precise = self._fd is not None or self._ensure()
         self._callback = callback
         self._deadline = deadline
         if precise:
@@ -172,7 +181,7 @@ class PreciseTimer:
         delay = deadline - monotonic()
         if delay <= 0:
             return
-        fallback = not self._ensure()
+        fallback = self._fd is None and not self._ensure()
         loop = asyncio.get_running_loop()
         waiter = loop.create_future()
         self._waiter = waiter

@@ -155,6 +155,8 @@ class Bus:
         self.retries = checks.retry_count("retries", retries)
         self.stats = BusStats()
         self._queue: list[_Request] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
+        """The event loop the bus runs in (set when it opens)."""
         self._seq = itertools.count()
         self._work: asyncio.Future[None] | None = None
         self._timer = PreciseTimer()
@@ -193,6 +195,7 @@ class Bus:
     # -- life cycle ------------------------------------------------------------------------
 
     async def __aenter__(self) -> Bus:
+        self._loop = asyncio.get_running_loop()
         await self.line.open()
         self.stats = BusStats()
         self._traced_end = 0.0  # the end of the last traced exchange (its silence for --trace)
@@ -340,7 +343,7 @@ class Bus:
             pdu,
             expect,
             handle.retries if idempotent and expect is not None else 0,
-            asyncio.get_running_loop().create_future(),
+            self._loop.create_future(),  # type: ignore[union-attr]  # (open: it is set)
         )
         heapq.heappush(self._queue, req)
         if self._parked and self._chained is None and not self._flying \
@@ -879,7 +882,10 @@ class Bus:
         (``activity``: the line's last activity, if known)."""
         if trace.isEnabledFor(logging.DEBUG):
             self._trace_exchange(req, ex)
-        noise.reset(activity)
+        if activity is None:
+            noise.reset()
+        else:  # (``reset``, written out: it runs per transaction)
+            noise.seen, noise.since = activity, None
         req.sent = True
         reply = ex.reply
         if req.landed is not None:

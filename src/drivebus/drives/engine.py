@@ -13,6 +13,7 @@ above uses it like any hand-written profile.
 
 from __future__ import annotations
 
+import functools
 import inspect
 import math
 import re
@@ -196,6 +197,79 @@ class _Item:
     @property
     def key(self) -> str:
         return self.reg.key if self.index is None else f"{self.reg.key}[{self.index}]"
+
+
+@functools.lru_cache(maxsize=1024)
+def _parsed_target(key: str) -> tuple[str, Expr | None]:
+    """A write target ``register`` or ``register[index expression]``, parsed once (a move
+    writes the same few again and again)."""
+    m = _TARGET.fullmatch(key.strip())
+    assert m is not None  # checked when the description was loaded
+    return m.group(1), None if m.group(2) is None else Expr.parse(m.group(2))
+
+
+class _Decoding:
+    """A read plan's decoding worked out once (what ``_decode_one`` finds out afresh per
+    register and poll): each register's words, codec and conversion, the plain and linear
+    ones (pulses, rpm, r/s²) as a single multiplication. The status poll runs it."""
+
+    __slots__ = ("plan", "ppr", "steps")
+
+    def __init__(self, plan: ReadPlan, ppr: int) -> None:
+        self.plan = plan
+        self.ppr = ppr
+        steps = []
+        ordered = [ri for ri in plan.regs if ri[0].codec.kind is not Kind.RAMP] + \
+            [ri for ri in plan.regs if ri[0].codec.kind is Kind.RAMP]
+        for reg, index in ordered:
+            r = reg.at(index)
+            base = reg.space << 16
+            low = None
+            if r.words == 2:
+                low = base + (r.low_address if r.low_address is not None else r.address + 1)
+            codec = reg.codec
+            mode = 0  # 0: the codec converts; 1: raw as it is; 2: raw * scale * factor
+            factor = 1.0
+            if codec.kind in (Kind.PLAIN, Kind.NAMED):
+                mode = 1
+            elif codec.kind in (Kind.POSITION, Kind.SPEED, Kind.ACCEL):
+                mode, factor = 2, codec.factor(ppr)
+            table = index is not None and reg.array
+            steps.append((reg, index, r, base + r.address, low, mode, codec.scale, factor,
+                          codec.kind is Kind.POSITION, table))
+        self.steps = tuple(steps)
+
+    def decode(self, profile: DescribedProfile, words: Mapping[int, int],
+               raw_words: dict[str, list[int]] | None) -> dict[str, Any]:
+        """What ``DescribedProfile._decode`` gives for the plan's words."""
+        out: dict[str, Any] = {}
+        tables: dict[str, dict[int, Any]] = {}
+        for reg, index, r, address, low, mode, scale, factor, position, table in self.steps:
+            ws = [words[address]] if low is None else [words[address], words[low]]
+            raw = r.decode(ws)
+            if mode == 1:  # a plain or named register: its raw value, bits and names
+                value: Any = RegValue(raw, reg)
+            elif mode == 2:  # as UnitCodec.to_physical computes it, in the same order
+                v = raw * scale * factor
+                value = int(v) if position and v == int(v) else float(v)
+            else:
+                ref = None
+                codec = reg.codec
+                if codec.kind is Kind.RAMP and isinstance(codec.ramp, str):
+                    ref_val = out.get(codec.ramp, profile.last.get(codec.ramp))
+                    ref = None if ref_val is None or isinstance(ref_val, Table) \
+                        else float(ref_val)
+                physical = codec.to_physical(raw, ppr=self.ppr, ref_rpm=ref)
+                value = reg_value(reg, raw, physical)
+            if table:
+                tables.setdefault(reg.key, {})[index] = value  # type: ignore[index]
+            else:
+                out[reg.key] = value
+                if raw_words is not None:
+                    raw_words[reg.key] = ws
+        for key, entries in tables.items():
+            out[key] = Table(profile.description.regs[key], entries)
+        return out
 
 
 class DescribedProfile(DriveProfile):
@@ -479,12 +553,11 @@ class DescribedProfile(DriveProfile):
     # -- writes ---------------------------------------------------------------------------
 
     def _target(self, key: str, scope: Mapping[str, Any]) -> tuple[Reg, int | None]:
-        m = _TARGET.fullmatch(key.strip())
-        assert m is not None  # checked when the description was loaded
-        reg = self.description.regs[m.group(1)]
+        name, index_expr = _parsed_target(key)
+        reg = self.description.regs[name]
         index = None
-        if m.group(2) is not None:
-            index = Expr.parse(m.group(2))(scope)
+        if index_expr is not None:
+            index = index_expr(scope)
             if isinstance(index, float) and index == int(index):
                 index = int(index)
             if isinstance(index, str) and index in reg.d.names:
@@ -720,6 +793,12 @@ class DescribedProfile(DriveProfile):
     async def _poll_values(self, plan: ReadPlan, prio: Priority,
                            raw_words: dict[str, list[int]] | None = None) -> dict[str, Any]:
         words = await self._read_words(plan, prio)
+        if plan is self._status_plan:  # the poll: its decoding made once (``_Decoding``)
+            decoding = self.__dict__.get("_status_decoding")
+            if decoding is None or decoding.ppr != self.pulses_per_rev:
+                decoding = self.__dict__["_status_decoding"] = _Decoding(
+                    plan, self.pulses_per_rev)
+            return decoding.decode(self, words, raw_words)
         return self._decode(plan, words, raw_words)
 
     def _decode(self, plan: ReadPlan, words: Mapping[int, int],

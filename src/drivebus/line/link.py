@@ -88,46 +88,44 @@ class _Job:
     def step(self) -> None:
         """Send the frame if the line has been quiet for its silence; else arm the timer
         to look again then. Failures go to the job's future."""
-        try:
-            self._try_send()
-        except Exception as exc:  # noise, a port that failed: the waiting task raises it
-            self.link._job = None
-            if not self.future.done():
-                self.future.set_exception(exc)
-
-    def _try_send(self) -> None:
         link = self.link
         rx = self.rx
-        while True:
-            q, r = link.quiet_since, rx.last_rx
-            quiet = r if r > q else q
-            if self.waited and self.withdrawable and quiet > self.seen:
-                raise SendWithdrawn("bytes arrived during the silence")
-            ready = quiet + self.silence
-            now = monotonic()
-            if ready > self.quiet_by and r > q:
-                if now >= self.quiet_by:
-                    raise link._noise(rx, self.unit, self.silence, now - self.started)
-                self.waited = True
-                link.timer.call_at(self.quiet_by, self.step)  # perhaps it stops by then
-                return
-            if ready > now:
-                self.waited = True
-                link.timer.call_at(ready, self.step)
-                return
-            # Bytes received but not delivered yet (a slave answering late) count too.
-            rx.take_pending()
-            if rx.last_rx <= quiet:
-                break  # nothing arrived while we waited
-            if self.waited and self.withdrawable:
-                raise SendWithdrawn("bytes arrived during the silence")
-        if rx.buf:
-            rx.discard()
-        link._job = None
-        self.tx_start = now = monotonic()
-        self.sent = True
-        adu = self.adu
-        self.send(adu)
+        try:
+            while True:
+                q, r = link.quiet_since, rx.last_rx
+                quiet = r if r > q else q
+                if self.waited and self.withdrawable and quiet > self.seen:
+                    raise SendWithdrawn("bytes arrived during the silence")
+                ready = quiet + self.silence
+                now = monotonic()
+                if ready > self.quiet_by and r > q:
+                    if now >= self.quiet_by:
+                        raise link._noise(rx, self.unit, self.silence, now - self.started)
+                    self.waited = True
+                    link.timer.call_at(self.quiet_by, self.step)  # perhaps it stops by then
+                    return
+                if ready > now:
+                    self.waited = True
+                    link.timer.call_at(ready, self.step)
+                    return
+                # Bytes received but not delivered yet (a slave answering late) count too.
+                rx.take_pending()
+                if rx.last_rx <= quiet:
+                    break  # nothing arrived while we waited
+                if self.waited and self.withdrawable:
+                    raise SendWithdrawn("bytes arrived during the silence")
+            if rx.buf:
+                rx.discard()
+            link._job = None
+            self.tx_start = now = monotonic()
+            self.sent = True
+            adu = self.adu
+            self.send(adu)
+        except Exception as exc:  # noise, a port that failed: the waiting task raises it
+            link._job = None
+            if not self.future.done():
+                self.future.set_exception(exc)
+            return
         tm = self.tm
         link.quiet_since = self.tx_end = tx_end = now + len(adu) * tm.char_time
         link.traffic = tm.settings
@@ -168,6 +166,9 @@ class RtuLink:
         self.traffic: LineSettings | None = None
         """The settings of the last frame sent (what the silence after it is counted at)."""
         self.timer = PreciseTimer()
+        self.loop: asyncio.AbstractEventLoop | None = None
+        """The event loop the link runs in (from its first transaction; ``close()`` ends
+        it)."""
         self._job: _Job | None = None
 
     def last_activity(self, rx: RtuReceiver | None) -> float:
@@ -225,10 +226,12 @@ class RtuLink:
         ``on_reply`` hears of a sound exchange from the callback that completed it; the
         returned job's ``future`` is done when the transaction needs its owner no more
         (a sound reply, or anything for ``finish`` to judge)."""
+        loop = self.loop
+        if loop is None:
+            loop = self.loop = asyncio.get_running_loop()
         job = _Job(self, rx, send, unit, frame(unit, pdu), tm, silence, quiet_by, timeout,
-                   expect, local_echo, withdrawable,
-                   asyncio.get_running_loop().create_future(), on_reply, monotonic(),
-                   broadcast_delay)
+                   expect, local_echo, withdrawable, loop.create_future(), on_reply,
+                   monotonic(), broadcast_delay)
         self._job = job
         job.step()
         return job
@@ -306,5 +309,6 @@ class RtuLink:
             local_echo, withdrawable, on_reply))
 
     def close(self) -> None:
-        """Release the timer."""
+        """Release the timer (and forget the event loop)."""
         self.timer.close()
+        self.loop = None

@@ -27,7 +27,6 @@ __all__ = [
     "SCAN_CRC_BUDGET",
     "RtuReceiver",
     "StreamProtocol",
-    "WaitingReader",
     "read_waiting",
 ]
 
@@ -56,24 +55,6 @@ def read_waiting(fd: int) -> bytes:
         return os.read(fd, BUFFER_LIMIT)
     except OSError:  # EAGAIN: nothing waiting; EIO/ECONNRESET: the transport will see it
         return b""
-
-
-class WaitingReader:
-    """``read_waiting`` for one descriptor that asks the kernel first whether anything
-    waits (one ``poll`` of no time): on an idle line, which is the rule before a frame,
-    that spares the read's EAGAIN exception (a microsecond of CPU per transaction)."""
-
-    __slots__ = ("_fd", "_poll")
-
-    def __init__(self, fd: int) -> None:
-        self._fd = fd
-        self._poll = select.poll()
-        self._poll.register(fd, select.POLLIN | select.POLLERR | select.POLLHUP)
-
-    def __call__(self) -> bytes:
-        if not self._poll.poll(0):
-            return b""
-        return read_waiting(self._fd)
 
 
 def _loop_time(loop: asyncio.AbstractEventLoop, t: float) -> float:
@@ -132,9 +113,10 @@ class RtuReceiver(StreamProtocol):
         self.waiter: asyncio.Future[None] | None = None
         self.garbage_bytes = 0
         """Bytes received outside any reply (late answers, noise), discarded."""
-        self.pending_bytes: Callable[[], bytes] | None = None
-        """Reads what the medium has received and the event loop has not delivered yet
-        (set by lines that can, e.g. a serial port's non-blocking read)."""
+        self._pending_fd = -1
+        self._pending_poll: select.poll | None = None
+        """Asks the descriptor of ``watch`` whether bytes wait (one ``poll`` of no time:
+        on an idle line, the rule before a frame, that spares a read's EAGAIN)."""
         self._deadline = 0.0
         """When the waiter is resolved at the latest (monotonic)."""
         self._expiry: asyncio.TimerHandle | None = None
@@ -171,11 +153,19 @@ class RtuReceiver(StreamProtocol):
             self._expiry.cancel()
             self._expiry = None
 
+    def watch(self, fd: int) -> None:
+        """Let ``take_pending`` read what ``fd`` (the non-blocking serial port or socket
+        the transport reads) has received and the event loop has not delivered yet."""
+        self._pending_fd = fd
+        self._pending_poll = select.poll()
+        self._pending_poll.register(fd, select.POLLIN | select.POLLERR | select.POLLHUP)
+
     def take_pending(self) -> None:
         """Take in bytes received but not delivered yet, so that ``last_rx`` is up to date
         before a decision on silence (the loop may have been busy elsewhere)."""
-        if self.pending_bytes is not None:
-            late = self.pending_bytes()
+        poll = self._pending_poll
+        if poll is not None and poll.poll(0):
+            late = read_waiting(self._pending_fd)
             if late:
                 self.data_received(late)
 
@@ -218,7 +208,15 @@ class RtuReceiver(StreamProtocol):
         self._unit = unit
         self._expect = expect
         self._on_frame = on_frame
-        self._wait(3, deadline, waiter)  # address, function code and a byte count
+        self.need = 3  # address, function code and a byte count
+        self.waiter = waiter
+        self._deadline = deadline
+        if self._expiry is None or self._expiry_at > deadline:  # (``_wait``, written out)
+            self._set_expiry(waiter.get_loop(), deadline)
+        if self.lost is not None:
+            waiter.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
+        elif len(self.buf) >= 3:
+            self._assemble(waiter)
 
     def _wait(self, n: int, deadline: float, waiter: asyncio.Future[None]) -> None:
         self.need = n

@@ -17,7 +17,7 @@ from drivebus.errors import ConfigError, LineClosed, LineConfigError
 from drivebus.line.base import Exchange, Line
 from drivebus.line.baud import port_baudrate, rate_matches
 from drivebus.line.link import Begun, ReplyHook, RtuLink
-from drivebus.line.receiver import RtuReceiver, WaitingReader
+from drivebus.line.receiver import RtuReceiver
 from drivebus.pdu import LengthPredictor
 from drivebus.providers import line_provider, scheme_of
 from drivebus.settings import LineSettings
@@ -167,7 +167,7 @@ class SerialLine(Line):
         self.low_latency = _ask_low_latency(port)
         self._serial = port
         self._fd = port.fileno()
-        rx.pending_bytes = WaitingReader(self._fd)
+        rx.watch(self._fd)
         self._rx = rx
         self._current = s
         if self.rs485:

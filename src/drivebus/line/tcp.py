@@ -35,7 +35,7 @@ from drivebus.errors import (
 )
 from drivebus.line.base import Exchange, Line
 from drivebus.line.link import ReplyHook, RtuLink
-from drivebus.line.receiver import RtuReceiver, StreamProtocol, WaitingReader
+from drivebus.line.receiver import RtuReceiver, StreamProtocol
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import timing
@@ -555,7 +555,7 @@ class _RtuTcpReceiver(RtuReceiver):
         super().connection_made(transport)
         sock = transport.get_extra_info("socket")
         if sock is not None:
-            self.pending_bytes = WaitingReader(sock.fileno())
+            self.watch(sock.fileno())
 
     def connection_lost(self, exc: Exception | None) -> None:
         if not self.cause:
