@@ -309,8 +309,7 @@ class Bus:
         idempotent: bool,
     ) -> bytes:
         """Queue one transaction and wait for its reply PDU (empty for a broadcast)."""
-        req = self.queue(handle, pdu, expect=expect, priority=priority,
-                         idempotent=idempotent)
+        req = self._queue_one(handle, pdu, expect, priority, idempotent)
         try:
             reply = await req.future  # cancelling us cancels the future: the owner skips it
         except asyncio.CancelledError:
@@ -334,6 +333,10 @@ class Bus:
         """Queue one transaction without waiting for it (what a worker process serving
         its lines for another does): its ``future`` gets the reply PDU, an exception reply
         included, or the error; ``retract`` takes it back as a cancelled caller's does."""
+        return self._queue_one(handle, pdu, expect, priority, idempotent)
+
+    def _queue_one(self, handle: SlaveHandle, pdu: bytes, expect: LengthPredictor | None,
+                   priority: Priority, idempotent: bool) -> _Request:
         if not self._open:
             raise LineClosed(f"bus on {self.line.name} is not open")
         req = _Request(

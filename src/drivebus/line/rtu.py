@@ -61,13 +61,17 @@ def crc16_value(data: bytes | bytearray | memoryview) -> int:
         pairs = _PAIRS = _pair_table()
     crc = 0xFFFF
     n = len(data)
-    start = 0
-    while n - start >= 256:  # longer than a frame: a block of 128 pairs at a time
-        for w in _UNPACK[128](data, start):
+    if n < 256:  # a frame (at most 256 bytes): its words in one unpack
+        for w in _UNPACK[n >> 1](data):
             crc = pairs[crc ^ w]
-        start += 256
-    for w in _UNPACK[(n - start) >> 1](data, start):
-        crc = pairs[crc ^ w]
+    else:
+        start = 0
+        while n - start >= 256:  # longer than a frame: a block of 128 pairs at a time
+            for w in _UNPACK[128](data, start):
+                crc = pairs[crc ^ w]
+            start += 256
+        for w in _UNPACK[(n - start) >> 1](data, start):
+            crc = pairs[crc ^ w]
     if n & 1:
         crc = (crc >> 8) ^ _TABLE[(crc ^ data[n - 1]) & 0xFF]
     return crc
