@@ -273,6 +273,7 @@ class Bus:
             exception_texts=exception_texts,
             guard=guard,
             frame_timeout=frame_timeout,
+            max_address=max(getattr(self.line, "unit_ids", range(248))),
         )
         check_line_settings(h, self.line)
         self._handles[h.address] = h
@@ -318,7 +319,7 @@ class Bus:
         if noting():
             self._note(req, "exception" if reply[:1] and reply[0] & 0x80 else "acknowledged")
         if reply[:1] and reply[0] & 0x80:
-            handle.raise_exception(reply)
+            handle.raise_exception(reply, pdu)
         return reply
 
     def queue(

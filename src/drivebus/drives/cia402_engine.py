@@ -13,6 +13,7 @@ the description's own procedures, ``setup`` and ``learn`` run as in the command 
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
@@ -40,7 +41,7 @@ from drivebus.drives.description import Reg
 from drivebus.drives.engine import DescribedProfile, plan_reads
 from drivebus.drives.status import DriveStatus
 from drivebus.drives.values import Attrs, Unread
-from drivebus.errors import LimitViolation, StateError
+from drivebus.errors import LimitViolation, StateError, TransactionError
 
 __all__ = ["STATUS_OBJECTS", "Cia402Profile"]
 
@@ -48,7 +49,11 @@ STATUS_OBJECTS = ("statusword", "modes_of_operation_display", "position_actual_v
                   "velocity_actual_value", "error_code", "digital_inputs")
 """The objects the status poll reads, where the description maps them."""
 
+log = logging.getLogger(__name__)
+
 _ENABLED = COMMAND_WORDS[Command.ENABLE_OPERATION]
+_HALTED = _ENABLED | Controlword.HALT
+"""Enable operation with halt set: Operation enabled, the axis held where it is."""
 
 
 class Cia402Profile(DescribedProfile):
@@ -61,6 +66,8 @@ class Cia402Profile(DescribedProfile):
         self._last_cw: int | None = None
         self._homing = False
         self._homed = False
+        self._velocity_set = False
+        """A speed run of this session left a target velocity (60FFh) other than 0."""
 
     # -- objects ---------------------------------------------------------------------------
 
@@ -78,17 +85,22 @@ class Cia402Profile(DescribedProfile):
     async def _write_objects(self, values: Sequence[tuple[str, float | int]], *,
                              priority: Priority = Priority.COMMAND,
                              idempotent: bool = True) -> None:
-        """Write objects (values in drive units), all range-checked first; registers side by
-        side go in one FC16."""
-        items = [(self._obj(n).register, self._raw(n, v)) for n, v in values]
+        """Write objects (values in drive units), all range-checked first; objects of one
+        of ``[cia402] blocks`` side by side go in one FC16, every other object in a request
+        of its own (a drive answers a write across objects its manual keeps apart with an
+        exception)."""
+        c = self.description.cia402
+        items = [(self._obj(n).register, self._raw(n, v), n) for n, v in values]
         groups: list[list[tuple[Any, int]]] = []
-        for r, raw in sorted(items, key=lambda x: x[0].address) if len(items) > 1 else items:
-            if groups:
-                last = groups[-1][-1][0]
-                if last.contiguous and r.contiguous and r.address == last.address + last.words:
-                    groups[-1].append((r, raw))
-                    continue
+        block: int | None = None
+        for r, raw, name in sorted(items, key=lambda x: (x[0].address, x[0].offset)):
+            mine = c.block_of(name) if c is not None else None
+            if groups and r.follows(groups[-1][-1][0]) and (
+                    r.objects or (mine is not None and mine == block)):
+                groups[-1].append((r, raw))  # a block, or the sub-indices of one object
+                continue
             groups.append([(r, raw)])
+            block = mine
         for group in groups:
             if len(group) == 1:
                 await self.write(group[0][0], group[0][1], priority=priority,
@@ -114,7 +126,9 @@ class Cia402Profile(DescribedProfile):
 
     async def goto(self, goal: State) -> None:
         """Walk the state machine to ``goal`` (bounded: each step is confirmed within the
-        description's timeout, and no more steps than the profile can need)."""
+        description's timeout, and no more steps than the profile can need). Enable
+        operation goes with halt set: Operation enabled holds the axis (a set-point a halt
+        interrupted does not resume); the next motion command clears halt as it starts."""
         timeout = self._timeout
         for _ in range(MAX_STEPS + 2):
             state, _ = await self._state()
@@ -122,7 +136,10 @@ class Cia402Profile(DescribedProfile):
             if step is None:
                 return
             if step.controlword is not None:
-                await self._controlword(step.controlword, idempotent=True)
+                word = step.controlword
+                if step.command is Command.ENABLE_OPERATION:
+                    word |= Controlword.HALT
+                await self._controlword(word, idempotent=True)
             try:
                 with anyio.fail_after(timeout):
                     while True:
@@ -195,6 +212,10 @@ class Cia402Profile(DescribedProfile):
             moving = turning or (self._homing and hs is not HomingStatus.COMPLETED)
         inputs = obj.get("digital_inputs")
         code = obj.get("error_code")
+        alarms, sw_reg = d.alarms, d.objects.get("statusword")
+        if alarms is not None and (sw_reg is None or alarms.reg != sw_reg.key) and \
+                values.get(alarms.reg) is not None:  # the drive's own error register
+            code = values[alarms.reg]
         st = DriveStatus(
             enabled=enabled,
             moving=moving,
@@ -249,11 +270,36 @@ class Cia402Profile(DescribedProfile):
 
     async def enable(self) -> None:
         """Shutdown, switch on, enable operation, as the state machine needs (or the
-        description's own ``enable``)."""
+        description's own ``enable``); a target velocity left in the drive is zeroed
+        first and Operation enabled is reached with halt set, so enabling starts nothing."""
         if self._described("enable"):
             await super().enable()
             return
+        state, _ = await self._state()
+        if state is not State.OPERATION_ENABLED:
+            await self._zero_target_velocity(Priority.COMMAND)
         await self.goto(State.OPERATION_ENABLED)
+
+    async def _zero_target_velocity(self, priority: Priority) -> None:
+        """Target velocity (60FFh) 0, where mapped: in profile velocity the drive runs at
+        it whenever it is in Operation enabled with halt clear (the mode has no start bit,
+        CiA 402-2 profile velocity mode), so none is left for an enable or a mode change
+        to start."""
+        if "target_velocity" in self.description.objects:
+            await self._write_objects([("target_velocity", 0)], priority=priority)
+            self._velocity_set = False
+
+    async def _after_stop(self) -> None:
+        """After the stop of a speed run (on the wire already): target velocity 0. The
+        stop has done its work if this write fails; it is logged and tried again at the
+        next stop, and enable zeroes it anyway."""
+        if not self._velocity_set:
+            return
+        try:
+            await self._zero_target_velocity(Priority.EMERGENCY)
+        except TransactionError as exc:
+            log.warning("%s: the stop went out, but target velocity (60FFh) was not zeroed "
+                        "after it: %s", self.family, exc)
 
     async def disable(self) -> None:
         """Shutdown: Ready to switch on, the motor released (or the description's own)."""
@@ -424,20 +470,31 @@ class Cia402Profile(DescribedProfile):
             await self.stop(decel_rps2)
             return
         await self._enabled_or_raise()
-        await self._set_mode(Mode.PROFILE_VELOCITY)
+        # The target first: the mode change to profile velocity then runs at this speed,
+        # never at one left from before (halt may be clear, the mode has no start bit).
         await self._write_objects(values)
+        self._velocity_set = True
+        await self._set_mode(Mode.PROFILE_VELOCITY)
         await self._controlword(_ENABLED)  # halt clear: run
+
+    def stop_takes_decel(self) -> bool:
+        """The halt takes the profile deceleration where the description maps it."""
+        if self._described("stop"):
+            return super().stop_takes_decel()
+        return "profile_deceleration" in self.description.objects
 
     async def stop(self, decel_rps2: float | None = None) -> None:
         """Halt (controlword bit 8), with ``decel_rps2`` as the profile deceleration."""
         if self._described("stop"):
             await super().stop(decel_rps2)
             return
+        self.check_stop(decel_rps2)
         prio = Priority.EMERGENCY
         if decel_rps2 is not None and "profile_deceleration" in self.description.objects:
             await self._write_objects([("profile_deceleration", decel_rps2)], priority=prio)
         self._homing = False
-        await self._controlword(_ENABLED | Controlword.HALT, priority=prio, idempotent=True)
+        await self._controlword(_HALTED, priority=prio, idempotent=True)
+        await self._after_stop()
 
     async def emergency_stop(self) -> None:
         """Quick stop (or halt, as ``[cia402] emergency_stop`` says)."""
@@ -446,16 +503,20 @@ class Cia402Profile(DescribedProfile):
             return
         c = self.description.cia402
         self._homing = False
-        word = (_ENABLED | Controlword.HALT if c is not None and c.emergency_stop == "halt"
+        word = (_HALTED if c is not None and c.emergency_stop == "halt"
                 else COMMAND_WORDS[Command.QUICK_STOP])
         await self._controlword(word, priority=Priority.EMERGENCY, idempotent=True)
+        await self._after_stop()
 
-    async def start_homing(self, params: HomingParams) -> None:
-        """Homing mode with the method's number, speeds, acceleration and offset, then the
-        rising edge of controlword bit 4."""
+    def check_homing(self, params: HomingParams) -> None:
+        """The method known, its values within range, an offset only with home_offset."""
         if self._described("home"):
-            await super().start_homing(params)
+            super().check_homing(params)
             return
+        self._homing_values(params)
+
+    def _homing_values(self, params: HomingParams) -> list[tuple[str, float | int]]:
+        """The objects a homing writes, range-checked (no I/O)."""
         _, m = self._home_method(params.method)
         number = m.cia402 if m.cia402 is not None else m.code
         values: list[tuple[str, float | int]] = [("homing_method", number)]
@@ -470,6 +531,15 @@ class Cia402Profile(DescribedProfile):
         if params.offset and "home_offset" not in self.description.objects:
             raise self.unsupported(f"home with an offset of {params.offset:g} pulses",
                                    "its description maps no register to home_offset (607C)")
+        return values
+
+    async def start_homing(self, params: HomingParams) -> None:
+        """Homing mode with the method's number, speeds, acceleration and offset, then the
+        rising edge of controlword bit 4."""
+        if self._described("home"):
+            await super().start_homing(params)
+            return
+        values = self._homing_values(params)
         await self._enabled_or_raise()
         await self._set_mode(Mode.HOMING)
         await self._write_objects(values)
@@ -511,6 +581,10 @@ def cia402_attrs(d: Any) -> dict[str, Any]:
     if "modes_of_operation_display" not in d.objects and "modes_of_operation" in d.objects:
         names.append("modes_of_operation")
     regs = [(d.objects[n], None) for n in names]
+    alarms = d.alarms
+    if alarms is not None and all(r.key != alarms.reg for r, _ in regs):
+        regs.append((d.regs[alarms.reg], None))  # the drive's own error register (Kinco's
+        # Error_State): the alarm code where it is not the CiA 402 error code
     link = d.link
     return {"_status_plan": plan_reads(regs, max_read=link.max_read, max_hole=link.max_hole),
             "_status_objects": tuple(names)}
