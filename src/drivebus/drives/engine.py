@@ -236,10 +236,15 @@ class _Decoding:
             [ri for ri in plan.regs if ri[0].codec.kind is Kind.RAMP]
         for reg, index in ordered:
             r = reg.at(index)
-            base = reg.space << 16
-            low = None
-            if r.words == 2:
-                low = base + (r.low_address if r.low_address is not None else r.address + 1)
+            base = reg.space << 16  # as _decode_one finds its words
+            if r.objects:
+                at = OBJECT + (r.address << 8) + r.offset
+                addresses = tuple(at + j for j in range(r.words))
+            elif r.words == 2:
+                low = r.low_address if r.low_address is not None else r.address + 1
+                addresses = (base + r.address, base + low)
+            else:
+                addresses = (base + r.address,)
             codec = reg.codec
             mode = 0  # 0: the codec converts; 1: raw as it is; 2: raw * scale * factor
             factor = 1.0
@@ -248,7 +253,7 @@ class _Decoding:
             elif codec.kind in (Kind.POSITION, Kind.SPEED, Kind.ACCEL):
                 mode, factor = 2, codec.factor(ppr)
             table = index is not None and reg.array
-            steps.append((reg, index, r, base + r.address, low, mode, codec.scale, factor,
+            steps.append((reg, index, r, addresses, mode, codec.scale, factor,
                           codec.kind is Kind.POSITION, table))
         self.steps = tuple(steps)
 
@@ -257,8 +262,9 @@ class _Decoding:
         """What ``DescribedProfile._decode`` gives for the plan's words."""
         out: dict[str, Any] = {}
         tables: dict[str, dict[int, Any]] = {}
-        for reg, index, r, address, low, mode, scale, factor, position, table in self.steps:
-            ws = [words[address]] if low is None else [words[address], words[low]]
+        for reg, index, r, addresses, mode, scale, factor, position, table in self.steps:
+            ws = [words[addresses[0]]] if len(addresses) == 1 else \
+                [words[a] for a in addresses]
             raw = r.decode(ws)
             if mode == 1:  # a plain or named register: its raw value, bits and names
                 value: Any = RegValue(raw, reg)
