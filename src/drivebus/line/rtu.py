@@ -40,25 +40,22 @@ def _pair_table() -> array:
     """The register after two bytes, by register XOR the two bytes (low byte first): two
     table steps depend only on that, so a frame is checked two bytes per lookup."""
     t = _TABLE
-    out = array("H", bytes(2 * 65536))
-    for x in range(65536):
-        first = t[x & 0xFF]
-        out[x] = (first >> 8) ^ t[((x >> 8) ^ first) & 0xFF]
+    out = array("H")
+    for hi in range(256):  # entry hi << 8 | lo: the first step's byte lo, the second's hi
+        out.extend([(t[lo] >> 8) ^ t[(hi ^ t[lo]) & 0xFF] for lo in range(256)])
     return out
 
 
-_PAIRS: array | None = None
-"""``_pair_table()``, made on first use (128 KiB, some milliseconds)."""
+_PAIRS = _pair_table()
+"""``_pair_table()`` (128 KiB), made when the module is imported: some milliseconds that
+must not fall in a step of an event loop."""
 _UNPACK = tuple(struct.Struct(f"<{k}H").unpack_from for k in range(129))
 """The little-endian 16-bit words of the first 2k bytes, by k (a frame has at most 256)."""
 
 
 def crc16_value(data: bytes | bytearray | memoryview) -> int:
     """The Modbus CRC-16 of ``data`` as a number (e.g. 0x1241 for ``02 07``)."""
-    global _PAIRS
     pairs = _PAIRS
-    if pairs is None:
-        pairs = _PAIRS = _pair_table()
     crc = 0xFFFF
     n = len(data)
     if n < 256:  # a frame (at most 256 bytes): its words in one unpack

@@ -9,7 +9,7 @@ import sys
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import anyio
 
@@ -33,11 +33,13 @@ from drivebus.motion.lines import make_line, open_line, provide_elsewhere, serve
 from drivebus.motion.path import GroupHandle
 from drivebus.motion.recording import Recording
 from drivebus.motion.state import MOVING_STATES
-from drivebus.motion.workers import LineSpec, WorkerPool, auto_workers, placement
 from drivebus.positions import PositionStore
 from drivebus.tasks import ServiceTasks
 
 __all__ = ["Machine", "open_machine"]
+
+if TYPE_CHECKING:
+    from drivebus.motion.workers import WorkerPool
 
 log = logging.getLogger(__name__)
 
@@ -298,6 +300,8 @@ async def open_machine(
     async with contextlib.AsyncExitStack() as stack:
         groups = _placement(cfg)
         remote = {name for group in groups for name in group}
+        if groups:  # (imported here: a machine without workers loads none of it)
+            from drivebus.motion.workers import LineSpec, WorkerPool
         specs: dict[str, LineSpec] = {}
         buses: dict[str, Bus] = {}
         for name, line in cfg.lines.items():
@@ -336,6 +340,10 @@ async def open_machine(
 def _placement(cfg: MachineConfig) -> list[list[str]]:
     """The lines each worker serves (``workers`` of the machine file, ``"auto"`` by line
     count and cores); lines that another process cannot open stay here."""
+    if not cfg.workers:
+        return []
+    from drivebus.motion.workers import auto_workers, placement
+
     n = auto_workers(len(cfg.lines)) if cfg.workers == "auto" else cfg.workers
     if not n:
         return []
