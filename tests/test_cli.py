@@ -30,8 +30,10 @@ import serial
 from typer.testing import CliRunner
 
 from drivebus.app.scan import scan_settings
-from drivebus.cli.root import _fail, app, explain
-from drivebus.cli.terminal import Out, check_config, scan_line
+from drivebus.cli.bustools import scan_line
+from drivebus.cli.machine import check_config
+from drivebus.cli.root import _fail, app
+from drivebus.cli.terminal import Out, explain
 from drivebus.config import load_config
 from drivebus.errors import ConfigError, DriveOffline, LineClosed
 from drivebus.line.rtu import frame

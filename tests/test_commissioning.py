@@ -171,8 +171,7 @@ async def _commission(wire: VirtualWire, twin: SimCL86R, *args: str) -> tuple[in
             async for chunk in proc.stdout:
                 out += chunk
                 if b"power-cycle" in chunk:
-                    twin.power_loss()
-                    twin.power_restore()
+                    twin.power_cycle()
             await proc.wait()
     return proc.returncode or 0, out.decode()
 

@@ -376,6 +376,34 @@ async def test_the_oriental_az_runs_at_a_speed_and_presets_its_position() -> Non
             assert az.position == 300
 
 
+async def test_the_oriental_az_changes_a_jogs_speed_on_the_fly() -> None:
+    """``[programs] jog_speed``: a running continuous operation (type 16) takes a new
+    operating speed (public code: github.com/asukiaaa/arduino-OrientalAZ's changeSpeed
+    example writes one while it runs). jog(-20), then jog(-30) without soft limits: new
+    direct data and trigger 1 go to the emulator with no STOP between, and its motor goes
+    from -2000 Hz to -3000 Hz without coming to rest (before the description declared
+    jog_speed, the axis stopped the jog with STOP and started it again)."""
+    az = AzDriver()
+    with anyio.fail_after(60):
+        async with served(az, AZ_READ_ONLY) as line, \
+                open_machine(az_machine(line, limits=False, homing="preset")) as m:
+            a = m.axes["a"]
+            assert a.profile.programs.jog_speed
+            await a.enable()
+            await a.jog(-20.0, watchdog=None)
+            await until(lambda: az.vel == -2000.0)
+            sent = len(az.writes)
+            await a.jog(-30.0, watchdog=None)
+            change = az.writes[sent:]
+            assert not [w for w in change if w[0] == NET_IN], change  # no STOP on the way
+            assert change[-1] == (DD_TRIGGER, [0, 1]) and az.get(DD_SPEED) == -3000
+            assert az.goal == "run" and az.vel <= -2000.0  # it did not brake
+            await until(lambda: az.vel == -3000.0)
+            assert a.state is AxisState.CONTINUOUS_MOTION
+            await a.stop()
+            assert not az.moving
+
+
 def test_the_oriental_az_description_passes_its_check_and_trial() -> None:
     assert "ORIENTAL-AZ (command engine)" in drive("check", AZ)
     assert "12 passed, 0 failed, 0 skipped" in drive("try", AZ)

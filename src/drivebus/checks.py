@@ -15,11 +15,12 @@ import math
 from collections.abc import Sequence
 from enum import IntEnum
 from numbers import Integral, Real
-from typing import Any, TypeVar, get_args, get_origin
-
-from pydantic import BaseModel, ValidationError
+from typing import TYPE_CHECKING, Any, TypeVar, get_args, get_origin
 
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
+
+if TYPE_CHECKING:  # pydantic is loaded by what validates, not by these checks
+    from pydantic import BaseModel, ValidationError
 
 __all__ = [
     "MAX_RETRIES",
@@ -149,6 +150,8 @@ def _key_path(loc: Sequence[int | str]) -> str:
 
 def _allowed_keys(model: type[BaseModel] | None, loc: Sequence[int | str]) -> list[str]:
     """The keys the model allows where ``loc`` (ending in an unknown key) points."""
+    from pydantic import BaseModel
+
     node: Any = model
     for part in loc[:-1]:
         if isinstance(node, type) and issubclass(node, BaseModel):
@@ -180,6 +183,8 @@ def validation_problems(
     per problem (at most ``limit``, then a count); ``prefix`` goes before every key path.
     ``model`` (the validated model) lets an unknown key be answered with the keys allowed
     there."""
+    from pydantic import BaseModel
+
     out = []
     for e in exc.errors(include_url=False)[:limit]:
         loc = tuple(e["loc"])

@@ -36,7 +36,6 @@ from pydantic import (
 )
 
 from drivebus.checks import MAX_RETRIES, MAX_TIMEOUT, validation_problems
-from drivebus.drives.description import read_toml
 from drivebus.errors import ConfigError
 from drivebus.providers import line_provider, scheme_of
 from drivebus.settings import LineSettings
@@ -481,6 +480,8 @@ def load_config(path: str | Path) -> MachineConfig:
     if not isinstance(path, str | os.PathLike):
         raise ConfigError(f"a machine file is a path, not {path!r}")
     p = Path(path)
+    from drivebus.drives.description import read_toml  # the descriptions' parser: on use
+
     config = parse_config(read_toml(p, "config file"), str(p), base=p.parent)
     config._source = p.resolve()
     return config
@@ -493,3 +494,16 @@ def machine_config(config: str | Path | Mapping[str, Any] | MachineConfig) -> Ma
     if isinstance(config, Mapping):
         return parse_config(dict(config))
     return load_config(config)
+
+
+async def machine_config_in_thread(
+    config: str | Path | Mapping[str, Any] | MachineConfig,
+) -> MachineConfig:
+    """``machine_config`` from a coroutine: reading and validating a machine file parses
+    the descriptions of the drives it names (tens of ms of CPU the first time), done in a
+    worker thread so that no event-loop step holds a stop behind it (promise 1)."""
+    if isinstance(config, MachineConfig):
+        return config
+    import anyio.to_thread
+
+    return await anyio.to_thread.run_sync(machine_config, config)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, Protocol
 
 from drivebus.errors import ConfigError
@@ -82,6 +81,8 @@ def line_provider(scheme: str) -> LineProvider:
     found = _registered.get(scheme)
     if found is not None:
         return found
+    from importlib.metadata import entry_points  # the installed providers, when asked for
+
     for ep in entry_points(group=ENTRY_POINT_GROUP, name=scheme):
         provider: LineProvider = ep.load()()
         _registered[scheme] = provider

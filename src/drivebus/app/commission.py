@@ -17,23 +17,26 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import anyio
+import anyio.to_thread
 
-from drivebus.app.scan import Found, probe
+from drivebus import text
+from drivebus.app.scan import Found, is_pty, probe, pty_usable
 from drivebus.app.targets import parse_target
 from drivebus.bus import Bus
 from drivebus.drives.base import DriveProfile, describe_values
-from drivebus.drives.registry import family
+from drivebus.drives.registry import all_families, family
 from drivebus.errors import (
     ArgumentError,
     ConfigError,
     DriveOffline,
+    LineConfigError,
     NotSupported,
     StateError,
 )
 from drivebus.motion.lines import make_line
 from drivebus.settings import LineSettings
 
-__all__ = ["AxisProbe", "CommissionReport", "commission", "probe_axes"]
+__all__ = ["AxisProbe", "CommissionReport", "commission", "occupancy_settings", "probe_axes"]
 
 
 @dataclass
@@ -80,13 +83,15 @@ async def commission(
     timeout: float = 0.2,
     wait: float = 60.0,
     say: Callable[[str], None] = lambda _: None,
+    power_hint: str = "",
 ) -> CommissionReport:
     """Give the ``drive`` at ``address`` (talking ``settings``) on ``target`` the address
     ``to_address`` and settings ``to_settings`` (None: keep), then wait up to ``wait`` s for
-    it to answer there (``say`` tells the technician to power-cycle it). Raises before any
-    write if the drive is not found, cannot take the change (``NotSupported``) or another
-    slave answers at the new address (``StateError``)."""
-    fam = family(drive)
+    it to answer there (``say`` tells the technician to power-cycle it, and how:
+    ``power_hint``). Raises before any write if the drive is not found, cannot take the
+    change (``NotSupported``) or another slave answers at the new address at any setting
+    a drive on the line could use (``StateError``)."""
+    fam = await anyio.to_thread.run_sync(family, drive)  # parsing it: off the loop
     t = parse_target(target)
     if t.kind == "tcp":
         raise ArgumentError(f"{target}: drivebus commission is for serial lines (RS-485)")
@@ -117,22 +122,20 @@ async def commission(
                                f"slaves that answer)")
         report.identity = ident.model or fam.name
         if (new_address, new_settings) != (address, settings):
-            for s in dict.fromkeys((settings, new_settings)):
-                if new_address == address and s == settings:
-                    continue
-                other = await probe(bus, new_address, s, line_kind=t.kind)
-                if other is not None:
-                    raise StateError(
-                        f"another slave already answers at address {new_address} at {s} on "
-                        f"{target} ({other.family}{f', {other.detail}' if other.detail else ''}"
-                        f"): give the drive a free address (nothing was written)")
+            pty = t.kind == "serial" and is_pty(target)
+            tried = [s for s in occupancy_settings(settings, new_settings, pty=pty,
+                                                   fixed=t.kind == "rtu-over-tcp")
+                     if not (new_address == address and s == settings)]
+            await _refuse_occupied(bus, new_address, tried, t.kind, target,
+                                   min(timeout, OCCUPANCY_TIMEOUT), say)
         await _write(profile, writes)
         report.writes = [(f"{r.name} ({r.address})", v) for r, v in writes]
         report.saved = True
         if wait <= 0:
             return report
-        say(f"written and saved; power-cycle the {fam.name} now: it takes address "
-            f"{new_address} at {new_settings} at power-up (waiting up to {wait:g} s)")
+        say(f"written and saved; power-cycle the {fam.name} now; waiting for it at address "
+            f"{new_address} at {new_settings} on {target} (up to {wait:g} s; it takes them "
+            f"at power-up){power_hint}")
         started = time.monotonic()
         with anyio.move_on_after(wait):
             while True:
@@ -145,6 +148,55 @@ async def commission(
         report.answers_at_new = False
         old = await probe(bus, address, settings, line_kind=t.kind)
         raise DriveOffline(_not_there(fam.name, report, old, profile.comms_note))
+
+
+OCCUPANCY_TIMEOUT = 0.05
+"""Seconds a slave has to answer the check for an occupied address (a reply of a few bytes
+takes under 15 ms at 9600 baud), so that the whole check takes a few seconds."""
+
+COMMON_RATES = (9600, 19200, 38400, 57600, 115200)
+"""The baud rates drives on an RS-485 line commonly use, beside each family's own."""
+
+LINE_FORMATS = ("8N1", "8E1", "8O1", "8N2")
+
+
+def occupancy_settings(now: LineSettings, new: LineSettings, *, pty: bool = False,
+                       fixed: bool = False) -> list[LineSettings]:
+    """The settings at which another slave could already answer at a drive's new address:
+    the new ones and the present ones first, then every rate (the common ones and each
+    known family's) with every format, those a pty cannot carry left out (``pty``);
+    through a serial device server (``fixed``) only the two, its port runs one setting."""
+    first = [new, now]
+    if fixed:
+        return list(dict.fromkeys(first))
+    rates = sorted({*COMMON_RATES, *(b for f in all_families() for b in f.profile.baud_rates)})
+    rest = [LineSettings.parse(f, baudrate=b) for b in rates for f in LINE_FORMATS]
+    if pty:
+        rest = pty_usable(rest)[0]
+    return list(dict.fromkeys([*first, *rest]))
+
+
+async def _refuse_occupied(bus: Bus, address: int, tried: list[LineSettings], kind: str,
+                           target: str, timeout: float, say: Callable[[str], None]) -> None:
+    """``StateError`` (before anything is written) if a slave answers at ``address`` at
+    any of ``tried``; a setting the port cannot run is said and skipped."""
+    say(f"checking that no other slave answers at address {address} at {len(tried)} line "
+        f"settings (every rate and format a drive on the line could use)")
+    skipped = []
+    for s in tried:
+        try:
+            other = await probe(bus, address, s, line_kind=kind, timeout=timeout, retries=0)
+        except LineConfigError:
+            skipped.append(str(s))
+            continue
+        if other is not None:
+            detail = f", {other.detail}" if other.detail else ""
+            raise StateError(
+                f"another slave already answers at address {address} at {s} on {target} "
+                f"({text.a(other.family)}{detail}): give the drive a free address (nothing "
+                f"was written)")
+    if skipped:
+        say(f"not checked at {', '.join(skipped)}: the port cannot run them")
 
 
 async def _write(profile: DriveProfile, writes: list[tuple[Any, int]]) -> None:
@@ -206,10 +258,10 @@ async def probe_axes(config: Any, *, timeout: float = 0.1) -> list[AxisProbe]:
     the configured settings and at its other settings at the configured address."""
     from contextlib import AsyncExitStack
 
-    from drivebus.config import machine_config
+    from drivebus.config import machine_config_in_thread
     from drivebus.motion.lines import open_line
 
-    cfg = machine_config(config)
+    cfg = await machine_config_in_thread(config)  # parsing descriptions: off the loop
     out: list[AxisProbe] = []
     async with AsyncExitStack() as stack:
         for name, line_cfg in cfg.lines.items():
@@ -219,38 +271,70 @@ async def probe_axes(config: Any, *, timeout: float = 0.1) -> list[AxisProbe]:
             line, _ = await open_line(cfg, name, stack)
             bus = await stack.enter_async_context(Bus(line, timeout=timeout, retries=1))
             for n, ax in axes.items():
-                out.append(await _probe_axis(bus, n, ax, line_cfg.kind))
+                out.append(await _probe_axis(bus, n, ax, line_cfg.kind, line_cfg.port or ""))
     return out
 
 
-async def _probe_axis(bus: Bus, name: str, ax: Any, kind: str) -> AxisProbe:
+async def _probe_axis(bus: Bus, name: str, ax: Any, kind: str, port: str) -> AxisProbe:
     fam = family(ax.drive)
     settings = ax.settings or (bus.line.settings if kind != "tcp" else None)
     rec = AxisProbe(name, fam.name, ax.address, None if settings is None else str(settings),
                     False)
-    hit = await probe(bus, ax.address, settings, line_kind=kind)
+    here = f"address {ax.address}" + (f" at {settings}" if settings else "")
+    try:
+        hit = await probe(bus, ax.address, settings, line_kind=kind)
+    except LineConfigError as exc:
+        rec.problem = f"not probed at {here}: {exc}"
+        return rec
     if hit is not None and hit.family == fam.name:
         rec.ok, rec.identity = True, hit.detail or hit.family
         return rec
-    here = f"address {ax.address}" + (f" at {settings}" if settings else "")
     if hit is not None:
-        rec.problem = f"a {hit.family} answers at {here}, not a {fam.name}"
+        rec.problem = f"{text.a(hit.family)} answers at {here}, not {text.a(fam.name)}"
         return rec
-    others: list[tuple[int, LineSettings | None]] = []
-    if kind != "tcp" and settings is not None:
-        others += [(ax.address, LineSettings.parse(f, baudrate=b))
-                   for b in (fam.profile.baud_rates or (settings.baudrate,))
-                   for f in (fam.profile.line_formats or (settings.format,))]
-    others += [(a, settings) for a in fam.profile.addresses if a != ax.address][:31]
+    rates, formats, addresses = _elsewhere(fam.profile, ax.address, settings, kind,
+                                           pty=kind == "serial" and is_pty(port))
+    others = [(ax.address, LineSettings.parse(f, baudrate=b)) for b in rates for f in formats]
+    others += [(a, settings) for a in addresses]
+    skipped: list[str] = []
     for a, s in others:
         if (a, s) == (ax.address, settings):
             continue
-        found = await probe(bus, a, s, line_kind=kind)
+        try:
+            found = await probe(bus, a, s, line_kind=kind)
+        except LineConfigError:  # this port cannot run it: try the rest
+            skipped.append(str(s))
+            continue
         if found is not None and found.family == fam.name:
             where = f"address {a}" + (f" at {s}" if s else "")
-            rec.problem = (f"no drive answers at {here}; a {fam.name} answers at {where}: "
+            rec.problem = (f"no drive answers at {here}; {text.a(fam.name)} answers at {where}: "
                            f"fix the machine file's address/settings (or the drive's)")
             return rec
-    rec.problem = (f"no {fam.name} answers at {here}, nor at its other settings or "
-                   f"addresses: check power, wiring and termination")
+    tried = []
+    if rates:
+        tried.append(f"address {ax.address} at {', '.join(map(str, rates))} baud with "
+                     f"{', '.join(formats)}")
+    if addresses:
+        at = f" at {settings}" if settings else ""
+        tried.append(f"addresses {text.ranges(addresses)}{at}")
+    cannot = f" ({', '.join(dict.fromkeys(skipped))}: the port cannot run them)" if skipped \
+        else ""
+    rec.problem = (f"no {fam.name} answers at {here}; tried {' and '.join(tried) or 'nothing else'}"
+                   f"{cannot}: check power, wiring and termination")
     return rec
+
+
+def _elsewhere(profile: type[DriveProfile], address: int, settings: LineSettings | None,
+               kind: str, *, pty: bool) -> tuple[list[int], list[str], list[int]]:
+    """Where else a drive of ``profile`` missing at ``address``/``settings`` may answer:
+    the rates and formats it runs (at its address; a pty's formats only: 8N1, 8N2) and
+    up to 31 other addresses (at its settings)."""
+    rates: list[int] = []
+    formats: list[str] = []
+    if kind != "tcp" and settings is not None:
+        rates = list(profile.baud_rates or (settings.baudrate,))
+        formats = list(profile.line_formats or (settings.format,))
+        if pty:
+            formats = [f for f in formats if f in ("8N1", "8N2")] or formats[:0]
+    addresses = [a for a in profile.addresses if a != address][:31]
+    return rates, formats, addresses

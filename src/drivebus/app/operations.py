@@ -16,7 +16,7 @@ from typing import Any
 import anyio
 
 from drivebus.app.doctor import Adapter, check_serial_port, poll_efficiency
-from drivebus.config import MachineConfig, load_config, machine_config
+from drivebus.config import MachineConfig, load_config, machine_config_in_thread
 from drivebus.drives.registry import drive_label
 from drivebus.errors import ConfigError, DriveOffline
 from drivebus.motion import Axis, AxisState, Machine, open_machine
@@ -82,7 +82,7 @@ async def opened(
     observer also shows the axes whose drive does not answer (Offline, with the reason);
     an operation needs them all.
     """
-    cfg = subset(machine_config(config), axes)
+    cfg = subset(await machine_config_in_thread(config), axes)  # descriptions: off the loop
     async with open_machine(cfg, stop_on_exit=not observer, require_all=not observer) as m:
         await first_status(m)
         yield m

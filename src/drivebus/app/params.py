@@ -25,9 +25,10 @@ from typing import Any
 
 import anyio
 
+from drivebus import text
 from drivebus.bus import Bus, Priority
 from drivebus.bus.sent import sent_requests
-from drivebus.config import MachineConfig, machine_config
+from drivebus.config import MachineConfig, machine_config_in_thread
 from drivebus.drives.base import DriveProfile, Parameter
 from drivebus.drives.registry import family
 from drivebus.errors import (
@@ -71,18 +72,13 @@ class ParameterSet:
         params = self.params
         return {
             "family": self.family, **{k: v for k, v in self.about.items() if k != "family"},
-            "parameters": {
-                k: {"value": v, "name": params[k].name, "unit": params[k].unit,
-                    "register": params[k].location, "stored": params[k].stored,
-                    "comms": params[k].comms}
-                for k, v in self.values.items()
-            },
+            "parameters": {k: _parameter_dict(params[k], v) for k, v in self.values.items()},
         }
 
     def to_toml(self) -> str:
         """The set as a parameter file."""
         params = self.params
-        head = [f"# drivebus parameters of a {self.family} drive"]
+        head = [f"# drivebus parameters of {text.a(self.family)} drive"]
         if "axis" in self.about:
             head[0] += f": axis {self.about['axis']}"
         head.append("# restore: drivebus params load FILE [AXIS] [--save]; compare: "
@@ -93,12 +89,12 @@ class ParameterSet:
         for k, v in self.values.items():
             p = params[k]
             fields = [f"value = {v}"]
-            if p.unit:
-                fields.append(f"unit = {_toml(p.unit)}")
+            if p.value_unit:
+                fields.append(f"unit = {_toml(p.value_unit)}")
             fields += [f"register = {_toml(p.location)}", f"stored = {_toml(p.stored)}"]
             if p.comms:
                 fields.append("comms = true")
-            out.append(f"{k} = {{ {', '.join(fields)} }}  # {p.name}")
+            out.append(f"{k} = {{ {', '.join(fields)} }}  # {_comment(p, v)}")
         return "\n".join(out) + "\n"
 
     @classmethod
@@ -155,6 +151,27 @@ class ParameterSet:
         return cls.from_toml(text, str(p))
 
 
+def _parameter_dict(p: Parameter, value: int) -> dict[str, Any]:
+    """One parameter of a set as JSON-ready data: its value and what it takes."""
+    out: dict[str, Any] = {
+        "value": value, "name": p.name, "unit": p.unit, "register": p.location,
+        "stored": p.stored, "comms": p.comms, "range": [p.register.lo, p.register.hi],
+        "in_range": p.in_range(value)}
+    if p.table:
+        out["table"] = list(p.table)
+    if meaning := p.meaning(value):
+        out["meaning"] = meaning
+    return out
+
+
+def _comment(p: Parameter, value: int) -> str:
+    """A parameter line's comment: its name, what the value means, what it takes."""
+    meaning = p.meaning(value)
+    now = f": {value} = {meaning}" if meaning else ""
+    outside = "" if p.in_range(value) else " (OUTSIDE its range: a load refuses it)"
+    return f"{p.name}{now}; allowed {p.allowed()}{outside}"
+
+
 def _toml(v: object) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
@@ -179,29 +196,47 @@ async def read_parameters(
 
 @dataclass(frozen=True)
 class Difference:
-    """One parameter that differs between two sets (None: absent from that set)."""
+    """One parameter that differs between two sets (None: absent from that set), with
+    the sides whose value is outside the parameter's range."""
 
     key: str
     name: str
     unit: str
     a: int | None
     b: int | None
+    parameter: Parameter | None = None
+    outside: tuple[str, ...] = ()
+    """"a", "b": the sides holding a value the parameter does not take."""
+
+    def shown(self, value: int | None) -> str:
+        """A side's value as a person reads it: "(absent)", "8 (1000 pulses/rev)"."""
+        if value is None:
+            return "(absent)"
+        meaning = self.parameter.meaning(value) if self.parameter is not None else ""
+        return f"{value} ({meaning})" if meaning else str(value)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready data."""
-        return {"key": self.key, "name": self.name, "unit": self.unit, "a": self.a, "b": self.b}
+        p = self.parameter
+        return {"key": self.key, "name": self.name, "unit": self.unit, "a": self.a,
+                "b": self.b, "outside_range": list(self.outside),
+                **({"range": [p.register.lo, p.register.hi], "allowed": p.allowed()}
+                   if p is not None else {})}
 
 
 def diff_parameters(a: ParameterSet, b: ParameterSet) -> list[Difference]:
-    """What differs between ``a`` and ``b`` (same family), in the manual's order."""
+    """What differs between ``a`` and ``b`` (same family), in the manual's order; a value
+    outside its parameter's range is flagged (``Difference.outside``)."""
     if a.family != b.family:
-        raise ConfigError(f"cannot compare a {a.family} drive's parameters with a "
-                          f"{b.family} drive's")
+        raise ConfigError(f"cannot compare {text.a(a.family)} drive's parameters with "
+                          f"{text.a(b.family)} drive's")
     out = []
     for key, p in a.params.items():
         va, vb = a.values.get(key), b.values.get(key)
         if va != vb:
-            out.append(Difference(key, p.name, p.unit, va, vb))
+            outside = tuple(side for side, v in (("a", va), ("b", vb))
+                            if v is not None and not p.in_range(v))
+            out.append(Difference(key, p.name, p.value_unit, va, vb, p, outside))
     return out
 
 
@@ -248,8 +283,8 @@ def plan_load(
     written then), read-only parameters that differ refused, comms ones skipped unless
     ``include_comms``."""
     if wanted.family != profile.family:
-        raise ConfigError(f"the parameters are a {wanted.family} drive's; this drive is a "
-                          f"{profile.family}")
+        raise ConfigError(f"the parameters are {text.a(wanted.family)} drive's; this drive "
+                          f"is {text.a(profile.family)}")
     params = {p.key: p for p in profile.parameters()}
     problems = []
     for key, p in params.items():  # the manual's order
@@ -362,7 +397,7 @@ async def open_drive(
     """The profile of ``axis``'s drive on its own line, for the block: only that line is
     opened (a ``sim://`` line reaches a running ``drivebus sim`` or starts its simulator),
     and nothing is written to the drive (no set-up, no axis actor)."""
-    cfg = machine_config(config)
+    cfg = await machine_config_in_thread(config)  # parsing descriptions: off the loop
     ax = cfg.axes.get(axis)
     if ax is None:
         raise ConfigError(f"no axis {axis!r} in machine {cfg.name} (axes: "

@@ -14,6 +14,8 @@ import os
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
+import anyio.to_thread
+
 from drivebus.app.targets import parse_target
 from drivebus.bus import Bus, SlaveHandle
 from drivebus.drives.registry import DriveFamily, all_families
@@ -81,15 +83,17 @@ def _detail(ident: DriveIdentity) -> str:
 
 
 async def probe(
-    bus: Bus, address: int, settings: LineSettings | None, *, line_kind: str = "serial"
+    bus: Bus, address: int, settings: LineSettings | None, *, line_kind: str = "serial",
+    timeout: float | None = None, retries: int | None = None,
 ) -> Found | None:
-    """Probe one address at one setting; the slave found there, if any.
+    """Probe one address at one setting; the slave found there, if any (``timeout`` and
+    ``retries``: the probe's own, else the bus's).
 
     A standard slave is found by a plain read; then each drive family of the registry
     that could be there tries to identify it. A family with frames of its own (the
     OD2000) is asked directly where it could be.
     """
-    slave = bus.slave(address, settings=settings)
+    slave = bus.slave(address, settings=settings, timeout=timeout, retries=retries)
     families = [f for f in all_families()
                 if f.profile.could_be_at(address, line_kind, settings)]
     if await _present(slave):
@@ -149,6 +153,8 @@ async def scan(
         raise ConfigError("nothing to scan: no line settings given")
     todo = list(dict.fromkeys(addresses))
     found: list[Found] = []
+    # every description parsed before the line opens (not between probes), off the loop
+    await anyio.to_thread.run_sync(all_families)
     line = make_line(t.line_config(tried[0], timeout=timeout))
     async with Bus(line, timeout=timeout, retries=0) as bus:
         for s in tried:

@@ -9,6 +9,7 @@ this module parses and renders.
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import time
 from pathlib import Path
@@ -16,8 +17,9 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from drivebus import text
 from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
-from drivebus.cli.options import JsonOpt
+from drivebus.cli.options import ConfigArg, JsonOpt
 from drivebus.errors import ArgumentError, ConfigError, LimitViolation
 
 if TYPE_CHECKING:
@@ -41,7 +43,7 @@ MachineOpt = Annotated[Path | None, typer.Option(
 
 def _owner(config: Path, server: str | None, token: str | None, local: bool
            ) -> ServiceClient | None:
-    from drivebus.cli.terminal import service_owner
+    from drivebus.cli.remote import service_owner
 
     return service_owner(config, server, token, local)
 
@@ -57,7 +59,7 @@ def _run(fn: Any, *, interrupt_ok: bool = False) -> None:
 
 @params_app.command()
 def dump(
-    config: Annotated[Path, typer.Argument(metavar="CONFIG", help="machine file (TOML)")],
+    config: ConfigArg,
     axis: Annotated[str, typer.Argument(metavar="AXIS", help="axis name")],
     output: Annotated[Path | None, typer.Option(
         "--output", "-o", metavar="FILE", help="write the parameter file here (default: "
@@ -77,6 +79,8 @@ def dump(
     if axis not in cfg.axes:
         raise ConfigError(f"no axis {axis!r} in machine {cfg.name} (axes: "
                           f"{', '.join(cfg.axes)})")
+    if output is not None:
+        _check_output(output)  # before the drive is read
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
     source = str(config.resolve())
@@ -102,9 +106,28 @@ def dump(
     _run(run)
 
 
+def _check_output(output: Path) -> None:
+    """``--output`` names a file that can be written: its directory exists and takes it
+    (``ArgumentError`` naming the path otherwise, before anything is read)."""
+    where = output.parent
+    if output.is_dir():
+        raise ArgumentError(f"--output {output}: is a directory: give a file's name "
+                            f"(e.g. {output / 'axis.toml'})")
+    if not where.is_dir():
+        raise ArgumentError(f"--output {output}: no such directory {where}: create it "
+                            f"first, or write the file elsewhere")
+    if not os.access(where, os.W_OK | os.X_OK) or (
+            output.exists() and not os.access(output, os.W_OK)):
+        raise ArgumentError(f"--output {output}: not writable by this user (in {where})")
+
+
 def _write_set(out: Out, pset: ParameterSet, output: Path | None) -> None:
     if output is not None:
-        output.write_text(pset.to_toml())
+        try:
+            output.write_text(pset.to_toml())
+        except OSError as exc:
+            raise ArgumentError(f"--output {output}: cannot write it: "
+                                f"{exc.strerror or exc}") from None
         out.result(pset.as_dict())
     elif out.as_json:
         out.result(pset.as_dict())
@@ -208,11 +231,15 @@ def _show_diff(out: Out, changes: list[Difference], a: str, b: str) -> None:
              f"between {a} (<) and {b} (>):")
     for c in changes:
         unit = f" {c.unit}" if c.unit else ""
-        out.line(f"  {c.key}: < {_v(c.a)} > {_v(c.b)}{unit}  ({c.name})")
-
-
-def _v(value: int | None) -> str:
-    return "(absent)" if value is None else str(value)
+        out.line(f"  {c.key}: < {c.shown(c.a)} > {c.shown(c.b)}{unit}  ({c.name})")
+        if c.outside and c.parameter is not None:
+            sides = " and ".join({"a": a, "b": b}[side] for side in c.outside)
+            out.line(f"    ! outside its range in {sides}: allowed {c.parameter.allowed()} "
+                     f"(params load refuses it)")
+    outside = [c.key for c in changes if c.outside]
+    if outside:
+        _note(f"warning: {text.count(len(outside), 'value', 'values')} outside its range: "
+              f"{', '.join(outside)}")
 
 
 # -- params load ----------------------------------------------------------------------------------
@@ -253,6 +280,8 @@ def load(
     report = LoadReport(wanted.family, [])
 
     def said(w: Any) -> None:
+        if len(report.written) == 1:  # the first write: every value passed its checks
+            out.line(f"loading {file} into axis {axis} ({report.family}):")
         unit = f" {w.parameter.unit}" if w.parameter.unit else ""
         out.line(f"  {w.parameter.key}: {w.old} -> {w.new}{unit}")
 
@@ -265,8 +294,6 @@ def load(
                 _show_load(out, data, axis, remote=True)
                 return 0
             async with open_drive(config, axis) as profile:
-                if not dry_run:
-                    out.line(f"loading {file} into axis {axis} ({profile.family}):")
                 await load_parameters(profile, wanted, save=save, dry_run=dry_run,
                                       include_comms=include_comms, report=report,
                                       on_write=None if dry_run else said)
@@ -353,10 +380,12 @@ def commission(
         raise ArgumentError(f"--wait: {wait!r} s is negative")
     out = Out(as_json=as_json)
 
+    hint = _power_hint(target, address)
+
     async def run() -> int:
         report = await run_commission(target, drive, address, now, to_address=to_address,
                                       to_settings=new, timeout=timeout, wait=wait,
-                                      say=out.line)
+                                      say=out.line, power_hint=hint)
         out.result(report.as_dict())
         for name, value in report.writes:
             out.line(f"  wrote {name} = {value}")
@@ -368,3 +397,15 @@ def commission(
         return 0
 
     _run(run)
+
+
+def _power_hint(target: str, address: int) -> str:
+    """How to power-cycle the drive when ``target`` is a running ``drivebus sim``'s line."""
+    if not target.startswith("sim://"):
+        return ""
+    from drivebus.sim.serve import published
+
+    if published(target.removeprefix("sim://").strip("/")) is None:
+        return ""
+    return (f"; on this drivebus sim: type `power-cycle {address}` at its console, or run "
+            f"`drivebus sim MACHINE.toml --power-cycle {address}`")

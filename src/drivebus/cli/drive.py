@@ -11,7 +11,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-import anyio
 import typer
 
 __all__ = ["drive_app"]
@@ -55,6 +54,8 @@ def doc(
 @drive_app.command("try")
 def try_(file: FileArg) -> None:
     """Run the description against its simulated twin; exit 1 if a step fails."""
+    import anyio
+
     from drivebus.app.drives import load
     from drivebus.sim.trial import format_trial, try_description
 

@@ -3,19 +3,43 @@ the ``drivebus serve`` that owns a machine (used by ``cli`` and its command modu
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
+from drivebus.errors import ArgumentError
 
 if TYPE_CHECKING:
     from drivebus.service.client import ServiceClient
 
-__all__ = ["ConfigArg", "JsonOpt", "LocalOpt", "ServerOpt", "TokenOpt", "owner"]
+__all__ = ["ConfigArg", "JsonOpt", "LocalOpt", "ServerOpt", "TokenOpt", "machine_file", "owner"]
 
-ConfigArg = Annotated[Path, typer.Argument(help="machine file (TOML)", metavar="CONFIG")]
+_URL = re.compile(r"([a-z][a-z0-9+.-]+):/+(.*)")
+"""A line's URL as a path makes it (``sim://x`` -> ``sim:/x``)."""
+
+
+def machine_file(ctx: typer.Context, value: Path) -> Path:
+    """CONFIG as the command takes it: a line (``sim://NAME``, ``tcp://HOST``, a serial
+    device) is not a machine file, and the command says what it takes instead."""
+    text = str(value)
+    m = _URL.fullmatch(text)
+    line = f"{m.group(1)}://{m.group(2)}" if m else text if text.startswith("/dev/") else None
+    if line is None:
+        return value
+    usage = f"{ctx.command_path} MACHINE.toml" + (" AXIS" if ctx.command.name == "dump" else "")
+    settings = "" if line.startswith("tcp://") else " -S SETTINGS"
+    raise ArgumentError(
+        f"CONFIG: {line} is a line, not a machine file: `{ctx.command_path}` takes a machine "
+        f"file (TOML){' and an axis' if usage.endswith('AXIS') else ''}: `{usage}`; a slave "
+        f"on a line is read with `drivebus read {line} ADDR REG{settings}` (`drivebus scan "
+        f"{line}` finds the slaves)")
+
+
+ConfigArg = Annotated[Path, typer.Argument(help="machine file (TOML)", metavar="CONFIG",
+                                           callback=machine_file)]
 JsonOpt = Annotated[bool, typer.Option("--json", "-j", help="print the result as JSON")]
 
 
@@ -24,6 +48,6 @@ def owner(
 ) -> ServiceClient | None:
     """The ``drivebus serve`` that owns ``config``'s machine (``--server``, or found
     through the file), as a client; None to open the machine here."""
-    from drivebus.cli.terminal import service_owner
+    from drivebus.cli.remote import service_owner
 
     return service_owner(config, server, token, local)

@@ -41,7 +41,7 @@ async def _teach_here(out: Out, config: Path, name: str, axes: list[str]) -> int
 
 
 async def _teach_remote(out: Out, client: ServiceClient, name: str, axes: list[str]) -> int:
-    from drivebus.cli.terminal import _call
+    from drivebus.cli.remote import call as _call
 
     result = await _call(client.request, "POST", f"/positions/{name}/teach",
                          {"axes": axes} if axes else {})
@@ -92,7 +92,7 @@ async def _move_here(out: Out, config: Path, name: str, speed: float | None) -> 
 
 
 async def _move_remote(out: Out, client: ServiceClient, name: str, speed: float | None) -> int:
-    from drivebus.cli.terminal import remote_motion
+    from drivebus.cli.remote import remote_motion
 
     body = {} if speed is None else {"speed": speed}
     return await remote_motion(out, client, "", f"move to {name}",

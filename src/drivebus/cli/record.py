@@ -3,7 +3,9 @@
 ``drivebus record MACHINE --during "move x 100" -o run.html`` opens the machine, records
 while the ``--during`` steps run one after the other (and for ``--seconds``), and writes
 each ``-o`` file by its suffix: ``.html`` the self-contained report, ``.jsonl`` the whole
-recording, ``.csv`` and ``.parquet`` the samples table; ``--png`` a static picture.
+recording, ``.csv`` and ``.parquet`` the samples table; ``--png`` a static picture. When a
+``drivebus serve`` owns the machine, the recording is made by it (its recordings API) and
+the steps are its motions, so the line keeps one master.
 """
 
 from __future__ import annotations
@@ -12,13 +14,17 @@ import shlex
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import anyio
 import typer
 
 from drivebus import checks
+from drivebus.cli.options import ConfigArg, LocalOpt, ServerOpt, TokenOpt
 from drivebus.errors import ArgumentError, ConfigError
+
+if TYPE_CHECKING:
+    from drivebus.motion import Recording
+    from drivebus.service.client import ServiceClient
 
 __all__ = ["Step", "parse_step", "record"]
 
@@ -73,6 +79,8 @@ def parse_step(text: str) -> Step:
 
 
 def _runner(step: Step, machine: object) -> Callable[[], Awaitable[object]]:
+    import anyio
+
     from drivebus.motion import Machine
 
     assert isinstance(machine, Machine)
@@ -110,8 +118,9 @@ def _runner(step: Step, machine: object) -> Callable[[], Awaitable[object]]:
 
 async def _record(config: Path, axes: list[str], steps: list[Step], seconds: float | None,
                   outputs: list[Path], png: Path | None) -> int:
+    import anyio
+
     from drivebus.motion import open_machine
-    from drivebus.service.report import report_html, report_png
 
     async with open_machine(config) as m:
         runs = [_runner(s, m) for s in steps]  # every step checked before anything moves
@@ -120,6 +129,92 @@ async def _record(config: Path, axes: list[str], steps: list[Step], seconds: flo
                 await run()
             rest = (seconds or 0.0) - rec.duration
             await anyio.sleep(max(rest, 0.25 if steps else 0.0))
+    _write(rec, outputs, png)
+    return 0
+
+
+async def _record_through(client: ServiceClient, axes: list[str], steps: list[Step],
+                          seconds: float | None, outputs: list[Path], png: Path | None) -> int:
+    """``record`` through the running ``drivebus serve`` that owns the machine (the line's
+    one owner): a recording of its recordings API while the steps run as its motions,
+    then its JSON lines, written here like a recording of this process."""
+    import time
+
+    import anyio
+
+    from drivebus.cli.remote import call
+    from drivebus.motion import Recording
+
+    machine = await call(client.machine)
+    known = [a["name"] for a in machine["axes"]]
+    for name in [*axes, *(a for s in steps for a in s.axes)]:
+        if name not in known:  # every step checked before anything starts
+            raise ConfigError(f"--during: no axis {name!r} (axes: {', '.join(known)})")
+    started = time.monotonic()
+    rec = await call(client.request, "POST", "/recordings", {"axes": axes} if axes else None)
+    try:
+        for step in steps:
+            await _remote_step(client, step)
+        rest = (seconds or 0.0) - (time.monotonic() - started)
+        await anyio.sleep(max(rest, 0.25 if steps else 0.0))
+    finally:
+        with anyio.CancelScope(shield=True):
+            await call(client.request, "POST", f"/recordings/{rec['id']}/stop")
+    text = await call(client.text, f"/recordings/{rec['id']}/jsonl")
+    typer.echo(f"recorded through {client.url} (recording {rec['id']})")
+    _write(Recording.from_jsonl(text), outputs, png)
+    return 0
+
+
+async def _remote_step(client: ServiceClient, step: Step) -> None:
+    """One ``--during`` step as the service's motions and commands; a motion that does not
+    complete raises its typed error."""
+    import anyio
+
+    from drivebus.cli.remote import call, follow_motion, motion_error
+
+    targets = dict(zip(step.axes, step.values, strict=False))
+    what = f"{step.op} {' '.join(step.axes)}".strip()
+    if step.op == "move-by" and len(targets) > 1:  # a group moves to targets: from here
+        here = {a: (await call(client.axis, a)).get("position") for a in targets}
+        if any(v is None for v in here.values()):
+            raise ConfigError(f"--during {what}: a position is unknown")
+        targets = {a: float(here[a]) + d for a, d in targets.items()}  # type: ignore[arg-type]
+    if step.op in ("move", "move-by") and len(targets) > 1:
+        record = await follow_motion(client, "/machine/group-move", {"targets": targets})
+    elif step.op in ("move", "move-by"):
+        (name, value), = targets.items()
+        record = await follow_motion(client, f"/axes/{name}/move",
+                                     {"target" if step.op == "move" else "by": value})
+    elif step.op == "home":
+        record = await follow_motion(client, f"/axes/{step.axes[0]}/home")
+    elif step.op == "jog":
+        name, (speed, seconds) = step.axes[0], step.values
+        try:
+            with anyio.move_on_after(seconds):
+                while True:  # fed every 0.2 s: a 0.5 s watchdog stops it if this stops
+                    await call(client.command, name, "jog", {"speed": speed, "ttl": 0.5})
+                    await anyio.sleep(0.2)
+        finally:
+            with anyio.CancelScope(shield=True):
+                await call(client.command, name, "stop")
+        return
+    elif step.op in ("enable", "stop"):
+        names = step.axes or tuple(a["name"] for a in (await call(client.machine))["axes"])
+        for name in names:
+            await call(client.command, name, step.op)
+        return
+    else:  # wait
+        await anyio.sleep(step.values[0])
+        return
+    if record["state"] != "done":
+        raise motion_error(record, what)
+
+
+def _write(rec: Recording, outputs: list[Path], png: Path | None) -> None:
+    """Write ``rec`` to each output by its suffix, and the PNG; say what was recorded."""
+    from drivebus.service.report import report_html, report_png
+
     for path in outputs:
         suffix = path.suffix.lower()
         if suffix in (".html", ".htm"):
@@ -139,11 +234,10 @@ async def _record(config: Path, axes: list[str], steps: list[Step], seconds: flo
                f" samples, {sum(len(t.events) for t in rec.axes.values())} events, "
                f"{sum(len(t.transactions) for t in rec.lines.values())} transactions, "
                f"{len(moves)} moves")
-    return 0
 
 
 def record(
-    config: Annotated[Path, typer.Argument(help="machine file (TOML)", metavar="CONFIG")],
+    config: ConfigArg,
     axes: Annotated[list[str] | None, typer.Argument(
         help="axes to record (default: all)", metavar="[AXIS]...")] = None,
     seconds: Annotated[float | None, typer.Option(
@@ -159,11 +253,16 @@ def record(
              "samples; repeatable")] = None,
     png: Annotated[Path | None, typer.Option(
         "--png", metavar="FILE", help="also draw the report as a PNG (matplotlib)")] = None,
-    local: Annotated[bool, typer.Option(
-        "--local", help="open the machine here even if a drivebus serve owns it")] = False,
+    server: ServerOpt = None,
+    token: TokenOpt = None,
+    local: LocalOpt = False,
 ) -> None:
     """Record the axes' positions, velocities and events and the lines' transactions while
-    --during steps run; write a self-contained HTML report (-o run.html) and exports."""
+    --during steps run; write a self-contained HTML report (-o run.html) and exports.
+
+    When a drivebus serve owns the machine, it records through it (its recordings API;
+    the steps run as its motions): the line keeps its one master."""
+    from drivebus.cli.remote import service_owner
     from drivebus.cli.terminal import run_guarded
 
     steps = [parse_step(s) for s in during or []]
@@ -179,13 +278,9 @@ def record(
     if not outputs and png is None:
         raise ArgumentError("nothing to write: give -o run.html (or .jsonl, .csv, .parquet) "
                             "or --png FILE")
-    if not local:
-        from drivebus.service.client import find_service
-
-        url = find_service(config)
-        if url is not None:
-            raise ConfigError(f"{config} is served by a running drivebus serve at {url}: "
-                              f"record there with its dashboard's Record button (or pass "
-                              f"--local to open the machine here)")
+    owner = service_owner(config, server, token, local)
+    if owner is not None:
+        raise typer.Exit(run_guarded(lambda: _record_through(owner, axes or [], steps,
+                                                             seconds, outputs, png)))
     raise typer.Exit(run_guarded(lambda: _record(config, axes or [], steps, seconds,
                                                  outputs, png)))

@@ -13,9 +13,8 @@ import json
 import sys
 import termios
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, NoReturn
+from typing import Annotated, NoReturn
 
-import anyio
 import typer
 import typer.main
 
@@ -27,11 +26,7 @@ from drivebus.cli.options import ConfigArg, JsonOpt
 from drivebus.cli.options import owner as _owner
 from drivebus.cli.positions import positions, teach
 from drivebus.cli.record import record
-from drivebus.cli.terminal import explain
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
-
-if TYPE_CHECKING:
-    pass
 
 try:  # typer vendors click from 0.2x on; before, it used click itself
     from typer._click.exceptions import UsageError
@@ -131,6 +126,8 @@ def bench(
     no_plots: Annotated[bool, typer.Option("--no-plots", help="draw no plots")] = False,
 ) -> None:
     """Measure bus efficiency, stop latency, CPU per transaction and scale on simulated lines."""
+    import anyio
+
     from drivebus.bench import format_table, results_json, run_bench
 
     if not 0 <= checks.finite("--turnaround", turnaround) <= 1:
@@ -152,6 +149,8 @@ def demo(
         help="a simulated machine file (default: the built-in demo machine)")] = None,
 ) -> None:
     """Run the demo job on the simulator: home, group moves, a jog, a stop."""
+    import anyio
+
     from drivebus.cli.demo import run_demo
 
     raise typer.Exit(anyio.run(run_demo, config))
@@ -208,7 +207,8 @@ def scan(
     """
     from drivebus.app import scan as sc
     from drivebus.app.targets import parse_target
-    from drivebus.cli.terminal import Out, run_guarded, scan_line
+    from drivebus.cli.bustools import scan_line
+    from drivebus.cli.terminal import Out, run_guarded
     from drivebus.settings import LineSettings
 
     t = parse_target(target)
@@ -311,7 +311,8 @@ def read(
 ) -> None:
     """Read COUNT registers (or values of --format) of the slave at ADDR on TARGET."""
     from drivebus.app.registers import words_per_value
-    from drivebus.cli.terminal import Out, read_registers, remote_read, run_guarded
+    from drivebus.cli.bustools import read_registers, remote_read
+    from drivebus.cli.terminal import Out, run_guarded
 
     # The poll's own arguments, checked whoever reads (this process or a service).
     words_per_value(fmt)
@@ -321,9 +322,9 @@ def read(
     if polls is not None and polls < 1:
         raise ArgumentError(f"--count: must be at least 1 poll, not {polls}")
     if server is not None:
-        from drivebus.service.client import ServiceClient
+        from drivebus.cli.remote import command_line_client
 
-        client = ServiceClient(server, token=token)
+        client = command_line_client(server, token)
         raise typer.Exit(run_guarded(
             lambda: remote_read(Out(as_json=as_json), client, target, address, register,
                                 count, input_registers, fmt, interval, polls),
@@ -363,13 +364,14 @@ def write(
     """Write VALUEs from register REG of the slave at ADDR on TARGET (one: FC06, more: FC16;
     never retried, a write may be a command). ADDR 0 broadcasts to every slave (no reply)."""
     from drivebus.app.registers import encode
-    from drivebus.cli.terminal import Out, remote_write, run_guarded, write_registers
+    from drivebus.cli.bustools import remote_write, write_registers
+    from drivebus.cli.terminal import Out, run_guarded
 
     if server is not None:
-        from drivebus.service.client import ServiceClient
+        from drivebus.cli.remote import command_line_client
 
         words = encode(values, fmt)
-        client = ServiceClient(server, token=token)
+        client = command_line_client(server, token)
         raise typer.Exit(run_guarded(lambda: remote_write(
             Out(as_json=as_json), client, target, address, register, words)))
 
@@ -393,7 +395,9 @@ def status(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False,
     """Show every axis (or the named ones): state, position, velocity, flags, alarm; an axis
     whose drive does not answer is shown Offline with the reason (exit 1 then, and on an
     alarm)."""
-    from drivebus.cli.terminal import Out, remote_status, run_guarded, show_status
+    from drivebus.cli.machine import show_status
+    from drivebus.cli.remote import remote_status
+    from drivebus.cli.terminal import Out, run_guarded
 
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
@@ -420,7 +424,9 @@ def move(
 ) -> None:
     """Move an axis to TARGET (or by it), or the axes of a taught POSITION there together,
     and wait until they are there; Ctrl-C stops them."""
-    from drivebus.cli.terminal import Out, move_axis, remote_motion, run_guarded
+    from drivebus.cli.machine import move_axis
+    from drivebus.cli.remote import remote_motion
+    from drivebus.cli.terminal import Out, run_guarded
 
     if target is None:
         from drivebus.cli.positions import move_position
@@ -448,7 +454,9 @@ def move(
 def home(config: ConfigArg, axis: AxisArg, as_json: JsonOpt = False, server: ServerOpt = None,
          token: TokenOpt = None, local: LocalOpt = False) -> None:
     """Run the axis's configured homing procedure; Ctrl-C stops it."""
-    from drivebus.cli.terminal import Out, home_axis, remote_motion, run_guarded
+    from drivebus.cli.machine import home_axis
+    from drivebus.cli.remote import remote_motion
+    from drivebus.cli.terminal import Out, run_guarded
 
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
@@ -472,7 +480,9 @@ def jog(
     local: LocalOpt = False,
 ) -> None:
     """Jog an axis at SPEED until Ctrl-C (or for --for seconds), then stop it."""
-    from drivebus.cli.terminal import Out, jog_axis, remote_jog, run_guarded
+    from drivebus.cli.machine import jog_axis
+    from drivebus.cli.remote import remote_jog
+    from drivebus.cli.terminal import Out, run_guarded
 
     if checks.finite("SPEED", speed) == 0:
         raise ArgumentError("SPEED: must not be 0 (units/s; its sign is the direction)")
@@ -492,7 +502,9 @@ def jog(
 def stop(config: ConfigArg, axes: AxesArg = None, as_json: JsonOpt = False,
          server: ServerOpt = None, token: TokenOpt = None, local: LocalOpt = False) -> None:
     """Stop the axes (all if none are named) with their decelerating stop."""
-    from drivebus.cli.terminal import Out, remote_stop, run_guarded, stop_axes
+    from drivebus.cli.machine import stop_axes
+    from drivebus.cli.remote import remote_stop
+    from drivebus.cli.terminal import Out, run_guarded
 
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
@@ -519,8 +531,8 @@ def monitor(
     On a terminal this is a live table; otherwise one line per axis and per slave at
     every update, each prefixed with the time (--json: one JSON line per update).
     """
+    from drivebus.cli.machine import monitor as run_monitor
     from drivebus.cli.terminal import Out, run_guarded
-    from drivebus.cli.terminal import monitor as run_monitor
 
     checks.positive("--interval", interval, unit="s")
     if count is not None and count < 1:
@@ -528,7 +540,7 @@ def monitor(
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
     if owner is not None:
-        from drivebus.cli.terminal import remote_monitor
+        from drivebus.cli.remote import remote_monitor
 
         raise typer.Exit(run_guarded(lambda: remote_monitor(out, owner, interval, count),
                                      interrupt_ok=True))
@@ -540,20 +552,34 @@ def monitor(
 def sim(
     config: ConfigArg,
     log: Annotated[bool, typer.Option("--log", help="print every frame on the wire")] = False,
+    power_cycle: Annotated[str | None, typer.Option(
+        "--power-cycle", metavar="AXIS|ADDR",
+        help="switch a drive of the running drivebus sim of CONFIG off and on (it takes "
+        "an address or line settings it was given), then exit")] = None,
 ) -> None:
     """Serve the machine's simulated drives (its sim:// lines) to outside masters.
 
     Prints one `line NAME KIND WHERE` per simulated line (WHERE is the pty path for a
     serial line, 127.0.0.1:PORT for TCP), then the slaves on it, and serves until Ctrl-C
-    or SIGTERM. Point mbpoll, a PLC or pymodbus at the pty (`mbpoll -m rtu -b 115200 -P
+    or SIGTERM. Run in a terminal, it takes commands typed there: `power-cycle AXIS` (or
+    the address a drive answers at) switches a drive off and on, as `drivebus commission`
+    asks; `drivebus sim CONFIG --power-cycle AXIS` does it from another terminal.
+
+    Point mbpoll, a PLC or pymodbus at the pty (`mbpoll -m rtu -b 115200 -P
     none -a 1 /dev/pts/N`): a pty carries baud rate and stop bits but not parity or byte
     size, so such a master reaches only the slaves at 8N1 or 8N2. drivebus in another
     process reaches every slave by sim://NAME (a machine file's sim:// line, `drivebus
     status CONFIG`, `read`/`scan sim://NAME`, `SerialLine("sim://NAME")`): the line's
     format channel carries the parity, and the command says it reached this simulator.
     """
-    from drivebus.cli.terminal import Out, run_guarded, serve_sim
+    from drivebus.cli.machine import serve_sim
+    from drivebus.cli.terminal import Out, run_guarded
 
+    if power_cycle is not None:
+        from drivebus.sim.serve import ask_running_sim
+
+        typer.echo(ask_running_sim(config, power_cycle))
+        raise typer.Exit(0)
     out = Out()
     raise typer.Exit(run_guarded(lambda: serve_sim(out, config, log), interrupt_ok=True))
 
@@ -599,15 +625,21 @@ def serve(
         raise ArgumentError("--no-http: with no HTTP service there must be an MQTT bridge "
                             "(--mqtt URL, or [mqtt] url in the machine file)")
     extra = []
+    also = ""
     if bridge:
-        from drivebus.mqtt import run_configured_bridge
+        from drivebus.mqtt import BridgeOptions, run_configured_bridge
 
+        discovery = False if no_discovery else None
+        opts = BridgeOptions.resolve(cfg, url=mqtt, node=node, discovery=discovery)
+        ha = ", Home Assistant discovery" if opts.discovery else ""
+        also = (f"MQTT bridge to {opts.broker} as node {opts.node} (topics "
+                f"drivebus/{opts.node}/...{ha})")
         extra.append(functools.partial(run_configured_bridge, url=mqtt, node=node,
-                                       discovery=False if no_discovery else None))
+                                       discovery=discovery))
     elif node is not None or no_discovery:
         raise ArgumentError("--node and --no-discovery go with an MQTT bridge (--mqtt URL)")
     raise typer.Exit(run(config, host=host, port=port, token_file=token_file,
-                         http=not no_http, extra=extra))
+                         http=not no_http, extra=extra, also=also))
 
 
 app.command()(record)  # drivebus record: in its own module
@@ -626,7 +658,8 @@ def check(config: ConfigArg, as_json: JsonOpt = False, probe: Annotated[bool, ty
     simulated. With --probe each drive is asked who it is. Exit status 1 if a line or a
     drive cannot work, 2 if the file is invalid.
     """
-    from drivebus.cli.terminal import Out, check_config
+    from drivebus.cli.machine import check_config
+    from drivebus.cli.terminal import Out
 
     raise typer.Exit(check_config(Out(as_json=as_json), config, probe=probe))
 
@@ -652,6 +685,8 @@ def _explain_any(exc: BaseException) -> tuple[str, int]:
     if isinstance(exc, KeyboardInterrupt):
         return "interrupted", 130
     if isinstance(exc, DrivebusError | OSError | termios.error):
+        from drivebus.cli.terminal import explain
+
         return explain(exc)
     return (f"internal error: {type(exc).__name__}: {exc} (run the command again with --debug "
             f"to see where, and please report it)"), 1
@@ -692,9 +727,10 @@ def main() -> None:
     args = hoist_global_options(sys.argv[1:])  # --trace, -v, --log-level: anywhere too
     as_json = False
     try:
-        line = parse_command_line(typer.main.get_command(app), args)
+        command = typer.main.get_command(app)  # built once: it is most of the start-up
+        line = parse_command_line(command, args)
         as_json = line.json
-        code = app(args=args, standalone_mode=False, prog_name="drivebus")
+        code = command.main(args=args, standalone_mode=False, prog_name="drivebus")
     except UsageError as exc:
         if debug:
             raise

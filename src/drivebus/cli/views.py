@@ -8,12 +8,17 @@ from typing import Any
 from rich.table import Table
 
 from drivebus.motion import Axis, Machine
+from drivebus.text import quantity
 
 __all__ = ["axes_table", "axis_line", "axis_record", "slaves_table", "stats_lines"]
 
 
 def _fmt(v: float | None, digits: int = 2) -> str:
     return "-" if v is None else f"{v:.{digits}f}"
+
+
+def _unit(ax: Axis) -> str:
+    return ax.config.unit
 
 
 def _settings(m: Machine, ax: Axis) -> str:
@@ -41,8 +46,8 @@ def axes_table(m: Machine) -> Table:
             ax.config.line,
             _settings(m, ax),
             str(ax.state),
-            _fmt(ax.position),
-            _fmt(ax.velocity),
+            quantity(ax.position, _unit(ax), 2, " "),
+            quantity(ax.velocity, f"{_unit(ax)}/s", 2, " "),
             _alarm(ax),
         )
     for name, bus in m.buses.items():
@@ -92,6 +97,7 @@ def axis_record(m: Machine, name: str) -> dict[str, Any]:
         "state": str(ax.state),
         "position": ax.position,
         "velocity": ax.velocity,
+        "unit": _unit(ax),
         "enabled": None if st is None else st.enabled,
         "moving": None if st is None else st.moving,
         "homed": None if st is None else st.homed,
@@ -115,7 +121,8 @@ def axis_line(m: Machine, name: str) -> str:
     return (
         f"{name}: {r['drive']} line={r['line']} address={r['address']} "
         f"settings={r['settings'].replace(' ', '-')} state={r['state']} "
-        f"position={_fmt(r['position'], 3)} velocity={_fmt(r['velocity'], 3)} "
+        f"position={quantity(r['position'], r['unit'])} "
+        f"velocity={quantity(r['velocity'], r['unit'] + '/s')} "
         f"flags={','.join(flags) or '-'}{alarm}"
     )
 

@@ -11,7 +11,7 @@ register. What a drive cannot do raises ``NotSupported`` naming drive and functi
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
@@ -135,6 +135,10 @@ class Parameter:
     it only when asked; ``drivebus commission`` is the tool for it."""
     where: str = ""
     """The manual's notation of where it is, if not its register address (``2005h.0``)."""
+    table: tuple[int, ...] = ()
+    """A table-index register's table: the value is an index into these (in ``unit``)."""
+    meanings: Mapping[int, str] = field(default_factory=dict)
+    """What named values mean (``{0: "open", 1: "closed"}``)."""
 
     @property
     def location(self) -> str:
@@ -158,6 +162,34 @@ class Parameter:
     def writable(self) -> bool:
         """True unless the drive only lets it be read."""
         return self.register.access is not Access.R
+
+    @property
+    def value_unit(self) -> str:
+        """The unit of the value itself: a table-index register's value is an index."""
+        return "table index" if self.table else self.unit
+
+    def in_range(self, value: int) -> bool:
+        """True if ``value`` is one the register takes (its documented range)."""
+        return self.register.lo <= value <= self.register.hi
+
+    def meaning(self, value: int) -> str:
+        """What ``value`` stands for ("1000 pulses/rev" for a table index, a named value's
+        name), or ""."""
+        if self.table and 0 <= value < len(self.table):
+            return f"{self.table[value]} {self.unit}".rstrip()
+        return self.meanings.get(value, "")
+
+    def allowed(self) -> str:
+        """The values it takes, in a line: "0..3000 rpm", "0..15, a table index: 0 = 400,
+        1 = 800, ... pulses/rev", "0..1: 0 = open, 1 = closed"."""
+        lo, hi = self.register.lo, self.register.hi
+        if self.table:
+            return (f"{lo}..{hi}, a table index selecting "
+                    f"{', '.join(map(str, self.table))} {self.unit}".rstrip())
+        if self.meanings:
+            named = ", ".join(f"{v} = {n}" for v, n in sorted(self.meanings.items()))
+            return f"{lo}..{hi}: {named}"
+        return f"{lo}..{hi} {self.unit}".rstrip()
 
 
 @dataclass(frozen=True)

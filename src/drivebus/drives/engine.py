@@ -1764,7 +1764,8 @@ def _parameter_attrs(d: Description) -> dict[str, Any]:
     params = []
     for key, reg, index in d.parameter_regs():
         params.append(Parameter(key, reg.at(index), stored=not reg.d.volatile,
-                                comms=reg.d.comms))
+                                comms=reg.d.comms, table=tuple(reg.codec.table),
+                                meanings={v: n for n, v in reg.codec.values.items()}))
     wt = d.eeprom.write_through
     return {
         "parameter_list": tuple(params),

@@ -19,8 +19,10 @@ A family found by path keeps its file's absolute path as its reference
 from __future__ import annotations
 
 import os
+import re
+import threading
 import tomllib
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from importlib.metadata import entry_points
@@ -38,6 +40,7 @@ __all__ = [
     "ENTRY_POINT_GROUP",
     "ENV_PATH",
     "FAMILIES",
+    "BuiltinFamilies",
     "DriveFamily",
     "add_drives_path",
     "all_families",
@@ -91,33 +94,94 @@ def builtin_description(name: str) -> Description:
     return fam.spec
 
 
-def _load_builtin() -> dict[str, DriveFamily]:
-    out: dict[str, DriveFamily] = {}
-    for entry in _builtin_files():
-        with resources.as_file(entry) as path:
-            d = load_description(path)
-        out[d.family.upper()] = family_from_description(d, "built in")
-    return out
-
-
 _PROFILES: tuple[DriveFamily, ...] = (
     DriveFamily("OD2000", ODDriveProfile, "rtu",
                 "2000h object-dictionary drive (settings and monitoring only)"),
 )
 """The families whose profiles are still code (each says why in its module)."""
 
+_ORDER = ("NT86", "EPR60", "BHSS", "CL86R", "OD2000")
+"""How the built-in families are listed (the others after them, by name)."""
 
-def _builtin_families() -> dict[str, DriveFamily]:
-    described = _load_builtin()
-    order = ["NT86", "EPR60", "BHSS", "CL86R", "OD2000"]
-    merged = {f.name: f for f in _PROFILES}
-    merged.update({f.name: f for f in described.values()})
-    names = [n for n in order if n in merged] + sorted(n for n in merged if n not in order)
-    return {n: merged[n] for n in names}
+_PARSING = threading.RLock()
+"""Held while a description is parsed (machine files are validated in worker threads)."""
+
+_DECLARED = re.compile(r'^family\s*=\s*"([^"\n]+)"', re.M)
 
 
-FAMILIES: dict[str, DriveFamily] = _builtin_families()
-"""The built-in families, by name: the hand-written profiles and the shipped descriptions."""
+class BuiltinFamilies(Mapping[str, DriveFamily]):
+    """The built-in families by name: the hand-written profiles and the shipped
+    descriptions. A description is parsed (and its profile class built) when its family
+    is first looked up, so that a command pays only for the drives its machine names."""
+
+    def __init__(self) -> None:
+        self._loaded: dict[str, DriveFamily] = {}
+        self._names: list[str] | None = None
+        self._files: dict[str, Any] = {}
+
+    def _index(self) -> list[str]:
+        """The families' names, from each shipped file's declared family (read cheaply)."""
+        if self._names is None:
+            for entry in _builtin_files():
+                text = entry.read_text(encoding="utf-8")
+                m = _DECLARED.search(text)
+                name = m.group(1) if m else _family_name_of(text)
+                if name is None:  # not a description: loading it says why
+                    name = Path(entry.name).stem
+                self._files[name] = entry
+            known = {f.name for f in _PROFILES} | set(self._files)
+            self._names = [n for n in _ORDER if n in known] + sorted(known - set(_ORDER))
+        return self._names
+
+    def __getitem__(self, name: str) -> DriveFamily:
+        fam = self._loaded.get(name)
+        if fam is not None:
+            return fam
+        with _PARSING:  # one parse per family, whichever thread asks first
+            return self._load(name)
+
+    def _load(self, name: str) -> DriveFamily:
+        fam = self._loaded.get(name)
+        if fam is not None:
+            return fam
+        self._index()
+        entry = self._files.get(name)
+        if entry is None:  # a hand-written profile (a description of the name wins)
+            fam = next((f for f in _PROFILES if f.name == name), None)
+            if fam is None:
+                raise KeyError(name)
+            self._loaded[name] = fam
+            return fam
+        with resources.as_file(entry) as path:
+            d = load_description(path)
+        if d.family != name:
+            raise ConfigError(f"{entry.name}: a built-in description of family {name!r} "
+                              f"declares {d.family!r}")
+        fam = self._loaded[name] = family_from_description(d, "built in")
+        return fam
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._index()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._index())
+
+    def __len__(self) -> int:
+        return len(self._index())
+
+    def is_described(self, name: str) -> bool:
+        """True if built-in family ``name`` ships as a description (not parsed here)."""
+        self._index()
+        return name in self._files
+
+    def loaded(self) -> list[str]:
+        """The families looked up (and so parsed) so far."""
+        return [n for n in self._index() if n in self._loaded]
+
+
+FAMILIES: BuiltinFamilies = BuiltinFamilies()
+"""The built-in families, by name: the hand-written profiles and the shipped descriptions
+(each description parsed on first use)."""
 
 
 # -- descriptions outside the package -------------------------------------------------------
@@ -150,19 +214,29 @@ def _from_file(path: Path) -> DriveFamily:
         mtime = p.stat().st_mtime
     except OSError:
         raise ConfigError(f"{path}: no such drive description") from None
-    cached = _file_cache.get(p)
-    if cached is not None and cached[0] == mtime:
-        return cached[1]
-    fam = family_from_description(load_description(p), str(p))
-    _file_cache[p] = (mtime, fam)
-    return fam
+    with _PARSING:
+        cached = _file_cache.get(p)
+        if cached is not None and cached[0] == mtime:
+            return cached[1]
+        fam = family_from_description(load_description(p), str(p))
+        _file_cache[p] = (mtime, fam)
+        return fam
 
 
 def _family_name(path: Path) -> str | None:
     """The family a description file declares (read cheaply, without checking it)."""
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        return None
+    return _family_name_of(text)
+
+
+def _family_name_of(text: str) -> str | None:
+    """The family a description's text declares, if it is TOML with a [drive] family."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError:
         return None
     drive = data.get("drive")
     name = drive.get("family") if isinstance(drive, dict) else None
@@ -224,7 +298,7 @@ def resolve_drive(ref: str, base: str | os.PathLike[str] | None = None) -> str:
         if not p.is_absolute():
             p = Path(base or ".") / p
         return str(_from_file(p).source)
-    return family(ref).name if ref.upper() in FAMILIES else _search(ref)[0]
+    return ref.upper() if ref.upper() in FAMILIES else _search(ref)[0]
 
 
 def _search(name: str) -> tuple[str, DriveFamily]:

@@ -376,6 +376,7 @@ class CommandLane(AxisActor):
                          self.name, m.what, exc)
                 await start()
         m.accepted_at = self.command_started_at = monotonic()
+        m.committed.set()
         log.debug("axis %s: %s started (target %s pulses)", self.name, m.what, m.target)
         drive_start = m.began = self._drive_started(m.accepted_at)
         if trajectory is not None:

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import anyio
 
 from drivebus.bus import Bus
-from drivebus.config import AxisConfig, MachineConfig, machine_config
+from drivebus.config import AxisConfig, MachineConfig, machine_config_in_thread
 from drivebus.drives.base import DriveProfile
 from drivebus.drives.registry import family
 from drivebus.errors import (
@@ -295,7 +295,7 @@ async def open_machine(
     twin per axis. ``config`` is a machine file's path, its content as a mapping, or a
     ``MachineConfig``; it is validated in full (``ConfigError``) before anything opens.
     """
-    cfg = machine_config(config)
+    cfg = await machine_config_in_thread(config)  # parsing descriptions: off the loop
     machine = Machine(cfg)
     async with contextlib.AsyncExitStack() as stack:
         groups = _placement(cfg)

@@ -8,25 +8,31 @@ checks arguments, states and the lease and raises typed errors, which
 
 # No ``from __future__ import annotations`` here: FastAPI reads the annotations at runtime.
 
-import itertools
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
 import anyio
-from fastapi import APIRouter, Depends, FastAPI, Header, Request, Response
+import anyio.to_thread
+from fastapi import APIRouter, FastAPI, Request, Response
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse
-from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from fastapi.staticfiles import StaticFiles
 
 from drivebus.app import MachineSession
 from drivebus.service import metrics, problems
-from drivebus.service.auth import Principal, TokenStore, require_command
-from drivebus.service.encoding import EventEncoder
-from drivebus.service.fanout import Fanout
+from drivebus.service.auth import TokenStore
+from drivebus.service.deps import (
+    ERRORS,
+    Commander,
+    Reader,
+    ServiceState,
+    Session,
+    accepted,
+    reader,
+    service_state,
+)
 from drivebus.service.models import (
     GroupMoveRequest,
     JogRequest,
@@ -44,65 +50,7 @@ __all__ = ["STATIC", "ServiceState", "create_app"]
 STATIC = Path(__file__).resolve().parent / "static"
 """The dashboard's files (shipped as package data)."""
 
-_bearer = HTTPBearer(auto_error=False, description="a token from the service's token file")
-
-
-@dataclass
-class ServiceState:
-    """What the routes share: the session, the tokens, one JSON encoder for events."""
-
-    session: MachineSession
-    tokens: TokenStore
-    encoder: EventEncoder = field(default_factory=EventEncoder)
-    connections: itertools.count = field(default_factory=lambda: itertools.count(1))
-    fanout: Fanout = field(init=False)
-    """The session's events to the WebSocket connections (run by the app's lifespan)."""
-
-    def __post_init__(self) -> None:
-        self.fanout = Fanout(self.session.events)
-
-
-def _state(request: Request) -> ServiceState:
-    state: ServiceState = request.app.state.drivebus
-    return state
-
-
-def _session(request: Request) -> MachineSession:
-    return _state(request).session
-
-
-def _reader(
-    request: Request,
-    credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-    x_drivebus_client: Annotated[str | None, Header(
-        description="the client's name when the service runs without tokens")] = None,
-) -> Principal:
-    token = None if credentials is None else credentials.credentials
-    return _state(request).tokens.authenticate(token, x_drivebus_client)
-
-
-def _commander(principal: Annotated[Principal, Depends(_reader)]) -> Principal:
-    return require_command(principal)
-
-
-Session = Annotated[MachineSession, Depends(_session)]
-Reader = Annotated[Principal, Depends(_reader)]
-Commander = Annotated[Principal, Depends(_commander)]
-
-_ERRORS: dict[int | str, dict[str, Any]] = {
-    status: {"description": text, "content": {problems.PROBLEM: {}}}
-    for status, text in (
-        (401, "no or unknown bearer token"),
-        (403, "the token's scope does not allow this"),
-        (404, "no such axis, line or motion"),
-        (409, "StateError, or LeaseHeld naming the holder"),
-        (422, "ArgumentError, LimitViolation, or an invalid request body"),
-        (501, "NotSupported by this drive"),
-        (503, "DriveOffline"),
-    )
-}
-
-router = APIRouter(prefix="/api", responses=_ERRORS)
+router = APIRouter(prefix="/api", responses=ERRORS)
 
 
 def _lease(session: MachineSession) -> dict[str, Any]:
@@ -110,10 +58,6 @@ def _lease(session: MachineSession) -> dict[str, Any]:
     if lease is None:
         return {"holder": None, "remaining": None}
     return {"holder": lease.holder, "remaining": round(lease.remaining, 3)}
-
-
-def _accepted(response: Response, record_id: str) -> None:
-    response.headers["Location"] = f"/api/motions/{record_id}"
 
 
 # -- looking ----------------------------------------------------------------------------------
@@ -131,7 +75,7 @@ async def get_machine(session: Session, _: Reader) -> dict[str, Any]:
 @router.get("/client", tags=["machine"])
 async def get_client(request: Request, who: Reader) -> dict[str, Any]:
     """Who the caller is to this service: its name and scope, and whether tokens are on."""
-    state = _state(request)
+    state = service_state(request)
     return {"client": who.name, "scope": who.scope, "tokens": state.tokens.enabled,
             "machine": state.session.name}
 
@@ -162,10 +106,14 @@ async def get_line(line: str, session: Session, _: Reader) -> dict[str, Any]:
 async def move(
     name: str, body: MoveRequest, session: Session, who: Commander, response: Response
 ) -> dict[str, Any]:
-    """Start a move; ``202`` once the axis accepted it, with ``Location`` of its motion."""
+    """Start a move; ``202`` once the axis accepted it, with ``Location`` of its motion.
+    ``buffer`` (default ``aborting``) says what it does to a motion under way: take it
+    over on the fly where the drive can (the motion under way ends ``aborted``; ``409``
+    where the drive cannot), or queue behind it (``buffered``, ``blending``)."""
     rec = await session.start_move(name, target=body.target, by=body.by, speed=body.speed,
-                                   accel=body.accel, decel=body.decel, client=who.name)
-    _accepted(response, rec.id)
+                                   accel=body.accel, decel=body.decel, buffer=body.buffer,
+                                   client=who.name)
+    accepted(response, rec.id)
     return rec.as_dict()
 
 
@@ -174,7 +122,7 @@ async def home(name: str, session: Session, who: Commander, response: Response
                ) -> dict[str, Any]:
     """Start the axis's homing procedure; ``202`` once accepted."""
     rec = await session.start_home(name, client=who.name)
-    _accepted(response, rec.id)
+    accepted(response, rec.id)
     return rec.as_dict()
 
 
@@ -183,7 +131,7 @@ async def group_move(body: GroupMoveRequest, session: Session, who: Commander,
                      response: Response) -> dict[str, Any]:
     """Start a coordinated move: the axes arrive at their targets together."""
     rec = await session.start_group_move(body.targets, client=who.name)
-    _accepted(response, rec.id)
+    accepted(response, rec.id)
     return rec.as_dict()
 
 
@@ -401,6 +349,34 @@ def _local_only(page: HTMLResponse) -> HTMLResponse:
     return page
 
 
+_NOWHERE = "/.drivebus-route-once"
+"""A path no route has: a request to it visits every route."""
+
+
+def _route_once(app: FastAPI) -> None:
+    """Route one request through ``app`` in this (worker) thread, on an event loop of its
+    own, and build the OpenAPI schema: FastAPI builds its routing tables on the first
+    request and the schema on the first ``/openapi.json`` (35-75 ms of CPU each), which
+    would otherwise hold the service's event loop, and every stop behind it, at a
+    client's request. The request matches nothing (404) and touches no machine."""
+
+    async def call() -> None:
+        async def receive() -> dict[str, Any]:
+            return {"type": "http.request", "body": b"", "more_body": False}
+
+        async def send(_: Any) -> None:
+            return None
+
+        await app({"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1",
+                   "method": "GET", "scheme": "http", "path": _NOWHERE,
+                   "raw_path": _NOWHERE.encode(), "query_string": b"", "root_path": "",
+                   "headers": [], "client": ("127.0.0.1", 0), "server": ("127.0.0.1", 0)},
+                  receive, send)
+
+    anyio.run(call)
+    app.openapi()  # kept by the app (openapi_schema)
+
+
 def create_app(session: MachineSession, tokens: TokenStore | None = None) -> FastAPI:
     """The service's ASGI application over ``session`` (no tokens: no authentication)."""
     from drivebus.service.ws import websocket_endpoint
@@ -409,7 +385,8 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     state = ServiceState(session, tokens)
 
     @asynccontextmanager
-    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        await anyio.to_thread.run_sync(_route_once, app)
         async with anyio.create_task_group() as tg:
             await tg.start(state.fanout.run, name="drivebus service: websocket fan-out")
             yield
@@ -428,7 +405,7 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     problems.install(app)
     app.include_router(router)
     root = APIRouter()
-    metrics.install(root, _reader)  # GET /metrics, for Prometheus
+    metrics.install(root, reader)  # GET /metrics, for Prometheus
     app.include_router(root)
     from drivebus.service.programs_api import router as programs
 
@@ -439,6 +416,10 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     @app.get("/", include_in_schema=False)
     async def dashboard() -> FileResponse:
         return FileResponse(STATIC / "index.html")
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    async def favicon() -> FileResponse:
+        return FileResponse(STATIC / "favicon.ico", media_type="image/x-icon")
 
     @app.get("/docs", include_in_schema=False)
     async def swagger_ui() -> HTMLResponse:

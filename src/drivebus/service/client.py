@@ -42,6 +42,14 @@ class ServiceClient:
 
     def request(self, method: str, path: str, body: object = None) -> Any:
         """One request; the decoded JSON reply, or the typed error of a problem reply."""
+        return json.loads(self._send(method, path, body) or "null")
+
+    def text(self, path: str) -> str:
+        """``GET /api/PATH`` of a reply that is not JSON (a recording's JSON lines, its
+        report); the typed error of a problem reply."""
+        return self._send("GET", path, None)
+
+    def _send(self, method: str, path: str, body: object) -> str:
         data = None if body is None else json.dumps(body).encode()
         req = urllib.request.Request(f"{self.url}/api{path}", data=data, method=method)
         req.add_header("Accept", "application/json")
@@ -53,14 +61,14 @@ class ServiceClient:
             req.add_header("X-Drivebus-Client", self.client)
         try:
             with urllib.request.urlopen(req, timeout=self.timeout) as reply:
-                text = reply.read().decode() or "null"
+                text: str = reply.read().decode()
         except urllib.error.HTTPError as exc:
             raise self._problem(exc) from None
         except (urllib.error.URLError, OSError) as exc:
             reason = getattr(exc, "reason", exc)
             raise ServiceUnreachable(f"the drivebus service at {self.url} cannot be reached: "
                                      f"{reason}") from None
-        return json.loads(text)
+        return text
 
     def _problem(self, exc: urllib.error.HTTPError) -> DrivebusError:
         try:
@@ -78,7 +86,14 @@ class ServiceClient:
                 return kind(detail + where)
             except TypeError:  # an error type whose constructor wants more than a message
                 pass
-        return DrivebusError(f"HTTP {exc.code} {name or exc.reason}: {detail}{where}")
+        return self.refused(exc.code, name or str(exc.reason), detail)
+
+    def refused(self, status: int, name: str, detail: str) -> DrivebusError:
+        """The error of a problem reply no drivebus error names (401 without a token or
+        with an unknown one, 403 beyond the token's scope, ...); a front end's client says
+        there what its user does about it."""
+        return DrivebusError(f"HTTP {status} {name}: {detail} (from the drivebus service at "
+                             f"{self.url})")
 
     # -- reading ------------------------------------------------------------------------------
 

@@ -12,7 +12,7 @@ from fastapi import APIRouter, Response
 from pydantic import BaseModel, ConfigDict, Field
 
 from drivebus.motion.handle import MAX_OVERRIDE
-from drivebus.service.api import _ERRORS, Commander, Reader, Session, _accepted
+from drivebus.service.deps import ERRORS, Commander, Reader, Session, accepted
 
 __all__ = ["OutputRequest", "OverrideRequest", "PositionMoveRequest", "TeachRequest",
            "router"]
@@ -50,7 +50,7 @@ class TeachRequest(_Body):
     axes: list[str] | None = None
 
 
-router = APIRouter(prefix="/api", responses=_ERRORS)
+router = APIRouter(prefix="/api", responses=ERRORS)
 
 
 @router.get("/positions", tags=["positions"])
@@ -66,7 +66,7 @@ async def move_to_position(name: str, session: Session, who: Commander, response
     body = body or PositionMoveRequest()
     rec = await session.start_position_move(name, speed=body.speed, duration=body.duration,
                                             client=who.name)
-    _accepted(response, rec.id)
+    accepted(response, rec.id)
     return rec.as_dict()
 
 

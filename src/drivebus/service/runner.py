@@ -9,7 +9,6 @@ it serves until SIGINT/SIGTERM and says what it stopped.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import ipaddress
 import logging
@@ -26,7 +25,6 @@ import anyio
 import anyio.abc
 import anyio.to_thread
 import uvicorn
-from starlette.exceptions import HTTPException
 
 from drivebus import runtime
 from drivebus.app import MachineSession
@@ -144,33 +142,10 @@ class _Server(uvicorn.Server):
 
 
 async def built_app(session: MachineSession, tokens: TokenStore) -> Any:
-    """The service's app (``create_app``) with its request routing built, both in a
-    worker thread: the app's routes and their models, and FastAPI's per-route request
-    handling (built at the first request otherwise), take tens of milliseconds of CPU,
-    which in one event-loop step would hold up every stop meanwhile. The routing is built
-    by one request to a path no route has, through the router alone (no middleware, no
-    lifespan)."""
-
-    def build() -> Any:
-        app = create_app(session, tokens)
-        path = "/.well-known/drivebus-warm-up"
-        scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1",
-                 "method": "GET", "scheme": "http", "path": path, "raw_path": path.encode(),
-                 "root_path": "", "query_string": b"", "headers": [],
-                 "server": ("127.0.0.1", 0), "client": ("127.0.0.1", 0), "state": {},
-                 "app": app}
-
-        async def receive() -> dict[str, Any]:
-            return {"type": "http.request", "body": b"", "more_body": False}
-
-        async def send(message: dict[str, Any]) -> None:
-            pass
-
-        with contextlib.suppress(HTTPException):  # the 404 of that path: routing built
-            asyncio.run(app.router(scope, receive, send))
-        return app
-
-    return await anyio.to_thread.run_sync(build)
+    """The service's app (``create_app``), made in a worker thread: its routes and their
+    models take tens of milliseconds of CPU, which in one event-loop step would hold up
+    every stop meanwhile (its lifespan builds FastAPI's routing the same way)."""
+    return await anyio.to_thread.run_sync(create_app, session, tokens)
 
 
 async def _serve_http(server: _Server, sock: socket.socket, *,
@@ -291,9 +266,11 @@ async def serve(
     extra: Sequence[SiblingTask] = (),
     say: Callable[[str], object] = print,
     on_stop: Callable[[Service], object] | None = None,
+    also: str = "",
 ) -> None:
     """Serve until cancelled (see ``open_service``); ``say`` gets one line when it is
-    ready and one after it stopped every moving axis, ``on_stop`` the ended service.
+    ready (with ``also``: what else runs, e.g. the MQTT bridge and where) and one after
+    it stopped every moving axis, ``on_stop`` the ended service.
 
     Served from a machine file, its URL is published under that file (``drivebus.runtime``)
     so that one-shot commands on the same file talk to this process, the line's one owner.
@@ -311,7 +288,7 @@ async def serve(
                 for p in problems:
                     say(f"drivebus serve: warning: {p}")
                 say(f"drivebus serve: machine {service.session.name} {where}; "
-                    f"Ctrl-C or SIGTERM stops it")
+                    + (f"{also}; " if also else "") + "Ctrl-C or SIGTERM stops it")
                 systemd.notify(f"READY=1\nSTATUS=serving {service.session.name} {where}")
                 try:
                     period = systemd.watchdog_period()
@@ -354,10 +331,11 @@ def run(
     token_file: str | Path | None = None,
     http: bool = True,
     extra: Sequence[SiblingTask] = (),
+    also: str = "",
 ) -> int:
     """``drivebus serve``: serve until SIGINT or SIGTERM, then stop every moving axis and
-    return the exit status (0; 1 if an axis could not be brought to rest). Bad
-    arguments raise ``ConfigError`` before anything is opened."""
+    return the exit status (0; 1 if an axis could not be brought to rest); ``also`` goes
+    in the start line. Bad arguments raise ``ConfigError`` before anything is opened."""
     tokens = TokenStore.load(token_file) if token_file is not None else TokenStore()
     if http:
         check_host(host, tokens)
@@ -381,7 +359,7 @@ def run(
 
                 tg.start_soon(watch)
                 await serve(config, host=host, port=port, tokens=tokens, http=http,
-                            extra=extra, say=say, on_stop=ended.append)
+                            extra=extra, say=say, on_stop=ended.append, also=also)
 
     anyio.run(main)
     return 0 if ended and ended[0].at_rest else 1

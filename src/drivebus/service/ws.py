@@ -48,8 +48,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from drivebus.app import Event, Subscription
 from drivebus.clock import monotonic
 from drivebus.errors import ArgumentError, DrivebusError, MotionAborted
-from drivebus.service.api import ServiceState
 from drivebus.service.auth import AuthError, Principal, bearer_token, require_command
+from drivebus.service.deps import ServiceState
 from drivebus.service.encoding import dumps
 from drivebus.service.models import MAX_JOG_TTL
 from drivebus.service.problems import problem_data

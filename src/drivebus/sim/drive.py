@@ -145,6 +145,12 @@ class SimDrive(SimSlave):
         """Power comes back (the drive answers again)."""
         self.faults.clear(Fault.POWER_LOSS)
 
+    def power_cycle(self) -> None:
+        """Switch the drive off and on again: it starts as at power-up, with what it
+        stored (an address or line settings it was given take effect now); motion is lost."""
+        self.power_loss()
+        self.power_restore()
+
     # -- units of the drive's registers ---------------------------------------------------------
 
     @property

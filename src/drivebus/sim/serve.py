@@ -14,13 +14,15 @@ a PLC) are taken to send 8 data bits without parity. Output goes to ``echo``.
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import math
 import os
 import secrets
+import socket
 import sys
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,16 +31,22 @@ import anyio.abc
 import anyio.streams.buffered
 
 from drivebus import runtime
-from drivebus.config import MachineConfig, load_config
+from drivebus.config import MachineConfig, load_config, machine_config_in_thread
 from drivebus.errors import ConfigError, DrivebusError
+from drivebus.sim.drive import SimDrive
 from drivebus.sim.machine import SimLine, start_simulators
 from drivebus.sim.wire import VirtualWire, WireFrame
 from drivebus.tasks import ServiceTasks
 
 __all__ = [
+    "CONSOLE_HELP",
     "PublishedSim",
+    "ask_running_sim",
+    "console_answer",
     "describe",
+    "find_twin",
     "frame_text",
+    "power_cycle",
     "publish",
     "published",
     "published_sim",
@@ -98,28 +106,41 @@ def _channel_path(name: str) -> Path:
     return Path(tempfile.gettempdir()) / f"drivebus-{hashlib.sha256(key).hexdigest()[:20]}.sock"
 
 
-async def _serve_format_channel(wire: VirtualWire, path: Path,
-                                ready: anyio.Event | None = None) -> None:
-    """Answer the format messages of masters in other processes until cancelled
-    (``ready`` is set once the socket listens)."""
+async def _serve_format_channel(
+    wire: VirtualWire, path: Path, control: Callable[[str], str] | None = None,
+    ready: anyio.Event | None = None,
+) -> None:
+    """Answer the messages of other processes until cancelled: a master's format (``F 8
+    E``, answered ``ok``; forgotten when that master closes its port) and a power cycle
+    (``P AXIS|ADDRESS``, from ``drivebus sim CONFIG --power-cycle``: ``ok`` and where the
+    drive answers now, or ``error`` and why); ``ready`` is set once the socket listens."""
 
     async def client(stream: anyio.abc.SocketStream) -> None:
         buffered = anyio.streams.buffered.BufferedByteReceiveStream(stream)
+        told = False
         try:
             async with stream:
                 while True:
-                    line = await buffered.receive_until(b"\n", 64)
+                    line = await buffered.receive_until(b"\n", 256)
                     parts = line.decode(errors="replace").split()
                     if len(parts) == 3 and parts[0] == "F" and parts[1].isdigit():
                         wire.note_format(int(parts[1]), parts[2])
+                        told = True
                         await stream.send(b"ok\n")
+                    elif len(parts) == 2 and parts[0] == "P" and control is not None:
+                        try:
+                            answer = f"ok {control(parts[1])}"
+                        except ConfigError as exc:
+                            answer = f"error {exc}"
+                        await stream.send(answer.encode() + b"\n")
                     else:
                         await stream.send(b"error\n")
         except (anyio.EndOfStream, anyio.IncompleteRead, anyio.DelimiterNotFound,
                 anyio.BrokenResourceError, anyio.ClosedResourceError):
             pass  # the master closed its port (or sent junk): the channel ends
         finally:
-            wire.forget_format()
+            if told:
+                wire.forget_format()
 
     await anyio.Path(path).unlink(missing_ok=True)
     listener = await anyio.create_unix_listener(path)
@@ -141,7 +162,7 @@ async def serve_format_channel(wire: VirtualWire, stack: contextlib.AsyncExitSta
     ready = anyio.Event()
 
     async def serve() -> None:
-        await _serve_format_channel(wire, path, ready)
+        await _serve_format_channel(wire, path, ready=ready)
 
     tasks.start_soon(serve, name=f"sim wire {wire.name} format channel")
     await ready.wait()
@@ -165,6 +186,105 @@ def publish(
         for p in problems:
             warn(p)
         yield
+
+
+def find_twin(sims: Mapping[str, SimLine], what: str) -> tuple[str, SimLine, SimDrive]:
+    """The twin ``what`` names: an axis, or the address a drive answers at now on a serial
+    line (axis, line, twin); ``ConfigError`` naming the axes otherwise."""
+    for s in sims.values():
+        if what in s.twins:
+            return what, s, s.twins[what]
+    hits = [(axis, s, t) for s in sims.values() if s.config.kind != "tcp"
+            for axis, t in s.twins.items() if what.isdigit() and t.address == int(what)]
+    if len(hits) == 1:
+        return hits[0]
+    axes = ", ".join(a for s in sims.values() for a in s.twins)
+    if hits:
+        raise ConfigError(f"address {what} answers on lines "
+                          f"{', '.join(s.name for _, s, _ in hits)}: name the axis ({axes})")
+    raise ConfigError(f"no axis {what!r}" + (" and no drive at that address" if what.isdigit()
+                                             else "") + f" (axes: {axes})")
+
+
+def power_cycle(sims: Mapping[str, SimLine], what: str) -> str:
+    """Switch the drive ``what`` names (an axis, or the address it answers at) off and on
+    again (``SimDrive.power_cycle``); the line that says where it answers now."""
+    axis, s, twin = find_twin(sims, what)
+    twin.power_cycle()
+    where = (f"unit {twin.address}" if s.config.kind == "tcp"
+             else f"address {twin.address} at {twin.settings}")
+    return f"power-cycled axis {axis} ({twin.family}): it answers at {where} on line {s.name}"
+
+
+CONSOLE_HELP = ("type `power-cycle AXIS` (or the address it answers at) to switch a drive "
+                "off and on, `help` for this")
+
+
+def console_answer(sims: Mapping[str, SimLine], text: str) -> str | None:
+    """The answer to one line typed on ``drivebus sim``'s console (None: an empty line)."""
+    words = text.split()
+    if not words:
+        return None
+    if words[0] in ("power-cycle", "power_cycle") and len(words) == 2:
+        try:
+            return power_cycle(sims, words[1])
+        except ConfigError as exc:
+            return f"error: {exc}"
+    if words[0] in ("help", "?") and len(words) == 1:
+        return CONSOLE_HELP
+    return f"error: not a command: {text.strip()!r}; {CONSOLE_HELP}"
+
+
+async def _console(sims: Mapping[str, SimLine], echo: Callable[[str], None]) -> None:
+    """Answer what the technician types at the terminal ``drivebus sim`` runs in, until
+    the terminal closes (only with stdin a terminal: a pipe it inherited is not read)."""
+    fd = sys.stdin.fileno()
+    echo(f"console: {CONSOLE_HELP}")
+    pending = b""
+    while True:
+        await anyio.wait_readable(fd)
+        data = os.read(fd, 4096)
+        if not data:
+            return
+        pending += data
+        while b"\n" in pending:
+            line, pending = pending.split(b"\n", 1)
+            answer = console_answer(sims, line.decode(errors="replace"))
+            if answer is not None:
+                echo(answer)
+
+
+def ask_running_sim(config: str | Path, what: str) -> str:
+    """Power-cycle the drive ``what`` names (an axis, or an address) in the running
+    ``drivebus sim`` of ``config``, through a serial line's channel; what it answered
+    (``ConfigError`` if no sim of the file runs, or it refused)."""
+    cfg = load_config(config)
+    found = [p for ln in cfg.lines.values() if ln.simulated
+             and (p := published(ln.sim_name)) is not None and p.channel is not None]
+    if not found:
+        raise ConfigError(f"no drivebus sim of {config} is running with a serial line "
+                          f"(start it with `drivebus sim {config}`; a TCP-only machine's "
+                          f"drives are power-cycled at its console)")
+    channel = found[0].channel
+    assert channel is not None
+    try:
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+            sock.settimeout(5.0)
+            sock.connect(channel)
+            sock.sendall(f"P {what}\n".encode())
+            answer = b""
+            while not answer.endswith(b"\n"):
+                chunk = sock.recv(4096)
+                if not chunk:
+                    break
+                answer += chunk
+    except OSError as exc:
+        raise DrivebusError(f"the drivebus sim of {config} does not answer on {channel}: "
+                            f"{exc}") from None
+    text = answer.decode(errors="replace").strip()
+    if not text.startswith("ok "):
+        raise ConfigError(text.removeprefix("error").strip() or "the sim refused it")
+    return text.removeprefix("ok ")
 
 
 def describe(sim: SimLine, cfg: MachineConfig) -> list[str]:
@@ -208,9 +328,11 @@ async def serve_simulators(
     log: bool = False,
     echo: Callable[[str], None] = _say,
     warn: Callable[[str], None] = _warn,
+    console: bool = True,
 ) -> None:
-    """Serve the ``sim://`` lines of ``config`` (a twin per axis) until cancelled."""
-    cfg = load_config(config)
+    """Serve the ``sim://`` lines of ``config`` (a twin per axis) until cancelled; with
+    ``console`` and a terminal on stdin, answer what is typed there (``power-cycle z``)."""
+    cfg = await machine_config_in_thread(config)  # parsing descriptions: off the loop
     for ln in cfg.lines.values():
         if ln.simulated and (other := published(ln.sim_name)):
             raise DrivebusError(
@@ -231,7 +353,10 @@ async def serve_simulators(
                     for s in sims.values():
                         if isinstance(s.server, VirtualWire):
                             tg.start_soon(_serve_format_channel, s.server,
-                                          _channel_path(s.config.sim_name))
+                                          _channel_path(s.config.sim_name),
+                                          functools.partial(power_cycle, sims))
+                    if console and sys.stdin is not None and sys.stdin.isatty():
+                        tg.start_soon(_console, sims, echo)
                     if log:
                         for s in sims.values():
                             if isinstance(s.server, VirtualWire):

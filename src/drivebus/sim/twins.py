@@ -7,11 +7,12 @@ profile is still code (the OD2000) has a twin of its own here.
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
+
 from drivebus.drives.registry import FAMILIES, family
 from drivebus.errors import ConfigError
 from drivebus.sim.described import twin_of
 from drivebus.sim.drive import SimDrive
-from drivebus.sim.drives.nt_family import SimEPR60, SimNT86
 from drivebus.sim.drives.od_drive import SimODDrive
 
 __all__ = ["TWINS", "coded_twin", "twin_class", "twin_of"]
@@ -21,14 +22,40 @@ _CODED: dict[str, type[SimDrive]] = {
 }
 """The twins written as code, by the family's registry name."""
 
-_NAMED: dict[str, type[SimDrive]] = {"NT86": SimNT86, "EPR60": SimEPR60}
-"""Generic twins given a class of their own (``drive_id``: what register 93 reads)."""
+
+def _named(name: str) -> type[SimDrive] | None:
+    """The generic twins given a class of their own (``drive_id``: what register 93
+    reads), imported with their descriptions only when their family is asked for."""
+    if name not in ("NT86", "EPR60"):
+        return None
+    from drivebus.sim.drives.nt_family import SimEPR60, SimNT86
+
+    return SimNT86 if name == "NT86" else SimEPR60
 
 
-TWINS: dict[str, type[SimDrive]] = {
-    name: _CODED.get(name) or _NAMED.get(name) or twin_of(f.spec)  # type: ignore[arg-type]
-    for name, f in FAMILIES.items() if f.spec is not None or name in _CODED
-}
+class _Twins(Mapping[str, type[SimDrive]]):
+    """The twin class of each built-in family, by the family's registry name; a twin is
+    made (its description parsed) when its family is first asked for."""
+
+    def __getitem__(self, name: str) -> type[SimDrive]:
+        if name not in FAMILIES:
+            raise KeyError(name)
+        twin = _CODED.get(name) or _named(name)
+        if twin is not None:
+            return twin
+        spec = FAMILIES[name].spec
+        if spec is None:
+            raise KeyError(name)
+        return twin_of(spec)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter([n for n in FAMILIES if n in _CODED or FAMILIES.is_described(n)])
+
+    def __len__(self) -> int:
+        return len(list(iter(self)))
+
+
+TWINS: Mapping[str, type[SimDrive]] = _Twins()
 """The twin class of each built-in family, by the family's registry name (a twin written
 as code plays its family even where the profile runs a description)."""
 
