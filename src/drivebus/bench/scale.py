@@ -46,7 +46,7 @@ from drivebus.bench.common import (
     wire_figures,
 )
 from drivebus.bus import Bus, Priority
-from drivebus.errors import ModbusException
+from drivebus.errors import DrivebusError, ModbusException
 from drivebus.motion import open_machine
 from drivebus.motion.workers import auto_workers
 from drivebus.settings import LineSettings
@@ -117,7 +117,7 @@ def process_cpu(pid: int) -> float:
 async def scale(lines: int, axes: int, seconds: float, workers: int = 0) -> BenchResult:
     """``lines`` x ``axes`` moving, polled axes; the drives in other processes, the lines
     in ``workers`` worker processes (0: in this one)."""
-    moves = 0
+    moves = failed = 0
     called: dict[int, float] = {}
     with _sim_files(lines, axes) as files:
         async with contextlib.AsyncExitStack() as stack:
@@ -140,10 +140,15 @@ async def scale(lines: int, axes: int, seconds: float, workers: int = 0) -> Benc
                 deadline = time.monotonic() + seconds
 
                 async def mover(ax: Any) -> None:
-                    nonlocal moves
+                    nonlocal moves, failed
                     target = 20.0
                     while time.monotonic() < deadline:
-                        await ax.move_to(target)
+                        try:
+                            await ax.move_to(target)
+                        except DrivebusError:  # an overloaded host: counted, not fatal
+                            failed += 1
+                            await anyio.sleep(0.05)
+                            continue
                         target = 20.0 - target
                         moves += 1
 
@@ -201,6 +206,7 @@ async def scale(lines: int, axes: int, seconds: float, workers: int = 0) -> Benc
         "violations": sum(f.violations for f in figs),
         "transactions": sum(f.transactions for f in figs),
         "moves": moves,
+        "failed_moves": failed,
         "master_cpu_cores": cores,
         "worker_cpu_cores": ",".join(f"{c:.2f}" for c in worker_cores) or "-",
         "cpu_per_line": total_cores / lines,
