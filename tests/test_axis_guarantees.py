@@ -8,7 +8,9 @@ during a motion is ErrorStop until reset.
 
 from __future__ import annotations
 
+import tomllib
 from pathlib import Path
+from typing import Any
 
 import anyio
 import pytest
@@ -28,10 +30,20 @@ DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 MOTION_AXES = ("x", "y", "z", "r")  # the aux axis (OD2000) cannot move
 
 
+def demo(workers: int) -> Path | dict[str, Any]:
+    """The demo machine, its lines served by ``workers`` worker processes (0: by its own)."""
+    if not workers:
+        return DEMO
+    return {**tomllib.loads(DEMO.read_text()), "workers": workers}
+
+
+@pytest.mark.parametrize("workers", [0, 1])  # the lines in this process, or in a worker
 @pytest.mark.parametrize("stopper", ["stop", "halt_now"])
-async def test_a_stop_always_wins_over_a_move_for_every_drive_kind_and_delay(stopper: str) -> None:
+async def test_a_stop_always_wins_over_a_move_for_every_drive_kind_and_delay(
+    stopper: str, workers: int,
+) -> None:
     delays = (0.0, 0.001, 0.002, 0.004, 0.006, 0.009, 0.013, 0.02, 0.03, 0.05, 0.08, 0.15, 0.4)
-    async with open_machine(DEMO) as m:
+    async with open_machine(demo(workers)) as m:
         for name in MOTION_AXES:
             ax, twin = m.axes[name], m.sim_drives[name]
             await settle(ax)
@@ -64,10 +76,11 @@ async def test_a_stop_always_wins_over_a_move_for_every_drive_kind_and_delay(sto
                 assert ax.state is AxisState.STANDSTILL
 
 
+@pytest.mark.parametrize("workers", [0, 1])
 @pytest.mark.parametrize("motion", ["move_by", "jog", "home"])
-async def test_a_stop_wins_over_move_by_jog_and_homing(motion: str) -> None:
+async def test_a_stop_wins_over_move_by_jog_and_homing(motion: str, workers: int) -> None:
     delays = (0.0, 0.002, 0.005, 0.01, 0.03, 0.1)
-    async with open_machine(DEMO) as m:
+    async with open_machine(demo(workers)) as m:
         for name in MOTION_AXES:
             ax, twin = m.axes[name], m.sim_drives[name]
             await settle(ax)

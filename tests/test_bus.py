@@ -6,6 +6,7 @@ import anyio
 import pytest
 
 from drivebus import LineSettings, Priority
+from drivebus.bus.sent import sent_requests
 from drivebus.errors import (
     ArgumentError,
     ConfigError,
@@ -180,3 +181,44 @@ async def test_stats_and_utilisation() -> None:
         per = (8 + 9) * 11 / 19200
         assert st.wire_time == pytest.approx(50 * per)
         assert 0.2 < st.utilisation < 1.0
+
+
+async def test_a_hold_takes_back_a_request_waiting_for_its_silence_and_it_goes_after() -> None:
+    s = LineSettings.parse("9600 8N1")  # t3.5 = 4 ms: the poll below waits that long
+    async with sim_bus([RegisterSlave(1, s)], s) as (wire, bus):
+        h = bus.slave(1)
+        for i in range(5):
+            await h.read_holding_registers(0, 1)  # the line just carried a reply
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(h.read_holding_registers, 7, 1 + i)  # begins, waits its silence
+                await anyio.wait_all_tasks_blocked()
+                async with bus.hold():  # takes it back: nothing else but stops goes out
+                    await h.write_register(60, i, priority=Priority.EMERGENCY)
+        frames = wire.requests()
+        for i in range(5):
+            stop = next(k for k, f in enumerate(frames)
+                        if f.data[1] == 0x06 and f.data[4:6] == i.to_bytes(2, "big"))
+            poll = next(k for k, f in enumerate(frames)
+                        if f.data[1] == 0x03 and f.data[2:4] == (7).to_bytes(2, "big")
+                        and f.data[4:6] == (1 + i).to_bytes(2, "big"))
+            assert stop < poll, (i, stop, poll)  # the poll went after the hold's stop
+        assert wire.violations == 0
+
+
+async def test_a_write_cancelled_in_its_silence_is_withdrawn_or_reported() -> None:
+    s = LineSettings.parse("9600 8N1")
+    slave = RegisterSlave(1, s)
+    async with sim_bus([slave], s) as (wire, bus):
+        h = bus.slave(1)
+        for i, delay in enumerate((0.0, 0.001, 0.002, 0.003, 0.004, 0.006, 0.01, 0.02)):
+            await h.read_holding_registers(0, 1)  # the line just carried a reply
+            with sent_requests() as sent:
+                with anyio.move_on_after(delay):
+                    await h.write_register(50, 100 + i, idempotent=False)
+            on_wire = [f for f in wire.requests() if f.data[1] == 0x06
+                       and f.data[4:6] == (100 + i).to_bytes(2, "big")]
+            # withdrawn before its first byte (nothing on the wire, nothing reported) or
+            # on the wire and reported (its caller cancelled or not)
+            assert len(on_wire) == len(sent) <= 1, (delay, on_wire, sent)
+            assert (slave.registers[50] == 100 + i) == bool(on_wire), delay
+        assert wire.violations == 0

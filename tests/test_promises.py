@@ -27,6 +27,7 @@ import contextlib
 import logging
 import math
 import time
+import tomllib
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +44,20 @@ from drivebus.motion import Machine
 from wirelog import command_frames, log_size, requests_between, settle
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
+
+
+Machinefile = Path | dict[str, Any]
+
+
+@pytest.fixture(params=[0, 1], ids=["in process", "1 worker"])
+def demo(request: pytest.FixtureRequest) -> Machinefile:
+    """The demo machine, its lines served by this process or by a worker process (the
+    promises hold across the process boundary too)."""
+    if not request.param:
+        return DEMO
+    return {**tomllib.loads(DEMO.read_text()), "workers": request.param}
+
+
 RS485 = ("x", "y", "z")
 """The demo's moving axes on its RS-485 line (r is on Modbus TCP, aux cannot move)."""
 
@@ -183,8 +198,8 @@ def check_stop(m: Machine, name: str, mark: int, called: float, what: str) -> No
 
 
 @pytest.mark.parametrize("c", MOVING, ids=ids)
-async def test_a_stop_of_its_own_axis_wins_at_every_point(c: Command) -> None:
-    async with open_machine(DEMO) as m:
+async def test_a_stop_of_its_own_axis_wins_at_every_point(c: Command, demo: Machinefile) -> None:
+    async with open_machine(demo) as m:
         for point in ("setup", "moving"):
             for n in c.axes:
                 await settle(m.axes[n])
@@ -203,8 +218,10 @@ async def test_a_stop_of_its_own_axis_wins_at_every_point(c: Command) -> None:
 
 
 @pytest.mark.parametrize("c", [c for c in MOVING if c.bystander in RS485], ids=ids)
-async def test_a_stop_of_another_axis_on_its_line_is_never_held_up(c: Command) -> None:
-    async with open_machine(DEMO) as m:
+async def test_a_stop_of_another_axis_on_its_line_is_never_held_up(
+    c: Command, demo: Machinefile,
+) -> None:
+    async with open_machine(demo) as m:
         assert c.bystander is not None
         by = m.axes[c.bystander]
         for point in ("setup", "moving"):
@@ -230,8 +247,8 @@ async def test_a_stop_of_another_axis_on_its_line_is_never_held_up(c: Command) -
 
 
 @pytest.mark.parametrize("c", MOVING, ids=ids)
-async def test_cancelling_its_caller_stops_what_it_started(c: Command) -> None:
-    async with open_machine(DEMO) as m:
+async def test_cancelling_its_caller_stops_what_it_started(c: Command, demo: Machinefile) -> None:
+    async with open_machine(demo) as m:
         for point in ("setup", "moving"):
             for n in c.axes:
                 await settle(m.axes[n])
@@ -264,8 +281,8 @@ def writes(m: Machine) -> int:
 
 
 @pytest.mark.parametrize("c", COMMANDS, ids=ids)
-async def test_a_refusal_sends_nothing(c: Command) -> None:
-    async with open_machine(DEMO) as m:
+async def test_a_refusal_sends_nothing(c: Command, demo: Machinefile) -> None:
+    async with open_machine(demo) as m:
         for ax in m.axes.values():
             await settle(ax)
         before = writes(m)
@@ -294,12 +311,14 @@ class _Boom(Exception):
 
 @pytest.mark.parametrize("how", ["exit", "exception", "cancel", "native cancel twice"])
 @pytest.mark.parametrize("c", MOVING, ids=ids)
-async def test_leaving_the_machine_leaves_every_axis_at_rest(c: Command, how: str) -> None:
+async def test_leaving_the_machine_leaves_every_axis_at_rest(
+    c: Command, how: str, demo: Machinefile,
+) -> None:
     twins: dict[str, Any] = {}
     moving = anyio.Event()
 
     async def owner() -> None:
-        async with open_machine(DEMO) as m:
+        async with open_machine(demo) as m:
             twins.update(m.sim_drives)
             for n in c.axes:
                 await settle(m.axes[n])

@@ -46,6 +46,10 @@ def _load_libc() -> ctypes.CDLL | None:
         return None
     # The kernel rounds a normal thread's timers up by 50 us of "slack"; ask for 10 us.
     libc.prctl(_PR_SET_TIMERSLACK, _TIMER_SLACK_NS, 0, 0, 0)
+    # Declared argument types, the spec passed by address: a third of the cost of a call
+    # that ctypes has to guess its arguments for (it runs once per transaction).
+    libc.timerfd_settime.argtypes = (ctypes.c_int, ctypes.c_int, ctypes.c_void_p,
+                                     ctypes.c_void_p)
     return libc
 
 
@@ -53,22 +57,29 @@ _libc = _load_libc()
 
 
 class PreciseTimer:
-    """One re-armable timer per owner (a line, a simulated wire); not shared across tasks.
+    """One re-armable timer per owner (a line, a simulated wire); not shared across tasks,
+    and used in one event loop (``close()`` it before another uses it).
 
     The kernel and the event loop wake us some tens of microseconds after the timer
     fires. The timer therefore fires ``lead`` seconds early and the rest is spun on the
-    clock; ``lead`` adapts to the wake-up latency seen (shared by every timer of the
-    process), so the spin stays short and the deadline is met, never anticipated.
+    clock; ``lead`` follows the median wake-up latency seen (shared by every timer of the
+    process): each early wake-up shortens it by ``_STEP``, each late one lengthens it by as
+    much. The spin then stays a few microseconds on an idle machine, and a wake-up that a
+    busy machine delays by a millisecond counts as one late wake-up, not as a reason to
+    spin hundreds of microseconds before every frame (which cannot make up for it).
     """
 
     lead = 50e-6
     _LEAD_MAX = 300e-6
+    _STEP = 1e-6
 
     def __init__(self) -> None:
         self._fd: int | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._waiter: asyncio.Future[None] | None = None
         self._spec = _Itimerspec()
+        self._value = self._spec.it_value
+        self._spec_at = ctypes.addressof(self._spec)
         self._callback: Callable[[], None] | None = None
         self._deadline = 0.0
         self._handle: asyncio.TimerHandle | None = None
@@ -90,16 +101,17 @@ class PreciseTimer:
 
     def _arm(self, deadline: float) -> None:
         sec = int(deadline)
-        self._spec.it_value.tv_sec = sec
-        self._spec.it_value.tv_nsec = max(1, int((deadline - sec) * 1e9))
+        value = self._value
+        value.tv_sec = sec
+        value.tv_nsec = max(1, int((deadline - sec) * 1e9))
         assert _libc is not None and self._fd is not None
-        if _libc.timerfd_settime(self._fd, _TFD_TIMER_ABSTIME, ctypes.byref(self._spec), None):
+        if _libc.timerfd_settime(self._fd, _TFD_TIMER_ABSTIME, self._spec_at, None):
             raise OSError(ctypes.get_errno(), "timerfd_settime failed")
 
     def _disarm(self) -> None:
         if self._fd is not None and _libc is not None:
-            self._spec.it_value.tv_sec = self._spec.it_value.tv_nsec = 0
-            _libc.timerfd_settime(self._fd, 0, ctypes.byref(self._spec), None)
+            self._value.tv_sec = self._value.tv_nsec = 0
+            _libc.timerfd_settime(self._fd, 0, self._spec_at, None)
 
     def _fired(self) -> None:
         try:
@@ -108,7 +120,15 @@ class PreciseTimer:
             return
         callback, self._callback = self._callback, None
         if callback is not None:
-            self._reach(self._deadline, adapt=self._adapt_on_fire)
+            deadline = self._deadline
+            if monotonic() < deadline:  # ``_reach``, written out: it runs per transaction
+                if self._adapt_on_fire:
+                    PreciseTimer.lead = max(0.0, PreciseTimer.lead - PreciseTimer._STEP)
+                while monotonic() < deadline:
+                    pass
+            elif self._adapt_on_fire:
+                PreciseTimer.lead = min(PreciseTimer._LEAD_MAX,
+                                        PreciseTimer.lead + PreciseTimer._STEP)
             callback()
             return
         waiter, self._waiter = self._waiter, None
@@ -128,20 +148,22 @@ class PreciseTimer:
         ``deadline`` (at once if it has). It replaces whatever this timer had armed: one
         timer per owner. The callback runs right at the deadline, with no task switch
         after it: for an action that must follow a silence as closely as possible."""
-        self.cancel()
-        if deadline <= monotonic():
+        if self._callback is not None:
+            self.cancel()
+        now = monotonic()
+        if deadline <= now:
             callback()
             return
-        precise = self._ensure()
+        precise = self._fd is not None or self._ensure()
         self._callback = callback
         self._deadline = deadline
         if precise:
             lead = PreciseTimer.lead
-            self._adapt_on_fire = deadline - monotonic() > lead
-            self._arm(max(deadline - lead, monotonic() + 1e-6))
+            self._adapt_on_fire = deadline - now > lead
+            self._arm(max(deadline - lead, now + 1e-6))
         else:
             loop = asyncio.get_running_loop()
-            self._handle = loop.call_at(deadline - monotonic() + loop.time(), self._call_now)
+            self._handle = loop.call_at(deadline - now + loop.time(), self._call_now)
 
     def cancel(self) -> None:
         """Forget the callback armed by ``call_at``, if it has not run."""
@@ -159,7 +181,7 @@ class PreciseTimer:
         delay = deadline - monotonic()
         if delay <= 0:
             return
-        fallback = not self._ensure()
+        fallback = self._fd is None and not self._ensure()
         loop = asyncio.get_running_loop()
         waiter = loop.create_future()
         self._waiter = waiter
@@ -182,17 +204,15 @@ class PreciseTimer:
     @staticmethod
     def _reach(deadline: float, *, adapt: bool) -> None:
         """Spin to ``deadline`` if we woke early; with ``adapt``, move ``lead`` toward the
-        wake-up latency seen (a wait shorter than the lead says nothing about it)."""
-        now = monotonic()
-        if now < deadline:
-            early = deadline - now
+        median wake-up latency (a wait shorter than the lead says nothing about it)."""
+        if monotonic() < deadline:
+            if adapt:  # woke before the deadline: the lead is more than the latency
+                PreciseTimer.lead = max(0.0, PreciseTimer.lead - PreciseTimer._STEP)
             while monotonic() < deadline:
                 pass
-            if adapt:  # woke before the deadline: the lead is more than the latency; shave it
-                PreciseTimer.lead = max(0.0, PreciseTimer.lead - 0.25 * early)
         elif adapt:
-            late = now - deadline
-            PreciseTimer.lead = min(PreciseTimer._LEAD_MAX, PreciseTimer.lead + 0.25 * late)
+            PreciseTimer.lead = min(PreciseTimer._LEAD_MAX,
+                                    PreciseTimer.lead + PreciseTimer._STEP)
 
     def wake(self) -> None:
         """End the sleep in progress now (the owner has something more urgent to do)."""

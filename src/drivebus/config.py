@@ -339,6 +339,9 @@ class MachineConfig(_Model):
         description="directories of drive descriptions (relative to the machine file)")
     lines: dict[str, LineConfig]
     axes: dict[Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_-]*$")], AxisConfig]
+    workers: Literal["auto"] | Annotated[StrictInt, Field(ge=0, le=64)] = 0
+    """Worker processes that serve the lines (each its lines' schedulers and timing; the
+    axes stay in this process): 0 none, N that many, "auto" by line count and cores."""
     mqtt: MqttConfig | None = None
     """The MQTT plant bridge's settings (used by ``python -m drivebus.mqtt`` and
     ``drivebus serve --mqtt``); None: no ``[mqtt]`` section."""

@@ -69,9 +69,21 @@ def _span(address: object, count: int) -> int:
 
 
 def read_request(function: int, address: int, count: int) -> bytes:
-    """FC03/FC04 request for ``count`` registers from ``address``."""
+    """FC01-FC04 request for ``count`` registers (or bits) from ``address``; a poll makes
+    the same few again and again, so each is checked and packed once."""
+    try:
+        return _cached_read_request(function, address, count)
+    except TypeError:  # an unhashable argument: the checks name it (ArgumentError)
+        return _read_request(function, address, count)
+
+
+def _read_request(function: int, address: int, count: int) -> bytes:
     n = whole("register count", count, 1, MAX_READ)
     return _HDR.pack(function, _span(address, n), n)
+
+
+_cached_read_request = functools.lru_cache(maxsize=1024, typed=True)(_read_request)
+"""``_read_request`` once per distinct request (``typed``: ``True`` is not taken for 1)."""
 
 
 def write_single_request(address: int, value: int) -> bytes:

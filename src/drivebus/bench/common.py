@@ -210,8 +210,22 @@ class StageFigures:
 
 
 def record_exchanges(line: Line) -> list[Exchange]:
-    """Keep every ``Exchange`` the line completes from now on (wraps its ``transact``)."""
+    """Keep every ``Exchange`` the line completes from now on (wraps its ``begin``, whose
+    ``on_reply`` hears of every exchange, on a line that ``begins``; else ``transact``)."""
     kept: list[Exchange] = []
+    if line.begins:
+        begin = line.begin  # type: ignore[attr-defined]
+
+        def recording_begin(*args: Any, on_reply: Any = None, **kwargs: Any) -> Any:
+            def hook(ex: Exchange) -> None:
+                kept.append(ex)
+                if on_reply is not None:
+                    on_reply(ex)
+
+            return begin(*args, on_reply=hook, **kwargs)
+
+        line.begin = recording_begin  # type: ignore[attr-defined]
+        return kept
     transact = line.transact
 
     async def recording(*args: Any, **kwargs: Any) -> Exchange:

@@ -1,7 +1,8 @@
 """What a bus tells its observers about each transaction (recordings, dashboards).
 
-An observer is a plain callable the bus calls, in its owner task, once per attempt that
-reached an outcome. It must be quick and must not raise: it runs between transactions.
+An observer is a plain callable the bus calls once per attempt that reached an outcome,
+in its owner task or in the line's callback that received the reply. It must be quick
+and must not raise: it runs between transactions.
 A bus with no observer pays one truth test per transaction.
 """
 

@@ -11,6 +11,7 @@ from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
 from types import TracebackType
+from typing import Protocol
 
 import anyio
 
@@ -18,11 +19,10 @@ from drivebus import checks
 from drivebus.bus.observe import Outcome, Transaction, TransactionObserver
 from drivebus.bus.priority import Priority
 from drivebus.bus.sent import SentRequest, note_sent, noting
-from drivebus.bus.slave import SlaveHandle
+from drivebus.bus.slave import SlaveHandle, check_line_settings
 from drivebus.bus.stats import BusStats
 from drivebus.clock import PreciseTimer, monotonic
 from drivebus.errors import (
-    ConfigError,
     ConnectionLost,
     LineClosed,
     LineConfigError,
@@ -31,7 +31,7 @@ from drivebus.errors import (
     TransactionError,
     WrongResponder,
 )
-from drivebus.line.base import Exchange, Line, SendWithdrawn
+from drivebus.line.base import Begun, Exchange, Line, SendWithdrawn
 from drivebus.line.rtu import frame
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
@@ -40,7 +40,7 @@ from drivebus.tasks import ServiceTasks
 trace = logging.getLogger("drivebus.trace")
 """Every frame of every bus at DEBUG (``drivebus --trace``): off unless enabled."""
 
-__all__ = ["Bus", "Priority"]
+__all__ = ["Bus", "Priority", "Queued"]
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +51,16 @@ _OUTCOME_WAIT = 0.5
 """Beyond its response timeout, how long a cancelled caller waits to learn the outcome
 of its request that had already left (then: "outcome unknown"), seconds."""
 
-@dataclass(eq=False)
+class Queued(Protocol):
+    """A request of ``Bus.queue``: its future gets the reply PDU or the error."""
+
+    @property
+    def future(self) -> asyncio.Future[bytes]:
+        """Resolved with the reply PDU (an exception reply included) or the error."""
+        ...
+
+
+@dataclass(eq=False, slots=True)
 class _Request:
     priority: int
     seq: int
@@ -86,14 +95,25 @@ class _NoiseWatch:
 
     def __init__(self, line: Line) -> None:
         self.line = line
+        self.activity = line.last_activity
         self.seen = line.last_activity()
         self.since: float | None = None
         """When noise was first noticed (None: the line is not known to be noisy)."""
 
-    def reset(self) -> None:
-        """The line carried a transaction (or the owner was idle): start watching afresh."""
-        self.seen = self.line.last_activity()
+    def reset(self, activity: float | None = None) -> None:
+        """The line carried a transaction (or the owner was idle): start watching afresh
+        (from ``activity``, the line's last activity, if the caller knows it)."""
+        self.seen = self.activity() if activity is None else activity
         self.since = None
+
+    def quiet(self) -> bool:
+        """``look`` now, and whether the line is still not known to be noisy."""
+        activity = self.activity()
+        if activity > self.seen:
+            self.seen = activity
+            if self.since is None:
+                self.since = monotonic()
+        return self.since is None
 
     def look(self, now: float) -> None:
         """Note noise if the line was active since the last look."""
@@ -135,6 +155,8 @@ class Bus:
         self.retries = checks.retry_count("retries", retries)
         self.stats = BusStats()
         self._queue: list[_Request] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
+        """The event loop the bus runs in (set when it opens)."""
         self._seq = itertools.count()
         self._work: asyncio.Future[None] | None = None
         self._timer = PreciseTimer()
@@ -152,10 +174,28 @@ class Bus:
         keep no silences of their own."""
         self._trail = 0.0
         """The frame timeout of the slave of the last transaction (s)."""
+        self._replying: _Request | None = None
+        """The request whose exchange the line's ``on_reply`` (``_replied``) will bring."""
+        self._replying_noise: _NoiseWatch | None = None
+        self._on_reply = self._replied  # one bound method, not one per transaction
+        self._noise = _NoiseWatch(line)
+        """The one-at-a-time owner's watch for noise (shared with the chained sends)."""
+        self._chains = line.begins and line.max_in_flight == 1
+        """The line runs transactions from callbacks (``Line.begins``): while each goes
+        well, the next one begins from the callback that completed the last, or from the
+        caller that queued it onto an idle line, and the owner task sleeps."""
+        self._chained: tuple[_Request, Begun] | None = None
+        """The transaction under way from callbacks (``_chain``)."""
+        self._adopt: tuple[_Request, Begun] | None = None
+        """A chained transaction that needs the owner (anything but a sound reply)."""
+        self._parked = False
+        """The owner waits with nothing to do: a request may begin from its caller."""
+        self._chain_trouble_cb = self._chain_trouble
 
     # -- life cycle ------------------------------------------------------------------------
 
     async def __aenter__(self) -> Bus:
+        self._loop = asyncio.get_running_loop()
         await self.line.open()
         self.stats = BusStats()
         self._traced_end = 0.0  # the end of the last traced exchange (its silence for --trace)
@@ -235,16 +275,7 @@ class Bus:
             frame_timeout=frame_timeout,
             max_address=max(getattr(self.line, "unit_ids", range(248))),
         )
-        if h.settings is not None and h.settings != self.line.settings:
-            if self.line.settings is None:
-                raise ConfigError(
-                    f"line {self.line.name} is not a serial line: no per-slave settings"
-                )
-            if not self.line.per_slave_settings:
-                raise ConfigError(
-                    f"slave {h.address}: line {self.line.name} has one setting for all slaves "
-                    f"({self.line.settings}); {h.settings} cannot be used on it"
-                )
+        check_line_settings(h, self.line)
         self._handles[h.address] = h
         return h
 
@@ -256,9 +287,9 @@ class Bus:
         its lines so its start commands leave at a known moment, back to back."""
         self._holds += 1
         try:
+            if any(r.priority < Priority.EMERGENCY for r in self._flying):
+                self._withdraw()  # still waiting for its silence: it goes after us
             if self._flying:
-                if any(r.priority < Priority.EMERGENCY for r in self._flying):
-                    self.line.withdraw()  # still waiting for its silence: it goes after us
                 waiter = asyncio.get_running_loop().create_future()
                 self._idle_waiters.append(waiter)
                 await waiter
@@ -279,20 +310,7 @@ class Bus:
         idempotent: bool,
     ) -> bytes:
         """Queue one transaction and wait for its reply PDU (empty for a broadcast)."""
-        if not self._open:
-            raise LineClosed(f"bus on {self.line.name} is not open")
-        loop = asyncio.get_running_loop()
-        req = _Request(
-            int(priority),
-            next(self._seq),
-            handle,
-            pdu,
-            expect,
-            handle.retries if idempotent and expect is not None else 0,
-            loop.create_future(),
-        )
-        heapq.heappush(self._queue, req)
-        self._kick(req)
+        req = self._queue_one(handle, pdu, expect, priority, idempotent)
         try:
             reply = await req.future  # cancelling us cancels the future: the owner skips it
         except asyncio.CancelledError:
@@ -303,6 +321,51 @@ class Bus:
         if reply[:1] and reply[0] & 0x80:
             handle.raise_exception(reply, pdu)
         return reply
+
+    def queue(
+        self,
+        handle: SlaveHandle,
+        pdu: bytes,
+        *,
+        expect: LengthPredictor | None,
+        priority: Priority,
+        idempotent: bool,
+    ) -> Queued:
+        """Queue one transaction without waiting for it (what a worker process serving
+        its lines for another does): its ``future`` gets the reply PDU, an exception reply
+        included, or the error; ``retract`` takes it back as a cancelled caller's does."""
+        return self._queue_one(handle, pdu, expect, priority, idempotent)
+
+    def _queue_one(self, handle: SlaveHandle, pdu: bytes, expect: LengthPredictor | None,
+                   priority: Priority, idempotent: bool) -> _Request:
+        if not self._open:
+            raise LineClosed(f"bus on {self.line.name} is not open")
+        req = _Request(
+            int(priority),
+            next(self._seq),
+            handle,
+            pdu,
+            expect,
+            handle.retries if idempotent and expect is not None else 0,
+            self._loop.create_future(),  # type: ignore[union-attr]  # (open: it is set)
+        )
+        heapq.heappush(self._queue, req)
+        if self._parked and self._chained is None and not self._flying \
+                and self._adopt is None:
+            self._noise.reset()  # as the owner does when it wakes from idle
+            self._chain(True)  # the line is idle: this request (or one more urgent) begins
+        else:
+            self._kick(req)
+        return req
+
+    async def retract(self, req: Queued) -> None:
+        """Take back a request of ``queue`` whose caller gave up: withdrawn if its frame
+        has not left, else waited for (shielded, bounded) and its outcome reported, as
+        for a cancelled ``execute``."""
+        assert isinstance(req, _Request)
+        if not req.future.done():
+            req.future.cancel()
+        await self._cancelled(req)
 
     async def _cancelled(self, req: _Request) -> None:
         """The caller of ``req`` was cancelled: take the request back if its frame has not
@@ -316,7 +379,7 @@ class Bus:
             if req.sent:  # an earlier attempt went out; the retry is dropped
                 self._note(req, f"{req.outcome}; its retry was dropped", cancelled=True)
             return  # still queued: the owner drops it, nothing goes out
-        if self.line.withdraw():
+        if self._withdraw():
             return  # taken back while it waited for its silence: nothing went out
         loop = asyncio.get_running_loop()
         req.landed = loop.create_future()
@@ -342,12 +405,104 @@ class Bus:
             self._work.set_result(None)
 
     def _kick(self, req: _Request) -> None:
-        self._wake_owner()
         waiting = self._waiting_for
         if waiting is not None and req < waiting:
             # Re-plan: a more urgent request came in during the silence.
             self._timer.wake()
-            self.line.withdraw()
+            chained = self._chained is not None
+            if self._withdraw() and chained:
+                return  # back in the queue: the more urgent one has begun (or the owner woke)
+        if self._chained is None:
+            self._wake_owner()  # (a chain takes up the queue itself when its transaction ends)
+
+    # -- chained transactions: the line run from callbacks -----------------------------------
+
+    def _chain(self, fresh: bool = False) -> None:
+        """Begin the queue's head from here (the callback that completed the last
+        transaction, or the caller that queued onto an idle line) if it needs nothing the
+        owner does (a hold, a guard interval, a noisy line); else wake the owner.
+        ``fresh``: the noise watch was reset just now (nothing to look at)."""
+        queue = self._queue
+        while queue:
+            req = queue[0]
+            if req.future.done():  # its caller gave up while it was queued
+                heapq.heappop(queue)
+                continue
+            if (self._holds and req.priority < Priority.EMERGENCY) or self._trail \
+                    or req.handle.guard or not (fresh or self._noise.quiet()):
+                break
+            heapq.heappop(queue)
+            if self._begin(req):
+                return
+            heapq.heappush(queue, req)  # it could not begin here: the owner sends it
+            break
+        else:
+            # Nothing to do: the owner (waiting while the chain ran) has nothing either,
+            # and the next request begins from its caller.
+            self._parked = True
+            return
+        self._wake_owner()
+
+    def _begin(self, req: _Request) -> bool:
+        """Begin ``req`` on the line from callbacks (it is out of the queue); False if the
+        line refused to start it (the owner then sends it itself)."""
+        h = req.handle
+        self._flying.add(req)
+        self._waiting_for = self._replying = req
+        self._replying_noise = self._noise
+        try:
+            begun = self.line.begin(  # type: ignore[attr-defined]
+                h.address, req.pdu, expect=req.expect, settings=h.settings,
+                timeout=h.timeout, quiet_by=None, withdrawable=True,
+                on_reply=self._on_reply)
+        except Exception:  # the owner sends it instead, and handles what fails
+            self._flying.discard(req)
+            self._waiting_for = None
+            return False
+        if begun.future.done():
+            self._adopt = (req, begun)
+            self._wake_owner()
+        else:
+            self._chained = (req, begun)
+            begun.future.add_done_callback(self._chain_trouble_cb)
+        return True
+
+    def _chain_trouble(self, fut: asyncio.Future[None]) -> None:
+        """The chained transaction ended without a sound reply: the owner takes it up."""
+        chained = self._chained
+        if chained is None or chained[1].future is not fut:
+            return
+        self._chained = None
+        self._adopt = chained
+        self._wake_owner()
+
+    def _withdraw(self) -> bool:
+        """Take back the request waiting for its silence (``Line.withdraw``). A chained one
+        goes back to the queue at once (same place; dropped if its caller gave up) and the
+        queue's head begins, unless a hold or the owner keeps it; one the owner awaits is
+        its to put back."""
+        if not self.line.withdraw():
+            return False
+        chained = self._chained
+        if chained is not None:
+            req, begun = chained
+            self._chained = None
+            begun.future.remove_done_callback(self._chain_trouble_cb)
+            begun.future.exception()  # SendWithdrawn: nothing was sent
+            self._waiting_for = None
+            self._landed(req)
+            if not req.future.done():
+                heapq.heappush(self._queue, req)
+            self._chain()
+        return True
+
+    def _ended(self, req: _Request) -> None:
+        """``req``'s transaction is over (not withdrawn): what the next one keeps to."""
+        if req.sent or req.future.done():  # not for a frame taken back before it left
+            self._last_end = monotonic()
+            self._trail = req.handle.frame_timeout
+        if req.landed is not None and req.outcome:
+            self._settle_landed(req)
 
     def _fail_queued(self, exc: Exception) -> None:
         queue, self._queue = self._queue, []
@@ -405,6 +560,8 @@ class Bus:
     def _recover_interrupted(self) -> None:
         """After a cancellation from outside cut transactions off (see ``_interrupted``)."""
         for req in list(self._flying):
+            if self._chained is not None and req is self._chained[0]:
+                continue  # run from callbacks: not cut off
             self._flying.discard(req)
             self._interrupted(req)
         self._landed_all()
@@ -492,11 +649,27 @@ class Bus:
         """One transaction at a time, highest priority first, each after its silence."""
         loop = asyncio.get_running_loop()
         line = self.line
-        noise = _NoiseWatch(line)
+        waits = line.waits_for_silence
+        noise = self._noise
         while True:
-            if not self._queue:
+            adopt = self._adopt
+            if adopt is not None:  # a chained transaction that needs judging here
+                self._adopt = None
+                req, begun = adopt
+                self._waiting_for = req
+                try:
+                    await self._run_one(req, noise, withdrawable=True, begun=begun)
+                finally:
+                    self._waiting_for = None
+                self._landed(req)
+                continue
+            if not self._queue or self._chained is not None:
+                self._parked = self._chains and self._chained is None
                 self._work = loop.create_future()
-                await self._work
+                try:
+                    await self._work
+                finally:
+                    self._parked = False
                 noise.reset()
                 continue
             req = self._queue[0]
@@ -514,29 +687,34 @@ class Bus:
                 self._work = loop.create_future()
                 await self._work  # held: only an emergency request or the end of it
                 continue
-            ready = line.ready_at(req.handle.settings)
-            guarded = False
             extra = req.handle.guard + self._trail
-            if extra:
-                # This slave's guard interval and the frame timeout of the slave that
-                # answered last: the owner itself keeps the line quiet that much longer
-                # than its silence (since the last traffic) before the frame.
-                ready = max(ready, line.last_activity(), self._last_end) + extra
-                guarded = ready > now
-            # A line that waits for its silence itself gets the request at once and
-            # sends it right at the end of the silence; it gives it back if a more
-            # urgent one comes, a hold begins or bytes arrive meanwhile. On a line
-            # known to be noisy the owner waits itself, watching every deadline.
-            deferred = ready > now and line.waits_for_silence and noise.since is None \
-                and not guarded
-            if ready > now and not deferred:
-                self._waiting_for = req
-                try:
-                    await self._timer.sleep_until(min(ready, next_expiry))
-                finally:
-                    self._waiting_for = None
-                continue  # the queue's head may have changed meanwhile
+            if waits and not extra and noise.since is None:
+                # The line waits for the silence itself and sends right at its end (at
+                # once if it has passed); it gives the request back if a more urgent one
+                # comes, a hold begins or bytes arrive meanwhile.
+                deferred = True
+            else:
+                ready = line.ready_at(req.handle.settings)
+                guarded = False
+                if extra:
+                    # This slave's guard interval and the frame timeout of the slave that
+                    # answered last: the owner itself keeps the line quiet that much longer
+                    # than its silence (since the last traffic) before the frame.
+                    ready = max(ready, line.last_activity(), self._last_end) + extra
+                    guarded = ready > now
+                # On a line known to be noisy (or with a guard to keep) the owner waits
+                # itself, watching every deadline.
+                deferred = ready > now and waits and noise.since is None and not guarded
+                if ready > now and not deferred:
+                    self._waiting_for = req
+                    try:
+                        await self._timer.sleep_until(min(ready, next_expiry))
+                    finally:
+                        self._waiting_for = None
+                    continue  # the queue's head may have changed meanwhile
             heapq.heappop(self._queue)
+            if deferred and self._chains and self._begin(req):
+                continue  # it runs from callbacks; the owner waits for what needs it
             self._flying.add(req)
             self._waiting_for = req if deferred else None
             try:
@@ -544,11 +722,8 @@ class Bus:
             finally:
                 self._waiting_for = None
             self._landed(req)
-            if not self._queue:
-                # The caller just woken often asks again at once: let it run first (it
-                # is scheduled before us), so that its request is found here without
-                # a wake-up of its own.
-                await asyncio.sleep(0)
+            # No yield here: a reply that came in whole woke its caller from the line's
+            # callback before us, so a request it makes at once is in the queue already.
 
     def _expire_noisy(self, since: float, now: float) -> float:
         """Fail the queued requests whose time to see the noisy line quiet has run out;
@@ -583,31 +758,45 @@ class Bus:
             req.future.set_exception(exc)
         return nearest
 
-    async def _run_one(self, req: _Request, noise: _NoiseWatch, *, withdrawable: bool) -> None:
+    async def _run_one(self, req: _Request, noise: _NoiseWatch, *, withdrawable: bool,
+                       begun: Begun | None = None) -> None:
         try:
-            await self._transact(req, noise, withdrawable=withdrawable)
+            await self._transact(req, noise, withdrawable=withdrawable, begun=begun)
         finally:
-            if req.sent or req.future.done():  # not for a frame taken back before it left
-                self._last_end = monotonic()
-                self._trail = req.handle.frame_timeout
-            if req.landed is not None and req.outcome:
-                self._settle_landed(req)
+            self._ended(req)
 
-    async def _transact(self, req: _Request, noise: _NoiseWatch, *, withdrawable: bool
-                        ) -> None:
+    async def _transact(self, req: _Request, noise: _NoiseWatch, *, withdrawable: bool,
+                        begun: Begun | None = None) -> None:
         h = req.handle
-        st = self.stats.slave(h.address)
+        line = self.line
         try:
-            # Only lines that declare waits_for_silence take the withdrawable keyword.
-            extra = {"withdrawable": True} if withdrawable else {}
-            ex = await self.line.transact(
+            if begun is not None:  # a chained transaction: judge what it came to
+                await line.finish(begun)  # type: ignore[attr-defined]
+                return
+            if line.waits_for_silence:
+                # Such a line takes ``withdrawable`` and tells ``_replied`` of the exchange
+                # as soon as it is complete (from its receiver's callback): the caller is
+                # woken from there, before this task.
+                self._replying = req
+                self._replying_noise = noise
+                await line.transact(  # type: ignore[call-arg]
+                    h.address,
+                    req.pdu,
+                    expect=req.expect,
+                    settings=h.settings,
+                    timeout=h.timeout,
+                    quiet_by=noise.deadline(req),
+                    withdrawable=withdrawable,
+                    on_reply=self._on_reply,
+                )
+                return
+            ex = await line.transact(
                 h.address,
                 req.pdu,
                 expect=req.expect,
                 settings=h.settings,
                 timeout=h.timeout,
                 quiet_by=noise.deadline(req),
-                **extra,
             )
         except SendWithdrawn:
             # Taken back before its frame went out: it keeps its place (same seq) and the
@@ -621,6 +810,7 @@ class Bus:
         except LineNoise as exc:
             if trace.isEnabledFor(logging.DEBUG):
                 self._trace_failure(req, exc)
+            st = self.stats.slave(h.address)
             noise.noted(monotonic())
             req.outcome = "no reply (drowned in noise)" if exc.sent else "not sent (noise)"
             if exc.sent:
@@ -641,6 +831,7 @@ class Bus:
         except TransactionError as exc:
             if trace.isEnabledFor(logging.DEBUG):
                 self._trace_failure(req, exc)
+            st = self.stats.slave(h.address)
             noise.reset()
             req.sent = req.sent or not isinstance(exc, LineConfigError)
             req.outcome = f"failed: {exc}"
@@ -666,32 +857,66 @@ class Bus:
             if not req.future.done():
                 req.future.set_exception(err)
             raise err from exc
+        self._succeeded(req, noise, ex)
+
+    def _replied(self, ex: Exchange) -> None:
+        """The line's ``on_reply``: the transaction under way has its exchange (a chained
+        one ends here, and the next begins)."""
+        req, noise = self._replying, self._replying_noise
+        assert req is not None and noise is not None
+        self._replying = self._replying_noise = None
+        # A reply's last byte is the line's last activity (a broadcast's silence is more).
+        self._succeeded(req, noise, ex, None if req.expect is None else ex.rx_end)
+        chained = self._chained
+        if chained is not None and chained[0] is req:
+            self._chained = self._waiting_for = None
+            chained[1].future.remove_done_callback(self._chain_trouble_cb)
+            self._last_end = ex.rx_end
+            self._trail = req.handle.frame_timeout
+            if req.landed is not None:
+                self._settle_landed(req)
+            self._flying.discard(req)
+            if self._idle_waiters:
+                self._landed(req)
+            self._chain(True)  # (``_succeeded`` reset the noise watch)
+
+    def _succeeded(self, req: _Request, noise: _NoiseWatch, ex: Exchange,
+                   activity: float | None = None) -> None:
+        """Count ``req``'s exchange, tell the observers, give its caller the reply
+        (``activity``: the line's last activity, if known)."""
         if trace.isEnabledFor(logging.DEBUG):
             self._trace_exchange(req, ex)
-        noise.reset()
+        if activity is None:
+            noise.reset()
+        else:  # (``reset``, written out: it runs per transaction)
+            noise.seen, noise.since = activity, None
         req.sent = True
+        reply = ex.reply
         if req.landed is not None:
-            req.outcome = (f"exception 0x{ex.reply[1]:02X}" if ex.reply[:1] and
-                           ex.reply[0] & 0x80 and len(ex.reply) > 1 else
+            req.outcome = (f"exception 0x{reply[1]:02X}" if reply[:1] and
+                           reply[0] & 0x80 and len(reply) > 1 else
                            "no reply (a broadcast)" if req.expect is None else "acknowledged")
-        self.stats.transactions += 1
-        self.stats.wire_time += ex.wire_time
+        stats = self.stats
+        stats.transactions += 1
+        stats.wire_time += ex.wire_time
+        st = stats.slaves.get(req.handle.address) or stats.slave(req.handle.address)
         outcome: Outcome = "ok"
         if req.expect is None:
             st.broadcasts += 1
             outcome = "broadcast"
         else:
             st.transactions += 1
-            self.stats.replies += 1
-            self.stats.reply_time += ex.rx_end - ex.tx_end
-            st.latency.add(ex.rx_end - ex.tx_end)
-            if ex.reply and ex.reply[0] & 0x80:
+            stats.replies += 1
+            latency = ex.rx_end - ex.tx_end
+            stats.reply_time += latency
+            st.latency.add(latency)
+            if reply and reply[0] & 0x80:
                 st.exceptions += 1
                 outcome = "exception"
         if self._observers:
             self._tell(req, outcome, ex)
         if not req.future.done():
-            req.future.set_result(ex.reply)
+            req.future.set_result(reply)
 
     def _frame_hex(self, unit: int, pdu: bytes) -> str:
         """The bytes of a frame as on the wire (RTU: with its CRC; TCP: unit and PDU)."""

@@ -29,7 +29,7 @@ from drivebus.pdu import (
 )
 from drivebus.settings import LineSettings
 
-__all__ = ["Executor", "SlaveHandle"]
+__all__ = ["Executor", "SlaveHandle", "check_line_settings"]
 
 
 class Executor(Protocol):
@@ -46,6 +46,25 @@ class Executor(Protocol):
     ) -> bytes:
         """Queue one transaction and return its reply PDU (empty for a broadcast)."""
         ...
+
+
+class _LineSettings(Protocol):
+    name: str
+    settings: LineSettings | None
+    per_slave_settings: bool
+
+
+def check_line_settings(handle: SlaveHandle, line: _LineSettings) -> None:
+    """``ConfigError`` if ``handle``'s own settings cannot be used on ``line`` (not a
+    serial line, or one whose port has one setting for all slaves)."""
+    if handle.settings is not None and handle.settings != line.settings:
+        if line.settings is None:
+            raise ConfigError(f"line {line.name} is not a serial line: no per-slave settings")
+        if not line.per_slave_settings:
+            raise ConfigError(
+                f"slave {handle.address}: line {line.name} has one setting for all slaves "
+                f"({line.settings}); {handle.settings} cannot be used on it"
+            )
 
 
 def _priority(priority: object) -> Priority:
@@ -113,11 +132,13 @@ class SlaveHandle:
             raise ConfigError("cannot read from the broadcast address 0: nobody answers")
 
     async def _read(self, function: int, address: int, count: int, priority: Priority) -> list[int]:
-        self._no_broadcast_read()
+        if self.address == 0:
+            self._no_broadcast_read()
         req = read_request(function, address, count)
-        prio = _priority(priority)
+        if type(priority) is not Priority:
+            priority = _priority(priority)
         reply = await self.bus.execute(
-            self, req, expect=response_length, priority=prio, idempotent=True
+            self, req, expect=response_length, priority=priority, idempotent=True
         )
         return decode_read_reply(reply, function, int(count), slave=self.address)
 

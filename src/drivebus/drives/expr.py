@@ -161,6 +161,9 @@ class _Scope(Mapping[str, Any]):
 
 
 _GLOBALS: dict[str, Any] = {"__builtins__": {}}
+_WITH_FUNCTIONS: dict[str, Any] = {"__builtins__": {}, **FUNCTIONS}
+"""The globals when the names come as a plain dict: the dict is looked in first, then
+the functions (as ``_Scope`` does), with the dict's own fast lookups."""
 
 
 @dataclass(frozen=True)
@@ -208,6 +211,8 @@ class Expr:
         """The expression's value with ``values`` for its names (``Unknown`` propagates;
         a name missing from ``values`` raises ``ExprError``)."""
         try:
+            if type(values) is dict:
+                return eval(self._code, _WITH_FUNCTIONS, values)  # checked by _check
             return eval(self._code, _GLOBALS, _Scope(values))  # checked by _check
         except NameError as exc:
             raise ExprError(f"{self.source!r}: {exc}") from None

@@ -138,6 +138,12 @@ def reg_value(reg: Reg, raw: int, physical: Any) -> Any:
     return RegValue(raw, reg)
 
 
+_MASKS: dict[tuple[int, int, str], tuple[object, int]] = {}
+"""``IoSignals._mask`` by (wiring, function table, signal), with the table it was made from:
+a table is read when the drive is set up, and a poll asks for the same signals each time
+(a table made afresh is a new key; the dict is emptied when it grows)."""
+
+
 class IoSignals:
     """``input.NAME`` / ``output.NAME``: whether a terminal carrying signal NAME is active,
     from the terminal states, their inversion mask and their function assignments."""
@@ -166,16 +172,29 @@ class IoSignals:
             return bool((bits >> io.bits[name]) & 1)
         if name not in io.codes or io.functions is None:
             return False
-        code = io.codes[name]
         funcs = self._values.get(io.functions)
+        key = (id(io), id(funcs), name)
+        known = _MASKS.get(key)
+        if known is None or known[0] is not funcs:
+            known = (funcs, self._mask(io, name, funcs))
+            if len(_MASKS) >= 256:
+                _MASKS.clear()
+            _MASKS[key] = known
+        return bool(bits & known[1])
+
+    def _mask(self, io: IoDef, name: str, funcs: object) -> int:
+        """The terminals (bit n: the n-th) assigned the function of signal ``name``."""
+        code = io.codes[name]
+        assert io.functions is not None
         reg = self._d.regs[io.functions]
+        mask = 0
         for n, index in enumerate(reg.indices):
             fn = funcs.get(index) if isinstance(funcs, Table) else None
             if fn is None:
                 fn = reg.default_at(index)
-            if int(fn) == code and (bits >> n) & 1:
-                return True
-        return False
+            if int(fn) == code:
+                mask |= 1 << n
+        return mask
 
 
 class FunctionNames:

@@ -8,18 +8,30 @@ probing the object.
 from __future__ import annotations
 
 import abc
+import asyncio
 from dataclasses import dataclass
 from types import TracebackType
+from typing import Protocol
 
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 
-__all__ = ["Exchange", "Line", "SendWithdrawn"]
+__all__ = ["Begun", "Exchange", "Line", "SendWithdrawn"]
 
 
 class SendWithdrawn(Exception):
     """A request taken back before its frame went out (``Line.withdraw``, or bytes during
     its silence on a ``withdrawable`` transaction): nothing was sent; plan again."""
+
+
+class Begun(Protocol):
+    """A transaction started with ``Line.begin``: its ``future`` is done once it needs
+    its owner no more (a sound reply, told to ``on_reply``) or needs ``Line.finish``."""
+
+    @property
+    def future(self) -> asyncio.Future[None]:
+        """Done when the transaction needs its owner no more, or needs ``finish``."""
+        ...
 
 
 @dataclass(slots=True)
@@ -68,9 +80,18 @@ class Line(abc.ABC):
 
     waits_for_silence: bool = False
     """``transact`` waits for the line's silence itself, sends the frame right at its end,
-    and accepts ``withdrawable=True``: until the frame is out the request can be taken
-    back (``withdraw()``), and bytes arriving during the silence end it (``SendWithdrawn``
-    both). A bus hands such a line its next request at once instead of sleeping first."""
+    tells ``on_reply`` of a complete exchange and accepts ``withdrawable=True``: until the
+    frame is out the request can be taken back (``withdraw()``), and bytes arriving during
+    the silence end it (``SendWithdrawn`` both). A bus hands such a line its next request
+    at once instead of sleeping first."""
+
+    begins: bool = False
+    """The line also offers ``transact`` in two halves: ``begin`` (the same arguments,
+    ``withdrawable`` and ``on_reply`` included) starts it from the caller and returns at
+    once, the frame going out from the silence timer's callback; its ``future`` is done
+    when the transaction needs its owner no more (``on_reply`` has had a sound exchange)
+    or needs ``finish(begun)``, awaited, to judge what came (and raise what failed). A
+    scheduler can thus run the line from callbacks while every transaction goes well."""
 
     def withdraw(self) -> bool:
         """Take back the ``withdrawable`` transaction waiting for its silence, if its frame
@@ -119,7 +140,10 @@ class Line(abc.ABC):
         keeps silences bounds the wait before it too: if received bytes keep it busy
         until ``quiet_by`` (default: ``timeout`` from now), ``LineNoise`` with
         ``sent=False``. A reply drowned in noise is ``LineNoise`` with ``sent=True``.
-        Lines that declare ``waits_for_silence`` also take ``withdrawable`` (keyword).
+        Lines that declare ``waits_for_silence`` also take ``withdrawable`` and
+        ``on_reply`` (keywords): ``on_reply(exchange)`` is called once the exchange is
+        complete, before ``transact`` returns it (from the callback that received the
+        reply's last byte, where it can), so a scheduler can wake the caller from there.
         """
 
     async def __aenter__(self) -> Line:

@@ -8,10 +8,14 @@ The wait for silence is bounded: bytes that keep the line busy past the caller's
 ``quiet_by`` end it with ``LineNoise`` (nothing sent).
 
 The frame goes out from the silence timer's own callback, right at the end of the
-silence (no task switch between the deadline and the write), and the waiting task is
-woken once, by the reply's first bytes. Until the frame has gone out a transaction
-started ``withdrawable`` can be taken back (``withdraw()``, or bytes arriving during its
-silence): it then ends with ``SendWithdrawn`` and its owner plans again.
+silence (no task switch between the deadline and the write); the reply is assembled by
+the receiver as its bytes arrive, and once it is complete and sound the exchange is
+finished in that same callback: ``on_reply`` hears of it there (the bus wakes the caller
+from it), and the waiting task is woken once, with nothing left to do. A reply that is
+not (noise, a bad CRC, a late or short frame) is judged by the task with ``read_reply``.
+Until the frame has gone out a transaction started ``withdrawable`` can be taken back
+(``withdraw()``, or bytes arriving during a silence it had to wait for): it then ends
+with ``SendWithdrawn`` and its owner plans again.
 """
 
 from __future__ import annotations
@@ -21,33 +25,38 @@ from collections.abc import Callable
 
 from drivebus.clock import PreciseTimer, monotonic
 from drivebus.errors import LineNoise
-from drivebus.line.base import Exchange, SendWithdrawn
+from drivebus.line.base import Begun, Exchange, SendWithdrawn
 from drivebus.line.receiver import RtuReceiver
 from drivebus.line.rtu import frame
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import Timing
 
-__all__ = ["RtuLink"]
+__all__ = ["Begun", "ReplyHook", "RtuLink"]
 
-_FIRST_BYTES = 3
-"""Reply bytes that end the wait for a reply: address, function code and a byte count
-(the shortest reply has 4 bytes)."""
+ReplyHook = Callable[[Exchange], None]
+"""Told of a transaction's exchange as soon as it is complete, before ``transact``
+returns it: from the receiver's callback when the reply came in whole."""
 
 
 class _Job:
-    """One frame waiting for its silence, then for the first bytes of its reply."""
+    """One frame waiting for its silence, then for its reply: ``step`` (the silence
+    timer's callback) sends it, ``replied`` (the receiver's) finishes it."""
 
     __slots__ = (
-        "adu", "future", "quiet_by", "reply_wait", "rx", "seen", "send", "sent", "silence",
-        "started", "timeout", "tm", "tx_end", "tx_start", "unit", "withdrawable",
+        "adu", "broadcast_delay", "exchange", "expect", "future", "link", "local_echo",
+        "on_reply", "quiet_by", "reply_wait", "rx", "seen", "send", "sent", "silence",
+        "started", "timeout", "tm", "tx_end", "tx_start", "unit", "waited", "withdrawable",
     )
 
     def __init__(
-        self, rx: RtuReceiver, send: Callable[[bytes], None], unit: int, adu: bytes,
-        tm: Timing, silence: float, quiet_by: float, timeout: float, *, reply_wait: bool,
-        withdrawable: bool, seen: float, future: asyncio.Future[None],
+        self, link: RtuLink, rx: RtuReceiver, send: Callable[[bytes], None], unit: int,
+        adu: bytes, tm: Timing, silence: float, quiet_by: float, timeout: float,
+        expect: LengthPredictor | None, local_echo: bool, withdrawable: bool,
+        future: asyncio.Future[None], on_reply: ReplyHook | None, now: float,
+        broadcast_delay: float,
     ) -> None:
+        self.link = link
         self.rx = rx
         self.send = send
         self.unit = unit
@@ -56,16 +65,94 @@ class _Job:
         self.silence = silence
         self.quiet_by = quiet_by
         self.timeout = timeout
-        self.reply_wait = reply_wait
-        """After the frame, wait for the reply's first bytes (else: wake at once)."""
+        self.expect = expect
+        self.local_echo = local_echo
+        self.reply_wait = expect is not None and not local_echo
+        """After the frame, wait for the reply (else: wake at once)."""
         self.withdrawable = withdrawable
-        self.seen = seen
+        self.waited = False
+        """It had to wait for its silence (only then can it be withdrawn)."""
+        q, r = link.quiet_since, rx.last_rx
+        self.seen = r if r > q else q
         """The line's last activity when the job began."""
         self.future = future
-        self.started = monotonic()
+        self.on_reply = on_reply
+        self.exchange: Exchange | None = None
+        """The exchange, once the receiver's callback finished it."""
+        self.started = now
         self.sent = False
         self.tx_start = 0.0
         self.tx_end = 0.0
+        self.broadcast_delay = broadcast_delay
+
+    def step(self) -> None:
+        """Send the frame if the line has been quiet for its silence; else arm the timer
+        to look again then. Failures go to the job's future."""
+        link = self.link
+        rx = self.rx
+        try:
+            while True:
+                q, r = link.quiet_since, rx.last_rx
+                quiet = r if r > q else q
+                if self.waited and self.withdrawable and quiet > self.seen:
+                    raise SendWithdrawn("bytes arrived during the silence")
+                ready = quiet + self.silence
+                now = monotonic()
+                if ready > self.quiet_by and r > q:
+                    if now >= self.quiet_by:
+                        raise link._noise(rx, self.unit, self.silence, now - self.started)
+                    self.waited = True
+                    link.timer.call_at(self.quiet_by, self.step)  # perhaps it stops by then
+                    return
+                if ready > now:
+                    self.waited = True
+                    link.timer.call_at(ready, self.step)
+                    return
+                # Bytes received but not delivered yet (a slave answering late) count too.
+                rx.take_pending()
+                if rx.last_rx <= quiet:
+                    break  # nothing arrived while we waited
+                if self.waited and self.withdrawable:
+                    raise SendWithdrawn("bytes arrived during the silence")
+            if rx.buf:
+                rx.discard()
+            link._job = None
+            self.tx_start = now = monotonic()
+            self.sent = True
+            adu = self.adu
+            self.send(adu)
+        except Exception as exc:  # noise, a port that failed: the waiting task raises it
+            link._job = None
+            if not self.future.done():
+                self.future.set_exception(exc)
+            return
+        tm = self.tm
+        link.quiet_since = self.tx_end = tx_end = now + len(adu) * tm.char_time
+        link.traffic = tm.settings
+        if self.reply_wait:
+            assert self.expect is not None
+            rx.expect_reply(self.unit, self.expect, tx_end + self.timeout, self.future,
+                            self.replied)
+        else:
+            self.future.set_result(None)
+
+    def replied(self, reply: bytes) -> None:
+        """The receiver has the whole reply: finish the exchange here and now."""
+        rx = self.rx
+        rx.waiter = None  # (``release``: the receiver is done with this reply)
+        self.link.quiet_since = rx_end = rx.last_rx
+        n = len(reply) + 3
+        nbytes = len(self.adu)
+        ex = self.exchange = Exchange(reply, self.tx_start, self.tx_end, rx_end, nbytes, n,
+                                      (nbytes + n) * self.tm.char_time)
+        on_reply = self.on_reply
+        if on_reply is not None:
+            try:
+                on_reply(ex)
+            except Exception as exc:  # an observer that failed: the waiting task raises it
+                self.future.set_exception(exc)
+                return
+        self.future.set_result(None)
 
 
 class RtuLink:
@@ -79,6 +166,9 @@ class RtuLink:
         self.traffic: LineSettings | None = None
         """The settings of the last frame sent (what the silence after it is counted at)."""
         self.timer = PreciseTimer()
+        self.loop: asyncio.AbstractEventLoop | None = None
+        """The event loop the link runs in (from its first transaction; ``close()`` ends
+        it)."""
         self._job: _Job | None = None
 
     def last_activity(self, rx: RtuReceiver | None) -> float:
@@ -101,53 +191,6 @@ class RtuLink:
             sent=False,
         )
 
-    # -- the frame out, from the timer's callback ------------------------------------------
-
-    def _step(self, job: _Job) -> None:
-        """Send ``job``'s frame if the line has been quiet for its silence; else arm the
-        timer to look again then. Failures go to the job's waiting task."""
-        try:
-            self._try_send(job)
-        except Exception as exc:  # noise, a port that failed: the waiting task raises it
-            self._job = None
-            if not job.future.done():
-                job.future.set_exception(exc)
-
-    def _try_send(self, job: _Job) -> None:
-        rx = job.rx
-        while True:
-            quiet = self.last_activity(rx)
-            if job.withdrawable and quiet > job.seen:
-                raise SendWithdrawn("bytes arrived during the silence")
-            ready = quiet + job.silence
-            now = monotonic()
-            if ready > job.quiet_by and rx.last_rx > self.quiet_since:
-                if now >= job.quiet_by:
-                    raise self._noise(rx, job.unit, job.silence, now - job.started)
-                self.timer.call_at(job.quiet_by, lambda: self._step(job))  # perhaps it stops
-                return
-            if ready > now:
-                self.timer.call_at(ready, lambda: self._step(job))
-                return
-            # Bytes received but not delivered yet (a slave answering late) count too.
-            rx.take_pending()
-            if rx.last_rx <= quiet:
-                break  # nothing arrived while we waited
-            if job.withdrawable:
-                raise SendWithdrawn("bytes arrived during the silence")
-        rx.discard()
-        self._job = None
-        job.tx_start = monotonic()
-        job.sent = True
-        job.send(job.adu)
-        job.tx_end = job.tx_start + job.tm.frame_time(len(job.adu))
-        self.quiet_since = job.tx_end
-        self.traffic = job.tm.settings
-        if job.reply_wait:
-            rx.expect_bytes(_FIRST_BYTES, job.tx_end + job.timeout, job.future)
-        else:
-            job.future.set_result(None)
-
     def withdraw(self) -> bool:
         """Take back the transaction waiting for its silence, if it was started
         ``withdrawable`` and its frame has not gone out: it ends with ``SendWithdrawn``.
@@ -161,6 +204,80 @@ class RtuLink:
         return True
 
     # -- one transaction -----------------------------------------------------------------
+
+    def begin(
+        self,
+        rx: RtuReceiver,
+        send: Callable[[bytes], None],
+        unit: int,
+        pdu: bytes,
+        expect: LengthPredictor | None,
+        tm: Timing,
+        silence: float,
+        quiet_by: float,
+        timeout: float,
+        broadcast_delay: float,
+        local_echo: bool = False,
+        withdrawable: bool = False,
+        on_reply: ReplyHook | None = None,
+    ) -> Begun:
+        """Start one transaction (see ``transact``) without waiting for it: its frame goes
+        out from the silence timer's callback and its reply is assembled by the receiver.
+        ``on_reply`` hears of a sound exchange from the callback that completed it; the
+        returned job's ``future`` is done when the transaction needs its owner no more
+        (a sound reply, or anything for ``finish`` to judge)."""
+        loop = self.loop
+        if loop is None:
+            loop = self.loop = asyncio.get_running_loop()
+        job = _Job(self, rx, send, unit, frame(unit, pdu), tm, silence, quiet_by, timeout,
+                   expect, local_echo, withdrawable, loop.create_future(), on_reply,
+                   monotonic(), broadcast_delay)
+        self._job = job
+        job.step()
+        return job
+
+    async def finish(self, begun: Begun) -> Exchange:
+        """The exchange of a transaction of ``begin``: the one the receiver's callback
+        completed, or the reply read here (a typed error if there is none)."""
+        job = begun
+        assert isinstance(job, _Job)
+        rx = job.rx
+        try:
+            await job.future  # the frame is out and (with a reply to come) the reply is in
+        except BaseException:
+            if self._job is job:
+                self._job = None
+                self.timer.cancel()
+            if job.sent:
+                # No reply to time the silence from: whatever happened, count from now.
+                self.quiet_since = max(self.quiet_since + self.latency, monotonic())
+            raise
+        finally:
+            if job.reply_wait and job.sent:
+                rx.release()  # whatever woke us, the reply's bytes are read below
+        if job.exchange is not None:
+            return job.exchange  # finished by the receiver's callback (``_Job.replied``)
+        adu, tm, unit, expect = job.adu, job.tm, job.unit, job.expect
+        try:
+            if job.local_echo:
+                await rx.take_echo(adu, job.tx_end + tm.t35 + 0.05)
+            if expect is None:
+                self.quiet_since = job.tx_end + self.latency + job.broadcast_delay
+                ex = Exchange(b"", job.tx_start, job.tx_end, job.tx_end, len(adu), 0,
+                              tm.frame_time(len(adu)))
+            else:
+                reply = await rx.read_reply(unit, expect, job.tx_end + job.timeout,
+                                            tm.char_time, tm.t35)
+                self.quiet_since = rx.last_rx
+                n = len(reply) + 3
+                ex = Exchange(reply, job.tx_start, job.tx_end, rx.last_rx, len(adu), n,
+                              tm.frame_time(len(adu) + n))
+        except BaseException:
+            self.quiet_since = max(self.quiet_since + self.latency, monotonic())
+            raise
+        if job.on_reply is not None:
+            job.on_reply(ex)
+        return ex
 
     async def transact(
         self,
@@ -177,56 +294,21 @@ class RtuLink:
         broadcast_delay: float,
         local_echo: bool = False,
         withdrawable: bool = False,
+        on_reply: ReplyHook | None = None,
     ) -> Exchange:
         """Wait for ``silence`` since the last activity, send one frame and read its reply
         by length (``expect=None``: a broadcast, no reply).
 
         Bytes received meanwhile are activity and restart the silence (``withdrawable``:
-        they end the wait with ``SendWithdrawn``); if they keep the line busy until
-        ``quiet_by``, ``LineNoise`` with nothing sent.
+        they end a wait for it with ``SendWithdrawn``); if they keep the line busy until
+        ``quiet_by``, ``LineNoise`` with nothing sent. ``on_reply`` is told of the
+        exchange as soon as it is complete, before this returns it.
         """
-        adu = frame(unit, pdu)
-        job = _Job(
-            rx, send, unit, adu, tm, silence, quiet_by, timeout,
-            reply_wait=expect is not None and not local_echo,
-            withdrawable=withdrawable,
-            seen=self.last_activity(rx),
-            future=asyncio.get_running_loop().create_future(),
-        )
-        self._job = job
-        try:
-            self._step(job)
-            await job.future  # the frame is out and (with a reply to come) its first bytes
-        except BaseException:
-            if self._job is job:
-                self._job = None
-                self.timer.cancel()
-            if job.sent:
-                # No reply to time the silence from: whatever happened, count from now.
-                self.quiet_since = max(self.quiet_since + self.latency, monotonic())
-            raise
-        finally:
-            if job.reply_wait and job.sent:
-                rx.release()  # whatever woke us, the reply's bytes are read below
-        try:
-            if local_echo:
-                await rx.take_echo(adu, job.tx_end + tm.t35 + 0.05)
-            if expect is None:
-                self.quiet_since = job.tx_end + self.latency + broadcast_delay
-                return Exchange(b"", job.tx_start, job.tx_end, job.tx_end, len(adu), 0,
-                                tm.frame_time(len(adu)))
-            reply = await rx.read_reply(unit, expect, job.tx_end + timeout, tm.char_time,
-                                        tm.t35)
-        except BaseException:
-            self.quiet_since = max(self.quiet_since + self.latency, monotonic())
-            raise
-        self.quiet_since = rx.last_rx
-        n = len(reply) + 3
-        return Exchange(
-            reply, job.tx_start, job.tx_end, rx.last_rx, len(adu), n,
-            tm.frame_time(len(adu) + n),
-        )
+        return await self.finish(self.begin(
+            rx, send, unit, pdu, expect, tm, silence, quiet_by, timeout, broadcast_delay,
+            local_echo, withdrawable, on_reply))
 
     def close(self) -> None:
-        """Release the timer."""
+        """Release the timer (and forget the event loop)."""
         self.timer.close()
+        self.loop = None

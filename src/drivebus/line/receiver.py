@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import asyncio
 import os
+import select
 from collections.abc import Callable
 from typing import cast
 
 from drivebus.clock import monotonic
 from drivebus.errors import FrameError, LineClosed, LineNoise, ResponseTimeout, WrongResponder
-from drivebus.line.rtu import crc_ok
-from drivebus.pdu import LengthPredictor
+from drivebus.line.rtu import crc16_value, crc_ok
+from drivebus.pdu import LengthPredictor, response_length
 
 __all__ = [
     "BUFFER_LIMIT",
@@ -35,6 +36,13 @@ BUFFER_LIMIT = 2 * MAX_ADU
 """Received bytes kept at most: a reply and as much junk before it; older bytes go."""
 SCAN_CRC_BUDGET = 8 * 1024
 """Bytes of CRC computed at most when looking for a frame in junk (a few ms of CPU)."""
+_KIND = tuple(
+    1 if fc in (0x01, 0x02, 0x03, 0x04, 0x17) else 2 if fc in (0x05, 0x06, 0x08, 0x0F, 0x10)
+    else 3 if fc & 0x80 else 0
+    for fc in range(256)
+)
+"""By function code, the length of a standard reply (``response_length``'s): 1 its data's
+byte count in its third byte, 2 eight bytes, 3 an exception (five), 0 not known."""
 _NEVER = BUFFER_LIMIT + 1
 """A byte count the buffer never reaches: ``wait_for(_NEVER, t)`` waits for ``t`` only."""
 
@@ -49,14 +57,14 @@ def read_waiting(fd: int) -> bytes:
         return b""
 
 
-def _expire(w: asyncio.Future[None]) -> None:
-    if not w.done():
-        w.set_result(None)
-
-
 def _loop_time(loop: asyncio.AbstractEventLoop, t: float) -> float:
     # asyncio's loop clock is time.monotonic; keep the conversion in one place anyway.
     return t - monotonic() + loop.time()
+
+
+_EARLY = 1e-6
+"""How early the loop may run a timer (its clock's resolution and rounding): a waiter's
+deadline counts as come within this."""
 
 
 class StreamProtocol(asyncio.Protocol):
@@ -89,6 +97,12 @@ class RtuReceiver(StreamProtocol):
 
     It holds at most ``BUFFER_LIMIT`` bytes: older ones are dropped (and counted as
     garbage) as newer ones come, so a flooded line costs one bounded copy per read.
+
+    A reply awaited with ``expect_reply`` is assembled here, as its bytes arrive: once it
+    is complete by length, from the right address and with a good CRC, ``on_frame`` gets
+    its PDU from the very callback that received its last byte, and the waiting task is
+    woken once, with the work done. Anything else (a wrong address, a bad CRC, the
+    deadline) wakes the task with the bytes as they are, for ``read_reply`` to judge.
     """
 
     def __init__(self, name: str = "line", *, line_name: str | None = None) -> None:
@@ -99,10 +113,19 @@ class RtuReceiver(StreamProtocol):
         self.waiter: asyncio.Future[None] | None = None
         self.garbage_bytes = 0
         """Bytes received outside any reply (late answers, noise), discarded."""
-        self.pending_bytes: Callable[[], bytes] | None = None
-        """Reads what the medium has received and the event loop has not delivered yet
-        (set by lines that can, e.g. a serial port's non-blocking read)."""
+        self._pending_fd = -1
+        self._pending_poll: select.poll | None = None
+        """Asks the descriptor of ``watch`` whether bytes wait (one ``poll`` of no time:
+        on an idle line, the rule before a frame, that spares a read's EAGAIN)."""
+        self._deadline = 0.0
+        """When the waiter is resolved at the latest (monotonic)."""
         self._expiry: asyncio.TimerHandle | None = None
+        self._expiry_at = 0.0
+        """When ``_expiry`` fires (monotonic): the earliest deadline since it was set."""
+        self._unit = 0
+        self._expect: LengthPredictor | None = None
+        """The reply being assembled: its length predictor (None: plain byte count)."""
+        self._on_frame: Callable[[bytes], None] | None = None
 
     # -- asyncio.Protocol --------------------------------------------------------------------
 
@@ -116,19 +139,33 @@ class RtuReceiver(StreamProtocol):
             self.garbage_bytes += excess
         w = self.waiter
         if w is not None and len(buf) >= self.need and not w.done():
-            w.set_result(None)
+            if self._expect is None:
+                w.set_result(None)
+            else:
+                self._assemble(w)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.lost = exc or LineClosed(f"{self.name} closed")
         w = self.waiter
         if w is not None and not w.done():
             w.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
+        if self._expiry is not None:
+            self._expiry.cancel()
+            self._expiry = None
+
+    def watch(self, fd: int) -> None:
+        """Let ``take_pending`` read what ``fd`` (the non-blocking serial port or socket
+        the transport reads) has received and the event loop has not delivered yet."""
+        self._pending_fd = fd
+        self._pending_poll = select.poll()
+        self._pending_poll.register(fd, select.POLLIN | select.POLLERR | select.POLLHUP)
 
     def take_pending(self) -> None:
         """Take in bytes received but not delivered yet, so that ``last_rx`` is up to date
         before a decision on silence (the loop may have been busy elsewhere)."""
-        if self.pending_bytes is not None:
-            late = self.pending_bytes()
+        poll = self._pending_poll
+        if poll is not None and poll.poll(0):
+            late = read_waiting(self._pending_fd)
             if late:
                 self.data_received(late)
 
@@ -155,21 +192,108 @@ class RtuReceiver(StreamProtocol):
     def expect_bytes(self, n: int, deadline: float, waiter: asyncio.Future[None]) -> None:
         """Resolve ``waiter`` once ``n`` bytes are buffered or ``deadline`` has come,
         whichever is first (an exception if the stream is lost); ``release()`` ends it."""
-        loop = waiter.get_loop()
+        self._expect = None
+        self._wait(n, deadline, waiter)
+
+    def expect_reply(
+        self, unit: int, expect: LengthPredictor, deadline: float,
+        waiter: asyncio.Future[None], on_frame: Callable[[bytes], None],
+    ) -> None:
+        """Assemble the reply from ``unit`` as it arrives: once it is complete (by
+        ``expect``), from ``unit`` and with a good CRC, take it out of the buffer and call
+        ``on_frame`` with its PDU (which resolves ``waiter``). Anything else resolves
+        ``waiter`` with the bytes left as they are: something other than ``unit``'s frame
+        at the start, a bad CRC, ``deadline`` (an exception if the stream is lost).
+        ``release()`` ends it."""
+        self._unit = unit
+        self._expect = expect
+        self._on_frame = on_frame
+        self.need = 3  # address, function code and a byte count
+        self.waiter = waiter
+        self._deadline = deadline
+        if self._expiry is None or self._expiry_at > deadline:  # (``_wait``, written out)
+            self._set_expiry(waiter.get_loop(), deadline)
+        if self.lost is not None:
+            waiter.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
+        elif len(self.buf) >= 3:
+            self._assemble(waiter)
+
+    def _wait(self, n: int, deadline: float, waiter: asyncio.Future[None]) -> None:
         self.need = n
         self.waiter = waiter
-        self._expiry = loop.call_at(_loop_time(loop, deadline), _expire, waiter)
+        self._deadline = deadline
+        if self._expiry is None or self._expiry_at > deadline:
+            # One timer serves many waits: deadlines mostly come later and later, and a
+            # timer that fires before its waiter's deadline is set again then.
+            self._set_expiry(waiter.get_loop(), deadline)
         if self.lost is not None:
             waiter.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
         elif len(self.buf) >= n:
-            waiter.set_result(None)
+            if self._expect is None:
+                waiter.set_result(None)
+            else:
+                self._assemble(waiter)
 
-    def release(self) -> None:
-        """Stop resolving the waiter of ``expect_bytes``."""
+    def _set_expiry(self, loop: asyncio.AbstractEventLoop, deadline: float) -> None:
         if self._expiry is not None:
             self._expiry.cancel()
-            self._expiry = None
+        self._expiry_at = deadline
+        self._expiry = loop.call_at(_loop_time(loop, deadline), self._expired)
+
+    def _expired(self) -> None:
+        self._expiry = None
+        w = self.waiter
+        if w is None or w.done():
+            return
+        if monotonic() + _EARLY < self._deadline:  # set for an earlier wait: wait on
+            self._set_expiry(w.get_loop(), self._deadline)
+            return
+        w.set_result(None)
+
+    def _assemble(self, w: asyncio.Future[None]) -> None:
+        """The reply so far (at least ``need`` bytes): complete it, ask for more bytes, or
+        wake the waiting task to judge what is there."""
+        buf = self.buf
+        expect = self._expect
+        assert expect is not None
+        if buf[0] != self._unit:
+            w.set_result(None)  # not the frame asked for (yet): read_reply resynchronises
+            return
+        kind = _KIND[buf[1]] if expect is response_length else 0
+        if kind == 1:  # the standard replies' lengths, as response_length has them
+            total = buf[2] + 5
+        elif kind:
+            total = 8 if kind == 2 else 5
+        else:
+            need = 3
+            while True:
+                length = expect(bytes(buf[1:need]))
+                if length is not None:
+                    break
+                need += 1
+                if len(buf) < need:
+                    self.need = need
+                    return
+            total = length + 3
+        n = len(buf)
+        if n < total:
+            self.need = total
+            return
+        if crc16_value(buf if n == total else buf[:total]):  # not 0: a bad CRC
+            w.set_result(None)  # read_reply resynchronises
+            return
+        pdu = bytes(buf[1:total - 2])
+        del buf[:total]  # anything after it is garbage, dropped before the next frame
+        on_frame = self._on_frame
+        self._expect = self._on_frame = None
+        assert on_frame is not None
+        on_frame(pdu)
+
+    def release(self) -> None:
+        """Stop resolving the waiter of ``expect_bytes`` or ``expect_reply`` (its timer
+        stays for the next wait, or fires once with nobody waiting)."""
         self.waiter = None
+        self._expect = self._on_frame = None
 
     async def wait_silence(self, silence: float, limit: float) -> bool:
         """Wait until ``silence`` has passed since the last byte; False if ``limit`` came

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import asyncio
-import functools
 import os
 import termios
+from collections.abc import Coroutine
+from typing import Any
 
 import serial
 import serial.rs485
@@ -15,12 +16,12 @@ from drivebus.clock import monotonic
 from drivebus.errors import ConfigError, LineClosed, LineConfigError
 from drivebus.line.base import Exchange, Line
 from drivebus.line.baud import port_baudrate, rate_matches
-from drivebus.line.link import RtuLink
-from drivebus.line.receiver import RtuReceiver, read_waiting
+from drivebus.line.link import Begun, ReplyHook, RtuLink
+from drivebus.line.receiver import RtuReceiver
 from drivebus.pdu import LengthPredictor
 from drivebus.providers import line_provider, scheme_of
 from drivebus.settings import LineSettings
-from drivebus.timing import switch_silence, timing
+from drivebus.timing import Timing, switch_silence, timing
 
 __all__ = ["SerialLine"]
 
@@ -71,6 +72,7 @@ class SerialLine(Line):
     per_slave_settings = True
     counts_garbage = True
     waits_for_silence = True
+    begins = True
     settings: LineSettings
 
     def __init__(
@@ -97,7 +99,7 @@ class SerialLine(Line):
         self._closed = True
         self._fd = -1
         self._garbage_closed = 0  # counted by receivers of earlier openings
-        self._canon: dict[int, tuple[LineSettings, LineSettings]] = {}
+        self._canon: dict[int, tuple[LineSettings, LineSettings, Timing]] = {}
         self.low_latency: bool | None = None
         """Whether the port took low-latency mode when it opened (None: not opened yet)."""
 
@@ -105,14 +107,19 @@ class SerialLine(Line):
         """One object per distinct setting: every slave handle has its own (equal) settings
         object, and comparing models field by field on each transaction costs more than
         the rest of the silence bookkeeping; equal settings are then the same object."""
+        return self._known(settings)[0]
+
+    def _known(self, settings: LineSettings | None) -> tuple[LineSettings, Timing]:
+        """The canonical object for ``settings`` (see ``_canonical``) and its timing."""
         if settings is None:
             settings = self.settings
         known = self._canon.get(id(settings))
         if known is not None and known[0] is settings:
-            return known[1]
-        same = next((c for _, c in self._canon.values() if c == settings), settings)
-        self._canon[id(settings)] = (settings, same)  # keeps the object: its id stays unique
-        return same
+            return known[1], known[2]
+        same = next((c for _, c, _ in self._canon.values() if c == settings), settings)
+        tm = timing(same)
+        self._canon[id(settings)] = (settings, same, tm)  # keeps the object: its id stays
+        return same, tm
 
     @property
     def garbage_bytes(self) -> int:
@@ -160,7 +167,7 @@ class SerialLine(Line):
         self.low_latency = _ask_low_latency(port)
         self._serial = port
         self._fd = port.fileno()
-        rx.pending_bytes = functools.partial(read_waiting, self._fd)
+        rx.watch(self._fd)
         self._rx = rx
         self._current = s
         if self.rs485:
@@ -230,7 +237,9 @@ class SerialLine(Line):
 
     def last_activity(self) -> float:
         """When the last frame sent or byte received ended."""
-        return self._link.last_activity(self._rx)
+        q = self._link.quiet_since
+        rx = self._rx
+        return q if rx is None or rx.last_rx < q else rx.last_rx
 
     def ready_at(self, settings: LineSettings | None) -> float:
         """When the silence before a frame at ``settings`` will have passed."""
@@ -250,7 +259,7 @@ class SerialLine(Line):
             assert self._rx is not None
             self._rx.send(adu[written:])
 
-    async def transact(
+    def begin(
         self,
         unit: int,
         pdu: bytes,
@@ -260,36 +269,66 @@ class SerialLine(Line):
         timeout: float = 0.1,
         quiet_by: float | None = None,
         withdrawable: bool = False,
-    ) -> Exchange:
+        on_reply: ReplyHook | None = None,
+    ) -> Begun:
+        """Start the transaction ``transact`` runs, without waiting for it (see
+        ``Line.begin``); ``LineClosed``/``LineConfigError`` at once if it cannot start."""
+        rx = self._rx
+        if self._closed or rx is None:
+            raise LineClosed(f"serial line {self.port} is closed")
+        asked = self.settings if settings is None else settings
+        known = self._canon.get(id(asked))
+        if known is not None and known[0] is asked:
+            target, tm = known[1], known[2]
+        else:
+            target, tm = self._known(asked)
+        if target is not self._current:
+            self._reconfigure(target, unit)
+        link = self._link
+        traffic = link.traffic
+        return link.begin(  # (positional: this runs once per transaction)
+            rx, self._send, unit, pdu, expect, tm,
+            tm.t35 if traffic is target else switch_silence(traffic, target),
+            monotonic() + timeout if quiet_by is None else quiet_by, timeout,
+            self.broadcast_delay, self.local_echo, withdrawable, on_reply)
+
+    def finish(self, begun: Begun) -> Coroutine[Any, Any, Exchange]:
+        """The exchange of a transaction of ``begin`` (a typed error if there is none)."""
+        return self._link.finish(begun)
+
+    def transact(  # a coroutine function: it returns the link's, one frame less per step
+        self,
+        unit: int,
+        pdu: bytes,
+        *,
+        expect: LengthPredictor | None,
+        settings: LineSettings | None = None,
+        timeout: float = 0.1,
+        quiet_by: float | None = None,
+        withdrawable: bool = False,
+        on_reply: ReplyHook | None = None,
+    ) -> Coroutine[Any, Any, Exchange]:
         """Send one frame after the silence and, unless ``expect`` is None, read its reply
-        by length (``LineNoise`` if the line is not quiet by ``quiet_by``).
+        by length (``LineNoise`` if the line is not quiet by ``quiet_by``); ``on_reply``
+        is told of the exchange as soon as it is complete.
 
         The port is switched to ``settings`` before the silence, not after it: the
         silence is counted at the slower of the last frame's settings and these, and
         whatever arrives meanwhile is garbage at either rate; the switch is then off the
         path between the end of the silence and the first byte.
         """
-        if self._closed or self._rx is None:
-            raise LineClosed(f"serial line {self.port} is closed")
-        target = self._canonical(settings)
-        if target is not self._current:
-            self._reconfigure(target, unit)
-        return await self._link.transact(
-            self._rx,
-            self._send,
-            unit,
-            pdu,
-            expect,
-            timing(target),
-            silence=switch_silence(self._link.traffic, target),
-            quiet_by=monotonic() + timeout if quiet_by is None else quiet_by,
-            timeout=timeout,
-            broadcast_delay=self.broadcast_delay,
-            local_echo=self.local_echo,
-            withdrawable=withdrawable,
-        )
+        try:
+            begun = self.begin(unit, pdu, expect=expect, settings=settings, timeout=timeout,
+                               quiet_by=quiet_by, withdrawable=withdrawable,
+                               on_reply=on_reply)
+        except (LineClosed, LineConfigError) as exc:
+            return _fail(exc)
+        return self._link.finish(begun)
 
     def __repr__(self) -> str:
         return f"SerialLine({self.port!r}, {self.settings})"
 
 
+async def _fail(exc: BaseException) -> Exchange:
+    """A transaction refused before anything was sent: raises ``exc`` when awaited."""
+    raise exc

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import abc
 import asyncio
-import functools
 import socket
 import struct
 from collections import deque
@@ -35,8 +34,8 @@ from drivebus.errors import (
     WrongResponder,
 )
 from drivebus.line.base import Exchange, Line
-from drivebus.line.link import RtuLink
-from drivebus.line.receiver import RtuReceiver, StreamProtocol, read_waiting
+from drivebus.line.link import ReplyHook, RtuLink
+from drivebus.line.receiver import RtuReceiver, StreamProtocol
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import timing
@@ -557,7 +556,7 @@ class _RtuTcpReceiver(RtuReceiver):
         super().connection_made(transport)
         sock = transport.get_extra_info("socket")
         if sock is not None:
-            self.pending_bytes = functools.partial(read_waiting, sock.fileno())
+            self.watch(sock.fileno())
 
     def connection_lost(self, exc: Exception | None) -> None:
         if not self.cause:
@@ -644,9 +643,11 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
         timeout: float = 0.1,
         quiet_by: float | None = None,
         withdrawable: bool = False,
+        on_reply: ReplyHook | None = None,
     ) -> Exchange:
         """Send one RTU frame after t3.5 of silence and read its reply by length
-        (``LineNoise`` if the line is not quiet by ``quiet_by``)."""
+        (``LineNoise`` if the line is not quiet by ``quiet_by``); ``on_reply`` is told of
+        the exchange as soon as it is complete."""
         if settings is not None and settings != self.settings:
             raise LineConfigError(
                 f"slave {unit} on {self.name}: settings {settings} differ from the serial "
@@ -659,7 +660,7 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
                 quiet_by = monotonic() + timeout
             try:
                 return await self._exchange(rx, unit, pdu, expect, timeout, quiet_by,
-                                            withdrawable)
+                                            withdrawable, on_reply)
             except LineClosed as exc:
                 if self._closed:
                     raise
@@ -678,6 +679,7 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
         timeout: float,
         quiet_by: float,
         withdrawable: bool,
+        on_reply: ReplyHook | None,
     ) -> Exchange:
         tm = timing(self.settings)
         return await self._link.transact(
@@ -692,6 +694,7 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
             timeout=timeout,
             broadcast_delay=self.broadcast_delay,
             withdrawable=withdrawable,
+            on_reply=on_reply,
         )
 
     def __repr__(self) -> str:

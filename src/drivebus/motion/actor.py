@@ -215,6 +215,13 @@ class AxisActor:
         self.state = AxisState.OFFLINE
         self._learn_due = True
 
+    def line_lost(self, exc: TransactionError) -> None:
+        """Its line is gone for now (the worker process serving it died): Offline at once,
+        its motion and queue ended, as when the drive stops answering; the actor takes it
+        back once the drive answers again."""
+        if self.state is not AxisState.OFFLINE:
+            self._go_offline(exc)
+
     def _go_offline(self, exc: TransactionError) -> None:
         self.error = DriveOffline(
             f"axis {self.name}: drive {self.profile.family} at address "

@@ -9,7 +9,7 @@ import sys
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import anyio
 
@@ -20,6 +20,7 @@ from drivebus.drives.registry import family
 from drivebus.errors import (
     ArgumentError,
     ConfigError,
+    ConnectionLost,
     DrivebusError,
     DriveOffline,
     StateError,
@@ -28,7 +29,7 @@ from drivebus.errors import (
 from drivebus.motion.axis import Axis
 from drivebus.motion.group import AxisGroup, GroupMoveReport
 from drivebus.motion.handle import BufferMode, check_override
-from drivebus.motion.lines import open_line
+from drivebus.motion.lines import make_line, open_line, provide_elsewhere, serves_elsewhere
 from drivebus.motion.path import GroupHandle
 from drivebus.motion.recording import Recording
 from drivebus.motion.state import MOVING_STATES
@@ -36,6 +37,9 @@ from drivebus.positions import PositionStore
 from drivebus.tasks import ServiceTasks
 
 __all__ = ["Machine", "open_machine"]
+
+if TYPE_CHECKING:
+    from drivebus.motion.workers import WorkerPool
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +59,7 @@ class Machine:
         """The stand-in behind each axis on a provided line: on ``sim://`` lines, the
         simulated twin (``drivebus.sim.SimDrive``) the tests and the demo judge by."""
         self.wires: dict[str, Any] = {}
+        self._pool: WorkerPool | None = None
         """What serves each provided line: on ``sim://`` lines, the simulator's wire or
         server (its wire log, faults)."""
         self._override = 1.0
@@ -164,6 +169,18 @@ class Machine:
         ``ConfigError`` names an unknown axis."""
         return Recording(self, axes, bus=bus, max_samples=max_samples,
                          max_events=max_events, max_transactions=max_transactions)
+
+    @property
+    def workers(self) -> list[dict[str, Any]]:
+        """The worker processes serving lines (``workers`` in the machine file): each one's
+        lines, process id, restarts and state; empty where this process serves them all."""
+        return [] if self._pool is None else self._pool.info()
+
+    def _line_lost(self, lines: list[str], error: ConnectionLost) -> None:
+        """The worker serving ``lines`` died: their axes go Offline now."""
+        for axis in self.axes.values():
+            if axis.config.line in lines:
+                axis.line_lost(error)
 
     async def stop_all(self, *, only_commanded: bool = False) -> list[str]:
         """Stop every moving axis (or only those this machine set moving), in parallel,
@@ -281,14 +298,30 @@ async def open_machine(
     cfg = await machine_config_in_thread(config)  # parsing descriptions: off the loop
     machine = Machine(cfg)
     async with contextlib.AsyncExitStack() as stack:
+        groups = _placement(cfg)
+        remote = {name for group in groups for name in group}
+        if groups:  # (imported here: a machine without workers loads none of it)
+            from drivebus.motion.workers import LineSpec, WorkerPool
+        specs: dict[str, LineSpec] = {}
+        buses: dict[str, Bus] = {}
         for name, line in cfg.lines.items():
-            ln, provided = await open_line(cfg, name, stack)
+            if name in remote:
+                where, provided = await provide_elsewhere(cfg, name, stack)
+                specs[name] = LineSpec(name, where, line.timeout, line.retries)
+            else:
+                ln, provided = await open_line(cfg, name, stack)
+                buses[name] = await stack.enter_async_context(
+                    Bus(ln, timeout=line.timeout, retries=line.retries))
             if provided is not None:
                 machine.sim_drives.update(provided.twins)
                 machine.wires[name] = provided.server
-            machine.buses[name] = await stack.enter_async_context(
-                Bus(ln, timeout=line.timeout, retries=line.retries)
-            )
+        if specs:
+            machine._pool = await stack.enter_async_context(WorkerPool(
+                [[specs[n] for n in group] for group in groups],
+                {n: make_line(s.config) for n, s in specs.items()}, machine._line_lost))
+        for name in cfg.lines:
+            machine.buses[name] = buses[name] if name in buses else \
+                machine._pool.buses[name]  # type: ignore[union-attr, assignment]
         for name, axis_cfg in cfg.axes.items():
             machine.axes[name] = machine._own(
                 await _make_axis(machine, name, axis_cfg, require=require_all))
@@ -302,6 +335,24 @@ async def open_machine(
             actors.cancel()
             if cancelled is not None and sys.exc_info()[1] is None:
                 raise cancelled  # a cancellation that came during the stops, now
+
+
+def _placement(cfg: MachineConfig) -> list[list[str]]:
+    """The lines each worker serves (``workers`` of the machine file, ``"auto"`` by line
+    count and cores); lines that another process cannot open stay here."""
+    if not cfg.workers:
+        return []
+    from drivebus.motion.workers import auto_workers, placement
+
+    n = auto_workers(len(cfg.lines)) if cfg.workers == "auto" else cfg.workers
+    if not n:
+        return []
+    names = [name for name in cfg.lines if serves_elsewhere(cfg, name)]
+    left = [name for name in cfg.lines if name not in names]
+    if left:
+        log.info("machine %s: line %s stays in this process (its provider cannot serve "
+                 "another process)", cfg.name, ", ".join(left))
+    return placement(names, min(n, len(names)))
 
 
 async def _stop_on_leaving(

@@ -94,12 +94,21 @@ def serial_class_for_url(url: str) -> tuple[str, type[PosixSerial]]:
 
     A wire of this process is used with its format side channel; else the pty of a running
     ``drivebus sim`` in another process (published by ``drivebus.sim.serve``), whose
-    format channel (a Unix socket) carries the parity and byte size a pty cannot.
+    format channel (a Unix socket) carries the parity and byte size a pty cannot. A URL
+    that gives both (``sim://NAME?pty=PATH&channel=SOCKET``) names a wire of another
+    process directly (a machine's private simulator, for a worker of that machine).
     """
     from drivebus.sim.serve import published
     from drivebus.sim.wire import lookup_wire
 
-    name = url.split("://", 1)[1].partition("?")[0].strip("/")
+    name, _, query = url.split("://", 1)[1].partition("?")
+    name = name.strip("/")
+    options = dict(part.partition("=")[::2] for part in query.split("&") if part)
+    if "pty" in options:  # a wire of another process, given by its pty and format channel
+        channel = options.get("channel", "")
+        if not channel:
+            return options["pty"], PosixSerial
+        return options["pty"], type("RemoteSimPort", (_RemoteSimPort,), {"channel": channel})
     try:
         wire = lookup_wire(name)
     except KeyError:

@@ -22,8 +22,9 @@ from drivebus.config import AxisConfig, MachineConfig
 from drivebus.errors import ConfigError
 from drivebus.providers import ProvidedLine
 from drivebus.sim.machine import adapter_options, start_sim_line
-from drivebus.sim.serve import published
+from drivebus.sim.serve import published, serve_format_channel
 from drivebus.sim.twins import twin_class
+from drivebus.sim.wire import VirtualWire
 
 __all__ = ["SimLineProvider"]
 
@@ -62,11 +63,15 @@ class SimLineProvider:
         return out
 
     async def open(
-        self, config: MachineConfig, line: str, stack: contextlib.AsyncExitStack
+        self, config: MachineConfig, line: str, stack: contextlib.AsyncExitStack, *,
+        elsewhere: bool = False,
     ) -> ProvidedLine:
         """Reach the ``drivebus sim`` that serves line ``line`` if one runs (its drives, as
         it left them: no twins here), else start a private simulator of the line (a twin
-        per axis, afresh) that runs until ``stack`` closes."""
+        per axis, afresh) that runs until ``stack`` closes. ``elsewhere``: the master of
+        the line runs in another process (a machine's worker): a private simulated serial
+        line then also answers that process's format messages, and its port says where
+        (``sim://NAME?pty=PATH&channel=SOCKET``)."""
         cfg = config.lines[line]
         running = published(cfg.sim_name)
         if running is not None and (running.kind == "serial") == (cfg.kind == "serial"):
@@ -78,7 +83,12 @@ class SimLineProvider:
             return ProvidedLine(cfg.model_copy(update={"host": host, "tcp_port": port}), {},
                                 None)
         sim = await start_sim_line(config, line, stack)
-        return ProvidedLine(sim.master_config(), dict(sim.twins), sim.server)
+        master = sim.master_config()
+        if elsewhere and isinstance(sim.server, VirtualWire):
+            channel = await serve_format_channel(sim.server, stack)
+            master = master.model_copy(update={
+                "port": f"{sim.server.url}?pty={sim.server.slave_path}&channel={channel}"})
+        return ProvidedLine(master, dict(sim.twins), sim.server)
 
 
 def _axis_problems(ax: AxisConfig) -> list[str]:

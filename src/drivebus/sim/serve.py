@@ -18,6 +18,7 @@ import functools
 import hashlib
 import math
 import os
+import secrets
 import socket
 import sys
 import tempfile
@@ -35,6 +36,7 @@ from drivebus.errors import ConfigError, DrivebusError
 from drivebus.sim.drive import SimDrive
 from drivebus.sim.machine import SimLine, start_simulators
 from drivebus.sim.wire import VirtualWire, WireFrame
+from drivebus.tasks import ServiceTasks
 
 __all__ = [
     "CONSOLE_HELP",
@@ -105,12 +107,13 @@ def _channel_path(name: str) -> Path:
 
 
 async def _serve_format_channel(
-    wire: VirtualWire, path: Path, control: Callable[[str], str] | None = None
+    wire: VirtualWire, path: Path, control: Callable[[str], str] | None = None,
+    ready: anyio.Event | None = None,
 ) -> None:
     """Answer the messages of other processes until cancelled: a master's format (``F 8
     E``, answered ``ok``; forgotten when that master closes its port) and a power cycle
     (``P AXIS|ADDRESS``, from ``drivebus sim CONFIG --power-cycle``: ``ok`` and where the
-    drive answers now, or ``error`` and why)."""
+    drive answers now, or ``error`` and why); ``ready`` is set once the socket listens."""
 
     async def client(stream: anyio.abc.SocketStream) -> None:
         buffered = anyio.streams.buffered.BufferedByteReceiveStream(stream)
@@ -141,11 +144,29 @@ async def _serve_format_channel(
 
     await anyio.Path(path).unlink(missing_ok=True)
     listener = await anyio.create_unix_listener(path)
+    if ready is not None:
+        ready.set()
     try:
         await listener.serve(client)
     finally:
         with anyio.CancelScope(shield=True):
             await anyio.Path(path).unlink(missing_ok=True)
+
+
+async def serve_format_channel(wire: VirtualWire, stack: contextlib.AsyncExitStack) -> str:
+    """Answer the format messages of a master in another process (a machine's worker)
+    for ``wire`` until ``stack`` closes; the Unix socket's path (private to this
+    process: nothing is published)."""
+    path = Path(tempfile.gettempdir()) / f"drivebus-{os.getpid()}-{secrets.token_hex(6)}.sock"
+    tasks = await stack.enter_async_context(ServiceTasks())
+    ready = anyio.Event()
+
+    async def serve() -> None:
+        await _serve_format_channel(wire, path, ready=ready)
+
+    tasks.start_soon(serve, name=f"sim wire {wire.name} format channel")
+    await ready.wait()
+    return str(path)
 
 
 @contextlib.contextmanager

@@ -5,11 +5,13 @@ order), and the plans a description's status poll and identity read use.
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 
 from drivebus.drives.description import Description, Reg
+from drivebus.drives.expr import Expr
 from drivebus.drives.registers import Register
 from drivebus.errors import ConfigError
 
@@ -189,3 +191,12 @@ def _static_target(d: Description, key: str) -> Register:
         raise ConfigError(f"{d.family}: {key!r} is not a register")
     reg = d.regs[m.group(1)]
     return reg.at(int(m.group(2), 0)) if m.group(2) is not None else reg.register
+
+
+@functools.lru_cache(maxsize=1024)
+def parsed_target(key: str) -> tuple[str, Expr | None]:
+    """A write target ``register`` or ``register[index expression]``, parsed once (a move
+    writes the same few again and again)."""
+    m = _TARGET.fullmatch(key.strip())
+    assert m is not None  # checked when the description was loaded
+    return m.group(1), None if m.group(2) is None else Expr.parse(m.group(2))

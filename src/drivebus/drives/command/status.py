@@ -11,6 +11,7 @@ from typing import Any
 from drivebus.bus import Priority
 from drivebus.clock import monotonic
 from drivebus.drives.command.base import ProfileBase
+from drivebus.drives.command.decoding import Decoding
 from drivebus.drives.command.reads import OBJECT, ReadPlan, Span, _in_span, plan_reads
 from drivebus.drives.command.runs import _Run
 from drivebus.drives.description import Description, Reg
@@ -80,6 +81,12 @@ class Status(ProfileBase):
     async def _poll_values(self, plan: ReadPlan, prio: Priority,
                            raw_words: dict[str, list[int]] | None = None) -> dict[str, Any]:
         words = await self._read_words(plan, prio)
+        if plan is self._status_plan:  # the poll: its decoding made once (``Decoding``)
+            decoding = self.__dict__.get("_status_decoding")
+            if decoding is None or decoding.ppr != self.pulses_per_rev:
+                decoding = self.__dict__["_status_decoding"] = Decoding(
+                    plan, self.pulses_per_rev)
+            return decoding.decode(self.description, self.last, words, raw_words)
         return self._decode(plan, words, raw_words)
 
     def _decode(self, plan: ReadPlan, words: Mapping[int, int],
@@ -135,11 +142,17 @@ class Status(ProfileBase):
         requested = monotonic()
         values = await self._poll_values(self._status_plan, priority, raw_words)
         try:
+            scope: dict[str, Any] | None = None
             for when, plan in self._extra_plans:
-                if when(self._scope(None, values)):
+                if scope is None:
+                    scope = self._scope(None, values)
+                if when(scope):
                     values.update(await self._poll_values(plan, priority, raw_words))
+                    scope = None  # made again with what the extra read brought
             await self._read_due_signals(priority)
-            return self.decode_status(values, raw_words, requested_at=requested)
+            if type(self).decode_status is not Status.decode_status:
+                return self.decode_status(values, raw_words, requested_at=requested)
+            return self._decode_status(values, raw_words, requested, scope)
         except Unknown as exc:
             raise ConfigError(f"{self.family}: its status decoding uses what the poll does "
                               f"not read ({exc}): add it to [status] poll") from None
@@ -156,16 +169,24 @@ class Status(ProfileBase):
                       requested_at: float | None = None) -> DriveStatus:
         """A ``DriveStatus`` from the polled register values. Its state trackers take
         only a status requested after the last write's reply (``fresh``)."""
+        return self._decode_status(values, raw_words, requested_at, None)
+
+    def _decode_status(self, values: Mapping[str, Any],
+                       raw_words: Mapping[str, list[int]] | None,
+                       requested_at: float | None, scope: dict[str, Any] | None
+                       ) -> DriveStatus:
+        """``decode_status``, with the scope of ``values`` if the caller has it: one scope
+        per poll (its ``state.NAME`` reads the profile's state itself, so what the trackers
+        update is seen by the fields without making it again)."""
         d = self.description
         s = d.status
         fields = d.status_exprs
-        scope = self._scope(None, values)
+        if scope is None:
+            scope = self._scope(None, values)
         scope["words"] = Attrs("words", dict(raw_words or {}))
         if s.track and self.fresh(requested_at):  # trackers first: the fields see them
             updates = {k: e(scope) for k, e in s.track.items()}
             self.state.update(updates)
-            scope = self._scope(None, values)
-            scope["words"] = Attrs("words", dict(raw_words or {}))
 
         def flag(name: str) -> bool:
             e = fields.get(name)

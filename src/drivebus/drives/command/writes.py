@@ -10,7 +10,7 @@ from typing import Any
 
 from drivebus.bus import Priority
 from drivebus.drives.command.base import ProfileBase
-from drivebus.drives.command.reads import _TARGET
+from drivebus.drives.command.reads import parsed_target
 from drivebus.drives.command.runs import _Item, _Run
 from drivebus.drives.description import Reg, Step
 from drivebus.drives.expr import Expr
@@ -24,12 +24,11 @@ class Writes(ProfileBase):
     """Values encoded, checked and written."""
 
     def _target(self, key: str, scope: Mapping[str, Any]) -> tuple[Reg, int | None]:
-        m = _TARGET.fullmatch(key.strip())
-        assert m is not None  # checked when the description was loaded
-        reg = self.description.regs[m.group(1)]
+        name, index_expr = parsed_target(key)
+        reg = self.description.regs[name]
         index = None
-        if m.group(2) is not None:
-            index = Expr.parse(m.group(2))(scope)
+        if index_expr is not None:
+            index = index_expr(scope)
             if isinstance(index, float) and index == int(index):
                 index = int(index)
             if isinstance(index, str) and index in reg.d.names:
