@@ -16,9 +16,29 @@ import sys
 import time
 from collections.abc import Callable
 
-__all__ = ["PreciseTimer", "monotonic"]
+__all__ = ["STALL", "STALL_GRACE", "PreciseTimer", "monotonic", "stall_grace"]
 
 monotonic = time.monotonic
+
+STALL = 0.002
+"""A timer that runs this much after its time or later was held up: the process (or its
+event loop) was not running when the time came."""
+STALL_GRACE = 0.02
+"""How much longer a reply is waited for when its deadline's timer was held up."""
+
+
+def stall_grace(late: float) -> float:
+    """How much longer to wait for a reply whose deadline passed ``late`` seconds before
+    its timer could run: 0 (decide now) if the timer ran on time, else ``STALL_GRACE``.
+
+    A deadline that passed while the process was not running was not watched: a peer in
+    the same process (a simulated drive) did not run either, and may not even have read
+    the request. Once the process runs again such a peer needs its turnaround and the
+    reply's wire time, a few milliseconds: ``STALL_GRACE`` gives it that (a peer that
+    was running all along has had its whole timeout). Owners extend a deadline a bounded
+    number of times, so a dead peer still times out on a busy machine.
+    """
+    return STALL_GRACE if late >= STALL else 0.0
 
 _CLOCK_MONOTONIC = 1
 _TFD_NONBLOCK = os.O_NONBLOCK

@@ -31,15 +31,21 @@ from drivebus.errors import (
     WrongResponder,
 )
 from drivebus.line.base import Exchange, Line, SendWithdrawn
+from drivebus.line.foreign import describe_request
 from drivebus.line.rtu import frame
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.tasks import ServiceTasks
 
+log = logging.getLogger(__name__)
+
 trace = logging.getLogger("drivebus.trace")
 """Every frame of every bus at DEBUG (``drivebus --trace``): off unless enabled."""
 
 __all__ = ["Bus", "Priority"]
+
+_FOREIGN_WARN_EVERY = 60.0
+"""Seconds between two warnings about another master on a line (the first comes at once)."""
 
 @dataclass(eq=False)
 class _Request:
@@ -137,10 +143,13 @@ class Bus:
         keep no silences of their own."""
         self._trail = 0.0
         """The frame timeout of the slave of the last transaction (s)."""
+        self._foreign_warned = -math.inf
+        """When another master on the line was last warned about (monotonic)."""
 
     # -- life cycle ------------------------------------------------------------------------
 
     async def __aenter__(self) -> Bus:
+        self.line.foreign_report = self._heard_foreign
         await self.line.open()
         self.stats = BusStats()
         self._traced_end = 0.0  # the end of the last traced exchange (its silence for --trace)
@@ -194,6 +203,19 @@ class Bus:
                              None if req.expect is None else ex.rx_end - ex.tx_end, outcome)
         for observer in self._observers:
             observer(tx)
+
+    def _heard_foreign(self, request: bytes) -> None:
+        """Another master's request heard on the line: counted apart from noise, and said
+        (a warning at once, then at most once a minute)."""
+        st = self.stats
+        st.foreign_requests += 1
+        st.foreign_last = describe_request(request)
+        now = monotonic()
+        if now - self._foreign_warned >= _FOREIGN_WARN_EVERY:
+            self._foreign_warned = now
+            log.warning("%s: another master is on the line: it sent %s (%d such requests "
+                        "heard so far); one master per line", self.line.name, st.foreign_last,
+                        st.foreign_requests)
 
     def slave(
         self,

@@ -8,6 +8,7 @@ probing the object.
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import TracebackType
 
@@ -67,6 +68,17 @@ class Line(abc.ABC):
     and accepts ``withdrawable=True``: until the frame is out the request can be taken
     back (``withdraw()``), and bytes arriving during the silence end it (``SendWithdrawn``
     both). A bus hands such a line its next request at once instead of sleeping first."""
+
+    foreign_report: Callable[[bytes], None] | None = None
+    """Called with each request frame of another master the line hears among the bytes
+    nobody asked for (lines that hear the bus: serial RTU and RTU over TCP); the bus that
+    owns the line sets it (``drivebus.line.foreign``)."""
+
+    def _heard_foreign(self, request: bytes) -> None:
+        """The receiver's report of another master's request: pass it on."""
+        report = self.foreign_report
+        if report is not None:
+            report(request)
 
     def withdraw(self) -> bool:
         """Take back the ``withdrawable`` transaction waiting for its silence, if its frame

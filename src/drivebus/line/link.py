@@ -136,6 +136,7 @@ class RtuLink:
             if job.withdrawable:
                 raise SendWithdrawn("bytes arrived during the silence")
         rx.discard()
+        rx.asked.append((job.unit, job.adu[1]))
         self._job = None
         job.tx_start = monotonic()
         job.sent = True

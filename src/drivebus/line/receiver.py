@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import asyncio
 import os
+from collections import deque
 from collections.abc import Callable
 from typing import cast
 
-from drivebus.clock import monotonic
+from drivebus.clock import monotonic, stall_grace
 from drivebus.errors import FrameError, LineClosed, LineNoise, ResponseTimeout, WrongResponder
+from drivebus.line.foreign import find_requests
 from drivebus.line.rtu import crc_ok
 from drivebus.pdu import LengthPredictor
 
@@ -37,6 +39,9 @@ SCAN_CRC_BUDGET = 8 * 1024
 """Bytes of CRC computed at most when looking for a frame in junk (a few ms of CPU)."""
 _NEVER = BUFFER_LIMIT + 1
 """A byte count the buffer never reaches: ``wait_for(_NEVER, t)`` waits for ``t`` only."""
+STALL_EXTENSIONS = 2
+"""Times a reply deadline that passed while the process was not running is extended
+(``drivebus.clock.stall_grace``): a dead slave still times out on a busy machine."""
 
 
 def read_waiting(fd: int) -> bytes:
@@ -47,11 +52,6 @@ def read_waiting(fd: int) -> bytes:
         return os.read(fd, BUFFER_LIMIT)
     except OSError:  # EAGAIN: nothing waiting; EIO/ECONNRESET: the transport will see it
         return b""
-
-
-def _expire(w: asyncio.Future[None]) -> None:
-    if not w.done():
-        w.set_result(None)
 
 
 def _loop_time(loop: asyncio.AbstractEventLoop, t: float) -> float:
@@ -102,6 +102,11 @@ class RtuReceiver(StreamProtocol):
         self.pending_bytes: Callable[[], bytes] | None = None
         """Reads what the medium has received and the event loop has not delivered yet
         (set by lines that can, e.g. a serial port's non-blocking read)."""
+        self.asked: deque[tuple[int, int]] = deque(maxlen=4)
+        """(address, function code) of the master's own last requests: what a late reply
+        or an echo among the discarded bytes answers (``drivebus.line.foreign``)."""
+        self.on_foreign: Callable[[bytes], None] | None = None
+        """Called with each request of another master found among the discarded bytes."""
         self._expiry: asyncio.TimerHandle | None = None
 
     # -- asyncio.Protocol --------------------------------------------------------------------
@@ -134,8 +139,10 @@ class RtuReceiver(StreamProtocol):
 
     # -- waiting -------------------------------------------------------------------------------
 
-    async def wait_for(self, n: int, deadline: float) -> bool:
-        """Wait until ``n`` bytes are buffered; False if ``deadline`` passed first.
+    async def wait_for(self, n: int, deadline: float, *, patient: bool = True) -> bool:
+        """Wait until ``n`` bytes are buffered; False if ``deadline`` passed first
+        (``patient``: a deadline that passed while the process was not running is
+        extended, see ``expect_bytes``).
 
         ``n`` beyond ``BUFFER_LIMIT`` is never reached: that waits for the deadline (or
         the loss of the stream) only.
@@ -145,24 +152,48 @@ class RtuReceiver(StreamProtocol):
         if self.lost is not None:
             raise LineClosed(f"{self.name} lost: {self.lost}")
         w: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        self.expect_bytes(n, deadline, w)
+        self.expect_bytes(n, deadline, w, patient=patient)
         try:
             await w
         finally:
             self.release()
         return len(self.buf) >= n
 
-    def expect_bytes(self, n: int, deadline: float, waiter: asyncio.Future[None]) -> None:
+    def expect_bytes(
+        self, n: int, deadline: float, waiter: asyncio.Future[None], *, patient: bool = True
+    ) -> None:
         """Resolve ``waiter`` once ``n`` bytes are buffered or ``deadline`` has come,
-        whichever is first (an exception if the stream is lost); ``release()`` ends it."""
+        whichever is first (an exception if the stream is lost); ``release()`` ends it.
+
+        ``patient``: if the deadline's timer runs late (the process was not running when
+        it passed), the bytes are looked for once more and the wait is extended a little
+        (``stall_grace``, at most ``STALL_EXTENSIONS`` times): a slave that could not run
+        either, a simulator in this process, gets the moment it needs to answer."""
         loop = waiter.get_loop()
         self.need = n
         self.waiter = waiter
-        self._expiry = loop.call_at(_loop_time(loop, deadline), _expire, waiter)
+        extensions = STALL_EXTENSIONS if patient else 0
+        self._expiry = loop.call_at(_loop_time(loop, deadline), self._expire, waiter,
+                                    deadline, extensions)
         if self.lost is not None:
             waiter.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
         elif len(self.buf) >= n:
             waiter.set_result(None)
+
+    def _expire(self, waiter: asyncio.Future[None], deadline: float, extensions: int) -> None:
+        if waiter.done():
+            return
+        grace = stall_grace(monotonic() - deadline) if extensions else 0.0
+        if grace:
+            self.take_pending()  # resolves the waiter if what it waits for is there
+            if waiter.done() or self.waiter is not waiter:
+                return
+            until = monotonic() + grace
+            loop = waiter.get_loop()
+            self._expiry = loop.call_at(_loop_time(loop, until), self._expire, waiter, until,
+                                        extensions - 1)
+            return
+        waiter.set_result(None)
 
     def release(self) -> None:
         """Stop resolving the waiter of ``expect_bytes``."""
@@ -184,13 +215,21 @@ class RtuReceiver(StreamProtocol):
                 continue  # bytes were waiting: not quiet after all
             if now >= limit:
                 return False
-            await self.wait_for(_NEVER, min(quiet_at, limit))
+            await self.wait_for(_NEVER, min(quiet_at, limit), patient=False)
 
     def discard(self) -> None:
         """Drop whatever is buffered (bytes that arrived outside a reply)."""
         if self.buf:
-            self.garbage_bytes += len(self.buf)
+            self._drop(bytes(self.buf))
             self.buf.clear()
+
+    def _drop(self, data: bytes, kept: int = 0) -> None:
+        """Count ``data`` (less ``kept`` bytes of it that were a reply) as garbage, and
+        report the requests of another master among it (``on_foreign``)."""
+        self.garbage_bytes += len(data) - kept
+        if self.on_foreign is not None and len(data) >= 8:
+            for request in find_requests(data, self.asked):
+                self.on_foreign(request)
 
     async def take_echo(self, adu: bytes, deadline: float) -> None:
         """Consume the local echo of ``adu`` (adapters that hear their own transmitter)."""
@@ -258,10 +297,9 @@ class RtuReceiver(StreamProtocol):
         data = bytes(self.buf)
         self.buf.clear()
         found, other = _scan(data, unit, expect)
+        self._drop(data, 0 if found is None else len(found) + 3)
         if found is not None:
-            self.garbage_bytes += len(data) - len(found) - 3
             return found
-        self.garbage_bytes += len(data)
         if other is not None:
             raise WrongResponder(
                 f"slave {unit} on {self.line_name}: reply came from address {other}",

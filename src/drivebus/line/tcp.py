@@ -23,7 +23,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
-from drivebus.clock import monotonic
+from drivebus.clock import monotonic, stall_grace
 from drivebus.errors import (
     ConfigError,
     ConnectionLost,
@@ -36,7 +36,7 @@ from drivebus.errors import (
 )
 from drivebus.line.base import Exchange, Line
 from drivebus.line.link import RtuLink
-from drivebus.line.receiver import RtuReceiver, StreamProtocol, read_waiting
+from drivebus.line.receiver import STALL_EXTENSIONS, RtuReceiver, StreamProtocol, read_waiting
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import timing
@@ -260,6 +260,8 @@ class NetworkLine(Line, Generic[ConnectionT], abc.ABC):
 class _Pending:
     unit: int
     future: asyncio.Future[bytes]
+    expiry: asyncio.TimerHandle | None = None
+    """The timer that fails the request if no reply comes."""
 
 
 class _MbapProtocol(StreamProtocol):
@@ -425,13 +427,15 @@ class TcpLine(NetworkLine[_MbapProtocol]):
             conn.send(adu)
             return Exchange(b"", tx, tx, tx, len(adu), 0, 0.0)
         fut: asyncio.Future[bytes] = loop.create_future()
-        conn.pending[tid] = _Pending(unit, fut)
-        handle = loop.call_later(timeout, self._expire, conn, tid, unit, timeout)
+        pending = conn.pending[tid] = _Pending(unit, fut)
+        pending.expiry = loop.call_later(timeout, self._expire, conn, tid, unit, timeout,
+                                         monotonic() + timeout, STALL_EXTENSIONS)
         try:
             conn.send(adu)
             reply = await fut
         finally:
-            handle.cancel()
+            if pending.expiry is not None:
+                pending.expiry.cancel()
             conn.pending.pop(tid, None)
             if not fut.done() or fut.cancelled() or fut.exception() is not None:
                 conn.abandoned.append(tid)
@@ -448,9 +452,16 @@ class TcpLine(NetworkLine[_MbapProtocol]):
                 slave=unit,
             )
 
-    def _expire(self, conn: _MbapProtocol, tid: int, unit: int, timeout: float) -> None:
+    def _expire(self, conn: _MbapProtocol, tid: int, unit: int, timeout: float,
+                deadline: float, extensions: int) -> None:
         p = conn.pending.get(tid)
         if p is None or p.future.done():
+            return
+        grace = stall_grace(monotonic() - deadline) if extensions else 0.0
+        if grace:  # the process was not running when the deadline passed: see stall_grace
+            p.expiry = asyncio.get_running_loop().call_later(
+                grace, self._expire, conn, tid, unit, timeout, monotonic() + grace,
+                extensions - 1)
             return
         p.future.set_exception(
             ResponseTimeout(
@@ -609,7 +620,9 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
         self._link = RtuLink(latency=latency)
 
     def _make_protocol(self) -> _RtuTcpReceiver:
-        return _RtuTcpReceiver(self)
+        rx = _RtuTcpReceiver(self)
+        rx.on_foreign = self._heard_foreign
+        return rx
 
     @property
     def garbage_bytes(self) -> int:
