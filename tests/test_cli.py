@@ -59,8 +59,10 @@ class Proc:
     lines: queue.Queue[str] = field(default_factory=queue.Queue)
     seen: list[str] = field(default_factory=list)
 
-    def expect(self, pattern: str, timeout: float = 10) -> re.Match[str]:
-        """The first new stdout line matching ``pattern``; fails after ``timeout`` s."""
+    def expect(self, pattern: str, timeout: float = 60) -> re.Match[str]:
+        """The first new stdout line matching ``pattern``; fails after ``timeout`` s (a hang
+        guard: a command starts in about 1.5 s of CPU, several times that on a busy
+        machine)."""
         deadline = time.monotonic() + timeout
         while True:
             left = deadline - time.monotonic()

@@ -15,7 +15,11 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import itertools
 import math
+import os
+import socket
+import struct
 import sys
 import tempfile
 from collections.abc import Callable, Iterator
@@ -30,6 +34,7 @@ from drivebus import runtime
 from drivebus.config import MachineConfig, load_config
 from drivebus.errors import ConfigError, DrivebusError
 from drivebus.sim.machine import SimLine, start_simulators
+from drivebus.sim.masters import describe_process, pty_holders, second_master
 from drivebus.sim.wire import VirtualWire, WireFrame
 
 __all__ = [
@@ -95,15 +100,56 @@ def _channel_path(name: str) -> Path:
     return Path(tempfile.gettempdir()) / f"drivebus-{hashlib.sha256(key).hexdigest()[:20]}.sock"
 
 
+def _peer_pid(stream: anyio.abc.SocketStream) -> int | None:
+    """The process at the other end of a Unix socket (its credentials), if known."""
+    sock = stream.extra(anyio.abc.SocketAttribute.raw_socket)
+    try:
+        creds = sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
+    except (OSError, AttributeError):  # SO_PEERCRED is Linux's
+        return None
+    pid, _, _ = struct.unpack("3i", creds)
+    return pid or None
+
+
+async def _take_seat(wire: VirtualWire, holder: object, pid: int | None) -> str | None:
+    """Seat the master at the far end of a format channel (process ``pid``): None, or why
+    not (the line's master, or a process with the pty open that took no seat)."""
+    who = describe_process(pid) if pid is not None else "a process"
+    refused = wire.seat.take(holder, who)
+    if refused is not None:
+        # the master that has it may have closed its port a moment ago: let its end come
+        for _ in range(50):
+            await anyio.sleep(0.01)
+            if wire.seat.holder is None:
+                refused = wire.seat.take(holder, who)
+                break
+    if refused is not None:
+        return refused
+    others = await anyio.to_thread.run_sync(
+        pty_holders, wire.slave_path, {os.getpid(), *([pid] if pid else [])})
+    if others:
+        wire.seat.free(holder)
+        return second_master(wire.seat.line, ", ".join(map(describe_process, others)))
+    return None
+
+
 async def _serve_format_channel(wire: VirtualWire, path: Path) -> None:
-    """Answer the format messages of masters in other processes until cancelled."""
+    """Answer the format messages of masters in other processes until cancelled; the first
+    message seats the master (one per line: another is answered ``busy`` and why)."""
 
     async def client(stream: anyio.abc.SocketStream) -> None:
         buffered = anyio.streams.buffered.BufferedByteReceiveStream(stream)
+        seated = False
         try:
             async with stream:
                 while True:
                     line = await buffered.receive_until(b"\n", 64)
+                    if not seated:
+                        refused = await _take_seat(wire, stream, _peer_pid(stream))
+                        if refused is not None:
+                            await stream.send(f"busy {refused}\n".encode())
+                            return
+                        seated = True
                     parts = line.decode(errors="replace").split()
                     if len(parts) == 3 and parts[0] == "F" and parts[1].isdigit():
                         wire.note_format(int(parts[1]), parts[2])
@@ -114,7 +160,9 @@ async def _serve_format_channel(wire: VirtualWire, path: Path) -> None:
                 anyio.BrokenResourceError, anyio.ClosedResourceError):
             pass  # the master closed its port (or sent junk): the channel ends
         finally:
-            wire.forget_format()
+            if seated:
+                wire.seat.free(stream)
+                wire.forget_format()
 
     await anyio.Path(path).unlink(missing_ok=True)
     listener = await anyio.create_unix_listener(path)
@@ -169,6 +217,34 @@ def frame_text(line: str, f: WireFrame) -> str:
             f"{f.data.hex(' ')}{note}")
 
 
+_LOOK_EVERY = 2.0
+"""Seconds between two looks at a served line for frames that collided."""
+_TROUBLE = frozenset({"collision", "gap violation", "incomplete"})
+"""Notes of frames that two masters on one line leave in the wire log."""
+
+
+async def _watch_for_masters(
+    sim: SimLine, wire: VirtualWire, warn: Callable[[str], None]
+) -> None:
+    """Say when a second master is on the line: when frames collided since the last look
+    and more than one process has the line's pty open (a master that took no seat, such
+    as mbpoll on the pty, beside the one that did); once per set of processes."""
+    seen, told = wire.frames, frozenset[int]()
+    while True:
+        await anyio.sleep(_LOOK_EVERY)
+        new, seen = wire.frames - seen, wire.frames
+        if new <= 0 or not any(f.note in _TROUBLE for f in itertools.islice(
+                reversed(wire.log), min(new, 2000))):
+            continue
+        holders = frozenset(await anyio.to_thread.run_sync(
+            pty_holders, wire.slave_path, {os.getpid()}))
+        if len(holders) > 1 and holders != told:
+            told = holders
+            warn(f"sim://{sim.config.sim_name} (line {sim.name}) has {len(holders)} masters: "
+                 f"{', '.join(describe_process(p) for p in sorted(holders))} have it open and "
+                 f"their frames collide; one master per line")
+
+
 async def _echo_wire_log(name: str, wire: VirtualWire, echo: Callable[[str], None]) -> None:
     seen = wire.frames
     while True:
@@ -209,6 +285,7 @@ async def serve_simulators(
                         if isinstance(s.server, VirtualWire):
                             tg.start_soon(_serve_format_channel, s.server,
                                           _channel_path(s.config.sim_name))
+                            tg.start_soon(_watch_for_masters, s, s.server, warn)
                     if log:
                         for s in sims.values():
                             if isinstance(s.server, VirtualWire):
