@@ -112,7 +112,10 @@ def test_the_dashboard_shows_live_positions_jogs_and_estops(browser: webdriver.C
         # the e-stop button halts every axis
         browser.get(f"{svc.url}/")
         wait(browser, lambda d: text(d, "conn") == "live", "the page did not come back")
-        portal.call(lambda: client.post("/api/axes/r/move", json={"target": 700.0}))
+        # r slowly (11 s): still moving when x starts from the page, however long the
+        # click takes to come through on a busy machine (at r's 720 deg/s it had arrived)
+        portal.call(lambda: client.post("/api/axes/r/move", json={"target": 700.0,
+                                                                  "speed": 60.0}))
         browser.find_element(By.ID, "target-x").send_keys("390")
         browser.find_element(By.XPATH, "//tr[@id='row-x']//button[text()='Move']").click()
         m.until(lambda: m.twins["x"].is_moving() and m.twins["r"].is_moving(),
