@@ -210,7 +210,11 @@ class PreciseTimer:
                 pass
             if adapt:  # woke before the deadline: the lead is more than the latency; shave it
                 PreciseTimer.lead = max(0.0, PreciseTimer.lead - 0.25 * early)
-        elif adapt:
+        elif adapt and now - deadline <= PreciseTimer._LEAD_MAX:
+            # Woke late: lengthen the lead toward that latency. A wake-up later than the
+            # longest lead is the process waiting for a CPU, not the timer's latency (a
+            # longer lead cannot help it): left out, or on a busy machine the lead would
+            # sit at its maximum and every timer would spin that long.
             late = now - deadline
             PreciseTimer.lead = min(PreciseTimer._LEAD_MAX, PreciseTimer.lead + 0.25 * late)
 
