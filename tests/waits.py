@@ -4,14 +4,16 @@ with a bare ``TimeoutError`` (or a hang until pytest-timeout kills the worker)."
 
 from __future__ import annotations
 
+import queue
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import TypeVar
+from typing import IO, TypeVar
 
 import anyio
 
-__all__ = ["Deadline", "until", "within"]
+__all__ = ["Deadline", "readline_within", "until", "within"]
 
 T = TypeVar("T")
 
@@ -54,3 +56,14 @@ class Deadline:
         """The error to raise when the deadline has passed."""
         extra = f": {seen}" if seen else ""
         return AssertionError(f"waited {self.seconds:g} s for {self.what}{extra}")
+
+
+def readline_within(stream: IO[str], seconds: float, what: str) -> str:
+    """The next line of a subprocess's pipe, read in a thread so that the wait is bounded
+    (a process that prints nothing and does not exit fails the test, naming ``what``)."""
+    box: queue.Queue[str] = queue.Queue()
+    threading.Thread(target=lambda: box.put(stream.readline()), daemon=True).start()
+    try:
+        return box.get(timeout=seconds)
+    except queue.Empty:
+        raise AssertionError(f"waited {seconds:g} s for {what}") from None
