@@ -14,16 +14,19 @@ import sys
 
 import pytest
 
-from drivebus import Bus, LineSettings, SerialLine, open_machine
+from drivebus import Bus, LineSettings, SerialLine, open_machine, runtime
 from drivebus.app import line_snapshot
+from drivebus.config import load_config
 from drivebus.errors import LineClosed, ResponseTimeout
 from drivebus.line.foreign import SCAN_LIMIT, describe_request, find_requests
 from drivebus.line.receiver import BUFFER_LIMIT
 from drivebus.line.rtu import frame
 from drivebus.sim import Fault, RegisterSlave, VirtualWire, sim_bus
+from drivebus.sim.machine import own_sim_lines
+from drivebus.sim.serve import published
 from peers import pty_line
 from pymodbus_servers import PYMODBUS, server_data
-from test_cli import SINGLE, drivebus, sim_server, spawn
+from test_cli import DEMO, SINGLE, drivebus, sim_server, spawn
 from waits import until, within
 
 FAST = LineSettings.parse("115200 8N1")
@@ -249,3 +252,25 @@ def test_a_master_that_took_no_seat_is_found_and_named() -> None:
             finally:
                 talk.kill()
                 talk.wait(10)
+
+
+async def test_the_demo_machine_on_its_own_simulators_never_reaches_a_running_sim() -> None:
+    """``drivebus demo`` runs configs/demo.toml on simulators named for its process
+    (``own_sim_lines``): a drivebus sim serving sim://demo-rs485 for someone else (here a
+    wire published under that name) is never reached."""
+    cfg = load_config(DEMO)
+    own = own_sim_lines(cfg)
+    assert own.lines["rs485"].port == f"sim://demo-rs485-{os.getpid()}"
+    assert own.lines["eth"].host == f"sim://demo-eth-{os.getpid()}"
+    assert own.axes == cfg.axes and own.name == cfg.name
+    with_options = cfg.model_copy(update={"lines": {"rs485": cfg.lines["rs485"].model_copy(
+        update={"port": "sim://demo-rs485?latency=16ms"})}})
+    assert own_sim_lines(with_options).lines["rs485"].port == \
+        f"sim://demo-rs485-{os.getpid()}?latency=16ms"
+    async with VirtualWire("someone-elses-demo-rs485") as served:
+        with runtime.publish("sim", {"demo-rs485": [served.slave_path]}):
+            assert published("demo-rs485") is not None  # a plain open would go there
+            async with open_machine(own) as m:
+                await m.axes["x"].move_by(1.0)
+                assert set(m.sim_drives) == set(cfg.axes)
+        assert served.request_count == 0
