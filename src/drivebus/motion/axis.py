@@ -210,6 +210,11 @@ class _RestWait:
 _REFUSALS = (LimitViolation, StateError, ArgumentError, NotSupported, ConfigError, ModbusException)
 """Errors that mean nothing was started: raised before any frame, or the drive's own no."""
 
+_NO_REST_WAIT = (StateError, ArgumentError, NotSupported, ConfigError, MotionAborted,
+                 DriveOffline, TransactionError)
+"""Errors a motion raises at once: refusals (nothing moved), an abort (whoever stopped the
+axis waits for its rest), a drive that does not answer (no status could show rest)."""
+
 
 class Axis(ProgramRunner, AxisIO):
     """A named axis: a drive profile, user units, limits, state and its actor."""
@@ -264,6 +269,10 @@ class Axis(ProgramRunner, AxisIO):
         self.machine_override: Callable[[], float] = lambda: 1.0
         """The machine's speed override (set by the machine that owns the axis)."""
         self._override_due = False  # the sequencer applies a new override to the motion
+        self._actor_running = False  # the actor polls: a stop waits on its polls
+        self.stops = 0
+        """How many times ``stop()`` or ``halt_now()`` was called: a command that plans
+        before it takes the axis (a group move) is aborted by a stop meanwhile."""
 
     # -- reading -----------------------------------------------------------------------------
 
@@ -360,9 +369,13 @@ class Axis(ProgramRunner, AxisIO):
     async def run(self) -> None:
         """Poll the drive, keep its safety rules and run its queue until cancelled; owned
         by the machine."""
-        async with anyio.create_task_group() as tg:
-            tg.start_soon(self._sequence, name=f"drivebus axis {self.name} queue")
-            await self._poll_forever()
+        self._actor_running = True
+        try:
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(self._sequence, name=f"drivebus axis {self.name} queue")
+                await self._poll_forever()
+        finally:
+            self._actor_running = False
 
     async def _poll_forever(self) -> None:
         fails = 0
@@ -400,6 +413,7 @@ class Axis(ProgramRunner, AxisIO):
                     # A stop waits on this poll to tell it the drive is at rest: it goes
                     # ahead of the other axes' routine polls.
                     st = await self.profile.read_status(priority=priority)
+                    issued = st.requested_at or issued  # when its request was queued
             except TransactionError as exc:
                 fails += 1
                 self._check_due = True  # it may be a power cycle
@@ -565,6 +579,15 @@ class Axis(ProgramRunner, AxisIO):
         homing stops it at once (LimitViolation, ErrorStop) unless the method homes on it;
         one where the drive reverses (or that was active at the start) may be run into by
         the braking distance, and not met again once left (the home switch is missing)."""
+        if st.homing_error:
+            self.error = MotionError(f"axis {self.name}: the drive reports a homing error "
+                                     f"(the homing failed at "
+                                     f"{self.units.from_pulses(st.position or 0):.4f}); "
+                                     f"reset() the axis before the next command")
+            self._end_motion(m, self.error, AxisState.ERROR_STOP)
+            if st.moving:
+                self._stop_due = "homing error"
+            return
         if st.moving:
             m.seen_motion = True
         elif st.homed and not st.homing:
@@ -622,6 +645,10 @@ class Axis(ProgramRunner, AxisIO):
         command."""
         if error is not None and not isinstance(error, MotionAborted):
             self._check_due = True
+        if error is not None and m.kind == "home" and not m.over:
+            # A homing that failed, timed out or was stopped homed nothing: the axis is
+            # not homed until one completes, whatever the drive's flag says meanwhile.
+            self._homed_lost = True
         if not m.over:
             log.debug("axis %s: %s ends: %s", self.name, m.what, error or detail or "done")
             if self._listeners:
@@ -654,7 +681,7 @@ class Axis(ProgramRunner, AxisIO):
         reason = self._stop_due
         m = self._motion
         if (reason is None and m is not None and m.deadline is not None and not m.over
-                and monotonic() > m.deadline):
+                and self._status_issued > m.deadline):  # a status requested after it
             timeout = MotionTimeout(f"axis {self.name}: the {m.what} did not complete in time "
                                     f"(its deadline passed {monotonic() - m.deadline:.1f} s ago)")
             log.warning("%s", timeout)
@@ -780,14 +807,24 @@ class Axis(ProgramRunner, AxisIO):
     # -- the command lane ------------------------------------------------------------------------
 
     async def _exclusive(
-        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None
+        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None,
+        setup_first: bool = True,
     ) -> None:
-        """Run ``io`` alone on the axis; a motion's I/O can be cancelled by a stop."""
+        """Run ``io`` alone on the axis; a motion's I/O can be cancelled by a stop. The
+        drive is set up (if due) before ``io``; with ``setup_first=False``, ``io`` does it
+        itself (``set_up_if_due``) after the refusals it decides from reads."""
         async with self._lane:
-            await self._locked_io(io, motion=motion)
+            await self._locked_io(io, motion=motion, setup_first=setup_first)
+
+    async def set_up_if_due(self) -> None:
+        """Set the drive up (or check it still is) if that is due: a command's I/O calls
+        it before its first write, once every refusal is decided. Only in the lane."""
+        if self._check_due or self._setup_due:
+            await self._verify_settings()
 
     async def _locked_io(
-        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None
+        self, io: Callable[[], Awaitable[None]], *, motion: _Motion | None = None,
+        setup_first: bool = True,
     ) -> None:
         """``_exclusive``'s body, for a caller that holds the lane."""
         if motion is not None and motion.over:
@@ -797,8 +834,8 @@ class Axis(ProgramRunner, AxisIO):
             motion.io, motion.io_done = scope, done
         try:
             with scope:
-                if self._check_due or self._setup_due:
-                    await self._verify_settings()
+                if setup_first:
+                    await self.set_up_if_due()
                 await io()
         finally:
             if motion is not None:
@@ -857,10 +894,17 @@ class Axis(ProgramRunner, AxisIO):
         *,
         timeout: float | None,
         wait: bool = True,
+        setup_first: bool = True,
     ) -> None:
-        """Start ``m`` with ``io`` and (``wait``) await its outcome; clean up on any failure."""
+        """Start ``m`` with ``io`` and (``wait``) await its outcome; clean up on any failure
+        (``setup_first``: as for ``_exclusive``).
+
+        A motion error (a timeout, a limit, an alarm, a drive that stopped short) is
+        raised once the axis is at rest, so the next command finds it there (or the error
+        says that it is still braking); a cancellation stops the axis and is re-raised at
+        once."""
         try:
-            await self._exclusive(io, motion=m)
+            await self._exclusive(io, motion=m, setup_first=setup_first)
             if not wait:
                 return
             self._waiters += 1
@@ -868,13 +912,29 @@ class Axis(ProgramRunner, AxisIO):
             if timeout is not None and m.deadline is None:
                 m.deadline = monotonic() + timeout  # a speed override may push it back
             try:
-                while not m.finished.is_set():
-                    left = None if m.deadline is None else m.deadline - monotonic()
-                    if left is not None and left <= 0:
-                        raise TimeoutError
-                    with anyio.move_on_after(left):
-                        await m.finished.wait()
-            except TimeoutError:
+                await self._outcome(m, timeout)
+            finally:
+                self._waiters -= 1
+            if m.outcome is not None:
+                raise m.outcome
+        except BaseException as exc:
+            with anyio.CancelScope(shield=True):
+                await self._after_failure(m, exc)
+                if not isinstance(exc, _NO_REST_WAIT):  # an error, or a cancellation
+                    await self._come_to_rest(exc if isinstance(exc, DrivebusError) else None)
+            raise
+
+    async def _outcome(self, m: _Motion, timeout: float | None) -> None:
+        """Wait until ``m``'s outcome is decided. At its deadline the drive is asked once
+        more (a status requested after the deadline): ``MotionTimeout`` only if that too
+        shows the motion unfinished, so a slow poll on a busy machine is no timeout."""
+        while not m.finished.is_set():
+            left = None if m.deadline is None else m.deadline - monotonic()
+            if left is not None and left <= 0:
+                with contextlib.suppress(TransactionError):  # the actor sees to Offline
+                    await self.refresh()
+                if m.finished.is_set():
+                    return
                 st = self.status
                 where = "unknown" if st is None or st.position is None else (
                     f"{self.units.from_pulses(st.position):.4f} {self.config.unit}"
@@ -886,15 +946,30 @@ class Axis(ProgramRunner, AxisIO):
                 raise MotionTimeout(
                     f"axis {self.name}: the {m.what} did not complete within "
                     f"{timeout or 0:.1f} s{last}"
-                ) from None
-            finally:
-                self._waiters -= 1
-            if m.outcome is not None:
-                raise m.outcome
-        except BaseException as exc:
-            with anyio.CancelScope(shield=True):
-                await self._after_failure(m, exc)
-            raise
+                )
+            with anyio.move_on_after(left):
+                await m.finished.wait()
+
+    async def _come_to_rest(self, error: DrivebusError | None) -> None:
+        """After a motion error (None: a cancellation) that stopped the axis: wait
+        (bounded) for a status showing the drive at rest, so the caller goes on with the
+        axis there; an error that it is not says so."""
+        moving = self.status is not None and self.status.moving
+        if not moving and self.state is not AxisState.STOPPING:
+            return
+        try:
+            st = await self._wait_rest(monotonic(), "after the motion failed" if error else
+                                       "after the motion was cancelled")
+            if error is None:
+                where = "" if st.position is None else \
+                    f" at {self.units.from_pulses(st.position):.4f} {self.config.unit}"
+                log.warning("axis %s: stopped%s (at rest)", self.name, where)
+        except DrivebusError as exc:
+            if error is not None:
+                error.args = (f"{error} (and the axis did not come to rest: {exc})",
+                              *error.args[1:])
+            else:
+                log.error("axis %s: %s", self.name, exc)
 
     async def _after_failure(self, m: _Motion, exc: BaseException) -> None:
         """Leave the axis right after ``m`` failed: unchanged if nothing moved, else stopped."""
@@ -904,7 +979,12 @@ class Axis(ProgramRunner, AxisIO):
             m.committing and not isinstance(exc, _REFUSALS)
         )
         if maybe_moving:
-            await self._stop_now(f"the {m.what} failed: {exc!r}", error=exc)
+            cancelled = isinstance(exc, anyio.get_cancelled_exc_class())
+            if cancelled:
+                log.warning("axis %s: the %s was cancelled: stopping the axis", self.name,
+                            m.what)
+            await self._stop_now(f"the {m.what} was cancelled" if cancelled else
+                                 f"the {m.what} failed: {exc!r}", error=exc)
             return
         m.finish(exc)
         if self._motion is m:  # refused before anything moved: back to where it was
@@ -995,7 +1075,7 @@ class Axis(ProgramRunner, AxisIO):
         """Read the drive's status now (at command priority) and take it in."""
         issued = monotonic()
         st = await self.profile.read_status(priority=Priority.COMMAND)
-        self._apply(st, issued)
+        self._apply(st, st.requested_at or issued)
         return st
 
     # -- motion commands -------------------------------------------------------------------------
@@ -1059,6 +1139,7 @@ class Axis(ProgramRunner, AxisIO):
                 if st.position is not None:
                     m.direction = (target_p > st.position) - (target_p < st.position)
                 self.envelope.check_switch(m.direction, st)
+            await self.set_up_if_due()
             await prepare()
             if ready is not None:
                 await ready()
@@ -1071,11 +1152,12 @@ class Axis(ProgramRunner, AxisIO):
         self, m: _Motion, io: Callable[[], Awaitable[None]], timeout: float
     ) -> MotionHandle | None:
         """Start ``m``: aborting, await it (None); else return its handle once started
-        (its deadline kept by the actor)."""
+        (its deadline kept by the actor). ``io`` sets the drive up itself, after the
+        refusals it decides from a fresh status (``set_up_if_due``)."""
         if m.buffer == "aborting":
-            await self._run_motion(m, io, timeout=timeout)
+            await self._run_motion(m, io, timeout=timeout, setup_first=False)
             return None
-        await self._run_motion(m, io, timeout=None, wait=False)
+        await self._run_motion(m, io, timeout=None, wait=False, setup_first=False)
         m.deadline = monotonic() + timeout
         return self._handle(m)
 
@@ -1293,6 +1375,7 @@ class Axis(ProgramRunner, AxisIO):
             self.envelope.check_switch(direction, st)
             target = self.envelope.pulses(self.units.from_pulses(start) + distance)
             m.start, m.target = start, target
+            await self.set_up_if_due()
             await self._commit(m, lambda: self.profile.move_relative(target - start, params))
 
         return await self._run_or_hand(m, io, self.envelope.motion_timeout(plan, distance))
@@ -1375,8 +1458,11 @@ class Axis(ProgramRunner, AxisIO):
         h = self.config.homing
         self.profile.check_supported("home")
         switches = self.profile.homing_switches(h.method)
-        m = self._begin("home", "homing", AxisState.HOMING, accepted=accepted)
         u = self.units
+        params = HomingParams(h.method, speed_rpm=u.to_rpm(h.speed), creep_rpm=u.to_rpm(h.creep),
+                              accel_rps2=u.to_rps2(h.accel), offset=u.to_pulses(h.offset))
+        self.profile.check_homing(params)  # every refusal before anything is sent
+        m = self._begin("home", "homing", AxisState.HOMING, accepted=accepted)
         m.switches = switches
         # A reversing drive brakes into its switch, seen up to two polls late.
         travel = h.speed * h.speed / (2 * h.accel) + h.speed * 2 * self.config.poll.moving
@@ -1388,13 +1474,7 @@ class Axis(ProgramRunner, AxisIO):
                                                          (-1, st.limit_negative)) if on}
 
         async def io() -> None:
-            await self._commit(m, lambda: self.profile.start_homing(HomingParams(
-                h.method,
-                speed_rpm=u.to_rpm(h.speed),
-                creep_rpm=u.to_rpm(h.creep),
-                accel_rps2=u.to_rps2(h.accel),
-                offset=u.to_pulses(h.offset),
-            )))
+            await self._commit(m, lambda: self.profile.start_homing(params))
 
         await self._run_motion(m, io, timeout=h.timeout)
 
@@ -1417,8 +1497,10 @@ class Axis(ProgramRunner, AxisIO):
         the limit in its direction, so it comes to rest on the limit at the latest.
 
         Called again while jogging with the same values it feeds the watchdog; with
-        another speed or direction it changes the jog (towards a limit: on the fly where
-        the drive takes a new target while it moves, else by a stop and a new start).
+        another speed or direction it changes the jog: on the fly where the description
+        says the drive takes it (``[programs] jog_speed``: a new speed in the same
+        direction; ``retarget``: towards a limit, a new target), else by a decelerating
+        stop and a new start.
 
         ``buffer="buffered"`` (or ``"blending"``) queues the jog behind the motions under
         way, as for ``move_to``, and returns a ``MotionHandle``; its watchdog starts with
@@ -1500,15 +1582,18 @@ class Axis(ProgramRunner, AxisIO):
         self, m: _Motion, speed: float, plan: MotionPlan, bound: int | None,
         watchdog: float | None,
     ) -> None:
-        """A running jog at a new speed or direction (a stop first where the drive needs it)."""
+        """A running jog at a new speed or direction: on the fly where the description says
+        the drive takes it (``[programs] jog_speed``, ``retarget``), else a decelerating
+        stop and a new start (a drive that obeys no second start while it runs)."""
         direction = self.envelope.drive_direction(speed)
+        programs = self.profile.programs
 
         async def io() -> None:
-            if bound is None and direction == m.direction:
+            if bound is None and direction == m.direction and programs.jog_speed:
                 params = self.drive_params(plan)
                 rpm = math.copysign(params.speed_rpm, direction)
                 await self.profile.speed_run(rpm, params.accel_rps2, params.decel_rps2)
-            elif bound is not None and direction == m.direction and self.profile.programs.blends:
+            elif bound is not None and direction == m.direction and programs.blends:
                 # towards the same limit at another speed, given on the fly
                 await self.profile.retarget_absolute(bound, self.drive_params(plan))
                 before, limit = m.trajectory, self.units.from_pulses(bound)
@@ -1579,6 +1664,7 @@ class Axis(ProgramRunner, AxisIO):
 
     async def _halt(self, *, emergency: bool, decel_rps2: float | None) -> None:
         by = "halt_now()" if emergency else "stop()"
+        self.stops += 1
         log.debug("axis %s: %s in state %s", self.name, by, self.state)
         offline = self.state is AxisState.OFFLINE
         m = self._motion
@@ -1641,7 +1727,10 @@ class Axis(ProgramRunner, AxisIO):
             self._poke_now()
 
     async def _wait_rest(self, after: float, what: str) -> DriveStatus:
-        """Wait for a status polled after ``after`` that shows the drive at rest."""
+        """Wait for a status polled after ``after`` that shows the drive at rest (polled
+        here where no actor runs: a machine whose tasks were cancelled from outside)."""
+        if not self._actor_running:
+            return await self._poll_rest(after, what)
         w = _RestWait(after)
         self._rest_waits.append(w)
         self._waiters += 1
@@ -1662,6 +1751,17 @@ class Axis(ProgramRunner, AxisIO):
             raise w.error
         assert self.status is not None
         return self.status
+
+    async def _poll_rest(self, after: float, what: str) -> DriveStatus:
+        """``_wait_rest`` without the actor: poll until a status shows the drive at rest."""
+        with anyio.move_on_after(_STOP_TIMEOUT):
+            while True:
+                st = await self.refresh()  # sent now: after ``after``
+                if not st.moving:
+                    return st
+                await anyio.sleep(self.config.poll.moving)
+        raise MotionTimeout(f"axis {self.name}: {what}: the drive still reports motion "
+                            f"after {_STOP_TIMEOUT:.0f} s")
 
     # -- other commands --------------------------------------------------------------------------
 
@@ -1692,10 +1792,11 @@ class Axis(ProgramRunner, AxisIO):
             if st.enabled and not st.alarm:
                 return
             self.profile.check_supported("enable")
+            await self.set_up_if_due()
             await self.profile.enable()
             await self.refresh()
 
-        await self._exclusive(io)
+        await self._exclusive(io, setup_first=False)
 
     async def disable(self) -> None:
         """De-energise the motor (only at rest)."""
@@ -1725,6 +1826,7 @@ class Axis(ProgramRunner, AxisIO):
             st = await self.refresh()
             if st.alarm:
                 self.profile.check_supported("clear_alarm")
+                await self.set_up_if_due()
                 await self.profile.clear_alarm()
                 st = await self.refresh()
                 if st.alarm:
@@ -1739,7 +1841,7 @@ class Axis(ProgramRunner, AxisIO):
                 self.state = AxisState.STANDSTILL if st.enabled else AxisState.DISABLED
             self._publish()
 
-        await self._exclusive(io)
+        await self._exclusive(io, setup_first=False)
 
     async def reset_alarm(self) -> None:
         """Clear the drive's alarm and leave ErrorStop (the same as ``reset()``)."""

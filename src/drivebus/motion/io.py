@@ -101,8 +101,11 @@ class AxisIO:
         if not isinstance(state, bool):
             raise ArgumentError(f"axis {self.name}: output {name}: state must be true or "
                                 f"false, not {state!r}")
+        self.profile.check_supported("set_output")
 
         async def io() -> None:
+            await self.profile.check_output(terminal, state)  # reads only: refused here
+            await self.set_up_if_due()
             await self.profile.set_output(terminal, state)
             st = await self.refresh()
             if self.profile.io_state(st)[1].get(terminal) != state:
@@ -110,4 +113,4 @@ class AxisIO:
                                    f"output {name} = {state} but reports it "
                                    f"{'off' if state else 'on'} (its polarity setting?)")
 
-        await self._exclusive(io)
+        await self._exclusive(io, setup_first=False)
