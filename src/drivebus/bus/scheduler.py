@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import heapq
 import itertools
 import logging
@@ -157,13 +158,11 @@ class Bus:
         keep no silences of their own."""
         self._trail = 0.0
         """The frame timeout of the slave of the last transaction (s)."""
-        self._foreign_warned = -math.inf
-        """When another master on the line was last warned about (monotonic)."""
 
     # -- life cycle ------------------------------------------------------------------------
 
     async def __aenter__(self) -> Bus:
-        self.line.foreign_report = self._heard_foreign
+        self.line.foreign_report = functools.partial(_heard_foreign, self)
         await self.line.open()
         self.stats = BusStats()
         self._traced_end = 0.0  # the end of the last traced exchange (its silence for --trace)
@@ -217,19 +216,6 @@ class Bus:
                              None if req.expect is None else ex.rx_end - ex.tx_end, outcome)
         for observer in self._observers:
             observer(tx)
-
-    def _heard_foreign(self, request: bytes) -> None:
-        """Another master's request heard on the line: counted apart from noise, and said
-        (a warning at once, then at most once a minute)."""
-        st = self.stats
-        st.foreign_requests += 1
-        st.foreign_last = describe_request(request)
-        now = monotonic()
-        if now - self._foreign_warned >= _FOREIGN_WARN_EVERY:
-            self._foreign_warned = now
-            log.warning("%s: another master is on the line: it sent %s (%d such requests "
-                        "heard so far); one master per line", self.line.name, st.foreign_last,
-                        st.foreign_requests)
 
     def slave(
         self,
@@ -777,3 +763,17 @@ def _outcome(exc: TransactionError) -> Outcome:
     if isinstance(exc, LineConfigError):
         return "refused"
     return "crc"
+
+
+def _heard_foreign(bus: Bus, request: bytes) -> None:
+    """Another master's request heard on ``bus``'s line: counted apart from noise, and
+    said (a warning at once, then at most once a minute)."""
+    st = bus.stats
+    st.foreign_requests += 1
+    st.foreign_last = describe_request(request)
+    now = monotonic()
+    if now - st.foreign_warned >= _FOREIGN_WARN_EVERY:
+        st.foreign_warned = now
+        log.warning("%s: another master is on the line: it sent %s (%d such requests heard "
+                    "so far); one master per line", bus.line.name, st.foreign_last,
+                    st.foreign_requests)
