@@ -80,6 +80,8 @@ def exposition(session: MachineSession) -> str:
                    "Fraction of the time since the line opened that frames occupied it.")
     wire = _Family("drivebus_line_wire_seconds_total", "counter",
                    "Seconds the line carried frames.")
+    foreign = _Family("drivebus_line_foreign_requests_total", "counter",
+                      "Requests of another master heard on the line (one master per line).")
     position = _Family("drivebus_axis_position", "gauge", "Axis position in its units.")
     state = _Family("drivebus_axis_state", "gauge", "1 for the axis's PLCopen state.")
     online = _Family("drivebus_axis_online", "gauge", "1 while the axis's drive answers.")
@@ -87,6 +89,7 @@ def exposition(session: MachineSession) -> str:
     for line, bus in m.buses.items():
         util.add(bus.stats.utilisation, line=line)
         wire.add(bus.stats.wire_time, line=line)
+        foreign.add(bus.stats.foreign_requests, line=line)
         for address, s in sorted(bus.stats.slaves.items()):
             _slave(tx, retries, latency, window, line, address, s)
     for name, ax in m.axes.items():
@@ -94,7 +97,7 @@ def exposition(session: MachineSession) -> str:
             position.add(ax.position, axis=name, unit=ax.config.unit)
         state.add(1, axis=name, state=str(ax.state))
         online.add(0 if str(ax.state) == "Offline" else 1, axis=name)
-    families = (tx, retries, latency, window, util, wire, position, state, online)
+    families = (tx, retries, latency, window, util, wire, foreign, position, state, online)
     return "\n".join(line for f in families for line in f.text()) + "\n"
 
 
