@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from drivebus.clock import STALL, STALL_GRACE, PreciseTimer, monotonic, stall_grace
+from drivebus.clock import STALL, STALL_GRACE, PreciseTimer, cpu_wait, monotonic, stall_grace
 
 
 @pytest.fixture
@@ -32,7 +32,16 @@ def test_a_timer_woken_late_by_a_busy_machine_does_not_spin_longer() -> None:
     assert 50e-6 < PreciseTimer.lead <= PreciseTimer._LEAD_MAX
 
 
-def test_a_deadline_passed_in_a_stall_gets_a_short_grace() -> None:
-    assert stall_grace(0.0) == stall_grace(STALL / 2) == 0.0  # on time: decide now
-    assert stall_grace(STALL) == stall_grace(0.3) == stall_grace(30.0) == STALL_GRACE
-    assert STALL_GRACE <= 0.05  # a moment for a starved peer, not a second timeout
+def test_a_deadline_passed_in_a_stall_gets_back_the_time_lost() -> None:
+    assert stall_grace(0.0) == stall_grace(STALL / 2, STALL / 2) == 0.0  # it ran all along
+    # its timer ran late: a moment for a starved peer to answer
+    assert stall_grace(STALL) == stall_grace(30.0) == STALL_GRACE
+    # its thread waited for a CPU meanwhile: that time back, and the moment
+    assert stall_grace(0.0, 0.3) == stall_grace(STALL, 0.3) == pytest.approx(0.3 + STALL_GRACE)
+    assert stall_grace(0.0, 60.0) == 1.0  # bounded
+
+
+def test_the_time_a_thread_waited_for_a_cpu_only_grows() -> None:
+    first = cpu_wait()
+    sum(range(200_000))
+    assert 0.0 <= first <= cpu_wait()

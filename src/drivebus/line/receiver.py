@@ -16,7 +16,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import cast
 
-from drivebus.clock import monotonic, stall_grace
+from drivebus.clock import cpu_wait, monotonic, stall_grace
 from drivebus.errors import FrameError, LineClosed, LineNoise, ResponseTimeout, WrongResponder
 from drivebus.line.foreign import find_requests
 from drivebus.line.rtu import crc_ok
@@ -165,34 +165,38 @@ class RtuReceiver(StreamProtocol):
         """Resolve ``waiter`` once ``n`` bytes are buffered or ``deadline`` has come,
         whichever is first (an exception if the stream is lost); ``release()`` ends it.
 
-        ``patient``: if the deadline's timer runs late (the process was not running when
-        it passed), the bytes are looked for once more and the wait is extended a little
-        (``stall_grace``, at most ``STALL_EXTENSIONS`` times): a slave that could not run
-        either, a simulator in this process, gets the moment it needs to answer."""
+        ``patient``: if the process was held up meanwhile (its thread waited for a CPU,
+        or the deadline's timer ran late), the bytes are looked for once more and the wait
+        is extended by the time lost and a moment (``stall_grace``, at most
+        ``STALL_EXTENSIONS`` times): a slave that could not run either, a simulator in
+        this process, gets the time it needs to answer."""
         loop = waiter.get_loop()
         self.need = n
         self.waiter = waiter
         extensions = STALL_EXTENSIONS if patient else 0
         self._expiry = loop.call_at(_loop_time(loop, deadline), self._expire, waiter,
-                                    deadline, extensions)
+                                    deadline, extensions, cpu_wait() if patient else 0.0)
         if self.lost is not None:
             waiter.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
         elif len(self.buf) >= n:
             waiter.set_result(None)
 
-    def _expire(self, waiter: asyncio.Future[None], deadline: float, extensions: int) -> None:
+    def _expire(self, waiter: asyncio.Future[None], deadline: float, extensions: int,
+                waited_before: float) -> None:
         if waiter.done():
             return
-        grace = stall_grace(monotonic() - deadline) if extensions else 0.0
-        if grace:
-            self.take_pending()  # resolves the waiter if what it waits for is there
-            if waiter.done() or self.waiter is not waiter:
+        if extensions:
+            waited = cpu_wait()
+            grace = stall_grace(monotonic() - deadline, waited - waited_before)
+            if grace:
+                self.take_pending()  # resolves the waiter if what it waits for is there
+                if waiter.done() or self.waiter is not waiter:
+                    return
+                until = monotonic() + grace
+                loop = waiter.get_loop()
+                self._expiry = loop.call_at(_loop_time(loop, until), self._expire, waiter,
+                                            until, extensions - 1, waited)
                 return
-            until = monotonic() + grace
-            loop = waiter.get_loop()
-            self._expiry = loop.call_at(_loop_time(loop, until), self._expire, waiter, until,
-                                        extensions - 1)
-            return
         waiter.set_result(None)
 
     def release(self) -> None:

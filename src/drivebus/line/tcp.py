@@ -23,7 +23,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
-from drivebus.clock import monotonic, stall_grace
+from drivebus.clock import cpu_wait, monotonic, stall_grace
 from drivebus.errors import (
     ConfigError,
     ConnectionLost,
@@ -429,7 +429,7 @@ class TcpLine(NetworkLine[_MbapProtocol]):
         fut: asyncio.Future[bytes] = loop.create_future()
         pending = conn.pending[tid] = _Pending(unit, fut)
         pending.expiry = loop.call_later(timeout, self._expire, conn, tid, unit, timeout,
-                                         monotonic() + timeout, STALL_EXTENSIONS)
+                                         monotonic() + timeout, STALL_EXTENSIONS, cpu_wait())
         try:
             conn.send(adu)
             reply = await fut
@@ -453,16 +453,18 @@ class TcpLine(NetworkLine[_MbapProtocol]):
             )
 
     def _expire(self, conn: _MbapProtocol, tid: int, unit: int, timeout: float,
-                deadline: float, extensions: int) -> None:
+                deadline: float, extensions: int, waited_before: float) -> None:
         p = conn.pending.get(tid)
         if p is None or p.future.done():
             return
-        grace = stall_grace(monotonic() - deadline) if extensions else 0.0
-        if grace:  # the process was not running when the deadline passed: see stall_grace
-            p.expiry = asyncio.get_running_loop().call_later(
-                grace, self._expire, conn, tid, unit, timeout, monotonic() + grace,
-                extensions - 1)
-            return
+        if extensions:  # the process held up meanwhile: the reply gets the time it lost
+            waited = cpu_wait()
+            grace = stall_grace(monotonic() - deadline, waited - waited_before)
+            if grace:
+                p.expiry = asyncio.get_running_loop().call_later(
+                    grace, self._expire, conn, tid, unit, timeout, monotonic() + grace,
+                    extensions - 1, waited)
+                return
         p.future.set_exception(
             ResponseTimeout(
                 f"slave {unit} on {self.name}: no reply within {timeout * 1000:.0f} ms "
