@@ -77,7 +77,10 @@ def test_the_dashboard_shows_live_positions_jogs_and_estops(browser: webdriver.C
         wait(browser, lambda d: text(d, "pos-x") == "12.000", "no position for x")
         assert text(browser, "machine") == "demo"
 
-        # move-to from the page; the table's position changes as the axis is polled
+        # move-to from the page; the table's position changes as the axis is polled. At a
+        # tenth of the speed (the feed override: 20 mm/s, 14 s) the page is looked at often
+        # enough during the move however slowly the browser runs on a busy machine
+        portal.call(lambda: svc.session.set_override(0.1))
         browser.find_element(By.ID, "target-x").send_keys("300")
         browser.find_element(By.XPATH, "//tr[@id='row-x']//button[text()='Move']").click()
         seen: set[str] = set()
@@ -91,6 +94,7 @@ def test_the_dashboard_shows_live_positions_jogs_and_estops(browser: webdriver.C
         assert m.now(m.twins["x"].is_moving)
         browser.find_element(By.ID, "stop-x").click()
         m.until(lambda: m.at_rest("x"), "x did not stop")
+        portal.call(lambda: svc.session.set_override(1.0))
 
         # hold-to-jog: moves while held (fed beyond its TTL), stops when released
         z0 = int(m.now(m.twins["z"].position))  # type: ignore[call-overload]
@@ -163,6 +167,9 @@ def test_the_dashboard_charts_what_the_service_recorded() -> None:
         wait(browser, lambda d: d.find_element(By.ID, "record").get_attribute("data-id"),
              "the Record button started no recording")
         rec_id = str(browser.find_element(By.ID, "record").get_attribute("data-id"))
+        # at a fifth of the speed (the feed override): x moves for about 6 s, long enough
+        # for 8 new points on the chart however slowly the browser runs on a busy machine
+        portal.call(lambda: svc.session.set_override(0.2))
         portal.call(lambda: client.post("/api/machine/group-move", json={
             "targets": {"x": 150.0, "y": 60.0, "z": 40.0, "r": 270.0}}))
         plotted = "return DrivebusCharts.registry.get('axis-x').data()[0].length"
