@@ -132,10 +132,13 @@ async def main(url: str, a: str, b: str) -> None:
                                  (b, "y", "move", {"target": 15.0}))
             print(f"step 3: {a} x at 30; {b} y at 15", flush=True)
 
-            # long moves everywhere, then one message stops the plant
+            # long moves everywhere (a few seconds each: all four are under way at once
+            # however long each start takes to be accepted), then one message stops the
+            # plant
             moving = [(n, "x", 390.0) for n in (a, b)] + [(n, "r", 700.0) for n in (a, b)]
+            speeds = {"x": 50.0, "r": 90.0}
             for node, axis, target in moving:
-                await plant.start(node, axis, "move", target=target)
+                await plant.start(node, axis, "move", target=target, speed=speeds[axis])
             await plant.until("the long moves", lambda: all(
                 plant.states.get((n, ax), {}).get("moving") for n, ax, _ in moving))
             replies = await plant.estop([a, b])

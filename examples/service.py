@@ -16,6 +16,8 @@ from pathlib import Path
 import anyio
 
 from drivebus import Machine, open_machine
+from drivebus.config import MachineConfig, load_config
+from drivebus.sim.machine import own_sim_lines
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 
@@ -60,7 +62,7 @@ async def monitor(m: Machine) -> None:
             last = y.state
 
 
-async def main(config: Path) -> None:
+async def main(config: Path | MachineConfig) -> None:
     async with open_machine(config) as m:
         await m.group("x", "y", "z").home()
         done = anyio.Event()
@@ -77,4 +79,6 @@ async def main(config: Path) -> None:
 
 
 if __name__ == "__main__":
-    anyio.run(main, Path(sys.argv[1]) if len(sys.argv) > 1 else CONFIG)
+    # no machine file: the demo machine on simulators of this process's own (a drivebus
+    # sim serving configs/demo.toml is reached only when that file is named on purpose)
+    anyio.run(main, Path(sys.argv[1]) if len(sys.argv) > 1 else own_sim_lines(load_config(CONFIG)))

@@ -13,21 +13,32 @@ bound such as a start skew or an arrival spread, a count against wall time) or m
 ``tmp_path``; a ``sim://`` name of its own; ``$XDG_RUNTIME_DIR`` is already its own). An
 expensive build several tests read (the docs site, the wheel) is made once per run with
 the ``built_once`` fixture. Plain ``pytest`` (no ``-n``) runs everything in one process.
+
+No test waits for ever: every wait has its own bound (``tests/waits.py`` names what it
+waited for), and an ``async`` test as a whole is cancelled after ``TEST_BOUND`` seconds,
+well before pytest-timeout (300 s) would kill its worker. A test whose bound ran out, its
+own or this one, fails naming the line of the test that was waiting and what it waited
+on inside (``_bounded``), not with a bare ``TimeoutError``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import fcntl
+import functools
 import gc
+import inspect
 import os
 import shutil
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+import traceback
+from collections.abc import Awaitable, Callable, Iterator
 from pathlib import Path
+from typing import Any
 
+import anyio
 import pytest
 
 Build = Callable[[Path], None]
@@ -47,6 +58,55 @@ def pytest_collection_finish(session: pytest.Session) -> None:
         "filterwarnings", "ignore:It looks like `register_random` was passed")
     gc.collect()
     gc.freeze()
+
+
+TEST_BOUND = 180.0
+"""Seconds an ``async`` test may run before its waits are cancelled (pytest's: 300)."""
+
+
+def _waited_at(exc: BaseException) -> str:
+    """Where a test was waiting when its bound cancelled the wait: the innermost line of
+    the test suite in the cancelled wait's traceback, and the innermost line of all."""
+    cancelled = exc.__context__ if exc.__context__ is not None else exc
+    frames = traceback.extract_tb(cancelled.__traceback__)
+    if not frames:
+        return "(no traceback)"
+    ours = [f for f in frames if f"{os.sep}tests{os.sep}" in f.filename
+            and Path(f.filename).name != "conftest.py"]
+    where = ours[-1] if ours else frames[-1]
+    text = f"{Path(where.filename).name}:{where.lineno} `{where.line}`"
+    inner = frames[-1]
+    if inner is not where:
+        text += f", inside {Path(inner.filename).name}:{inner.lineno} `{inner.line}`"
+    return text
+
+
+def _bounded(test: Callable[..., Awaitable[Any]], name: str) -> Callable[..., Awaitable[Any]]:
+    """``test`` within ``TEST_BOUND``; a ``TimeoutError`` out of it (this bound's or the
+    test's own ``fail_after``) becomes a failure that says where it was waiting."""
+
+    @functools.wraps(test)
+    async def bounded(*args: Any, **kwargs: Any) -> None:
+        scope = None
+        try:
+            with anyio.fail_after(TEST_BOUND) as scope:
+                await test(*args, **kwargs)
+        except TimeoutError as exc:
+            whose = (f"the test's bound of {TEST_BOUND:g} s (tests/conftest.py)"
+                     if scope is not None and scope.cancel_called else "a bound of the test")
+            raise AssertionError(f"{name}: {whose} ran out while it waited at "
+                                 f"{_waited_at(exc)}") from exc
+
+    bounded.__drivebus_bounded__ = True  # type: ignore[attr-defined]
+    return bounded
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_call(item: pytest.Item) -> None:
+    """Run every ``async`` test function within its bound (``_bounded``)."""
+    test = getattr(item, "obj", None)
+    if inspect.iscoroutinefunction(test) and not getattr(test, "__drivebus_bounded__", False):
+        item.obj = _bounded(test, item.name)  # type: ignore[attr-defined]
 
 
 @pytest.fixture(autouse=True)

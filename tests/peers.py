@@ -102,3 +102,41 @@ class TcpPeer:
             pass
         finally:
             writer.close()
+
+
+# -- an RS-485 line of ptys ------------------------------------------------------------------------
+
+
+@contextlib.asynccontextmanager
+async def pty_line(ports: int) -> AsyncIterator[list[str]]:
+    """``ports`` pty paths joined into one RS-485 line: what is sent on one port, every
+    other port receives, as every transceiver on a bus hears the line (a port does not
+    hear its own bytes; collisions are not modelled). Masters and slaves of any make
+    (pymodbus, drivebus, mbpoll) open the paths as serial ports."""
+    loop = asyncio.get_running_loop()
+    ends = [os.openpty() for _ in range(ports)]
+    for master, slave in ends:
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+    masters = [m for m, _ in ends]
+
+    def carry(src: int) -> None:
+        try:
+            data = os.read(src, 4096)
+        except OSError:
+            return  # EIO: nobody has that port open right now
+        for dst in masters:
+            if dst != src:
+                with contextlib.suppress(OSError):  # a port nobody has open drops it
+                    os.write(dst, data)
+
+    for m in masters:
+        loop.add_reader(m, carry, m)
+    try:
+        yield [os.ttyname(s) for _, s in ends]
+    finally:
+        for m in masters:
+            loop.remove_reader(m)
+        for m, s in ends:
+            os.close(m)
+            os.close(s)

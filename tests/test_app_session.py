@@ -19,6 +19,7 @@ from drivebus.errors import (
     NotFound,
     StateError,
 )
+from waits import within
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 
@@ -227,11 +228,15 @@ async def test_stop_all_stops_the_moving_axes_and_names_them() -> None:
     async with MachineSession.open(DEMO) as s:
         assert await s.stop_all() == {}
         await s.start_move("x", target=390.0, speed=50.0)
-        await s.jog("z", -5.0, ttl=30.0, client="pendant")
+        # 0.25 mm/s (about the CL86R's slowest): z is 1 mm from its soft limit (-2), 4 s
+        # away however late the polls below come (at 5 mm/s, 0.2 s: it got there before
+        # x's first moving poll on a busy machine, and the wait for z moving never ended)
+        await s.jog("z", -0.25, ttl=30.0, client="pendant")
         for name in ("x", "z"):
-            async for st in s.axis(name).watch():
-                if st.moving:
-                    break
+            with within(30, f"a status of {name} moving"):
+                async for st in s.axis(name).watch():
+                    if st.moving:
+                        break
         outcome = await s.stop_all()
         assert outcome == {"x": None, "z": None}
         assert not any(t.is_moving() for t in s.machine.sim_drives.values())

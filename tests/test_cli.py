@@ -61,8 +61,10 @@ class Proc:
     lines: queue.Queue[str] = field(default_factory=queue.Queue)
     seen: list[str] = field(default_factory=list)
 
-    def expect(self, pattern: str, timeout: float = 10) -> re.Match[str]:
-        """The first new stdout line matching ``pattern``; fails after ``timeout`` s."""
+    def expect(self, pattern: str, timeout: float = 60) -> re.Match[str]:
+        """The first new stdout line matching ``pattern``; fails after ``timeout`` s (a hang
+        guard: a command starts in about 1.5 s of CPU, several times that on a busy
+        machine)."""
         deadline = time.monotonic() + timeout
         while True:
             left = deadline - time.monotonic()
@@ -520,7 +522,9 @@ def test_ctrl_c_during_move_stops_the_axis(tmp_path: Path) -> None:
 def test_stop_halts_a_drive_left_moving_by_a_dead_process(tmp_path: Path) -> None:
     with sim_server(SINGLE) as (_, ends):
         cfg = pty_config(tmp_path, ends["bus"])
-        with spawn("jog", cfg, "x", "10") as jog:
+        # 2 mm/s: the soft limit (200 mm) is 100 s away, however slowly the commands
+        # below start on a busy machine; the drive is still running when they look
+        with spawn("jog", cfg, "x", "2") as jog:
             jog.expect(r"position=[1-9]\.\d+ .*state=ContinuousMotion")
             jog.popen.kill()  # no clean-up: the drive keeps running
             jog.popen.wait(10)
@@ -534,7 +538,9 @@ def test_stop_halts_a_drive_left_moving_by_a_dead_process(tmp_path: Path) -> Non
 def test_status_and_monitor_leave_a_running_drive_alone(tmp_path: Path) -> None:
     with sim_server(SINGLE) as (_, ends):
         cfg = pty_config(tmp_path, ends["bus"])
-        with spawn("jog", cfg, "x", "10") as jog:
+        # 2 mm/s: the soft limit (200 mm) is 100 s away, however slowly the three commands
+        # below start on a busy machine (at 10 mm/s it was reached: the drive stopped there)
+        with spawn("jog", cfg, "x", "2") as jog:
             jog.expect(r"position=[1-9]\.\d+ .*state=ContinuousMotion")
             jog.popen.kill()  # the drive keeps running with nobody watching it
             jog.popen.wait(10)

@@ -275,6 +275,11 @@ async def test_metrics_are_scraped_and_parsed_by_prometheus_client() -> None:
         assert {s.labels["axis"] for s in states.samples} == {"x", "y", "z", "aux", "r"}
         snap = (await client.get("/api/lines/rs485")).json()
         assert snap["slaves"]["2"]["latency"]["p50_ms"] > 0
+        # one master on the line: no other's requests heard (tests/test_one_master.py)
+        assert (snap["foreign_requests"], snap["foreign_master"]) == (0, "")
+        foreign = families["drivebus_line_foreign_requests"]
+        assert {s.labels["line"]: s.value for s in foreign.samples
+                if s.name.endswith("_total")} == {"rs485": 0, "eth": 0}
         # GET/PUT parameters through the service
         params = (await client.get("/api/axes/z/parameters")).json()
         assert params["family"] == "CL86R" and "microstep" in params["parameters"]

@@ -33,6 +33,7 @@ from drivebus.errors import (
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.described import DescribedDrive, described_twin
 from drivebus.sim.drive import TwinSetup
+from waits import until
 
 ROOT = Path(__file__).resolve().parents[1]
 MOONS = ROOT / "configs" / "drives" / "moons_stf.toml"
@@ -446,11 +447,13 @@ async def test_soft_limits_and_the_stop_race_hold_for_a_described_drive() -> Non
             with pytest.raises(MotionAborted):
                 await axis.move_to(200.0)
 
+        twin = m.sim_drives["m"]
         async with anyio.create_task_group() as tg:
             tg.start_soon(move)
-            await anyio.sleep(0.05)
+            # stopped on its way (not by a sleep's guess of when it will have started: on
+            # a busy machine the stop could come first, and the twin never moved)
+            await until(twin.is_moving, "the described drive's move to 200 to start")
             await axis.stop()
-        twin = m.sim_drives["m"]
         assert not twin.is_moving() and 0 < twin.position() < 200.0 / 5.0 * 20000
 
 

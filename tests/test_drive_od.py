@@ -37,6 +37,7 @@ from drivebus.providers import line_provider
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.od_drive import SimODDrive
+from waits import within
 
 LINE = LineSettings.parse("9600 8N1")
 
@@ -190,7 +191,7 @@ async def test_manual_error_examples(call: Call, sent: str, answer: str, code: i
 
 
 async def _read_frame(reader: asyncio.StreamReader, n: int) -> bytes:
-    with anyio.fail_after(2):
+    with within(10, f"a reply of {n} bytes on the raw port"):
         return await reader.readexactly(n)
 
 
@@ -211,9 +212,12 @@ async def test_manual_crc_error_example_reply_and_silent_mode() -> None:
                     assert await _read_frame(reader, 5) == hx("01 83 01 80 F0")
                 else:
                     # Silence: send a good frame after the line's t3.5 (about 4 ms at 9600
-                    # 8N1, plus the 9.4 ms the bad frame takes); the first answer on the
-                    # wire is then the one to the good frame.
-                    await anyio.sleep(0.03)
+                    # 8N1) after the bad frame's end as the wire saw it (not after a sleep
+                    # from our write: on a busy machine the wire may read it late); the
+                    # first answer on the wire is then the one to the good frame.
+                    with within(5, "the bad frame on the wire"):
+                        await wire.wait_requests(1)
+                    await anyio.sleep(max(0.0, wire.requests()[0].end + 0.01 - monotonic()))
                     writer.write(hx("01 03 20 00 00 00 01 4B F4"))
                     assert await _read_frame(reader, 7) == hx("01 03 02 00 01 79 84")
                     assert len(replies(wire)) == 1

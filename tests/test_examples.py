@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from waits import readline_within
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -57,7 +59,7 @@ def test_http_client_example_drives_a_running_service() -> None:
     )
     try:
         assert served.stdout is not None
-        first = served.stdout.readline()
+        first = readline_within(served.stdout, 60, "drivebus serve's first line (its URL)")
         url = first.split(" on ", 1)[1].split("/ ", 1)[0]
         proc = subprocess.run(
             [sys.executable, str(ROOT / "examples" / "http_client.py"), url],

@@ -299,6 +299,8 @@ async def test_reset_straight_after_a_limit_stop_then_a_move_away_lands(drive: s
 # -- 4. group figures ---------------------------------------------------------------------------
 
 
+@pytest.mark.serial  # the plan meets the twins within 10 ms: a bound that CPU load from other
+# tests stretches (it moved the start replies 40 ms apart)
 async def test_group_report_counts_only_moving_axes_beside_the_twins() -> None:
     async with open_machine(DEMO) as m:
         x, y, z = (m.axes[n] for n in "xyz")

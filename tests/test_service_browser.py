@@ -79,7 +79,10 @@ def test_the_dashboard_shows_live_positions_jogs_and_estops(browser: webdriver.C
         wait(browser, lambda d: text(d, "pos-x") == "12.000", "no position for x")
         assert text(browser, "machine") == "demo"
 
-        # move-to from the page; the table's position changes as the axis is polled
+        # move-to from the page; the table's position changes as the axis is polled. At a
+        # tenth of the speed (the feed override: 20 mm/s, 14 s) the page is looked at often
+        # enough during the move however slowly the browser runs on a busy machine
+        portal.call(lambda: svc.session.set_override(0.1))
         browser.find_element(By.ID, "target-x").send_keys("300")
         browser.find_element(By.XPATH, "//tr[@id='row-x']//button[text()='Move']").click()
         seen: set[str] = set()
@@ -93,6 +96,7 @@ def test_the_dashboard_shows_live_positions_jogs_and_estops(browser: webdriver.C
         assert m.now(m.twins["x"].is_moving)
         browser.find_element(By.ID, "stop-x").click()
         m.until(lambda: m.at_rest("x"), "x did not stop")
+        portal.call(lambda: svc.session.set_override(1.0))
 
         # hold-to-jog: moves while held (fed beyond its TTL), stops when released
         z0 = int(m.now(m.twins["z"].position))  # type: ignore[call-overload]
@@ -114,7 +118,10 @@ def test_the_dashboard_shows_live_positions_jogs_and_estops(browser: webdriver.C
         # the e-stop button halts every axis
         browser.get(f"{svc.url}/")
         wait(browser, lambda d: text(d, "conn") == "live", "the page did not come back")
-        portal.call(lambda: client.post("/api/axes/r/move", json={"target": 700.0}))
+        # r slowly (11 s): still moving when x starts from the page, however long the
+        # click takes to come through on a busy machine (at r's 720 deg/s it had arrived)
+        portal.call(lambda: client.post("/api/axes/r/move", json={"target": 700.0,
+                                                                  "speed": 60.0}))
         browser.find_element(By.ID, "target-x").send_keys("390")
         browser.find_element(By.XPATH, "//tr[@id='row-x']//button[text()='Move']").click()
         m.until(lambda: m.twins["x"].is_moving() and m.twins["r"].is_moving(),
@@ -238,6 +245,9 @@ def test_the_dashboard_charts_what_the_service_recorded() -> None:
         wait(browser, lambda d: d.find_element(By.ID, "record").get_attribute("data-id"),
              "the Record button started no recording")
         rec_id = str(browser.find_element(By.ID, "record").get_attribute("data-id"))
+        # at a fifth of the speed (the feed override): x moves for about 6 s, long enough
+        # for 8 new points on the chart however slowly the browser runs on a busy machine
+        portal.call(lambda: svc.session.set_override(0.2))
         portal.call(lambda: client.post("/api/machine/group-move", json={
             "targets": {"x": 150.0, "y": 60.0, "z": 40.0, "r": 270.0}}))
         # the chart's points of x while it moved (the chart's data and the page's states

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import pytest
 
+from waits import Deadline
+
 ROOT = Path(__file__).resolve().parent.parent
 UNIT = ROOT / "examples" / "drivebus.service"
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
@@ -106,10 +108,16 @@ def test_serve_notifies_systemd_and_feeds_its_watchdog(tmp_path: Path) -> None:
         try:
             messages = [sock.recv(4096).decode()]
             assert messages[0].startswith("READY=1\nSTATUS=serving demo on http://127.0.0.1:")
+            fed = Deadline(30, "three WATCHDOG=1 notifications")
             while sum(m == "WATCHDOG=1" for m in messages) < 3:  # fed, again and again
+                if not fed.left():
+                    raise fed.fail(messages[-5:])
                 messages.append(sock.recv(4096).decode())
             proc.send_signal(signal.SIGTERM)
-            while not messages[-1].startswith("STOPPING=1"):
+            stopping = Deadline(30, "STOPPING=1 after SIGTERM")
+            while not messages[-1].startswith("STOPPING=1"):  # the watchdog is fed meanwhile
+                if not stopping.left():
+                    raise stopping.fail(messages[-5:])
                 messages.append(sock.recv(4096).decode())
             assert proc.wait(timeout=30) == 0
         finally:

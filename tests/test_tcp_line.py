@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import socket
 import struct
+import time
 from collections.abc import AsyncIterator
 from functools import partial
 
@@ -154,7 +155,8 @@ async def test_reply_with_wrong_transaction_id_is_rejected() -> None:
 async def test_late_reply_is_discarded_not_taken_for_the_next() -> None:
     slave = RegisterSlave(1, initial=[(0, 11), (1, 22)])
     async with SimTcpServer([slave]) as srv, TcpLine(HOST, srv.port) as line:
-        slave.faults.inject(Fault.SLOW_REPLY, value=0.15)
+        # a reply long after the timeout, however late a busy machine runs the timers
+        slave.faults.inject(Fault.SLOW_REPLY, value=0.5)
         with pytest.raises(ResponseTimeout):
             await line.transact(1, read_pdu(0, 1), expect=P.response_length, timeout=0.03)
         # The late reply to register 0 arrives while we wait for register 1's.
@@ -162,6 +164,27 @@ async def test_late_reply_is_discarded_not_taken_for_the_next() -> None:
         assert words(ex.reply) == [22]
         assert line.stats.late_replies == 1
         assert srv.log[0].replied is not None and srv.log[0].replied < srv.log[1].replied
+
+
+async def test_a_stalled_process_is_no_timeout_of_a_tcp_server_in_it() -> None:
+    """As on a serial line (test_bus): the simulated server runs in the master's process;
+    the process stopping past a reply's deadline is no timeout of the server's."""
+    slave = RegisterSlave(1, initial=[(0, 11)])
+    async with SimTcpServer([slave]) as srv, TcpLine(HOST, srv.port) as line:
+
+        async def stall() -> None:
+            await srv.wait_requests(srv.received + 1)
+            time.sleep(0.2)  # noqa: ASYNC251 - the process stops, the server with it
+
+        for _ in range(5):
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(stall)
+                ex = await line.transact(1, read_pdu(0, 1), expect=P.response_length,
+                                         timeout=0.05)
+            assert words(ex.reply) == [11]
+        slave.faults.inject(Fault.NO_REPLY)
+        with pytest.raises(ResponseTimeout):  # a server that does not answer still times out
+            await line.transact(1, read_pdu(0, 1), expect=P.response_length, timeout=0.05)
 
 
 async def test_reply_from_another_unit_is_wrong_responder() -> None:

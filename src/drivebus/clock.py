@@ -13,12 +13,58 @@ import ctypes
 import ctypes.util
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable
 
-__all__ = ["PreciseTimer", "monotonic"]
+__all__ = ["STALL", "STALL_GRACE", "PreciseTimer", "cpu_wait", "monotonic", "stall_grace"]
 
 monotonic = time.monotonic
+
+STALL = 0.002
+"""A timer that runs this much after its time or later was held up, and a thread that
+waited this long for a CPU was held up: the process (or its event loop) was not running."""
+STALL_GRACE = 0.02
+"""How much longer a reply is waited for, beyond the time lost, when the process was held
+up while it waited: a few scheduler slices, a starved peer's turnaround."""
+_GRACE_MAX = 1.0
+
+_SCHEDSTAT = threading.local()
+
+
+def cpu_wait() -> float:
+    """Seconds this thread has spent ready to run but waiting for a CPU, a running total
+    (Linux's ``/proc/thread-self/schedstat``); 0.0 where the kernel does not say."""
+    fd = getattr(_SCHEDSTAT, "fd", None)
+    if fd is None:
+        try:
+            fd = os.open("/proc/thread-self/schedstat", os.O_RDONLY | os.O_CLOEXEC)
+        except OSError:
+            fd = -1
+        _SCHEDSTAT.fd = fd
+    if fd < 0:
+        return 0.0
+    try:
+        return int(os.pread(fd, 64, 0).split()[1]) / 1e9
+    except (OSError, ValueError, IndexError):
+        return 0.0
+
+
+def stall_grace(late: float, waited: float = 0.0) -> float:
+    """How much longer to wait for a reply whose deadline has come: 0 (decide now) if the
+    process ran all along, else the time it lost plus ``STALL_GRACE``.
+
+    ``late``: how long after the deadline its timer ran; ``waited``: how long the thread
+    waited for a CPU since the request went out (``cpu_wait``). A deadline that passed
+    while the process was not running was not watched: a peer in the same process (a
+    simulated drive) did not run either, and may not even have read the request. It gets
+    back the time it lost and a moment to answer (a peer that ran all along has had its
+    whole timeout). Owners extend a deadline a bounded number of times, so a dead peer
+    still times out on a busy machine.
+    """
+    if late < STALL and waited < STALL:
+        return 0.0
+    return min(waited + STALL_GRACE, _GRACE_MAX)
 
 _CLOCK_MONOTONIC = 1
 _TFD_NONBLOCK = os.O_NONBLOCK
@@ -210,7 +256,11 @@ class PreciseTimer:
                 PreciseTimer.lead = max(0.0, PreciseTimer.lead - PreciseTimer._STEP)
             while monotonic() < deadline:
                 pass
-        elif adapt:
+        elif adapt and monotonic() - deadline <= PreciseTimer._LEAD_MAX:
+            # Woke late: lengthen the lead a step. A wake-up later than the longest lead is
+            # the process waiting for a CPU, not the timer's latency (a longer lead cannot
+            # help it): left out, or on a busy machine the lead would sit at its maximum
+            # and every timer would spin that long.
             PreciseTimer.lead = min(PreciseTimer._LEAD_MAX,
                                     PreciseTimer.lead + PreciseTimer._STEP)
 

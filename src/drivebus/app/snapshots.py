@@ -140,6 +140,11 @@ class LineSnapshot:
     """Sum of reply latencies, seconds: over ``replies``, the mean latency."""
     timestamp: float
     """When this was taken (monotonic s, the clock of the axes' ``timestamp``)."""
+    foreign_requests: int = 0
+    """Requests of another master heard on the line (a fault: one master per line)."""
+    foreign_master: str = ""
+    """What the other master last sent, if any ("read holding registers ... from slave
+    5"); empty while the line has one master."""
     slaves: dict[int, dict[str, Any]] = field(default_factory=dict)
     """Per-slave counters by address."""
 
@@ -170,6 +175,8 @@ def line_snapshot(name: str, bus: Bus, kind: str, endpoint: str) -> LineSnapshot
         replies=stats.replies,
         reply_time=stats.reply_time,
         timestamp=monotonic(),
+        foreign_requests=stats.foreign_requests,
+        foreign_master=stats.foreign_last,
         slaves={a: s.as_dict() for a, s in sorted(stats.slaves.items())},
     )
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import heapq
 import itertools
 import logging
@@ -32,6 +33,7 @@ from drivebus.errors import (
     WrongResponder,
 )
 from drivebus.line.base import Begun, Exchange, Line, SendWithdrawn
+from drivebus.line.foreign import describe_request
 from drivebus.line.rtu import frame
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
@@ -50,6 +52,10 @@ _READS = (b"\x01", b"\x02", b"\x03", b"\x04")
 _OUTCOME_WAIT = 0.5
 """Beyond its response timeout, how long a cancelled caller waits to learn the outcome
 of its request that had already left (then: "outcome unknown"), seconds."""
+
+_FOREIGN_WARN_EVERY = 60.0
+"""Seconds between two warnings about another master on a line (the first comes at once)."""
+
 
 class Queued(Protocol):
     """A request of ``Bus.queue``: its future gets the reply PDU or the error."""
@@ -196,6 +202,7 @@ class Bus:
 
     async def __aenter__(self) -> Bus:
         self._loop = asyncio.get_running_loop()
+        self.line.foreign_report = functools.partial(_heard_foreign, self)
         await self.line.open()
         self.stats = BusStats()
         self._traced_end = 0.0  # the end of the last traced exchange (its silence for --trace)
@@ -982,3 +989,17 @@ def _outcome(exc: TransactionError) -> Outcome:
     if isinstance(exc, LineConfigError):
         return "refused"
     return "crc"
+
+
+def _heard_foreign(bus: Bus, request: bytes) -> None:
+    """Another master's request heard on ``bus``'s line: counted apart from noise, and
+    said (a warning at once, then at most once a minute)."""
+    st = bus.stats
+    st.foreign_requests += 1
+    st.foreign_last = describe_request(request)
+    now = monotonic()
+    if now - st.foreign_warned >= _FOREIGN_WARN_EVERY:
+        st.foreign_warned = now
+        log.warning("%s: another master is on the line: it sent %s (%d such requests heard "
+                    "so far); one master per line", bus.line.name, st.foreign_last,
+                    st.foreign_requests)

@@ -9,6 +9,7 @@ histogram over ``LATENCY_BUCKETS`` for monitoring systems (Prometheus).
 from __future__ import annotations
 
 import bisect
+import math
 from collections import deque
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -132,6 +133,13 @@ class BusStats:
     reply_time: float = 0.0
     """Seconds from each request's last byte to its reply's last byte, added up: with
     ``replies``, the mean reply latency over any interval."""
+    foreign_requests: int = 0
+    """Requests of another master heard on the line (two masters on one line is a fault:
+    see ``drivebus.line.foreign``); noise is not counted here."""
+    foreign_last: str = ""
+    """The last of them, described ("read holding registers 0x0000 (2) from slave 5")."""
+    foreign_warned: float = field(default=-math.inf, repr=False, compare=False)
+    """When a warning last said so (monotonic s; the bus warns at most once a minute)."""
 
     def slave(self, address: int) -> SlaveStats:
         """The counters of ``address`` (created on first use)."""

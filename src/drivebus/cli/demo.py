@@ -123,6 +123,12 @@ async def run_demo(config: str | Path | None = None) -> int:
             print(msg, flush=True)
 
     cfg = load_config(path)
+    if config is None:
+        # the built-in demo runs on simulators of its own: it never drives (or shares) the
+        # lines of a drivebus sim that serves configs/demo.toml for someone else
+        from drivebus.sim.machine import own_sim_lines
+
+        cfg = own_sim_lines(cfg)
     real = [f"{n} ({ln.port or ln.host})" for n, ln in cfg.lines.items() if not ln.simulated]
     if real:
         raise ConfigError(f"{path}: the demo runs on the simulator only, and line "

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import abc
 import asyncio
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Protocol
@@ -92,6 +93,17 @@ class Line(abc.ABC):
     when the transaction needs its owner no more (``on_reply`` has had a sound exchange)
     or needs ``finish(begun)``, awaited, to judge what came (and raise what failed). A
     scheduler can thus run the line from callbacks while every transaction goes well."""
+
+    foreign_report: Callable[[bytes], None] | None = None
+    """Called with each request frame of another master the line hears among the bytes
+    nobody asked for (lines that hear the bus: serial RTU and RTU over TCP); the bus that
+    owns the line sets it (``drivebus.line.foreign``)."""
+
+    def _heard_foreign(self, request: bytes) -> None:
+        """The receiver's report of another master's request: pass it on."""
+        report = self.foreign_report
+        if report is not None:
+            report(request)
 
     def withdraw(self) -> bool:
         """Take back the ``withdrawable`` transaction waiting for its silence, if its frame

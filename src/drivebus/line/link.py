@@ -116,6 +116,7 @@ class _Job:
                     raise SendWithdrawn("bytes arrived during the silence")
             if rx.buf:
                 rx.discard()
+            rx.asked.append((self.unit, self.adu[1]))
             link._job = None
             self.tx_start = now = monotonic()
             self.sent = True

@@ -13,11 +13,13 @@ from __future__ import annotations
 import asyncio
 import os
 import select
+from collections import deque
 from collections.abc import Callable
 from typing import cast
 
-from drivebus.clock import monotonic
+from drivebus.clock import cpu_wait, monotonic, stall_grace
 from drivebus.errors import FrameError, LineClosed, LineNoise, ResponseTimeout, WrongResponder
+from drivebus.line.foreign import find_requests
 from drivebus.line.rtu import crc16_value, crc_ok
 from drivebus.pdu import LengthPredictor, response_length
 
@@ -45,6 +47,9 @@ _KIND = tuple(
 byte count in its third byte, 2 eight bytes, 3 an exception (five), 0 not known."""
 _NEVER = BUFFER_LIMIT + 1
 """A byte count the buffer never reaches: ``wait_for(_NEVER, t)`` waits for ``t`` only."""
+STALL_EXTENSIONS = 2
+"""Times a reply deadline that passed while the process was not running is extended
+(``drivebus.clock.stall_grace``): a dead slave still times out on a busy machine."""
 
 
 def read_waiting(fd: int) -> bytes:
@@ -119,6 +124,15 @@ class RtuReceiver(StreamProtocol):
         on an idle line, the rule before a frame, that spares a read's EAGAIN)."""
         self._deadline = 0.0
         """When the waiter is resolved at the latest (monotonic)."""
+        self.asked: deque[tuple[int, int]] = deque(maxlen=4)
+        """(address, function code) of the master's own last requests: what a late reply
+        or an echo among the discarded bytes answers (``drivebus.line.foreign``)."""
+        self.on_foreign: Callable[[bytes], None] | None = None
+        """Called with each request of another master found among the discarded bytes."""
+        self._extensions = 0
+        """Times the waiter's deadline may still be extended for a stall (``_expired``)."""
+        self._waited_before = 0.0
+        """The thread's CPU wait (``cpu_wait``) when the waiter's wait began."""
         self._expiry: asyncio.TimerHandle | None = None
         self._expiry_at = 0.0
         """When ``_expiry`` fires (monotonic): the earliest deadline since it was set."""
@@ -171,8 +185,10 @@ class RtuReceiver(StreamProtocol):
 
     # -- waiting -------------------------------------------------------------------------------
 
-    async def wait_for(self, n: int, deadline: float) -> bool:
-        """Wait until ``n`` bytes are buffered; False if ``deadline`` passed first.
+    async def wait_for(self, n: int, deadline: float, *, patient: bool = True) -> bool:
+        """Wait until ``n`` bytes are buffered; False if ``deadline`` passed first
+        (``patient``: a deadline that passed while the process was not running is
+        extended, see ``expect_bytes``).
 
         ``n`` beyond ``BUFFER_LIMIT`` is never reached: that waits for the deadline (or
         the loss of the stream) only.
@@ -182,17 +198,30 @@ class RtuReceiver(StreamProtocol):
         if self.lost is not None:
             raise LineClosed(f"{self.name} lost: {self.lost}")
         w: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        self.expect_bytes(n, deadline, w)
+        self.expect_bytes(n, deadline, w, patient=patient)
         try:
             await w
         finally:
             self.release()
         return len(self.buf) >= n
 
-    def expect_bytes(self, n: int, deadline: float, waiter: asyncio.Future[None]) -> None:
+    def expect_bytes(
+        self, n: int, deadline: float, waiter: asyncio.Future[None], *, patient: bool = True
+    ) -> None:
         """Resolve ``waiter`` once ``n`` bytes are buffered or ``deadline`` has come,
-        whichever is first (an exception if the stream is lost); ``release()`` ends it."""
+        whichever is first (an exception if the stream is lost); ``release()`` ends it.
+
+        ``patient``: if the process was held up meanwhile (its thread waited for a CPU,
+        or the deadline's timer ran late), the bytes are looked for once more and the wait
+        is extended by the time lost and a moment (``stall_grace``, at most
+        ``STALL_EXTENSIONS`` times): a slave that could not run either, a simulator in
+        this process, gets the time it needs to answer."""
         self._expect = None
+        if patient:
+            self._extensions = STALL_EXTENSIONS
+            self._waited_before = cpu_wait()
+        else:
+            self._extensions = 0
         self._wait(n, deadline, waiter)
 
     def expect_reply(
@@ -211,6 +240,8 @@ class RtuReceiver(StreamProtocol):
         self.need = 3  # address, function code and a byte count
         self.waiter = waiter
         self._deadline = deadline
+        self._extensions = STALL_EXTENSIONS  # (a stall extends the wait: ``expect_bytes``)
+        self._waited_before = cpu_wait()
         if self._expiry is None or self._expiry_at > deadline:  # (``_wait``, written out)
             self._set_expiry(waiter.get_loop(), deadline)
         if self.lost is not None:
@@ -245,9 +276,22 @@ class RtuReceiver(StreamProtocol):
         w = self.waiter
         if w is None or w.done():
             return
-        if monotonic() + _EARLY < self._deadline:  # set for an earlier wait: wait on
+        now = monotonic()
+        if now + _EARLY < self._deadline:  # set for an earlier wait: wait on
             self._set_expiry(w.get_loop(), self._deadline)
             return
+        if self._extensions:
+            waited = cpu_wait()
+            grace = stall_grace(now - self._deadline, waited - self._waited_before)
+            if grace:  # the process was held up: the reply gets the time it lost
+                self.take_pending()  # resolves the waiter if what it waits for is there
+                if w.done() or self.waiter is not w:
+                    return
+                self._extensions -= 1
+                self._waited_before = waited
+                self._deadline = until = monotonic() + grace
+                self._set_expiry(w.get_loop(), until)
+                return
         w.set_result(None)
 
     def _assemble(self, w: asyncio.Future[None]) -> None:
@@ -308,13 +352,21 @@ class RtuReceiver(StreamProtocol):
                 continue  # bytes were waiting: not quiet after all
             if now >= limit:
                 return False
-            await self.wait_for(_NEVER, min(quiet_at, limit))
+            await self.wait_for(_NEVER, min(quiet_at, limit), patient=False)
 
     def discard(self) -> None:
         """Drop whatever is buffered (bytes that arrived outside a reply)."""
         if self.buf:
-            self.garbage_bytes += len(self.buf)
+            self._drop(bytes(self.buf))
             self.buf.clear()
+
+    def _drop(self, data: bytes, kept: int = 0) -> None:
+        """Count ``data`` (less ``kept`` bytes of it that were a reply) as garbage, and
+        report the requests of another master among it (``on_foreign``)."""
+        self.garbage_bytes += len(data) - kept
+        if self.on_foreign is not None and len(data) >= 8:
+            for request in find_requests(data, self.asked):
+                self.on_foreign(request)
 
     async def take_echo(self, adu: bytes, deadline: float) -> None:
         """Consume the local echo of ``adu`` (adapters that hear their own transmitter)."""
@@ -382,10 +434,9 @@ class RtuReceiver(StreamProtocol):
         data = bytes(self.buf)
         self.buf.clear()
         found, other = _scan(data, unit, expect)
+        self._drop(data, 0 if found is None else len(found) + 3)
         if found is not None:
-            self.garbage_bytes += len(data) - len(found) - 3
             return found
-        self.garbage_bytes += len(data)
         if other is not None:
             raise WrongResponder(
                 f"slave {unit} on {self.line_name}: reply came from address {other}",

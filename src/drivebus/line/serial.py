@@ -168,6 +168,7 @@ class SerialLine(Line):
         self._serial = port
         self._fd = port.fileno()
         rx.watch(self._fd)
+        rx.on_foreign = self._heard_foreign
         self._rx = rx
         self._current = s
         if self.rs485:
@@ -195,6 +196,10 @@ class SerialLine(Line):
                 rx.connection_lost(None)
         self._link.close()
         self._serial = None
+        if rx is not None and rx.transport is not None:
+            # serial_asyncio closes the port from a loop callback: let it run, so that the
+            # port is closed (free to open again) once this returns
+            await asyncio.sleep(0)
 
     def _cannot_run(self, s: LineSettings, why: object) -> str:
         if s.parity != "N" and os.path.realpath(self.port).startswith("/dev/pts/"):

@@ -22,7 +22,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
-from drivebus.clock import monotonic
+from drivebus.clock import cpu_wait, monotonic, stall_grace
 from drivebus.errors import (
     ConfigError,
     ConnectionLost,
@@ -35,7 +35,7 @@ from drivebus.errors import (
 )
 from drivebus.line.base import Exchange, Line
 from drivebus.line.link import ReplyHook, RtuLink
-from drivebus.line.receiver import RtuReceiver, StreamProtocol
+from drivebus.line.receiver import STALL_EXTENSIONS, RtuReceiver, StreamProtocol
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import timing
@@ -259,6 +259,8 @@ class NetworkLine(Line, Generic[ConnectionT], abc.ABC):
 class _Pending:
     unit: int
     future: asyncio.Future[bytes]
+    expiry: asyncio.TimerHandle | None = None
+    """The timer that fails the request if no reply comes."""
 
 
 class _MbapProtocol(StreamProtocol):
@@ -425,13 +427,15 @@ class TcpLine(NetworkLine[_MbapProtocol]):
             conn.send(adu)
             return Exchange(b"", tx, tx, tx, len(adu), 0, 0.0)
         fut: asyncio.Future[bytes] = loop.create_future()
-        conn.pending[tid] = _Pending(unit, fut)
-        handle = loop.call_later(timeout, self._expire, conn, tid, unit, timeout)
+        pending = conn.pending[tid] = _Pending(unit, fut)
+        pending.expiry = loop.call_later(timeout, self._expire, conn, tid, unit, timeout,
+                                         monotonic() + timeout, STALL_EXTENSIONS, cpu_wait())
         try:
             conn.send(adu)
             reply = await fut
         finally:
-            handle.cancel()
+            if pending.expiry is not None:
+                pending.expiry.cancel()
             conn.pending.pop(tid, None)
             if not fut.done() or fut.cancelled() or fut.exception() is not None:
                 conn.abandoned.append(tid)
@@ -448,10 +452,19 @@ class TcpLine(NetworkLine[_MbapProtocol]):
                 slave=unit,
             )
 
-    def _expire(self, conn: _MbapProtocol, tid: int, unit: int, timeout: float) -> None:
+    def _expire(self, conn: _MbapProtocol, tid: int, unit: int, timeout: float,
+                deadline: float, extensions: int, waited_before: float) -> None:
         p = conn.pending.get(tid)
         if p is None or p.future.done():
             return
+        if extensions:  # the process held up meanwhile: the reply gets the time it lost
+            waited = cpu_wait()
+            grace = stall_grace(monotonic() - deadline, waited - waited_before)
+            if grace:
+                p.expiry = asyncio.get_running_loop().call_later(
+                    grace, self._expire, conn, tid, unit, timeout, monotonic() + grace,
+                    extensions - 1, waited)
+                return
         p.future.set_exception(
             ResponseTimeout(
                 f"slave {unit} on {self.name}: no reply within {timeout * 1000:.0f} ms "
@@ -609,7 +622,9 @@ class RtuOverTcpLine(NetworkLine[_RtuTcpReceiver]):
         self._link = RtuLink(latency=latency)
 
     def _make_protocol(self) -> _RtuTcpReceiver:
-        return _RtuTcpReceiver(self)
+        rx = _RtuTcpReceiver(self)
+        rx.on_foreign = self._heard_foreign
+        return rx
 
     @property
     def garbage_bytes(self) -> int:

@@ -107,6 +107,8 @@ def exposition(session: MachineSession) -> str:
                    "Fraction of the time since the line opened that frames occupied it.")
     wire = _Family("drivebus_line_wire_seconds_total", "counter",
                    "Seconds the line carried frames.")
+    foreign = _Family("drivebus_line_foreign_requests_total", "counter",
+                      "Requests of another master heard on the line (one master per line).")
     positions = {base: _Family(f"drivebus_axis_position_{base}", "gauge", text) for base, text
                  in (("meters", "Position of a linear axis, metres."),
                      ("radians", "Position of a rotary axis, radians."),
@@ -118,6 +120,7 @@ def exposition(session: MachineSession) -> str:
     for line, bus in m.buses.items():
         util.add(bus.stats.utilisation, line=line)
         wire.add(bus.stats.wire_time, line=line)
+        foreign.add(bus.stats.foreign_requests, line=line)
         for address, s in sorted(bus.stats.slaves.items()):
             _slave(tx, retries, latency, window, line, address, s)
     for name, ax in m.axes.items():
@@ -126,7 +129,7 @@ def exposition(session: MachineSession) -> str:
             positions[base].add(ax.position * factor, axis=name)
         state.add(1, axis=name, state=str(ax.state))
         online.add(0 if str(ax.state) == "Offline" else 1, axis=name)
-    families = (tx, retries, latency, window, util, wire,
+    families = (tx, retries, latency, window, util, wire, foreign,
                 *(f for f in positions.values() if f.samples), state, online)
     return "\n".join(line for f in families for line in f.text()) + "\n"
 

@@ -9,6 +9,7 @@ outside master (mbpoll, a PLC, pymodbus) can talk to the simulated drives.
 from __future__ import annotations
 
 import contextlib
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,6 +25,7 @@ __all__ = [
     "SimLine",
     "adapter_options",
     "make_twin",
+    "own_sim_lines",
     "start_sim_line",
     "start_simulators",
 ]
@@ -108,6 +110,24 @@ def adapter_options(line: LineConfig) -> dict[str, Any]:
             raise ConfigError(f"sim://{line.sim_name}: no option {key!r} (it has "
                               f"{', '.join(ADAPTER_OPTIONS)})")
     return out
+
+
+def own_sim_lines(config: MachineConfig) -> MachineConfig:
+    """``config`` with each ``sim://NAME`` line renamed ``sim://NAME-PID`` for this
+    process (options kept): simulators of its own, which no running ``drivebus sim`` serves
+    and no other process shares. For a machine run on the simulator by default (the demo,
+    an example without a machine file); a name given on purpose is left to reach a
+    running ``drivebus sim``."""
+    lines = {}
+    for name, line in config.lines.items():
+        if not line.simulated:
+            lines[name] = line
+            continue
+        key = "port" if line.port else "host"
+        address = getattr(line, key) or ""
+        base, sep, options = address.partition("?")
+        lines[name] = line.model_copy(update={key: f"{base}-{os.getpid()}{sep}{options}"})
+    return config.model_copy(update={"lines": lines})
 
 
 async def start_sim_line(

@@ -13,6 +13,7 @@ then sets the nearest one, as such an adapter's driver does) or formats
 from __future__ import annotations
 
 import errno
+import os
 import socket
 import termios
 
@@ -23,9 +24,32 @@ __all__ = ["serial_class_for_url"]
 
 
 class _SimPort(PosixSerial):
-    """A POSIX serial port on a virtual wire's pty."""
+    """A POSIX serial port on a virtual wire's pty; it takes the line's master seat while
+    it is open (``drivebus.sim.masters``: a second master on the line is refused)."""
 
     wire = None  # set per wire by serial_class_for_url
+
+    def open(self) -> None:
+        """Take the line's seat, then open the pty."""
+        from drivebus.sim.masters import describe_process
+
+        wire = self.wire
+        if wire is not None:
+            refused = wire.seat.take(self, f"{describe_process(os.getpid())}, this one,")
+            if refused is not None:
+                raise serial.SerialException(refused)
+        try:
+            super().open()
+        except BaseException:
+            if wire is not None:
+                wire.seat.free(self)
+            raise
+
+    def close(self) -> None:
+        """Close the pty and free the line's seat."""
+        super().close()
+        if self.wire is not None:
+            self.wire.seat.free(self)
 
     def _reconfigure_port(self, force_update: bool = False) -> None:
         bytesize, parity, baudrate = self._bytesize, self._parity, self._baudrate
@@ -70,11 +94,20 @@ class _RemoteSimPort(PosixSerial):
                 sock.connect(self.channel)
                 self._sock = sock
             self._sock.sendall(f"F {bytesize} {parity}\n".encode())
-            answer = self._sock.recv(16)
+            answer = b""
+            while not answer.endswith(b"\n") and len(answer) < 1024:
+                chunk = self._sock.recv(1024)
+                if not chunk:
+                    break
+                answer += chunk
         except OSError as exc:
             raise serial.SerialException(
                 f"the simulated line's format channel {self.channel} does not answer: {exc}"
             ) from exc
+        if answer.startswith(b"busy "):  # another master has the line (drivebus.sim.masters)
+            self._sock.close()
+            self._sock = None
+            raise serial.SerialException(answer[5:].decode(errors="replace").strip())
         if answer != b"ok\n":
             raise serial.SerialException(f"the simulated line refused format {bytesize}"
                                          f"{parity}: {answer!r}")

@@ -16,10 +16,12 @@ from __future__ import annotations
 import contextlib
 import functools
 import hashlib
+import itertools
 import math
 import os
 import secrets
 import socket
+import struct
 import sys
 import tempfile
 from collections.abc import Callable, Iterator, Mapping
@@ -35,6 +37,7 @@ from drivebus.config import MachineConfig, load_config, machine_config_in_thread
 from drivebus.errors import ConfigError, DrivebusError
 from drivebus.sim.drive import SimDrive
 from drivebus.sim.machine import SimLine, start_simulators
+from drivebus.sim.masters import describe_process, pty_holders, second_master
 from drivebus.sim.wire import VirtualWire, WireFrame
 from drivebus.tasks import ServiceTasks
 
@@ -106,26 +109,65 @@ def _channel_path(name: str) -> Path:
     return Path(tempfile.gettempdir()) / f"drivebus-{hashlib.sha256(key).hexdigest()[:20]}.sock"
 
 
+def _peer_pid(stream: anyio.abc.SocketStream) -> int | None:
+    """The process at the other end of a Unix socket (its credentials), if known."""
+    sock = stream.extra(anyio.abc.SocketAttribute.raw_socket)
+    try:
+        creds = sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
+    except (OSError, AttributeError):  # SO_PEERCRED is Linux's
+        return None
+    pid, _, _ = struct.unpack("3i", creds)
+    return pid or None
+
+
+async def _take_seat(wire: VirtualWire, holder: object, pid: int | None) -> str | None:
+    """Seat the master at the far end of a format channel (process ``pid``): None, or why
+    not (the line's master, or a process with the pty open that took no seat)."""
+    who = describe_process(pid) if pid is not None else "a process"
+    refused = wire.seat.take(holder, who)
+    if refused is not None:
+        # the master that has it may have closed its port a moment ago: let its end come
+        for _ in range(50):
+            await anyio.sleep(0.01)
+            if wire.seat.holder is None:
+                refused = wire.seat.take(holder, who)
+                break
+    if refused is not None:
+        return refused
+    others = await anyio.to_thread.run_sync(
+        pty_holders, wire.slave_path, {os.getpid(), *([pid] if pid else [])})
+    if others:
+        wire.seat.free(holder)
+        return second_master(wire.seat.line, ", ".join(map(describe_process, others)))
+    return None
+
+
 async def _serve_format_channel(
     wire: VirtualWire, path: Path, control: Callable[[str], str] | None = None,
     ready: anyio.Event | None = None,
 ) -> None:
     """Answer the messages of other processes until cancelled: a master's format (``F 8
-    E``, answered ``ok``; forgotten when that master closes its port) and a power cycle
-    (``P AXIS|ADDRESS``, from ``drivebus sim CONFIG --power-cycle``: ``ok`` and where the
-    drive answers now, or ``error`` and why); ``ready`` is set once the socket listens."""
+    E``, answered ``ok``; forgotten when that master closes its port; the first seats the
+    master, one per line: another is answered ``busy`` and why) and a power cycle (``P
+    AXIS|ADDRESS``, from ``drivebus sim CONFIG --power-cycle``: ``ok`` and where the drive
+    answers now, or ``error`` and why); ``ready`` is set once the socket listens."""
 
     async def client(stream: anyio.abc.SocketStream) -> None:
         buffered = anyio.streams.buffered.BufferedByteReceiveStream(stream)
-        told = False
+        seated = False
         try:
             async with stream:
                 while True:
                     line = await buffered.receive_until(b"\n", 256)
                     parts = line.decode(errors="replace").split()
                     if len(parts) == 3 and parts[0] == "F" and parts[1].isdigit():
+                        if not seated:
+                            refused = await _take_seat(wire, stream, _peer_pid(stream))
+                            if refused is not None:
+                                await stream.send(f"busy {refused}\n".encode())
+                                return
+                            seated = True
                         wire.note_format(int(parts[1]), parts[2])
-                        told = True
                         await stream.send(b"ok\n")
                     elif len(parts) == 2 and parts[0] == "P" and control is not None:
                         try:
@@ -139,7 +181,8 @@ async def _serve_format_channel(
                 anyio.BrokenResourceError, anyio.ClosedResourceError):
             pass  # the master closed its port (or sent junk): the channel ends
         finally:
-            if told:
+            if seated:
+                wire.seat.free(stream)
                 wire.forget_format()
 
     await anyio.Path(path).unlink(missing_ok=True)
@@ -312,6 +355,34 @@ def frame_text(line: str, f: WireFrame) -> str:
             f"{f.data.hex(' ')}{note}")
 
 
+_LOOK_EVERY = 2.0
+"""Seconds between two looks at a served line for frames that collided."""
+_TROUBLE = frozenset({"collision", "gap violation", "incomplete"})
+"""Notes of frames that two masters on one line leave in the wire log."""
+
+
+async def _watch_for_masters(
+    sim: SimLine, wire: VirtualWire, warn: Callable[[str], None]
+) -> None:
+    """Say when a second master is on the line: when frames collided since the last look
+    and more than one process has the line's pty open (a master that took no seat, such
+    as mbpoll on the pty, beside the one that did); once per set of processes."""
+    seen, told = wire.frames, frozenset[int]()
+    while True:
+        await anyio.sleep(_LOOK_EVERY)
+        new, seen = wire.frames - seen, wire.frames
+        if new <= 0 or not any(f.note in _TROUBLE for f in itertools.islice(
+                reversed(wire.log), min(new, 2000))):
+            continue
+        holders = frozenset(await anyio.to_thread.run_sync(
+            pty_holders, wire.slave_path, {os.getpid()}))
+        if len(holders) > 1 and holders != told:
+            told = holders
+            warn(f"sim://{sim.config.sim_name} (line {sim.name}) has {len(holders)} masters: "
+                 f"{', '.join(describe_process(p) for p in sorted(holders))} have it open and "
+                 f"their frames collide; one master per line")
+
+
 async def _echo_wire_log(name: str, wire: VirtualWire, echo: Callable[[str], None]) -> None:
     seen = wire.frames
     while True:
@@ -355,6 +426,7 @@ async def serve_simulators(
                             tg.start_soon(_serve_format_channel, s.server,
                                           _channel_path(s.config.sim_name),
                                           functools.partial(power_cycle, sims))
+                            tg.start_soon(_watch_for_masters, s, s.server, warn)
                     if console and sys.stdin is not None and sys.stdin.isatty():
                         tg.start_soon(_console, sims, echo)
                     if log:

@@ -28,6 +28,7 @@ from drivebus.clock import monotonic
 from drivebus.errors import ConfigError
 from drivebus.line.baud import port_baudrate
 from drivebus.settings import LineSettings
+from drivebus.sim.masters import MasterSeat
 from drivebus.sim.noise import babble_flat_out, babble_paced
 from drivebus.sim.segment import Segment, SegmentView, WireFrame
 from drivebus.sim.slave import SimSlave
@@ -85,6 +86,8 @@ class VirtualWire(SegmentView):
             log_size=log_size,
             strict=strict,
         )
+        self.seat = MasterSeat(f"sim://{name}")
+        """The line's one master (``drivebus.sim.masters``): a second one is refused."""
         self.slave_path = ""
         self._master_fd = -1
         self._slave_fd = -1
