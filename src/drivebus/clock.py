@@ -172,7 +172,8 @@ class PreciseTimer:
                     PreciseTimer.lead = max(0.0, PreciseTimer.lead - PreciseTimer._STEP)
                 while monotonic() < deadline:
                     pass
-            elif self._adapt_on_fire:
+            elif self._adapt_on_fire and monotonic() - deadline <= PreciseTimer._LEAD_MAX:
+                # (late beyond the longest lead: the process waited for a CPU, see _reach)
                 PreciseTimer.lead = min(PreciseTimer._LEAD_MAX,
                                         PreciseTimer.lead + PreciseTimer._STEP)
             callback()

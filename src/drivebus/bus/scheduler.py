@@ -677,7 +677,11 @@ class Bus:
                     await self._work
                 finally:
                     self._parked = False
-                noise.reset()
+                if self._adopt is None:
+                    noise.reset()
+                # else: a chained transaction needs judging; what the watch knows from
+                # before it began stays (bytes that arrived during its silence, withdrawn:
+                # a noisy line, waited out by the owner with its deadline, not begun again)
                 continue
             req = self._queue[0]
             if req.future.done():  # the caller gave up (or ran out of time) while queued
