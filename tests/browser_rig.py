@@ -17,6 +17,7 @@ import pytest
 from service_rig import ROOT
 
 webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed")
+from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 
 CHROMIUM = shutil.which("chromium")
@@ -143,3 +144,40 @@ def drawn_held(driver: webdriver.Chrome, chart: str, series: int) -> dict[str, A
     those where a line would have been elsewhere; ``wrong``: ``[i, t, value, why]``."""
     out: dict[str, Any] = driver.execute_script(_HELD, chart, series)
     return out
+
+
+def zoom(driver: webdriver.Chrome, chart: str, t0: float, t1: float) -> None:
+    """Zoom chart ``chart`` in to the times ``t0``..``t1`` as a user does: a double-click
+    to zoom out if the span is not all in view, then mouse drags across the plot from a
+    few pixels before ``t0`` to a few after ``t1`` until it shows little more than that
+    span (each drag zooms in; a pixel is then a smaller time)."""
+    span = f"const x = DrivebusCharts.registry.get('{chart}').u.scales.x; return [x.min, x.max];"
+    over, scrolled = driver.execute_script(f"""
+        const over = DrivebusCharts.registry.get('{chart}').u.over, at = [scrollX, scrollY];
+        over.scrollIntoView({{block: "center"}}); return [over, at];""")  # within the mouse's reach
+
+    def shows(d: webdriver.Chrome) -> bool:
+        lo, hi = d.execute_script(span)
+        return bool(lo <= t0 and t1 <= hi)
+
+    if not shows(driver):
+        ActionChains(driver).double_click(over).perform()
+        wait(driver, shows, f"{chart} did not zoom out to show {t0}..{t1}")
+    for _ in range(4):
+        lo, hi = driver.execute_script(span)
+        if hi - lo <= 2 * (t1 - t0):
+            break
+        x0, x1, width = driver.execute_script("""
+            const u = DrivebusCharts.registry.get(arguments[0]).u;
+            return [u.valToPos(arguments[1], "x"), u.valToPos(arguments[2], "x"),
+                    u.over.getBoundingClientRect().width];""", chart, t0, t1)
+        # three pixels to spare: the mouse moves in whole pixels from the plot's centre
+        a, b = max(0, int(x0) - 3), min(int(width) - 1, int(x1) + 4)
+        ActionChains(driver).move_to_element_with_offset(over, a - width // 2, 0) \
+            .click_and_hold().move_by_offset(b - a, 0).release().perform()
+        wait(driver, lambda d, was=(lo, hi): d.execute_script(span) != was,
+             f"{chart} did not zoom in on a drag across {t0}..{t1}")
+        assert shows(driver), f"{chart}: a drag across {t0}..{t1} showed {lo}..{hi}"
+    lo, hi = driver.execute_script(span)
+    assert hi - lo <= 2 * (t1 - t0), f"{chart}: four drags across {t0}..{t1} show {lo}..{hi}"
+    driver.execute_script("scrollTo(...arguments[0])", scrolled)

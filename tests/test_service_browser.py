@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from anyio.from_thread import BlockingPortal, start_blocking_portal
 
-from browser_rig import chromium, drawn_held, needs_chromium, screenshot, wait, webdriver
+from browser_rig import chromium, drawn_held, needs_chromium, screenshot, wait, webdriver, zoom
 from drivebus import AxisState
 from drivebus.service import Service, TokenStore
 from service_rig import TOKENS, auth, running, token_file, until
@@ -229,6 +229,24 @@ def test_the_dashboard_has_a_favicon(browser: webdriver.Chrome) -> None:
         assert icon == [f"{svc.url}/favicon.ico", 200, "image/x-icon"]
 
 
+# The times the chart of an axis plots and the page's states of the same polls.
+CHART_STATES = """
+const name = arguments[0];
+const t = DrivebusCharts.registry.get(`axis-${name}`).data()[0];
+const s = state.series.get(name);
+const i0 = s.t.indexOf(t[0]);
+return [t, i0 < 0 ? [] : s.state.slice(i0, i0 + t.length)];"""
+
+
+def resting(driver: webdriver.Chrome, name: str) -> int:
+    """How many of the last points the chart of ``name`` plots are polls at rest."""
+    _, states = driver.execute_script(CHART_STATES, name)
+    n = 0
+    while n < len(states) and states[-1 - n] == "Standstill":
+        n += 1
+    return n
+
+
 def test_the_dashboard_charts_what_the_service_recorded() -> None:
     """Every point the page plots for an axis is a status the service recorded, at the
     same poll time, with the same position; the Record button gives the report."""
@@ -262,14 +280,37 @@ def test_the_dashboard_charts_what_the_service_recorded() -> None:
         screenshot(browser, "dashboard-move")
         m.until(lambda: m.at_rest("x", "y", "z", "r"), "the group move did not end")
         wait(browser, lambda d: text(d, "state-x") == "Standstill", "the page missed the end")
+        # At the 10 s window (a chart 442 px wide) only polls 136 ms apart or more are far
+        # enough apart to tell a step from a line: the idle polls (0.2 s), not the page's
+        # 20 a second of a moving axis. Wait until each chart shows five polls at rest
+        # after the move (however long the test took to get here before the move).
+        for name in ("x", "y", "r"):
+            wait(browser, lambda d, name=name: resting(d, name) >= 5,
+                 f"the chart of {name} did not plot five polls at rest after the move")
         browser.find_element(By.ID, "pause").click()  # the charts hold still to be read
         telling = checked = 0
         # position and velocity (the BHSS of y reports none): each poll held until the next
-        for name, series in (("x", 1), ("x", 2), ("y", 1), ("r", 1), ("r", 2)):
+        plotted = (("x", 1), ("x", 2), ("y", 1), ("r", 1), ("r", 2))
+        for name, series in plotted:
             drawn = drawn_held(browser, f"axis-{name}", series)
             assert drawn["wrong"] == [], (name, series, drawn["wrong"][:5])
             assert drawn["checked"] >= 3, (name, series, drawn)
             telling, checked = telling + drawn["telling"], checked + drawn["checked"]
+        # Zoomed in (a drag, as a user does) on the last three gaps between the page's
+        # polls of each axis's move, one poll moves it by a third of what the chart shows
+        # or more: there a straight line would be told from a step whatever the timing.
+        for name in ("x", "y", "r"):
+            t, states = browser.execute_script(CHART_STATES, name)
+            k = max(i for i in range(len(t) - 1)
+                    if states[i] == "DiscreteMotion" != states[i + 1])
+            assert states[k - 3:k + 1] == ["DiscreteMotion"] * 4, (name, states)
+            zoom(browser, f"axis-{name}", t[k - 3], t[k])
+            for series in (s for n, s in plotted if n == name):
+                drawn = drawn_held(browser, f"axis-{name}", series)
+                assert drawn["wrong"] == [], (name, series, "zoomed", drawn["wrong"][:5])
+                assert drawn["checked"] >= 3, (name, series, "zoomed", drawn)
+                assert series != 1 or drawn["telling"] >= 1, (name, "zoomed", drawn)
+                telling, checked = telling + drawn["telling"], checked + drawn["checked"]
         # and where a straight line would have drawn motion that did not happen
         assert checked >= 20 and telling >= 1, (checked, telling)
         legend = browser.find_element(By.ID, "marks")
