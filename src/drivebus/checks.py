@@ -11,7 +11,9 @@ parameter, the value and what is allowed.
 
 from __future__ import annotations
 
+import json
 import math
+import re
 from collections.abc import Sequence
 from enum import IntEnum
 from numbers import Integral, Real
@@ -22,9 +24,13 @@ from pydantic import BaseModel, ValidationError
 from drivebus.errors import ArgumentError, ConfigError, DrivebusError
 
 __all__ = [
+    "MAX_JSON_DEPTH",
     "MAX_RETRIES",
     "MAX_TIMEOUT",
+    "check_json_depth",
     "finite",
+    "json_depth",
+    "load_json",
     "member",
     "positive",
     "response_timeout",
@@ -39,7 +45,16 @@ MAX_TIMEOUT = 10.0
 MAX_RETRIES = 10
 """Most retries a transaction may have."""
 
+MAX_JSON_DEPTH = 32
+"""Deepest nesting of arrays and objects taken in JSON from outside (an MQTT command, a
+WebSocket message, an HTTP body). Python's parser fails at a depth that depends on its
+version and on the stack (3.11 from about 1000 levels, 3.12 and 3.13 later, and in
+different ways), so the depth is checked before it parses: the same answer everywhere."""
+
 E = TypeVar("E", bound=IntEnum)
+
+_JSON_TOKENS = re.compile(r'"(?:[^"\\]|\\.)*"?|[\[\]{}]')
+"""A JSON string (to its end, or to the end of the text if it never closes) or a bracket."""
 
 
 def finite(name: str, value: object, *, error: type[DrivebusError] = ArgumentError) -> float:
@@ -195,3 +210,40 @@ def validation_problems(
         out.append(f"{where}: {msg}" if where else msg)
     more = len(exc.errors()) - limit
     return out + ([f"and {more} more"] if more > 0 else [])
+
+
+def json_depth(text: str) -> int:
+    """How deeply the arrays and objects of JSON ``text`` nest; brackets inside strings
+    do not count (a scan of the text: it need not be valid JSON)."""
+    depth = deepest = 0
+    for token in _JSON_TOKENS.findall(text):
+        if token in ("[", "{"):
+            depth += 1
+            deepest = max(deepest, depth)
+        elif token in ("]", "}"):
+            depth -= 1
+    return deepest
+
+
+def check_json_depth(name: str, text: str, *, max_depth: int = MAX_JSON_DEPTH) -> None:
+    """``ArgumentError`` naming ``name`` if JSON ``text`` nests deeper than ``max_depth``
+    (text with fewer brackets than that is not even scanned)."""
+    if text.count("[") + text.count("{") > max_depth and json_depth(text) > max_depth:
+        raise ArgumentError(f"{name}: JSON nested too deeply (more than {max_depth} levels)")
+
+
+def load_json(name: str, text: str, *, max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """JSON ``text`` from outside as data, alike on every Python version: nested at most
+    ``max_depth`` deep, no NaN or infinity; else ``ArgumentError`` naming ``name`` (e.g.
+    "payload") and the problem."""
+    check_json_depth(name, text, max_depth=max_depth)
+
+    def no_constant(constant: str) -> Any:
+        raise ArgumentError(f"{name}: {constant} is not a finite number (JSON has no "
+                            f"{constant})")
+
+    try:
+        return json.loads(text, parse_constant=no_constant)
+    except json.JSONDecodeError as exc:
+        raise ArgumentError(f"{name}: not JSON ({exc.msg} at line {exc.lineno} column "
+                            f"{exc.colno}): {text[:80]!r}") from None

@@ -25,6 +25,7 @@ from fastapi.staticfiles import StaticFiles
 from drivebus.app import MachineSession
 from drivebus.service import metrics, problems
 from drivebus.service.auth import Principal, TokenStore, require_command
+from drivebus.service.bodies import JsonDepthLimit
 from drivebus.service.encoding import EventEncoder
 from drivebus.service.fanout import Fanout
 from drivebus.service.models import (
@@ -426,6 +427,7 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     )
     app.state.drivebus = state
     problems.install(app)
+    app.add_middleware(JsonDepthLimit)  # the same answer to a deep body on every Python
     app.include_router(router)
     root = APIRouter()
     metrics.install(root, _reader)  # GET /metrics, for Prometheus
