@@ -17,11 +17,15 @@ the ``built_once`` fixture. Plain ``pytest`` (no ``-n``) runs everything in one 
 
 from __future__ import annotations
 
+import asyncio
 import fcntl
 import gc
 import os
 import shutil
-from collections.abc import Callable
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -76,3 +80,101 @@ def built_once(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, Build
         return out
 
     return once
+
+
+# -- the loop-step guard ------------------------------------------------------------------
+
+LOOP_STEP_LIMIT = 0.020
+"""The most thread CPU time one event-loop step may take in a test, seconds: a step that
+holds the loop longer delays every stop behind it (promise 1). CPU time, not wall time, so
+a loaded machine does not trip it."""
+
+
+class _LoopSteps:
+    """The steps of the running test's event loops that took longer than the limit."""
+
+    def __init__(self) -> None:
+        self.slow: list[tuple[float, str]] = []
+
+
+_STEPS: _LoopSteps | None = None
+
+
+class _GcTime:
+    """Thread CPU time spent in the garbage collector so far (``gc.callbacks``)."""
+
+    def __init__(self) -> None:
+        self.spent = 0.0
+        self._began = 0.0
+
+    def __call__(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._began = time.thread_time()
+        else:
+            self.spent += time.thread_time() - self._began
+
+
+_GC = _GcTime()
+gc.callbacks.append(_GC)
+_MAIN_THREAD = threading.get_ident()
+
+
+def _guarded_run(run: Callable[[asyncio.Handle], None]) -> Callable[[asyncio.Handle], None]:
+    def _run(self: asyncio.Handle) -> None:
+        steps = _STEPS
+        if steps is None or threading.get_ident() != _MAIN_THREAD:
+            run(self)  # a loop of a worker thread (work moved off the test's loop) is free
+            return
+        modules = len(sys.modules)
+        collected = _GC.spent
+        started = time.thread_time()
+        try:
+            run(self)
+        finally:
+            # The garbage collector's pauses land in whichever step allocates: they are
+            # the interpreter's, not the code's, and are not counted.
+            took = time.thread_time() - started - (_GC.spent - collected)
+            # A step that imported modules (a lazy import, once per process) is not the
+            # code under test holding the loop.
+            if took > LOOP_STEP_LIMIT and len(sys.modules) == modules:
+                steps.slow.append((took, _describe(self)))
+
+    return _run
+
+
+asyncio.events.Handle._run = _guarded_run(asyncio.events.Handle._run)  # type: ignore[method-assign]
+
+
+def _describe(handle: asyncio.Handle) -> str:
+    """The step's callback and, for a task's step, where its coroutine stopped after it
+    (the await that ended the step: the code that ran is just before it)."""
+    text = repr(handle)[:200]
+    task = getattr(getattr(handle, "_callback", None), "__self__", None)
+    if isinstance(task, asyncio.Task):
+        coro = task.get_coro()
+        frames = []
+        while coro is not None and len(frames) < 12:
+            frame = getattr(coro, "cr_frame", None) or getattr(coro, "gi_frame", None)
+            if frame is None:
+                break
+            frames.append(f"{frame.f_code.co_qualname}:{frame.f_lineno}")
+            coro = getattr(coro, "cr_await", None) or getattr(coro, "gi_yieldfrom", None)
+        text += f" task {task.get_name()!r} now at " + " > ".join(frames)
+    return text
+
+
+@pytest.fixture(autouse=True)
+def _loop_steps(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Fail a test in which one event-loop step used more than ``LOOP_STEP_LIMIT`` of CPU
+    time (``@pytest.mark.holds_loop(reason)`` exempts a test whose own code must)."""
+    global _STEPS
+    steps = _STEPS = _LoopSteps()
+    try:
+        yield
+    finally:
+        _STEPS = None
+    if steps.slow and request.node.get_closest_marker("holds_loop") is None:
+        took, step = max(steps.slow)
+        pytest.fail(f"an event-loop step used {took * 1e3:.0f} ms of CPU time (limit "
+                    f"{LOOP_STEP_LIMIT * 1e3:.0f} ms; {len(steps.slow)} such steps): {step}",
+                    pytrace=False)

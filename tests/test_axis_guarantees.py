@@ -8,10 +8,7 @@ during a motion is ErrorStop until reset.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import anyio
 import pytest
@@ -25,93 +22,10 @@ from drivebus.errors import (
     StateError,
 )
 from drivebus.motion import Axis, Machine
+from wirelog import commands, log_size, room, settle
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 MOTION_AXES = ("x", "y", "z", "r")  # the aux axis (OD2000) cannot move
-
-
-def _rtu_write(data: bytes) -> tuple[int, int] | None:
-    """(register, value) of an FC06 RTU request frame, else None."""
-    if len(data) >= 8 and data[1] == 0x06:
-        return int.from_bytes(data[2:4], "big"), int.from_bytes(data[4:6], "big")
-    return None
-
-
-def _pdu_write(pdu: bytes) -> tuple[int, int] | None:
-    """(register, value) of an FC06 PDU, else None."""
-    if len(pdu) >= 5 and pdu[0] == 0x06:
-        return int.from_bytes(pdu[1:3], "big"), int.from_bytes(pdu[3:5], "big")
-    return None
-
-
-def _nt_kind(reg: int, value: int) -> str | None:
-    if reg == 18:
-        return "start" if 1 <= value <= 4 else "stop" if value in (5, 6) else None
-    if reg == 287 and value in (4, 5, 6):
-        return "start"
-    return None
-
-
-def _bhss_kind(reg: int, value: int) -> str | None:
-    if reg == 0x27 or (reg == 0x30 and value == 1):
-        return "start"
-    return "stop" if reg == 0x28 else None
-
-
-def _cl86r_kind(reg: int, value: int) -> str | None:
-    if reg != 0x36:
-        return None
-    if value & 0x60:
-        return "stop"
-    return "start" if value & 0x19 else None
-
-
-KINDS: dict[str, Callable[[int, int], str | None]] = {
-    "NT86": _nt_kind, "EPR60": _nt_kind, "BHSS": _bhss_kind, "CL86R": _cl86r_kind,
-}
-
-
-def commands(m: Machine, name: str, since: int = 0) -> list[str]:
-    """The axis's start/stop commands on the wire, in wire order, from log index ``since``."""
-    ax = m.axes[name]
-    kind = KINDS[ax.profile.family]
-    wire: Any = m.wires[ax.config.line]
-    out: list[str] = []
-    if ax.config.line == "eth":
-        for req in wire.log[since:]:
-            w = _pdu_write(req.pdu)
-            k = kind(*w) if w and req.unit == ax.config.address else None
-            if k:
-                out.append(k)
-        return out
-    for f in list(wire.log)[since:]:
-        if f.direction != "request" or f.address != ax.config.address:
-            continue
-        w = _rtu_write(f.data)
-        k = kind(*w) if w else None
-        if k:
-            out.append(k)
-    return out
-
-
-def log_size(m: Machine, name: str) -> int:
-    return len(m.wires[m.axes[name].config.line].log)  # type: ignore[union-attr]
-
-
-async def settle(ax: Axis, timeout: float = 10.0) -> None:
-    """Until the axis's actor has seen the drive at rest in a motion-free state."""
-    with anyio.fail_after(timeout):
-        async for st in ax.watch():
-            if not st.moving and ax.state in (AxisState.STANDSTILL, AxisState.DISABLED):
-                return
-
-
-def room(ax: Axis, distance: float) -> float:
-    """A target ``distance`` away from where the axis is, inside its soft limits."""
-    pos = ax.position or 0.0
-    lo, hi = ax.config.limits or (-math.inf, math.inf)
-    return pos + distance if pos + distance < hi else pos - distance if pos - distance > lo \
-        else (lo + hi) / 2
 
 
 @pytest.mark.parametrize("stopper", ["stop", "halt_now"])

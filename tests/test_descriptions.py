@@ -503,7 +503,11 @@ async def test_cia402_state_machine_and_the_set_point_handshake_frames() -> None
     async with kinco() as (twin, wire, profile):
         assert not (await profile.read_status()).enabled
         await profile.enable()
-        assert controlwords(wire) == [0x06, 0x07, 0x0F]  # shutdown, switch on, enable
+        # shutdown, switch on, enable operation with halt (bit 8) set: nothing can start,
+        # and target velocity (0x6F00) is zeroed before the first of them
+        assert controlwords(wire) == [0x06, 0x07, 0x10F]
+        writes = [f.data[2:4] for f in wire.requests() if f.data[1] in (6, 16)]
+        assert writes[0] == b"\x6f\x00" and writes[1:] == [b"\x31\x00"] * 3
         assert (await profile.read_status()).enabled and twin.enabled
         wire.clear_log()
         await profile.move_absolute(20000, MoveParams(600, 100, 100))

@@ -474,6 +474,9 @@ class Kinco(Kinematic):
     halted: bool = False
     homing_done: bool = False
     homing_error: bool = False
+    home_found: bool = False
+    """Statusword bit 15: "bit15=1 indicates home is found" (FD5P manual ch. 10, table
+    10-1); set by a completed homing, kept until the next one starts."""
     set_points: list[tuple[int, int]] = field(default_factory=list)
     """(controlword, target) of every set-point the drive took."""
     states: list[str] = field(default_factory=list)
@@ -579,10 +582,10 @@ class Kinco(Kinematic):
 
     def start_homing(self) -> None:
         method = _signed16(self.regs[K_METHOD])
-        self.homing_done = self.homing_error = False
+        self.homing_done = self.homing_error = self.home_found = False
         if method in (35, 37):
             self.rest(float(self.s32(K_OFFSET)))
-            self.homing_done = True
+            self.homing_done = self.home_found = True
             return
         if method not in (17, 18):
             self.homing_error = True
@@ -594,7 +597,7 @@ class Kinco(Kinematic):
 
     def homed_at_edge(self) -> None:
         self.rest(float(self.s32(K_OFFSET)))
-        self.homing_done = True
+        self.homing_done = self.home_found = True
 
     def stopped(self) -> None:
         if self.state == "quick_stop":
@@ -607,7 +610,7 @@ class Kinco(Kinematic):
     # -- the statusword and the other read-only objects --------------------------------------
 
     def statusword(self) -> int:
-        sw = SW_STATE[self.state]
+        sw = SW_STATE[self.state] | (0x8000 if self.home_found else 0)
         if self.state != "enabled":
             return sw
         m = self.mode

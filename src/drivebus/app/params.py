@@ -26,6 +26,7 @@ from typing import Any
 import anyio
 
 from drivebus.bus import Bus, Priority
+from drivebus.bus.sent import sent_requests
 from drivebus.config import MachineConfig, machine_config
 from drivebus.drives.base import DriveProfile, Parameter
 from drivebus.drives.registry import family
@@ -314,7 +315,8 @@ async def load_parameters(
     try:
         for w in report.writes:
             try:
-                await profile.write_parameter_value(w.parameter, w.new)
+                with sent_requests() as sent:
+                    await profile.write_parameter_value(w.parameter, w.new)
             except DrivebusError as exc:
                 keys = [x.parameter.key for x in report.writes]
                 left = keys[keys.index(w.parameter.key) + 1 :]
@@ -326,6 +328,14 @@ async def load_parameters(
                     f"{', '.join(left) or 'nothing'}; nothing was saved",
                     written=list(report.written),
                 ) from exc
+            except BaseException:
+                # Cancelled: a write that had already left is counted, with what is known
+                # of its outcome (the bus waited for it), so the caller can say so.
+                if any(r.cancelled for r in sent):
+                    outcome = "; ".join(r.outcome for r in sent if r.cancelled)
+                    report.written.append(f"{w.parameter.key} (sent as the load was "
+                                          f"interrupted: {outcome})")
+                raise
             report.written.append(w.parameter.key)
             if on_write is not None:
                 on_write(w)

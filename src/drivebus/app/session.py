@@ -420,19 +420,9 @@ class MachineSession:
         Returns each axis's outcome (None: at rest; else the typed error as data).
         """
         self._jogs.clear()
-        outcome: dict[str, dict[str, str] | None] = {}
-
-        async def halt(ax: Axis) -> None:
-            try:
-                await ax.halt_now()
-                outcome[ax.name] = None
-            except DrivebusError as exc:
-                outcome[ax.name] = error_record(exc)
-
         self.events.publish(Event("motions", None, {"type": "estop", "event": "requested"}))
-        async with anyio.create_task_group() as tg:
-            for ax in self.machine.axes.values():
-                tg.start_soon(halt, ax)
+        outcome = {name: None if exc is None else error_record(exc)
+                   for name, exc in (await self.machine.halt_now()).items()}
         self.events.publish(Event("motions", None, {
             "type": "estop", "event": "done", "axes": outcome,
         }))

@@ -20,6 +20,7 @@ from pathlib import Path
 from drivebus.bench.common import (
     BenchOptions,
     BenchResult,
+    LoopSteps,
     Scenario,
     WireFigures,
     format_table,
@@ -87,5 +88,9 @@ async def run_bench(
         chosen = [s for s in chosen if s.name in only]
     results: list[BenchResult] = []
     for scenario in chosen:
-        results.extend(await scenario.run(opts))
+        with LoopSteps() as steps:
+            rows = await scenario.run(opts)
+        for row in rows:  # how long this process held its event loop at most
+            row.figures["longest_loop_step_ms"] = round(steps.longest * 1e3, 2)
+        results.extend(rows)
     return results

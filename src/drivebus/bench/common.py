@@ -6,6 +6,7 @@ other scenarios, so scenarios can be added, changed or removed one module at a t
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import json
 import statistics
@@ -42,6 +43,7 @@ __all__ = [
     "BenchResult",
     "ChildProcess",
     "Figure",
+    "LoopSteps",
     "Scenario",
     "SimProcess",
     "StageFigures",
@@ -454,3 +456,31 @@ def format_table(results: Sequence[BenchResult]) -> str:
                                          for i, (c, w) in enumerate(zip(row, widths, strict=True))))
         out.extend(notes)
     return "\n".join(out)
+
+
+class LoopSteps:
+    """The longest event-loop step (thread CPU time) while installed: how long anything
+    in this process held the loop, during which no stop could go out."""
+
+    def __init__(self) -> None:
+        self.longest = 0.0
+        self._run: Any = None
+
+    def __enter__(self) -> LoopSteps:
+        run = self._run = asyncio.events.Handle._run
+        steps = self
+
+        def timed(handle: asyncio.Handle) -> None:
+            started = time.thread_time()
+            try:
+                run(handle)
+            finally:
+                took = time.thread_time() - started
+                if took > steps.longest:
+                    steps.longest = took
+
+        asyncio.events.Handle._run = timed  # type: ignore[method-assign]
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        asyncio.events.Handle._run = self._run  # type: ignore[method-assign]

@@ -17,6 +17,7 @@ import anyio
 from drivebus import checks
 from drivebus.bus.observe import Outcome, Transaction, TransactionObserver
 from drivebus.bus.priority import Priority
+from drivebus.bus.sent import SentRequest, note_sent, noting
 from drivebus.bus.slave import SlaveHandle
 from drivebus.bus.stats import BusStats
 from drivebus.clock import PreciseTimer, monotonic
@@ -41,6 +42,15 @@ trace = logging.getLogger("drivebus.trace")
 
 __all__ = ["Bus", "Priority"]
 
+log = logging.getLogger(__name__)
+
+_READS = (b"\x01", b"\x02", b"\x03", b"\x04")
+"""The first byte of a read request's PDU (FC01-FC04): a read may always go again."""
+
+_OUTCOME_WAIT = 0.5
+"""Beyond its response timeout, how long a cancelled caller waits to learn the outcome
+of its request that had already left (then: "outcome unknown"), seconds."""
+
 @dataclass(eq=False)
 class _Request:
     priority: int
@@ -53,6 +63,11 @@ class _Request:
     queued_at: float = field(default_factory=monotonic)
     sent: bool = False
     """An attempt went out on the line (so a device may have acted on it)."""
+    outcome: str = ""
+    """How its last attempt ended, in words ("acknowledged", "exception 0x02", ...)."""
+    landed: asyncio.Future[None] | None = field(default=None, repr=False)
+    """Set by a caller cancelled while the request was on the wire: resolved when the
+    owner has its outcome."""
 
     def __lt__(self, other: _Request) -> bool:
         if self.priority != other.priority:
@@ -277,10 +292,49 @@ class Bus:
         )
         heapq.heappush(self._queue, req)
         self._kick(req)
-        reply = await req.future  # cancelling us cancels the future: the owner skips it
+        try:
+            reply = await req.future  # cancelling us cancels the future: the owner skips it
+        except asyncio.CancelledError:
+            await self._cancelled(req)
+            raise
+        if noting():
+            self._note(req, "exception" if reply[:1] and reply[0] & 0x80 else "acknowledged")
         if reply[:1] and reply[0] & 0x80:
             handle.raise_exception(reply)
         return reply
+
+    async def _cancelled(self, req: _Request) -> None:
+        """The caller of ``req`` was cancelled: take the request back if its frame has not
+        left (nothing reaches the drive), else wait (shielded, bounded) for its outcome
+        and report it: in the log and to a ``sent_requests`` block."""
+        if req.future.done() and not req.future.cancelled():
+            self._note(req, "acknowledged" if req.future.exception() is None
+                       else f"failed: {req.future.exception()}", cancelled=True)
+            return  # it had ended: the cancellation came with its reply
+        if req not in self._flying:
+            if req.sent:  # an earlier attempt went out; the retry is dropped
+                self._note(req, f"{req.outcome}; its retry was dropped", cancelled=True)
+            return  # still queued: the owner drops it, nothing goes out
+        if self.line.withdraw():
+            return  # taken back while it waited for its silence: nothing went out
+        loop = asyncio.get_running_loop()
+        req.landed = loop.create_future()
+        with anyio.CancelScope(shield=True), anyio.move_on_after(
+                req.handle.timeout + _OUTCOME_WAIT):
+            await req.landed
+        outcome = (req.outcome or "outcome unknown") if req.landed.done() else \
+            "outcome unknown"
+        if req.pdu[:1] not in _READS:  # a read that went out changed nothing
+            h = req.handle
+            log.warning("slave %d on %s: a write (function 0x%02X) was cancelled by its "
+                        "caller after it had left: %s", h.address, self.line.name,
+                        req.pdu[0] if req.pdu else 0, outcome)
+        self._note(req, outcome, cancelled=True)
+
+    def _note(self, req: _Request, outcome: str, *, cancelled: bool = False) -> None:
+        """Tell a ``sent_requests`` block that ``req`` reached the wire."""
+        note_sent(SentRequest(req.handle.address, req.pdu[0] if req.pdu else 0, req.pdu,
+                              outcome, cancelled))
 
     def _wake_owner(self) -> None:
         if self._work is not None and not self._work.done():
@@ -317,17 +371,73 @@ class Bus:
             self._idle_waiters.clear()
 
     async def _owner(self) -> None:
-        try:
-            if self.line.max_in_flight > 1:
-                await self._pipeline()
-            else:
-                await self._one_at_a_time()
-        except BaseException as exc:
-            self._open = False
-            if not isinstance(exc, LineClosed):
-                exc = LineClosed(f"bus owner on {self.line.name} stopped: {exc!r}")
-            self._fail_queued(exc)
-            raise
+        told = False
+        while True:
+            try:
+                if self.line.max_in_flight > 1:
+                    await self._pipeline()
+                else:
+                    await self._one_at_a_time()
+            except BaseException as exc:
+                if self._open and _only_cancelled(exc):
+                    # Cancelled from outside while the bus is still open: the event loop
+                    # is being torn down (asyncio.run's end, a server's force quit). The
+                    # stops of the shutdown still need the line: serve on until the bus
+                    # is closed by its owner.
+                    task = asyncio.current_task()
+                    if task is not None:
+                        task.uncancel()
+                    self._recover_interrupted()
+                    if not told:
+                        log.warning("bus on %s: its owner task was cancelled from outside "
+                                    "(the event loop is shutting down?); it serves on until "
+                                    "the bus is closed, so the stops still go out",
+                                    self.line.name)
+                        told = True
+                    continue
+                self._open = False
+                if not isinstance(exc, LineClosed):
+                    exc = LineClosed(f"bus owner on {self.line.name} stopped: {exc!r}")
+                self._fail_queued(exc)
+                raise
+
+    def _recover_interrupted(self) -> None:
+        """After a cancellation from outside cut transactions off (see ``_interrupted``)."""
+        for req in list(self._flying):
+            self._flying.discard(req)
+            self._interrupted(req)
+        self._landed_all()
+        self._waiting_for = None
+        self._work = None
+
+    def _interrupted(self, req: _Request) -> None:
+        """``req``'s transaction was cut off by a cancellation from outside: a read (or a
+        write that may be retried) goes again; a write that may have left fails, so its
+        caller reads back before deciding."""
+        req.outcome = "interrupted: it may have reached the drive"
+        if not req.future.done():
+            if req.pdu[:1] in _READS or req.retries_left > 0:
+                heapq.heappush(self._queue, req)
+                return
+            req.future.set_exception(TransactionError(
+                f"slave {req.handle.address}: the transaction was interrupted by a "
+                f"cancellation from outside; the request may have reached the drive",
+                slave=req.handle.address))
+        self._settle_landed(req)
+
+    def _landed_all(self) -> None:
+        """Nothing is in flight any more: release the holds that wait for that."""
+        if not self._flying:
+            for waiter in self._idle_waiters:
+                if not waiter.done():
+                    waiter.set_result(None)
+            self._idle_waiters.clear()
+
+    @staticmethod
+    def _settle_landed(req: _Request) -> None:
+        """Tell a cancelled caller waiting for ``req``'s outcome that it is known."""
+        if req.landed is not None and not req.landed.done():
+            req.landed.set_result(None)
 
     async def _pipeline(self) -> None:
         """Up to ``line.max_in_flight`` transactions at once (a line that keeps no silences
@@ -369,6 +479,10 @@ class Bus:
         """One pipelined transaction; its slot is free again when it ends."""
         try:
             await self._run_one(req, noise, withdrawable=False)
+        except asyncio.CancelledError:
+            if self._open:  # cut off from outside: the owner serves on (``_owner``)
+                self._interrupted(req)
+            raise
         finally:
             self._landed(req)
             self._wake_owner()
@@ -475,6 +589,8 @@ class Bus:
             if req.sent or req.future.done():  # not for a frame taken back before it left
                 self._last_end = monotonic()
                 self._trail = req.handle.frame_timeout
+            if req.landed is not None and req.outcome:
+                self._settle_landed(req)
 
     async def _transact(self, req: _Request, noise: _NoiseWatch, *, withdrawable: bool
                         ) -> None:
@@ -505,6 +621,7 @@ class Bus:
             if trace.isEnabledFor(logging.DEBUG):
                 self._trace_failure(req, exc)
             noise.noted(monotonic())
+            req.outcome = "no reply (drowned in noise)" if exc.sent else "not sent (noise)"
             if exc.sent:
                 self.stats.transactions += 1
             elif req.sent:
@@ -525,6 +642,7 @@ class Bus:
                 self._trace_failure(req, exc)
             noise.reset()
             req.sent = req.sent or not isinstance(exc, LineConfigError)
+            req.outcome = f"failed: {exc}"
             self.stats.transactions += 1
             st.last_error = str(exc)
             if isinstance(exc, ResponseTimeout):
@@ -550,6 +668,11 @@ class Bus:
         if trace.isEnabledFor(logging.DEBUG):
             self._trace_exchange(req, ex)
         noise.reset()
+        req.sent = True
+        if req.landed is not None:
+            req.outcome = (f"exception 0x{ex.reply[1]:02X}" if ex.reply[:1] and
+                           ex.reply[0] & 0x80 and len(ex.reply) > 1 else
+                           "no reply (a broadcast)" if req.expect is None else "acknowledged")
         self.stats.transactions += 1
         self.stats.wire_time += ex.wire_time
         outcome: Outcome = "ok"
@@ -611,6 +734,15 @@ class Bus:
             self._wake_owner()
         else:
             req.future.set_exception(exc)
+
+
+def _only_cancelled(exc: BaseException) -> bool:
+    """True if ``exc`` is a cancellation, or a group of nothing but cancellations."""
+    if isinstance(exc, asyncio.CancelledError):
+        return True
+    if isinstance(exc, BaseExceptionGroup):
+        return all(_only_cancelled(e) for e in exc.exceptions)
+    return False
 
 
 def _outcome(exc: TransactionError) -> Outcome:

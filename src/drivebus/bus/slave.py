@@ -7,6 +7,7 @@ from typing import Protocol
 
 from drivebus import checks
 from drivebus.bus.priority import Priority
+from drivebus.clock import monotonic
 from drivebus.errors import ArgumentError, ConfigError, ModbusException
 from drivebus.pdu import (
     MAX_PDU,
@@ -84,6 +85,9 @@ class SlaveHandle:
         of its silence (a slow drive's guard interval); 0: none."""
         self.frame_timeout = checks.guard_interval(f"slave {address}: frame timeout",
                                                    frame_timeout)
+        self.wrote_at = 0.0
+        """When the reply to the last write to this slave came in (monotonic s): a status
+        whose request left before then cannot tell what that write did."""
         """Extra quiet time (s) after each of its replies, for bytes the drive trails after
         its frame, before the line's next frame (to any slave); 0: none."""
 
@@ -124,6 +128,7 @@ class SlaveHandle:
             priority=_priority(priority),
             idempotent=bool(idempotent),
         )
+        self.wrote_at = monotonic()
         if not self.is_broadcast:
             check(reply, req, slave=self.address)
 

@@ -69,6 +69,7 @@ _PROCEDURES: dict[str, str] = {
     "clear_alarm": "clear an alarm",
     "zero_position": "set its position to zero",
     "save_parameters": "save parameters",
+    "set_output": "switch its outputs",
 }
 """Procedures a profile may lack, and how its NotSupported error says them."""
 
@@ -415,6 +416,11 @@ class DriveProfile:
         if getattr(type(self), method) is getattr(DriveProfile, method):
             raise self.unsupported(what)
 
+    def check_homing(self, params: HomingParams) -> None:
+        """``NotSupported``/``UnknownMethod``/``LimitViolation`` if ``start_homing(params)``
+        would be refused (no I/O): the axis asks before anything is sent."""
+        self.check_supported("home")
+
     def volatile_settings(self) -> list[tuple[Register, int]]:
         """The (register, value) pairs this profile wrote that a power cycle undoes.
 
@@ -643,6 +649,11 @@ class DriveProfile:
     async def set_output(self, name: str, state: bool) -> None:
         """Switch output ``name`` on or off, where the drive lets Modbus drive it."""
         raise self.unsupported(f"switch its output {name}", self.no_output_control)
+
+    async def check_output(self, name: str, state: bool) -> None:
+        """``NotSupported`` if ``set_output(name, state)`` would be refused, decided by
+        reads alone (nothing is written): the axis asks before it sets the drive up."""
+        self.check_supported("set_output")
 
     # -- position tables ----------------------------------------------------------------------
 

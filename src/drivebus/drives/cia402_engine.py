@@ -13,6 +13,7 @@ the description's own procedures, ``setup`` and ``learn`` run as in the command 
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
@@ -40,7 +41,7 @@ from drivebus.drives.description import Reg
 from drivebus.drives.engine import DescribedProfile, plan_reads
 from drivebus.drives.status import DriveStatus
 from drivebus.drives.values import Attrs, Unread
-from drivebus.errors import LimitViolation, StateError
+from drivebus.errors import LimitViolation, StateError, TransactionError
 
 __all__ = ["STATUS_OBJECTS", "Cia402Profile"]
 
@@ -48,7 +49,11 @@ STATUS_OBJECTS = ("statusword", "modes_of_operation_display", "position_actual_v
                   "velocity_actual_value", "error_code", "digital_inputs")
 """The objects the status poll reads, where the description maps them."""
 
+log = logging.getLogger(__name__)
+
 _ENABLED = COMMAND_WORDS[Command.ENABLE_OPERATION]
+_HALTED = _ENABLED | Controlword.HALT
+"""Enable operation with halt set: Operation enabled, the axis held where it is."""
 
 
 class Cia402Profile(DescribedProfile):
@@ -61,6 +66,8 @@ class Cia402Profile(DescribedProfile):
         self._last_cw: int | None = None
         self._homing = False
         self._homed = False
+        self._velocity_set = False
+        """A speed run of this session left a target velocity (60FFh) other than 0."""
 
     # -- objects ---------------------------------------------------------------------------
 
@@ -114,7 +121,9 @@ class Cia402Profile(DescribedProfile):
 
     async def goto(self, goal: State) -> None:
         """Walk the state machine to ``goal`` (bounded: each step is confirmed within the
-        description's timeout, and no more steps than the profile can need)."""
+        description's timeout, and no more steps than the profile can need). Enable
+        operation goes with halt set: Operation enabled holds the axis (a set-point a halt
+        interrupted does not resume); the next motion command clears halt as it starts."""
         timeout = self._timeout
         for _ in range(MAX_STEPS + 2):
             state, _ = await self._state()
@@ -122,7 +131,10 @@ class Cia402Profile(DescribedProfile):
             if step is None:
                 return
             if step.controlword is not None:
-                await self._controlword(step.controlword, idempotent=True)
+                word = step.controlword
+                if step.command is Command.ENABLE_OPERATION:
+                    word |= Controlword.HALT
+                await self._controlword(word, idempotent=True)
             try:
                 with anyio.fail_after(timeout):
                     while True:
@@ -151,14 +163,18 @@ class Cia402Profile(DescribedProfile):
         """The mapped status objects in as few reads as the drive allows."""
         if not self._learned and self.description.status.learn_first:
             await self.learn()
+        requested = monotonic()
         values = await self._poll_values(self._status_plan, priority)
         await self._read_due_signals(priority)
-        return self.decode_status(values)
+        return self.decode_status(values, requested_at=requested)
 
     def decode_status(self, values: Mapping[str, Any],
-                      raw_words: Mapping[str, list[int]] | None = None) -> DriveStatus:
+                      raw_words: Mapping[str, list[int]] | None = None, *,
+                      requested_at: float | None = None) -> DriveStatus:
         """A ``DriveStatus`` from the objects read (the description's ``[status]`` fields,
-        where it gives them, replace the engine's)."""
+        where it gives them, replace the engine's). The homing under way is judged only
+        by a status requested after the last write's reply (``fresh``): a poll that left
+        before the homing's start cannot end it."""
         d = self.description
         obj = {n: values.get(r.key) for n, r in d.objects.items()}
         sw = int(obj.get("statusword") or 0)
@@ -175,7 +191,9 @@ class Cia402Profile(DescribedProfile):
         fault = state in (State.FAULT, State.FAULT_REACTION_ACTIVE)
         homing_mode = mode is not None and int(mode) == Mode.HOMING
         hs = homing_status(sw) if homing_mode else None
-        if self._homing and hs is not None:
+        if not self.fresh(requested_at):
+            pass  # older than the last command's reply: it tells nothing of the homing
+        elif self._homing and hs is not None:
             if hs is HomingStatus.COMPLETED:
                 self._homing, self._homed = False, True
             elif hs.error or hs is HomingStatus.INTERRUPTED:
@@ -200,9 +218,11 @@ class Cia402Profile(DescribedProfile):
             limit_positive=bool(inputs is not None and int(inputs) & DigitalInput.POSITIVE_LIMIT),
             limit_negative=bool(inputs is not None and int(inputs) & DigitalInput.NEGATIVE_LIMIT),
             homing=self._homing,
+            homing_error=hs is not None and hs.error,
             position=None if obj.get("position_actual_value") is None else
             int(obj["position_actual_value"]),
             velocity_rpm=None if velocity is None else float(velocity),
+            requested_at=requested_at or 0.0,
             raw={"statusword": sw, "state": list(State).index(state) if state else -1,
                  **({"mode": int(mode)} if mode is not None else {}),
                  **({"error_code": int(code)} if code is not None else {}),
@@ -226,7 +246,8 @@ class Cia402Profile(DescribedProfile):
     def _overrides(self, st: DriveStatus, values: Mapping[str, Any]) -> DriveStatus:
         s = self.description.status
         fields = {k: getattr(s, k) for k in ("enabled", "moving", "in_position", "homed",
-                                              "homing", "alarm", "limit_positive",
+                                              "homing", "homing_error", "alarm",
+                                              "limit_positive",
                                               "limit_negative")
                   if getattr(s, k) is not None}
         if not fields:
@@ -240,11 +261,36 @@ class Cia402Profile(DescribedProfile):
 
     async def enable(self) -> None:
         """Shutdown, switch on, enable operation, as the state machine needs (or the
-        description's own ``enable``)."""
+        description's own ``enable``); a target velocity left in the drive is zeroed
+        first and Operation enabled is reached with halt set, so enabling starts nothing."""
         if self._described("enable"):
             await super().enable()
             return
+        state, _ = await self._state()
+        if state is not State.OPERATION_ENABLED:
+            await self._zero_target_velocity(Priority.COMMAND)
         await self.goto(State.OPERATION_ENABLED)
+
+    async def _zero_target_velocity(self, priority: Priority) -> None:
+        """Target velocity (60FFh) 0, where mapped: in profile velocity the drive runs at
+        it whenever it is in Operation enabled with halt clear (the mode has no start bit,
+        CiA 402-2 profile velocity mode), so none is left for an enable or a mode change
+        to start."""
+        if "target_velocity" in self.description.objects:
+            await self._write_objects([("target_velocity", 0)], priority=priority)
+            self._velocity_set = False
+
+    async def _after_stop(self) -> None:
+        """After the stop of a speed run (on the wire already): target velocity 0. The
+        stop has done its work if this write fails; it is logged and tried again at the
+        next stop, and enable zeroes it anyway."""
+        if not self._velocity_set:
+            return
+        try:
+            await self._zero_target_velocity(Priority.EMERGENCY)
+        except TransactionError as exc:
+            log.warning("%s: the stop went out, but target velocity (60FFh) was not zeroed "
+                        "after it: %s", self.family, exc)
 
     async def disable(self) -> None:
         """Shutdown: Ready to switch on, the motor released (or the description's own)."""
@@ -415,8 +461,11 @@ class Cia402Profile(DescribedProfile):
             await self.stop(decel_rps2)
             return
         await self._enabled_or_raise()
-        await self._set_mode(Mode.PROFILE_VELOCITY)
+        # The target first: the mode change to profile velocity then runs at this speed,
+        # never at one left from before (halt may be clear, the mode has no start bit).
         await self._write_objects(values)
+        self._velocity_set = True
+        await self._set_mode(Mode.PROFILE_VELOCITY)
         await self._controlword(_ENABLED)  # halt clear: run
 
     async def stop(self, decel_rps2: float | None = None) -> None:
@@ -428,7 +477,8 @@ class Cia402Profile(DescribedProfile):
         if decel_rps2 is not None and "profile_deceleration" in self.description.objects:
             await self._write_objects([("profile_deceleration", decel_rps2)], priority=prio)
         self._homing = False
-        await self._controlword(_ENABLED | Controlword.HALT, priority=prio, idempotent=True)
+        await self._controlword(_HALTED, priority=prio, idempotent=True)
+        await self._after_stop()
 
     async def emergency_stop(self) -> None:
         """Quick stop (or halt, as ``[cia402] emergency_stop`` says)."""
@@ -437,16 +487,20 @@ class Cia402Profile(DescribedProfile):
             return
         c = self.description.cia402
         self._homing = False
-        word = (_ENABLED | Controlword.HALT if c is not None and c.emergency_stop == "halt"
+        word = (_HALTED if c is not None and c.emergency_stop == "halt"
                 else COMMAND_WORDS[Command.QUICK_STOP])
         await self._controlword(word, priority=Priority.EMERGENCY, idempotent=True)
+        await self._after_stop()
 
-    async def start_homing(self, params: HomingParams) -> None:
-        """Homing mode with the method's number, speeds, acceleration and offset, then the
-        rising edge of controlword bit 4."""
+    def check_homing(self, params: HomingParams) -> None:
+        """The method known, its values within range, an offset only with home_offset."""
         if self._described("home"):
-            await super().start_homing(params)
+            super().check_homing(params)
             return
+        self._homing_values(params)
+
+    def _homing_values(self, params: HomingParams) -> list[tuple[str, float | int]]:
+        """The objects a homing writes, range-checked (no I/O)."""
         _, m = self._home_method(params.method)
         number = m.cia402 if m.cia402 is not None else m.code
         values: list[tuple[str, float | int]] = [("homing_method", number)]
@@ -461,6 +515,15 @@ class Cia402Profile(DescribedProfile):
         if params.offset and "home_offset" not in self.description.objects:
             raise self.unsupported(f"home with an offset of {params.offset:g} pulses",
                                    "its description maps no register to home_offset (607C)")
+        return values
+
+    async def start_homing(self, params: HomingParams) -> None:
+        """Homing mode with the method's number, speeds, acceleration and offset, then the
+        rising edge of controlword bit 4."""
+        if self._described("home"):
+            await super().start_homing(params)
+            return
+        values = self._homing_values(params)
         await self._enabled_or_raise()
         await self._set_mode(Mode.HOMING)
         await self._write_objects(values)

@@ -308,6 +308,7 @@ TWIN_MEANINGS = {
     "in_position": "at rest on the target, no alarm",
     "homed": "a homing completed since power-up",
     "homing": "a homing runs",
+    "homing_error": "the last homing failed (the drive's homing error flag)",
     "alarm": "an alarm is latched",
     "no_alarm": "no alarm is latched",
     "limit_positive": "the positive limit switch is active",
@@ -635,6 +636,8 @@ class StatusDef(_Model):
     in_position: E | None = None
     homed: E | None = None
     homing: E | None = None
+    homing_error: E | None = Field(None, description="the drive reports that a homing "
+                                   "failed: the homing under way ends at once")
     alarm: E | None = None
     alarm_code: E | None = None
     limit_positive: E | None = None
@@ -1222,6 +1225,7 @@ class Description(_Model):
             "moving": any_of("moving", "at_rest") or any_of("jogging"),
             "homed": any_of("homed"),
             "homing": any_of("homing"),
+            "homing_error": any_of("homing_error"),
             "alarm": " or ".join(filter(None, [any_of("alarm", "no_alarm")] + [
                 f"{k} != 0" for k in regs.get("alarm_code", [])])) or None,
             "alarm_code": (regs.get("alarm_code") or [None])[0],
@@ -1678,8 +1682,9 @@ class _Checker:
             for j, item in enumerate(extra.read):
                 self._span(f"status.extra[{i}].read[{j}]", item)
             self._names(f"status.extra[{i}].when", extra.when)
-        for field in ("enabled", "moving", "in_position", "homed", "homing", "alarm",
-                      "alarm_code", "limit_positive", "limit_negative", "position", "velocity"):
+        for field in ("enabled", "moving", "in_position", "homed", "homing", "homing_error",
+                      "alarm", "alarm_code", "limit_positive", "limit_negative", "position",
+                      "velocity"):
             self._names(f"status.{field}", getattr(s, field))
         for k, e in s.raw.items():
             self._names(f"status.raw.{k}", e)

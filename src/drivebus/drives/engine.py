@@ -288,9 +288,12 @@ class DescribedProfile(DriveProfile):
     def _scope(self, run: _Run | None, values: Mapping[str, Any] | None = None) -> dict[str, Any]:
         """The names an expression sees."""
         d = self.description
-        scope: dict[str, Any] = {}
-        for key in d.regs:
-            scope[key] = Unread(key)
+        unread = self.__dict__.get("_unread")
+        if unread is None:  # made once: a scope is built for every step of every command
+            unread = self.__dict__["_unread"] = {key: Unread(key) for key in d.regs}
+            self.__dict__["_function_names"] = (FunctionNames(d.inputs),
+                                                FunctionNames(d.outputs))
+        scope = dict(unread)
         scope.update(self.learned)
         if values is not None:
             scope.update(values)
@@ -303,8 +306,7 @@ class DescribedProfile(DriveProfile):
         scope["pulses_per_rev"] = self.pulses_per_rev
         scope["input"] = IoSignals(d, "inputs", scope)
         scope["output"] = IoSignals(d, "outputs", scope)
-        scope["input_functions"] = FunctionNames(d.inputs)
-        scope["output_functions"] = FunctionNames(d.outputs)
+        scope["input_functions"], scope["output_functions"] = self.__dict__["_function_names"]
         if run is not None:
             scope.update(run.args)
             if run.home is not None:
@@ -826,26 +828,36 @@ class DescribedProfile(DriveProfile):
         if not self._learned and self.description.status.learn_first:
             await self.learn()
         raw_words: dict[str, list[int]] = {}
+        requested = monotonic()
         values = await self._poll_values(self._status_plan, priority, raw_words)
         try:
             for when, plan in self._extra_plans:
                 if when(self._scope(None, values)):
                     values.update(await self._poll_values(plan, priority, raw_words))
             await self._read_due_signals(priority)
-            return self.decode_status(values, raw_words)
+            return self.decode_status(values, raw_words, requested_at=requested)
         except Unknown as exc:
             raise ConfigError(f"{self.family}: its status decoding uses what the poll does "
                               f"not read ({exc}): add it to [status] poll") from None
 
+    def fresh(self, requested_at: float | None) -> bool:
+        """True if a status requested at ``requested_at`` (None: not known) left after
+        the reply to the last write: only such a status may change what the profile
+        tracks of a command (a homing under way, a motion started)."""
+        slave = self.__dict__.get("slave")
+        return requested_at is None or slave is None or requested_at > slave.wrote_at
+
     def decode_status(self, values: Mapping[str, Any],
-                      raw_words: Mapping[str, list[int]] | None = None) -> DriveStatus:
-        """A ``DriveStatus`` from the polled register values."""
+                      raw_words: Mapping[str, list[int]] | None = None, *,
+                      requested_at: float | None = None) -> DriveStatus:
+        """A ``DriveStatus`` from the polled register values. Its state trackers take
+        only a status requested after the last write's reply (``fresh``)."""
         d = self.description
         s = d.status
         fields = d.status_exprs
         scope = self._scope(None, values)
         scope["words"] = Attrs("words", dict(raw_words or {}))
-        if s.track:  # state trackers first: the fields see this poll's state
+        if s.track and self.fresh(requested_at):  # trackers first: the fields see them
             updates = {k: e(scope) for k, e in s.track.items()}
             self.state.update(updates)
             scope = self._scope(None, values)
@@ -878,10 +890,12 @@ class DescribedProfile(DriveProfile):
             limit_positive=flag("limit_positive"),
             limit_negative=flag("limit_negative"),
             homing=flag("homing"),
+            homing_error=flag("homing_error"),
             position=None if position is None else int(position),
             velocity_rpm=None if velocity is None else float(velocity),
             raw=raw,
             timestamp=monotonic(),
+            requested_at=requested_at or 0.0,
         )
 
     def alarm_text(self, code: int) -> str:
@@ -977,7 +991,76 @@ class DescribedProfile(DriveProfile):
         self._dry_trace("move_absolute", self._move_args(0, params, "move_absolute"))
 
     def quantize(self, params: MoveParams) -> MoveParams:
-        """The speed and ramps the drive runs after its registers' rounding."""
+        """The speed and ramps the drive runs after its registers' rounding.
+
+        A planner asks this hundreds of times per move: the registers that take the speed
+        and ramps are found once (a dry run of ``move_absolute``), then each call only
+        rounds through their codecs; a description whose move writes them otherwise than
+        as given is quantized by a dry run each time."""
+        recipe = self.__dict__.get("_quantize_recipe", ())
+        if recipe == ():  # not found yet: from these values, if the drive takes them
+            recipe = self._find_quantize_recipe(params)
+            if recipe == ():
+                return self._quantize_by_dry_run(params)
+            self.__dict__["_quantize_recipe"] = recipe
+        if recipe is None:
+            return self._quantize_by_dry_run(params)
+        return self._quantize_by(recipe, params)
+
+    def _quantize_by(self, recipe: Sequence[tuple[str, Reg, Register]],
+                     params: MoveParams) -> MoveParams:
+        """``params`` rounded through the registers of ``recipe`` (speeds before ramps)."""
+        given = {"speed": abs(params.speed_rpm), "accel": params.accel_rps2,
+                 "decel": params.decel_rps2}
+        out = dict(given)
+        ppr = self.pulses_per_rev
+        try:
+            for name, reg, register in recipe:
+                codec = reg.codec
+                ref = out["speed"] if codec.kind is Kind.RAMP else None
+                raw = codec.to_raw(register, given[name], ppr=ppr, ref_rpm=ref)
+                v = codec.to_physical(raw, ppr=ppr, ref_rpm=ref)
+                if isinstance(v, int | float) and math.isfinite(v):
+                    out[name] = abs(float(v))
+        except (LimitViolation, NotSupported):
+            return params
+        return MoveParams(out["speed"], out["accel"], out["decel"])
+
+    def _find_quantize_recipe(
+        self, params: MoveParams
+    ) -> tuple[tuple[str, Reg, Register], ...] | tuple[()] | None:
+        """The registers ``move_absolute`` writes the speed and ramps to, as given (not
+        through an expression), speeds first; None if they cannot be found that way, or
+        if rounding through them disagrees with a dry run on values near ``params``;
+        ``()`` if the drive does not take ``params`` (ask again with others)."""
+        recipe: list[tuple[str, Reg, Register]] = []
+        try:
+            trace = self._dry_trace("move_absolute",
+                                    self._move_args(0, params, "move_absolute"))
+        except LimitViolation:
+            return ()
+        except (NotSupported, ConfigError, Unknown):
+            return None
+        for _, reg, index, _raw, source in trace:
+            text = source.replace(" ", "")
+            name = text.removeprefix("abs(").removesuffix(")")
+            if reg.codec.kind not in (Kind.SPEED, Kind.ACCEL, Kind.RAMP):
+                continue
+            if name in ("speed", "accel", "decel") and text in (name, f"abs({name})"):
+                recipe.append((name, reg, reg.at(index)))
+            elif re.search(r"\b(speed|accel|decel)\b", text):
+                return None  # written through an expression: only a dry run knows
+            continue  # another value (a start speed from an option): not the move's
+        recipe.sort(key=lambda r: r[1].codec.kind is Kind.RAMP)
+        for f in (1.0, 0.93, 1.07, 0.71):
+            sample = MoveParams(params.speed_rpm * f, params.accel_rps2 / f,
+                                params.decel_rps2 * f)
+            if self._quantize_by(recipe, sample) != self._quantize_by_dry_run(sample):
+                return None
+        return tuple(recipe)
+
+    def _quantize_by_dry_run(self, params: MoveParams) -> MoveParams:
+        """``quantize`` by running ``move_absolute`` dry and reading back what it wrote."""
         try:
             trace = self._dry_trace("move_absolute", self._move_args(0, params, "move_absolute"))
         except (LimitViolation, NotSupported):
@@ -985,7 +1068,9 @@ class DescribedProfile(DriveProfile):
         speed = abs(params.speed_rpm)
         out = {"speed": speed, "accel": params.accel_rps2, "decel": params.decel_rps2}
         written: dict[str, float] = {}
-        for _, reg, _index, raw, source in trace:
+        # Speeds first: a ramp time was encoded against the speed as written (rounded).
+        for _, reg, _index, raw, source in sorted(
+                trace, key=lambda t: t[1].codec.kind is Kind.RAMP):
             name = source.replace("abs(", "").rstrip(")").strip()
             if name not in out or reg.codec.kind not in (Kind.SPEED, Kind.ACCEL, Kind.RAMP):
                 continue
@@ -1080,10 +1165,23 @@ class DescribedProfile(DriveProfile):
         return Attrs("home", {"name": name, "method": name, "code": m.code,
                               "cia402": m.cia402, **m.extras})
 
+    def _homing_args(self, params: HomingParams) -> dict[str, Any]:
+        return {"method": params.method, "speed": params.speed_rpm,
+                "creep": params.creep_rpm, "accel": params.accel_rps2,
+                "offset": params.offset}
+
     async def start_homing(self, params: HomingParams) -> None:
         """The description's ``home`` with the method's code and extras as ``home.*``."""
-        await self.run("home", method=params.method, speed=params.speed_rpm,
-                       creep=params.creep_rpm, accel=params.accel_rps2, offset=params.offset)
+        await self.run("home", **self._homing_args(params))
+
+    def check_homing(self, params: HomingParams) -> None:
+        """The method known, and what ``home`` writes within range (a dry run)."""
+        proc_d = self.description.procedures.get("home")
+        args = {**{p.name: p.default for p in (proc_d.params if proc_d else [])},
+                **self._homing_args(params)}
+        proc = self._procedure("home", args)
+        self._dry(proc, _Run("home", args, True, self._priority("home", proc),
+                             home=self._home_attrs(args)))
 
     async def clear_alarm(self) -> None:
         """The description's ``clear_alarm``."""
@@ -1191,6 +1289,26 @@ class DescribedProfile(DriveProfile):
             return
         await self.run("set_output", output=name, index=self.io_outputs.index(name) + 1,
                        state=bool(state))
+
+    async def check_output(self, name: str, state: bool) -> None:
+        """The refusals of the description's ``set_output`` that its reads decide (its
+        read, check and fail steps before its first write), nothing written."""
+        self.check_supported("set_output")
+        await self.preflight("set_output", output=name,
+                             index=self.io_outputs.index(name) + 1, state=bool(state))
+
+    async def preflight(self, name: str, **args: Any) -> None:
+        """Run procedure ``name``'s steps up to its first step that writes or waits
+        (reads, checks and fails only): a refusal it can decide from reads comes before
+        anything is written."""
+        proc = self._procedure(name, args)
+        run = _Run(name, dict(args), False, self._priority(name, proc))
+        for step in proc.steps:
+            if step.action not in ("read", "check", "fail"):
+                return
+            if step.when is not None and not step.when(self._scope(run)):
+                continue
+            await self._step(step, run)
 
     def __getattr__(self, name: str) -> Callable[..., Awaitable[Any]]:
         """The description's own procedures as methods (``profile.write_position_path(...)``)."""

@@ -55,10 +55,11 @@ class NT86Profile(_NT86.profile):  # type: ignore[misc,valid-type]
     """
 
     def decode_status(self, values: Mapping[str, Any] | Sequence[int],
-                      raw_words: Mapping[str, list[int]] | None = None) -> DriveStatus:
+                      raw_words: Mapping[str, list[int]] | None = None, *,
+                      requested_at: float | None = None) -> DriveStatus:
         """The engine's decoding of polled values, or of the words of registers 0.."""
         if isinstance(values, Mapping):
-            return super().decode_status(values, raw_words)
+            return super().decode_status(values, raw_words, requested_at=requested_at)
         if "state" not in vars(self):  # a decoder only: the description's initial state
             d = self.description
             self.state = dict(d.state)

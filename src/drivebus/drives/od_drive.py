@@ -556,6 +556,7 @@ class ODDriveProfile(DriveProfile):
         if self._input_functions is None:
             await self.read_input_functions(priority=priority)
         assert self._input_functions is not None
+        requested = monotonic()
         block = await self.read_words(STATUS_BLOCK, 0, STATUS_COUNT, priority=priority)
         (reason,) = await self.read_words(0x201F, 0, 1, priority=priority)
         hi, lo, _limit, _test, inputs, _fir, _fir_t, speed, perr = block
@@ -590,6 +591,7 @@ class ODDriveProfile(DriveProfile):
             velocity_rpm=float(speed),
             raw=raw,
             timestamp=monotonic(),
+            requested_at=requested,
         )
 
     standard_frames: ClassVar[bool] = False

@@ -350,8 +350,9 @@ def commissioning_section(p: type[DriveProfile]) -> str:
 def _status(d: Description) -> str:
     s = d.status
     rows = ["| Field | From |", "|---|---|"]
-    for field in ("enabled", "moving", "in_position", "homed", "homing", "alarm",
-                  "alarm_code", "limit_positive", "limit_negative", "position", "velocity"):
+    for field in ("enabled", "moving", "in_position", "homed", "homing", "homing_error",
+                  "alarm", "alarm_code", "limit_positive", "limit_negative", "position",
+                  "velocity"):
         e = getattr(s, field)
         rows.append(f"| {field} | {'`' + cell(str(e)) + '`' if e is not None else '-'} |")
     polled = ", ".join(f"[{a[0]}..{a[1]}]" if isinstance(a, list) else a for a in s.poll)

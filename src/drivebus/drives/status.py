@@ -22,12 +22,20 @@ class DriveStatus:
     limit_negative: bool = False
     homing: bool = False
     """A homing procedure is running."""
+    homing_error: bool = False
+    """The drive reports that a homing failed (CiA 402: statusword bit 13 in homing
+    mode): a homing under way ends at once."""
     position: int | None = None
     """Position in pulses (the drive's command or feedback position)."""
     velocity_rpm: float | None = None
     """Motor speed in rev/min, where the drive reports it."""
     raw: dict[str, int] = field(default_factory=dict)
     timestamp: float = 0.0
+    """When it was decoded (its reply was in), monotonic s."""
+    requested_at: float = 0.0
+    """When its first read was queued, monotonic s: its request left no earlier. A
+    command is judged only by a status requested after the command's reply came in
+    (``SlaveHandle.wrote_at``); 0: not known (a status decoded from given words)."""
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,13 @@ import anyio.lowlevel
 from drivebus import checks
 from drivebus.bus import Bus
 from drivebus.clock import monotonic
-from drivebus.errors import ArgumentError, DrivebusError, GroupMotionError, LimitViolation
+from drivebus.errors import (
+    ArgumentError,
+    DrivebusError,
+    GroupMotionError,
+    LimitViolation,
+    MotionAborted,
+)
 from drivebus.motion.axis import Axis, MotionPlan
 from drivebus.motion.handle import BufferMode, check_buffer
 from drivebus.settings import LineSettings
@@ -48,6 +54,8 @@ _HOLD_LEAD = 0.05
 """A delayed start holds its line this long before, so no poll is in flight then, seconds."""
 _NETWORK_DELAY = 0.0003
 """Assumed delay of a start command on a Modbus TCP line, seconds."""
+_FIT_MEMO = 512
+"""Fits remembered per axis (``fit_plan``) before the memo starts afresh."""
 
 
 @dataclass(frozen=True)
@@ -152,19 +160,34 @@ def fit_plan(
     closest that takes no less than ``duration`` (a coarse drive sets the pace then).
 
     ``ceiling``: the most speed and ramps it may use (default: the axis's own).
-    ``LimitViolation`` if no plan fits the drive at all.
+    ``LimitViolation`` if no plan fits the drive at all. Fits are remembered per axis (a
+    path's repeated segments, a group's re-plans ask the same again).
     """
     d = abs(distance)
     own = ceiling or axis.plan()
     if d == 0:
         return own
+    memo: dict[tuple[object, ...], MotionPlan] = axis.__dict__.setdefault("_fits", {})
+    key = (d, duration, shape, at_least, own)
+    found_before = memo.get(key)
+    if found_before is not None:
+        return found_before
+    plan = _fit(axis, d, duration, shape, at_least, own)
+    if len(memo) >= _FIT_MEMO:
+        memo.clear()
+    memo[key] = plan
+    return plan
+
+
+def _fit(axis: Axis, d: float, duration: float, shape: MotionPlan, at_least: bool,
+         own: MotionPlan) -> MotionPlan:
+    """``fit_plan``'s search (see there)."""
+    axis.profile.quantize(axis.drive_params(own))  # a plan it takes: the fast rounding
     u, profile = axis.units, axis.profile
-    best: tuple[float, float, MotionPlan] | None = None
-    first_error: LimitViolation | None = None
+    found: list[tuple[float, float, MotionPlan]] = []
     seen: set[tuple[float, float, float]] = set()
 
     def consider(v: float, a: float, b: float) -> None:
-        nonlocal best, first_error
         if not (v > 0 and a > 0 and b > 0) or not all(map(math.isfinite, (v, a, b))):
             return
         q = profile.quantize(axis.drive_params(MotionPlan(v, a, b)))
@@ -177,18 +200,11 @@ def fit_plan(
         if (plan.speed > own.speed * 1.000001 or plan.accel > own.accel * 1.000001
                 or plan.decel > own.decel * 1.000001):
             return
-        try:
-            profile.check_move(axis.drive_params(plan))
-        except LimitViolation as exc:
-            first_error = first_error or exc
-            return
         error = plan.duration(d) - duration
         if at_least and error < -1e-9:
             return
-        error = abs(error)
         deviation = abs(plan.speed - shape.speed) / shape.speed
-        if best is None or (error, deviation) < best[:2]:
-            best = (error, deviation, plan)
+        found.append((abs(error), deviation, plan))
 
     for a0, b0 in ((shape.accel, shape.decel), (own.accel, own.decel)):
         ratio = b0 / a0
@@ -206,17 +222,26 @@ def fit_plan(
             if k > 0:
                 scales.append((1 + 1 / ratio) / (2 * k))
             for scale in scales:
-                for j in range(-12, 13):
-                    a = scale * (1 + 0.002 * j)
+                for j in range(-6, 7):  # ±2.4 %: the drive's neighbouring ramp steps
+                    a = scale * (1 + 0.004 * j)
                     consider(v, a, a * ratio)
             consider(v, a0, b0)
         consider(v0, a0, b0)
-    if best is None:
-        raise first_error or LimitViolation(
-            f"axis {axis.name}: no speed and ramps the drive can run cover {d:g} in "
-            f"{duration:.3f} s"
-        )
-    return best[2]
+    # The closest first (then the nearest to the preferred speed): the first the drive's
+    # range checks take is the plan; most often that is the first, so few are checked.
+    found.sort(key=lambda c: c[:2])
+    first_error: LimitViolation | None = None
+    for _, _, plan in found:
+        try:
+            profile.check_move(axis.drive_params(plan))
+        except LimitViolation as exc:
+            first_error = first_error or exc
+            continue
+        return plan
+    raise first_error or LimitViolation(
+        f"axis {axis.name}: no speed and ramps the drive can run cover {d:g} in "
+        f"{duration:.3f} s"
+    )
 
 
 @dataclass(frozen=True)
@@ -303,6 +328,19 @@ class AxisGroup:
                 self.axes[n].check_free("group move")
         return checked
 
+    def stops(self, names: Iterable[str]) -> dict[str, int]:
+        """How many stops each named axis has had (``Axis.stops``): a command that plans
+        before it takes its axes notes them first and calls ``check_not_stopped`` after."""
+        return {n: self.axes[n].stops for n in names}
+
+    def check_not_stopped(self, before: Mapping[str, int], what: str) -> None:
+        """``MotionAborted`` if an axis was stopped since ``before`` (``stops``): a stop
+        issued while a command is planned wins, and the command starts nothing."""
+        for n, count in before.items():
+            if self.axes[n].stops != count:
+                raise MotionAborted(f"the {what} was aborted: axis {n} was stopped while it "
+                                    f"was being planned")
+
     async def _positions(self, names: Iterable[str]) -> dict[str, float]:
         """The named axes' present positions (user units), read from the drives at once."""
         found: dict[str, float] = {}
@@ -341,11 +379,14 @@ class AxisGroup:
         for name, t in targets.items():
             self.axes[name].check_limits(t)
         shape = {"speed": speed, "accel": accel, "decel": decel, "duration": duration}
+        stops = self.stops(targets)
         if buffer != "aborting":
             from drivebus.motion.path import queue_group_move
 
-            return await queue_group_move(self, targets, buffer, accepted, **shape)
-        return await self._move(targets, await self._positions(targets), accepted, **shape)
+            return await queue_group_move(self, targets, buffer, accepted, stops=stops,
+                                          **shape)
+        return await self._move(targets, await self._positions(targets), accepted,
+                                stops=stops, **shape)
 
     async def move_by(
         self,
@@ -360,12 +401,13 @@ class AxisGroup:
         """Move the named axes by their distances, together (the rest: as for
         ``move_to``)."""
         distances = self._check(distances, "distances")
+        stops = self.stops(distances)
         starts = await self._positions(distances)
         targets = {n: starts[n] + d for n, d in distances.items()}
         for name, t in targets.items():
             self.axes[name].check_limits(t)
-        return await self._move(targets, starts, accepted, speed=speed, accel=accel,
-                                decel=decel, duration=duration)
+        return await self._move(targets, starts, accepted, stops=stops, speed=speed,
+                                accel=accel, decel=decel, duration=duration)
 
     async def path(
         self,
@@ -479,7 +521,7 @@ class AxisGroup:
                                      plan.decel * 1.02)
         return limits, ceilings, 0.0
 
-    def _plan(
+    async def _plan(
         self,
         targets: Mapping[str, float],
         starts: Mapping[str, float],
@@ -491,7 +533,9 @@ class AxisGroup:
         offsets: dict[str, float] | None = None,
     ) -> _GroupPlan:
         """Every axis's plan for a synchronised move from ``starts`` to ``targets``, fitted
-        to its drive (nothing is sent): ``LimitViolation`` if one cannot make it."""
+        to its drive (nothing is sent): ``LimitViolation`` if one cannot make it. It gives
+        the event loop a turn after each axis's fit, so nothing else waits on it (a stop
+        of any axis goes out meanwhile)."""
         distances = {n: targets[n] - starts[n] for n in targets}
         limits, ceilings, least = self._shape(distances, speed, accel, decel, duration)
         natural, shapes = synchronise(distances, limits, least)
@@ -520,6 +564,7 @@ class AxisGroup:
             for n in moving:
                 plans[n] = fit_plan(self.axes[n], distances[n], total - offsets[n], shapes[n],
                                     ceiling=ceiling(n))
+                await anyio.lowlevel.checkpoint()
             miss = {n: plans[n].duration(distances[n]) + offsets[n] - total for n in moving}
             late = [n for n in moving if miss[n] > _ARRIVAL_TOLERANCE]
             if late:  # its drive cannot run quite that fast: it sets the pace
@@ -536,6 +581,7 @@ class AxisGroup:
                                   at_least=True, ceiling=ceiling(n))
             except LimitViolation:
                 break
+            await anyio.lowlevel.checkpoint()
             longer = slower.duration(distances[n]) + offsets[n]
             if longer - total > max(_STRETCH_LIMIT, 0.1 * total):
                 break
@@ -554,11 +600,14 @@ class AxisGroup:
         targets: Mapping[str, float],
         starts: Mapping[str, float],
         accepted: Callable[[], object] | None = None,
+        *,
+        stops: Mapping[str, int],
         **shape: float | None,
     ) -> GroupMoveReport:
-        plan = self._plan(targets, starts, **shape)  # type: ignore[arg-type]
+        plan = await self._plan(targets, starts, **shape)  # type: ignore[arg-type]
         plans, offsets, distances = plan.plans, plan.offsets, plan.distances
         gate = self.start_gate(plan)
+        self.check_not_stopped(stops, "group move")
         for n in targets:
             self.axes[n].check_free("group move")
         if accepted is not None:

@@ -9,24 +9,20 @@ axis's command lane and is read back.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import anyio
 
 from drivebus import checks
 from drivebus.drives.io import IOPoint
 from drivebus.errors import ArgumentError, InputTimeout, NotSupported
-
-if TYPE_CHECKING:
-    from drivebus.motion.axis import Axis
+from drivebus.motion.lane import CommandLane
 
 __all__ = ["AxisIO"]
 
 
-class AxisIO:
+class AxisIO(CommandLane):
     """Digital I/O of an axis's drive, by name."""
 
-    def _terminal(self: Axis, name: str, *, output: bool) -> str:
+    def _terminal(self, name: str, *, output: bool) -> str:
         """The drive's terminal called ``name`` (or the machine file's name for it)."""
         terminals = self.profile.io_outputs if output else self.profile.io_inputs
         kind = "output" if output else "input"
@@ -45,7 +41,7 @@ class AxisIO:
                             f"{self.profile.family}'s {kind}s: {', '.join(terminals)}"
                             f"{'; named: ' + ', '.join(named) if named else ''})")
 
-    def _io(self: Axis) -> tuple[dict[str, bool], dict[str, bool]]:
+    def _io(self) -> tuple[dict[str, bool], dict[str, bool]]:
         st = self.status
         if st is None:
             return {}, {}
@@ -58,21 +54,21 @@ class AxisIO:
         return inputs, outputs
 
     @property
-    def inputs(self: Axis) -> dict[str, bool]:
+    def inputs(self) -> dict[str, bool]:
         """The drive's inputs as last polled: terminal (and machine-file name) -> active
         (empty before the first poll, or if the drive reports none)."""
         return self._io()[0]
 
     @property
-    def outputs(self: Axis) -> dict[str, bool]:
+    def outputs(self) -> dict[str, bool]:
         """The drive's outputs as last polled, likewise."""
         return self._io()[1]
 
-    async def io_points(self: Axis) -> list[IOPoint]:
+    async def io_points(self) -> list[IOPoint]:
         """Every terminal of the drive and what it is set to do (read from the drive)."""
         return await self.profile.io_points()
 
-    async def wait_input(self: Axis, name: str, state: bool = True, *,
+    async def wait_input(self, name: str, state: bool = True, *,
                          timeout: float | None = None) -> None:
         """Return once input ``name`` is ``state`` in a status polled from now on (the
         actor polls fast meanwhile); ``InputTimeout`` after ``timeout`` seconds."""
@@ -93,7 +89,7 @@ class AxisIO:
         finally:
             self._waiters -= 1
 
-    async def set_output(self: Axis, name: str, state: bool) -> None:
+    async def set_output(self, name: str, state: bool) -> None:
         """Switch output ``name`` on (True) or off, where the drive lets Modbus drive it
         (``NotSupported`` naming the drive and why otherwise); returns once a status read
         after it shows it."""
@@ -101,8 +97,11 @@ class AxisIO:
         if not isinstance(state, bool):
             raise ArgumentError(f"axis {self.name}: output {name}: state must be true or "
                                 f"false, not {state!r}")
+        self.profile.check_supported("set_output")
 
         async def io() -> None:
+            await self.profile.check_output(terminal, state)  # reads only: refused here
+            await self.set_up_if_due()
             await self.profile.set_output(terminal, state)
             st = await self.refresh()
             if self.profile.io_state(st)[1].get(terminal) != state:
@@ -110,4 +109,4 @@ class AxisIO:
                                    f"output {name} = {state} but reports it "
                                    f"{'off' if state else 'on'} (its polarity setting?)")
 
-        await self._exclusive(io)
+        await self._exclusive(io, setup_first=False)

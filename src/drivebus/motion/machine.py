@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
-from collections.abc import AsyncIterator, Iterable, Mapping
+import sys
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
@@ -36,6 +38,9 @@ from drivebus.tasks import ServiceTasks
 __all__ = ["Machine", "open_machine"]
 
 log = logging.getLogger(__name__)
+
+_LEAVE_TIMEOUT = 30.0
+"""Longest the stops on leaving a machine may take before its lines close, seconds."""
 
 
 class Machine:
@@ -160,23 +165,60 @@ class Machine:
         return Recording(self, axes, bus=bus, max_samples=max_samples,
                          max_events=max_events, max_transactions=max_transactions)
 
-    async def stop_all(self, *, only_commanded: bool = False) -> None:
-        """Stop every moving axis (or only those this machine set moving), in parallel.
-
-        Errors are logged, never raised.
-        """
+    async def stop_all(self, *, only_commanded: bool = False) -> list[str]:
+        """Stop every moving axis (or only those this machine set moving), in parallel,
+        each returning once a status polled after its stop shows it at rest. Decelerating
+        (``halt_now`` is the emergency stop). Errors are logged, never raised; returns the
+        axes it stopped and saw at rest, each with its position ("x at 12.5000 mm")."""
+        stopped: list[str] = []
 
         async def stop(axis: Axis) -> None:
             try:
                 await axis.stop()
             except DrivebusError as exc:
-                log.error("axis %s: stop on exit failed: %s", axis.name, exc)
+                log.error("axis %s: stop failed: %s", axis.name, exc)
+                return
+            where = "" if axis.position is None else \
+                f" at {axis.position:.4f} {axis.config.unit}"
+            stopped.append(f"{axis.name}{where}")
 
+        await self._each(self._moving(only_commanded), stop)
+        return stopped
+
+    async def halt_now(self) -> dict[str, DrivebusError | None]:
+        """Emergency stop of every axis, all lines in parallel: each axis's ``halt_now``
+        (the drive's quick stop at ``Priority.EMERGENCY``, ahead of everything queued, its
+        motion and queue aborted); returns once every drive that was moving is seen at
+        rest. Never raises for an axis: returns each axis's outcome (None: at rest, else
+        the error, also logged). ``stop_all`` is the decelerating stop."""
+        outcome: dict[str, DrivebusError | None] = {}
+
+        async def halt(axis: Axis) -> None:
+            try:
+                await axis.halt_now()
+                outcome[axis.name] = None
+            except DrivebusError as exc:
+                log.error("axis %s: emergency stop failed: %s", axis.name, exc)
+                outcome[axis.name] = exc
+
+        log.warning("machine %s: emergency stop of every axis", self.config.name)
+        await self._each(self.axes.values(), halt)
+        return outcome
+
+    def _moving(self, only_commanded: bool) -> list[Axis]:
+        """The axes that may be moving (``only_commanded``: those this machine set going)."""
+        out = []
+        for a in self.axes.values():
+            moving = a.status is not None and a.status.moving
+            if a.commanded if only_commanded else a.state in MOVING_STATES or moving:
+                out.append(a)
+        return out
+
+    @staticmethod
+    async def _each(axes: Iterable[Axis], fn: Callable[[Axis], Awaitable[None]]) -> None:
         async with anyio.create_task_group() as tg:
-            for a in self.axes.values():
-                moving = a.status is not None and a.status.moving
-                if (a.commanded if only_commanded else a.state in MOVING_STATES or moving):
-                    tg.start_soon(stop, a)
+            for a in axes:
+                tg.start_soon(fn, a)
 
 
 def _can_move(axis: Axis) -> bool:
@@ -256,8 +298,44 @@ async def open_machine(
         try:
             yield machine
         finally:
-            # Actors, buses and simulators are service tasks: still running here even when
-            # we are being cancelled, so the stops go out and are confirmed by polls.
-            with anyio.CancelScope(shield=True), anyio.move_on_after(30):
-                await machine.stop_all(only_commanded=not stop_on_exit)
+            cancelled = await _stop_on_leaving(machine, only_commanded=not stop_on_exit)
             actors.cancel()
+            if cancelled is not None and sys.exc_info()[1] is None:
+                raise cancelled  # a cancellation that came during the stops, now
+
+
+async def _stop_on_leaving(
+    machine: Machine, *, only_commanded: bool
+) -> BaseException | None:
+    """Stop every moving axis before the lines close, however the owner leaves: the
+    stops are shielded and bounded (30 s), and a cancellation from outside that comes
+    meanwhile (a second Ctrl-C, an event loop being torn down) does not cut them short:
+    it is returned, to be raised once they are done. Buses and actors are service tasks
+    (``ServiceTasks``), still running here; a bus owner cancelled from outside serves on
+    (``Bus``), and an axis whose actor is gone polls for rest itself."""
+    moving = [a.name for a in machine._moving(only_commanded)]
+    if moving:
+        log.warning("leaving machine %s: stopping %s", machine.config.name,
+                    ", ".join(moving))
+    cancelled: BaseException | None = None
+    deadline = anyio.current_time() + _LEAVE_TIMEOUT
+    stopped: list[str] = []
+    while True:
+        try:
+            with anyio.CancelScope(shield=True), anyio.move_on_after(
+                    deadline - anyio.current_time()) as scope:
+                stopped = await machine.stop_all(only_commanded=only_commanded)
+            if stopped:
+                log.warning("leaving machine %s: stopped %s (at rest)", machine.config.name,
+                            ", ".join(stopped))
+            if scope.cancelled_caught:
+                log.error("leaving machine %s: the stops did not end within %.0f s",
+                          machine.config.name, _LEAVE_TIMEOUT)
+            return cancelled
+        except anyio.get_cancelled_exc_class() as exc:
+            cancelled = exc  # from outside (anyio's own cannot reach a shielded scope)
+            task = asyncio.current_task()
+            if task is not None:
+                task.uncancel()
+            log.warning("leaving machine %s: cancelled again while stopping the axes; "
+                        "the stops go on", machine.config.name)

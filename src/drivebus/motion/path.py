@@ -12,12 +12,14 @@ the plans the drives took (their trajectories from the moments they took them).
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Literal
 
 import anyio
+import anyio.lowlevel
 
 from drivebus import checks
 from drivebus.errors import ArgumentError, DrivebusError, GroupMotionError, StateError
@@ -151,7 +153,7 @@ class _PathRun:
             name, exc = failure[0]
             raise GroupMotionError(f"axis {name} failed, the group was stopped: {exc}",
                                    axis=name) from exc
-        return report(self)
+        return await report(self)
 
 
 async def run_path(
@@ -171,6 +173,7 @@ async def run_path(
         raise ArgumentError("a path needs a list of waypoints (mappings of axis to position)")
     names = list(group.axes)
     checked = [group._check(wp, f"waypoint {i + 1}") for i, wp in enumerate(waypoints)]
+    stops = group.stops(names)
     points = [await group._positions(names)]
     for i, wp in enumerate(checked):
         point = {**points[-1], **wp}
@@ -182,7 +185,7 @@ async def run_path(
     plans: list[_GroupPlan] = []
     for k in range(len(points) - 1):
         movers = [n for n in names if points[k + 1][n] != points[k][n]]
-        plans.append(group._plan(
+        plans.append(await group._plan(
             {n: points[k + 1][n] for n in movers}, {n: points[k][n] for n in movers},
             speed=speed, accel=accel, decel=decel,
             offsets=None if k == 0 else dict.fromkeys(movers, 0.0)))
@@ -190,6 +193,7 @@ async def run_path(
     reasons: list[str] = []
     ahead = _from_rest(group, plans[0], 0.0)
     for k in range(1, len(plans)):
+        await anyio.lowlevel.checkpoint()  # a long path's corners: no long hold of the loop
         tau, reason = _corner(group, ahead, plans[k - 1], plans[k], blend)
         taus.append(tau)
         reasons.append(reason)
@@ -198,6 +202,7 @@ async def run_path(
         else:
             ahead = _synchronise_blend(group, ahead, plans[k], tau)
     reasons.append("")
+    group.check_not_stopped(stops, "path")
     for n in names:
         group.axes[n].check_free("path")
     run = _PathRun(group, points, plans, taus, reasons, [])
@@ -211,6 +216,8 @@ async def queue_group_move(
     targets: Mapping[str, float],
     buffer: BufferMode,
     accepted: Any,
+    *,
+    stops: Mapping[str, int],
     **shape: float | None,
 ) -> GroupHandle:
     """``AxisGroup.move_to`` with a buffer mode: one segment queued behind what the
@@ -232,9 +239,10 @@ async def queue_group_move(
     movers = {n: t for n, t in targets.items() if t != starts[n]}
     if not movers:
         raise ArgumentError("every axis of the group move is at its target already")
-    plan = group._plan(movers, {n: starts[n] for n in movers},
+    plan = await group._plan(movers, {n: starts[n] for n in movers},
                        offsets=None if not busy else dict.fromkeys(movers, 0.0),
                        **shape)  # type: ignore[arg-type]
+    group.check_not_stopped(stops, "group move")
     reason = ""
     if buffer == "blending":
         for n in movers:
@@ -268,6 +276,7 @@ async def _queue_and_start(run: _PathRun, gate: _StartGate) -> None:
     gates = [SegmentGate(list(p.targets)) for p in plans]
     try:
         for k, plan in enumerate(plans):
+            await anyio.lowlevel.checkpoint()  # a long path: no long hold of the loop
             tau = run.taus[k]
             parts: dict[str, MotionHandle] = {}
             for n, target in plan.targets.items():
@@ -403,23 +412,28 @@ def _off_path(p: Mapping[str, float],
     return min(_off_segment(p, a, b) for a, b in lines)
 
 
-def report(run: _PathRun) -> PathReport:
-    """The path's report from its plans and the trajectories its parts ran."""
+async def report(run: _PathRun) -> PathReport:
+    """The path's report from its plans and the trajectories its parts ran (computed a
+    segment per event-loop turn: a long path's report holds nothing up)."""
     names = list(run.group.axes)
     timeline: dict[str, list[tuple[float, Trajectory]]] = {n: [] for n in names}
     for parts in run.handles:
         for n, h in parts.items():
             if h.began is not None and h.trajectory is not None:
                 timeline[n].append((h.began, h.trajectory))
+    for n in names:
+        timeline[n].sort(key=lambda bt: bt[0])
+    starts = {n: [began for began, _ in timeline[n]] for n in names}
 
     def where(n: str, t: float, k: int) -> float:
-        active = [tr for began, tr in timeline[n] if began <= t]
-        return active[-1].position(t) if active else run.points[k][n]
+        i = bisect.bisect_right(starts[n], t)
+        return timeline[n][i - 1][1].position(t) if i else run.points[k][n]
 
     segments: list[SegmentReport] = []
     first_start = math.inf
     last_end = 0.0
     for k, (plan, parts) in enumerate(zip(run.plans, run.handles, strict=True)):
+        await anyio.lowlevel.checkpoint()
         began = [h.began for h in parts.values() if h.began is not None]
         ends = {n: h.trajectory.end for n, h in parts.items() if h.trajectory is not None}
         nxt = run.handles[k + 1] if k + 1 < len(run.handles) else {}

@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Awaitable, Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import anyio
 import anyio.lowlevel
@@ -33,14 +33,15 @@ import anyio.lowlevel
 from drivebus.bus import Priority
 from drivebus.clock import PreciseTimer, monotonic
 from drivebus.drives.programs import Completion
-from drivebus.errors import DrivebusError, MotionAborted, StateError
-from drivebus.motion.handle import MotionHandle
+from drivebus.errors import (
+    DrivebusError,
+    MotionAborted,
+)
+from drivebus.motion.judge import switch_ahead
+from drivebus.motion.motions import Motion
+from drivebus.motion.queue import MotionQueue
 from drivebus.motion.state import AxisState
-from drivebus.timing import Timing, timing
-
-if TYPE_CHECKING:
-    from drivebus.motion.axis import Axis, _Motion
-    from drivebus.motion.trajectory import Trajectory
+from drivebus.motion.trajectory import Trajectory
 
 __all__ = ["ProgramRunner"]
 
@@ -56,101 +57,14 @@ _CONFIRM_TRIES = 10
 (back to back: the drive is due, each read takes its own wire time)."""
 _TURNAROUND = 0.001
 """Assumed time a drive takes to answer, seconds."""
-_NETWORK = 0.0003
-"""Assumed one-way delay of a command on a Modbus TCP line, seconds."""
 _BLEND_WORDS = 8
 """Registers a retarget writes before its command, at most (for its lead time)."""
 
+class ProgramRunner(MotionQueue):
+    """The sequencer task that runs the axis's queue (a child of its actor): it starts each
+    queued motion from what the drive will do, not from the next routine poll."""
 
-class ProgramRunner:
-    """Mixed into ``Axis``: its queue, the sequencer task that runs it, and the handles.
-
-    It uses the axis's command lane, commit and judgement (see ``Axis``); its own state is
-    ``_queue`` (motions waiting, in order) and ``_queue_wake`` (set when the queue, the
-    running motion or its start changes).
-    """
-
-    _queue: list[_Motion]
-    _queue_wake: anyio.Event
-    _timer: PreciseTimer
-
-    # -- the queue ----------------------------------------------------------------------------
-
-    @property
-    def queued(self: Axis) -> int:
-        """How many motions wait in the axis's queue."""
-        return len(self._queue)
-
-    def _wake_queue(self: Axis) -> None:
-        self._queue_wake.set()
-
-    def _handle(self: Axis, m: _Motion) -> MotionHandle:
-        return MotionHandle(self.name, m, self.stop)
-
-    def _queue_origin(self: Axis, what: str) -> tuple[int | None, int]:
-        """Where the axis will be (pulses; None: unknown) and which way it will have gone
-        when a motion queued now starts; ``StateError`` if nothing can be queued now."""
-        if self._queue:
-            last = self._queue[-1]
-            return last.target, last.direction
-        m = self._motion
-        if m is None or self.state not in (AxisState.DISCRETE_MOTION,
-                                           AxisState.CONTINUOUS_MOTION):
-            raise StateError(f"axis {self.name}: cannot queue the {what} in state {self.state}")
-        return m.target, m.direction
-
-    def _enqueue(self: Axis, m: _Motion, accepted: Callable[[], object] | None) -> MotionHandle:
-        """Put ``m`` at the end of the queue (it passed every check) and decide how it runs."""
-        before = self._queue[-1] if self._queue else self._motion
-        m.runs, m.reason = "buffered", ""
-        if m.buffer == "blending":
-            m.reason = self._why_not_blend(m, before)
-            if not m.reason:
-                m.runs = "blended"
-            else:
-                log.info("axis %s: the %s is buffered, not blended: %s", self.name, m.what,
-                         m.reason)
-        self._queue.append(m)
-        self._note("accepted", m.what, m=m, detail=f"queued ({m.runs})")
-        if accepted is not None:
-            accepted()
-        self._wake_queue()
-        self._poke_now()
-        return self._handle(m)
-
-    def _why_not_blend(self: Axis, m: _Motion, before: _Motion | None) -> str:
-        """Why ``m`` cannot blend into ``before`` ("" if it can)."""
-        support = self.profile.programs
-        if not support.blends:
-            return f"the {self.profile.family} drive cannot take a new target while it moves: " \
-                   f"{support.no_retarget}"
-        if before is None or before.target is None or before.kind == "home":
-            return "the motion before it has no end position to blend at"
-        if m.target is None or m.retarget is None:
-            return "a jog without soft limits is a speed run: it starts when the motion " \
-                   "before it is done"
-        if (m.direction == 0 or m.direction != before.direction) and not m.may_reverse:
-            return "it reverses: the axis stops at the point between them"
-        return ""
-
-    def _drop_queue(self: Axis, error: BaseException) -> list[anyio.Event]:
-        """End every queued motion with ``error`` (the first decision wins) and cancel
-        what of it is on its way; the events of their I/O that still has to end."""
-        pending: list[anyio.Event] = []
-        queue, self._queue = self._queue, []
-        for q in queue:
-            if q.io is not None and q.io_done is not None:
-                pending.append(q.io_done)
-            if not q.over:
-                self._note("aborted", q.what, m=q, detail=str(error))
-            q.finish(error)
-        if queue:
-            self._wake_queue()
-        return pending
-
-    # -- the sequencer task -------------------------------------------------------------------
-
-    async def _sequence(self: Axis) -> None:
+    async def _sequence(self) -> None:
         """Run the queue for ever (a child of the actor): each step returns when to look
         again; the queue, the running motion's start or its end wake it sooner."""
         self._timer = PreciseTimer()
@@ -159,7 +73,7 @@ class ProgramRunner:
         finally:
             self._timer.close()
 
-    async def _sleep_until(self: Axis, deadline: float, over: anyio.Event) -> None:
+    async def _sleep_until(self, deadline: float, over: anyio.Event) -> None:
         """Sleep to ``deadline`` on the clock, not the event loop's coarser timer; return
         early once ``over`` is set (the motion it times ended: a stop, say, which must
         not wait for a line this sequencer keeps quiet)."""
@@ -175,7 +89,7 @@ class ProgramRunner:
             await self._timer.sleep_until(deadline)
             tg.cancel_scope.cancel()
 
-    async def _sequence_steps(self: Axis) -> None:
+    async def _sequence_steps(self) -> None:
         while True:
             wake = self._queue_wake
             due = await self._queue_step()
@@ -188,7 +102,7 @@ class ProgramRunner:
             if self._queue_wake is wake and wake.is_set():
                 self._queue_wake = anyio.Event()
 
-    async def _queue_step(self: Axis) -> float:
+    async def _queue_step(self) -> float:
         """One step for the queue's head; when to look again (inf: when woken)."""
         if self._override_due:
             await self._apply_override()
@@ -224,7 +138,7 @@ class ProgramRunner:
             return await self._blend_step(head, cur)
         return await self._buffered_step(head, cur)
 
-    async def _buffered_step(self: Axis, head: _Motion, cur: _Motion) -> float:
+    async def _buffered_step(self, head: Motion, cur: Motion) -> float:
         """Write the head while ``cur`` runs where the drive allows it, then at ``cur``'s
         predicted arrival confirm it by a short read and start the head at once."""
         assert cur.trajectory is not None
@@ -260,12 +174,12 @@ class ProgramRunner:
         return monotonic() + self.config.poll.moving
 
     @staticmethod
-    def _awaited(m: _Motion) -> bool:
+    def _awaited(m: Motion) -> bool:
         """True if other axes of a group wait for ``m`` to arrive."""
         return m.trajectory is not None and m.accepted_at is not None and m.io is None and any(
             not gate.open for gate in m.reports)
 
-    async def _report_arrival(self: Axis, cur: _Motion) -> float:
+    async def _report_arrival(self, cur: Motion) -> float:
         """Confirm ``cur``'s arrival at its predicted moment (others wait for it)."""
         assert cur.trajectory is not None
         arrive = cur.trajectory.end
@@ -275,11 +189,11 @@ class ProgramRunner:
             await self._confirm_arrival(cur, arrive)
         return math.inf if cur.over else monotonic() + self.config.poll.moving
 
-    def _prepare_of(self: Axis, head: _Motion) -> Callable[[], Awaitable[None]]:
+    def _prepare_of(self, head: Motion) -> Callable[[], Awaitable[None]]:
         assert head.prepare is not None
         return head.prepare
 
-    def _may_preload_braking(self: Axis, head: _Motion, cur: _Motion) -> bool:
+    def _may_preload_braking(self, head: Motion, cur: Motion) -> bool:
         """True if the drive lets the head be written as ``cur`` brakes (and it brakes no
         gentler than ``cur``)."""
         if not self.profile.programs.preload_braking or head.plan is None or cur.plan is None:
@@ -287,7 +201,7 @@ class ProgramRunner:
         quantized = self.envelope.quantized
         return quantized(head.plan).decel >= quantized(cur.plan).decel * (1 - 1e-9)
 
-    async def _confirm_arrival(self: Axis, cur: _Motion, arrive: float) -> bool:
+    async def _confirm_arrival(self, cur: Motion, arrive: float) -> bool:
         """Read the drive's completion right after ``arrive`` (again a little later while
         it still moves): True once ``cur`` is done in position."""
         wire = self._wire()
@@ -312,12 +226,12 @@ class ProgramRunner:
             await anyio.sleep(retry)
         return cur.over and cur.outcome is None
 
-    def _judge_completion(self: Axis, m: _Motion, c: Completion, issued: float) -> None:
+    def _judge_completion(self, m: Motion, c: Completion, issued: float) -> None:
         """A short read that shows ``m`` (a move) in position ends it; anything else (an
         alarm, a limit switch, a stop short) is left to the full status polls."""
         if m.over or m.accepted_at is None or issued <= m.accepted_at:
             return
-        if c.alarm or c.moving or not c.in_position or self._switch_ahead(c, m.direction):
+        if c.alarm or c.moving or not c.in_position or switch_ahead(c, m.direction):
             if c.alarm:
                 self._poke_now()
             return
@@ -330,7 +244,7 @@ class ProgramRunner:
         self._poke_now()
         self._end_motion(m, None, AxisState.STANDSTILL)
 
-    async def _blend_step(self: Axis, head: _Motion, cur: _Motion) -> float:
+    async def _blend_step(self, head: Motion, cur: Motion) -> float:
         """Send the head's target so that it reaches the drive as ``cur`` begins to brake."""
         assert cur.trajectory is not None
         lead = self._blend_lead()
@@ -354,7 +268,7 @@ class ProgramRunner:
                 await self._blend_into(head, cur)
         return monotonic()
 
-    async def _blend_into(self: Axis, head: _Motion, cur: _Motion) -> None:
+    async def _blend_into(self, head: Motion, cur: Motion) -> None:
         """Hand the drive ``head``'s target on the fly: ``cur`` is done (blended), ``head``
         runs from the speed the drive has."""
         assert cur.trajectory is not None and head.retarget is not None
@@ -379,7 +293,7 @@ class ProgramRunner:
         if await self._run_queued_io(head, io) and head.trajectory is not None:
             head.blend_speed = head.trajectory.speed_at(passed)
 
-    async def _start_queued(self: Axis, head: _Motion) -> None:
+    async def _start_queued(self, head: Motion) -> None:
         """Start the queue's head from rest (the lane is held): its start command (after
         writing it, if that was not done while the motion before it ran)."""
         self._queue.pop(0)
@@ -406,7 +320,7 @@ class ProgramRunner:
         if await self._run_queued_io(head, io) and head.kind == "jog":
             self._arm_watchdog(head.watchdog)
 
-    def _promote(self: Axis, head: _Motion) -> None:
+    def _promote(self, head: Motion) -> None:
         """Make the queue's head the motion under way."""
         self._motion = head
         self.state = (AxisState.CONTINUOUS_MOTION if head.kind == "jog"
@@ -414,7 +328,7 @@ class ProgramRunner:
         self._jog_deadline = None
 
     async def _run_queued_io(
-        self: Axis, m: _Motion, io: Callable[[], Awaitable[Any]], *, current: bool = True
+        self, m: Motion, io: Callable[[], Awaitable[Any]], *, current: bool = True
     ) -> bool:
         """Run a queued motion's I/O (the lane is held); True if it went through. A failure
         ends the motion (the axis stopped if it may move) and drops the queue."""
@@ -438,9 +352,7 @@ class ProgramRunner:
             m.deadline = monotonic() + self.envelope.motion_timeout(m.plan, distance)
         return True
 
-    # -- speed override ------------------------------------------------------------------------
-
-    async def _apply_override(self: Axis) -> None:
+    async def _apply_override(self) -> None:
         """Give the motion under way the speed the override now asks, where the drive can
         change it on the fly: a jog's speed run (its running speed), a move or a bounded
         jog by its target given again at the new speed (a drive that takes a new target
@@ -494,29 +406,14 @@ class ProgramRunner:
         log.info("axis %s: the %s now runs at %g %s/s (override %g)", self.name, m.what,
                  plan.speed, self.config.unit, self.effective_override)
 
-    # -- timing of the wire -------------------------------------------------------------------
-
-    def _wire(self: Axis) -> Timing | None:
-        """The timing of the axis's frames (None: a Modbus TCP line)."""
-        slave = self.profile.slave
-        settings = slave.settings or slave.bus.line.settings
-        return timing(settings) if settings is not None else None
-
-    def _drive_started(self: Axis, accepted: float) -> float:
-        """When the drive acted on a command whose reply came in at ``accepted``."""
-        wire = self._wire()
-        if wire is None:
-            return accepted - _NETWORK
-        return accepted - wire.frame_time(8) - _TURNAROUND
-
-    def _write_lead(self: Axis) -> float:
+    def _write_lead(self) -> float:
         """How long a block write of a move's values takes, its silence included."""
         wire = self._wire()
         if wire is None:
             return 0.002
         return wire.transaction_time(9 + 2 * _BLEND_WORDS, 8, _TURNAROUND) + wire.t35 + 0.001
 
-    def _blend_lead(self: Axis) -> float:
+    def _blend_lead(self) -> float:
         """How long before the drive must have a new target it is sent: a block write of
         the move's values, then its command."""
         wire = self._wire()

@@ -1,0 +1,308 @@
+"""The promises at their edges, each a case that once broke them: a force-quit embedded
+app, a write cancelled while it waits for the line's silence, a timeout decided on a
+stale status, an error raised while the axis still brakes, the machine-wide emergency
+stop, a homing that failed yet left the axis homed, a status older than a command
+judging it. Judged by the twins (in this process or another) and the wire log."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import random
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import anyio
+import anyio.lowlevel
+import httpx
+import pytest
+
+from drivebus import AxisState, Priority, open_machine
+from drivebus.bus.sent import sent_requests
+from drivebus.errors import MotionAborted, MotionTimeout
+from drivebus.settings import LineSettings
+from drivebus.sim.harness import sim_bus
+from drivebus.sim.slave import Fault
+from drivebus.sim.twins import twin_class
+from ports import reserved_port
+from wirelog import settle
+
+ROOT = Path(__file__).resolve().parents[1]
+DEMO = ROOT / "configs" / "demo.toml"
+STF = ROOT / "configs" / "drives" / "moons_stf.toml"
+
+
+# -- group planning never holds the loop ----------------------------------------------------
+
+
+async def test_planning_a_group_move_and_a_long_path_holds_no_loop_step() -> None:
+    """Planned on the loop: the loop-step guard (conftest) fails the test if one step of
+    the 4-axis plan or of the path's 24 segments takes more than 20 ms of CPU."""
+    async with open_machine(DEMO) as m:
+        g = m.group("x", "y", "z", "r")
+        report = await g.move_to({"x": 60.0, "y": 40.0, "z": 20.0, "r": 90.0})
+        assert report.duration > 0
+        xy = m.group("x", "y")
+        corners = [{"x": 70.0 - 10 * (i % 2), "y": 45.0 - 5 * (i % 3)} for i in range(24)]
+        path = await xy.path(corners, speed=300.0)
+        assert len(path.segments) == len(corners)
+
+
+# -- a force-quit embedded app ---------------------------------------------------------------
+
+APP = """
+import contextlib, os
+from fastapi import FastAPI
+from drivebus.app import MachineSession
+
+@contextlib.asynccontextmanager
+async def lifespan(app):
+    async with MachineSession.open(os.environ["DRIVEBUS_TEST_MACHINE"]) as session:
+        app.state.session = session
+        yield
+
+app = FastAPI(lifespan=lifespan)
+
+@app.post("/move")
+async def move():
+    await app.state.session.start_move("x", target=390.0, speed=20.0)
+    return {"ok": True}
+
+@app.get("/x")
+async def x():
+    return {"state": str(app.state.session.axis("x").state)}
+"""
+
+
+class _Lines:
+    """A subprocess's output lines, read on a thread, waited for with a bound."""
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        self.proc = proc
+        self.seen: list[str] = []
+        self._cv = threading.Condition()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            with self._cv:
+                self.seen.append(line.rstrip())
+                self._cv.notify_all()
+
+    def wait_for(self, text: str, timeout: float = 60.0) -> None:
+        with self._cv:
+            if not self._cv.wait_for(lambda: any(text in s for s in self.seen), timeout):
+                raise AssertionError(f"no {text!r} within {timeout:g} s: {self.seen[-30:]}")
+
+
+@pytest.fixture
+def demo_sim() -> Iterator[_Lines]:
+    """``drivebus sim`` of the demo machine, in its own process (this test's runtime dir)."""
+    sim = subprocess.Popen([sys.executable, "-m", "drivebus.cli", "sim", str(DEMO)],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                           cwd=ROOT)
+    lines = _Lines(sim)
+    try:
+        lines.wait_for("simulating machine")
+        yield lines
+    finally:
+        sim.send_signal(signal.SIGINT)
+        try:
+            sim.wait(20)
+        except subprocess.TimeoutExpired:
+            sim.kill()
+
+
+def test_a_force_quit_embedded_app_leaves_no_axis_moving(
+        tmp_path: Path, demo_sim: _Lines) -> None:
+    """An own FastAPI app with ``MachineSession.open`` in its lifespan, under uvicorn,
+    against ``drivebus sim`` in another process; x moves at 20 mm/s and uvicorn gets a
+    second Ctrl-C while it shuts down (a force quit: no lifespan shutdown, every task
+    cancelled at the event loop's end). x's twin must be at rest once the app is gone."""
+    (tmp_path / "app.py").write_text(textwrap.dedent(APP))
+    env = {**os.environ, "DRIVEBUS_TEST_MACHINE": str(DEMO)}
+    with reserved_port() as port:
+        app = subprocess.Popen(
+            [sys.executable, "-m", "uvicorn", "app:app", "--port", str(port),
+             "--host", "127.0.0.1"], cwd=tmp_path, env=env, text=True,
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        out = _Lines(app)
+        try:
+            out.wait_for("Application startup complete")
+            with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as client:
+                assert client.post("/move").status_code == 200
+                deadline = time.monotonic() + 20
+                while client.get("/x").json()["state"] != "DiscreteMotion":
+                    assert time.monotonic() < deadline, "x never moved"
+                    time.sleep(0.02)
+            app.send_signal(signal.SIGINT)
+            out.wait_for("Shutting down")
+            app.send_signal(signal.SIGINT)  # the force quit
+            code = app.wait(60)
+        finally:
+            if app.poll() is None:
+                app.kill()
+    said = "\n".join(out.seen)
+    # the log says what was stopped and that it came to rest (by the motion's own
+    # cancellation or by leaving the machine, whichever came first)
+    assert ("axis x: stopped at" in said or "stopped x at" in said) and "(at rest)" in said, \
+        said
+    assert code is not None
+
+    async def check() -> None:  # the twin, asked over its own line after the app is gone
+        async with open_machine(DEMO, stop_on_exit=False) as m:
+            x = m.axes["x"]
+            first = await x.refresh()
+            await anyio.sleep(0.3)
+            second = await x.refresh()
+            assert not first.moving and not second.moving, said
+            assert first.position == second.position, said
+
+    anyio.run(check)
+
+
+# -- a write cancelled while it waits for the line's silence ---------------------------------
+
+
+async def test_a_cancelled_write_is_withdrawn_before_its_first_byte_or_reported() -> None:
+    """Writes at 9600 baud (a long silence before each frame) behind a read, their
+    callers cancelled at every moment of the wait: each write either never reached the
+    wire, or is in the ``sent_requests`` record with its outcome."""
+    settings = LineSettings.parse("9600 8N1")
+    twin = twin_class("NT86")(1, settings)
+    async with sim_bus([twin], settings) as (wire, bus):
+        slave = bus.slave(1)
+        rng = random.Random(7)
+        for i in range(60):
+            value = 100 + i  # register 72 (point move speed) takes 0..3000
+            with sent_requests() as sent, anyio.move_on_after(rng.uniform(0.0, 0.012)):
+                async with anyio.create_task_group() as tg:  # a read ahead of it
+                    tg.start_soon(slave.read_holding_registers, 0, 2)
+                    await anyio.lowlevel.checkpoint()
+                    await slave.write_register(72, value, priority=Priority.CONFIG)
+            on_wire = any(f.direction == "request" and f.data[1] == 0x06
+                          and int.from_bytes(f.data[4:6], "big") == value
+                          for f in list(wire.log))
+            reported = any(r.function == 0x06 and r.pdu[3:5] == value.to_bytes(2, "big")
+                           for r in sent)
+            assert on_wire == reported, (i, on_wire, sent)
+
+
+# -- a timeout decided on a fresh status; errors raised at rest --------------------------------
+
+
+def _stf(name: str, **axis: Any) -> dict[str, Any]:
+    return {"name": name, "lines": {"l": {"port": f"sim://{name}", "settings": "115200 8N1",
+                                          "timeout": 0.1}},
+            "axes": {"x": {"line": "l", "address": 1, "drive": str(STF), "unit": "mm",
+                           "pulses_per_rev": 20000, "units_per_rev": 10.0, "speed": 20.0,
+                           "accel": 200.0, "decel": 200.0, "limits": [-100.0, 100.0],
+                           **axis}}}
+
+
+async def test_a_move_is_not_timed_out_on_a_status_polled_before_it_arrived() -> None:
+    """Polls once a second while moving: the move (0.6 s) is over before its deadline
+    but no poll has shown it. The deadline asks the drive once more: no MotionTimeout."""
+    cfg = {"name": "fresh-timeout", "lines": {"l": {"port": "sim://fresh-timeout",
+                                                    "settings": "115200 8N1"}},
+           "axes": {"x": {"line": "l", "address": 1, "drive": "NT86", "unit": "mm",
+                          "pulses_per_rev": 4000, "units_per_rev": 10.0, "speed": 20.0,
+                          "accel": 200.0, "decel": 200.0,
+                          "poll": {"moving": 1.0, "idle": 1.0}}}}
+    async with open_machine(cfg) as m:
+        x = m.axes["x"]
+        await x.move_to(10.0)  # the deadline (1.5 × 0.6 s + 1 s + 4 polls) is far off
+        # a deadline shorter than the next poll: only a fresh read can show the arrival
+        x.envelope.motion_timeout = lambda plan, distance: plan.duration(distance) + 0.2
+        with anyio.fail_after(10):
+            await x.move_to(20.0)
+        assert m.sim_drives["x"].position() == x.units.to_pulses(20.0)
+
+
+async def test_a_homing_timeout_is_raised_with_the_axis_at_rest() -> None:
+    """A homing whose switch is never found times out: MotionTimeout comes once the
+    drive is at rest (never while Stopping), the axis is not homed, and the next command
+    runs at once."""
+    async with open_machine(_stf("homing-timeout", homing={
+            "method": "home_switch_positive", "speed": 5.0, "creep": 1.0, "accel": 100.0,
+            "timeout": 0.8})) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        await x.enable()
+        with pytest.raises(MotionTimeout):
+            await x.home()
+        assert not twin.is_moving()
+        assert x.state is not AxisState.STOPPING
+        assert not x.homed
+        await x.move_to(-5.0)
+        assert twin.position() == x.units.to_pulses(-5.0)
+        assert not x.homed
+
+
+async def test_a_homing_stopped_half_way_leaves_the_axis_not_homed() -> None:
+    async with open_machine(_stf("homing-stopped", homing={
+            "method": "home_switch_positive", "speed": 5.0, "creep": 1.0,
+            "accel": 100.0})) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        await x.enable()
+        async with anyio.create_task_group() as tg:
+
+            async def home() -> None:
+                with contextlib.suppress(MotionAborted):  # by the stop below
+                    await x.home()
+
+            tg.start_soon(home)
+            with anyio.fail_after(10):
+                while not twin.is_moving():  # noqa: ASYNC110 (a twin is polled)
+                    await anyio.sleep(0.005)
+            await x.stop()
+        await settle(x)
+        for _ in range(3):  # and stays so in the statuses that follow
+            await x.refresh()
+            assert not x.homed
+
+
+# -- the machine-wide emergency stop ---------------------------------------------------------
+
+
+async def test_machine_halt_now_stops_every_axis_on_every_line() -> None:
+    async with open_machine(DEMO) as m:
+        for name in ("x", "y", "z", "r"):
+            ax = m.axes[name]
+            await ax.jog(5.0 if (ax.position or 0) < 50 else -5.0, watchdog=None)
+        with anyio.fail_after(20):
+            while not all(m.sim_drives[n].is_moving()  # noqa: ASYNC110 (twins are polled)
+                          for n in ("x", "y", "z", "r")):
+                await anyio.sleep(0.005)
+        outcome = await m.halt_now()
+        assert set(outcome) == set(m.axes)
+        assert all(v is None for v in outcome.values()), outcome
+        assert not any(t.is_moving() for t in m.sim_drives.values())
+        assert all(m.axes[n].state is not AxisState.CONTINUOUS_MOTION
+                   for n in ("x", "y", "z", "r"))
+
+
+# -- no command judged by a status older than its reply --------------------------------------
+
+
+async def test_no_motion_is_judged_by_a_status_requested_before_its_start() -> None:
+    """Replies delayed at random (0-40 ms, legal reply times): every move ends in position
+    on its target, by the twin, and the status that ended it was requested after the
+    start's reply (``arrived_at``: when that status's request was queued)."""
+    async with open_machine(DEMO) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        rng = random.Random(11)
+        for target in (30.0, 10.0, 45.0, 12.0, 60.0, 20.0):
+            twin.faults.inject(Fault.SLOW_REPLY, times=None, value=rng.uniform(0.0, 0.04))
+            await x.move_to(target, speed=100.0)
+            twin.faults.clear()
+            assert twin.position() == x.units.to_pulses(target)
+            assert not twin.is_moving()
+            assert x.arrived_at > x.command_started_at, target
