@@ -9,6 +9,7 @@ import shutil
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import Any
 from urllib.parse import urlsplit
 
 import pytest
@@ -101,3 +102,44 @@ def screenshot(driver: webdriver.Chrome, name: str) -> None:
     assert driver.save_screenshot(str(shot))
     print(f"screenshot: {shot}")
     assert shot.stat().st_size > 10_000
+
+
+_HELD = """
+const [chartId, series] = arguments;
+const u = DrivebusCharts.registry.get(chartId).u;
+const path = u.series[series]._paths && u.series[series]._paths.stroke;
+const t = u.data[0], y = u.data[series], scale = u.series[series].scale;
+const ctx = u.ctx;
+ctx.save();
+ctx.setTransform(1, 0, 0, 1, 0, 0);
+ctx.lineWidth = 2 * devicePixelRatio;
+ctx.setLineDash([]);  // the context keeps the last series' dashes, and the probe honours them
+const out = {checked: 0, telling: 0, wrong: []};
+for (let i = 0; path && i + 1 < t.length; i++) {
+  if (y[i] === null || y[i + 1] === null) continue;
+  if (t[i] < u.scales.x.min || t[i + 1] > u.scales.x.max) continue;
+  const x0 = u.valToPos(t[i], "x", true), x1 = u.valToPos(t[i + 1], "x", true);
+  if (x1 - x0 < 6 * devicePixelRatio) continue;  // too close to tell a step from a line
+  const xm = (x0 + x1) / 2;
+  const held = u.valToPos(y[i], scale, true);
+  const line = u.valToPos((y[i] + y[i + 1]) / 2, scale, true);
+  out.checked += 1;
+  if (!ctx.isPointInStroke(path, xm, held)) out.wrong.push([i, t[i], y[i], "not held"]);
+  if (Math.abs(line - held) > 6 * devicePixelRatio) {
+    out.telling += 1;
+    if (ctx.isPointInStroke(path, xm, line)) out.wrong.push([i, t[i], y[i], "a line"]);
+  }
+}
+ctx.restore();
+return out;
+"""
+
+
+def drawn_held(driver: webdriver.Chrome, chart: str, series: int) -> dict[str, Any]:
+    """How series ``series`` of chart ``chart`` is drawn between its samples, read from the
+    path uPlot stroked (``isPointInStroke``): halfway between two samples far enough apart
+    to tell, the line must be at the earlier sample's value (held), and not where a
+    straight line between the two would be. ``checked``: the gaps looked at; ``telling``:
+    those where a line would have been elsewhere; ``wrong``: ``[i, t, value, why]``."""
+    out: dict[str, Any] = driver.execute_script(_HELD, chart, series)
+    return out

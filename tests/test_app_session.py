@@ -11,7 +11,14 @@ import pytest
 from drivebus import AxisState
 from drivebus.app import MachineSession
 from drivebus.app.events import Event, Subscription
-from drivebus.errors import ArgumentError, LeaseHeld, LimitViolation, NotFound
+from drivebus.errors import (
+    ArgumentError,
+    LeaseHeld,
+    LimitViolation,
+    MotionAborted,
+    NotFound,
+    StateError,
+)
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 
@@ -55,6 +62,48 @@ async def test_a_refused_move_raises_and_leaves_no_record() -> None:
             await s.start_move("nope", target=1.0)
         assert len(s.motions()) == before
         assert s.axis("x").state is AxisState.STANDSTILL
+
+
+async def test_a_second_move_takes_over_while_the_first_start_is_on_the_wire() -> None:
+    """Aborting (the default) takes over on the fly on a drive that takes a new target
+    while it moves (the CL86R), also when the second move comes while the first one's
+    start frames are still on the wire; a drive that cannot (the NT86) refuses it, as
+    ``Axis.move_to`` does."""
+    async with MachineSession.open(DEMO) as s:
+        z, twin = s.axis("z"), s.machine.sim_drives["z"]
+        first = await s.start_move("z", target=90.0)  # returns once taken, before its I/O
+        assert z.state is AxisState.DISCRETE_MOTION and not twin.is_moving()
+        second = await s.start_move("z", target=10.0)
+        assert second.request == {"target": 10.0, "buffer": "aborting"}
+        await second.done.wait()
+        assert first.state == "aborted" and isinstance(first.error, MotionAborted)
+        assert "aborted by the move to 10 (aborting)" in str(first.error)
+        assert second.state == "done" and second.error is None
+        assert twin.position() == z.units.to_pulses(10.0)
+
+        x, nt86 = s.axis("x"), s.machine.sim_drives["x"]
+        first = await s.start_move("x", target=100.0)
+        with pytest.raises(StateError, match="under way"):
+            await s.start_move("x", target=50.0)
+        await first.done.wait()
+        assert first.state == "done" and nt86.position() == x.units.to_pulses(100.0)
+
+
+async def test_a_buffered_move_queues_behind_the_motion_under_way() -> None:
+    async with MachineSession.open(DEMO) as s:
+        z, twin = s.axis("z"), s.machine.sim_drives["z"]
+        t0 = anyio.current_time()
+        first = await s.start_move("z", target=30.0)
+        second = await s.start_move("z", target=2.0, buffer="buffered")
+        await second.done.wait()
+        assert first.state == "done" and second.state == "done", (first.error, second.error)
+        assert second.result is not None and second.result["runs"] == "buffered"
+        assert twin.position() == z.units.to_pulses(2.0)
+        here = z.units.to_pulses(30.0)  # the twin went there first, then came back
+        assert any(abs(seg.p0 - here) < 1 for seg in twin.kin.trace(t0, anyio.current_time()))
+        with pytest.raises(ArgumentError, match="not a buffer mode"):
+            await s.start_move("z", target=5.0, buffer="sideways")  # type: ignore[arg-type]
+        assert not twin.is_moving() and z.state is AxisState.STANDSTILL
 
 
 async def test_cancelling_a_motion_stops_the_twin() -> None:

@@ -140,6 +140,43 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
      ("procedures.enabel", "did you mean 'enable'")),
     ("not an address", MINIMAL.replace("address = 1", "address = 'one'"),
      ("registers.enable.address", "'one' is not an address")),
+    # issue 32 item 1: a unit whose scale would silently not apply
+    ("unit with a factor", MINIMAL.replace("address = 1", "address = 1\nunit = '0.1 A'"),
+     ("registers.enable.unit", "write unit = 'A', scale = 0.1")),
+    ("unknown unit", MINIMAL.replace("address = 1", "address = 1\nunit = 'furlongs'\n"
+                                     "scale = 2"),
+     ("registers.enable.unit", "'furlongs' is not one drivebus knows", "count")),
+    # issue 32 item 4: a block only where the registers follow on
+    ("block with a gap", MINIMAL + "\n[registers.speed]\naddress = 5\n[registers.accel]\n"
+     "address = 7\n[procedures.move_relative]\nsteps = [{ write = { speed = 'speed', "
+     "accel = 'accel' }, block = true }]\n",
+     ("procedures.move_relative.steps[0].block", "speed (5, 0x0005, 1 word) and accel (7, "
+      "0x0007, 1 word) are not adjacent")),
+    # issue 32 item 6: an RTU address is 1..247 (a TCP unit id 0..255); a list is addresses
+    ("rtu address", MINIMAL + "\n[link]\naddresses = [255]\n",
+     ("link", "addresses: 255 is outside 1..247: an RTU address is 1..247")),
+    # issue 32 item 7: what a procedure takes is one of its parameters
+    ("takes", MINIMAL + "\n[procedures.stop]\ntakes = ['speed']\nsteps = [{ write = { "
+     "enable = 0 } }]\n", ("procedures.stop.takes[0]", "'speed' is no parameter of stop")),
+    # issue 32 item 5: sub-indices at an offset belong to an object-addressed map
+    ("offset in a word map", MINIMAL.replace("address = 1", "address = 1\noffset = 2"),
+     ("registers.enable.offset", "an offset is for a sub-index of an object-addressed map")),
+    ("span in an object map", MINIMAL.replace("[status]\n", "[status]\npoll = [['status', "
+                                              "'enable']]\n") + "\n[link]\nmap = 'objects'\n",
+     ("status.poll[0]", "reads each object by itself")),
+    # issue 32 items 8-9: sources and example frames
+    ("source", MINIMAL.replace("address = 1", "address = 1\nsource = 'page 12'"),
+     ("registers.enable.source", "starting with manual, code or inferred")),
+    ("example action", MINIMAL + "\n[[examples]]\nrequest = '01 06 00 01 00 01 19 CA'\n"
+     "write = { enable = 1 }\nprocedure = 'enable'\n",
+     ("examples[0]", "exactly one of write, read or procedure")),
+    ("example register", MINIMAL + "\n[[examples]]\nrequest = '01 06 00 01 00 01 19 CA'\n"
+     "write = { enabel = 1 }\n", ("examples[0].write", "no register 'enabel'")),
+    ("example frame", MINIMAL + "\n[[examples]]\nrequest = '01 06 0G'\nprocedure = "
+     "'enable'\n", ("examples[0]", "is not a frame of hex bytes")),
+    ("scale of a table", MINIMAL.replace("address = 1", "address = 1\ntable = [200, 400]\n"
+                                         "scale = 2"),
+     ("registers.enable", "scale does not apply to a table")),
 ]
 
 
@@ -349,25 +386,27 @@ async def test_the_twin_answers_only_what_the_description_documents() -> None:
         with pytest.raises(ModbusException) as exc:
             await slave.read_holding_registers(200, 1)  # no register there
         assert exc.value.code == 2 and exc.value.text == "illegal data address"
+        # the vendor's codes (920-0176 App. 5): 0x11 no read, 0x12 no write, 0x13 range
         with pytest.raises(ModbusException) as exc:
             await slave.write_register(1, 5)  # the status code is read-only
-        assert exc.value.code == 2
+        assert exc.value.code == 0x12 and exc.value.text == "register does not support write"
         with pytest.raises(ModbusException) as exc:
             await slave.write_register(29, 0)  # VE is 1..19200
-        assert exc.value.code == 3 and exc.value.text == "illegal data value"
+        assert exc.value.code == 0x13 and exc.value.text == "value exceeds the range"
         with pytest.raises(ModbusException) as exc:
             await slave.read_holding_registers(124, 1)  # the opcode register is write-only
-        assert exc.value.code == 2
+        assert exc.value.code == 0x11 and exc.value.text == "register does not support read"
 
 
 async def test_a_power_cycle_loses_the_volatile_setup_and_setup_restores_it() -> None:
     async with rig(pulses_per_rev=4000) as (twin, _, profile):
         await profile.setup()
-        assert twin.regs[52] == 4000 and await profile.lost_settings() == []
+        # 40053 holds EG/2 (920-0176 App. 5): 4000 steps/rev is 2000
+        assert twin.regs[52] == 2000 and await profile.lost_settings() == []
         twin.power_loss()
         twin.power_restore()
         lost = await profile.lost_settings()
-        assert lost and "electronic gearing" in lost[0] and "not 4000" in lost[0]
+        assert lost and "electronic gearing" in lost[0] and "not 2000" in lost[0]
         assert not (await profile.read_status()).enabled  # the drive powers up disabled
         await profile.setup()
         assert await profile.lost_settings() == []
@@ -773,14 +812,14 @@ async def test_an_axis_sets_a_described_drive_up_again_after_a_power_cycle() -> 
     async with open_machine(config) as m:
         axis, twin = m.axes["m"], m.sim_drives["m"]
         await axis.enable()
-        assert twin.regs[52] == 4000  # set up with the first command
+        assert twin.regs[52] == 2000  # set up with the first command (EG/2: 4000 steps/rev)
         twin.power_loss()
         await state_becomes(axis, lambda s: s is AxisState.OFFLINE)
         twin.power_restore()
         await state_becomes(axis, lambda s: s is not AxisState.OFFLINE)
-        assert twin.regs[52] == 20000  # the drive forgot it
+        assert twin.regs[52] == 10000  # the drive forgot it: its factory 20000 steps/rev
         await axis.enable()  # the next command sets it up again
-        assert twin.regs[52] == 4000
+        assert twin.regs[52] == 2000
         assert any("electronic gearing" in c for c in axis.setup_changes)
 
 

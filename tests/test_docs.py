@@ -60,11 +60,15 @@ def test_every_page_is_built(site: Path) -> None:
     for page in ("index.html", "guide/wiring/index.html", "guide/line-settings/index.html",
                  "guide/per-slave-settings/index.html", "guide/simulator/index.html",
                  "guide/machines/index.html", "guide/service/index.html",
+                 "guide/embedding/index.html",
                  "changelog/index.html", "drives/index.html"):
         assert (site / page).is_file(), page
     assert "Keep a Changelog" in text_of(site / "changelog/index.html")
     assert "[lines.rs485]" in text_of(site / "guide/machines/index.html")  # the template
-    assert "SupplementaryGroups=dialout" in text_of(site / "guide/service/index.html")
+    service = text_of(site / "guide/service/index.html")
+    assert "SupplementaryGroups=dialout" in service and "Being written" not in service
+    assert "drivebus_axis_position_meters" in service
+    assert "problems.install(app)" in text_of(site / "guide/embedding/index.html")
 
 
 @pytest.mark.parametrize("name", list(FAMILIES))

@@ -273,7 +273,11 @@ async def test_speed_run_change_and_decelerating_stop() -> None:
         assert sim.regs[0x23] == 0x10000 - 300
         assert planned_velocity(sim) == pytest.approx(-5000)
         await wait_for(profile, lambda s: s.moving and s.raw["direction"] == 1)  # CW = negative
-        await profile.stop(decel_rps2=1000.0)  # uses the decel latched at the start
+        sent = len(wire.requests())
+        with pytest.raises(NotSupported, match="its stop takes no deceleration"):
+            await profile.stop(decel_rps2=1000.0)  # 0x0028 = 0 cannot take one (L1229)
+        assert len(wire.requests()) == sent  # refused before anything was sent
+        await profile.stop()  # ramps down with the decel latched at the start
         stop_end = wire.requests()[-1].end
         # 300 rpm at 50 rev/s² -> 100 ms = 50000 pulses/s² at 1000 pulses/rev.
         ramp = abs(sim.velocity(stop_end)) / 50_000

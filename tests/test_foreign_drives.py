@@ -443,10 +443,11 @@ K_TARGET, K_OFFSET, K_SPEED, K_ACC, K_DEC, K_METHOD = 0x4000, 0x4100, 0x4A00, 0x
     0x4D00
 K_HM_FAST, K_HM_SLOW, K_HM_ACC, K_DIN, K_TARGET_VEL = 0x5010, 0x5020, 0x5200, 0x6D00, 0x6F00
 K_MODE_SHOWN = 0x3600  # modes of operation display (6061)
+K_ERROR = 0x1F00  # Error_State (2601.00), one bit per error: the manual's alarm code
 K_WIDE = {K_QS_DEC, K_POS, K_VEL, K_TARGET, K_OFFSET, K_SPEED, K_ACC, K_DEC, K_HM_FAST,
           K_HM_SLOW, K_HM_ACC, K_DIN, K_TARGET_VEL}
-K_ONE = {K_CW, K_SW, K_MODE, K_MODE_SHOWN, K_METHOD}
-K_READ_ONLY = {K_SW, K_MODE_SHOWN, K_POS, K_POS + 1, K_VEL, K_VEL + 1, K_DIN, K_DIN + 1}
+K_ONE = {K_CW, K_SW, K_MODE, K_MODE_SHOWN, K_METHOD, K_ERROR}
+K_READ_ONLY = {K_SW, K_ERROR, K_MODE_SHOWN, K_POS, K_POS + 1, K_VEL, K_VEL + 1, K_DIN, K_DIN + 1}
 SPEED_DEC = 2048 / 125  # DEC per pulse/s
 ACC_DEC = 256 / 15625  # DEC per pulse/s²
 # CiA 402 statusword: the state bits, remote (9), voltage enabled (4) and the mode bits.
@@ -520,6 +521,7 @@ class Kinco(Kinematic):
         st = self.state
         if st == "fault":
             if cw & 0x80 and not prev & 0x80:
+                self.regs[K_ERROR] = 0
                 self.enter("switch_on_disabled")
             return
         low = cw & 0x8F
@@ -603,8 +605,9 @@ class Kinco(Kinematic):
         if self.state == "quick_stop":
             self.enter("switch_on_disabled")
 
-    def raise_fault(self) -> None:
+    def raise_fault(self, error_state: int = 0x0004) -> None:
         self.rest(self.pos)
+        self.regs[K_ERROR] = error_state
         self.enter("fault")
 
     # -- the statusword and the other read-only objects --------------------------------------
@@ -700,11 +703,12 @@ async def test_the_kinco_description_drives_an_independent_cia402_emulator() -> 
             assert drive.states[-2:] == ["quick_stop", "switch_on_disabled"]  # option code 2
             # A fault, then the reset: fault reset is bit 7's rising edge.
             await a.enable()
-            drive.raise_fault()
+            drive.raise_fault(0x0004)
             with anyio.fail_after(5):
                 async for st in a.watch():
                     if st.alarm:
                         break
+            assert st.alarm_code == 0x0004  # Error_State (0x1F00), not the statusword
             await a.reset()
             assert drive.state != "fault"
             await a.enable()

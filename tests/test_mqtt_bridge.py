@@ -60,6 +60,24 @@ async def test_state_topics_update_during_a_move(broker: Broker) -> None:
                 "alarm_text", "units_per_rev", "ts"} <= set(got[0][1])
 
 
+async def test_home_assistant_position_sensors_carry_the_axis_unit(broker: Broker) -> None:
+    async with bridged(DEMO, broker.url) as (s, _):
+        lines = await broker.sub("homeassistant/sensor/drivebus_demo/+/config",
+                                 "drivebus/demo/axes/+/state", count=15)  # retained
+        got = dict(_messages(lines))
+        prefix = "homeassistant/sensor/drivebus_demo"
+        for axis, unit in (("x", "mm"), ("y", "mm"), ("z", "mm"), ("r", "deg"),
+                           ("aux", "units")):
+            assert unit == s.axis(axis).config.unit
+            sensor = got[f"{prefix}/{axis}_position/config"]
+            assert sensor["unit_of_measurement"] == unit, sensor
+            assert sensor.get("device_class") == ("distance" if unit == "mm" else None)
+            assert sensor["state_topic"] == f"drivebus/demo/axes/{axis}/state"
+            assert "unit_of_measurement" not in got[f"{prefix}/{axis}_state/config"]
+        # the state the sensor reads is in that unit: x stands at 12 mm
+        assert got["drivebus/demo/axes/x/state"]["position"] == pytest.approx(12.0)
+
+
 async def test_every_verb_gets_accepted_then_its_final_reply(broker: Broker) -> None:
     async with bridged(DEMO, broker.url) as (s, _), probe(broker.url) as p:
         twins = s.machine.sim_drives
@@ -140,6 +158,36 @@ BAD = [
     ("w", "move", b'{"target": 1}', "no axis 'w'"),
     ("x", "move", b"\xff\xfe", "not UTF-8"),
 ]
+
+
+async def test_a_move_takes_a_buffer_mode_and_aborting_takes_over_on_the_fly(
+    broker: Broker,
+) -> None:
+    async with bridged(DEMO, broker.url) as (s, _), probe(broker.url) as p:
+        z, twin = s.axis("z"), s.machine.sim_drives["z"]
+        # the axis's worker takes the second up as soon as the first was accepted
+        first = await p.send("demo", "z", "move", {"target": 90.0})
+        second = await p.send("demo", "z", "move", {"target": 10.0})
+        replies = await p.final(first)
+        assert replies[-1]["status"] == "aborted", replies
+        assert "aborted by the move to 10" in replies[-1]["error"]["message"]
+        assert [r["status"] for r in await p.final(second)] == ["accepted", "done"]
+        assert twin.position() == z.units.to_pulses(10.0)
+
+        t0 = anyio.current_time()
+        first = await p.send("demo", "z", "move", {"target": 30.0})
+        second = await p.send("demo", "z", "move", {"target": 2.0, "buffer": "buffered"})
+        assert [r["status"] for r in await p.final(first)] == ["accepted", "done"]
+        done = (await p.final(second))[-1]
+        assert done["status"] == "done" and done["result"]["runs"] == "buffered", done
+        assert twin.position() == z.units.to_pulses(2.0)
+        here = z.units.to_pulses(30.0)
+        assert any(abs(seg.p0 - here) < 1 for seg in twin.kin.trace(t0, anyio.current_time()))
+
+        bad = await p.command("demo", "z", "move", {"target": 5.0, "buffer": "sideways"})
+        assert len(bad) == 1 and bad[0]["status"] == "failed"
+        assert "not a buffer mode" in bad[0]["error"]["message"]
+        assert not twin.is_moving()
 
 
 async def test_malformed_commands_get_one_failed_reply_naming_the_problem(

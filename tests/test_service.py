@@ -111,6 +111,44 @@ async def test_moves_homes_and_group_moves_run_as_motions_with_ids() -> None:
         assert len(ids) == 4 and ids[-1] == done["id"]
 
 
+async def test_a_move_takes_a_buffer_mode_and_aborting_takes_over_on_the_fly() -> None:
+    async with running() as (svc, client):
+        z, twin = svc.session.axis("z"), svc.session.machine.sim_drives["z"]
+        # back to back, the second while the first one's start is still on the wire
+        first = (await client.post("/api/axes/z/move", json={"target": 90.0})).json()
+        r = await client.post("/api/axes/z/move", json={"target": 10.0})
+        assert r.status_code == 202, r.text
+        assert r.json()["request"] == {"target": 10.0, "buffer": "aborting"}
+        assert (await finished(client, r.json()["id"]))["state"] == "done"
+        first = await finished(client, first["id"])
+        assert first["state"] == "aborted" and first["error"]["type"] == "MotionAborted"
+        assert twin.position() == z.units.to_pulses(10.0)
+
+        t0 = anyio.current_time()
+        first = (await client.post("/api/axes/z/move", json={"target": 30.0})).json()
+        r = await client.post("/api/axes/z/move", json={"target": 2.0, "buffer": "buffered"})
+        assert r.status_code == 202, r.text
+        second = await finished(client, r.json()["id"])
+        assert second["state"] == "done" and second["result"]["runs"] == "buffered"
+        assert (await finished(client, first["id"]))["state"] == "done"
+        assert twin.position() == z.units.to_pulses(2.0)
+        here = z.units.to_pulses(30.0)  # it went to 30 first
+        assert any(abs(seg.p0 - here) < 1 for seg in twin.kin.trace(t0, anyio.current_time()))
+
+        body = problem(await client.post("/api/axes/z/move",
+                                         json={"target": 5.0, "buffer": "sideways"}),
+                       422, "ArgumentError")
+        assert body["errors"][0]["loc"] == ["body", "buffer"] and "aborting" in body["detail"]
+        # the NT86 takes no new target while it moves: aborting is a 409 there
+        x, nt86 = svc.session.axis("x"), svc.session.machine.sim_drives["x"]
+        first = (await client.post("/api/axes/x/move", json={"target": 100.0})).json()
+        body = problem(await client.post("/api/axes/x/move", json={"target": 50.0}),
+                       409, "StateError")
+        assert "under way" in body["detail"]
+        assert (await finished(client, first["id"]))["state"] == "done"
+        assert nt86.position() == x.units.to_pulses(100.0) and not twin.is_moving()
+
+
 async def test_delete_cancels_a_motion_and_the_twin_stops_short() -> None:
     async with running() as (svc, client):
         twin, units = svc.session.machine.sim_drives["x"], svc.session.axis("x").units

@@ -10,6 +10,7 @@ screenshots are saved under ``tests/artifacts/`` (ignored by git).
 from __future__ import annotations
 
 import bisect
+import json
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -17,13 +18,14 @@ from pathlib import Path
 import pytest
 from anyio.from_thread import BlockingPortal, start_blocking_portal
 
-from browser_rig import chromium, needs_chromium, screenshot, wait, webdriver
+from browser_rig import chromium, drawn_held, needs_chromium, screenshot, wait, webdriver
 from drivebus import AxisState
 from drivebus.service import Service, TokenStore
-from service_rig import TOKENS, running, token_file, until
+from service_rig import TOKENS, auth, running, token_file, until
 
 ActionChains = pytest.importorskip("selenium.webdriver.common.action_chains").ActionChains
 By = pytest.importorskip("selenium.webdriver.common.by").By
+Select = pytest.importorskip("selenium.webdriver.support.select").Select
 
 pytestmark = needs_chromium
 
@@ -145,6 +147,81 @@ def test_the_dashboard_asks_for_a_token_when_the_service_has_them(
         wait(browser, lambda d: text(d, "pos-x") == "12.000", "no live axes")
 
 
+def websockets_opened(driver: webdriver.Chrome) -> list[str]:
+    """The WebSockets the page opened since the last look (a browser that logs)."""
+    urls = []
+    for entry in driver.get_log("performance"):
+        msg = json.loads(entry["message"])["message"]
+        if msg.get("method") == "Network.webSocketCreated":
+            urls.append(msg["params"]["url"])
+    return urls
+
+
+def test_with_tokens_the_estop_says_it_is_disabled_and_why_until_a_token_lets_it_act(
+    tmp_path: Path,
+) -> None:
+    tokens = TokenStore.load(token_file(tmp_path))
+    with (
+        start_blocking_portal() as portal,
+        portal.wrap_async_context_manager(running(tokens=tokens)) as (svc, client),
+        chromium(offline=True) as browser,
+    ):
+        m = Machine(portal, svc)
+        r = portal.call(lambda: client.post("/api/axes/x/move", headers=auth("alice"),
+                                            json={"target": 390.0, "speed": 20.0}))
+        assert r.status_code == 202, r.text
+        m.until(lambda: m.twins["x"].is_moving(), "x did not start")
+
+        browser.get(f"{svc.url}/")
+        wait(browser, lambda d: d.find_element(By.ID, "login").is_displayed(),
+             "no token prompt")
+        # asked at once: from the service's 401, with no WebSocket left to time out
+        assert websockets_opened(browser) == []
+        assert text(browser, "conn") == "token needed"
+        estop = browser.find_element(By.ID, "estop")
+        assert not estop.is_enabled()
+        assert text(browser, "estop-why") == "log in first: this service needs a token"
+        assert "E-STOP disabled" in str(estop.get_attribute("title"))
+        assert m.now(m.twins["x"].is_moving)  # nothing pretended to stop it
+
+        browser.find_element(By.ID, "token").send_keys("not-a-token-0123456789")
+        browser.find_element(By.XPATH, "//form[@id='login']//button").click()
+        wait(browser, lambda d: "Unauthorized" in text(d, "login-error"),
+             "a wrong token was not refused on the form")
+        assert not estop.is_enabled() and websockets_opened(browser) == []
+
+        browser.find_element(By.ID, "token").clear()
+        browser.find_element(By.ID, "token").send_keys(TOKENS["viewer"][1])
+        browser.find_element(By.XPATH, "//form[@id='login']//button").click()
+        wait(browser, lambda d: text(d, "conn") == "live", "the token did not let it in")
+        assert not browser.find_element(By.ID, "toast").is_displayed()  # no stale toast
+        assert not browser.find_element(By.ID, "login").is_displayed()
+        assert estop.is_enabled() and text(browser, "estop-why") == ""
+        assert len(websockets_opened(browser)) == 1
+        estop.click()  # a read token may press it
+        m.until(lambda: m.at_rest("x"), "the e-stop did not stop x")
+        wait(browser, lambda d: "e-stop done" in text(d, "events"), "no e-stop on the page")
+        assert not browser.find_element(By.ID, "toast").is_displayed()
+
+
+def test_the_dashboard_has_a_favicon(browser: webdriver.Chrome) -> None:
+    with (
+        start_blocking_portal() as portal,
+        portal.wrap_async_context_manager(running()) as (svc, client),
+    ):
+        r = portal.call(lambda: client.get("/favicon.ico"))
+        assert r.status_code == 200 and r.headers["content-type"] == "image/x-icon"
+        assert r.content[:4] == b"\x00\x00\x01\x00"  # an ICO file's header
+        browser.get(f"{svc.url}/")
+        wait(browser, lambda d: text(d, "conn") == "live", "the page never went live")
+        icon = browser.execute_async_script("""
+            const done = arguments[arguments.length - 1];
+            const link = document.querySelector("link[rel=icon]");
+            fetch(link.href).then((r) => done([link.href, r.status,
+                                               r.headers.get("content-type")]));""")
+        assert icon == [f"{svc.url}/favicon.ico", 200, "image/x-icon"]
+
+
 def test_the_dashboard_charts_what_the_service_recorded() -> None:
     """Every point the page plots for an axis is a status the service recorded, at the
     same poll time, with the same position; the Record button gives the report."""
@@ -156,23 +233,37 @@ def test_the_dashboard_charts_what_the_service_recorded() -> None:
         m = Machine(portal, svc)
         browser.get(f"{svc.url}/")
         wait(browser, lambda d: text(d, "conn") == "live", "the page never went live")
+        Select(browser.find_element(By.ID, "window")).select_by_value("10")  # finer
         browser.find_element(By.ID, "record").click()
         wait(browser, lambda d: d.find_element(By.ID, "record").get_attribute("data-id"),
              "the Record button started no recording")
         rec_id = str(browser.find_element(By.ID, "record").get_attribute("data-id"))
         portal.call(lambda: client.post("/api/machine/group-move", json={
             "targets": {"x": 150.0, "y": 60.0, "z": 40.0, "r": 270.0}}))
-        plotted = "return DrivebusCharts.registry.get('axis-x').data()[0].length"
-        seen = int(browser.execute_script(plotted))
-
-        def drawn_moving(d: webdriver.Chrome) -> bool:
-            return int(d.execute_script(plotted)) >= seen + 8 and text(d, "state-x") == (
-                "DiscreteMotion")
-
-        wait(browser, drawn_moving, "the chart of x did not follow the move")
+        # the chart's points of x while it moved (the chart's data and the page's states
+        # of the same polls): they come while it moves, whether or not the table still
+        # shows the motion when the browser is asked
+        moving_points = """
+            const n = DrivebusCharts.registry.get('axis-x').data()[0].length;
+            return state.series.get('x').state.slice(-n)
+                .filter((s) => s === 'DiscreteMotion').length;"""
+        wait(browser, lambda d: int(d.execute_script(moving_points)) >= 8,
+             "the chart of x did not follow the move")
         screenshot(browser, "dashboard-move")
         m.until(lambda: m.at_rest("x", "y", "z", "r"), "the group move did not end")
         wait(browser, lambda d: text(d, "state-x") == "Standstill", "the page missed the end")
+        browser.find_element(By.ID, "pause").click()  # the charts hold still to be read
+        telling = checked = 0
+        # position and velocity (the BHSS of y reports none): each poll held until the next
+        for name, series in (("x", 1), ("x", 2), ("y", 1), ("r", 1), ("r", 2)):
+            drawn = drawn_held(browser, f"axis-{name}", series)
+            assert drawn["wrong"] == [], (name, series, drawn["wrong"][:5])
+            assert drawn["checked"] >= 3, (name, series, drawn)
+            telling, checked = telling + drawn["telling"], checked + drawn["checked"]
+        # and where a straight line would have drawn motion that did not happen
+        assert checked >= 20 and telling >= 1, (checked, telling)
+        legend = browser.find_element(By.ID, "marks")
+        assert "arrived" in legend.text and "DiscreteMotion" in legend.text
         browser.find_element(By.ID, "record").click()
         wait(browser, lambda d: d.find_element(By.ID, "report-link").get_attribute("data-id")
              == rec_id, "no report was downloaded")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +43,7 @@ from drivebus.settings import LineSettings
 
 __all__ = [
     "NODE_PATTERN",
+    "POSITION_NAME",
     "AxisConfig",
     "BrokerUrl",
     "HomingConfig",
@@ -53,6 +55,7 @@ __all__ = [
     "machine_config",
     "parse_broker_url",
     "parse_config",
+    "position_problems",
 ]
 
 
@@ -60,6 +63,46 @@ def _settings(v: Any) -> Any:
     if isinstance(v, str):
         return LineSettings.parse(v)
     return v
+
+
+POSITION_NAME = r"^[A-Za-z_][A-Za-z0-9_-]{0,63}$"
+"""A position's name: a TOML bare key (and one MQTT topic level)."""
+
+
+def position_problems(config: MachineConfig, positions: Mapping[str, Any],
+                      where: str = "positions") -> list[str]:
+    """``key path: problem`` for each position that names an unknown axis, has a value
+    that is not a finite number, or lies outside its axis's soft limits."""
+    out: list[str] = []
+    if not isinstance(positions, Mapping):
+        return [f"{where}: expected tables of axis = position, not {positions!r}"]
+    for name, values in positions.items():
+        key = f"{where}.{name}"
+        if not isinstance(name, str) or not re.match(POSITION_NAME, name):
+            out.append(f"{key}: a position's name is a letter or _, then letters, digits, "
+                       f"_ or - (64 at most)")
+            continue
+        if name in config.axes:
+            out.append(f"{key}: a position may not have an axis's name (drivebus move "
+                       f"MACHINE {name} would be ambiguous)")
+            continue
+        if not isinstance(values, Mapping) or not values:
+            out.append(f"{key}: expected a table of axis = position (at least one axis)")
+            continue
+        for axis, value in values.items():
+            if axis not in config.axes:
+                out.append(f"{key}.{axis}: no axis {axis!r} (axes: {', '.join(config.axes)})")
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float) or not (
+                math.isfinite(value)
+            ):
+                out.append(f"{key}.{axis}: {value!r} is not a finite number")
+                continue
+            limits = config.axes[axis].limits
+            if limits is not None and not limits[0] <= value <= limits[1]:
+                out.append(f"{key}.{axis}: {value:g} is outside the soft limits "
+                           f"{limits[0]:g}..{limits[1]:g}")
+    return out
 
 
 class _Model(BaseModel):
@@ -165,7 +208,8 @@ class AxisConfig(_Model):
     """One axis: which drive on which line, its units, defaults and limits."""
 
     line: str
-    address: StrictInt = Field(ge=1, le=247)
+    address: StrictInt = Field(ge=0, le=255, description="the slave address: 1..247 on "
+                               "RS-485 and RTU over TCP, a unit id 0..255 on Modbus TCP")
     drive: str
     settings: LineSettings | None = None
     pulses_per_rev: StrictInt = Field(10000, gt=0)
@@ -328,8 +372,6 @@ class MachineConfig(_Model):
 
     @model_validator(mode="after")
     def _consistent(self) -> MachineConfig:
-        from drivebus.positions import position_problems
-
         problems = self._line_problems() + self._axis_problems()
         problems += position_problems(self, self.positions)
         if self.positions and self.positions_file is not None:
@@ -379,6 +421,11 @@ class MachineConfig(_Model):
                            f"on line {ax.line}")
             seen[key] = name
             line = self.lines[ax.line]
+            if line.kind != "tcp" and not 1 <= ax.address <= 247:
+                out.append(f"{where}.address: {ax.address} is outside 1..247 (an RTU "
+                           f"address on {line.kind} line {ax.line}; a Modbus TCP unit id is "
+                           f"0..255)")
+                continue
             if line.kind == "tcp" and ax.settings is not None:
                 out.append(f"{where}.settings: line {ax.line} is Modbus TCP: no serial settings")
             if line.kind == "rtu-over-tcp" and ax.settings not in (None, line.settings):

@@ -108,13 +108,27 @@ class ModbusException(TransactionError):
     }
 
     def __init__(
-        self, code: int, *, function: int, slave: int | None = None, text: str | None = None
+        self, code: int, *, function: int, slave: int | None = None, text: str | None = None,
+        address: int | None = None, count: int = 1, registers: str = "",
     ) -> None:
         self.code = code
         self.function = function
         self.text = text or self.STANDARD.get(code, "unknown exception")
+        self.address = address
+        """The first address the request named (None: not known)."""
+        self.count = count
+        """How many registers (or bits) the request named."""
+        self.registers = registers
+        """The names of the registers at those addresses, as the drive's profile knows
+        them ("" where none does)."""
+        where = ""
+        if address is not None:
+            last = address + max(count, 1) - 1
+            span = f"{address} (0x{address:04X})" if last == address else \
+                f"{address}..{last} (0x{address:04X}..0x{last:04X})"
+            where = f" at {span}" + (f": {registers}" if registers else "")
         super().__init__(
-            f"slave {slave} answered function 0x{function:02X} with exception "
+            f"slave {slave} answered function 0x{function:02X}{where} with exception "
             f"0x{code:02X}: {self.text}",
             slave=slave,
         )

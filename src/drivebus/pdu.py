@@ -124,16 +124,39 @@ def request_length(pdu: bytes) -> int | None:
     return 1  # unknown function: the slave answers "illegal function" after the code
 
 
+def request_span(request: bytes) -> tuple[int, int, int] | None:
+    """(function, first address, count) a read or write request names; None for another
+    function or a short request."""
+    if len(request) < 5:
+        return None
+    fc = request[0]
+    address = int.from_bytes(request[1:3], "big")
+    if fc in (0x01, 0x02, 0x03, 0x04, 0x0F, 0x10):
+        return fc, address, int.from_bytes(request[3:5], "big")
+    if fc in (0x05, 0x06):
+        return fc, address, 1
+    return None
+
+
 def check_exception(
-    pdu: bytes, *, slave: int | None, texts: dict[int, str] | None = None
+    pdu: bytes, *, slave: int | None, texts: dict[int, str] | None = None,
+    request: bytes = b"", names: Callable[[int, int, int], str] | None = None,
 ) -> None:
-    """Raise ``ModbusException`` (with the vendor's text if known) for an exception reply."""
+    """Raise ``ModbusException`` (with the vendor's text if known) for an exception reply:
+    with the address range of ``request`` and the names ``names(function, address,
+    count)`` gives the registers there."""
     if pdu and pdu[0] & 0x80:
         if len(pdu) < 2:
             raise FrameError(f"slave {slave}: exception reply without a code", slave=slave)
         code = pdu[1]
+        span = request_span(request)
+        address, count, registers = None, 1, ""
+        if span is not None:
+            fc, address, count = span
+            registers = names(fc, address, count) if names is not None else ""
         raise ModbusException(
-            code, function=pdu[0] & 0x7F, slave=slave, text=(texts or {}).get(code)
+            code, function=pdu[0] & 0x7F, slave=slave, text=(texts or {}).get(code),
+            address=address, count=count, registers=registers,
         )
 
 

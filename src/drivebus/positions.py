@@ -15,7 +15,6 @@ before the rename, so a failed teach leaves the old file as it was.
 
 from __future__ import annotations
 
-import math
 import os
 import re
 import tempfile
@@ -23,56 +22,16 @@ import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import tomlkit
 
-from drivebus.config import MachineConfig
+from drivebus.config import POSITION_NAME, MachineConfig, position_problems
 from drivebus.errors import ArgumentError, ConfigError, NotFound
 
-__all__ = ["POSITION_NAME", "PositionStore", "position_problems"]
-
-POSITION_NAME = r"^[A-Za-z_][A-Za-z0-9_-]{0,63}$"
-"""A position's name: a TOML bare key (and one MQTT topic level)."""
+__all__ = ["POSITION_NAME", "PositionStore", "position_problems"]  # the names: from config
 
 _DIGITS = 6
 """Decimals a taught value keeps (a micrometre in millimetres)."""
-
-
-def position_problems(config: MachineConfig, positions: Mapping[str, Any],
-                      where: str = "positions") -> list[str]:
-    """``key path: problem`` for each position that names an unknown axis, has a value
-    that is not a finite number, or lies outside its axis's soft limits."""
-    out: list[str] = []
-    if not isinstance(positions, Mapping):
-        return [f"{where}: expected tables of axis = position, not {positions!r}"]
-    for name, values in positions.items():
-        key = f"{where}.{name}"
-        if not isinstance(name, str) or not re.match(POSITION_NAME, name):
-            out.append(f"{key}: a position's name is a letter or _, then letters, digits, "
-                       f"_ or - (64 at most)")
-            continue
-        if name in config.axes:
-            out.append(f"{key}: a position may not have an axis's name (drivebus move "
-                       f"MACHINE {name} would be ambiguous)")
-            continue
-        if not isinstance(values, Mapping) or not values:
-            out.append(f"{key}: expected a table of axis = position (at least one axis)")
-            continue
-        for axis, value in values.items():
-            if axis not in config.axes:
-                out.append(f"{key}.{axis}: no axis {axis!r} (axes: {', '.join(config.axes)})")
-                continue
-            if isinstance(value, bool) or not isinstance(value, int | float) or not (
-                math.isfinite(value)
-            ):
-                out.append(f"{key}.{axis}: {value!r} is not a finite number")
-                continue
-            limits = config.axes[axis].limits
-            if limits is not None and not limits[0] <= value <= limits[1]:
-                out.append(f"{key}.{axis}: {value:g} is outside the soft limits "
-                           f"{limits[0]:g}..{limits[1]:g}")
-    return out
 
 
 @dataclass

@@ -21,7 +21,7 @@ import anyio
 from drivebus.app.scan import Found, probe
 from drivebus.app.targets import parse_target
 from drivebus.bus import Bus
-from drivebus.drives.base import DriveProfile
+from drivebus.drives.base import DriveProfile, describe_values
 from drivebus.drives.registry import family
 from drivebus.errors import (
     ArgumentError,
@@ -97,7 +97,7 @@ async def commission(
     new_settings = settings if to_settings is None else to_settings
     if new_address not in fam.profile.addresses:
         raise ArgumentError(f"--to-address: the {fam.name} drive has addresses "
-                            f"{fam.profile.addresses.start}..{fam.profile.addresses.stop - 1}, "
+                            f"{describe_values(fam.profile.addresses)}, "
                             f"not {new_address}")
     if to_settings is not None and (problem := fam.profile.settings_problem(to_settings)):
         raise ArgumentError(f"--to-settings: {problem}")

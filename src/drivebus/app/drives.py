@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivebus.drives.base import _PROCEDURES, DriveProfile, describe_values
-from drivebus.drives.description import PROCEDURES, load_description
+from drivebus.drives.description import PROCEDURES, Description, load_description
 from drivebus.drives.pages import family_page
 from drivebus.drives.registry import (
     DriveFamily,
@@ -20,6 +20,8 @@ from drivebus.drives.registry import (
     family_from_description,
     is_file_reference,
 )
+from drivebus.drives.units import Kind
+from drivebus.errors import LimitViolation
 
 __all__ = ["DescriptionReport", "check_report", "doc_page", "load"]
 
@@ -65,9 +67,13 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         f"{d.family} ({d.drive.engine} engine): {d.drive.description or d.drive.model}",
         f"  source: {fam.source}",
         f"  link: {'Modbus RTU' if link.protocol == 'rtu' else 'Modbus TCP'} on "
-        f"{', '.join(sorted(p.line_kinds))} lines; addresses {describe_values(p.addresses)}; "
-        f"baud {', '.join(map(str, link.baud_rates)) or 'any'}; formats "
-        f"{', '.join(link.formats) or 'any'}; 32-bit values "
+        f"{line_kinds_text(link.protocol, p.line_kinds)}; "
+        f"{'unit ids' if link.protocol == 'tcp' else 'addresses'} "
+        f"{describe_values(p.addresses)}; "
+        + ("" if link.protocol == "tcp" else
+           f"baud {', '.join(map(str, link.baud_rates)) or 'any'}; formats "
+           f"{', '.join(link.formats) or 'any'}; ")
+        + f"32-bit values "
         f"{link.word_order.replace('_', ' ')}; function codes "
         f"{', '.join(f'{c:02d}' for c in link.functions)}; at most {link.max_read} registers "
         f"per read",
@@ -82,9 +88,11 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         f"{sum(x.d.access == 'W' for x in regs)} write-only, {sum(x.d.eeprom for x in regs)} "
         f"wear EEPROM, {sum(x.d.volatile for x in regs)} volatile)"
         + (f"; tables {', '.join(tables)}" if tables else ""))
+    r.lines += provenance_lines(d, r)
+    r.lines += conversion_lines(d)
     plan = p._status_plan  # type: ignore[attr-defined]
-    by_space = {0: (3, plan.blocks), 1: (4, plan.input_blocks), 2: (1, plan.coil_blocks),
-                3: (2, plan.discrete_blocks)}
+    by_space = {0: (3, plan.blocks + plan.object_blocks), 1: (4, plan.input_blocks),
+                2: (1, plan.coil_blocks), 3: (2, plan.discrete_blocks)}
     r.lines.append("  status poll: " + ", ".join(  # in the order the poll reads them
         f"FC{fc:02d} {start} (0x{start:04X}) ×{count}"
         for fc, blocks in (by_space[space] for space in plan.space_order)
@@ -111,7 +119,11 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
             cond = f" when {proc.supported}" if proc.supported is not None else ""
             params = ", ".join(x.name for x in proc.params)
             head = f"{name}({params})" if params else name
-            r.lines.append(f"    {head:<22} {len(proc.steps)} step(s){cond}{what}")
+            takes = ""
+            if name == "stop":
+                takes = "; takes a deceleration" if proc.honours("decel") else \
+                    "; takes no deceleration (stop(decel=...) is refused)"
+            r.lines.append(f"    {head:<22} {len(proc.steps)} step(s){cond}{what}{takes}")
     missing = [n for n in _PROCEDURES if n not in d.procedures]
     if missing:
         r.lines.append("  not described (NotSupported): " + ", ".join(missing))
@@ -150,6 +162,94 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         regs_t = sorted({t.reg for t in d.twin.on_write})
         r.lines.append(f"  twin: {len(d.twin.on_write)} triggers on {', '.join(regs_t)}")
     return r
+
+
+def provenance_lines(d: Description, r: DescriptionReport) -> list[str]:
+    """Where the registers, bits, procedures and homing methods come from (counts of
+    each kind), the inferred ones named, and the manual's example frames verified."""
+    prov = d.provenance()
+    total = sum(len(v) for v in prov.values())
+    lines = [f"  provenance of {total} registers, bits, procedures and homing methods: "
+             + ", ".join(f"{len(prov[k])} {k}" for k in ("manual", "code", "inferred",
+                                                         "unnamed"))]
+    if prov["inferred"]:
+        lines.append("    inferred (not from the manual or public code): "
+                     + ", ".join(prov["inferred"][:12])
+                     + (f", and {len(prov['inferred']) - 12} more"
+                        if len(prov["inferred"]) > 12 else ""))
+    if prov["unnamed"]:
+        r.warnings.append(f"{len(prov['unnamed'])} items name no source (give [drive] "
+                          f"source or each its own source = 'manual: ...'): "
+                          + ", ".join(prov["unnamed"][:6])
+                          + (", ..." if len(prov["unnamed"]) > 6 else ""))
+    if d.examples:
+        from drivebus.drives.examples import verify_examples
+
+        results = verify_examples(d)
+        ok = sum(x.ok and x.ran for x in results)
+        errata = sum(not x.ran for x in results)
+        lines.append(f"  examples: {ok} of {len(results)} of the manual's example frames "
+                     f"verified" + (f", {errata} listed, not run" if errata else ""))
+        for x in results:
+            mark = "ok  " if x.ok and x.ran else "said" if x.ok else "FAIL"
+            lines.append(f"    {mark} {x.where}: {x.detail}")
+            if not x.ok:
+                r.warnings.append(f"{x.where}: {x.detail}")
+    else:
+        lines.append("  examples: none (add the manual's example frames as [[examples]])")
+    return lines
+
+
+def line_kinds_text(protocol: str, kinds: frozenset[str]) -> str:
+    """The kinds of line that reach a drive, each said with what it means."""
+    said = {"serial": "serial (RS-485)",
+            "rtu-over-tcp": "rtu-over-tcp (RS-485 behind a transparent serial server)",
+            "tcp": "tcp (Modbus TCP" + (" through a Modbus TCP/RTU gateway)"
+                                       if protocol == "rtu" else ")")}
+    order = ("serial", "rtu-over-tcp", "tcp")
+    return "lines " + ", ".join(said[k] for k in order if k in kinds)
+
+
+_EXAMPLES = {Kind.SPEED: (120.0, "rpm (2 rev/s)"), Kind.ACCEL: (100.0, "rev/s²"),
+             Kind.RAMP: (100.0, "rev/s²")}
+"""The example value of each kind of register in the conversions ``drive check`` shows."""
+
+
+def conversion_lines(d: Description) -> list[str]:
+    """How every register with a unit or a scale converts an example value (a revolution,
+    2 rev/s, 100 rev/s², its default, the pulses per revolution), so that a reader sees
+    the scale at work: ``steps_per_rev  20000 steps/rev → 52 (0x0034) = 10000``."""
+    ppr = d.units.pulses_per_rev
+    out: list[str] = []
+    for key, reg in d.regs.items():
+        codec = reg.codec
+        if (not codec.physical and key != ppr.reg) or codec.kind is Kind.TABLE:
+            continue
+        r = reg.at(reg.d.first) if reg.array else reg.register
+        ref = None
+        if key == ppr.reg:
+            value: float = ppr.default
+            unit = codec.unit or "pulses/rev"
+        elif codec.kind is Kind.POSITION:
+            value, unit = float(ppr.default), f"pulses (1 rev at {ppr.default} pulses/rev)"
+        elif codec.kind in _EXAMPLES:
+            value, unit = _EXAMPLES[codec.kind]
+            if codec.kind is Kind.RAMP and not isinstance(codec.ramp, int | float):
+                ref, unit = 600.0, f"rev/s² reaching 600 rpm (in {codec.ramp})"
+        else:
+            raw_example = reg.default_at(reg.d.first if reg.array else None) or 100
+            value = codec.to_physical(raw_example)
+            unit = codec.unit or "count"
+        number = r.address + d.register_base(reg.d)
+        where = f"{number} (0x{r.address:04X})" if d.link.register_base else \
+            f"{r.address} (0x{r.address:04X})"
+        try:
+            raw: str = str(codec.to_raw(r, value, ppr=ppr.default, ref_rpm=ref))
+        except LimitViolation as exc:
+            raw = f"refused: {exc}"
+        out.append(f"    {key:<22} {value:g} {unit} → {where} = {raw}   ({codec.describe()})")
+    return ["  conversions (an example value of each register with a unit or scale):",
+            *out] if out else []
 
 
 def _cia402_lines(fam: DriveFamily, r: DescriptionReport) -> None:

@@ -49,7 +49,15 @@ from drivebus.errors import (
     NotFound,
     StateError,
 )
-from drivebus.motion import Axis, AxisState, GroupMotionError, GroupMoveReport, Machine
+from drivebus.motion import (
+    Axis,
+    AxisState,
+    BufferMode,
+    GroupMotionError,
+    GroupMoveReport,
+    Machine,
+)
+from drivebus.motion.handle import check_buffer
 from drivebus.motion.machine import open_machine
 from drivebus.motion.state import MOVING_STATES
 
@@ -256,25 +264,39 @@ class MachineSession:
         speed: float | None = None,
         accel: float | None = None,
         decel: float | None = None,
+        buffer: BufferMode = "aborting",
         client: str | None = None,
     ) -> MotionRecord:
         """Start a move to ``target`` or by ``by``; returns once the axis accepted it
-        (a refusal raises: bad argument, limit, state, lease) with its record running."""
+        (a refusal raises: bad argument, limit, state, lease) with its record running.
+
+        ``buffer`` as for ``Axis.move_to``: ``"aborting"`` takes over the motion under way
+        where the drive takes a new target on the fly (that motion's record ends
+        ``aborted``), else it is a ``StateError``; ``"buffered"`` and ``"blending"`` queue
+        it behind the motions under way (its record runs until it is done, and its
+        ``result`` says how it ran: ``runs``, ``reason``)."""
         if (target is None) == (by is None):
             raise ArgumentError("a move takes exactly one of 'target' and 'by'")
+        buffer = check_buffer(buffer)
         ax = self.axis(axis)
         self.authorize(client)
         request = {k: v for k, v in
                    {"target": target, "by": by, "speed": speed, "accel": accel,
-                    "decel": decel}.items() if v is not None}
+                    "decel": decel, "buffer": buffer}.items() if v is not None}
 
-        async def run(accepted: Callable[[], object]) -> None:
+        async def run(accepted: Callable[[], object]) -> dict[str, Any] | None:
             if target is not None:
-                await ax.move_to(target, speed=speed, accel=accel, decel=decel,
-                                 accepted=accepted)
+                handle = await ax.move_to(target, speed=speed, accel=accel, decel=decel,
+                                          buffer=buffer, accepted=accepted)
             else:
                 assert by is not None
-                await ax.move_by(by, speed=speed, accel=accel, decel=decel, accepted=accepted)
+                handle = await ax.move_by(by, speed=speed, accel=accel, decel=decel,
+                                          buffer=buffer, accepted=accepted)
+            if handle is None:
+                return None
+            await handle
+            plan = handle.plan
+            return {"runs": plan.runs, "reason": plan.reason, "blend_speed": plan.blend_speed}
 
         return await self._launch("move", [axis], request, run, client)
 

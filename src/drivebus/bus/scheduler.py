@@ -233,6 +233,7 @@ class Bus:
             exception_texts=exception_texts,
             guard=guard,
             frame_timeout=frame_timeout,
+            max_address=max(getattr(self.line, "unit_ids", range(248))),
         )
         if h.settings is not None and h.settings != self.line.settings:
             if self.line.settings is None:
@@ -300,7 +301,7 @@ class Bus:
         if noting():
             self._note(req, "exception" if reply[:1] and reply[0] & 0x80 else "acknowledged")
         if reply[:1] and reply[0] & 0x80:
-            handle.raise_exception(reply)
+            handle.raise_exception(reply, pdu)
         return reply
 
     async def _cancelled(self, req: _Request) -> None:

@@ -67,9 +67,11 @@ class SlaveHandle:
         exception_texts: dict[int, str] | None = None,
         guard: float = 0.0,
         frame_timeout: float = 0.0,
+        max_address: int = 247,
     ) -> None:
-        self.address = checks.whole("slave address (0 = broadcast)", address, 0, 247,
-                                    error=ConfigError)
+        what = "slave address (0 = broadcast)" if max_address == 247 else \
+            "Modbus TCP unit id"
+        self.address = checks.whole(what, address, 0, max_address, error=ConfigError)
         if settings is not None and not isinstance(settings, LineSettings):
             raise ConfigError(
                 f"slave {address}: settings must be LineSettings (e.g. "
@@ -80,6 +82,9 @@ class SlaveHandle:
         self.timeout = checks.response_timeout(f"slave {address}: response timeout", timeout)
         self.retries = checks.retry_count(f"slave {address}: retries", retries)
         self.exception_texts = dict(exception_texts or {})
+        self.register_names: Callable[[int, int, int], str] | None = None
+        """What the registers a request names are called (function, first address,
+        count): set by the drive's profile, said in its Modbus exceptions."""
         self.guard = checks.guard_interval(f"slave {address}: guard", guard)
         """Extra quiet time (s) the line keeps before each of this slave's frames, on top
         of its silence (a slow drive's guard interval); 0: none."""
@@ -96,9 +101,11 @@ class SlaveHandle:
         """True for address 0: writes reach every slave and nobody answers."""
         return self.address == 0
 
-    def raise_exception(self, reply: bytes) -> None:
-        """Raise the typed error for an exception reply, with the vendor's text."""
-        check_exception(reply, slave=self.address, texts=self.exception_texts)
+    def raise_exception(self, reply: bytes, request: bytes = b"") -> None:
+        """Raise the typed error for an exception reply, with the vendor's text, the
+        address range of ``request`` and the names of the registers there."""
+        check_exception(reply, slave=self.address, texts=self.exception_texts,
+                        request=request, names=self.register_names)
         raise ModbusException(0, function=reply[0] & 0x7F, slave=self.address)  # unreachable
 
     def _no_broadcast_read(self) -> None:

@@ -54,6 +54,8 @@ class DriveOptions(BaseModel):
 def describe_values(values: Collection[int]) -> str:
     """``lo..hi`` for a range, else the values listed."""
     if isinstance(values, range):
+        if values.step != 1:
+            return f"{values.start}..{values[-1]} in steps of {values.step}"
         return f"{values.start}..{values.stop - 1}"
     return ", ".join(map(str, values))
 
@@ -416,6 +418,19 @@ class DriveProfile:
         if getattr(type(self), method) is getattr(DriveProfile, method):
             raise self.unsupported(what)
 
+    def check_stop(self, decel_rps2: float | None) -> None:
+        """``NotSupported`` (before anything is sent) if ``stop`` cannot honour
+        ``decel_rps2``: a drive whose stop takes no deceleration (its ramp is fixed, or it
+        stops by clearing a release bit) refuses one rather than ignore it."""
+        if decel_rps2 is not None and not self.stop_takes_decel():
+            raise self.unsupported(f"stop with a deceleration of {decel_rps2:g} rev/s²",
+                                   "its stop takes no deceleration (it stops on its own "
+                                   "ramp): call stop() without decel")
+
+    def stop_takes_decel(self) -> bool:
+        """Whether ``stop`` honours a deceleration (the default: it does)."""
+        return True
+
     def check_homing(self, params: HomingParams) -> None:
         """``NotSupported``/``UnknownMethod``/``LimitViolation`` if ``start_homing(params)``
         would be refused (no I/O): the axis asks before anything is sent."""
@@ -432,32 +447,35 @@ class DriveProfile:
 
     async def lost_settings(self, *, priority: Priority = Priority.COMMAND) -> list[str]:
         """Names of the volatile settings the drive no longer holds (read back; [] = intact)."""
-        wanted = sorted(self.volatile_settings(), key=lambda rv: rv[0].address)
+        wanted = sorted(self.volatile_settings(), key=lambda rv: (rv[0].address,
+                                                                   rv[0].offset))
         lost: list[str] = []
         i = 0
         while i < len(wanted):
             first = wanted[i][0]
             group = wanted[i : i + 1]
             if first.contiguous:
-                end = first.address + first.words
                 for reg, value in wanted[i + 1 :]:
-                    if not reg.contiguous or reg.address != end:
+                    if not reg.follows(group[-1][0]):
                         break  # only registers side by side: a gap may be unmapped
                     group.append((reg, value))
-                    end += reg.words
-                words = await self.slave.read_holding_registers(
-                    first.address, end - first.address, priority=priority
-                )
+                last = group[-1][0]
+                start = first.address
+                count = (last.offset + last.words) if first.objects else \
+                    last.address + last.words - start
+                words = await self.slave.read_holding_registers(start, count,
+                                                                priority=priority)
                 seen = {
-                    r.address: r.decode(words[r.address - first.address :][: r.words])
+                    (r.address, r.offset): r.decode(
+                        words[r.offset if r.objects else r.address - start :][: r.words])
                     for r, _ in group
                 }
             else:
-                seen = {first.address: await self.read(first, priority=priority)}
+                seen = {(first.address, 0): await self.read(first, priority=priority)}
             lost.extend(
-                f"{r.name} ({r.address}) = {seen[r.address]}, not {v}"
+                f"{r.name} ({r.address}) = {seen[r.address, r.offset]}, not {v}"
                 for r, v in group
-                if seen[r.address] != v
+                if seen[r.address, r.offset] != v
             )
             i += len(group)
         return lost
@@ -465,12 +483,13 @@ class DriveProfile:
     # -- register helpers (one register codec) -----------------------------------------------
 
     async def read(self, reg: Register, *, priority: Priority = Priority.CONFIG) -> int:
-        """Read one register (both words of a 32-bit one)."""
+        """Read one register (both words of a 32-bit one; a sub-index behind its object's
+        address with the object's words before it)."""
         if reg.contiguous:
             words = await self.slave.read_holding_registers(
-                reg.address, reg.words, priority=priority
+                reg.address, reg.offset + reg.words, priority=priority
             )
-            return reg.decode(words)
+            return reg.decode(words[reg.offset:])
         assert reg.low_address is not None
         hi = await self.slave.read_holding_registers(reg.address, 1, priority=priority)
         lo = await self.slave.read_holding_registers(reg.low_address, 1, priority=priority)
@@ -484,9 +503,16 @@ class DriveProfile:
         priority: Priority = Priority.CONFIG,
         idempotent: bool = True,
     ) -> None:
-        """Write one register, range-checked (a 32-bit one in one transaction if contiguous)."""
+        """Write one register, range-checked (a 32-bit one in one transaction if contiguous;
+        a sub-index behind its object's address with the object's words before it, as
+        read)."""
         words = reg.encode(value)
-        if len(words) == 1:
+        if reg.offset:
+            head = await self.slave.read_holding_registers(reg.address, reg.offset,
+                                                           priority=priority)
+            await self.slave.write_registers(reg.address, [*head, *words], priority=priority,
+                                             idempotent=idempotent)
+        elif len(words) == 1:
             await self.slave.write_register(
                 reg.address, words[0], priority=priority, idempotent=idempotent
             )
@@ -508,14 +534,20 @@ class DriveProfile:
         priority: Priority = Priority.CONFIG,
         idempotent: bool = True,
     ) -> None:
-        """Write registers at consecutive addresses in one FC16 transaction."""
+        """Write registers that follow on (``Register.follows``: consecutive addresses, or
+        the sub-indices of one object) in one FC16 transaction."""
+        first = regs[0][0]
         values: list[int] = []
-        start = regs[0][0].address
-        for reg, v in regs:
-            if reg.address != start + len(values) or not reg.contiguous:
-                raise ValueError(f"register {reg.name} does not follow on at {start + len(values)}")
+        if first.offset:  # the object's words before it, as the drive holds them
+            values = await self.slave.read_holding_registers(first.address, first.offset,
+                                                             priority=priority)
+        for i, (reg, v) in enumerate(regs):
+            if (i and not reg.follows(regs[i - 1][0])) or not reg.contiguous:
+                raise ValueError(f"register {reg.name} does not follow on from "
+                                 f"{regs[i - 1][0].name if i else 'nothing'}")
             values.extend(reg.encode(v))
-        await self.slave.write_registers(start, values, priority=priority, idempotent=idempotent)
+        await self.slave.write_registers(first.address, values, priority=priority,
+                                         idempotent=idempotent)
 
     # -- procedures ---------------------------------------------------------------------------
 

@@ -85,17 +85,22 @@ class Cia402Profile(DescribedProfile):
     async def _write_objects(self, values: Sequence[tuple[str, float | int]], *,
                              priority: Priority = Priority.COMMAND,
                              idempotent: bool = True) -> None:
-        """Write objects (values in drive units), all range-checked first; registers side by
-        side go in one FC16."""
-        items = [(self._obj(n).register, self._raw(n, v)) for n, v in values]
+        """Write objects (values in drive units), all range-checked first; objects of one
+        of ``[cia402] blocks`` side by side go in one FC16, every other object in a request
+        of its own (a drive answers a write across objects its manual keeps apart with an
+        exception)."""
+        c = self.description.cia402
+        items = [(self._obj(n).register, self._raw(n, v), n) for n, v in values]
         groups: list[list[tuple[Any, int]]] = []
-        for r, raw in sorted(items, key=lambda x: x[0].address) if len(items) > 1 else items:
-            if groups:
-                last = groups[-1][-1][0]
-                if last.contiguous and r.contiguous and r.address == last.address + last.words:
-                    groups[-1].append((r, raw))
-                    continue
+        block: int | None = None
+        for r, raw, name in sorted(items, key=lambda x: (x[0].address, x[0].offset)):
+            mine = c.block_of(name) if c is not None else None
+            if groups and r.follows(groups[-1][-1][0]) and (
+                    r.objects or (mine is not None and mine == block)):
+                groups[-1].append((r, raw))  # a block, or the sub-indices of one object
+                continue
             groups.append([(r, raw)])
+            block = mine
         for group in groups:
             if len(group) == 1:
                 await self.write(group[0][0], group[0][1], priority=priority,
@@ -207,6 +212,10 @@ class Cia402Profile(DescribedProfile):
             moving = turning or (self._homing and hs is not HomingStatus.COMPLETED)
         inputs = obj.get("digital_inputs")
         code = obj.get("error_code")
+        alarms, sw_reg = d.alarms, d.objects.get("statusword")
+        if alarms is not None and (sw_reg is None or alarms.reg != sw_reg.key) and \
+                values.get(alarms.reg) is not None:  # the drive's own error register
+            code = values[alarms.reg]
         st = DriveStatus(
             enabled=enabled,
             moving=moving,
@@ -468,11 +477,18 @@ class Cia402Profile(DescribedProfile):
         await self._set_mode(Mode.PROFILE_VELOCITY)
         await self._controlword(_ENABLED)  # halt clear: run
 
+    def stop_takes_decel(self) -> bool:
+        """The halt takes the profile deceleration where the description maps it."""
+        if self._described("stop"):
+            return super().stop_takes_decel()
+        return "profile_deceleration" in self.description.objects
+
     async def stop(self, decel_rps2: float | None = None) -> None:
         """Halt (controlword bit 8), with ``decel_rps2`` as the profile deceleration."""
         if self._described("stop"):
             await super().stop(decel_rps2)
             return
+        self.check_stop(decel_rps2)
         prio = Priority.EMERGENCY
         if decel_rps2 is not None and "profile_deceleration" in self.description.objects:
             await self._write_objects([("profile_deceleration", decel_rps2)], priority=prio)
@@ -565,6 +581,10 @@ def cia402_attrs(d: Any) -> dict[str, Any]:
     if "modes_of_operation_display" not in d.objects and "modes_of_operation" in d.objects:
         names.append("modes_of_operation")
     regs = [(d.objects[n], None) for n in names]
+    alarms = d.alarms
+    if alarms is not None and all(r.key != alarms.reg for r, _ in regs):
+        regs.append((d.regs[alarms.reg], None))  # the drive's own error register (Kinco's
+        # Error_State): the alarm code where it is not the CiA 402 error code
     link = d.link
     return {"_status_plan": plan_reads(regs, max_read=link.max_read, max_hole=link.max_hole),
             "_status_objects": tuple(names)}

@@ -30,6 +30,7 @@ from pydantic import (
     ConfigDict,
     Field,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -38,19 +39,22 @@ from drivebus.checks import validation_problems
 from drivebus.drives.expr import FUNCTIONS, Expr, ExprError, Template
 from drivebus.drives.programs import ProgramSupport
 from drivebus.drives.registers import Access, Register, WordOrder
-from drivebus.drives.units import Kind, UnitCodec, parse_scale
+from drivebus.drives.units import Kind, UnitCodec, check_unit, parse_scale
 from drivebus.errors import ConfigError, LimitViolation
 from drivebus.settings import LineSettings
 
 __all__ = [
     "PROCEDURES",
+    "SOURCE_KINDS",
     "TWIN_ACTIONS",
     "TWIN_MEANINGS",
     "Description",
+    "ExampleDef",
     "Reg",
     "Step",
     "load_description",
     "parse_description",
+    "source_kind",
 ]
 
 FORMAT_VERSION = 1
@@ -98,7 +102,36 @@ def _scale(v: Any) -> float:
         raise ValueError(str(exc)) from None
 
 
+def _unit(v: Any) -> Any:
+    return check_unit(v) if isinstance(v, str) else v
+
+
+SOURCE_KINDS = ("manual", "code", "inferred")
+"""Where an item of a description comes from: the manual (document, section or page),
+public code that drives the drive, or inferred (the description's author's reading)."""
+
+
+def _source(v: Any) -> Any:
+    if not isinstance(v, str):
+        return v
+    kind = re.split(r"[\s:]", v.strip(), maxsplit=1)[0].lower()
+    if kind not in SOURCE_KINDS or not v.strip()[len(kind):].strip(" :"):
+        raise ValueError(f"source {v!r}: say where it comes from, starting with manual, "
+                         f"code or inferred: 'manual: 920-0176 App. 5, p. 110', 'code: "
+                         f"github.com/owner/repo driver.py', 'inferred: why'")
+    return v.strip()
+
+
+def source_kind(source: str | None) -> str:
+    """``manual``, ``code`` or ``inferred`` of a ``source`` text; ``unnamed`` for None."""
+    if not source:
+        return "unnamed"
+    return re.split(r"[\s:]", source, maxsplit=1)[0].lower()
+
+
 E = Annotated[Expr, BeforeValidator(_expr)]
+Source = Annotated[str, BeforeValidator(_source)]
+Unit = Annotated[str, BeforeValidator(_unit)]
 T = Annotated[Template, BeforeValidator(_template)]
 Scale = Annotated[float, BeforeValidator(_scale)]
 IntKeyed = BeforeValidator(_int_keys)
@@ -125,6 +158,9 @@ class DriveInfo(_Model):
     description: str = Field("", description="one line, as in drive tables")
     engine: Literal["command", "cia402"] = "command"
     manual: str = Field("", description="where the register tables come from")
+    source: Source | None = Field(None, description="where every item without a source of "
+                                  "its own comes from ('manual: ...', 'code: ...', "
+                                  "'inferred: ...')")
     about: str = Field("", description="what the docs page says about the drive (markdown)")
 
 
@@ -163,6 +199,8 @@ class Refusals(_Model):
     address: int = Field(2, ge=1, le=255)
     outside: int | None = Field(None, ge=1, le=255, description="an address outside its map")
     access: int = Field(2, ge=1, le=255)
+    read_access: int | None = Field(None, ge=1, le=255, description="a read of a write-only "
+                                    "register, where it differs from access")
     value: int = Field(3, ge=1, le=255)
     count: int = Field(3, ge=1, le=255)
     crc: int | None = Field(None, ge=1, le=255, description="reply to a bad CRC (else silence)")
@@ -229,7 +267,9 @@ class Link(_Model):
 
     protocol: Literal["rtu", "tcp"] = "rtu"
     kinds: list[_LINE_KINDS] | None = None
-    addresses: tuple[int, int] = (1, 247)
+    addresses: tuple[int, int] | list[int] = Field(
+        (1, 247), description="'LO..HI' (a range), or a list of the addresses it can have "
+        "([255]: only 255)")
     baud_rates: list[Annotated[int, Field(gt=0)]] = []
     formats: list[Annotated[str, Field(pattern=_FORMAT)]] = []
     format_rules: list[FormatRule] = []
@@ -254,6 +294,11 @@ class Link(_Model):
         0, description="the number the manual gives the first register: 0 (PDU addresses, "
         "as on the wire), 1 (1-based) or 40001 (4xxxx numbering; input registers 3xxxx); "
         "[registers] addresses are then the manual's numbers")
+    map: Literal["words", "objects"] = Field(
+        "words", description="words: a flat array of 16-bit registers (a 32-bit value "
+        "takes its address and the next); objects: an address per object, each read and "
+        "written with its own address and width (a sub-index at an offset behind it, or at "
+        "an address of its own), never merged with the next address")
     parameter_numbers: ParameterNumbers | None = Field(
         None, description="registers' addresses from the manual's parameter numbers: "
         "address = \"P5-07\"")
@@ -263,23 +308,45 @@ class Link(_Model):
 
     @field_validator("addresses", "register_addresses", mode="before")
     @classmethod
-    def _addresses(cls, v: Any) -> Any:
-        if isinstance(v, str) and ".." in v:
-            lo, _, hi = v.partition("..")
+    def _addresses(cls, v: Any, info: ValidationInfo) -> Any:
+        if isinstance(v, str):
+            lo, sep, hi = v.partition("..")
             try:
-                return (int(lo, 0), int(hi, 0))
+                return (int(lo, 0), int(hi, 0)) if sep else [int(v, 0)]
             except ValueError:
                 raise ValueError(f"{v!r}: expected 'LO..HI' like '1..31'") from None
+        if isinstance(v, list | tuple) and info.field_name == "addresses":
+            return list(v)  # a list: the addresses themselves, not a range
         return v
 
     @model_validator(mode="after")
     def _check(self) -> Link:
-        lo, hi = self.addresses
-        if not 0 <= lo <= hi <= 255:
-            raise ValueError(f"addresses {lo}..{hi}: expected 0 <= lo <= hi <= 255")
+        if isinstance(self.addresses, tuple):
+            lo, hi = self.addresses
+            if lo > hi:
+                raise ValueError(f"addresses {lo}..{hi}: the first is above the last")
+            given = [lo, hi]
+        else:
+            if not self.addresses:
+                raise ValueError("addresses: an empty list (give 'LO..HI' or the addresses)")
+            given = self.addresses
+        first, last = (0, 255) if self.protocol == "tcp" else (1, 247)
+        bad = [a for a in given if not first <= a <= last]
+        if bad:
+            what = "a Modbus TCP unit id is 0..255" if self.protocol == "tcp" else \
+                "an RTU address is 1..247 (0 is broadcast); a Modbus TCP unit id is 0..255 " \
+                "(protocol = \"tcp\")"
+            raise ValueError(f"addresses: {bad[0]} is outside {first}..{last}: {what}")
         if self.factory is not None:
             LineSettings.parse(self.factory)
         return self
+
+    @property
+    def address_set(self) -> range | tuple[int, ...]:
+        """The addresses (unit ids) the drive can have."""
+        if isinstance(self.addresses, tuple):
+            return range(self.addresses[0], self.addresses[1] + 1)
+        return tuple(sorted(set(self.addresses)))
 
     @property
     def line_kinds(self) -> frozenset[str]:
@@ -287,8 +354,8 @@ class Link(_Model):
         if self.kinds is not None:
             return frozenset(self.kinds)
         if self.protocol == "tcp":
-            return frozenset({"tcp", "rtu-over-tcp"})
-        return frozenset({"serial", "rtu-over-tcp", "tcp"})
+            return frozenset({"tcp"})  # MBAP only: no RTU frames over its socket
+        return frozenset({"serial", "rtu-over-tcp", "tcp"})  # tcp: through a gateway
 
     @property
     def order(self) -> WordOrder:
@@ -348,6 +415,7 @@ class BitDef(_Model):
     twin: E | None = Field(None, description="twin: the bit's value as an expression over "
                            "the twin's state (where no `means` fits)")
     doc: str = ""
+    source: Source | None = None
 
     _means = field_validator("means")(_known_meaning)
 
@@ -370,7 +438,9 @@ class RegisterDef(_Model):
     signed: bool = False
     order: Literal["high_first", "low_first"] | None = None
     low_address: Word | None = None
-    unit: str = ""
+    offset: int = Field(0, ge=0, le=120, description="object-addressed map: the words of "
+                        "the object before it (a sub-index behind the object's address)")
+    unit: Unit = ""
     scale: Scale = 1.0
     ramp: str | float | None = None
     table: list[int] = []
@@ -402,6 +472,8 @@ class RegisterDef(_Model):
                             "(beyond the range); a write that fails it is refused with "
                             "refusals.value")
     doc: str = ""
+    source: Source | None = Field(None, description="where it comes from: 'manual: "
+                                  "section, page', 'code: ...' or 'inferred: why'")
 
     _means = field_validator("means")(_known_meaning)
 
@@ -425,6 +497,9 @@ class RegisterDef(_Model):
             raise ValueError(f"min {self.min} is above max {self.max}")
         if self.table and self.values:
             raise ValueError("give a table or named values, not both")
+        if (self.table or self.values) and self.scale != 1.0:
+            raise ValueError("scale does not apply to a table or named values (the table "
+                             "gives each raw value's meaning)")
         if self.input and self.access != "R":
             raise ValueError("an input register is read-only: access = \"R\"")
         if sum((self.input, self.coil, self.discrete)) > 1:
@@ -457,6 +532,8 @@ class Reg:
     d: RegisterDef
     codec: UnitCodec
     order: WordOrder
+    objects: bool = False
+    """In an object-addressed map (``[link] map = "objects"``)."""
 
     @property
     def name(self) -> str:
@@ -522,10 +599,12 @@ class Reg:
         d = self.d
         bit = d.coil or d.discrete
         return Register(
-            name, address, d.words, signed=d.signed, order=self.order, unit=d.unit,
+            name, address, d.words, signed=d.signed, order=self.order,
+            unit=self.codec.raw_unit(),
             minimum=0 if bit and d.min is None else d.min,
             maximum=1 if bit and d.max is None else d.max,
             access=Access(d.access), low_address=low,
+            objects=self.objects and self.space == 0, offset=d.offset,
         )
 
     @property
@@ -536,8 +615,14 @@ class Reg:
         return 1 if d.input else 2 if d.coil else 3 if d.discrete else 0
 
     def addresses(self) -> Iterator[int]:
-        """Every address it occupies (every word of every entry)."""
+        """Every address it occupies (every word of every entry); in an object-addressed
+        map, ``(address << 8) + word`` for each word of the object it is part of."""
         d = self.d
+        if self.objects and self.space == 0:
+            for n in range(d.count):
+                base = d.address + n * d.stride
+                yield from ((base << 8) + d.offset + w for w in range(d.words))
+            return
         for n in range(d.count):
             base = d.address + n * d.stride
             yield base
@@ -750,6 +835,7 @@ class HomingMethod(BaseModel):
     direction: Literal[-1, 1] | None = Field(None, description="reference_edge, hard_stop: "
                                              "the search direction")
     doc: str = ""
+    source: Source | None = None
 
     @model_validator(mode="after")
     def _reference(self) -> HomingMethod:
@@ -880,7 +966,30 @@ class Procedure(_Model):
     supported: E | None = Field(None, description="a condition on the options")
     why: str = ""
     priority: Priorities | None = None
+    takes: list[str] | None = Field(None, description="the parameters it honours (default: "
+                                    "those its steps use); a stop that takes no decel refuses "
+                                    "one before anything is sent")
     doc: str = ""
+    source: Source | None = None
+
+    def uses(self) -> set[str]:
+        """The names its steps' expressions use (what it honours of its parameters)."""
+        names: set[str] = set()
+        for step in self.steps:
+            for value in step.__dict__.values():
+                if isinstance(value, Expr | Template):
+                    names |= value.names
+            for item in (step.write or {}).values():
+                names |= item.value.names
+            for e in (*(step.set or {}).values(), *step.args.values()):
+                names |= e.names
+            if step.each is not None:
+                names |= Expr.parse(step.each.split(" in ", 1)[1]).names
+        return names
+
+    def honours(self, param: str) -> bool:
+        """Whether it takes parameter ``param`` (``takes``, else its steps use it)."""
+        return param in self.takes if self.takes is not None else param in self.uses()
 
     @model_validator(mode="after")
     def _check(self) -> Procedure:
@@ -1046,7 +1155,7 @@ class TwinDef(_Model):
 class ObjectUnit(_Model):
     """How the registers of one kind of CiA 402 object hold their values."""
 
-    unit: str
+    unit: Unit
     scale: Scale = 1.0
 
 
@@ -1068,6 +1177,17 @@ class Cia402Def(_Model):
                                          "one at once (controlword bit 5)")
     timeout: float = Field(1.0, gt=0, le=30, description="s, for a state change or a "
                            "set-point acknowledge")
+    blocks: list[Annotated[list[str], Field(min_length=2)]] = Field(
+        [], description="objects the drive takes in one FC16, each list at registers that "
+        "follow on ('profile_velocity', 'profile_acceleration'); every other object is "
+        "written in a request of its own")
+
+    def block_of(self, name: str) -> int | None:
+        """The index of the block of ``blocks`` object ``name`` belongs to (None: none)."""
+        for i, block in enumerate(self.blocks):
+            if any(object_name(ref) == name for ref in block):
+                return i
+        return None
 
 
 def object_name(ref: str) -> str | None:
@@ -1089,6 +1209,60 @@ def object_name(ref: str) -> str | None:
         if info.index == index and info.subindex == sub:
             return name
     return None
+
+
+# -- the manual's example frames -----------------------------------------------------------
+
+
+def _frames(v: Any) -> Any:
+    return [v] if isinstance(v, str) else v
+
+
+class ExampleDef(_Model):
+    """``[[examples]]``: a frame the manual prints and what it stands for; ``drivebus
+    drive check`` verifies that the engine sends exactly those bytes for it and decodes
+    the printed reply to the printed values (``drivebus.drives.examples``)."""
+
+    doc: str = Field("", description="what the manual says the frame does")
+    source: Source | None = Field(None, description="where the manual prints it")
+    request: Annotated[list[str], BeforeValidator(_frames)] = Field(
+        min_length=1, description="the request frame(s) as printed: '01 06 00 1D 02 58 D9 8B' "
+        "(RTU, CRC included) or an MBAP frame; several: in the order the engine sends them")
+    reply: Annotated[list[str], BeforeValidator(_frames)] = Field(
+        [], description="the reply frame(s) as printed, for the requests in order")
+    write: dict[str, Any] | None = Field(None, description="what the request writes: "
+                                         "register = value (physical, as a procedure's)")
+    raw: bool = Field(False, description="write: the values are what the registers hold")
+    block: bool = Field(False, description="write: in one FC16 (the registers form a block)")
+    read: list[str | list[str]] | None = Field(None, description="what the request reads: "
+                                               "register keys, or spans [first, last]")
+    procedure: str | None = Field(None, description="the procedure the frames stand for")
+    args: dict[str, Any] = Field({}, description="procedure: its arguments (drive units)")
+    values: dict[str, Any] = Field({}, description="read: what the reply decodes to "
+                                   "(physical values)")
+    pulses_per_rev: int | None = Field(None, gt=0, description="the pulses per revolution "
+                                       "the example assumes (default: the description's)")
+    options: dict[str, Any] = Field({}, description="drive_options the example assumes")
+    erratum: str = Field("", description="what the manual got wrong in it (a printed CRC, "
+                         "an address of another model's map): a wrong CRC is then checked "
+                         "as corrected, and an example that stands for nothing the drive "
+                         "does is listed, not run")
+
+    listed: str = Field("", description="why the example is listed but not run (a frame "
+                        "with a bad CRC on purpose, an address the description leaves out, a "
+                        "value the engine refuses before sending)")
+
+    @model_validator(mode="after")
+    def _one(self) -> ExampleDef:
+        given = [k for k in ("write", "read", "procedure") if getattr(self, k) is not None]
+        if not given and (self.erratum or self.listed):
+            return self  # printed, but standing for nothing this drive does: said, not run
+        if len(given) != 1:
+            raise ValueError("an example stands for exactly one of write, read or procedure "
+                             f"(got {', '.join(given) or 'none'})")
+        if self.values and self.read is None:
+            raise ValueError("values are what a read's reply decodes to: give read")
+        return self
 
 
 # -- the whole description ---------------------------------------------------------------
@@ -1118,6 +1292,24 @@ class Description(_Model):
     cia402: Cia402Def | None = None
     procedures: dict[Annotated[str, Field(pattern=_KEY)], Procedure] = {}
     twin: TwinDef = TwinDef()
+    examples: list[ExampleDef] = []
+
+    def provenance(self) -> dict[str, list[str]]:
+        """Where every register, bit, procedure and homing method comes from, by kind
+        (``manual``, ``code``, ``inferred``, ``unnamed``): the item's own ``source``, else
+        the register's (for its bits), else ``[drive] source``."""
+        default = self.drive.source
+        out: dict[str, list[str]] = {k: [] for k in (*SOURCE_KINDS, "unnamed")}
+        for key, r in self.registers.items():
+            out[source_kind(r.source or default)].append(f"registers.{key}")
+            for bit, b in r.bits.items():
+                out[source_kind(b.source or r.source or default)].append(
+                    f"registers.{key}.bits.{bit}")
+        for name, p in self.procedures.items():
+            out[source_kind(p.source or default)].append(f"procedures.{name}")
+        for name, m in (self.homing.methods.items() if self.homing else ()):
+            out[source_kind(m.source or default)].append(f"homing.methods.{name}")
+        return out
 
     # -- compiled views ---------------------------------------------------------------------
 
@@ -1129,7 +1321,7 @@ class Description(_Model):
         for key, d in {**placed, **self._generated()}.items():
             codec = UnitCodec.make(d.unit, d.scale, d.ramp, d.table, d.values)
             order = WordOrder(d.order) if d.order else self.link.order
-            out[key] = Reg(key, d, codec, order)
+            out[key] = Reg(key, d, codec, order, objects=self.link.map == "objects")
         return out
 
     def register_base(self, d: RegisterDef) -> int:
@@ -1491,7 +1683,33 @@ class _Checker:
             self._reg_key("eeprom.write_through.register", d.eeprom.write_through.reg)
         self._cia402()
         self._parameters()
+        self._examples()
         yield from self.out
+
+    def _examples(self) -> None:
+        for i, ex in enumerate(self.d.examples):
+            where = f"examples[{i}]"
+            for frame in [*ex.request, *ex.reply]:
+                if not re.fullmatch(r"\s*(?:(?:0x)?[0-9A-Fa-f]{2}h?[\s,]*)+", frame):
+                    self.out.append(f"{where}: {frame!r} is not a frame of hex bytes "
+                                    f"('01 06 00 1D 02 58 D9 8B')")
+                    break
+            for key in ex.write or {}:
+                self._target(f"{where}.write", key, set(), writes=True)
+            for item in ex.read or []:
+                if isinstance(item, str) and "[" in item:
+                    self._target(f"{where}.read", item, set())
+                else:
+                    self._span(f"{where}.read", item)
+            read_keys = {k for item in ex.read or [] for k in
+                         ([item] if isinstance(item, str) else item)}
+            for key in ex.values:
+                if key not in read_keys and ex.read and not any(
+                        isinstance(item, list) for item in ex.read):
+                    self.out.append(f"{where}.values.{key}: not one of the registers read")
+            if ex.procedure is not None and ex.procedure not in self.d.procedures and \
+                    (self.d.drive.engine != "cia402" or ex.procedure not in PROCEDURES):
+                self.out.append(f"{where}.procedure: no procedure {ex.procedure!r}")
 
     def _programs(self) -> None:
         proc = self.d.procedures.get("retarget_absolute")
@@ -1545,14 +1763,19 @@ class _Checker:
                     d.max > _width_hi(d)):
                 self.out.append(f"{where}: range {lo}..{hi} does not fit {16 * d.words} "
                                 f"{'signed' if d.signed else 'unsigned'} bits")
-            space = reg.space << 16  # inputs, coils and discrete inputs: spaces apart
+            if d.offset and not reg.objects:
+                self.out.append(f"{where}.offset: an offset is for a sub-index of an "
+                                f"object-addressed map ([link] map = \"objects\")")
+            space = reg.space << 24  # inputs, coils and discrete inputs: spaces apart
             for a in reg.addresses():
-                if a > 0xFFFF:
-                    self.out.append(f"{where}: its words reach address {a}, beyond 65535")
+                shown = a >> 8 if reg.objects else a
+                if shown > 0xFFFF:
+                    self.out.append(f"{where}: its words reach address {shown}, beyond 65535")
                     break
                 if space + a in owner and owner[space + a] != key:
-                    self.out.append(f"{where}.address: address {a} (0x{a:04X}) is also "
-                                    f"register {owner[space + a]}")
+                    word = f", word {a & 0xFF} of the object" if reg.objects else ""
+                    self.out.append(f"{where}.address: address {shown} (0x{shown:04X}{word}) "
+                                    f"is also register {owner[space + a]}")
                     break
                 owner[space + a] = key
 
@@ -1570,6 +1793,7 @@ class _Checker:
             if c.objects and c.address_rule is None:
                 self.out.append("cia402.objects: needs address_rule (how an object's index "
                                 "and sub-index give its address)")
+            self._cia402_blocks(c)
             if c.address_rule is not None:
                 unknown = c.address_rule.names - {"index", "sub"} - set(FUNCTIONS)
                 if unknown:
@@ -1581,6 +1805,11 @@ class _Checker:
                                 (2, 1, "coils"), (3, 2, "discrete inputs")):
             if space in spaces and fc not in d.link.functions:
                 self.out.append(f"link.functions: {what} need function code {fc}")
+        if d.link.map == "objects" and 16 not in d.link.functions and any(
+                r.d.words == 2 or r.d.offset for r in self.regs.values()):
+            self.out.append("link.functions: an object-addressed map writes a 32-bit object "
+                            "or a sub-index with function code 16 (its words go with its one "
+                            "address)")
         if any(r.d.coil and r.d.access != "R" for r in self.regs.values()) and \
                 5 not in d.link.functions:
             self.out.append("link.functions: writing coils needs function code 5")
@@ -1591,6 +1820,28 @@ class _Checker:
                                     f"(a register with object = \"{needed}\")")
         elif c is not None:
             self.out.append("cia402: only for drive.engine = \"cia402\"")
+
+    def _cia402_blocks(self, c: Cia402Def) -> None:
+        from drivebus.drives.mapping import adjacent
+
+        seen: dict[str, int] = {}
+        for i, block in enumerate(c.blocks):
+            regs = []
+            for ref in block:
+                name = object_name(ref)
+                if name is None or name not in self.d.objects:
+                    self.out.append(f"cia402.blocks[{i}]: {ref!r} is no object mapped to a "
+                                    f"register")
+                    return
+                if name in seen:
+                    self.out.append(f"cia402.blocks[{i}]: {name} is also in "
+                                    f"cia402.blocks[{seen[name]}]")
+                seen[name] = i
+                regs.append(self.d.objects[name])
+            gap = adjacent(regs)
+            if gap is not None:
+                self.out.append(f"cia402.blocks[{i}]: {gap[0]} and {gap[1]} are not "
+                                f"adjacent, so one FC16 cannot write them")
 
     def _placed_overlaps(self) -> None:
         """Registers the address rule places must not share an address with another."""
@@ -1663,6 +1914,9 @@ class _Checker:
         keys = [item] if isinstance(item, str) else item
         if isinstance(item, list) and len(item) != 2:
             self.out.append(f"{where}: a span is [first, last] register")
+        if isinstance(item, list) and self.d.link.map == "objects":
+            self.out.append(f"{where}: an object-addressed map reads each object by itself: "
+                            f"list the registers, not a span")
         for k in keys:
             self._reg_key(where, k)
         ends = [self.d.regs.get(k.split("[", 1)[0].strip()) for k in keys]
@@ -1727,6 +1981,10 @@ class _Checker:
     def _procedure(self, name: str, proc: Procedure) -> None:
         where = f"procedures.{name}"
         params = set(PROCEDURES.get(name, ("", ()))[1]) | {p.name for p in proc.params}
+        for i, taken in enumerate(proc.takes or []):
+            if taken not in params:
+                self.out.append(f"{where}.takes[{i}]: {taken!r} is no parameter of {name} "
+                                f"({', '.join(sorted(params)) or 'it has none'})")
         self._names(f"{where}.supported", proc.supported)
         self._names(f"{where}.what", proc.what, params)
         if name == "learn":
@@ -1751,6 +2009,8 @@ class _Checker:
             for key, item in step.write.items():
                 self._target(f"{where}.write", key, params, writes=True)
                 self._names(f"{where}.write.{key}", item.value, params)
+            if step.block is not None and step.each is None:
+                self._block(where, list(step.write))
         if step.read is not None:
             for j, item in enumerate(step.read):
                 if isinstance(item, str) and "[" in item:
@@ -1773,6 +2033,30 @@ class _Checker:
                     self.out.append(f"{where}.set.{k}: no state variable {k!r} (declare it "
                                     f"in [state])")
                 self._names(f"{where}.set.{k}", e, params)
+
+    def _block(self, where: str, keys: list[str]) -> None:
+        """A step's ``block``: its registers must follow on from each other in the order
+        listed (one FC16 writes them; anything else would merge what the manual keeps
+        apart, or silently become several writes)."""
+        from drivebus.drives.mapping import adjacent
+
+        pairs: list[tuple[Reg, int | None]] = []
+        for key in keys:
+            m = re.fullmatch(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[\s*(\d+)\s*\])?", key.strip())
+            reg = self.regs.get(m.group(1)) if m is not None else None
+            if m is None or reg is None or (reg.array and m.group(2) is None):
+                return  # an index only the run knows, or a mistake named elsewhere
+            index = int(m.group(2)) if m.group(2) is not None else None
+            if index is not None and (not reg.array or index not in reg.indices):
+                return
+            pairs.append((reg, index))
+        gap = adjacent(pairs)
+        if gap is not None:
+            self.out.append(
+                f"{where}.block: {gap[0]} and {gap[1]} are not adjacent, so one FC16 "
+                f"cannot write them: list a block's registers in address order with no "
+                f"gap (and only where the manual lets them be written together), or "
+                f"write them in separate steps")
 
     def _target(self, where: str, key: str, params: set[str], *, writes: bool = False
                 ) -> None:

@@ -45,6 +45,7 @@ from drivebus.drives.base import (
 from drivebus.drives.description import PROCEDURES, Description, Procedure, Reg, Step
 from drivebus.drives.expr import Expr, ExprError, Unknown
 from drivebus.drives.io import IOPoint, function_text
+from drivebus.drives.mapping import register_namer
 from drivebus.drives.programs import Completion
 from drivebus.drives.registers import Register, WordOrder
 from drivebus.drives.status import DriveIdentity, DriveStatus
@@ -78,6 +79,9 @@ _DEFAULT_PRIORITY = {
 }
 INPUT = 1 << 16
 """Where input registers' words sit in a read's words (``INPUT + address``)."""
+OBJECT = 1 << 40
+"""Where an object-addressed map's words sit in a read's words (``OBJECT + (address << 8)
++ word``): objects at consecutive addresses do not share words."""
 _TARGET = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)(?:\[(.+)\])?")
 _MAX_DEPTH = 8
 
@@ -101,6 +105,9 @@ class ReadPlan:
     """(first address, count) per FC02, for discrete inputs."""
     space_order: tuple[int, ...] = (0, 1, 2, 3)
     """The address spaces in the order they are read (a listed poll: as listed)."""
+    object_blocks: tuple[tuple[int, int], ...] = ()
+    """(object address, count) per FC03 of an object-addressed map: each object read by
+    itself, with its address (with the holding registers)."""
 
 
 Span = tuple[int, int, int]
@@ -117,9 +124,14 @@ def plan_reads(
     ``max_hole`` allow."""
     spaces: tuple[set[int], ...] = (set(), set(), set(), set())
     wanted, inputs = spaces[0], spaces[1]
+    objects: dict[int, int] = {}
     regs = []
     for reg, index in targets:
         r = reg.at(index) if reg.array else reg.register
+        if r.objects:  # its object by itself, through its last word
+            objects[r.address] = max(objects.get(r.address, 0), r.offset + r.words)
+            regs.append((reg, index))
+            continue
         space = spaces[reg.space]
         space.add(r.address)
         if r.words == 2:
@@ -129,7 +141,8 @@ def plan_reads(
         spaces[space_no].update(range(first, last + 1))
     return ReadPlan(_blocks(wanted, max_read, max_hole), tuple(regs),
                     _blocks(inputs, max_read, max_hole), _blocks(spaces[2], max_read, max_hole),
-                    _blocks(spaces[3], max_read, max_hole))
+                    _blocks(spaces[3], max_read, max_hole),
+                    object_blocks=tuple(sorted(objects.items())))
 
 
 def _blocks(addresses: set[int], max_read: int, max_hole: int) -> tuple[tuple[int, int], ...]:
@@ -233,6 +246,7 @@ class DescribedProfile(DriveProfile):
         timeout = d.link.timing.response_timeout
         if timeout is not None and slave.timeout < timeout:
             slave.timeout = timeout
+        slave.register_names = register_namer(d)
         timing = d.link.timing
         slave.guard = max(slave.guard, timing.guard)
         slave.frame_timeout = max(slave.frame_timeout, timing.frame_timeout or 0.0)
@@ -566,6 +580,9 @@ class DescribedProfile(DriveProfile):
             await self.slave.write_coil(reg.address, bool(reg.check(value)), priority=priority,
                                         idempotent=idempotent)
             return
+        if reg.offset:  # a sub-index behind its object's address: with the words before it
+            await super().write(reg, value, priority=priority, idempotent=idempotent)
+            return
         words = reg.encode(value)
         if len(words) == 1 and 6 not in fcs:
             await self.slave.write_registers(reg.address, words, priority=priority,
@@ -618,6 +635,19 @@ class DescribedProfile(DriveProfile):
                     await self.write(r, it.raw, priority=prio, idempotent=idem)
         for it in items:
             self.last[it.key] = it.physical
+
+    async def write_values(self, values: Mapping[str, Any], *, raw: bool = False,
+                           block: bool = False,
+                           priority: Priority = Priority.CONFIG) -> None:
+        """Write registers (``KEY`` or ``KEY[i]`` = a physical value, or the raw value with
+        ``raw``) as one write step of a procedure would: converted and range-checked
+        before the first frame, in one FC16 with ``block``."""
+        step = Step.model_validate({
+            "write": {k: {"value": Expr.parse(repr(v) if isinstance(v, str) else v),
+                          "raw": raw} for k, v in values.items()},
+            **({"block": Expr.parse(True)} if block else {})})
+        self._items(step, _Run("write", {}, True, priority))  # checked before any frame
+        await self._write(step, _Run("write", {}, False, priority), priority)
 
     async def _changed(self, items: list[_Item], run: _Run, prio: Priority) -> list[_Item]:
         """The items whose raw value differs from the drive's (read in this run, else now)."""
@@ -715,6 +745,12 @@ class DescribedProfile(DriveProfile):
                 got = await read(start, count, priority=prio)
                 base = (space << 16) + start  # INPUT for input registers
                 words.update(zip(range(base, base + count), got, strict=True))
+            if space == 0:
+                for address, count in plan.object_blocks:
+                    got = await self.slave.read_holding_registers(address, count,
+                                                                  priority=prio)
+                    base = OBJECT + (address << 8)
+                    words.update(zip(range(base, base + count), got, strict=True))
         return words
 
     async def _poll_values(self, plan: ReadPlan, prio: Priority,
@@ -745,7 +781,10 @@ class DescribedProfile(DriveProfile):
                     raw_words: dict[str, list[int]] | None) -> None:
         r = reg.at(index)
         base = reg.space << 16  # input registers, coils, discrete inputs: spaces apart
-        if r.words == 2:
+        if r.objects:
+            at = OBJECT + (r.address << 8) + r.offset
+            ws = [words[at + j] for j in range(r.words)]
+        elif r.words == 2:
             low = r.low_address if r.low_address is not None else r.address + 1
             ws = [words[base + r.address], words[base + low]]
         else:
@@ -814,8 +853,11 @@ class DescribedProfile(DriveProfile):
         lost = []
         for it in items:
             r, base = it.register, it.reg.space << 16
-            addresses = [r.address] if r.words == 1 else \
-                [r.address, r.low_address if r.low_address is not None else r.address + 1]
+            if r.objects:
+                base, addresses = OBJECT + (r.address << 8) + r.offset, list(range(r.words))
+            else:
+                addresses = [r.address] if r.words == 1 else \
+                    [r.address, r.low_address if r.low_address is not None else r.address + 1]
             seen = r.decode([words[base + a] for a in addresses])
             if seen != it.raw:
                 lost.append(f"{r.name} ({r.address}) = {seen}, not {it.raw}")
@@ -1117,8 +1159,15 @@ class DescribedProfile(DriveProfile):
         """The description's ``speed_run`` (signed speed)."""
         await self.run("speed_run", speed=speed_rpm, accel=accel_rps2, decel=decel_rps2)
 
+    def stop_takes_decel(self) -> bool:
+        """Whether the description's stop honours a deceleration: its ``takes``, else
+        whether its steps use ``decel`` (or pass it to a procedure they call)."""
+        proc = self._steps_of("stop")
+        return proc is not None and proc.honours("decel")
+
     async def stop(self, decel_rps2: float | None = None) -> None:
-        """The description's ``stop``."""
+        """The description's ``stop`` (a deceleration it cannot honour is refused first)."""
+        self.check_stop(decel_rps2)
         await self.run("stop", decel=decel_rps2)
 
     async def emergency_stop(self) -> None:
@@ -1353,15 +1402,12 @@ def _raw_values(raw: Mapping[str, Expr], scope: Mapping[str, Any]) -> dict[str, 
 
 
 def _consecutive(items: Sequence[_Item]) -> list[list[_Item]]:
-    """Items grouped into runs of consecutive, contiguous registers (one FC16 each)."""
+    """Items grouped into runs of registers that follow on (one FC16 each)."""
     groups: list[list[_Item]] = []
     for it in items:
-        r = it.register
-        if groups:
-            last = groups[-1][-1].register
-            if last.contiguous and r.contiguous and r.address == last.address + last.words:
-                groups[-1].append(it)
-                continue
+        if groups and it.register.follows(groups[-1][-1].register):
+            groups[-1].append(it)
+            continue
         groups.append([it])
     return groups
 
@@ -1440,8 +1486,24 @@ def _ppr_allowed(d: Description) -> Any:
         reg = d.regs[p.reg]
         if reg.codec.table:
             return tuple(sorted(reg.codec.table))
-        return range(max(reg.register.lo, 1), reg.register.hi + 1)
+        return scaled_range(max(reg.register.lo, 1), reg.register.hi, reg.codec.scale)
     return range(1, 1 << 31)
+
+
+def scaled_range(lo: int, hi: int, scale: float) -> Any:
+    """The whole values ``raw × scale`` for raw in ``lo..hi``: what a register of that
+    range and scale can be set to, in the user's units (pulses/rev through EG/2)."""
+    if scale == 1.0:
+        return range(lo, hi + 1)
+    if scale == int(scale):
+        s = int(scale)
+        return range(lo * s, hi * s + 1, s)
+    inverse = 1.0 / scale
+    if abs(inverse - round(inverse)) < 1e-9:
+        n = round(inverse)
+        return range(-(-lo // n), hi // n + 1)
+    return tuple(sorted({round(raw * scale) for raw in range(lo, hi + 1)
+                         if abs(raw * scale - round(raw * scale)) < 1e-9}))
 
 
 def _status_plan(d: Description) -> ReadPlan:
@@ -1560,7 +1622,7 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "homing_methods": homing,
         "options": options_model(d),
         "pulses_per_rev_allowed": _ppr_allowed(d),
-        "addresses": range(link.addresses[0], link.addresses[1] + 1),
+        "addresses": link.address_set,
         "line_kinds": link.line_kinds,
         "baud_rates": tuple(link.baud_rates),
         "line_formats": tuple(link.formats),

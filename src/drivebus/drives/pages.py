@@ -107,10 +107,51 @@ def description_sections(family: DriveFamily) -> list[str]:
         registers_table(_described_registers(d),
                         "The register map of the description (0-based PDU addresses, as "
                         "the manual prints them), with the ranges every write is checked "
-                        "against:"),
+                        "against and where each register comes from:"),
+        _examples(d),
         _steps(d),
         _twin(d),
     ]
+
+
+def _provenance(d: Description) -> str:
+    """Where the description's items come from, by kind; the inferred ones named."""
+    prov = d.provenance()
+    total = sum(len(v) for v in prov.values())
+    text = (f"Provenance of its {total} registers, bits, procedures and homing methods: "
+            + ", ".join(f"{len(prov[k])} {k}" for k in ("manual", "code", "inferred",
+                                                         "unnamed") if prov[k]) + ".")
+    if prov["inferred"]:
+        text = (f"**{len(prov['inferred'])} items are inferred** (neither the manual nor "
+                f"public code says them; check them on the drive): "
+                + ", ".join(f"`{x}`" for x in prov["inferred"]) + ".\n\n" + text)
+    return text
+
+
+def _examples(d: Description) -> str:
+    """The manual's example frames the description carries (``drive check`` verifies
+    each against the engine)."""
+    if not d.examples:
+        return ""
+    rows = ["| Example | Request | Reply | Stands for |", "|---|---|---|---|"]
+    for ex in d.examples:
+        what = (f"write {', '.join(f'{k} = {v}' for k, v in (ex.write or {}).items())}"
+                if ex.write is not None else "read " + ", ".join(
+                    x if isinstance(x, str) else "..".join(x) for x in ex.read)
+                if ex.read is not None else f"{ex.procedure}("
+                + ", ".join(f"{k}={v}" for k, v in ex.args.items()) + ")"
+                if ex.procedure is not None else "nothing this drive does")
+        if ex.values:
+            what += " → " + ", ".join(f"{k} = {v}" for k, v in ex.values.items())
+        if ex.erratum:
+            what += f" (erratum: {ex.erratum})"
+        doc = ex.doc + (f" ({ex.source})" if ex.source else "")
+        rows.append(f"| {cell(doc) or '-'} | `{'`<br>`'.join(ex.request)}` | "
+                    + (f"`{'`<br>`'.join(ex.reply)}`" if ex.reply else "-")
+                    + f" | {cell(what)} |")
+    return ("## The manual's example frames\n\n`drivebus drive check` verifies that the "
+            "engine sends exactly these bytes for what each stands for, and decodes the "
+            "replies to the values printed:\n\n" + "\n".join(rows))
 
 
 def _about(d: Description) -> str:
@@ -119,6 +160,7 @@ def _about(d: Description) -> str:
         text.append("## About the drive\n\n" + d.drive.about.strip())
     if d.drive.manual:
         text.append(f"Register tables from: {d.drive.manual}.")
+    text.append(_provenance(d))
     return "\n\n".join(text)
 
 
@@ -402,7 +444,9 @@ def _described_registers(d: Description) -> list[tuple[str, Register, str]]:
         if reg.array:
             last = reg.at(reg.indices.stop - 1)
             label = f"{register_address(r)} .. {register_address(last)} (×{reg.d.count})"
-        out.append((label, r, _reg_notes(reg)))
+        notes = _reg_notes(reg)
+        source = reg.d.source or d.drive.source or "not named"
+        out.append((label, r, f"{notes}; source: {source}" if notes else f"source: {source}"))
     return sorted(out, key=lambda x: x[1].address)
 
 

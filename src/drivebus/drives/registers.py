@@ -63,10 +63,31 @@ class Register:
     maximum: int | None = None
     access: Access = Access.RW
     low_address: int | None = None
+    objects: bool = False
+    """Its address is its object's own (an object-addressed map): its words go with that
+    one address, and the register at the next address is another object, not its next
+    word."""
+    offset: int = 0
+    """In an object-addressed map, the words of the object before it (a sub-index behind
+    the object's address): a read of it reads the object from its address."""
 
     def __post_init__(self) -> None:
         if self.words not in (1, 2):
             raise ConfigError(f"register {self.name}: width must be 1 or 2 words")
+
+    @property
+    def position(self) -> int:
+        """Where its first word sits in a request from its address (``offset``)."""
+        return self.offset
+
+    def follows(self, before: Register) -> bool:
+        """True if one request can carry ``before`` and then this register: the next
+        words of the same object, or (in a flat word map) the next address."""
+        if self.objects or before.objects:
+            return self.objects and before.objects and self.address == before.address and \
+                self.offset == before.offset + before.words
+        return before.contiguous and self.contiguous and \
+            self.address == before.address + before.words
 
     @property
     def lo(self) -> int:

@@ -13,7 +13,11 @@ accelerations in rev/s². A register may hold them otherwise, and its descriptio
 * a lookup table (``table = [400, 800, ...]``: the physical value is ``table[raw]``) or
   named values (``values = { "8N1" = 0, ... }``).
 
-Anything else (``V``, ``°C``, ``ms`` of a filter) is a label: the raw value is the value.
+Any other unit must be one this module knows (``OTHER_UNITS``: ``V``, ``A``, ``°C``,
+``%``, ``count``, ``steps/rev``, ``ms`` of a filter, ...): its value is the raw value times
+``scale``, in that unit. A unit with a factor in its name (``"0.1 A"``, ``"×50 µs"``) or one
+this module does not know is refused (``check_unit``): a scale that is silently not applied
+is an axis that travels twice the distance it was told.
 Conversions round to the register's resolution and range-check with errors that name the
 register, its range and the value asked for.
 """
@@ -22,6 +26,7 @@ from __future__ import annotations
 
 import enum
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -29,7 +34,8 @@ from fractions import Fraction
 from drivebus.drives.registers import Register
 from drivebus.errors import LimitViolation
 
-__all__ = ["Kind", "UnitCodec", "parse_scale", "ramp_time_ms", "unit_kind"]
+__all__ = ["OTHER_UNITS", "Kind", "UnitCodec", "check_unit", "parse_scale", "ramp_time_ms",
+           "scale_text", "unit_kind"]
 
 
 class Kind(enum.Enum):
@@ -56,7 +62,48 @@ _TIME = {"ms": 0.001, "s": 1.0}
 KNOWN_UNITS: tuple[str, ...] = (
     *_POSITION, *_SPEED, *_SPEED_PULSES, *_ACCEL, *_ACCEL_PULSES, *_TIME,
 )
-"""The units this module converts (any other unit is a label)."""
+"""The units this module converts to drive units (pulses, rpm, rev/s²)."""
+
+OTHER_UNITS: tuple[str, ...] = (
+    "count", "steps/rev", "pulses/rev", "counts/rev", "ms", "s", "µs", "us", "min", "h",
+    "V", "mV", "A", "mA", "W", "kW", "Ω", "mΩ", "H", "mH", "Hz", "kHz", "°C", "%", "‰",
+    "mm", "µm", "°", "deg", "Nm", "N", "kg", "rpm/V", "bit/s", "baud",
+)
+"""Units whose value is the raw value times ``scale`` in that unit (not converted to
+drive units): currents, voltages, temperatures, times of filters, counts."""
+
+_FACTOR = re.compile(r"^\s*(?:[×x*]\s*)?([0-9]+(?:[.,][0-9]+)?)\s*(?:[×x*]\s*)?(\S.*)$")
+
+
+def check_unit(unit: str, *, ramp: bool = False) -> str:
+    """``unit`` stripped if this module knows it; else ``ValueError`` saying what to write
+    (a factor in the unit's name is a ``scale``)."""
+    u = unit.strip()
+    if not u or u in KNOWN_UNITS or u in OTHER_UNITS or (ramp and u in _TIME):
+        return u
+    m = _FACTOR.match(u)
+    if m is not None and m.group(2).strip() in (*KNOWN_UNITS, *OTHER_UNITS):
+        factor, rest = m.group(1).replace(",", "."), m.group(2).strip()
+        raise ValueError(f"unit {unit!r} has a factor in its name: write unit = {rest!r}, "
+                         f"scale = {factor} (the value is the raw value times scale)")
+    raise ValueError(
+        f"unit {unit!r} is not one drivebus knows, so its scale could not be applied: "
+        f"positions {', '.join(_POSITION)}; speeds {', '.join((*_SPEED, *_SPEED_PULSES))}; "
+        f"accelerations {', '.join((*_ACCEL, *_ACCEL_PULSES))}; others (raw × scale) "
+        f"{', '.join(OTHER_UNITS)}; a number of things is unit = \"count\"")
+
+
+def scale_text(scale: float) -> str:
+    """``scale`` as the manual would write it: ``2``, ``0.1``, ``1/240``."""
+    if scale == int(scale):
+        return str(int(scale))
+    short = f"{scale:g}"
+    if len(short.replace("0.", "", 1)) <= 4:  # 0.1, 0.25, 0.001
+        return short
+    frac = Fraction(scale).limit_denominator(100000)
+    if abs(float(frac) - scale) < 1e-12 * scale and frac.numerator < 100000:
+        return f"{frac.numerator}/{frac.denominator}"
+    return short
 
 
 def unit_kind(unit: str, *, ramp: bool) -> Kind:
@@ -142,8 +189,10 @@ class UnitCodec:
 
     @property
     def physical(self) -> bool:
-        """True if values pass through a conversion (not a plain or named register)."""
-        return self.kind not in (Kind.PLAIN, Kind.NAMED)
+        """True if values pass through a conversion (a scale, a unit, a ramp or a table;
+        not a plain register of scale 1 or named values)."""
+        return self.kind is not Kind.NAMED and (self.kind is not Kind.PLAIN or
+                                                self.scale != 1.0)
 
     # -- physical <-> register units ------------------------------------------------------
 
@@ -183,7 +232,7 @@ class UnitCodec:
             return reg.check(self.table.index(int(value)))
         if self.kind is Kind.RAMP:
             return self._ramp_raw(reg, float(value), ref_rpm)
-        if self.kind is Kind.PLAIN or self.kind is Kind.NAMED:
+        if self.kind is Kind.NAMED or (self.kind is Kind.PLAIN and self.scale == 1.0):
             return reg.check(value)  # type: ignore[arg-type]
         raw = round(value / self.factor(ppr) / self.scale)
         try:
@@ -191,7 +240,9 @@ class UnitCodec:
         except LimitViolation as exc:
             if self.scale == 1.0 and self.factor(ppr) == 1.0:
                 raise
-            raise LimitViolation(f"{exc} ({value:g} {self.drive_unit} is {raw})") from None
+            unit = f" {self.drive_unit}" if self.drive_unit else ""
+            raise LimitViolation(f"{exc} ({value:g}{unit} is {raw}: {self.describe()})"
+                                 ) from None
 
     def _ramp_raw(self, reg: Register, rate: float, ref_rpm: float | None) -> int:
         ref = self.ramp if isinstance(self.ramp, int | float) else ref_rpm
@@ -216,7 +267,7 @@ class UnitCodec:
         ``inf`` for a zero time, 0 when the reference speed is 0)."""
         if self.kind is Kind.TABLE:
             return self.table[raw] if 0 <= raw < len(self.table) else raw
-        if self.kind in (Kind.PLAIN, Kind.NAMED):
+        if self.kind is Kind.NAMED or (self.kind is Kind.PLAIN and self.scale == 1.0):
             return raw
         if self.kind is Kind.RAMP:
             ref = self.ramp if isinstance(self.ramp, int | float) else ref_rpm
@@ -225,7 +276,7 @@ class UnitCodec:
                 return math.nan
             return math.inf if seconds <= 0 else abs(ref) / 60.0 / seconds
         v = raw * self.scale * self.factor(ppr)
-        if self.kind is Kind.POSITION and v == int(v):
+        if self.kind in (Kind.POSITION, Kind.PLAIN) and v == int(v):
             return int(v)
         return float(v)
 
@@ -241,9 +292,18 @@ class UnitCodec:
             return f"table of {len(self.table)} values"
         if self.kind is Kind.NAMED:
             return ", ".join(f"{k}={v}" for k, v in self.values.items())
-        scale = "" if self.scale == 1.0 else f" × {self.scale:g}"
+        scale = "" if self.scale == 1.0 else f" × {scale_text(self.scale)}"
         if self.kind is Kind.RAMP:
             ref = f"{self.ramp:g} rpm" if isinstance(self.ramp, int | float) else \
                 f"the speed in {self.ramp}"
             return f"ramp time in {self.unit}{scale} to reach {ref}"
-        return f"{self.unit}{scale}" if self.unit else ""
+        if not self.unit:
+            return f"count{scale}" if scale else ""
+        return f"{self.unit}{scale}"
+
+    def raw_unit(self) -> str:
+        """What one step of the raw value is, for texts about raw values (``1/240 rps``,
+        ``0.1 A``; the unit itself at scale 1)."""
+        if self.kind in (Kind.TABLE, Kind.NAMED, Kind.RAMP) or self.scale == 1.0:
+            return self.unit
+        return f"{scale_text(self.scale)} {self.unit}".strip()

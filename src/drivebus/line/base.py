@@ -48,6 +48,10 @@ class Line(abc.ABC):
 
     # -- capabilities: class defaults, set per class or per instance by each line ------------
 
+    unit_ids: range = range(0, 248)
+    """The slave addresses a request may carry: 0 (broadcast) and 1..247 on RS-485 and
+    RTU over TCP, a Modbus TCP unit identifier 0..255 (many devices want 255, "FFh")."""
+
     per_slave_settings: bool = False
     """Each slave may have its own baud rate and format: the line reconfigures its port
     before a frame at other settings (and keeps the longer silence)."""

@@ -325,6 +325,7 @@ class TcpLine(NetworkLine[_MbapProtocol]):
     """
 
     counts_garbage = True
+    unit_ids = range(0, 256)
 
     def __init__(
         self,

@@ -87,6 +87,8 @@ class Axis(Jogging, AxisIO):
         params = self.drive_params(plan)
         self.check_drive(plan)
         what = f"move to {target:g}"
+        if buffer == "aborting":
+            await self._start_on_its_way()
         if buffer != "aborting" and (self._motion is not None or self._queue):
             return self._queue_move(what, target_p, base, buffer, accepted)
         if buffer == "aborting" and self._may_take_over():
@@ -130,6 +132,16 @@ class Axis(Jogging, AxisIO):
         await self._run_motion(m, io, timeout=None, wait=False, setup_first=False)
         m.deadline = monotonic() + timeout
         return self._handle(m)
+
+    async def _start_on_its_way(self) -> None:
+        """Aborting: wait for a move or jog whose start is still on its way to the drive
+        (taken, its start not yet acknowledged), where the drive takes a new target on the
+        fly, so that the new move takes it over instead of being refused. Bounded by that
+        start's I/O; a stop meanwhile is not held up."""
+        m = self._motion
+        if (m is not None and not m.over and m.accepted_at is None
+                and m.kind in ("move", "jog") and self.profile.programs.blends):
+            await m.committed.wait()
 
     def _may_take_over(self) -> bool:
         """True if a new move may replace the motion under way on the fly (aborting)."""
@@ -203,6 +215,8 @@ class Axis(Jogging, AxisIO):
         base = self.plan(speed, accel, decel)
         plan = self._effective(base)
         what = f"move by {distance:g}"
+        if buffer == "aborting":
+            await self._start_on_its_way()
         if (buffer != "aborting" and (self._motion is not None or self._queue)) or (
             buffer == "aborting" and self._may_take_over()
         ):

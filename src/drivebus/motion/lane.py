@@ -376,6 +376,7 @@ class CommandLane(AxisActor):
                          self.name, m.what, exc)
                 await start()
         m.accepted_at = self.command_started_at = monotonic()
+        m.committed.set()
         log.debug("axis %s: %s started (target %s pulses)", self.name, m.what, m.target)
         drive_start = m.began = self._drive_started(m.accepted_at)
         if trajectory is not None:
@@ -412,6 +413,7 @@ class CommandLane(AxisActor):
         if decel is not None:
             decel_rps2 = self.units.to_rps2(checks.positive(f"axis {self.name}: decel", decel,
                                                            unit="units/s²"))
+            self.profile.check_stop(decel_rps2)  # one it cannot honour: refused, none sent
         await self._halt(emergency=False, decel_rps2=decel_rps2)
 
     async def halt_now(self) -> None:

@@ -67,6 +67,8 @@ class Motion:
     io_done: anyio.Event | None = None
     """Set when the command I/O that ``io`` belongs to has ended."""
     finished: anyio.Event = field(default_factory=anyio.Event)
+    committed: anyio.Event = field(default_factory=anyio.Event)
+    """Set once the drive took its start (``accepted_at``) or its outcome is decided."""
     outcome: BaseException | None = None
     trajectory: Trajectory | None = None
     """Where it will be when (user units, monotonic s), planned once the drive took it."""
@@ -124,6 +126,7 @@ class Motion:
             return
         self.outcome = error
         self.finished.set()
+        self.committed.set()
         if self.io is not None:
             self.io.cancel()
 

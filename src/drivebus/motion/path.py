@@ -14,22 +14,38 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import anyio
 import anyio.lowlevel
 
 from drivebus import checks
 from drivebus.errors import ArgumentError, DrivebusError, GroupMotionError, StateError
+from drivebus.motion import planning
 from drivebus.motion.envelope import MotionPlan
 from drivebus.motion.gate import SegmentGate
 from drivebus.motion.handle import BufferMode, MotionHandle
+from drivebus.motion.planning import GroupPlan, StartGate
 from drivebus.motion.trajectory import Trajectory
 
 if TYPE_CHECKING:
-    from drivebus.motion.group import AxisGroup, _GroupPlan, _StartGate
+    from drivebus.motion.axis import Axis
+
+
+class Group(Protocol):
+    """What a path reads of its group (an ``Group``)."""
+
+    axes: dict[str, Axis]
+
+    def checked(self, values: Mapping[str, float], what: str, *, free: bool = True
+                ) -> dict[str, float]: ...
+    async def positions(self, names: Iterable[str]) -> dict[str, float]: ...
+    def stops(self, names: Iterable[str]) -> dict[str, int]: ...
+    def check_not_stopped(self, before: Mapping[str, int], what: str) -> None: ...
+    def start_gate(self, plan: GroupPlan) -> StartGate: ...
+    async def stop(self) -> None: ...
 
 __all__ = ["GroupHandle", "PathReport", "SegmentReport"]
 
@@ -90,7 +106,7 @@ class GroupHandle:
     """A group move queued with a buffer mode: ``await`` it for its report (a
     ``PathReport`` of one segment); ``await handle.cancel()`` stops every axis of it."""
 
-    def __init__(self, group: AxisGroup, run: _PathRun) -> None:
+    def __init__(self, group: Group, run: _PathRun) -> None:
         self.group = group
         self._run = run
 
@@ -121,9 +137,9 @@ class GroupHandle:
 class _PathRun:
     """A path (or a queued group move) whose parts are queued on the axes."""
 
-    group: AxisGroup
+    group: Group
     points: list[dict[str, float]]
-    plans: list[_GroupPlan]
+    plans: list[GroupPlan]
     taus: list[float | None]
     reasons: list[str]
     handles: list[dict[str, MotionHandle]]
@@ -157,7 +173,7 @@ class _PathRun:
 
 
 async def run_path(
-    group: AxisGroup,
+    group: Group,
     waypoints: Sequence[Mapping[str, float]],
     *,
     speed: float | None,
@@ -172,9 +188,9 @@ async def run_path(
     if isinstance(waypoints, Mapping) or not waypoints:
         raise ArgumentError("a path needs a list of waypoints (mappings of axis to position)")
     names = list(group.axes)
-    checked = [group._check(wp, f"waypoint {i + 1}") for i, wp in enumerate(waypoints)]
+    checked = [group.checked(wp, f"waypoint {i + 1}") for i, wp in enumerate(waypoints)]
     stops = group.stops(names)
-    points = [await group._positions(names)]
+    points = [await group.positions(names)]
     for i, wp in enumerate(checked):
         point = {**points[-1], **wp}
         for n, v in wp.items():
@@ -182,10 +198,10 @@ async def run_path(
         if point == points[-1]:
             raise ArgumentError(f"waypoint {i + 1} is where the path already is")
         points.append(point)
-    plans: list[_GroupPlan] = []
+    plans: list[GroupPlan] = []
     for k in range(len(points) - 1):
         movers = [n for n in names if points[k + 1][n] != points[k][n]]
-        plans.append(await group._plan(
+        plans.append(await planning.plan(group.axes,
             {n: points[k + 1][n] for n in movers}, {n: points[k][n] for n in movers},
             speed=speed, accel=accel, decel=decel,
             offsets=None if k == 0 else dict.fromkeys(movers, 0.0)))
@@ -212,7 +228,7 @@ async def run_path(
 
 
 async def queue_group_move(
-    group: AxisGroup,
+    group: Group,
     targets: Mapping[str, float],
     buffer: BufferMode,
     accepted: Any,
@@ -239,7 +255,7 @@ async def queue_group_move(
     movers = {n: t for n, t in targets.items() if t != starts[n]}
     if not movers:
         raise ArgumentError("every axis of the group move is at its target already")
-    plan = await group._plan(movers, {n: starts[n] for n in movers},
+    plan = await planning.plan(group.axes, movers, {n: starts[n] for n in movers},
                        offsets=None if not busy else dict.fromkeys(movers, 0.0),
                        **shape)  # type: ignore[arg-type]
     group.check_not_stopped(stops, "group move")
@@ -269,7 +285,7 @@ async def queue_group_move(
     return GroupHandle(group, run)
 
 
-async def _queue_and_start(run: _PathRun, gate: _StartGate) -> None:
+async def _queue_and_start(run: _PathRun, gate: StartGate) -> None:
     """Queue every segment's parts, open the start gate once every first part is
     written; a part that fails before the gate opens stops the lot."""
     group, plans = run.group, run.plans
@@ -304,7 +320,7 @@ async def _queue_and_start(run: _PathRun, gate: _StartGate) -> None:
         raise
 
 
-def _from_rest(group: AxisGroup, plan: _GroupPlan, t0: float) -> dict[str, Trajectory]:
+def _from_rest(group: Group, plan: GroupPlan, t0: float) -> dict[str, Trajectory]:
     """``plan``'s axes' trajectories from rest at ``t0`` (a buffered segment's start)."""
     return {n: Trajectory.point_to_point(plan.starts[n], plan.targets[n],
                                          group.axes[n].envelope.quantized(plan.plans[n]),
@@ -313,7 +329,7 @@ def _from_rest(group: AxisGroup, plan: _GroupPlan, t0: float) -> dict[str, Traje
 
 
 def _synchronise_blend(
-    group: AxisGroup, before: dict[str, Trajectory], after: _GroupPlan, tau: float
+    group: Group, before: dict[str, Trajectory], after: GroupPlan, tau: float
 ) -> dict[str, Trajectory]:
     """Give each axis of a blended segment the speed at which it arrives with the slowest
     (each takes its new target ``tau`` before it would arrive, from the speed it has
@@ -342,7 +358,7 @@ def _synchronise_blend(
 
 
 def _corner(
-    group: AxisGroup, first: dict[str, Trajectory], before: _GroupPlan, after: _GroupPlan,
+    group: Group, first: dict[str, Trajectory], before: GroupPlan, after: GroupPlan,
     blend: float,
 ) -> tuple[float | None, str]:
     """How long before the end of ``before`` (its axes predicted to run ``first``) the axes

@@ -28,7 +28,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 from drivebus.bus import Transaction
 from drivebus.clock import monotonic
@@ -37,8 +37,17 @@ from drivebus.errors import ArgumentError, ConfigError
 from drivebus.motion.events import MotionEvent
 
 if TYPE_CHECKING:
+    from drivebus.bus import Bus
+    from drivebus.config import MachineConfig
     from drivebus.motion.axis import Axis
-    from drivebus.motion.machine import Machine
+
+
+class Recorded(Protocol):
+    """What a recording reads of the machine it records (a ``Machine``)."""
+
+    config: MachineConfig
+    axes: dict[str, Axis]
+    buses: dict[str, Bus]
 
 __all__ = [
     "FORMAT", "TABLES", "Arrival", "AxisTrace", "Column", "LineLoad", "LineTrace", "Recording",
@@ -155,7 +164,7 @@ class Recording:
 
     def __init__(
         self,
-        machine: Machine | None = None,
+        machine: Recorded | None = None,
         axes: Iterable[str] | None = None,
         *,
         bus: bool = True,

@@ -347,7 +347,8 @@ class Bridge:
     def _announce(self) -> None:
         """After connecting: discovery and every axis's latest state, at once."""
         if self.options.discovery:
-            for msg in discovery_messages(self.topics, self.session.name, self._queues):
+            units = {name: ax.config.unit for name, ax in self.session.machine.axes.items()}
+            for msg in discovery_messages(self.topics, self.session.name, self._queues, units):
                 self.outbox.put(msg)
         for axis in self._queues:
             state = self._last_state.get(axis)
@@ -529,7 +530,8 @@ class Bridge:
                 rec = await s.start_move(
                     a, target=cmd.args.get("target"), by=cmd.args.get("by"),
                     speed=cmd.args.get("speed"), accel=cmd.args.get("accel"),
-                    decel=cmd.args.get("decel"), client=client)
+                    decel=cmd.args.get("decel"),
+                    buffer=cmd.values.get("buffer", "aborting"), client=client)
             elif cmd.verb == "home":
                 rec = await s.start_home(a, client=client)
             else:

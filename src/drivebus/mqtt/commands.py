@@ -16,6 +16,7 @@ from typing import Any
 
 from drivebus import checks
 from drivebus.errors import ArgumentError
+from drivebus.motion.handle import check_buffer
 
 __all__ = ["MAX_PAYLOAD", "MAX_TTL", "VERBS", "Command", "parse_command", "peek_id"]
 
@@ -42,6 +43,9 @@ _NUMBERS: dict[str, tuple[str, ...]] = {
 _OTHERS: dict[str, dict[str, type]] = {"set_output": {"output": str, "state": bool}}
 """Verbs with keys that are not numbers: key -> type (every one required)."""
 
+_MODES: dict[str, tuple[str, ...]] = {"move": ("buffer",)}
+"""Verbs with an optional buffer mode (``Axis.move_to``'s ``buffer``; default aborting)."""
+
 VERBS = tuple(_NUMBERS)
 """The axis command verbs."""
 
@@ -58,7 +62,8 @@ class Command:
     args: dict[str, float] = field(default_factory=dict)
     """The verb's numeric arguments that were given, each finite."""
     values: dict[str, Any] = field(default_factory=dict)
-    """Its other arguments (``set_output``: ``output``, ``state``), each of its type."""
+    """Its other arguments (``set_output``: ``output``, ``state``; ``move``: ``buffer``
+    if given), each of its type."""
 
 
 def _load(payload: bytes) -> Any:
@@ -107,9 +112,11 @@ def parse_command(axis: str, verb: str, payload: bytes) -> Command:
     cid = _id(data)
     allowed = _NUMBERS[verb]
     others = _OTHERS.get(verb, {})
-    unknown = sorted(k for k in data if k != "id" and k not in allowed and k not in others)
+    modes = _MODES.get(verb, ())
+    unknown = sorted(k for k in data if k != "id" and k not in allowed and k not in others
+                     and k not in modes)
     if unknown:
-        keys = ", ".join(("id", *allowed, *others))
+        keys = ", ".join(("id", *allowed, *others, *modes))
         raise ArgumentError(f"{verb}: unknown key {', '.join(map(repr, unknown))} "
                             f"(keys: {keys})")
     args = {k: checks.finite(k, data[k]) for k in allowed if data.get(k) is not None}
@@ -135,4 +142,7 @@ def parse_command(axis: str, verb: str, payload: bytes) -> Command:
             raise ArgumentError(f"{verb}: {key!r} is required, a JSON "
                                 f"{'boolean' if kind is bool else 'string'}, not {v!r}")
         values[key] = v
+    for key in modes:
+        if data.get(key) is not None:
+            values[key] = check_buffer(data[key])
     return Command(verb, axis, cid, args, values)

@@ -1,11 +1,12 @@
-"""Home Assistant MQTT discovery: the node as a device with, per axis, a position sensor,
-a state sensor and a stop button, plus an e-stop button; all unavailable while the node's
-status topic says ``offline``."""
+"""Home Assistant MQTT discovery: the node as a device with, per axis, a position sensor
+(in the axis's unit: ``unit_of_measurement``, and the ``distance`` device class for the
+length units Home Assistant knows), a state sensor and a stop button, plus an e-stop
+button; all unavailable while the node's status topic says ``offline``."""
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 from drivebus.mqtt.outbox import Outgoing
 from drivebus.mqtt.topics import Topics
@@ -14,9 +15,14 @@ __all__ = ["DISCOVERY_PREFIX", "discovery_messages"]
 
 DISCOVERY_PREFIX = "homeassistant"
 
+DISTANCE_UNITS = frozenset({"mm", "cm", "m", "km", "in", "ft", "yd", "mi"})
+"""The units Home Assistant's ``distance`` device class takes."""
 
-def discovery_messages(topics: Topics, machine: str, axes: Iterable[str]) -> list[Outgoing]:
-    """The retained ``homeassistant/<component>/drivebus_<node>/<object>/config`` messages."""
+
+def discovery_messages(topics: Topics, machine: str, axes: Iterable[str],
+                       units: Mapping[str, str] | None = None) -> list[Outgoing]:
+    """The retained ``homeassistant/<component>/drivebus_<node>/<object>/config`` messages;
+    ``units``: each axis's unit (its positions are published in it)."""
     node = topics.node
     device_id = f"drivebus_{node}"
     common = {
@@ -33,13 +39,19 @@ def discovery_messages(topics: Topics, machine: str, axes: Iterable[str]) -> lis
     out: list[tuple[str, str, dict[str, object]]] = []
     for axis in axes:
         state = topics.state(axis)
-        out.append(("sensor", f"{axis}_position", {
+        position: dict[str, object] = {
             "name": f"{axis} position",
             "state_topic": state,
             "value_template": "{{ value_json.position }}",
             "state_class": "measurement",
             "json_attributes_topic": state,
-        }))
+        }
+        unit = (units or {}).get(axis)
+        if unit is not None:
+            position["unit_of_measurement"] = unit
+            if unit in DISTANCE_UNITS:
+                position["device_class"] = "distance"
+        out.append(("sensor", f"{axis}_position", position))
         out.append(("sensor", f"{axis}_state", {
             "name": f"{axis} state",
             "state_topic": state,

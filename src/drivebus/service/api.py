@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import anyio
+import anyio.to_thread
 from fastapi import APIRouter, Depends, FastAPI, Header, Request, Response
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse
@@ -90,18 +91,20 @@ Session = Annotated[MachineSession, Depends(_session)]
 Reader = Annotated[Principal, Depends(_reader)]
 Commander = Annotated[Principal, Depends(_commander)]
 
-_ERRORS: dict[int | str, dict[str, Any]] = {
-    status: {"description": text, "content": {problems.PROBLEM: {}}}
-    for status, text in (
-        (401, "no or unknown bearer token"),
-        (403, "the token's scope does not allow this"),
-        (404, "no such axis, line or motion"),
-        (409, "StateError, or LeaseHeld naming the holder"),
-        (422, "ArgumentError, LimitViolation, or an invalid request body"),
-        (501, "NotSupported by this drive"),
-        (503, "DriveOffline"),
-    )
-}
+def _error_responses() -> dict[int | str, dict[str, Any]]:
+    """The problem+json answers every route may give, by status, naming the typed errors
+    behind each (from ``problems.STATUS``: one place)."""
+    names: dict[int, list[str]] = {401: ["Unauthorized (no or unknown bearer token)"],
+                                   403: ["Forbidden (the token's scope does not allow it)"],
+                                   422: ["an invalid request body"]}
+    for cls, status in problems.STATUS.items():
+        if status != 500:
+            names.setdefault(status, []).append(cls.__name__)
+    return {status: {"description": ", ".join(sorted(names[status], key=str.lower)),
+                     "content": {problems.PROBLEM: {}}} for status in sorted(names)}
+
+
+_ERRORS = _error_responses()
 
 router = APIRouter(prefix="/api", responses=_ERRORS)
 
@@ -163,9 +166,13 @@ async def get_line(line: str, session: Session, _: Reader) -> dict[str, Any]:
 async def move(
     name: str, body: MoveRequest, session: Session, who: Commander, response: Response
 ) -> dict[str, Any]:
-    """Start a move; ``202`` once the axis accepted it, with ``Location`` of its motion."""
+    """Start a move; ``202`` once the axis accepted it, with ``Location`` of its motion.
+    ``buffer`` (default ``aborting``) says what it does to a motion under way: take it
+    over on the fly where the drive can (the motion under way ends ``aborted``; ``409``
+    where the drive cannot), or queue behind it (``buffered``, ``blending``)."""
     rec = await session.start_move(name, target=body.target, by=body.by, speed=body.speed,
-                                   accel=body.accel, decel=body.decel, client=who.name)
+                                   accel=body.accel, decel=body.decel, buffer=body.buffer,
+                                   client=who.name)
     _accepted(response, rec.id)
     return rec.as_dict()
 
@@ -402,6 +409,34 @@ def _local_only(page: HTMLResponse) -> HTMLResponse:
     return page
 
 
+_NOWHERE = "/.drivebus-route-once"
+"""A path no route has: a request to it visits every route."""
+
+
+def _route_once(app: FastAPI) -> None:
+    """Route one request through ``app`` in this (worker) thread, on an event loop of its
+    own, and build the OpenAPI schema: FastAPI builds its routing tables on the first
+    request and the schema on the first ``/openapi.json`` (35-75 ms of CPU each), which
+    would otherwise hold the service's event loop, and every stop behind it, at a
+    client's request. The request matches nothing (404) and touches no machine."""
+
+    async def call() -> None:
+        async def receive() -> dict[str, Any]:
+            return {"type": "http.request", "body": b"", "more_body": False}
+
+        async def send(_: Any) -> None:
+            return None
+
+        await app({"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1",
+                   "method": "GET", "scheme": "http", "path": _NOWHERE,
+                   "raw_path": _NOWHERE.encode(), "query_string": b"", "root_path": "",
+                   "headers": [], "client": ("127.0.0.1", 0), "server": ("127.0.0.1", 0)},
+                  receive, send)
+
+    anyio.run(call)
+    app.openapi()  # kept by the app (openapi_schema)
+
+
 def create_app(session: MachineSession, tokens: TokenStore | None = None) -> FastAPI:
     """The service's ASGI application over ``session`` (no tokens: no authentication)."""
     from drivebus.service.ws import websocket_endpoint
@@ -410,7 +445,8 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     state = ServiceState(session, tokens)
 
     @asynccontextmanager
-    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        await anyio.to_thread.run_sync(_route_once, app)
         async with anyio.create_task_group() as tg:
             await tg.start(state.fanout.run, name="drivebus service: websocket fan-out")
             yield
@@ -441,6 +477,10 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     @app.get("/", include_in_schema=False)
     async def dashboard() -> FileResponse:
         return FileResponse(STATIC / "index.html")
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    async def favicon() -> FileResponse:
+        return FileResponse(STATIC / "favicon.ico", media_type="image/x-icon")
 
     @app.get("/docs", include_in_schema=False)
     async def swagger_ui() -> HTMLResponse:

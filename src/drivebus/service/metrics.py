@@ -1,16 +1,21 @@
 """``GET /metrics``: the machine's bus and axis figures in Prometheus's text exposition
 format (version 0.0.4), for Prometheus, Grafana Agent, VictoriaMetrics and the like.
 
-Names follow Prometheus's conventions (base units, ``_total`` counters) so that Grafana's
-defaults work: ``drivebus_transactions_total{line,slave,outcome}``, the reply latency as a
-histogram ``drivebus_reply_latency_seconds{line,slave}`` (``histogram_quantile()``) and
-the window's quantiles as a gauge, retries, line utilisation and wire time, and each
-axis's position, state and whether it is online. Hand-written: the format is a few lines
-of text, and drivebus takes no dependency for it.
+Names follow Prometheus's conventions (the unit in the name, base units, ``_total``
+counters, quantiles only on a summary) so that Grafana's defaults work:
+``drivebus_transactions_total{line,slave,outcome}``, the reply latency as a histogram
+``drivebus_reply_latency_seconds{line,slave}`` (``histogram_quantile()``) and the last
+replies' quantiles as a summary ``drivebus_reply_latency_window_seconds``, retries, line
+utilisation and wire time, and each axis's position in a base unit
+(``drivebus_axis_position_meters`` for an axis in mm, ``_radians`` for one in degrees,
+``_revolutions`` of the motor for any other unit), state and whether it is online.
+Hand-written: the format is a few lines of text, and drivebus takes no dependency for it.
+With tokens, ``/metrics`` needs one (any scope), as every other route.
 """
 
 # No ``from __future__ import annotations`` here: FastAPI reads the annotations at runtime.
 
+import math
 from collections.abc import Iterable
 from typing import Annotated
 
@@ -20,9 +25,30 @@ from fastapi.responses import PlainTextResponse
 from drivebus.app import MachineSession
 from drivebus.bus.stats import SlaveStats
 
-__all__ = ["CONTENT_TYPE", "exposition", "install"]
+__all__ = ["CONTENT_TYPE", "base_unit", "exposition", "install"]
 
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
+
+_BASE_UNITS: dict[str, tuple[str, float]] = {
+    **{u: ("meters", 1.0) for u in ("m", "meter", "meters", "metre", "metres")},
+    **{u: ("meters", 1e-3) for u in ("mm", "millimeter", "millimeters", "millimetre",
+                                     "millimetres")},
+    "cm": ("meters", 1e-2),
+    **{u: ("meters", 1e-6) for u in ("um", "µm", "μm", "micron", "microns")},
+    **{u: ("meters", 0.0254) for u in ("in", "inch", "inches")},
+    **{u: ("radians", math.pi / 180) for u in ("deg", "°", "degree", "degrees")},
+    **{u: ("radians", 1.0) for u in ("rad", "radian", "radians")},
+    **{u: ("radians", 2 * math.pi) for u in ("rev", "revs", "revolution", "revolutions",
+                                              "turn", "turns")},
+}
+"""An axis unit (as machine files name them) -> the Prometheus base unit and its factor."""
+
+
+def base_unit(unit: str, units_per_rev: float) -> tuple[str, float]:
+    """The base unit an axis's position is exported in, and the factor from the axis's
+    unit: metres or radians for the units known, else revolutions of the motor."""
+    known = _BASE_UNITS.get(unit.strip().lower()) or _BASE_UNITS.get(unit.strip())
+    return known if known is not None else ("revolutions", 1.0 / units_per_rev)
 
 _OUTCOMES = (
     ("ok", lambda s: s.transactions - s.exceptions),
@@ -74,13 +100,18 @@ def exposition(session: MachineSession) -> str:
     retries = _Family("drivebus_retries_total", "counter", "Retried attempts per slave.")
     latency = _Family("drivebus_reply_latency_seconds", "histogram",
                       "Reply latency per slave: end of the request to end of the reply.")
-    window = _Family("drivebus_reply_latency_window_seconds", "gauge",
-                     "Reply latency quantiles of the last replies per slave.")
+    window = _Family("drivebus_reply_latency_window_seconds", "summary",
+                     "Reply latency per slave: quantiles of the last replies, sum and "
+                     "count of all.")
     util = _Family("drivebus_line_utilisation_ratio", "gauge",
                    "Fraction of the time since the line opened that frames occupied it.")
     wire = _Family("drivebus_line_wire_seconds_total", "counter",
                    "Seconds the line carried frames.")
-    position = _Family("drivebus_axis_position", "gauge", "Axis position in its units.")
+    positions = {base: _Family(f"drivebus_axis_position_{base}", "gauge", text) for base, text
+                 in (("meters", "Position of a linear axis, metres."),
+                     ("radians", "Position of a rotary axis, radians."),
+                     ("revolutions", "Position of an axis in a unit of its own, "
+                                     "motor revolutions."))}
     state = _Family("drivebus_axis_state", "gauge", "1 for the axis's PLCopen state.")
     online = _Family("drivebus_axis_online", "gauge", "1 while the axis's drive answers.")
     m = session.machine
@@ -91,10 +122,12 @@ def exposition(session: MachineSession) -> str:
             _slave(tx, retries, latency, window, line, address, s)
     for name, ax in m.axes.items():
         if ax.position is not None:
-            position.add(ax.position, axis=name, unit=ax.config.unit)
+            base, factor = base_unit(ax.config.unit, ax.config.units_per_rev)
+            positions[base].add(ax.position * factor, axis=name)
         state.add(1, axis=name, state=str(ax.state))
         online.add(0 if str(ax.state) == "Offline" else 1, axis=name)
-    families = (tx, retries, latency, window, util, wire, position, state, online)
+    families = (tx, retries, latency, window, util, wire,
+                *(f for f in positions.values() if f.samples), state, online)
     return "\n".join(line for f in families for line in f.text()) + "\n"
 
 
@@ -111,6 +144,8 @@ def _slave(tx: _Family, retries: _Family, latency: _Family, window: _Family, lin
         v = s.latency.quantile(q)
         if v is not None:
             window.add(v, line=line, slave=address, quantile=q)
+    window.add(s.latency.sum, "_sum", line=line, slave=address)
+    window.add(s.latency.count, "_count", line=line, slave=address)
 
 
 def _session(request: Request) -> MachineSession:

@@ -6,7 +6,7 @@ NaN and infinities are refused. A failed validation is a 422 ``ArgumentError`` p
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -35,13 +35,20 @@ class _Body(BaseModel):
 
 class MoveRequest(_Body):
     """A move to ``target`` or by ``by`` (exactly one), in the axis's units; speed in
-    units/s, accel and decel in units/s² (default: the axis's config)."""
+    units/s, accel and decel in units/s² (default: the axis's config); ``buffer``: what
+    it does to a motion under way (PLCopen buffer mode, as ``Axis.move_to``)."""
 
     target: Finite | None = None
     by: Finite | None = None
     speed: Positive | None = None
     accel: Positive | None = None
     decel: Positive | None = None
+    buffer: Literal["aborting", "buffered", "blending"] = Field(
+        "aborting",
+        description="aborting: take over the motion under way where the drive takes a new "
+                    "target on the fly (else 409 StateError); buffered: start once the "
+                    "motions under way are in position; blending: pass into it without "
+                    "stopping where the drive can (else buffered, and the result says why)")
 
     @model_validator(mode="after")
     def _one_goal(self) -> MoveRequest:
@@ -51,7 +58,8 @@ class MoveRequest(_Body):
 
     model_config = ConfigDict(
         extra="forbid", strict=True,
-        json_schema_extra={"examples": [{"target": 12.5}, {"by": -3, "speed": 20}]},
+        json_schema_extra={"examples": [{"target": 12.5}, {"by": -3, "speed": 20},
+                                        {"target": 40, "buffer": "buffered"}]},
     )
 
 

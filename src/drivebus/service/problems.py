@@ -3,7 +3,10 @@
 Every error the service answers carries the typed error's name (``title`` and ``error``),
 its message (``detail``), the HTTP status and the request path (``instance``); a
 ``LeaseHeld`` names the ``holder``, a request that failed validation lists its
-``errors``, a Modbus exception its ``code``. ``type`` is ``urn:drivebus:error:NAME``.
+``errors``, a Modbus exception its ``code``, a ``GroupMotionError`` the ``axis`` that
+failed and its ``cause``. ``type`` is ``urn:drivebus:error:NAME``. Each typed error has
+its status in ``STATUS`` (timeouts 504, an absent drive or line 503, a drive's wrong
+answer 502, ...); nothing drivebus raises on purpose is a 500.
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from drivebus.drives.cia402 import StatuswordError
+from drivebus.drives.expr import ExprError
 from drivebus.errors import (
     ArgumentError,
     ConfigError,
@@ -23,9 +28,14 @@ from drivebus.errors import (
     DriveAlarm,
     DrivebusError,
     DriveOffline,
+    FrameError,
+    GroupMotionError,
+    InputTimeout,
     LeaseHeld,
     LimitViolation,
     LineClosed,
+    LineConfigError,
+    LineNoise,
     ModbusException,
     MotionAborted,
     MotionError,
@@ -34,44 +44,48 @@ from drivebus.errors import (
     NotSupported,
     PartialWrite,
     ResponseTimeout,
+    ServiceUnreachable,
     StateError,
     TransactionError,
+    UnknownMethod,
+    WrongResponder,
 )
 from drivebus.service.auth import AuthError
 
-__all__ = ["PROBLEM", "install", "problem", "problem_data", "status_of"]
+__all__ = ["PROBLEM", "STATUS", "install", "problem", "problem_data", "status_of"]
 
 log = logging.getLogger(__name__)
 
 PROBLEM = "application/problem+json"
 
-_STATUS: tuple[tuple[type[DrivebusError], int], ...] = (
-    (NotFound, 404),
-    (LeaseHeld, 409),
-    (StateError, 409),
-    (MotionAborted, 409),
-    (DriveAlarm, 409),
-    (MotionError, 409),
-    (LimitViolation, 422),
-    (ArgumentError, 422),
-    (ConfigError, 422),
-    (NotSupported, 501),
-    (DriveOffline, 503),
-    (ConnectionLost, 503),
-    (LineClosed, 503),
-    (ResponseTimeout, 504),
-    (MotionTimeout, 504),
-    (ModbusException, 502),
-    (PartialWrite, 502),
-    (TransactionError, 502),
-)
-"""The first match wins: a typed error's HTTP status (anything else: 500)."""
+STATUS: dict[type[DrivebusError], int] = {
+    # the request cannot be carried out as asked: nothing was sent
+    ArgumentError: 422, ConfigError: 422, LineConfigError: 422, ExprError: 422,
+    LimitViolation: 422,
+    NotFound: 404,
+    # the machine's state (or another client) stands in the way, or a motion ended early
+    LeaseHeld: 409, StateError: 409, MotionAborted: 409, MotionError: 409, DriveAlarm: 409,
+    GroupMotionError: 409,  # with a typed cause: the cause's status
+    NotSupported: 501, UnknownMethod: 501,
+    # the drive (or the line) answered, but not with what was asked
+    TransactionError: 502, ModbusException: 502, FrameError: 502, LineNoise: 502,
+    WrongResponder: 502, StatuswordError: 502, PartialWrite: 502,
+    # the drive, the line or a service is not there
+    DriveOffline: 503, ConnectionLost: 503, LineClosed: 503, ServiceUnreachable: 503,
+    # no answer in time
+    ResponseTimeout: 504, MotionTimeout: 504, InputTimeout: 504,
+    # an error without a type says nothing a client can act on
+    DrivebusError: 500,
+}
+"""Each typed error's HTTP status; a class not listed gets its nearest listed base's
+(the first in its MRO). docs/guide/service.md has the same table, and a test walks every
+``DrivebusError`` subclass against both."""
 
 _REASONS = {
     400: "BadRequest", 401: "Unauthorized", 403: "Forbidden", 404: "NotFound",
     405: "MethodNotAllowed", 409: "Conflict", 415: "UnsupportedMediaType",
-    422: "ArgumentError", 500: "InternalError", 501: "NotSupported",
-    503: "ServiceUnavailable",
+    422: "ArgumentError", 500: "InternalError", 501: "NotSupported", 502: "BadGateway",
+    503: "ServiceUnavailable", 504: "GatewayTimeout",
 }
 
 
@@ -79,9 +93,11 @@ def status_of(exc: BaseException) -> int:
     """The HTTP status for ``exc``."""
     if isinstance(exc, AuthError):
         return exc.status
-    for cls, status in _STATUS:
-        if isinstance(exc, cls):
-            return status
+    if isinstance(exc, GroupMotionError) and isinstance(exc.__cause__, DrivebusError):
+        return status_of(exc.__cause__)  # the axis's failure says what went wrong
+    for cls in type(exc).__mro__:
+        if cls in STATUS:
+            return STATUS[cls]  # type: ignore[index]
     return 500
 
 
@@ -111,6 +127,11 @@ def problem_data(exc: BaseException, instance: str | None = None) -> dict[str, A
         data["code"], data["function"] = exc.code, exc.function
     if isinstance(exc, TransactionError) and exc.slave is not None:
         data["slave"] = exc.slave
+    if isinstance(exc, GroupMotionError):
+        data["axis"] = exc.axis
+        cause = exc.__cause__
+        if isinstance(cause, DrivebusError):
+            data["cause"] = {"error": type(cause).__name__, "detail": str(cause)}
     return data
 
 

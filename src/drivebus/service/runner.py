@@ -9,7 +9,6 @@ it serves until SIGINT/SIGTERM and says what it stopped.
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import ipaddress
 import logging
@@ -26,7 +25,6 @@ import anyio
 import anyio.abc
 import anyio.to_thread
 import uvicorn
-from starlette.exceptions import HTTPException
 
 from drivebus import runtime
 from drivebus.app import MachineSession
@@ -144,33 +142,10 @@ class _Server(uvicorn.Server):
 
 
 async def built_app(session: MachineSession, tokens: TokenStore) -> Any:
-    """The service's app (``create_app``) with its request routing built, both in a
-    worker thread: the app's routes and their models, and FastAPI's per-route request
-    handling (built at the first request otherwise), take tens of milliseconds of CPU,
-    which in one event-loop step would hold up every stop meanwhile. The routing is built
-    by one request to a path no route has, through the router alone (no middleware, no
-    lifespan)."""
-
-    def build() -> Any:
-        app = create_app(session, tokens)
-        path = "/.well-known/drivebus-warm-up"
-        scope = {"type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1",
-                 "method": "GET", "scheme": "http", "path": path, "raw_path": path.encode(),
-                 "root_path": "", "query_string": b"", "headers": [],
-                 "server": ("127.0.0.1", 0), "client": ("127.0.0.1", 0), "state": {},
-                 "app": app}
-
-        async def receive() -> dict[str, Any]:
-            return {"type": "http.request", "body": b"", "more_body": False}
-
-        async def send(message: dict[str, Any]) -> None:
-            pass
-
-        with contextlib.suppress(HTTPException):  # the 404 of that path: routing built
-            asyncio.run(app.router(scope, receive, send))
-        return app
-
-    return await anyio.to_thread.run_sync(build)
+    """The service's app (``create_app``), made in a worker thread: its routes and their
+    models take tens of milliseconds of CPU, which in one event-loop step would hold up
+    every stop meanwhile (its lifespan builds FastAPI's routing the same way)."""
+    return await anyio.to_thread.run_sync(create_app, session, tokens)
 
 
 async def _serve_http(server: _Server, sock: socket.socket, *,

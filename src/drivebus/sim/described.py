@@ -29,11 +29,12 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Collection, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from drivebus.clock import monotonic
+from drivebus.drives.base import describe_values
 from drivebus.drives.cia402 import (
     OBJECTS,
     HomeSignal,
@@ -312,11 +313,12 @@ class DescribedDrive(SimDrive):
         """An address the drive can have: ``[link] addresses`` (or, with
         ``soft_address``, ``register_addresses`` too); ``ConfigError`` else."""
         link = self.description.link
-        ranges = [link.addresses]
+        sets: list[Collection[int]] = [link.address_set]
         if soft_address and link.register_addresses is not None:
-            ranges.append(link.register_addresses)
-        if not any(lo <= address <= hi for lo, hi in ranges):
-            shown = " or ".join(f"{lo}..{hi}" for lo, hi in ranges)
+            lo, hi = link.register_addresses
+            sets.append(range(lo, hi + 1))
+        if not any(address in s for s in sets):
+            shown = " or ".join(describe_values(s) for s in sets)
             raise ConfigError(f"{self.description.family} address {address}: it has "
                               f"addresses {shown}")
 
@@ -1969,11 +1971,15 @@ def _map(d: Description, *, inputs: bool = False
 
 def described_twin(d: Description) -> type[DescribedDrive]:
     """The twin class of description ``d``."""
+    if d.link.map == "objects":
+        raise ConfigError(f"{d.family}: the generic twin serves a flat word map only; an "
+                          f"object-addressed map ([link] map = \"objects\") runs against "
+                          f"its drive or an emulator of it")
     specs, words, pairs = _map(d)
     input_specs, input_words, _ = _map(d, inputs=True)
     r = d.link.refusals
     codes = ExceptionCodes(function=r.function, address=r.address, access=r.access,
-                           value=r.value, count=r.count, crc=r.crc)
+                           value=r.value, count=r.count, crc=r.crc, read_access=r.read_access)
     reads = frozenset(f for f in (READ_HOLDING, READ_INPUT) if f in d.link.functions)
     triggers: dict[str, list[Trigger]] = {}
     for trig in d.twin.on_write:

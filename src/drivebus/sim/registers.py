@@ -50,6 +50,9 @@ class ExceptionCodes:
     """A read of no registers or of more than the slave serves at once."""
     crc: int | None = None
     """The reply to a frame with a bad CRC; None: silence, as the Modbus spec says."""
+    read_access: int | None = None
+    """A read of a write-only register, where it differs from ``access`` (the MOONS'
+    0x11 "register does not support read" beside 0x12 "does not support write")."""
 
 
 def signed16(word: int) -> int:
@@ -89,7 +92,8 @@ class RegisterSpec:
     def check_read(self, codes: ExceptionCodes) -> None:
         """Refuse a read of a write-only register with the drive's code."""
         if self.access is Access.W:
-            raise SlaveException(codes.access)
+            raise SlaveException(codes.access if codes.read_access is None
+                                 else codes.read_access)
 
     def check_write(self, word: int, codes: ExceptionCodes) -> int:
         """The value a write of ``word`` sets; a refusal raises the drive's code."""

@@ -105,8 +105,9 @@ class SimSlave:
         *,
         turnaround: float = 0.001,
     ) -> None:
-        if not 1 <= address <= 247:
-            raise ValueError(f"slave address {address} is outside 1..247")
+        if not 1 <= address <= 255:  # 248..255: Modbus TCP unit ids (the machine file's
+            # checks keep an RTU line's to 1..247)
+            raise ValueError(f"slave address {address} is outside 1..255")
         self.address = address
         self.settings = settings or LineSettings()
         self.turnaround = turnaround

@@ -75,6 +75,41 @@ def _params(profile: DriveProfile) -> MoveParams:
     raise _Failed("no speed of 10..600 rpm with a ramp of 5..1000 rev/s² fits its registers")
 
 
+_FIELDS = {"enabled": ("enabled",), "in position at rest": ("in_position", "moving"),
+           "moving": ("moving",), "at rest after the stop": ("moving",),
+           "at rest": ("moving",), "homed at rest": ("homed", "moving"),
+           "disabled": ("enabled",)}
+"""The status fields each wait of the trial judges by."""
+
+_MEANINGS = {"enabled": '"enabled"', "moving": '"moving" (or "at_rest")',
+             "in_position": '"in_position" (or "reached": a move ran to its end)',
+             "homed": '"homed"'}
+
+
+def key_hint(d: Description, fields: tuple[str, ...]) -> str:
+    """What to add to description ``d`` so that the status shows ``fields``: a status
+    field it does not decode, or bits the twin cannot compute (no ``means``)."""
+    if d.drive.engine == "cia402":
+        return ""
+    hints: list[str] = []
+    exprs = d.status_exprs
+    for field in fields:
+        e = exprs.get(field)
+        if e is None:
+            hints.append(f"[status] decodes no {field}: add means = {_MEANINGS[field]} to "
+                         f"the bit that shows it, or [status] {field} = \"...\"")
+            continue
+        for path in sorted(e.paths):
+            key, _, bit = path.partition(".")
+            reg = d.regs.get(key)
+            b = reg.d.bits.get(bit) if reg is not None else None
+            if b is not None and b.means is None and b.twin is None:
+                hints.append(f"status.{field} reads {path}, which the twin cannot compute: "
+                             f"add means = {_MEANINGS.get(field, repr(field))} (or twin = "
+                             f"\"...\") to registers.{key}.bits.{bit}")
+    return ("; to fix: " + "; ".join(hints)) if hints else ""
+
+
 async def _wait(profile: DriveProfile, cond: Callable[[DriveStatus], bool], what: str,
                 timeout: float = _TIMEOUT) -> DriveStatus:
     st: DriveStatus | None = None
@@ -86,8 +121,10 @@ async def _wait(profile: DriveProfile, cond: Callable[[DriveStatus], bool], what
                     return st
                 await anyio.sleep(0.01)  # the poll period; the read is the condition
     except TimeoutError:
+        d = getattr(profile, "description", None)
+        hint = key_hint(d, _FIELDS.get(what, ())) if isinstance(d, Description) else ""
         raise _Failed(f"{what} did not happen within {timeout:g} s (last status: "
-                      f"{_brief(st)})") from None
+                      f"{_brief(st)}){hint}") from None
 
 
 def _brief(st: DriveStatus | None) -> str:

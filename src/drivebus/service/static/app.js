@@ -5,6 +5,9 @@
 // Charts (charts.js on uPlot, served from the package): per axis position, velocity and
 // target in its own units with its state as a band, per line transactions/s,
 // utilisation and reply latency; times are the service's poll times on the wall clock.
+// Before anything else the page asks the service who it is (GET /api/client): with
+// tokens and none given it asks for one at once, and the E-STOP says that it is disabled
+// and why until a token lets it act.
 "use strict";
 
 const JOG_TTL = 0.5;        // s: the axis stops this long after the last feed
@@ -26,6 +29,8 @@ const state = {
   recording: null,      // id of the recording this page started
   jogs: new Map(),      // name -> release() of its held jog button
   scope: "command",
+  authorized: false,    // the service took our token (or needs none): the E-STOP can act
+  tokens: false,        // the service has tokens: the WebSocket sends ours first
 };
 
 const $ = (id) => document.getElementById(id);
@@ -36,6 +41,11 @@ function toast(text) {
   t.hidden = false;
   clearTimeout(toast.timer);
   toast.timer = setTimeout(() => { t.hidden = true; }, 5000);
+}
+
+function hideToast() {
+  clearTimeout(toast.timer);
+  $("toast").hidden = true;
 }
 
 function note(text, cls) {
@@ -58,9 +68,9 @@ async function api(method, path, body) {
   });
   const data = await r.json().catch(() => ({}));
   if (!r.ok) {
-    if (r.status === 401) showLogin();
     const what = data.title ? `${data.title}: ${data.detail}` : `HTTP ${r.status}`;
-    toast(what);
+    if (r.status === 401) needToken(what);
+    else toast(what);
     throw new Error(what);
   }
   return data;
@@ -77,14 +87,14 @@ function connect() {
   const ws = new WebSocket(`${proto}//${location.host}/api/ws?client=dashboard`);
   state.ws = ws;
   ws.onopen = () => {
-    if (state.token) ws.send(JSON.stringify({ auth: state.token }));
+    if (state.tokens && state.token) ws.send(JSON.stringify({ auth: state.token }));
   };
   ws.onmessage = (ev) => handle(JSON.parse(ev.data));
   ws.onclose = () => {
     setLive(false);
     releaseAllJogs();
     state.ws = null;
-    setTimeout(connect, 1000);
+    if (state.authorized) setTimeout(connect, 1000);
   };
 }
 
@@ -98,10 +108,68 @@ function send(msg) {
 
 function setLive(live) {
   state.live = live;
-  const c = $("conn");
-  c.textContent = live ? "live" : "disconnected";
-  c.className = `conn ${live ? "up" : "down"}`;
+  setConn(live ? "live" : "disconnected", live);
   document.querySelectorAll("button.jog").forEach((b) => { b.disabled = !live; });
+}
+
+function setConn(text, up) {
+  const c = $("conn");
+  c.textContent = text;
+  c.className = `conn ${up ? "up" : "down"}`;
+}
+
+// -- who we are to the service ---------------------------------------------------------------
+
+function setEstop(why) {
+  // why: null when the E-STOP can act, else why it cannot (shown beside it)
+  const b = $("estop");
+  b.disabled = why !== null;
+  b.title = why === null ? "Emergency stop: halts every axis" : `E-STOP disabled: ${why}`;
+  $("estop-why").textContent = why === null ? "" : why;
+}
+
+async function authenticate() {
+  // Ask the service at once whether it takes us (with the token we have, if any): it
+  // answers 401 at once when it needs a token, rather than a WebSocket timing out.
+  const headers = { "X-Drivebus-Client": "dashboard" };
+  if (state.token) headers.Authorization = `Bearer ${state.token}`;
+  let r;
+  try {
+    r = await fetch("/api/client", { headers });
+  } catch (err) {
+    setEstop("the service does not answer");
+    setConn("unreachable", false);
+    setTimeout(authenticate, 1000);
+    return;
+  }
+  const data = await r.json().catch(() => ({}));
+  if (r.status === 401) {
+    needToken(state.token && data.title ? `${data.title}: ${data.detail}` : "");
+    return;
+  }
+  if (!r.ok) {
+    setEstop(`the service answered HTTP ${r.status}`);
+    setTimeout(authenticate, 1000);
+    return;
+  }
+  state.authorized = true;
+  state.tokens = Boolean(data.tokens);
+  $("login").hidden = true;
+  $("login-error").textContent = "";
+  hideToast();  // whatever a refused token said is over
+  setEstop(null);
+  setConn("connecting", false);
+  if (!state.ws) connect();
+}
+
+function needToken(problem) {
+  state.authorized = false;
+  setEstop("log in first: this service needs a token");
+  setConn("token needed", false);
+  $("login-error").textContent = problem || "";
+  $("login").hidden = false;
+  $("token").focus();
+  if (state.ws) state.ws.close();
 }
 
 function handle(msg) {
@@ -112,6 +180,7 @@ function handle(msg) {
       $("machine").textContent = msg.machine;
       $("who").textContent = `${msg.client} (${msg.scope})`;
       $("login").hidden = true;
+      hideToast();
       send({ subscribe: ["axes", "lines", "motions", "errors"], max_rate: MAX_RATE });
       setLive(true);
       break;
@@ -135,7 +204,7 @@ function handle(msg) {
     case "error":
       if (msg.axis) note(`axis ${msg.axis}: ${msg.state}` +
                          (msg.error ? ` (${msg.error.type}: ${msg.error.message})` : ""), "error");
-      else if (msg.error) { toast(`${msg.error.title}: ${msg.error.detail}`); showLogin(); }
+      else if (msg.error) needToken(`${msg.error.title}: ${msg.error.detail}`);
       break;
     case "reply":
       if (!msg.ok && msg.error) toast(`${msg.op}: ${msg.error.title}: ${msg.error.detail}`);
@@ -440,16 +509,12 @@ async function toggleRecording() {
 
 // -- start ---------------------------------------------------------------------------------
 
-function showLogin() {
-  $("login").hidden = false;
-}
-
 $("login").addEventListener("submit", (ev) => {
   ev.preventDefault();
   state.token = $("token").value.trim();
   sessionStorage.setItem("drivebus-token", state.token);
-  $("login").hidden = true;
-  if (state.ws) state.ws.close(); else connect();
+  $("login-error").textContent = "";
+  authenticate();
 });
 
 $("estop").addEventListener("click", () => {
@@ -467,5 +532,6 @@ $("window").addEventListener("change", () => {
 $("pause").addEventListener("click", () => pause(!state.paused));
 $("record").addEventListener("click", toggleRecording);
 window.addEventListener("resize", () => DrivebusCharts.fit());
+DrivebusCharts.legend($("marks"));
 setInterval(draw, DRAW_EVERY);
-connect();
+authenticate();

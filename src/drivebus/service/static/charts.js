@@ -2,6 +2,11 @@
 // its state as a band, its motion events as marks; one line's utilisation, transactions/s
 // and reply latency. Built on uPlot (vendor/uplot, MIT). Shared by the live dashboard and
 // the self-contained HTML report (`drivebus record`), so both draw the same pictures.
+//
+// An axis's samples are polls: what is known between two of them is the earlier one, so
+// they are drawn as steps that hold each sample until the next (a straight line between
+// two polls a second apart drew a drift and a ramp that never happened), and a missing
+// value (null) breaks the line.
 "use strict";
 
 const DrivebusCharts = (() => {
@@ -25,6 +30,8 @@ const DrivebusCharts = (() => {
     planned: { color: "#bc8cff", label: "planned arrival", dash: [6, 4] },
   };
   const registry = new Map();   // chart id -> the chart (the tests read the plotted data)
+
+  const held = () => uPlot.paths.stepped({ align: 1 });  // each sample until the next
 
   function axisStyle(label, side) {
     return {
@@ -105,11 +112,11 @@ const DrivebusCharts = (() => {
         { label: time ? "time" : "t (s)", value: (u, v) => (v == null ? "–" : time
           ? new Date(v * 1000).toLocaleTimeString() : v.toFixed(3)) },
         { label: `position ${unit}`, scale: "pos", stroke: THEME.position, width: 2,
-          value: (u, v) => (v == null ? "–" : v.toFixed(3)) },
+          paths: held(), value: (u, v) => (v == null ? "–" : v.toFixed(3)) },
         { label: `velocity ${unit}/s`, scale: "vel", stroke: THEME.velocity, width: 1.5,
-          value: (u, v) => (v == null ? "–" : v.toFixed(2)) },
+          paths: held(), value: (u, v) => (v == null ? "–" : v.toFixed(2)) },
         { label: `target ${unit}`, scale: "pos", stroke: THEME.target, width: 1.5,
-          dash: [8, 5], value: (u, v) => (v == null ? "–" : v.toFixed(3)) },
+          dash: [8, 5], paths: held(), value: (u, v) => (v == null ? "–" : v.toFixed(3)) },
       ],
     };
     return make(el, id || `axis-${name}`, opts, data, extra, onZoom);
@@ -158,6 +165,31 @@ const DrivebusCharts = (() => {
     return runs;
   }
 
+  // The legend of the marks and of the state band (the series have uPlot's own legend).
+  function legend(el) {
+    el.classList.add("chart-legend");
+    for (const [kind, style] of Object.entries(MARKS)) {
+      const span = document.createElement("span");
+      span.innerHTML = `<i style="border-color:${style.color};` +
+        `border-style:${style.dash ? "dashed" : "solid"}"></i>`;
+      span.append(style.label);
+      span.dataset.kind = kind;
+      el.append(span);
+    }
+    const band = document.createElement("span");
+    band.className = "band-title";
+    band.textContent = "state (band at the bottom):";
+    el.append(band);
+    for (const [state, color] of Object.entries(STATE_COLORS)) {
+      const span = document.createElement("span");
+      span.innerHTML = `<b style="background:${color}"></b>`;
+      span.append(state);
+      span.dataset.state = state;
+      el.append(span);
+    }
+    return el;
+  }
+
   function fit(container) {
     for (const chart of registry.values()) {
       const el = chart.u.root.parentElement;
@@ -168,7 +200,7 @@ const DrivebusCharts = (() => {
     }
   }
 
-  return { axisChart, lineChart, stateRuns, fit, registry, MARKS, STATE_COLORS };
+  return { axisChart, lineChart, stateRuns, legend, fit, registry, MARKS, STATE_COLORS };
 })();
 
 window.DrivebusCharts = DrivebusCharts;

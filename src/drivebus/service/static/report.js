@@ -28,21 +28,7 @@
   }
   $("arrivals").hidden = !R.arrivals.length;
 
-  const legend = $("marks");
-  for (const [kind, style] of Object.entries(DrivebusCharts.MARKS)) {
-    const span = document.createElement("span");
-    span.innerHTML = `<i style="border-color:${style.color};` +
-      `border-style:${style.dash ? "dashed" : "solid"}"></i>`;
-    span.append(style.label);
-    span.dataset.kind = kind;
-    legend.append(span);
-  }
-  for (const [state, color] of Object.entries(DrivebusCharts.STATE_COLORS)) {
-    const span = document.createElement("span");
-    span.innerHTML = `<b style="background:${color}"></b>`;
-    span.append(state);
-    legend.append(span);
-  }
+  DrivebusCharts.legend($("marks"));
 
   const xRange = [0, Math.max(R.duration, 1e-3)];
   const charts = $("charts");
