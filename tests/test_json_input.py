@@ -14,7 +14,7 @@ import anyio
 import pytest
 from websockets.asyncio.client import connect
 
-from drivebus.checks import MAX_JSON_DEPTH, json_depth, load_json
+from drivebus.checks import MAX_JSON_DEPTH, check_json_depth, load_json
 from drivebus.errors import ArgumentError
 from drivebus.mqtt.commands import parse_command
 from service_rig import running
@@ -33,13 +33,22 @@ def nested(depth: int) -> str:
 
 
 def test_the_depth_counts_arrays_and_objects_not_brackets_in_strings() -> None:
-    assert json_depth("1") == 0
-    assert json_depth('{"a": [1, {"b": []}], "c": {}}') == 4
-    assert json_depth('{"id": "[[[[{{{{"}') == 1
-    assert json_depth(r'{"id": "\"[[[[", "k": [[2]]}') == 3  # an escaped quote stays inside
-    assert json_depth('["\\\\", [[]]]') == 3  # an escaped backslash ends before the quote
-    assert json_depth('"never closed [[[[') == 0
-    assert json_depth("[" * 5000) == 5000
+    def deep(text: str) -> bool:
+        try:
+            check_json_depth("body", text.encode(), max_depth=3)
+        except ArgumentError:
+            return True
+        return False
+
+    assert not deep('{"a": [1, {"b": 2}], "c": {}}')  # 3 levels: [{ and ]} alike
+    assert deep('{"a": [1, {"b": []}], "c": {}}')
+    assert not deep('{"id": "[[[[{{{{"}') and not deep('"never closed [[[[')
+    assert not deep(r'{"id": "\"[[[[", "k": [[2]]}')  # an escaped quote stays in its string
+    assert deep(r'["\\", [[[]]]]')  # an escaped backslash does not escape the quote after it
+    assert not deep(r'["\\", [[]]]')
+    assert not deep("][" * 1000) and not deep("[]" * 1000 + "[[[]]]")  # wide, not deep
+    assert deep("[" * 4) and not deep("[" * 3)  # brackets left open count as levels
+    assert not deep("[" * 3 + "[[[]]]")  # 3 left open around 3 closed: judged by the 3 open
 
 
 def test_load_json_takes_the_depth_limit_and_refuses_one_more() -> None:

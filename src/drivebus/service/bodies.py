@@ -50,7 +50,7 @@ class JsonDepthLimit:
                 break
         body = b"".join(chunks)
         try:
-            checks.check_json_depth("body", body.decode("utf-8", errors="replace"))
+            checks.check_json_depth("body", body)
         except ArgumentError as exc:
             await problem(422, problem_data(exc, scope.get("path")))(scope, receive, send)
             return
