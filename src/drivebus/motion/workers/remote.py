@@ -29,6 +29,7 @@ from typing import Any
 
 import anyio
 
+import drivebus.motion.workers.protocol as p
 from drivebus import checks
 from drivebus.bus import BusStats, Priority, SlaveHandle, Transaction, TransactionObserver
 from drivebus.bus.sent import SentRequest, note_sent, noting
@@ -36,7 +37,6 @@ from drivebus.bus.slave import check_line_settings
 from drivebus.config import LineConfig
 from drivebus.errors import ConnectionLost, DrivebusError, LineClosed
 from drivebus.line.base import Line
-from drivebus.motion.workers import protocol as p
 from drivebus.pdu import LengthPredictor, response_length
 from drivebus.settings import LineSettings
 from drivebus.tasks import ServiceTasks
@@ -269,9 +269,13 @@ class _Worker:
     def names(self) -> list[str]:
         return [s.name for s in self.specs]
 
-    def send(self, message: tuple[Any, ...]) -> None:
+    def send(self, message: tuple[Any, ...], *, now: bool = False) -> None:
+        """Send ``message`` to the worker, at the end of this loop turn (``now``: at once)."""
         if self.channel is not None:
-            self.channel.send(message)
+            if now:
+                self.channel.send_now(message)
+            else:
+                self.channel.send(message)
 
     def forget(self, hid: int) -> None:
         if hid in self.handles:
@@ -288,7 +292,9 @@ class _Worker:
         rid = next(self.ids)
         fut: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
         self.pending[rid] = fut
-        self.send((p.TX, rid, hid, pdu, token, priority, idempotent))
+        # a stop leaves at once: it does not wait for the rest of this loop turn
+        self.send((p.TX, rid, hid, pdu, token, priority, idempotent),
+                  now=priority >= Priority.EMERGENCY)
         return rid, fut
 
     async def retract(self, rid: int, fut: asyncio.Future[bytes], handle: SlaveHandle,
