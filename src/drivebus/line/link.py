@@ -23,10 +23,10 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
-from drivebus.clock import PreciseTimer, monotonic
+from drivebus.clock import STALL, STALL_GRACE, PreciseTimer, monotonic
 from drivebus.errors import LineNoise
 from drivebus.line.base import Begun, Exchange, SendWithdrawn
-from drivebus.line.receiver import RtuReceiver
+from drivebus.line.receiver import STALL_EXTENSIONS, RtuReceiver
 from drivebus.line.rtu import frame
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
@@ -46,7 +46,8 @@ class _Job:
     __slots__ = (
         "adu", "broadcast_delay", "exchange", "expect", "future", "link", "local_echo",
         "on_reply", "quiet_by", "reply_wait", "rx", "seen", "send", "sent", "silence",
-        "started", "timeout", "tm", "tx_end", "tx_start", "unit", "waited", "withdrawable",
+        "stalls", "started", "timeout", "tm", "tx_end", "tx_start", "unit", "waited",
+        "withdrawable",
     )
 
     def __init__(
@@ -84,6 +85,8 @@ class _Job:
         self.tx_start = 0.0
         self.tx_end = 0.0
         self.broadcast_delay = broadcast_delay
+        self.stalls = STALL_EXTENSIONS
+        """Times ``quiet_by`` may still move for a process that was held up (``step``)."""
 
     def step(self) -> None:
         """Send the frame if the line has been quiet for its silence; else arm the timer
@@ -100,6 +103,13 @@ class _Job:
                 now = monotonic()
                 if ready > self.quiet_by and r > q:
                     if now >= self.quiet_by:
+                        if self.stalls and now - self.quiet_by >= STALL:
+                            # Not the line's noise: the process was held up past the
+                            # deadline, and what arrived meanwhile (a late reply) was taken
+                            # in just now. The silence gets a fair chance to follow it.
+                            self.stalls -= 1
+                            self.quiet_by = now + self.silence + STALL_GRACE
+                            continue
                         raise link._noise(rx, self.unit, self.silence, now - self.started)
                     self.waited = True
                     link.timer.call_at(self.quiet_by, self.step)  # perhaps it stops by then
