@@ -9,6 +9,7 @@ STAMP := $(VENV)/.installed
 TEST_WORKERS ?= 4
 
 .PHONY: demo test test-install lint docs bench pictures clean
+.PRECIOUS: .venv-%/.installed
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -28,6 +29,22 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal -m 'not install and not serial'; \
 	parallel=$$?; $(BIN)/python -m pytest -q -m 'serial and not install' && exit $$parallel
 
+# The suite's parallel part on another supported Python, e.g. `make test-py3.13`, in its
+# own venv .venv-3.13 (the interpreter: tests/installs.py finds it on PATH or under pyenv).
+# `make test` already installs the wheel on every supported Python (marker `pythons`).
+.venv-%/.installed: pyproject.toml
+	py=$$($(PY) tests/installs.py $*) && $$py -m venv .venv-$*
+	.venv-$*/bin/pip install --quiet --upgrade pip
+	.venv-$*/bin/pip install --quiet -e '.[test,docs]'
+	touch $@
+
+test-py%: .venv-%/.installed
+	-@sh .ci/ensure-mbpoll
+	-@sh .ci/ensure-mosquitto
+	-@sh .ci/ensure-chromium
+	.venv-$*/bin/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal \
+		-m 'not install and not serial and not pythons'
+
 # Slow: throwaway venvs and real pip installs (pymodbus beside drivebus, the pymodbus range).
 test-install: $(STAMP)
 	$(BIN)/python -m pytest -q -m install
@@ -44,4 +61,4 @@ pictures: $(STAMP)
 	$(BIN)/python tests/make_pictures.py
 
 clean:
-	rm -rf $(VENV) build site src/*.egg-info .pytest_cache
+	rm -rf $(VENV) .venv-3.* build site src/*.egg-info .pytest_cache

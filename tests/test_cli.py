@@ -760,3 +760,22 @@ def test_a_serial_line_in_another_process_finds_a_running_drivebus_sim() -> None
                            timeout=30, check=False)
         assert r.returncode == 0, r.stderr
         assert r.stdout.strip() == "[862]"
+
+
+def test_demo_where_and_write_give_the_packaged_machine(tmp_path: Path) -> None:
+    from drivebus.machines import DEMO as PACKAGED
+
+    r = drivebus("demo", "--where")
+    assert r.returncode == 0 and Path(r.stdout.strip()) == PACKAGED, r
+    r = drivebus("demo", "--write", tmp_path)  # a folder: the file goes into it
+    assert r.returncode == 0, r
+    assert (tmp_path / "demo.toml").read_bytes() == PACKAGED.read_bytes()
+    mine = tmp_path / "demo.toml"
+    mine.write_text("# mine\n")
+    r = drivebus("demo", "--write", mine)
+    assert r.returncode == 2 and f"{mine} exists" in r.stderr, r
+    assert mine.read_text() == "# mine\n"  # never overwritten
+    r = drivebus("demo", "--write", tmp_path / "no" / "such" / "folder.toml")
+    assert r.returncode == 2 and "No such file or directory" in r.stderr, r
+    r = drivebus("demo", DEMO, "--where")
+    assert r.returncode == 2 and "without CONFIG" in r.stderr, r

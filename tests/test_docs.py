@@ -110,7 +110,10 @@ def test_families_table_lists_every_family(site: Path) -> None:
     ("page", "names"),
     [
         ("drivebus", ["drivebus.Bus", "drivebus.SerialLine", "drivebus.open_machine",
-                      "drivebus.Axis", "drivebus.LineSettings", "drivebus.Bus.slave"]),
+                      "drivebus.Axis", "drivebus.LineSettings", "drivebus.Bus.slave",
+                      # the axis's commands from its rooms (actor, jog, io) are documented
+                      "drivebus.Axis.stop", "drivebus.Axis.jog", "drivebus.Axis.watch",
+                      "drivebus.Axis.set_output", "drivebus.Axis.move_to"]),
         ("app", ["drivebus.app.MachineSession", "drivebus.app.EventHub"]),
         ("errors", ["drivebus.errors.DrivebusError", "drivebus.errors.NotSupported",
                     "drivebus.errors.ResponseTimeout"]),

@@ -4,6 +4,9 @@
   alone, and drivebus works there (its CRC is its own).
 - The tests that use pymodbus pass on the lowest and on the newest pymodbus of the
   ranges that the ``test`` and ``bench`` extras declare in pyproject.toml.
+- The wheel with the ``bench``, ``plots`` and ``parquet`` extras, each used once from a
+  folder outside the checkout (``make test`` runs the plain wheel on every supported
+  Python: tests/test_packaging.py).
 
 Each venv is new, pip resolves against the package index as a user's would (no
 ``--no-deps``), and the tests run from this work tree against the installed package.
@@ -16,12 +19,15 @@ import re
 import subprocess
 import tomllib
 import venv
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 from packaging.requirements import Requirement
 from packaging.specifiers import SpecifierSet
 from packaging.version import Version
+
+from installs import SUPPORTED, Installed, build_wheel, find, install
 
 pytestmark = pytest.mark.install
 
@@ -152,3 +158,45 @@ def test_pymodbus_tests_pass_at_both_ends_of_the_range(
     out = env.pytest(*(PYMODBUS_TESTS if "test" in extras else BENCH_TESTS))
     assert re.search(r"\d+ passed", out) and "failed" not in out, out
     print(f"pymodbus {got} ({extra}, {end}): {out.strip().splitlines()[-1]}")
+
+
+@pytest.fixture(scope="session")
+def wheel(built_once: Callable[[str, Callable[[Path], None]], Path]) -> Path:
+    (found,) = built_once("wheel", build_wheel).glob("drivebus-*.whl")
+    return found
+
+
+def test_the_extras_each_work_installed_from_another_folder(
+    wheel: Path, tmp_path: Path
+) -> None:
+    """`pip install 'drivebus[bench,plots,parquet]'` (the wheel, not editable) into a
+    fresh venv of the newest supported Python, then from a folder outside the checkout:
+    the bench's quick efficiency run, its pymodbus baseline (bench) and its motion
+    scenario on the packaged demo machine with a PNG of its moves (plots); a recording of
+    a copy of the demo machine written as Parquet (parquet) and drawn as a PNG."""
+    version = next((v for v in reversed(SUPPORTED) if find(v)), None)
+    assert version is not None, f"none of the supported Pythons {SUPPORTED} found"
+    python = find(version)
+    assert python is not None
+    work = tmp_path / "work"
+    work.mkdir()
+    env = Installed(install(python, wheel, tmp_path / "venv", "[bench,plots,parquet]"), work)
+    env.ok("drivebus", "bench", "--quick", "--only", "efficiency", "--only",
+           "pymodbus baseline", "--only", "motion", "--plots", "plots", "--json", "bench.json",
+           timeout=900)
+    rows = json.loads((work / "bench.json").read_text())
+    assert {r["scenario"] for r in rows} == {"efficiency", "pymodbus baseline", "motion"}
+    baseline = [r for r in rows if r["scenario"] == "pymodbus baseline"]
+    assert baseline and all("note" not in r["figures"] for r in baseline), baseline
+    assert (work / "plots" / "motion-group-moves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    env.ok("drivebus", "demo", "--write", "mine.toml")
+    env.ok("drivebus", "record", "mine.toml", "x", "--during", "move x 50",
+           "-o", "run.parquet", "--png", "run.png", timeout=300)
+    assert (work / "run.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    table = env.ok("python", "-c", (
+        "import pyarrow.parquet as pq\n"
+        "t = pq.read_table('run.parquet')\n"
+        "print(t.num_rows, ' '.join(t.column_names))\n"
+    ))
+    rows_read, columns = table.split(" ", 1)
+    assert int(rows_read) > 0 and "position" in columns, table

@@ -11,6 +11,7 @@ parameter, the value and what is allowed.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Sequence
 from enum import IntEnum
@@ -23,9 +24,12 @@ if TYPE_CHECKING:  # pydantic is loaded by what validates, not by these checks
     from pydantic import BaseModel, ValidationError
 
 __all__ = [
+    "MAX_JSON_DEPTH",
     "MAX_RETRIES",
     "MAX_TIMEOUT",
+    "check_json_depth",
     "finite",
+    "load_json",
     "member",
     "positive",
     "response_timeout",
@@ -40,7 +44,14 @@ MAX_TIMEOUT = 10.0
 MAX_RETRIES = 10
 """Most retries a transaction may have."""
 
+MAX_JSON_DEPTH = 32
+"""Deepest nesting of arrays and objects taken in JSON from outside (an MQTT command, a
+WebSocket message, an HTTP body). Python's parser fails at a depth that depends on its
+version and on the stack (3.11 from about 1000 levels, 3.12 and 3.13 later, and in
+different ways), so the depth is checked before it parses: the same answer everywhere."""
+
 E = TypeVar("E", bound=IntEnum)
+
 
 
 def finite(name: str, value: object, *, error: type[DrivebusError] = ArgumentError) -> float:
@@ -200,3 +211,51 @@ def validation_problems(
         out.append(f"{where}: {msg}" if where else msg)
     more = len(exc.errors()) - limit
     return out + ([f"and {more} more"] if more > 0 else [])
+
+
+_PARENS = bytes.maketrans(b"[{]}", b"(())")
+_NOT_BRACKETS = bytes(c for c in range(256) if c not in b"[]{}")
+
+
+def _brackets(data: str | bytes) -> bytes:
+    """The arrays' and objects' brackets of JSON ``data`` outside its strings, each as
+    ``(`` or ``)`` (bytes operations only: fast on a large body)."""
+    raw = data.encode("utf-8", "surrogatepass") if isinstance(data, str) else data
+    if b'"' in raw:  # escaped backslashes, then escaped quotes, then every string's content
+        unescaped = raw.replace(b"\\\\", b"").replace(b'\\"', b"")
+        raw = b"".join(unescaped.split(b'"')[::2])
+    return raw.translate(_PARENS, _NOT_BRACKETS)
+
+
+def check_json_depth(name: str, data: str | bytes, *, max_depth: int = MAX_JSON_DEPTH) -> None:
+    """``ArgumentError`` naming ``name`` if JSON ``data`` nests its arrays and objects
+    deeper than ``max_depth`` (brackets inside strings do not count; text that leaves
+    brackets open is judged by how many it leaves open). Balanced pairs are peeled a level
+    at a time: a body of megabytes takes a fraction of what parsing it takes."""
+    pairs = _brackets(data)
+    if pairs.count(b"(") <= max_depth:
+        return
+    for _ in range(max_depth):
+        peeled = pairs.replace(b"()", b"")
+        if peeled == pairs:
+            break
+        pairs = peeled
+    if b"()" in pairs or pairs.count(b"(") - pairs.count(b")") > max_depth:
+        raise ArgumentError(f"{name}: JSON nested too deeply (more than {max_depth} levels)")
+
+
+def load_json(name: str, text: str, *, max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """JSON ``text`` from outside as data, alike on every Python version: nested at most
+    ``max_depth`` deep, no NaN or infinity; else ``ArgumentError`` naming ``name`` (e.g.
+    "payload") and the problem."""
+    check_json_depth(name, text, max_depth=max_depth)
+
+    def no_constant(constant: str) -> Any:
+        raise ArgumentError(f"{name}: {constant} is not a finite number (JSON has no "
+                            f"{constant})")
+
+    try:
+        return json.loads(text, parse_constant=no_constant)
+    except json.JSONDecodeError as exc:
+        raise ArgumentError(f"{name}: not JSON ({exc.msg} at line {exc.lineno} column "
+                            f"{exc.colno}): {text[:80]!r}") from None

@@ -23,6 +23,7 @@ import anyio
 from drivebus.bench.common import BenchOptions, BenchResult, Scenario, at_most
 from drivebus.bench.programs import program_rows
 from drivebus.errors import ConfigError, MotionAborted
+from drivebus.machines import DEMO
 from drivebus.motion import Axis, AxisState, Machine, open_machine
 from drivebus.motion.recording import Recording
 from drivebus.sim.soak import run_soak
@@ -31,7 +32,6 @@ __all__ = ["SCENARIO"]
 
 log = logging.getLogger(__name__)
 
-DEMO = Path(__file__).resolve().parents[3] / "configs" / "demo.toml"
 _KINDS = ("x", "y", "z", "r")  # NT86, BHSS, CL86R, EPR60 (aux, the OD2000, cannot move)
 
 

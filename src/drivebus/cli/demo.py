@@ -14,13 +14,15 @@ from rich.live import Live
 
 from drivebus.cli.views import axes_table
 from drivebus.config import load_config
-from drivebus.errors import ConfigError, MotionAborted, NotSupported
+from drivebus.errors import ArgumentError, ConfigError, MotionAborted, NotSupported
+from drivebus.machines import DEMO
 from drivebus.motion import Axis, Machine, open_machine
 from drivebus.motion.state import AxisState
 
-__all__ = ["DEFAULT_CONFIG", "axes_table", "run_demo"]
+__all__ = ["DEFAULT_CONFIG", "axes_table", "run_demo", "write_demo"]
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "configs" / "demo.toml"
+DEFAULT_CONFIG = DEMO
+"""The machine ``drivebus demo`` runs without an argument: the packaged demo machine."""
 
 
 async def _step(log: Callable[[str], None], what: str, fn: Callable[[], Awaitable[object]]) -> None:
@@ -165,6 +167,23 @@ async def run_demo(config: str | Path | None = None) -> int:
         flush=True,
     )
     return 1 if faulted or violations else 0
+
+
+def write_demo(dest: str | Path) -> Path:
+    """Copy the built-in demo machine file to ``dest`` (into it, if it is a folder) and
+    return where it went; an existing file is never overwritten (``ArgumentError``)."""
+    target = Path(dest)
+    if target.is_dir():
+        target = target / DEFAULT_CONFIG.name
+    try:
+        with target.open("x", encoding="utf-8") as out:
+            out.write(DEFAULT_CONFIG.read_text(encoding="utf-8"))
+    except FileExistsError:
+        raise ArgumentError(f"--write: {target} exists; the demo machine is written only to "
+                            "a new file (remove it or name another)") from None
+    except OSError as exc:
+        raise ArgumentError(f"--write: cannot write {target}: {exc.strerror}") from None
+    return target
 
 
 def _count(n: int, one: str, many: str) -> str:

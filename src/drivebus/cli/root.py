@@ -124,6 +124,9 @@ def bench(
         metavar="DIR", help="write the motion scenario's plots here (an HTML report of "
         "its group moves, and a PNG with matplotlib)")] = Path("bench-plots"),
     no_plots: Annotated[bool, typer.Option("--no-plots", help="draw no plots")] = False,
+    only: Annotated[list[str] | None, typer.Option(
+        "--only", metavar="SCENARIO", help="run this scenario only, e.g. efficiency or "
+        "motion (repeat for more; a wrong name lists them)")] = None,
 ) -> None:
     """Measure bus efficiency, stop latency, CPU per transaction and scale on simulated lines."""
     import anyio
@@ -133,12 +136,13 @@ def bench(
     if not 0 <= checks.finite("--turnaround", turnaround) <= 1:
         raise ArgumentError(f"--turnaround: {turnaround!r} s is outside 0..1 s")
     draw = None if no_plots else plots
-    results = anyio.run(lambda: run_bench(quick=quick, turnaround=turnaround, plots=draw))
+    results = anyio.run(lambda: run_bench(quick=quick, turnaround=turnaround, plots=draw,
+                                          only=only))
     typer.echo(format_table(results))
     if json_path is not None:
         json_path.write_text(results_json(results))
         typer.echo(f"\nresults written to {json_path}")
-    if draw is not None:
+    if draw is not None and (only is None or "motion" in only):
         typer.echo(f"motion plots written to {draw}/")
 
 
@@ -147,12 +151,28 @@ def demo(
     config: Annotated[Path | None, typer.Argument(
         metavar="[CONFIG]",
         help="a simulated machine file (default: the built-in demo machine)")] = None,
+    where: Annotated[bool, typer.Option(
+        "--where", help="print where the built-in demo machine file is, and exit")] = False,
+    write: Annotated[Path | None, typer.Option(
+        "--write", metavar="FILE", help="copy the built-in demo machine file to FILE (a new "
+        "file, or into a folder) as a start for your own machine file, and exit")] = None,
 ) -> None:
     """Run the demo job on the simulator: home, group moves, a jog, a stop."""
     import anyio
 
-    from drivebus.cli.demo import run_demo
+    from drivebus.cli.demo import DEFAULT_CONFIG, run_demo, write_demo
 
+    if where or write is not None:
+        if config is not None:
+            raise ArgumentError("--where and --write are about the built-in demo machine: "
+                                f"give them without CONFIG ({config})")
+        if where:
+            typer.echo(DEFAULT_CONFIG)
+        if write is not None:
+            written = write_demo(write)
+            typer.echo(f"wrote {written}: the demo machine (sim:// lines); "
+                       f"`drivebus demo {written}` runs it")
+        return
     raise typer.Exit(anyio.run(run_demo, config))
 
 

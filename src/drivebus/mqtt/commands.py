@@ -66,10 +66,6 @@ class Command:
     if given), each of its type."""
 
 
-def _reject_constant(name: str) -> Any:
-    raise ArgumentError(f"payload: {name} is not a finite number (JSON has no {name})")
-
-
 def _load(payload: bytes) -> Any:
     """The payload as JSON data (an empty payload is an empty object)."""
     if len(payload) > MAX_PAYLOAD:
@@ -80,13 +76,7 @@ def _load(payload: bytes) -> Any:
         raise ArgumentError(f"payload: not UTF-8 text (byte {exc.start})") from None
     if not text.strip():
         return {}
-    try:
-        return json.loads(text, parse_constant=_reject_constant)
-    except json.JSONDecodeError as exc:
-        raise ArgumentError(f"payload: not JSON ({exc.msg} at line {exc.lineno} column "
-                            f"{exc.colno}): {text[:80]!r}") from None
-    except RecursionError:
-        raise ArgumentError("payload: JSON nested too deeply") from None
+    return checks.load_json("payload", text)
 
 
 def _id(data: dict[str, Any]) -> Id:

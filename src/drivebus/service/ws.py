@@ -34,7 +34,6 @@ client that fell behind further is told ``{"type": "lost", "count": N}``.
 
 # No ``from __future__ import annotations`` here: FastAPI reads the annotations at runtime.
 
-import json
 import logging
 import time
 from typing import Annotated, Any
@@ -45,6 +44,7 @@ from anyio.streams.memory import MemoryObjectReceiveStream, MemoryObjectSendStre
 from fastapi import WebSocket, WebSocketDisconnect
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from drivebus import checks
 from drivebus.app import Event, Subscription
 from drivebus.clock import monotonic
 from drivebus.errors import ArgumentError, DrivebusError, MotionAborted
@@ -268,10 +268,7 @@ class _Connection:
 
 
 def _parse(text: str) -> tuple[str, Any, Any]:
-    try:
-        msg = json.loads(text, parse_constant=_no_constant)
-    except ValueError as exc:
-        raise ArgumentError(f"not JSON: {exc}") from None
+    msg = checks.load_json("message", text)
     if not isinstance(msg, dict):
         raise ArgumentError("expected a JSON object with one operation")
     ops = [k for k in msg if k in _OPS]
@@ -283,10 +280,6 @@ def _parse(text: str) -> tuple[str, Any, Any]:
     if ops[0] == "subscribe":
         return ops[0], msg.get("id"), (msg["subscribe"], msg.get("max_rate"))
     return ops[0], msg.get("id"), msg[ops[0]]
-
-
-def _no_constant(name: str) -> float:
-    raise ValueError(f"{name} is not a number JSON allows")
 
 
 async def _authenticate(ws: WebSocket, state: ServiceState) -> Principal | None:

@@ -29,6 +29,7 @@ from typing import Any
 
 import anyio
 
+import drivebus.motion.workers.protocol as p
 from drivebus import checks
 from drivebus.bus import BusStats, Priority, SlaveHandle, Transaction, TransactionObserver
 from drivebus.bus.sent import SentRequest, note_sent, noting
@@ -36,7 +37,6 @@ from drivebus.bus.slave import check_line_settings
 from drivebus.config import LineConfig
 from drivebus.errors import ConnectionLost, DrivebusError, LineClosed
 from drivebus.line.base import Line
-from drivebus.motion.workers import protocol as p
 from drivebus.pdu import LengthPredictor, response_length
 from drivebus.settings import LineSettings
 from drivebus.tasks import ServiceTasks

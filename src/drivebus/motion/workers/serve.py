@@ -23,13 +23,13 @@ from typing import Any
 import anyio
 import anyio.abc
 
+import drivebus.motion.workers.protocol as p
 from drivebus.bus import Bus, Priority, SlaveHandle, Transaction
 from drivebus.bus.scheduler import Queued
 from drivebus.bus.sent import sent_requests
 from drivebus.config import LineConfig
 from drivebus.errors import ConnectionLost, DrivebusError, LineClosed
 from drivebus.motion.lines import make_line
-from drivebus.motion.workers import protocol as p
 from drivebus.pdu import LengthPredictor, response_length
 
 __all__ = ["main", "serve"]
