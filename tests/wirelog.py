@@ -12,7 +12,7 @@ import anyio
 from drivebus import AxisState
 from drivebus.motion import Axis, Machine
 
-__all__ = ["KINDS", "command_frames", "commands", "log_size", "room", "settle"]
+__all__ = ["KINDS", "command_frames", "commands", "log_size", "reads_of", "room", "settle"]
 
 
 def _rtu_write(data: bytes) -> tuple[int, int] | None:
@@ -120,3 +120,19 @@ def requests_between(m: Machine, line: str, after: float, before: float) -> int:
     wire: Any = m.wires[line]
     return sum(1 for f in list(wire.log)
                if f.direction == "request" and after < f.start < before)
+
+
+_READS = (b"\x01", b"\x02", b"\x03", b"\x04")
+
+
+def reads_of(m: Machine, name: str) -> list[float]:
+    """When each read request (FC01-FC04) to the axis's address began to leave (RTU) or
+    reached the server (TCP): its status polls."""
+    ax = m.axes[name]
+    wire: Any = m.wires[ax.config.line]
+    if ax.config.line == "eth":
+        return [r.received for r in list(wire.log)
+                if r.unit == ax.config.address and r.pdu[:1] in _READS]
+    return [f.start for f in list(wire.log)
+            if f.direction == "request" and f.address == ax.config.address
+            and f.data[1:2] in _READS]

@@ -123,6 +123,12 @@ class Channel(asyncio.Protocol):
             self._flushing = True
             asyncio.get_running_loop().call_soon(self._flush)
 
+    def send_now(self, message: tuple[Any, ...]) -> None:
+        """Send ``message`` at once, with whatever is queued before it (a stop: it does
+        not wait for the end of this turn of the loop)."""
+        self.send(message)
+        self._flush()
+
     def _flush(self) -> None:
         self._flushing = False
         out, self._out = self._out, []

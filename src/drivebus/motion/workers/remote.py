@@ -269,9 +269,13 @@ class _Worker:
     def names(self) -> list[str]:
         return [s.name for s in self.specs]
 
-    def send(self, message: tuple[Any, ...]) -> None:
+    def send(self, message: tuple[Any, ...], *, now: bool = False) -> None:
+        """Send ``message`` to the worker, at the end of this loop turn (``now``: at once)."""
         if self.channel is not None:
-            self.channel.send(message)
+            if now:
+                self.channel.send_now(message)
+            else:
+                self.channel.send(message)
 
     def forget(self, hid: int) -> None:
         if hid in self.handles:
@@ -288,7 +292,9 @@ class _Worker:
         rid = next(self.ids)
         fut: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
         self.pending[rid] = fut
-        self.send((p.TX, rid, hid, pdu, token, priority, idempotent))
+        # a stop leaves at once: it does not wait for the rest of this loop turn
+        self.send((p.TX, rid, hid, pdu, token, priority, idempotent),
+                  now=priority >= Priority.EMERGENCY)
         return rid, fut
 
     async def retract(self, rid: int, fut: asyncio.Future[bytes], handle: SlaveHandle,
