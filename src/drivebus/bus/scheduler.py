@@ -11,7 +11,7 @@ from types import TracebackType
 
 import anyio
 
-from drivebus.bus.foreign import heard_foreign
+from drivebus.bus.masters import heard_foreign
 from drivebus.bus.observe import TransactionObserver
 from drivebus.bus.owner import Owner
 from drivebus.bus.priority import Priority
