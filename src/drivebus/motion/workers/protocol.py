@@ -44,6 +44,7 @@ __all__ = [
     "READY",
     "SEEN",
     "STATS",
+    "TAKEN",
     "TX",
     "UNHOLD",
     "Channel",
@@ -52,7 +53,9 @@ __all__ = [
 ]
 
 OPEN, HANDLE, EXPECT, TX, CANCEL, HOLD, UNHOLD, OBSERVE, CLOSE, FORGET = range(10)
-READY, OK, ERR, CANCELLED, HELD, STATS, SEEN, LOG, CLOSED = range(100, 109)
+READY, OK, ERR, CANCELLED, HELD, STATS, SEEN, LOG, CLOSED, TAKEN = range(100, 110)
+"""``TAKEN, line, when``: the worker queued an emergency request on that line (a stop) at
+``when`` (``time.monotonic``, the host's clock): where the stop's own scheduling begins."""
 
 _LENGTH = struct.Struct("<I")
 _MAX_MESSAGE = 64 << 20

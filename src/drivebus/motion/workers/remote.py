@@ -15,6 +15,7 @@ cannot be started again, its lines stay failed and the log says why.
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import itertools
 import logging
@@ -101,6 +102,10 @@ class RemoteBus:
         self.timeout = checks.response_timeout("response timeout", timeout)
         self.retries = checks.retry_count("retries", retries)
         self.stats = BusStats()
+        self.stops_taken: collections.deque[float] = collections.deque(maxlen=16)
+        """When the worker queued the last emergency requests (stops) on this line
+        (``time.monotonic``, the host's clock): from there on a stop is the worker's to
+        schedule; before, it was crossing between the processes."""
         self._worker = worker
         self._index = index
         self._handles: weakref.WeakKeyDictionary[SlaveHandle, tuple[int, tuple[Any, ...]]] = \
@@ -335,6 +340,8 @@ class _Worker:
                 fut.set_result(m[2])
             else:
                 fut.set_exception(p.decode_error(m[2]))
+        elif tag == p.TAKEN:
+            self.buses[m[1]].stops_taken.append(m[2])
         elif tag == p.STATS:
             bus = self.buses[m[1]]
             bus.stats = m[2]

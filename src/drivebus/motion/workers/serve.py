@@ -139,6 +139,8 @@ class _Worker:
             return
         self.pending[rid] = (bus, q)
         q.future.add_done_callback(functools.partial(self._done, rid))
+        if priority >= Priority.EMERGENCY:
+            self.send((p.TAKEN, self.buses.index(bus), q.queued_at))  # type: ignore[attr-defined]  # (a Request)
 
     def _done(self, rid: int, fut: asyncio.Future[bytes]) -> None:
         if self.pending.pop(rid, None) is None or fut.cancelled():
