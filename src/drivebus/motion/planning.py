@@ -49,6 +49,9 @@ _NETWORK_DELAY = 0.0003
 """Assumed delay of a start command on a Modbus TCP line, seconds."""
 _FIT_MEMO = 512
 """Fits remembered per axis (``fit_plan``) before the memo starts afresh."""
+_CANDIDATES_PER_TURN = 48
+"""Candidate plans weighed per event-loop turn (each a dry run through the drive's codecs,
+about 50 us): a few ms of CPU at most between two turns."""
 
 
 def synchronise(
@@ -104,7 +107,7 @@ def _speed_for(distance: float, duration: float, accel: float, decel: float) -> 
     return (duration - math.sqrt(disc)) / (2 * k)
 
 
-def fit_plan(
+async def fit_plan(
     axis: Axis, distance: float, duration: float, shape: MotionPlan, *, at_least: bool = False,
     ceiling: MotionPlan | None = None,
 ) -> MotionPlan:
@@ -115,7 +118,9 @@ def fit_plan(
 
     ``ceiling``: the most speed and ramps it may use (default: the axis's own).
     ``LimitViolation`` if no plan fits the drive at all. Fits are remembered per axis (a
-    path's repeated segments, a group's re-plans ask the same again).
+    path's repeated segments, a group's re-plans ask the same again). The search gives
+    the event loop a turn every ``_CANDIDATES_PER_TURN`` candidates (each a dry run
+    through the drive's codecs): a stop goes out meanwhile.
     """
     d = abs(distance)
     own = ceiling or axis.plan()
@@ -126,22 +131,26 @@ def fit_plan(
     found_before = memo.get(key)
     if found_before is not None:
         return found_before
-    plan = _fit(axis, d, duration, shape, at_least, own)
+    plan = await _fit(axis, d, duration, shape, at_least, own)
     if len(memo) >= _FIT_MEMO:
         memo.clear()
     memo[key] = plan
     return plan
 
 
-def _fit(axis: Axis, d: float, duration: float, shape: MotionPlan, at_least: bool,
-         own: MotionPlan) -> MotionPlan:
+async def _fit(axis: Axis, d: float, duration: float, shape: MotionPlan, at_least: bool,
+               own: MotionPlan) -> MotionPlan:
     """``fit_plan``'s search (see there)."""
     axis.profile.quantize(axis.drive_params(own))  # a plan it takes: the fast rounding
     u, profile = axis.units, axis.profile
     found: list[tuple[float, float, MotionPlan]] = []
     seen: set[tuple[float, float, float]] = set()
+    candidates: list[tuple[float, float, float]] = []
 
     def consider(v: float, a: float, b: float) -> None:
+        candidates.append((v, a, b))
+
+    def weigh(v: float, a: float, b: float) -> None:
         if not (v > 0 and a > 0 and b > 0) or not all(map(math.isfinite, (v, a, b))):
             return
         q = profile.quantize(axis.drive_params(MotionPlan(v, a, b)))
@@ -181,6 +190,10 @@ def _fit(axis: Axis, d: float, duration: float, shape: MotionPlan, at_least: boo
                     consider(v, a, a * ratio)
             consider(v, a0, b0)
         consider(v0, a0, b0)
+    for i, candidate in enumerate(candidates):
+        if i and i % _CANDIDATES_PER_TURN == 0:
+            await anyio.lowlevel.checkpoint()
+        weigh(*candidate)
     # The closest first (then the nearest to the preferred speed): the first the drive's
     # range checks take is the plan; most often that is the first, so few are checked.
     found.sort(key=lambda c: c[:2])
@@ -388,7 +401,7 @@ async def plan(
 
     for _ in range(8):  # every plan is checked against its drive before any axis moves
         for n in moving:
-            plans[n] = fit_plan(axes[n], distances[n], total - offsets[n], shapes[n],
+            plans[n] = await fit_plan(axes[n], distances[n], total - offsets[n], shapes[n],
                                 ceiling=ceiling(n))
             await anyio.lowlevel.checkpoint()
         miss = {n: plans[n].duration(distances[n]) + offsets[n] - total for n in moving}
@@ -403,7 +416,7 @@ async def plan(
         # run that is no shorter, if that costs little; else it starts later.
         n = min(early, key=miss.__getitem__)
         try:
-            slower = fit_plan(axes[n], distances[n], total - offsets[n], shapes[n],
+            slower = await fit_plan(axes[n], distances[n], total - offsets[n], shapes[n],
                               at_least=True, ceiling=ceiling(n))
         except LimitViolation:
             break
