@@ -61,9 +61,12 @@ async def test_one_in_flight_when_the_line_declares_one() -> None:
 async def test_a_stop_goes_out_while_every_other_slot_is_busy_with_polls() -> None:
     """Polls may fill all slots but one: the stop takes that one at once, with the polls
     still outstanding, instead of waiting for one of them to come back."""
+    # Polls that take 150 ms at the slave: none comes back between the test seeing three
+    # of them arrive and the stop's arrival, however busy the machine (30 ms was not
+    # always enough on a loaded 2-core machine: a slot freed, and the stop could take it).
     async with (
-        SimTcpServer(_slaves(0.03), pipelined=True) as srv,
-        Bus(TcpLine(HOST, srv.port, max_in_flight=4)) as bus,
+        SimTcpServer(_slaves(0.15), pipelined=True) as srv,
+        Bus(TcpLine(HOST, srv.port, max_in_flight=4), timeout=1.0) as bus,
     ):
         stop = anyio.Event()
         bad: list[object] = []
