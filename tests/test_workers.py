@@ -223,3 +223,13 @@ async def test_a_write_cancelled_before_or_on_the_wire_is_reported_through_the_w
                        + (100 + i).to_bytes(2, "big")]
             assert len(sent) == len(on_wire) <= 1, (delay, sent, on_wire)
             assert all(s.slave == 2 and s.function == 0x06 for s in sent)
+
+
+async def test_a_worker_bus_takes_the_slave_addresses_its_line_takes() -> None:
+    """A slave handle on a worker's line is made and checked as ``Bus.slave`` makes it:
+    Modbus TCP's unit id 255 is taken, an RTU address above 247 is refused."""
+    async with open_machine(demo("w-addresses")) as m:
+        assert isinstance(m.buses["eth"], RemoteBus)
+        assert m.buses["eth"].slave(255).address == 255
+        with pytest.raises(ConfigError, match=r"248 is outside 0\.\.247"):
+            m.buses["rs485"].slave(248)

@@ -17,7 +17,7 @@ from drivebus.bus.owner import Owner
 from drivebus.bus.priority import Priority
 from drivebus.bus.request import Queued, Request
 from drivebus.bus.sent import noting
-from drivebus.bus.slave import SlaveHandle, check_line_settings
+from drivebus.bus.slave import SlaveHandle, handle_on
 from drivebus.bus.stats import BusStats
 from drivebus.errors import LineClosed
 from drivebus.line.base import Line
@@ -104,18 +104,11 @@ class Bus(Owner):
         """A handle for the slave at ``address`` (0 = broadcast) with its own settings
         (``guard``: extra quiet time before each of its frames, ``frame_timeout``: after
         each of its replies, for bytes it trails; s)."""
-        h = SlaveHandle(  # checks address, settings, timeout, retries and guard
-            self,
-            address,
-            settings=settings,
-            timeout=self.timeout if timeout is None else timeout,
-            retries=self.retries if retries is None else retries,
-            exception_texts=exception_texts,
-            guard=guard,
-            frame_timeout=frame_timeout,
-            max_address=max(getattr(self.line, "unit_ids", range(248))),
-        )
-        check_line_settings(h, self.line)
+        h = handle_on(self, self.line, address, settings=settings,
+                      timeout=self.timeout if timeout is None else timeout,
+                      retries=self.retries if retries is None else retries,
+                      exception_texts=exception_texts, guard=guard,
+                      frame_timeout=frame_timeout)
         self._handles[h.address] = h
         return h
 

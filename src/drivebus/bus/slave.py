@@ -29,7 +29,7 @@ from drivebus.pdu import (
 )
 from drivebus.settings import LineSettings
 
-__all__ = ["Executor", "SlaveHandle", "check_line_settings"]
+__all__ = ["Executor", "SlaveHandle", "check_line_settings", "handle_on"]
 
 
 class Executor(Protocol):
@@ -65,6 +65,22 @@ def check_line_settings(handle: SlaveHandle, line: _LineSettings) -> None:
                 f"slave {handle.address}: line {line.name} has one setting for all slaves "
                 f"({line.settings}); {handle.settings} cannot be used on it"
             )
+
+
+def handle_on(
+    bus: Executor, line: _LineSettings, address: int, *, settings: LineSettings | None,
+    timeout: float, retries: int, exception_texts: dict[int, str] | None, guard: float,
+    frame_timeout: float,
+) -> SlaveHandle:
+    """A handle for the slave at ``address`` on ``bus`` (a ``Bus`` or a worker's
+    ``RemoteBus``): its arguments checked, up to the highest unit id ``line`` takes, and
+    its own settings checked against ``line``."""
+    h = SlaveHandle(bus, address, settings=settings, timeout=timeout, retries=retries,
+                    exception_texts=exception_texts, guard=guard,
+                    frame_timeout=frame_timeout,
+                    max_address=max(getattr(line, "unit_ids", range(248))))
+    check_line_settings(h, line)
+    return h
 
 
 def _priority(priority: object) -> Priority:

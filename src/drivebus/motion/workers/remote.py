@@ -34,7 +34,7 @@ import drivebus.motion.workers.protocol as p
 from drivebus import checks
 from drivebus.bus import BusStats, Priority, SlaveHandle, Transaction, TransactionObserver
 from drivebus.bus.sent import SentRequest, note_sent, noting
-from drivebus.bus.slave import check_line_settings
+from drivebus.bus.slave import handle_on
 from drivebus.config import LineConfig
 from drivebus.errors import ConnectionLost, DrivebusError, LineClosed
 from drivebus.line.base import Line
@@ -135,13 +135,11 @@ class RemoteBus:
         frame_timeout: float = 0.0,
     ) -> SlaveHandle:
         """A handle for the slave at ``address``, as ``Bus.slave`` makes it."""
-        h = SlaveHandle(self, address, settings=settings,
-                        timeout=self.timeout if timeout is None else timeout,
-                        retries=self.retries if retries is None else retries,
-                        exception_texts=exception_texts, guard=guard,
-                        frame_timeout=frame_timeout)
-        check_line_settings(h, self.line)
-        return h
+        return handle_on(self, self.line, address, settings=settings,
+                         timeout=self.timeout if timeout is None else timeout,
+                         retries=self.retries if retries is None else retries,
+                         exception_texts=exception_texts, guard=guard,
+                         frame_timeout=frame_timeout)
 
     def _hid(self, handle: SlaveHandle) -> int:
         """The worker's number for ``handle``, its settings sent where they changed."""
