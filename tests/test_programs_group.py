@@ -17,6 +17,7 @@ from drivebus.motion import Machine
 from drivebus.motion.path import GroupHandle
 from test_axis_guarantees import commands, log_size
 from test_motion import machine
+from wirelog import reads_of
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 
@@ -70,8 +71,11 @@ async def test_a_group_move_takes_a_path_speed_ramps_or_a_duration() -> None:
         assert m.axes["x"].position == 20.0 and m.axes["y"].position == 10.0  # nothing moved
 
 
-@pytest.mark.serial  # a bound of one poll period: run where no other test loads the CPU
 async def test_a_buffered_path_stops_in_position_at_each_corner_within_a_poll_period() -> None:
+    """Each corner's next segment starts on the first status that can show the axes of the
+    segment before it arrived: no more than one status read of an arrived axis begins
+    between its arrival and the next start (a poll period at most, whatever the machine's
+    load does to the period itself; the dwell is the bench's figure)."""
     async with open_machine(DEMO) as m:
         xy = m.group("x", "y")
         await xy.move_to({"x": 20.0, "y": 10.0})
@@ -85,12 +89,15 @@ async def test_a_buffered_path_stops_in_position_at_each_corner_within_a_poll_pe
         assert m.sim_drives["y"].position() == m.axes["y"].units.to_pulses(10.0)
         xs, ys = moves(m.sim_drives["x"], t0, t1), moves(m.sim_drives["y"], t0, t1)
         assert len(xs) == 2 and len(ys) == 3  # x: segments 1, 3; y: 2, 3, 4
-        segment_moves = [[xs[0]], [ys[0]], [xs[1], ys[1]], [ys[2]]]
-        poll = m.axes["x"].config.poll.moving
+        segment_moves = [[("x", *xs[0])], [("y", *ys[0])],
+                         [("x", *xs[1]), ("y", *ys[1])], [("y", *ys[2])]]
+        reads = {n: reads_of(m, n) for n in ("x", "y")}
         for before, after in itertools.pairwise(segment_moves):
-            arrived = max(end for _, end in before)
-            started = min(start for start, _ in after)
-            assert 0 <= started - arrived <= poll, (before, after)
+            arrived = max(end for _, _, end in before)
+            started = min(start for _, start, _ in after)
+            assert started >= arrived, (before, after)
+            polls = {n: sum(1 for t in reads[n] if end < t < started) for n, _, end in before}
+            assert max(polls.values()) <= 1, (polls, before, after)
         assert report.segments[2].max_deviation < 0.5
 
 
