@@ -17,7 +17,15 @@ import threading
 import time
 from collections.abc import Callable
 
-__all__ = ["STALL", "STALL_GRACE", "PreciseTimer", "cpu_wait", "monotonic", "stall_grace"]
+__all__ = [
+    "STALL",
+    "STALL_GRACE",
+    "DeadlineTimer",
+    "PreciseTimer",
+    "cpu_wait",
+    "monotonic",
+    "stall_grace",
+]
 
 monotonic = time.monotonic
 
@@ -280,3 +288,40 @@ class PreciseTimer:
             os.close(self._fd)
             self._fd = None
             self._loop = None
+
+
+class DeadlineTimer(PreciseTimer):
+    """A re-armable timer for deadlines that may be met late but never early (a reply's
+    timeout): the kernel's timerfd at the deadline itself, no lead and no spin. Unlike an
+    asyncio timer it costs the event loop nothing on its other turns (a scheduled handle
+    makes every turn read the clock and work out its timeout). Its callback runs from the
+    event loop, never from ``call_at`` itself."""
+
+    def call_at(self, deadline: float, callback: Callable[[], None]) -> None:
+        """Call ``callback`` from the event loop once ``time.monotonic()`` has reached
+        ``deadline``, in place of whatever this timer had armed."""
+        precise = self._fd is not None or self._ensure()  # (before: it may cancel)
+        self._callback = callback
+        self._deadline = deadline
+        if precise:
+            self._arm(deadline)  # (a deadline that has passed fires at once)
+            return
+        if self._handle is not None:
+            self._handle.cancel()
+        loop = asyncio.get_running_loop()
+        self._handle = loop.call_at(deadline - monotonic() + loop.time(), self._call_now)
+
+    def _fired(self) -> None:
+        try:
+            os.read(self._fd, 8)  # type: ignore[arg-type]
+        except BlockingIOError:
+            return
+        callback, self._callback = self._callback, None
+        if callback is not None:
+            callback()
+
+    def _call_now(self) -> None:
+        self._handle = None
+        callback, self._callback = self._callback, None
+        if callback is not None:
+            callback()
