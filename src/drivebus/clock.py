@@ -23,6 +23,8 @@ __all__ = [
     "DeadlineTimer",
     "PreciseTimer",
     "cpu_wait",
+    "cpu_wait_of",
+    "cpu_wait_stamp",
     "monotonic",
     "stall_grace",
 ]
@@ -43,6 +45,13 @@ _SCHEDSTAT = threading.local()
 def cpu_wait() -> float:
     """Seconds this thread has spent ready to run but waiting for a CPU, a running total
     (Linux's ``/proc/thread-self/schedstat``); 0.0 where the kernel does not say."""
+    return cpu_wait_of(cpu_wait_stamp())
+
+
+def cpu_wait_stamp() -> bytes:
+    """What ``cpu_wait`` is read from, as the kernel gave it (one read, nothing parsed):
+    ``cpu_wait_of`` makes it seconds. For a mark taken per transaction and rarely needed
+    (a reply deadline's start)."""
     fd = getattr(_SCHEDSTAT, "fd", None)
     if fd is None:
         try:
@@ -51,10 +60,18 @@ def cpu_wait() -> float:
             fd = -1
         _SCHEDSTAT.fd = fd
     if fd < 0:
-        return 0.0
+        return b""
     try:
-        return int(os.pread(fd, 64, 0).split()[1]) / 1e9
-    except (OSError, ValueError, IndexError):
+        return os.pread(fd, 64, 0)
+    except OSError:
+        return b""
+
+
+def cpu_wait_of(stamp: bytes) -> float:
+    """The seconds of ``cpu_wait`` in a ``cpu_wait_stamp`` (0.0 for an empty one)."""
+    try:
+        return int(stamp.split()[1]) / 1e9
+    except (ValueError, IndexError):
         return 0.0
 
 
@@ -215,7 +232,8 @@ class PreciseTimer:
         if precise:
             lead = PreciseTimer.lead
             self._adapt_on_fire = deadline - now > lead
-            self._arm(max(deadline - lead, now + 1e-6))
+            at = deadline - lead
+            self._arm(at if at > now + 1e-6 else now + 1e-6)  # (no max(): per transaction)
         else:
             loop = asyncio.get_running_loop()
             self._handle = loop.call_at(deadline - now + loop.time(), self._call_now)

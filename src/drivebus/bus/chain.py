@@ -128,4 +128,7 @@ class Chains(Outcomes):
             self._flying.discard(req)
             if self._idle_waiters:
                 self._landed(req)
-            self._chain(True)  # (``_succeeded`` reset the noise watch)
+            if self._queue:
+                self._chain(True)  # (``_succeeded`` reset the noise watch)
+            else:
+                self._parked = True  # (``_chain`` with nothing queued, written out)

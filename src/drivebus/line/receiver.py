@@ -17,7 +17,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import cast
 
-from drivebus.clock import DeadlineTimer, cpu_wait, monotonic, stall_grace
+from drivebus.clock import DeadlineTimer, cpu_wait_of, cpu_wait_stamp, monotonic, stall_grace
 from drivebus.errors import FrameError, LineClosed, LineNoise, ResponseTimeout, WrongResponder
 from drivebus.line.foreign import find_requests
 from drivebus.line.rtu import crc16_value, crc_ok
@@ -126,8 +126,9 @@ class RtuReceiver(StreamProtocol):
         """Called with each request of another master found among the discarded bytes."""
         self._extensions = 0
         """Times the waiter's deadline may still be extended for a stall (``_expired``)."""
-        self._waited_before = 0.0
-        """The thread's CPU wait (``cpu_wait``) when the waiter's wait began."""
+        self._waited_before = b""
+        """The thread's CPU wait when the waiter's wait began (``cpu_wait_stamp``: read
+        per transaction, made seconds only when a deadline comes)."""
         self._expiry = DeadlineTimer()
         """The one timer of the waits' deadlines (see ``_wait``); a timerfd, so that an
         armed deadline costs the event loop nothing on its turns (an asyncio timer would
@@ -218,7 +219,7 @@ class RtuReceiver(StreamProtocol):
         self._expect = None
         if patient:
             self._extensions = STALL_EXTENSIONS
-            self._waited_before = cpu_wait()
+            self._waited_before = cpu_wait_stamp()
         else:
             self._extensions = 0
         self._wait(n, deadline, waiter)
@@ -240,7 +241,7 @@ class RtuReceiver(StreamProtocol):
         self.waiter = waiter
         self._deadline = deadline
         self._extensions = STALL_EXTENSIONS  # (a stall extends the wait: ``expect_bytes``)
-        self._waited_before = cpu_wait()
+        self._waited_before = cpu_wait_stamp()
         if not self._expiry_set or self._expiry_at > deadline:  # (``_wait``, written out)
             self._set_expiry(deadline)
         if self.lost is not None:
@@ -281,14 +282,15 @@ class RtuReceiver(StreamProtocol):
             self._set_expiry(self._deadline)
             return
         if self._extensions:
-            waited = cpu_wait()
-            grace = stall_grace(now - self._deadline, waited - self._waited_before)
+            stamp = cpu_wait_stamp()
+            grace = stall_grace(now - self._deadline,
+                                cpu_wait_of(stamp) - cpu_wait_of(self._waited_before))
             if grace:  # the process was held up: the reply gets the time it lost
                 self.take_pending()  # resolves the waiter if what it waits for is there
                 if w.done() or self.waiter is not w:
                     return
                 self._extensions -= 1
-                self._waited_before = waited
+                self._waited_before = stamp
                 self._deadline = until = monotonic() + grace
                 self._set_expiry(until)
                 return
