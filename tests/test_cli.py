@@ -762,6 +762,39 @@ def test_a_serial_line_in_another_process_finds_a_running_drivebus_sim() -> None
         assert r.stdout.strip() == "[862]"
 
 
+async def test_a_format_switch_on_a_drivebus_sim_never_waits_for_that_process() -> None:
+    """A line on a ``drivebus sim`` of another process, switching per request between the
+    8E1 BHSS and the 8N1 NT86: the sim judges each frame at the format told before it. A
+    switch does not wait for the sim's answer: with its process stopped (SIGSTOP), a read
+    that switches times out as on a silent line (it does not fail on the format channel),
+    and once the process runs again the next frame is judged at the format told then."""
+    from drivebus import Bus, SerialLine
+    from drivebus.errors import ResponseTimeout
+
+    with sim_server(DEMO) as (proc, _):
+        line = SerialLine("sim://demo-rs485", LineSettings.parse("115200 8N1"))
+        async with Bus(line) as bus:
+            bhss = bus.slave(3, settings=LineSettings.parse("19200 8E1"), timeout=0.2,
+                             retries=0)
+            nt86 = bus.slave(2, settings=LineSettings.parse("115200 8N1"))
+            for _ in range(3):  # every switch judged right: each drive answers
+                assert len(await bhss.read_holding_registers(0, 1)) == 1
+                assert len(await nt86.read_holding_registers(0, 1)) == 1
+            os.kill(proc.popen.pid, signal.SIGSTOP)
+            try:
+                with pytest.raises(ResponseTimeout):  # not a LineConfigError of the channel
+                    await bhss.read_holding_registers(0, 1)
+                with pytest.raises(ResponseTimeout):
+                    await bus.slave(2, timeout=0.2, retries=0).read_holding_registers(0, 1)
+                with pytest.raises(ResponseTimeout):
+                    await bhss.read_holding_registers(0, 1)
+            finally:
+                os.kill(proc.popen.pid, signal.SIGCONT)
+            for _ in range(3):
+                assert len(await nt86.read_holding_registers(0, 1)) == 1
+                assert len(await bhss.read_holding_registers(0, 1)) == 1
+
+
 def test_demo_where_and_write_give_the_packaged_machine(tmp_path: Path) -> None:
     from drivebus.machines import DEMO as PACKAGED
 

@@ -69,8 +69,13 @@ class _SimPort(PosixSerial):
 
 class _RemoteSimPort(PosixSerial):
     """A POSIX serial port on the pty of a ``drivebus sim`` in another process: the byte
-    size and parity go to its wire through the line's format channel (a Unix socket),
-    answered before the port is used, so the next frame is judged at that format."""
+    size and parity go to its wire through the line's format channel (a Unix socket).
+
+    The first format is answered before the port is used (it seats this master, or says
+    who has the line). A later one (a line whose drives run different formats switches
+    per request) is sent without waiting: the wire reads the channel before every read
+    of the pty, so the next frame is judged at that format, and a port switching format
+    never holds its event loop on the other process (a stop waits for no answer)."""
 
     channel = ""  # set per line by serial_class_for_url
     _told: tuple[int, str] | None = None
@@ -84,33 +89,51 @@ class _RemoteSimPort(PosixSerial):
         finally:
             self._bytesize, self._parity = bytesize, parity
         if (bytesize, parity) != self._told:
-            self._tell(int(bytesize), str(parity))
-
-    def _tell(self, bytesize: int, parity: str) -> None:
-        try:
             if self._sock is None:
-                sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-                sock.settimeout(2.0)
-                sock.connect(self.channel)
-                self._sock = sock
-            self._sock.sendall(f"F {bytesize} {parity}\n".encode())
-            answer = b""
+                self._seat(int(bytesize), str(parity))
+            else:
+                self._switch(int(bytesize), str(parity))
+
+    def _seat(self, bytesize: int, parity: str) -> None:
+        """Tell the first format and wait for the answer: the line's seat is this
+        master's, or ``SerialException`` says who has it."""
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        answer = b""
+        try:
+            sock.settimeout(2.0)
+            sock.connect(self.channel)
+            sock.sendall(f"F {bytesize} {parity}\n".encode())
             while not answer.endswith(b"\n") and len(answer) < 1024:
-                chunk = self._sock.recv(1024)
+                chunk = sock.recv(1024)
                 if not chunk:
                     break
                 answer += chunk
         except OSError as exc:
+            sock.close()
             raise serial.SerialException(
                 f"the simulated line's format channel {self.channel} does not answer: {exc}"
             ) from exc
-        if answer.startswith(b"busy "):  # another master has the line (drivebus.sim.masters)
-            self._sock.close()
-            self._sock = None
-            raise serial.SerialException(answer[5:].decode(errors="replace").strip())
         if answer != b"ok\n":
+            sock.close()
+            if answer.startswith(b"busy "):  # another master has the line (sim.masters)
+                raise serial.SerialException(answer[5:].decode(errors="replace").strip())
             raise serial.SerialException(f"the simulated line refused format {bytesize}"
                                          f"{parity}: {answer!r}")
+        sock.setblocking(False)
+        self._sock, self._told = sock, (bytesize, parity)
+
+    def _switch(self, bytesize: int, parity: str) -> None:
+        """Tell a later format without waiting (``f 8 E``: not answered)."""
+        assert self._sock is not None
+        message = f"f {bytesize} {parity}\n".encode()
+        try:
+            sent = self._sock.send(message)
+        except OSError as exc:  # (BlockingIOError: the simulator has not read for long)
+            raise serial.SerialException(
+                f"the simulated line's format channel {self.channel} failed: {exc}") from exc
+        if sent != len(message):
+            raise serial.SerialException(
+                f"the simulated line's format channel {self.channel} is full")
         self._told = (bytesize, parity)
 
     def close(self) -> None:

@@ -142,6 +142,48 @@ async def _take_seat(wire: VirtualWire, holder: object, pid: int | None) -> str 
     return None
 
 
+async def _follow_formats(
+    wire: VirtualWire, stream: anyio.abc.SocketStream, pending: bytes,
+) -> None:
+    """The seated master's later formats (``f 8 E``, not answered), until it closes its
+    port: read whenever the channel has data and before every read of the pty
+    (``VirtualWire.format_source``), so a frame is judged at the format its master set
+    before sending it, and the master never waits for this process's event loop."""
+    sock = stream.extra(anyio.abc.SocketAttribute.raw_socket)
+    buffer = bytearray(pending)
+
+    def drain() -> bool:
+        """Apply every whole message the channel holds; False once the master is gone."""
+        open_ = True
+        while True:
+            try:
+                chunk = sock.recv(4096)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                open_ = False
+                break
+            if not chunk:
+                open_ = False
+                break
+            buffer.extend(chunk)
+        while (end := buffer.find(b"\n")) >= 0:
+            parts = buffer[:end].decode(errors="replace").split()
+            del buffer[:end + 1]
+            if len(parts) == 3 and parts[0] in ("f", "F") and parts[1].isdigit():
+                wire.note_format(int(parts[1]), parts[2])
+        if len(buffer) > 256:  # junk without an end: the channel is not a master's
+            open_ = False
+        return open_
+
+    wire.format_source = drain
+    try:
+        while drain():
+            await anyio.wait_readable(sock)
+    finally:
+        wire.format_source = None
+
+
 async def _serve_format_channel(
     wire: VirtualWire, path: Path, control: Callable[[str], str] | None = None,
     ready: anyio.Event | None = None,
@@ -169,6 +211,8 @@ async def _serve_format_channel(
                             seated = True
                         wire.note_format(int(parts[1]), parts[2])
                         await stream.send(b"ok\n")
+                        await _follow_formats(wire, stream, buffered.buffer)
+                        return
                     elif len(parts) == 2 and parts[0] == "P" and control is not None:
                         try:
                             answer = f"ok {control(parts[1])}"

@@ -19,7 +19,7 @@ import math
 import os
 import termios
 import tty
-from collections.abc import AsyncIterator, Collection
+from collections.abc import AsyncIterator, Callable, Collection
 from types import TracebackType
 
 import anyio
@@ -92,6 +92,9 @@ class VirtualWire(SegmentView):
         self._master_fd = -1
         self._slave_fd = -1
         self._format: tuple[int, str] | None = None  # (bytesize, parity) from the side channel
+        self.format_source: Callable[[], object] | None = None
+        """Reads a master's pending format messages (a master in another process, through
+        the line's format channel): called before every read of the pty."""
         self._observed: dict[tuple[int, int, str, int], LineSettings] = {}
         self._stack = contextlib.AsyncExitStack()
 
@@ -187,6 +190,8 @@ class VirtualWire(SegmentView):
             return
         if self.echo:
             os.write(self._master_fd, data)
+        if self.format_source is not None:
+            self.format_source()
         self.segment.feed(data, now, self.observed_settings(), None)
 
     async def _to_master(self, data: bytes, _route: None) -> None:
