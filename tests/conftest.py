@@ -69,9 +69,18 @@ TEST_BOUND = 180.0
 
 def _waited_at(exc: BaseException) -> str:
     """Where a test was waiting when its bound cancelled the wait: the innermost line of
-    the test suite in the cancelled wait's traceback, and the innermost line of all."""
+    the test suite in the cancelled wait's traceback, and the innermost line of all (for
+    a task group's exceptions, each task's)."""
     cancelled = exc.__context__ if exc.__context__ is not None else exc
-    frames = traceback.extract_tb(cancelled.__traceback__)
+    if isinstance(cancelled, BaseExceptionGroup):
+        return "; ".join(f"{type(sub).__name__} at {_where(sub)}"
+                         for sub in cancelled.exceptions) + " (the tasks of a task group)"
+    return _where(cancelled)
+
+
+def _where(exc: BaseException) -> str:
+    """The innermost line of the suite and of all in ``exc``'s own traceback."""
+    frames = traceback.extract_tb(exc.__traceback__)
     if not frames:
         return "(no traceback)"
     ours = [f for f in frames if f"{os.sep}tests{os.sep}" in f.filename

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Awaitable
 
 import anyio
 import anyio.lowlevel
@@ -17,6 +18,7 @@ from drivebus.errors import (
     FrameError,
     ModbusException,
     ResponseTimeout,
+    StateError,
     WrongResponder,
 )
 from drivebus.sim import Fault, RegisterSlave, VirtualWire, sim_bus
@@ -209,6 +211,34 @@ async def test_a_hold_takes_back_a_request_waiting_for_its_silence_and_it_goes_a
                         and f.data[4:6] == (1 + i).to_bytes(2, "big"))
             assert stop < poll, (i, stop, poll)  # the poll went after the hold's stop
         assert wire.violations == 0
+
+
+async def test_a_request_below_emergency_inside_its_own_hold_is_refused_not_hung() -> None:
+    """Inside its own hold a task's request below EMERGENCY would wait for the hold's end
+    (forever): it is refused at once, nothing sent; an emergency one goes out, and
+    another task's request waits for the hold and then goes."""
+    s = LineSettings.parse("115200 8N1")
+    async with sim_bus([RegisterSlave(1, s)], s) as (wire, bus):
+        h = bus.slave(1)
+        await h.read_holding_registers(0, 1)
+        others: list[list[int]] = []
+        with anyio.fail_after(10):
+            async with anyio.create_task_group() as tg, bus.hold():
+                before = len(wire.requests())
+                for priority in (Priority.POLL, Priority.CONFIG, Priority.COMMAND):
+                    with pytest.raises(StateError, match="inside this task's own hold"):
+                        await h.read_holding_registers(0, 1, priority=priority)
+                assert len(wire.requests()) == before  # nothing was sent
+                tg.start_soon(lambda: _append(others, h.read_holding_registers(0, 2)))
+                await h.write_register(3, 7, priority=Priority.EMERGENCY)
+                assert others == []  # the other task's read waits for the hold
+        assert others == [[0, 0]]
+        frames = wire.requests()[before:]
+        assert [f.data[1] for f in frames] == [0x06, 0x03]  # the stop, then the read
+
+
+async def _append(out: list[list[int]], read: Awaitable[list[int]]) -> None:
+    out.append(await read)
 
 
 async def test_a_write_cancelled_in_its_silence_is_withdrawn_or_reported() -> None:

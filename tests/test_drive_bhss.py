@@ -9,6 +9,7 @@ from typing import Any
 import anyio
 import pytest
 
+from drivebus.bus import Priority
 from drivebus.clock import monotonic
 from drivebus.drives.base import MoveParams
 from drivebus.drives.bhss import EXCEPTION_TEXTS, BHSSProfile, Regs
@@ -68,6 +69,21 @@ def replies(wire: VirtualWire) -> list[bytes]:
 
 
 # -- the manual's example frames ---------------------------------------------------------------
+
+
+async def test_a_first_status_poll_at_emergency_inside_a_hold_learns_at_that_priority(
+) -> None:
+    """A profile that has not learned (new, or its setup cut short by a stop) learns
+    before its first status poll; an emergency poll inside a hold (an axis's poll right
+    when a stop should have brought the drive to rest) does that at its own priority:
+    it used to learn at CONFIG and wait for its own hold's end, so the line stopped."""
+    async with bhss(setup=False) as (wire, _sim, profile):
+        bus = profile.slave.bus
+        with anyio.fail_after(10):
+            async with bus.hold():
+                st = await profile.read_status(priority=Priority.EMERGENCY)
+        assert st.position is not None and not st.moving
+        assert wire.requests()  # the learn reads and the poll went out
 
 
 async def test_manual_position_mode_example_frames() -> None:

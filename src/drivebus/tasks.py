@@ -16,7 +16,7 @@ from typing import Any
 import anyio
 import anyio.abc
 
-__all__ = ["ServiceTasks"]
+__all__ = ["ServiceTasks", "where_tasks_wait"]
 
 
 class ServiceTasks:
@@ -74,3 +74,21 @@ class ServiceTasks:
             if exc is not None and len(group.exceptions) == 1 and group.exceptions[0] is exc:
                 raise exc from exc.__cause__
             raise
+
+
+def where_tasks_wait(*, limit: int = 40) -> list[str]:
+    """Where each task of the running event loop waits (its await chain's innermost
+    frames): what a bounded wait that ran out logs, so a stuck stop says what held it."""
+    import asyncio
+
+    found: list[str] = []
+    for task in sorted(asyncio.all_tasks(), key=lambda t: t.get_name())[:limit]:
+        frames: list[str] = []
+        coro: Any = task.get_coro()
+        while coro is not None and len(frames) < 64:
+            frame = getattr(coro, "cr_frame", None) or getattr(coro, "ag_frame", None)
+            if frame is not None:
+                frames.append(f"{frame.f_code.co_name}:{frame.f_lineno}")
+            coro = getattr(coro, "cr_await", None) or getattr(coro, "ag_await", None)
+        found.append(f"{task.get_name()}: " + " > ".join(frames[-6:]))
+    return found

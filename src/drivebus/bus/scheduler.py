@@ -19,7 +19,7 @@ from drivebus.bus.request import Queued, Request
 from drivebus.bus.sent import noting
 from drivebus.bus.slave import SlaveHandle, handle_on
 from drivebus.bus.stats import BusStats
-from drivebus.errors import LineClosed
+from drivebus.errors import LineClosed, StateError
 from drivebus.line.base import Line
 from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
@@ -119,6 +119,8 @@ class Bus(Owner):
         wait (requests the body queues go first after it, by priority). A group move holds
         its lines so its start commands leave at a known moment, back to back."""
         self._holds += 1
+        me = asyncio.current_task()
+        self._holders[me] = self._holders.get(me, 0) + 1
         try:
             if any(r.priority < Priority.EMERGENCY for r in self._flying):
                 self._withdraw()  # still waiting for its silence: it goes after us
@@ -129,6 +131,10 @@ class Bus(Owner):
             yield
         finally:
             self._holds -= 1
+            if self._holders[me] > 1:
+                self._holders[me] -= 1
+            else:
+                del self._holders[me]
             self._wake_owner()
 
     # -- submitting ------------------------------------------------------------------------
@@ -142,7 +148,15 @@ class Bus(Owner):
         priority: Priority,
         idempotent: bool,
     ) -> bytes:
-        """Queue one transaction and wait for its reply PDU (empty for a broadcast)."""
+        """Queue one transaction and wait for its reply PDU (empty for a broadcast).
+        ``StateError`` at once (nothing sent) for a request below ``Priority.EMERGENCY``
+        from inside this task's own ``hold()``: it would wait for the hold's end."""
+        if self._holds and priority < Priority.EMERGENCY \
+                and asyncio.current_task() in self._holders:
+            raise StateError(
+                f"slave {handle.address} on {self.line.name}: a request at priority "
+                f"{Priority(priority).name} awaited inside this task's own hold() would "
+                f"wait for the hold's end: send it at Priority.EMERGENCY, or after the hold")
         req = self._queue_one(handle, pdu, expect, priority, idempotent)
         try:
             reply = await req.future  # cancelling us cancels the future: the owner skips it

@@ -43,6 +43,8 @@ class BusState:
         self._flying: set[Request] = set()
         """Requests whose transaction is under way (at most ``line.max_in_flight``)."""
         self._holds = 0
+        self._holders: dict[asyncio.Task[object] | None, int] = {}
+        """The tasks inside ``hold()``, with how many holds each has entered."""
         self._idle_waiters: list[asyncio.Future[None]] = []
         self._tg: ServiceTasks | None = None
         self._open = False

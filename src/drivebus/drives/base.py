@@ -583,10 +583,11 @@ class DriveProfile:
 
     # -- procedures ---------------------------------------------------------------------------
 
-    async def learn(self) -> None:
+    async def learn(self, *, priority: Priority = Priority.CONFIG) -> None:
         """Read what decoding the status needs (input functions, control mode): reads
         only, never a write. An axis calls it when it opens; a viewing command never
-        goes further."""
+        goes further. ``priority``: its reads' (a status poll that learns first reads at
+        its own, so an emergency poll inside a hold never waits for the hold's end)."""
 
     async def setup(self) -> None:
         """Configure the drive for commands (no motion): the writes an axis makes before

@@ -168,7 +168,7 @@ class Cia402Profile(DescribedProfile):
     async def read_status(self, *, priority: Priority = Priority.POLL) -> DriveStatus:
         """The mapped status objects in as few reads as the drive allows."""
         if not self._learned and self.description.status.learn_first:
-            await self.learn()
+            await self.learn(priority=max(priority, Priority.CONFIG))  # (as the engine's)
         requested = monotonic()
         values = await self._poll_values(self._status_plan, priority)
         await self._read_due_signals(priority)

@@ -525,9 +525,9 @@ class ODDriveProfile(DriveProfile):
             await self.write_object(ppr.index, ppr.sub, self.pulses_per_rev)
         await self.learn()
 
-    async def learn(self) -> None:
+    async def learn(self, *, priority: Priority = Priority.CONFIG) -> None:
         """Which inputs are origin and limit switches (2022h.1-5, read only)."""
-        await self.read_input_functions()
+        await self.read_input_functions(priority=priority)
 
     async def lost_settings(self, *, priority: Priority = Priority.COMMAND) -> list[str]:
         """The microstep (2005h) setup() writes, read back through the 2000h frames."""

@@ -40,6 +40,7 @@ from drivebus.motion.judge import judge
 from drivebus.motion.motions import Latest, Motion, RestWait
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.motion.units import Units
+from drivebus.tasks import where_tasks_wait
 from drivebus.timing import timing
 
 __all__ = ["AxisActor"]
@@ -47,6 +48,11 @@ __all__ = ["AxisActor"]
 log = logging.getLogger(__name__)
 
 _STOP_TIMEOUT = 30.0
+
+_IO_END_BOUND = 5.0
+"""Seconds a stop waits for the I/O of the motion it aborted to end (it ends within its
+transaction in flight, a fraction of that): past it, the stop goes out regardless and the
+error says where that I/O waits."""
 """Longest a stop waits for the drive to report rest before it raises MotionTimeout."""
 
 _RESET_GAP = 0.5
@@ -458,8 +464,7 @@ class AxisActor:
                 f"axis {self.name}: the {m.what} was stopped: {reason}"), None)
             if running and m.io_done is not None:
                 pending.append(m.io_done)
-        for done in pending:
-            await done.wait()
+        await self._aborted_io_ended(pending)
         self._jog_deadline = None
         try:
             await self.profile.stop(None)
@@ -470,6 +475,18 @@ class AxisActor:
         if self.state not in (AxisState.ERROR_STOP, AxisState.OFFLINE, AxisState.DISABLED):
             self.state = AxisState.STOPPING
         self._poke_now()
+
+    async def _aborted_io_ended(self, pending: list[anyio.Event]) -> None:
+        """Wait until the I/O of the motions a stop aborted has ended (cancelled, it ends
+        with its transaction in flight), so nothing of theirs follows the stop; bounded:
+        a stop never waits on I/O that does not end."""
+        with anyio.move_on_after(_IO_END_BOUND) as scope:
+            for done in pending:
+                await done.wait()
+        if scope.cancelled_caught:
+            log.error("axis %s: the I/O of the motion a stop aborted did not end within "
+                      "%.0f s: the stop goes out regardless; the tasks wait at:\n  %s",
+                      self.name, _IO_END_BOUND, "\n  ".join(where_tasks_wait()))
 
     def listen(self, listener: AxisListener) -> Callable[[], None]:
         """Call ``listener`` with every status polled and every ``MotionEvent`` from now

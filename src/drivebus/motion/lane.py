@@ -444,8 +444,7 @@ class CommandLane(AxisActor):
             self.state = AxisState.STOPPING
         if running and m is not None and m.io_done is not None:
             pending.append(m.io_done)
-        for done in pending:
-            await done.wait()  # nothing of the aborted motions can follow the stop now
+        await self._aborted_io_ended(pending)  # nothing of theirs can follow the stop now
         try:
             # Offline or not, the stop is sent: the drive may be back (a network blip) and a
             # motor must not keep running because our polls failed.

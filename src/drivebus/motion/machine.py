@@ -34,7 +34,7 @@ from drivebus.motion.path import GroupHandle
 from drivebus.motion.recording import Recording
 from drivebus.motion.state import MOVING_STATES
 from drivebus.positions import PositionStore
-from drivebus.tasks import ServiceTasks
+from drivebus.tasks import ServiceTasks, where_tasks_wait
 
 __all__ = ["Machine", "open_machine"]
 
@@ -380,8 +380,9 @@ async def _stop_on_leaving(
                 log.warning("leaving machine %s: stopped %s (at rest)", machine.config.name,
                             ", ".join(stopped))
             if scope.cancelled_caught:
-                log.error("leaving machine %s: the stops did not end within %.0f s",
-                          machine.config.name, _LEAVE_TIMEOUT)
+                log.error("leaving machine %s: the stops did not end within %.0f s; the "
+                          "tasks wait at:\n  %s", machine.config.name, _LEAVE_TIMEOUT,
+                          "\n  ".join(where_tasks_wait()))
             return cancelled
         except anyio.get_cancelled_exc_class() as exc:
             cancelled = exc  # from outside (anyio's own cannot reach a shielded scope)

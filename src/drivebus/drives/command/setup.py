@@ -14,11 +14,12 @@ from drivebus.drives.registers import Register
 class Setup(ProfileBase):
     """Learn, setup and the volatile settings."""
 
-    async def learn(self) -> None:
-        """Read what decoding needs (the description's ``learn`` reads); never writes."""
+    async def learn(self, *, priority: Priority = Priority.CONFIG) -> None:
+        """Read what decoding needs (the description's ``learn`` reads, at ``priority``);
+        never writes."""
         proc = self._steps_of("learn")
         if proc is not None:
-            run = _Run("learn", {}, False, Priority.CONFIG)
+            run = _Run("learn", {}, False, priority)
             await self._steps(proc.steps, run)
             self.learned.update(run.values)
         self._learned = True

@@ -137,7 +137,9 @@ class Status(ProfileBase):
     async def read_status(self, *, priority: Priority = Priority.POLL) -> DriveStatus:
         """The status poll, decoded as the description says."""
         if not self._learned and self.description.status.learn_first:
-            await self.learn()
+            # (a setup cut short by a stop leaves it to learn again): at the poll's own
+            # priority, so an emergency poll inside a hold does not wait for its end
+            await self.learn(priority=max(priority, Priority.CONFIG))
         raw_words: dict[str, list[int]] = {}
         requested = monotonic()
         values = await self._poll_values(self._status_plan, priority, raw_words)
