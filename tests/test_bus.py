@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import time
 from collections.abc import Awaitable
 
@@ -295,3 +296,18 @@ async def test_a_stalled_process_is_no_timeout_of_a_slave_in_it() -> None:
             await _stalled_read(bus, wire, after_read=True)
         with pytest.raises(ResponseTimeout):
             await bus.slave(1).read_holding_registers(0, 1)
+
+
+async def test_a_reply_deadline_puts_no_timer_in_the_event_loop() -> None:
+    """A reply's deadline is a kernel timer (``DeadlineTimer``; issue 37): the receiver's
+    asyncio timer used to sit in the event loop's heap, and each turn of the loop read
+    the clock and worked out its timeout (11k of 165k instructions per transaction). The
+    deadline itself still holds (``test_each_fault_gives_its_typed_error...``, no reply)."""
+    async with sim_bus([RegisterSlave(1, FAST)], FAST) as (_wire, bus):
+        h = bus.slave(1)
+        for _ in range(3):
+            assert await h.read_holding_registers(0, 2) == [0, 0]
+        loop = asyncio.get_running_loop()
+        owners = {type(getattr(t._callback, "__self__", None)).__name__
+                  for t in loop._scheduled if not t.cancelled()}  # type: ignore[attr-defined]
+        assert "RtuReceiver" not in owners, owners

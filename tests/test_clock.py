@@ -3,11 +3,20 @@ long a reply deadline that passed while the process was stopped is extended."""
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Iterator
 
 import pytest
 
-from drivebus.clock import STALL, STALL_GRACE, PreciseTimer, cpu_wait, monotonic, stall_grace
+from drivebus.clock import (
+    STALL,
+    STALL_GRACE,
+    DeadlineTimer,
+    PreciseTimer,
+    cpu_wait,
+    monotonic,
+    stall_grace,
+)
 
 
 @pytest.fixture
@@ -45,3 +54,46 @@ def test_the_time_a_thread_waited_for_a_cpu_only_grows() -> None:
     first = cpu_wait()
     sum(range(200_000))
     assert 0.0 <= first <= cpu_wait()
+
+
+async def test_a_deadline_timer_fires_from_the_loop_never_early_and_schedules_no_handle() -> None:
+    """A reply's deadline (``DeadlineTimer``): its callback runs from the event loop once
+    the deadline has come, never before and never from ``call_at`` itself; re-arming
+    replaces it, ``cancel`` forgets it; and the event loop has no timer handle to look at
+    on its turns meanwhile (the receiver's deadline was an asyncio timer before)."""
+    loop = asyncio.get_running_loop()
+    timer = DeadlineTimer()
+    fired: list[tuple[str, float]] = []
+    done = asyncio.Event()
+
+    def note(name: str) -> None:
+        fired.append((name, monotonic()))
+        done.set()
+
+    try:
+        timer.call_at(monotonic() - 1.0, lambda: note("past"))  # has passed: at once...
+        assert fired == []  # ...but from the loop
+        await asyncio.wait_for(done.wait(), 1.0)  # bounded: the timer fires within 1 s
+        assert [name for name, _ in fired] == ["past"]
+
+        done.clear()
+        scheduled = _timer_handles(loop)  # (the test's own bounds)
+        timer.call_at(monotonic() + 10.0, lambda: note("replaced"))
+        deadline = monotonic() + 0.005
+        timer.call_at(deadline, lambda: note("deadline"))
+        assert _timer_handles(loop) == scheduled  # no asyncio timer of its own
+        await asyncio.wait_for(done.wait(), 1.0)
+        assert [name for name, _ in fired] == ["past", "deadline"]
+        assert fired[-1][1] >= deadline
+
+        timer.call_at(monotonic() + 0.002, lambda: note("cancelled"))
+        timer.cancel()
+        await asyncio.sleep(0.02)  # (ten times its deadline: it would have fired by now)
+        assert [name for name, _ in fired] == ["past", "deadline"]
+    finally:
+        timer.close()
+
+
+def _timer_handles(loop: asyncio.AbstractEventLoop) -> set[asyncio.TimerHandle]:
+    """The asyncio timers the event loop will look at on its turns."""
+    return {h for h in loop._scheduled if not h.cancelled()}  # type: ignore[attr-defined]

@@ -17,7 +17,17 @@ import threading
 import time
 from collections.abc import Callable
 
-__all__ = ["STALL", "STALL_GRACE", "PreciseTimer", "cpu_wait", "monotonic", "stall_grace"]
+__all__ = [
+    "STALL",
+    "STALL_GRACE",
+    "DeadlineTimer",
+    "PreciseTimer",
+    "cpu_wait",
+    "cpu_wait_of",
+    "cpu_wait_stamp",
+    "monotonic",
+    "stall_grace",
+]
 
 monotonic = time.monotonic
 
@@ -35,6 +45,13 @@ _SCHEDSTAT = threading.local()
 def cpu_wait() -> float:
     """Seconds this thread has spent ready to run but waiting for a CPU, a running total
     (Linux's ``/proc/thread-self/schedstat``); 0.0 where the kernel does not say."""
+    return cpu_wait_of(cpu_wait_stamp())
+
+
+def cpu_wait_stamp() -> bytes:
+    """What ``cpu_wait`` is read from, as the kernel gave it (one read, nothing parsed):
+    ``cpu_wait_of`` makes it seconds. For a mark taken per transaction and rarely needed
+    (a reply deadline's start)."""
     fd = getattr(_SCHEDSTAT, "fd", None)
     if fd is None:
         try:
@@ -43,10 +60,18 @@ def cpu_wait() -> float:
             fd = -1
         _SCHEDSTAT.fd = fd
     if fd < 0:
-        return 0.0
+        return b""
     try:
-        return int(os.pread(fd, 64, 0).split()[1]) / 1e9
-    except (OSError, ValueError, IndexError):
+        return os.pread(fd, 64, 0)
+    except OSError:
+        return b""
+
+
+def cpu_wait_of(stamp: bytes) -> float:
+    """The seconds of ``cpu_wait`` in a ``cpu_wait_stamp`` (0.0 for an empty one)."""
+    try:
+        return int(stamp.split()[1]) / 1e9
+    except (ValueError, IndexError):
         return 0.0
 
 
@@ -207,7 +232,8 @@ class PreciseTimer:
         if precise:
             lead = PreciseTimer.lead
             self._adapt_on_fire = deadline - now > lead
-            self._arm(max(deadline - lead, now + 1e-6))
+            at = deadline - lead
+            self._arm(at if at > now + 1e-6 else now + 1e-6)  # (no max(): per transaction)
         else:
             loop = asyncio.get_running_loop()
             self._handle = loop.call_at(deadline - now + loop.time(), self._call_now)
@@ -280,3 +306,40 @@ class PreciseTimer:
             os.close(self._fd)
             self._fd = None
             self._loop = None
+
+
+class DeadlineTimer(PreciseTimer):
+    """A re-armable timer for deadlines that may be met late but never early (a reply's
+    timeout): the kernel's timerfd at the deadline itself, no lead and no spin. Unlike an
+    asyncio timer it costs the event loop nothing on its other turns (a scheduled handle
+    makes every turn read the clock and work out its timeout). Its callback runs from the
+    event loop, never from ``call_at`` itself."""
+
+    def call_at(self, deadline: float, callback: Callable[[], None]) -> None:
+        """Call ``callback`` from the event loop once ``time.monotonic()`` has reached
+        ``deadline``, in place of whatever this timer had armed."""
+        precise = self._fd is not None or self._ensure()  # (before: it may cancel)
+        self._callback = callback
+        self._deadline = deadline
+        if precise:
+            self._arm(deadline)  # (a deadline that has passed fires at once)
+            return
+        if self._handle is not None:
+            self._handle.cancel()
+        loop = asyncio.get_running_loop()
+        self._handle = loop.call_at(deadline - monotonic() + loop.time(), self._call_now)
+
+    def _fired(self) -> None:
+        try:
+            os.read(self._fd, 8)  # type: ignore[arg-type]
+        except BlockingIOError:
+            return
+        callback, self._callback = self._callback, None
+        if callback is not None:
+            callback()
+
+    def _call_now(self) -> None:
+        self._handle = None
+        callback, self._callback = self._callback, None
+        if callback is not None:
+            callback()

@@ -65,10 +65,9 @@ class Chains(Outcomes):
         self._waiting_for = self._replying = req
         self._replying_noise = self._noise
         try:
-            begun = self.line.begin(  # type: ignore[attr-defined]
-                h.address, req.pdu, expect=req.expect, settings=h.settings,
-                timeout=h.timeout, quiet_by=None, withdrawable=True,
-                on_reply=self._on_reply)
+            begun = self.line.begin(  # type: ignore[attr-defined]  # (positional: per transaction)
+                h.address, req.pdu, req.expect, h.settings, h.timeout, None, True,
+                self._on_reply)
         except Exception:  # the owner sends it instead, and handles what fails
             self._flying.discard(req)
             self._waiting_for = None
@@ -129,4 +128,7 @@ class Chains(Outcomes):
             self._flying.discard(req)
             if self._idle_waiters:
                 self._landed(req)
-            self._chain(True)  # (``_succeeded`` reset the noise watch)
+            if self._queue:
+                self._chain(True)  # (``_succeeded`` reset the noise watch)
+            else:
+                self._parked = True  # (``_chain`` with nothing queued, written out)

@@ -163,10 +163,12 @@ class Bus(Owner):
         except asyncio.CancelledError:
             await self._cancelled(req)
             raise
-        if noting():
-            self._note(req, "exception" if reply[:1] and reply[0] & 0x80 else "acknowledged")
-        if reply[:1] and reply[0] & 0x80:
+        if reply and reply[0] & 0x80:
+            if noting():
+                self._note(req, "exception")
             handle.raise_exception(reply, pdu)
+        if noting():
+            self._note(req, "acknowledged")
         return reply
 
     def queue(
@@ -199,7 +201,10 @@ class Bus(Owner):
         heapq.heappush(self._queue, req)
         if self._parked and self._chained is None and not self._flying \
                 and self._adopt is None:
-            self._noise.reset()  # as the owner does when it wakes from idle
+            # As the owner does when it wakes from idle (``NoiseWatch.reset``, written out:
+            # it runs per transaction).
+            noise = self._noise
+            noise.seen, noise.since = self.line.last_activity(), None
             self._chain(True)  # the line is idle: this request (or one more urgent) begins
         else:
             self._kick(req)

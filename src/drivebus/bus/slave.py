@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import Protocol
+from collections.abc import Callable, Coroutine, Sequence
+from typing import Any, Protocol
 
 from drivebus import checks
 from drivebus.bus.priority import Priority
@@ -176,17 +176,20 @@ class SlaveHandle:
         if not self.is_broadcast:
             check(reply, req, slave=self.address)
 
-    async def read_holding_registers(
-        self, address: int, count: int, *, priority: Priority = Priority.CONFIG
-    ) -> list[int]:
-        """Read ``count`` holding registers (FC03); retried on timeout or bad frame."""
-        return await self._read(READ_HOLDING, address, count, priority)
+    # The two register reads are coroutine functions that return ``_read``'s coroutine
+    # (awaiting it here would put one more frame in every step of a poll's task).
 
-    async def read_input_registers(
+    def read_holding_registers(
         self, address: int, count: int, *, priority: Priority = Priority.CONFIG
-    ) -> list[int]:
+    ) -> Coroutine[Any, Any, list[int]]:
+        """Read ``count`` holding registers (FC03); retried on timeout or bad frame."""
+        return self._read(READ_HOLDING, address, count, priority)
+
+    def read_input_registers(
+        self, address: int, count: int, *, priority: Priority = Priority.CONFIG
+    ) -> Coroutine[Any, Any, list[int]]:
         """Read ``count`` input registers (FC04); retried on timeout or bad frame."""
-        return await self._read(READ_INPUT, address, count, priority)
+        return self._read(READ_INPUT, address, count, priority)
 
     async def read_coils(
         self, address: int, count: int, *, priority: Priority = Priority.CONFIG

@@ -17,7 +17,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import cast
 
-from drivebus.clock import cpu_wait, monotonic, stall_grace
+from drivebus.clock import DeadlineTimer, cpu_wait_of, cpu_wait_stamp, monotonic, stall_grace
 from drivebus.errors import FrameError, LineClosed, LineNoise, ResponseTimeout, WrongResponder
 from drivebus.line.foreign import find_requests
 from drivebus.line.rtu import crc16_value, crc_ok
@@ -60,11 +60,6 @@ def read_waiting(fd: int) -> bytes:
         return os.read(fd, BUFFER_LIMIT)
     except OSError:  # EAGAIN: nothing waiting; EIO/ECONNRESET: the transport will see it
         return b""
-
-
-def _loop_time(loop: asyncio.AbstractEventLoop, t: float) -> float:
-    # asyncio's loop clock is time.monotonic; keep the conversion in one place anyway.
-    return t - monotonic() + loop.time()
 
 
 _EARLY = 1e-6
@@ -131,9 +126,15 @@ class RtuReceiver(StreamProtocol):
         """Called with each request of another master found among the discarded bytes."""
         self._extensions = 0
         """Times the waiter's deadline may still be extended for a stall (``_expired``)."""
-        self._waited_before = 0.0
-        """The thread's CPU wait (``cpu_wait``) when the waiter's wait began."""
-        self._expiry: asyncio.TimerHandle | None = None
+        self._waited_before = b""
+        """The thread's CPU wait when the waiter's wait began (``cpu_wait_stamp``: read
+        per transaction, made seconds only when a deadline comes)."""
+        self._expiry = DeadlineTimer()
+        """The one timer of the waits' deadlines (see ``_wait``); a timerfd, so that an
+        armed deadline costs the event loop nothing on its turns (an asyncio timer would
+        make each of them read the clock and work out its timeout)."""
+        self._expiry_set = False
+        """``_expiry`` is armed (for ``_expired``)."""
         self._expiry_at = 0.0
         """When ``_expiry`` fires (monotonic): the earliest deadline since it was set."""
         self._unit = 0
@@ -163,9 +164,8 @@ class RtuReceiver(StreamProtocol):
         w = self.waiter
         if w is not None and not w.done():
             w.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
-        if self._expiry is not None:
-            self._expiry.cancel()
-            self._expiry = None
+        self._expiry_set = False
+        self._expiry.close()
 
     def watch(self, fd: int) -> None:
         """Let ``take_pending`` read what ``fd`` (the non-blocking serial port or socket
@@ -219,7 +219,7 @@ class RtuReceiver(StreamProtocol):
         self._expect = None
         if patient:
             self._extensions = STALL_EXTENSIONS
-            self._waited_before = cpu_wait()
+            self._waited_before = cpu_wait_stamp()
         else:
             self._extensions = 0
         self._wait(n, deadline, waiter)
@@ -241,9 +241,9 @@ class RtuReceiver(StreamProtocol):
         self.waiter = waiter
         self._deadline = deadline
         self._extensions = STALL_EXTENSIONS  # (a stall extends the wait: ``expect_bytes``)
-        self._waited_before = cpu_wait()
-        if self._expiry is None or self._expiry_at > deadline:  # (``_wait``, written out)
-            self._set_expiry(waiter.get_loop(), deadline)
+        self._waited_before = cpu_wait_stamp()
+        if not self._expiry_set or self._expiry_at > deadline:  # (``_wait``, written out)
+            self._set_expiry(deadline)
         if self.lost is not None:
             waiter.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
         elif len(self.buf) >= 3:
@@ -253,10 +253,10 @@ class RtuReceiver(StreamProtocol):
         self.need = n
         self.waiter = waiter
         self._deadline = deadline
-        if self._expiry is None or self._expiry_at > deadline:
+        if not self._expiry_set or self._expiry_at > deadline:
             # One timer serves many waits: deadlines mostly come later and later, and a
             # timer that fires before its waiter's deadline is set again then.
-            self._set_expiry(waiter.get_loop(), deadline)
+            self._set_expiry(deadline)
         if self.lost is not None:
             waiter.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
         elif len(self.buf) >= n:
@@ -265,32 +265,34 @@ class RtuReceiver(StreamProtocol):
             else:
                 self._assemble(waiter)
 
-    def _set_expiry(self, loop: asyncio.AbstractEventLoop, deadline: float) -> None:
-        if self._expiry is not None:
-            self._expiry.cancel()
+    def _set_expiry(self, deadline: float) -> None:
+        if self.lost is not None:
+            return  # (its waiter fails at once; the timer is closed)
+        self._expiry_set = True
         self._expiry_at = deadline
-        self._expiry = loop.call_at(_loop_time(loop, deadline), self._expired)
+        self._expiry.call_at(deadline, self._expired)
 
     def _expired(self) -> None:
-        self._expiry = None
+        self._expiry_set = False
         w = self.waiter
         if w is None or w.done():
             return
         now = monotonic()
         if now + _EARLY < self._deadline:  # set for an earlier wait: wait on
-            self._set_expiry(w.get_loop(), self._deadline)
+            self._set_expiry(self._deadline)
             return
         if self._extensions:
-            waited = cpu_wait()
-            grace = stall_grace(now - self._deadline, waited - self._waited_before)
+            stamp = cpu_wait_stamp()
+            grace = stall_grace(now - self._deadline,
+                                cpu_wait_of(stamp) - cpu_wait_of(self._waited_before))
             if grace:  # the process was held up: the reply gets the time it lost
                 self.take_pending()  # resolves the waiter if what it waits for is there
                 if w.done() or self.waiter is not w:
                     return
                 self._extensions -= 1
-                self._waited_before = waited
+                self._waited_before = stamp
                 self._deadline = until = monotonic() + grace
-                self._set_expiry(w.get_loop(), until)
+                self._set_expiry(until)
                 return
         w.set_result(None)
 

@@ -264,11 +264,10 @@ class SerialLine(Line):
             assert self._rx is not None
             self._rx.send(adu[written:])
 
-    def begin(
+    def begin(  # (its arguments may be given in order: the bus does, per transaction)
         self,
         unit: int,
         pdu: bytes,
-        *,
         expect: LengthPredictor | None,
         settings: LineSettings | None = None,
         timeout: float = 0.1,
