@@ -770,8 +770,14 @@ async def test_a_format_switch_on_a_drivebus_sim_never_waits_for_that_process() 
     and once the process runs again the next frame is judged at the format told then."""
     from drivebus import Bus, SerialLine
     from drivebus.errors import ResponseTimeout
+    from drivebus.sim.serve import published
 
     with sim_server(DEMO) as (proc, _):
+        # published only once its format channel listens: a master that comes at once
+        # gets its parity through (it used to find the line without its channel now and
+        # then, and the 8E1 BHSS did not answer it)
+        found = published("demo-rs485")
+        assert found is not None and found.channel is not None, found
         line = SerialLine("sim://demo-rs485", LineSettings.parse("115200 8N1"))
         async with Bus(line) as bus:
             # (another process answers: on a loaded machine it may be slow to)

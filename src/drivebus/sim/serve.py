@@ -458,18 +458,25 @@ async def serve_simulators(
         sims = await start_simulators(cfg, stack)
         if not sims:
             raise ConfigError(f"{config}: no sim:// lines: nothing to simulate")
-        with publish(sims, warn):
+        async with anyio.create_task_group() as tg:
+            # The format channels listen before the lines are published: a master that
+            # finds a line at once gets its parity through (else it would open the pty
+            # without its channel, and a drive at 8E1 would not answer it).
             for s in sims.values():
-                for text in describe(s, cfg):
-                    echo(text)
-            echo(f"simulating machine {cfg.name}: Ctrl-C or SIGTERM ends it")
-            try:
-                async with anyio.create_task_group() as tg:
+                if isinstance(s.server, VirtualWire):
+                    listening = anyio.Event()
+                    tg.start_soon(functools.partial(
+                        _serve_format_channel, s.server, _channel_path(s.config.sim_name),
+                        functools.partial(power_cycle, sims), ready=listening))
+                    await listening.wait()
+            with publish(sims, warn):
+                for s in sims.values():
+                    for text in describe(s, cfg):
+                        echo(text)
+                echo(f"simulating machine {cfg.name}: Ctrl-C or SIGTERM ends it")
+                try:
                     for s in sims.values():
                         if isinstance(s.server, VirtualWire):
-                            tg.start_soon(_serve_format_channel, s.server,
-                                          _channel_path(s.config.sim_name),
-                                          functools.partial(power_cycle, sims))
                             tg.start_soon(_watch_for_masters, s, s.server, warn)
                     if console and sys.stdin is not None and sys.stdin.isatty():
                         tg.start_soon(_console, sims, echo)
@@ -478,8 +485,8 @@ async def serve_simulators(
                             if isinstance(s.server, VirtualWire):
                                 tg.start_soon(_echo_wire_log, s.name, s.server, echo)
                     await anyio.sleep_forever()
-            finally:
-                for s in sims.values():
-                    for axis, twin in s.twins.items():
-                        echo(f"twin {axis}: position={twin.position()} pulses "
-                             f"moving={twin.is_moving()}")
+                finally:
+                    for s in sims.values():
+                        for axis, twin in s.twins.items():
+                            echo(f"twin {axis}: position={twin.position()} pulses "
+                                 f"moving={twin.is_moving()}")
