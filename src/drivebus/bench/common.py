@@ -323,6 +323,12 @@ class ChildProcess:
         self.cpu = 0.0
         """The process's CPU seconds when it last answered ``log``."""
 
+    @property
+    def pid(self) -> int:
+        """The child's process id (once entered)."""
+        assert self._proc is not None
+        return self._proc.pid
+
     async def __aenter__(self) -> Self:
         self._proc = await anyio.open_process(self.args, stderr=None)
         assert self._proc.stdout is not None
