@@ -541,7 +541,9 @@ async def test_rtu_over_tcp_peer_close_then_reconnect() -> None:
         srv.drop_next()
         with pytest.raises(ConnectionLost, match=rf"127\.0\.0\.1:{srv.port} lost"):
             await line.transact(1, read_pdu(0, 1), expect=P.response_length, timeout=1.0)
-        ex = await line.transact(1, read_pdu(0, 1), expect=P.response_length, timeout=0.2)
+        # (a reconnection and the server's accept in this process: 1 s, not 0.2 s, on a
+        # loaded machine; what is asserted is that it reconnects and reads)
+        ex = await line.transact(1, read_pdu(0, 1), expect=P.response_length, timeout=1.0)
         assert words(ex.reply) == [8]
         assert srv.accepted == 2 and line.stats.disconnects == 1
     assert srv.violations == 0
