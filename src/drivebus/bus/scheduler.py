@@ -117,7 +117,9 @@ class Bus(Owner):
         """Keep the line quiet for a burst: enter once the transactions in flight have
         ended; until the body ends only ``Priority.EMERGENCY`` requests go out, the rest
         wait (requests the body queues go first after it, by priority). A group move holds
-        its lines so its start commands leave at a known moment, back to back."""
+        its lines so its start commands leave at a known moment, back to back. The body
+        itself may await only ``Priority.EMERGENCY`` requests: one below that would wait
+        for the hold's end, and is refused (``StateError``, nothing sent)."""
         self._holds += 1
         me = asyncio.current_task()
         self._holders[me] = self._holders.get(me, 0) + 1
