@@ -534,6 +534,33 @@ async def test_rtu_over_tcp_bad_crc_is_retried() -> None:
     assert srv.violations == 0
 
 
+async def test_a_serial_server_that_closes_instead_of_sending_leaves_its_wire_quiet() -> None:
+    """A request the serial server discards when it closes the connection never reaches
+    its RS-485 port: the next request, on a new connection at once, is not judged against
+    it (it was judged so before, and under CPU load the reconnecting master's first read
+    then got no reply, as a gap violation)."""
+    s = LineSettings.parse("2400 8N1")  # the dropped frame would hold the wire ~52 ms
+    slave = RegisterSlave(1, s, initial=[(0, 8)])
+    request = frame(1, read_pdu(0, 1))
+    with anyio.fail_after(10):
+        async with SimSerialServer([slave], s) as srv:
+            srv.drop_next()
+            async with await anyio.connect_tcp(HOST, srv.port) as first:
+                await first.send(request)
+                with pytest.raises((anyio.EndOfStream, anyio.BrokenResourceError)):
+                    await first.receive()  # the server closed it: waited for the close
+            async with await anyio.connect_tcp(HOST, srv.port) as second:
+                await second.send(request)
+                with anyio.move_on_after(5) as waited:
+                    reply = await second.receive()
+                assert not waited.cancelled_caught, "no reply on the new connection in 5 s"
+    assert reply == frame(1, bytes((3, 2, 0, 8)))
+    dropped, sent, answer = srv.log
+    assert dropped.note == "connection dropped" and sent.note == "" and answer.note == ""
+    assert sent.start - dropped.start < timing(s).frame_time(8) + timing(s).t35  # at once
+    assert srv.violations == 0
+
+
 async def test_rtu_over_tcp_peer_close_then_reconnect() -> None:
     s = FAST
     slave = RegisterSlave(1, s, initial=[(0, 8)])

@@ -129,8 +129,11 @@ class Segment(Generic[R]):
     so frames that arrive in one chunk go out back to back and a frame starts no earlier
     than the previous one ended; without it, what arrives is on the wire at once, and
     the bytes received when a frame is complete are that frame. ``on_request(route,
-    note)`` lets the front-end judge each finished request before the slaves hear it
-    (e.g. drop the connection): it returns the note to go on with.
+    note)`` lets the front-end judge each finished request before it goes out: it
+    returns the note to go on with and whether the frame goes out on the wire at all
+    (False: the front-end discarded it first, as a serial server that closes the
+    connection instead of sending it; the frame is logged with that note, and the wire
+    stays as quiet as it was).
     """
 
     def __init__(
@@ -142,7 +145,7 @@ class Segment(Generic[R]):
         where: str = "this segment",
         log_size: int = 200_000,
         split_frames: bool = False,
-        on_request: Callable[[R, str], str] | None = None,
+        on_request: Callable[[R, str], tuple[str, bool]] | None = None,
         strict: bool = True,
     ) -> None:
         self.slaves: dict[int, SimSlave] = {} if slaves is None else slaves
@@ -238,11 +241,15 @@ class Segment(Generic[R]):
         rx, self._rx = self._rx, None
         assert rx is not None
         data = bytes(rx.data)
+        if self._on_request is not None:
+            note, on_wire = self._on_request(rx.route, note)
+            if not on_wire:
+                self._log(WireFrame("request", data[0], data, rx.start, rx.end, rx.settings,
+                                    rx.gap, rx.required, note))
+                return
         self._request_end = rx.end
         self._busy_until = max(self._busy_until, rx.end)
         self._last_settings = rx.settings
-        if self._on_request is not None:
-            note = self._on_request(rx.route, note)
         heard, note = self._hearers(data, rx, note)
         self._log(WireFrame("request", data[0], data, rx.start, rx.end, rx.settings, rx.gap,
                             rx.required, note))

@@ -474,13 +474,15 @@ class SimSerialServer(SegmentView, _SimServer):
         while data := await client.receive():
             self.segment.feed(data, monotonic(), self.settings, client)
 
-    def _on_request(self, client: _Client, note: str) -> str:
-        """Count a request; drop its connection instead if ``faults`` say so."""
+    def _on_request(self, client: _Client, note: str) -> tuple[str, bool]:
+        """Count a request; drop its connection instead if ``faults`` say so (the request
+        then never goes out on the serial port: a server discards what it has not sent
+        when it closes a connection)."""
         self._count_request()
         if not note and self.faults.take_drop():
             client.drop(reset=self.faults.reset)
-            return "connection dropped"
-        return note
+            return "connection dropped", False
+        return note, True
 
 
 async def _to_client(data: bytes, client: _Client) -> None:
