@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import asyncio
+import bisect
+import pickle
+import random
 import time
 from collections.abc import Awaitable
 
@@ -12,6 +15,7 @@ import pytest
 
 from drivebus import Bus, LineSettings, Priority
 from drivebus.bus.sent import sent_requests
+from drivebus.bus.stats import LATENCY_BUCKETS, LATENCY_WINDOW, Latency
 from drivebus.errors import (
     ArgumentError,
     ConfigError,
@@ -189,6 +193,42 @@ async def test_stats_and_utilisation() -> None:
         per = (8 + 9) * 11 / 19200
         assert st.wire_time == pytest.approx(50 * per)
         assert 0.2 < st.utilisation < 1.0
+
+
+def test_the_latency_histogram_and_sum_take_in_every_reply() -> None:
+    """Replies are binned in batches (``Latency.add`` only appends and counts): whenever
+    read, the histogram, the sum and the count are those of every reply added, well
+    beyond the window, also after a pickle (a worker's report) and a merge."""
+    rng = random.Random(37)
+    values = [rng.choice(LATENCY_BUCKETS) if i % 7 == 0 else rng.uniform(0.0, 1.2)
+              for i in range(2 * LATENCY_WINDOW + 345)]  # (a bound is in its own bucket)
+    lat = Latency()
+    buckets = [0] * (len(LATENCY_BUCKETS) + 1)
+    total = 0.0
+    for i, v in enumerate(values):  # read early, then not for more than a window
+        lat.add(v)
+        buckets[bisect.bisect_left(LATENCY_BUCKETS, v)] += 1
+        total += v
+        if i in (0, 5, LATENCY_WINDOW - 2, LATENCY_WINDOW - 1):
+            assert lat.buckets == buckets and lat.sum == pytest.approx(total), i
+    assert lat.count == len(values) and list(lat.window) == values[-LATENCY_WINDOW:]
+    copy = pickle.loads(pickle.dumps(lat))  # (unbinned replies travel in the window)
+    assert copy.buckets == buckets and copy.sum == pytest.approx(total)
+    assert lat.cumulative()[-1] == (float("inf"), len(values))
+    assert [n for _, n in lat.cumulative()] == [sum(buckets[:k + 1])
+                                                 for k in range(len(buckets))]
+    other = Latency()
+    for v in values[:123]:
+        other.add(v)
+    line = Latency()
+    line.merge(lat)
+    line.merge(other)
+    assert line.count == len(values) + 123
+    assert line.buckets == [a + b for a, b in zip(buckets, other.buckets, strict=True)]
+    assert line.sum == pytest.approx(total + sum(values[:123]))
+    line.add(0.004)  # (a merged total goes on counting)
+    assert line.count == len(values) + 124 and line.buckets[4] == buckets[4] + \
+        other.buckets[4] + 1
 
 
 async def test_a_hold_takes_back_a_request_waiting_for_its_silence_and_it_goes_after() -> None:

@@ -12,6 +12,7 @@ import bisect
 import math
 from collections import deque
 from dataclasses import dataclass, field, fields
+from itertools import islice
 from typing import Any
 
 from drivebus.clock import monotonic
@@ -29,23 +30,60 @@ LATENCY_BUCKETS: tuple[float, ...] = (
 
 
 class Latency:
-    """One slave's reply latencies: a window of the last ones and a cumulative histogram."""
+    """One slave's reply latencies: a window of the last ones and a cumulative histogram.
 
-    __slots__ = ("buckets", "count", "sum", "window")
+    ``add`` runs once per reply, so it only appends to the window and counts: the
+    histogram and the sum take in the replies added since they were last brought up to
+    date when they are read, or when the window is about to drop the oldest of them
+    (``_bin``). What they say is the same as if every reply had been binned at once.
+    """
+
+    __slots__ = ("_binned", "_buckets", "_sum", "count", "window")
 
     def __init__(self) -> None:
         self.window: deque[float] = deque(maxlen=LATENCY_WINDOW)
-        self.buckets = [0] * (len(LATENCY_BUCKETS) + 1)
-        """Replies per bucket (not cumulative); the last one is beyond the largest bound."""
+        self._buckets = [0] * (len(LATENCY_BUCKETS) + 1)
         self.count = 0
-        self.sum = 0.0
+        self._sum = 0.0
+        self._binned = 0
+        """How many of the ``count`` replies are in ``_buckets`` and ``_sum`` (the others
+        are the newest ones of the window)."""
 
     def add(self, seconds: float) -> None:
         """Record one reply's latency."""
         self.window.append(seconds)
-        self.buckets[bisect.bisect_left(LATENCY_BUCKETS, seconds)] += 1
         self.count += 1
-        self.sum += seconds
+        if self.count - self._binned >= LATENCY_WINDOW:  # the window is all unbinned
+            self._bin()
+
+    def _bin(self) -> None:
+        """Bring the histogram and the sum up to date with the replies added since."""
+        new = self.count - self._binned
+        if not new:
+            return
+        window = self.window
+        fresh = sorted(islice(window, len(window) - new, None))  # the newest ``new``
+        buckets = self._buckets
+        done = 0
+        for i, bound in enumerate(LATENCY_BUCKETS):  # (a bucket's replies: up to its bound)
+            upto = bisect.bisect_right(fresh, bound, done)
+            buckets[i] += upto - done
+            done = upto
+        buckets[-1] += len(fresh) - done
+        self._sum += math.fsum(fresh)
+        self._binned = self.count
+
+    @property
+    def buckets(self) -> list[int]:
+        """Replies per bucket (not cumulative); the last one is beyond the largest bound."""
+        self._bin()
+        return self._buckets
+
+    @property
+    def sum(self) -> float:
+        """The latencies of all replies added up (s)."""
+        self._bin()
+        return self._sum
 
     def quantile(self, q: float) -> float | None:
         """The ``q`` quantile (0..1) of the window, None before the first reply."""
@@ -56,10 +94,12 @@ class Latency:
 
     def merge(self, other: Latency) -> None:
         """Add ``other``'s replies (a line's total)."""
+        self._bin()
+        self._buckets = [a + b for a, b in zip(self._buckets, other.buckets, strict=True)]
+        self._sum += other.sum
         self.window.extend(other.window)
-        self.buckets = [a + b for a, b in zip(self.buckets, other.buckets, strict=True)]
         self.count += other.count
-        self.sum += other.sum
+        self._binned = self.count
 
     def cumulative(self) -> list[tuple[float, int]]:
         """(upper bound, replies at or below it), the last bound being +Inf."""
