@@ -11,6 +11,7 @@ therefore costs bounded CPU per wake-up and ends in ``LineNoise``, never in a ha
 from __future__ import annotations
 
 import asyncio
+import math
 import os
 import select
 from collections import deque
@@ -50,6 +51,11 @@ _NEVER = BUFFER_LIMIT + 1
 STALL_EXTENSIONS = 2
 """Times a reply deadline that passed while the process was not running is extended
 (``drivebus.clock.stall_grace``): a dead slave still times out on a busy machine."""
+CPU_WAIT_MARK_AGE = 0.01
+"""How old (s) the thread's CPU-wait mark a reply wait starts from may be: a line busy
+with back-to-back transactions reads it (a read of /proc) for one in several, not for
+each. A deadline then counts the CPU wait since up to this long before its request left:
+a process held up just before the request had a simulated slave in it held up as well."""
 
 
 def read_waiting(fd: int) -> bytes:
@@ -127,8 +133,10 @@ class RtuReceiver(StreamProtocol):
         self._extensions = 0
         """Times the waiter's deadline may still be extended for a stall (``_expired``)."""
         self._waited_before = b""
-        """The thread's CPU wait when the waiter's wait began (``cpu_wait_stamp``: read
-        per transaction, made seconds only when a deadline comes)."""
+        """The thread's CPU wait when the waiter's wait began (``cpu_wait_stamp``: read at
+        most ``CPU_WAIT_MARK_AGE`` before it, made seconds only when a deadline comes)."""
+        self._marked_at = -math.inf
+        """When ``_waited_before`` was read (monotonic)."""
         self._expiry = DeadlineTimer()
         """The one timer of the waits' deadlines (see ``_wait``); a timerfd, so that an
         armed deadline costs the event loop nothing on its turns (an asyncio timer would
@@ -219,7 +227,7 @@ class RtuReceiver(StreamProtocol):
         self._expect = None
         if patient:
             self._extensions = STALL_EXTENSIONS
-            self._waited_before = cpu_wait_stamp()
+            self._mark(monotonic())
         else:
             self._extensions = 0
         self._wait(n, deadline, waiter)
@@ -241,13 +249,23 @@ class RtuReceiver(StreamProtocol):
         self.waiter = waiter
         self._deadline = deadline
         self._extensions = STALL_EXTENSIONS  # (a stall extends the wait: ``expect_bytes``)
-        self._waited_before = cpu_wait_stamp()
+        now = monotonic()
+        if now - self._marked_at >= CPU_WAIT_MARK_AGE:  # (``_mark``, written out)
+            self._waited_before = cpu_wait_stamp()
+            self._marked_at = now
         if not self._expiry_set or self._expiry_at > deadline:  # (``_wait``, written out)
             self._set_expiry(deadline)
         if self.lost is not None:
             waiter.set_exception(LineClosed(f"{self.name} lost: {self.lost}"))
         elif len(self.buf) >= 3:
             self._assemble(waiter)
+
+    def _mark(self, now: float) -> None:
+        """Read the thread's CPU wait for the wait that begins ``now``, unless the last
+        reading is recent enough (``CPU_WAIT_MARK_AGE``)."""
+        if now - self._marked_at >= CPU_WAIT_MARK_AGE:
+            self._waited_before = cpu_wait_stamp()
+            self._marked_at = now
 
     def _wait(self, n: int, deadline: float, waiter: asyncio.Future[None]) -> None:
         self.need = n
@@ -291,6 +309,7 @@ class RtuReceiver(StreamProtocol):
                     return
                 self._extensions -= 1
                 self._waited_before = stamp
+                self._marked_at = now
                 self._deadline = until = monotonic() + grace
                 self._set_expiry(until)
                 return
