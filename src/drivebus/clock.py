@@ -80,7 +80,8 @@ def stall_grace(late: float, waited: float = 0.0) -> float:
     process ran all along, else the time it lost plus ``STALL_GRACE``.
 
     ``late``: how long after the deadline its timer ran; ``waited``: how long the thread
-    waited for a CPU since the request went out (``cpu_wait``). A deadline that passed
+    waited for a CPU since the request went out, or shortly before (``cpu_wait``; see
+    ``drivebus.line.receiver.CPU_WAIT_MARK_AGE``). A deadline that passed
     while the process was not running was not watched: a peer in the same process (a
     simulated drive) did not run either, and may not even have read the request. It gets
     back the time it lost and a moment to answer (a peer that ran all along has had its
@@ -174,7 +175,8 @@ class PreciseTimer:
         sec = int(deadline)
         value = self._value
         value.tv_sec = sec
-        value.tv_nsec = max(1, int((deadline - sec) * 1e9))
+        ns = int((deadline - sec) * 1e9)
+        value.tv_nsec = ns if ns > 0 else 1  # (all zero would disarm; no max(): per transaction)
         assert _libc is not None and self._fd is not None
         if _libc.timerfd_settime(self._fd, _TFD_TIMER_ABSTIME, self._spec_at, None):
             raise OSError(ctypes.get_errno(), "timerfd_settime failed")

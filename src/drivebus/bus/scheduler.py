@@ -16,7 +16,7 @@ from drivebus.bus.observe import TransactionObserver
 from drivebus.bus.owner import Owner
 from drivebus.bus.priority import Priority
 from drivebus.bus.request import Queued, Request
-from drivebus.bus.sent import noting
+from drivebus.bus.sent import noted_in
 from drivebus.bus.slave import SlaveHandle, handle_on
 from drivebus.bus.stats import BusStats
 from drivebus.errors import LineClosed, StateError
@@ -166,10 +166,10 @@ class Bus(Owner):
             await self._cancelled(req)
             raise
         if reply and reply[0] & 0x80:
-            if noting():
+            if noted_in() is not None:
                 self._note(req, "exception")
             handle.raise_exception(reply, pdu)
-        if noting():
+        if noted_in() is not None:
             self._note(req, "acknowledged")
         return reply
 
