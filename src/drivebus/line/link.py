@@ -39,15 +39,18 @@ ReplyHook = Callable[[Exchange], None]
 returns it: from the receiver's callback when the reply came in whole."""
 
 
-class _Job:
+class _Job(Exchange):
     """One frame waiting for its silence, then for its reply: ``step`` (the silence
-    timer's callback) sends it, ``replied`` (the receiver's) finishes it."""
+    timer's callback) sends it, ``replied`` (the receiver's) finishes it.
+
+    A job is also the ``Exchange`` it makes (one object per transaction, not two): its
+    ``tx_start``/``tx_end`` are set when the frame goes out, the reply's fields by
+    ``replied``; ``complete`` says they are all there."""
 
     __slots__ = (
-        "adu", "broadcast_delay", "exchange", "expect", "future", "link", "local_echo",
+        "adu", "broadcast_delay", "complete", "expect", "future", "link", "local_echo",
         "on_reply", "quiet_by", "reply_wait", "rx", "seen", "send", "sent", "silence",
-        "stalls", "started", "timeout", "tm", "tx_end", "tx_start", "unit", "waited",
-        "withdrawable",
+        "stalls", "started", "timeout", "tm", "unit", "waited", "withdrawable",
     )
 
     def __init__(
@@ -78,8 +81,8 @@ class _Job:
         """The line's last activity when the job began."""
         self.future = future
         self.on_reply = on_reply
-        self.exchange: Exchange | None = None
-        """The exchange, once the receiver's callback finished it."""
+        self.complete = False
+        """The receiver's callback finished the exchange (``replied``)."""
         self.started = now
         self.sent = False
         self.tx_start = 0.0
@@ -87,6 +90,9 @@ class _Job:
         self.broadcast_delay = broadcast_delay
         self.stalls = STALL_EXTENSIONS
         """Times ``quiet_by`` may still move for a process that was held up (``step``)."""
+
+    def __repr__(self) -> str:  # (Exchange's would read the reply's fields before they are set)
+        return f"_Job(unit={self.unit}, sent={self.sent}, complete={self.complete})"
 
     def step(self) -> None:
         """Send the frame if the line has been quiet for its silence; else arm the timer
@@ -151,15 +157,16 @@ class _Job:
         """The receiver has the whole reply: finish the exchange here and now."""
         rx = self.rx
         rx.waiter = None  # (``release``: the receiver is done with this reply)
-        self.link.quiet_since = rx_end = rx.last_rx
-        n = len(reply) + 3
-        nbytes = len(self.adu)
-        ex = self.exchange = Exchange(reply, self.tx_start, self.tx_end, rx_end, nbytes, n,
-                                      (nbytes + n) * self.tm.char_time)
+        self.link.quiet_since = self.rx_end = rx.last_rx
+        self.reply = reply
+        self.reply_bytes = n = len(reply) + 3
+        self.request_bytes = nbytes = len(self.adu)
+        self.wire_time = (nbytes + n) * self.tm.char_time
+        self.complete = True
         on_reply = self.on_reply
         if on_reply is not None:
             try:
-                on_reply(ex)
+                on_reply(self)
             except Exception as exc:  # an observer that failed: the waiting task raises it
                 self.future.set_exception(exc)
                 return
@@ -266,8 +273,8 @@ class RtuLink:
         finally:
             if job.reply_wait and job.sent:
                 rx.release()  # whatever woke us, the reply's bytes are read below
-        if job.exchange is not None:
-            return job.exchange  # finished by the receiver's callback (``_Job.replied``)
+        if job.complete:
+            return job  # finished by the receiver's callback (``_Job.replied``)
         adu, tm, unit, expect = job.adu, job.tm, job.unit, job.expect
         try:
             if job.local_echo:
