@@ -54,10 +54,9 @@ LengthPredictor = Callable[[bytes], "int | None"]
 _HDR = struct.Struct(">BHH")
 
 
-@functools.lru_cache(maxsize=256)
-def _words(count: int) -> struct.Struct:
-    """The codec of ``count`` big-endian 16-bit registers."""
-    return struct.Struct(f">{count}H")
+_WORDS = tuple(struct.Struct(f">{count}H") for count in range(128))
+"""The codec of ``count`` big-endian 16-bit registers, by ``count``: a reply carries at
+most 127 (its byte count is one byte). A tuple, not a cache: it is read per reply."""
 
 
 def _span(address: object, count: int) -> int:
@@ -184,7 +183,7 @@ def decode_read_reply(pdu: bytes, function: int, count: int, *, slave: int | Non
         raise FrameError(
             f"slave {slave}: reply carries {pdu[1]} bytes, {2 * count} expected", slave=slave
         )
-    return list(_words(count).unpack_from(pdu, 2))
+    return list(_WORDS[count].unpack_from(pdu, 2))
 
 
 def decode_bits_reply(pdu: bytes, function: int, count: int, *, slave: int | None
