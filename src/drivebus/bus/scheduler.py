@@ -200,15 +200,23 @@ class Bus(Owner):
             handle.retries if idempotent and expect is not None else 0,
             self._loop.create_future(),  # type: ignore[union-attr]  # (open: it is set)
         )
-        heapq.heappush(self._queue, req)
         if self._parked and self._chained is None and not self._flying \
                 and self._adopt is None:
             # As the owner does when it wakes from idle (``NoiseWatch.reset``, written out:
             # it runs per transaction).
             noise = self._noise
             noise.seen, noise.since = self.line.last_activity(), None
-            self._chain(True)  # the line is idle: this request (or one more urgent) begins
+            # The line is idle: this request (or one more urgent) begins. Nothing else
+            # queued, no hold, guard interval or frame timeout to keep: it begins here
+            # (``_chain``'s decision for that case, written out), else ``_chain`` decides.
+            if self._queue or self._holds or self._trail or handle.guard:
+                heapq.heappush(self._queue, req)
+                self._chain(True)
+            elif not self._begin(req):
+                heapq.heappush(self._queue, req)  # it could not begin here: the owner sends it
+                self._wake_owner()
         else:
+            heapq.heappush(self._queue, req)
             self._kick(req)
         return req
 
