@@ -96,6 +96,8 @@ _CLOCK_MONOTONIC = 1
 _TFD_NONBLOCK = os.O_NONBLOCK
 _TFD_CLOEXEC = 0o2000000
 _TFD_TIMER_ABSTIME = 1
+_C_ABSTIME = ctypes.c_int(_TFD_TIMER_ABSTIME)
+_C_RELATIVE = ctypes.c_int(0)
 _PR_SET_TIMERSLACK = 29
 _TIMER_SLACK_NS = 10_000
 
@@ -118,10 +120,10 @@ def _load_libc() -> ctypes.CDLL | None:
         return None
     # The kernel rounds a normal thread's timers up by 50 us of "slack"; ask for 10 us.
     libc.prctl(_PR_SET_TIMERSLACK, _TIMER_SLACK_NS, 0, 0, 0)
-    # Declared argument types, the spec passed by address: a third of the cost of a call
-    # that ctypes has to guess its arguments for (it runs once per transaction).
-    libc.timerfd_settime.argtypes = (ctypes.c_int, ctypes.c_int, ctypes.c_void_p,
-                                     ctypes.c_void_p)
+    # timerfd_settime is called per transaction with ctypes objects made once (the
+    # timer's descriptor, the flags, a reference to its spec): no argument types to
+    # declare, nothing converted per call (the cheapest ctypes call; int arguments would
+    # be converted, and a pointer passed as an int cut to 32 bits).
     return libc
 
 
@@ -151,7 +153,9 @@ class PreciseTimer:
         self._waiter: asyncio.Future[None] | None = None
         self._spec = _Itimerspec()
         self._value = self._spec.it_value
-        self._spec_at = ctypes.addressof(self._spec)
+        self._spec_ref = ctypes.byref(self._spec)
+        self._c_fd = ctypes.c_int(-1)
+        """``_fd`` as timerfd_settime takes it (see ``_load_libc``)."""
         self._callback: Callable[[], None] | None = None
         self._deadline = 0.0
         self._handle: asyncio.TimerHandle | None = None
@@ -168,6 +172,7 @@ class PreciseTimer:
         if fd < 0:
             return False
         self._fd, self._loop = fd, loop
+        self._c_fd = ctypes.c_int(fd)
         loop.add_reader(fd, self._fired)
         return True
 
@@ -178,13 +183,13 @@ class PreciseTimer:
         ns = int((deadline - sec) * 1e9)
         value.tv_nsec = ns if ns > 0 else 1  # (all zero would disarm; no max(): per transaction)
         assert _libc is not None and self._fd is not None
-        if _libc.timerfd_settime(self._fd, _TFD_TIMER_ABSTIME, self._spec_at, None):
+        if _libc.timerfd_settime(self._c_fd, _C_ABSTIME, self._spec_ref, None):
             raise OSError(ctypes.get_errno(), "timerfd_settime failed")
 
     def _disarm(self) -> None:
         if self._fd is not None and _libc is not None:
             self._value.tv_sec = self._value.tv_nsec = 0
-            _libc.timerfd_settime(self._fd, 0, self._spec_at, None)
+            _libc.timerfd_settime(self._c_fd, _C_RELATIVE, self._spec_ref, None)
 
     def _fired(self) -> None:
         try:
