@@ -92,5 +92,6 @@ async def run_bench(
             rows = await scenario.run(opts)
         for row in rows:  # how long this process held its event loop at most
             row.figures["longest_loop_step_ms"] = round(steps.longest * 1e3, 2)
+            row.figures["longest_gc_pass_ms"] = round(steps.longest_gc * 1e3, 2)
         results.extend(rows)
     return results

@@ -7,6 +7,7 @@ other scenarios, so scenarios can be added, changed or removed one module at a t
 from __future__ import annotations
 
 import asyncio
+import gc
 import itertools
 import json
 import statistics
@@ -414,9 +415,17 @@ class SimProcess(ChildProcess):
 
     async def logs(self) -> dict[str, list[WireFrame]]:
         """Each wire's log, by wire (or line) name (``cpu`` holds the CPU seconds)."""
-        raw: dict[str, Any] = json.loads(await self._ask("log"))
+        text = await self._ask("log")
+        # tens of thousands of frames: read them in a thread, so that the loop (and the
+        # bench's longest-loop-step figure) is not held for tens of milliseconds
+        raw: dict[str, Any] = await anyio.to_thread.run_sync(json.loads, text)
         self.cpu = float(raw.pop("cpu", 0.0))
-        return {name: [frame_from_record(r) for r in frames] for name, frames in raw.items()}
+        return await anyio.to_thread.run_sync(_frames_by_wire, raw)
+
+
+def _frames_by_wire(raw: dict[str, Any]) -> dict[str, list[WireFrame]]:
+    """Each wire's frames from their JSON records."""
+    return {name: [frame_from_record(r) for r in frames] for name, frames in raw.items()}
 
 
 def results_json(results: Sequence[BenchResult]) -> str:
@@ -480,11 +489,22 @@ def format_table(results: Sequence[BenchResult]) -> str:
 
 class LoopSteps:
     """The longest event-loop step (thread CPU time) while installed: how long anything
-    in this process held the loop, during which no stop could go out."""
+    in this process held the loop, during which no stop could go out; and the longest
+    pass of Python's garbage collector, which runs inside whatever step allocates (a full
+    pass over a large heap, such as the bench's own records of every exchange, is
+    usually the longest step)."""
 
     def __init__(self) -> None:
         self.longest = 0.0
+        self.longest_gc = 0.0
         self._run: Any = None
+        self._gc_started = 0.0
+
+    def _on_gc(self, phase: str, info: dict[str, Any]) -> None:
+        if phase == "start":
+            self._gc_started = time.thread_time()
+        else:
+            self.longest_gc = max(self.longest_gc, time.thread_time() - self._gc_started)
 
     def __enter__(self) -> LoopSteps:
         run = self._run = asyncio.events.Handle._run
@@ -500,7 +520,9 @@ class LoopSteps:
                     steps.longest = took
 
         asyncio.events.Handle._run = timed  # type: ignore[method-assign]
+        gc.callbacks.append(self._on_gc)
         return self
 
     def __exit__(self, *exc: object) -> None:
+        gc.callbacks.remove(self._on_gc)
         asyncio.events.Handle._run = self._run  # type: ignore[method-assign]
