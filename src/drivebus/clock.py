@@ -200,14 +200,16 @@ class PreciseTimer:
         if callback is not None:
             deadline = self._deadline
             if monotonic() < deadline:  # ``_reach``, written out: it runs per transaction
-                if self._adapt_on_fire:
-                    PreciseTimer.lead = max(0.0, PreciseTimer.lead - PreciseTimer._STEP)
+                if self._adapt_on_fire:  # (no max(): per transaction)
+                    lead = PreciseTimer.lead - PreciseTimer._STEP
+                    PreciseTimer.lead = lead if lead > 0.0 else 0.0
                 while monotonic() < deadline:
                     pass
             elif self._adapt_on_fire and monotonic() - deadline <= PreciseTimer._LEAD_MAX:
                 # (late beyond the longest lead: the process waited for a CPU, see _reach)
-                PreciseTimer.lead = min(PreciseTimer._LEAD_MAX,
-                                        PreciseTimer.lead + PreciseTimer._STEP)
+                lead = PreciseTimer.lead + PreciseTimer._STEP  # (no min(): per transaction)
+                PreciseTimer.lead = lead if lead < PreciseTimer._LEAD_MAX else \
+                    PreciseTimer._LEAD_MAX
             callback()
             return
         waiter, self._waiter = self._waiter, None
@@ -287,7 +289,8 @@ class PreciseTimer:
         median wake-up latency (a wait shorter than the lead says nothing about it)."""
         if monotonic() < deadline:
             if adapt:  # woke before the deadline: the lead is more than the latency
-                PreciseTimer.lead = max(0.0, PreciseTimer.lead - PreciseTimer._STEP)
+                lead = PreciseTimer.lead - PreciseTimer._STEP  # (no max(): per wait)
+                PreciseTimer.lead = lead if lead > 0.0 else 0.0
             while monotonic() < deadline:
                 pass
         elif adapt and monotonic() - deadline <= PreciseTimer._LEAD_MAX:
@@ -295,8 +298,9 @@ class PreciseTimer:
             # the process waiting for a CPU, not the timer's latency (a longer lead cannot
             # help it): left out, or on a busy machine the lead would sit at its maximum
             # and every timer would spin that long.
-            PreciseTimer.lead = min(PreciseTimer._LEAD_MAX,
-                                    PreciseTimer.lead + PreciseTimer._STEP)
+            lead = PreciseTimer.lead + PreciseTimer._STEP
+            PreciseTimer.lead = lead if lead < PreciseTimer._LEAD_MAX else \
+                PreciseTimer._LEAD_MAX
 
     def wake(self) -> None:
         """End the sleep in progress now (the owner has something more urgent to do)."""
