@@ -35,7 +35,8 @@ class Latency:
     ``add`` runs once per reply, so it only appends to the window and counts: the
     histogram and the sum take in the replies added since they were last brought up to
     date when they are read, or when the window is about to drop the oldest of them
-    (``_bin``). What they say is the same as if every reply had been binned at once.
+    (``_bin``). The counts are those of binning each reply as it came, the sum the same
+    to its last bits (``math.fsum`` of each batch).
     """
 
     __slots__ = ("_binned", "_buckets", "_sum", "count", "window")
