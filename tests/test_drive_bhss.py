@@ -21,6 +21,7 @@ from drivebus.sim import sim_bus
 from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.bhss import SimBHSS
 from drivebus.sim.wire import VirtualWire
+from wirelog import frames_text
 
 FAST = LineSettings.parse("115200 8N1")
 QUICK = MoveParams(speed_rpm=1200.0, accel_rps2=200.0, decel_rps2=200.0)  # 100 ms ramps
@@ -41,9 +42,13 @@ async def bhss(
     sim = SimBHSS(1, FAST, TwinSetup(**sim_opts))
     async with sim_bus([sim], FAST) as (wire, bus):
         profile = BHSSProfile(bus.slave(1), **options)
-        if setup:
-            await profile.setup()
-        yield wire, sim, profile
+        try:
+            if setup:
+                await profile.setup()
+            yield wire, sim, profile
+        except Exception as exc:  # what the wire saw, with the failure
+            exc.add_note(f"the wire's last frames:\n{frames_text(wire.log, limit=20)}")
+            raise
 
 
 async def wait_for(

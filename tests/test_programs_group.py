@@ -17,7 +17,7 @@ from drivebus.motion import Machine
 from drivebus.motion.path import GroupHandle
 from test_axis_guarantees import commands, log_size
 from test_motion import machine
-from wirelog import reads_of
+from wirelog import frames_text, reads_of
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 
@@ -97,7 +97,9 @@ async def test_a_buffered_path_stops_in_position_at_each_corner_within_a_poll_pe
             started = min(start for _, start, _ in after)
             assert started >= arrived, (before, after)
             polls = {n: sum(1 for t in reads[n] if end < t < started) for n, _, end in before}
-            assert max(polls.values()) <= 1, (polls, before, after)
+            assert max(polls.values()) <= 1, (
+                polls, before, after,
+                "\n" + frames_text(m.wires["rs485"].log, arrived - 0.05, started + 0.01))
         assert report.segments[2].max_deviation < 0.5
 
 

@@ -41,7 +41,7 @@ from drivebus import open_machine
 from drivebus.app.params import ParameterSet, load_parameters, read_parameters
 from drivebus.errors import DrivebusError, GroupMotionError, MotionAborted
 from drivebus.motion import Machine
-from wirelog import command_frames, log_size, requests_between, settle
+from wirelog import command_frames, frames_text, log_size, requests_between, settle
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 
@@ -166,8 +166,14 @@ async def reach(m: Machine, c: Command, point: str) -> None:
         for _ in range(3):
             await anyio.lowlevel.checkpoint()
         return
-    await until(f"{c.name}: axis {c.axes[0]} moving",
-                lambda: m.sim_drives[c.axes[0]].is_moving())
+    ax = m.axes[c.axes[0]]
+    try:
+        await until(f"{c.name}: axis {ax.name} moving", lambda: m.sim_drives[ax.name].is_moving())
+    except pytest.fail.Exception as exc:  # what the axis and its line did meanwhile
+        exc.add_note(f"axis {ax.name}: {ax.state.name}, error {ax.error!r}, queued {ax.queued}; "
+                     f"its line's last frames:\n"
+                     f"{frames_text(m.wires[ax.config.line].log, limit=40)}")  # type: ignore[union-attr]
+        raise
 
 
 async def runs(c: Command, m: Machine) -> None:

@@ -12,7 +12,8 @@ import anyio
 from drivebus import AxisState
 from drivebus.motion import Axis, Machine
 
-__all__ = ["KINDS", "command_frames", "commands", "log_size", "reads_of", "room", "settle"]
+__all__ = ["KINDS", "command_frames", "commands", "frames_text", "log_size", "reads_of", "room",
+           "settle"]
 
 
 def _rtu_write(data: bytes) -> tuple[int, int] | None:
@@ -136,3 +137,13 @@ def reads_of(m: Machine, name: str) -> list[float]:
     return [f.start for f in list(wire.log)
             if f.direction == "request" and f.address == ax.config.address
             and f.data[1:2] in _READS]
+
+
+def frames_text(log: Any, after: float = -math.inf, before: float = math.inf,
+                limit: int = 60) -> str:
+    """The RTU wire log's frames in (after, before), the last ``limit`` of them, a line
+    each (time, silence before it, direction, bytes, note): what a failing test shows."""
+    frames = [f for f in list(log) if after < f.start < before][-limit:]
+    return "\n".join(
+        f"  {f.start:.6f} gap {f.gap * 1e3:8.3f} ms {f.direction:7} {f.data.hex(' ')}"
+        f"{'  [' + f.note + ']' if f.note else ''}" for f in frames)
