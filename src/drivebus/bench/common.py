@@ -491,8 +491,7 @@ class LoopSteps:
     """The longest event-loop step (thread CPU time) while installed: how long anything
     in this process held the loop, during which no stop could go out; and the longest
     pass of Python's garbage collector, which runs inside whatever step allocates (a full
-    pass over a large heap, such as the bench's own records of every exchange, is
-    usually the longest step)."""
+    pass over a large heap is usually the longest step)."""
 
     def __init__(self) -> None:
         self.longest = 0.0
