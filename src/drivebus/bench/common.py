@@ -418,14 +418,15 @@ class SimProcess(ChildProcess):
         text = await self._ask("log")
         # tens of thousands of frames: read them in a thread, so that the loop (and the
         # bench's longest-loop-step figure) is not held for tens of milliseconds
-        raw: dict[str, Any] = await anyio.to_thread.run_sync(json.loads, text)
-        self.cpu = float(raw.pop("cpu", 0.0))
-        return await anyio.to_thread.run_sync(_frames_by_wire, raw)
+        self.cpu, logs = await anyio.to_thread.run_sync(_read_logs, text)
+        return logs
 
 
-def _frames_by_wire(raw: dict[str, Any]) -> dict[str, list[WireFrame]]:
-    """Each wire's frames from their JSON records."""
-    return {name: [frame_from_record(r) for r in frames] for name, frames in raw.items()}
+def _read_logs(text: str) -> tuple[float, dict[str, list[WireFrame]]]:
+    """The CPU seconds and each wire's frames from the simulator's JSON answer."""
+    raw: dict[str, Any] = json.loads(text)
+    cpu = float(raw.pop("cpu", 0.0))
+    return cpu, {name: [frame_from_record(r) for r in frames] for name, frames in raw.items()}
 
 
 def results_json(results: Sequence[BenchResult]) -> str:

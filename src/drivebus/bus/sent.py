@@ -54,11 +54,6 @@ def note_sent(request: SentRequest) -> None:
         noted.append(request)
 
 
-def noting() -> bool:
-    """True if the caller runs in a ``sent_requests`` block (one lookup: cheap)."""
-    return _SENT.get() is not None
-
-
 noted_in = _SENT.get
-"""The list of the ``sent_requests`` block the caller runs in, None outside one:
-``noting()`` as one call into C, for the check made per transaction."""
+"""The list of the ``sent_requests`` block the caller runs in, None outside one (one
+call into C: it is asked per transaction)."""

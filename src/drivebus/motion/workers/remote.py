@@ -33,7 +33,7 @@ import anyio
 import drivebus.motion.workers.protocol as p
 from drivebus import checks
 from drivebus.bus import BusStats, Priority, SlaveHandle, Transaction, TransactionObserver
-from drivebus.bus.sent import SentRequest, note_sent, noting
+from drivebus.bus.sent import SentRequest, note_sent, noted_in
 from drivebus.bus.slave import handle_on
 from drivebus.config import LineConfig
 from drivebus.errors import ConnectionLost, DrivebusError, LineClosed
@@ -178,7 +178,7 @@ class RemoteBus:
         except asyncio.CancelledError:
             await w.retract(rid, fut, handle, pdu)
             raise
-        if noting():
+        if noted_in() is not None:
             note_sent(SentRequest(handle.address, pdu[0] if pdu else 0, pdu,
                                   "exception" if reply[:1] and reply[0] & 0x80
                                   else "acknowledged"))
