@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import heapq
+from asyncio import Future
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from types import TracebackType
@@ -198,7 +199,8 @@ class Bus(Owner):
             pdu,
             expect,
             handle.retries if idempotent and expect is not None else 0,
-            self._loop.create_future(),  # type: ignore[union-attr]  # (open: it is set)
+            # (the loop's create_future, less its Python frame: two futures per transaction)
+            Future(loop=self._loop),
         )
         if self._parked and self._chained is None and not self._flying \
                 and self._adopt is None:

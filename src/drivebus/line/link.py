@@ -21,6 +21,7 @@ with ``SendWithdrawn`` and its owner plans again.
 from __future__ import annotations
 
 import asyncio
+from asyncio import Future
 from collections.abc import Callable
 
 from drivebus.clock import STALL, STALL_GRACE, PreciseTimer, monotonic
@@ -149,7 +150,7 @@ class _Job(Exchange):
         if self.reply_wait:
             assert self.expect is not None
             rx.expect_reply(self.unit, self.expect, tx_end + self.timeout, self.future,
-                            self.replied)
+                            self.replied, now)
         else:
             self.future.set_result(None)
 
@@ -248,7 +249,8 @@ class RtuLink:
         if loop is None:
             loop = self.loop = asyncio.get_running_loop()
         job = _Job(self, rx, send, unit, frame(unit, pdu), tm, silence, quiet_by, timeout,
-                   expect, local_echo, withdrawable, loop.create_future(), on_reply,
+                   # (the loop's create_future, less its Python frame: per transaction)
+                   expect, local_echo, withdrawable, Future(loop=loop), on_reply,
                    monotonic(), broadcast_delay)
         self._job = job
         job.step()

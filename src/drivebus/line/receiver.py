@@ -234,14 +234,14 @@ class RtuReceiver(StreamProtocol):
 
     def expect_reply(
         self, unit: int, expect: LengthPredictor, deadline: float,
-        waiter: asyncio.Future[None], on_frame: Callable[[bytes], None],
+        waiter: asyncio.Future[None], on_frame: Callable[[bytes], None], now: float,
     ) -> None:
         """Assemble the reply from ``unit`` as it arrives: once it is complete (by
         ``expect``), from ``unit`` and with a good CRC, take it out of the buffer and call
         ``on_frame`` with its PDU (which resolves ``waiter``). Anything else resolves
         ``waiter`` with the bytes left as they are: something other than ``unit``'s frame
         at the start, a bad CRC, ``deadline`` (an exception if the stream is lost).
-        ``release()`` ends it."""
+        ``release()`` ends it. ``now``: the time (monotonic) its request left, just now."""
         self._unit = unit
         self._expect = expect
         self._on_frame = on_frame
@@ -249,7 +249,6 @@ class RtuReceiver(StreamProtocol):
         self.waiter = waiter
         self._deadline = deadline
         self._extensions = STALL_EXTENSIONS  # (a stall extends the wait: ``expect_bytes``)
-        now = monotonic()
         if now - self._marked_at >= CPU_WAIT_MARK_AGE:  # (``_mark``, written out)
             self._waited_before = cpu_wait_stamp()
             self._marked_at = now
