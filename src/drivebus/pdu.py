@@ -22,11 +22,13 @@ __all__ = [
     "WRITE_MULTIPLE",
     "WRITE_SINGLE",
     "LengthPredictor",
+    "ReplyDecoder",
     "check_exception",
     "decode_bits_reply",
     "decode_read_reply",
     "decode_write_multiple_reply",
     "decode_write_single_reply",
+    "read_reply_values",
     "read_request",
     "request_length",
     "response_length",
@@ -50,6 +52,10 @@ MAX_PDU = 253
 
 LengthPredictor = Callable[[bytes], "int | None"]
 """Given the PDU bytes received so far, the PDU's full length, or None if more are needed."""
+
+ReplyDecoder = Callable[[bytes, bytes, "int | None"], list[int]]
+"""What a reply PDU carries, from it, its request's PDU and the slave's address (for the
+errors): ``read_reply_values``."""
 
 _HDR = struct.Struct(">BHH")
 
@@ -173,17 +179,32 @@ def check_exception(
 
 def decode_read_reply(pdu: bytes, function: int, count: int, *, slave: int | None) -> list[int]:
     """Register values of an FC03/FC04 reply, checked against the request."""
+    if len(pdu) != 2 + 2 * count or pdu[0] != function or pdu[1] != 2 * count:
+        _bad_read_reply(pdu, function, count, slave)
+    return list(_WORDS[count].unpack_from(pdu, 2))
+
+
+def read_reply_values(pdu: bytes, request: bytes, slave: int | None) -> list[int]:
+    """``decode_read_reply`` for the reply to ``request`` (an FC03/FC04 request of
+    ``read_request``: its function and count are read from it), as ``Bus.execute``'s
+    ``decode`` takes it."""
+    count = request[3] << 8 | request[4]
+    if len(pdu) != 2 + 2 * count or pdu[0] != request[0] or pdu[1] != 2 * count:
+        _bad_read_reply(pdu, request[0], count, slave)
+    return list(_WORDS[count].unpack_from(pdu, 2))
+
+
+def _bad_read_reply(pdu: bytes, function: int, count: int, slave: int | None) -> None:
+    """Raise the ``FrameError`` of a read reply that does not fit its request."""
     if len(pdu) < 2 or pdu[0] != function:
         raise FrameError(
             f"slave {slave}: reply function 0x{pdu[0] if pdu else 0:02X} to request "
             f"0x{function:02X}",
             slave=slave,
         )
-    if pdu[1] != 2 * count or len(pdu) != 2 + 2 * count:
-        raise FrameError(
-            f"slave {slave}: reply carries {pdu[1]} bytes, {2 * count} expected", slave=slave
-        )
-    return list(_WORDS[count].unpack_from(pdu, 2))
+    raise FrameError(
+        f"slave {slave}: reply carries {pdu[1]} bytes, {2 * count} expected", slave=slave
+    )
 
 
 def decode_bits_reply(pdu: bytes, function: int, count: int, *, slave: int | None

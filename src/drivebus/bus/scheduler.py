@@ -9,6 +9,7 @@ from asyncio import Future
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from types import TracebackType
+from typing import Any
 
 import anyio
 
@@ -22,7 +23,7 @@ from drivebus.bus.slave import SlaveHandle, handle_on
 from drivebus.bus.stats import BusStats
 from drivebus.errors import LineClosed, StateError
 from drivebus.line.base import Line
-from drivebus.pdu import LengthPredictor
+from drivebus.pdu import LengthPredictor, ReplyDecoder
 from drivebus.settings import LineSettings
 from drivebus.tasks import ServiceTasks
 
@@ -150,8 +151,10 @@ class Bus(Owner):
         expect: LengthPredictor | None,
         priority: Priority,
         idempotent: bool,
-    ) -> bytes:
-        """Queue one transaction and wait for its reply PDU (empty for a broadcast).
+        decode: ReplyDecoder | None = None,
+    ) -> Any:
+        """Queue one transaction and wait for its reply PDU (empty for a broadcast), or
+        what ``decode(reply, pdu, handle.address)`` makes of it (a register read's values).
         ``StateError`` at once (nothing sent) for a request below ``Priority.EMERGENCY``
         from inside this task's own ``hold()``: it would wait for the hold's end."""
         if self._holds and priority < Priority.EMERGENCY \
@@ -172,7 +175,7 @@ class Bus(Owner):
             handle.raise_exception(reply, pdu)
         if noted_in() is not None:
             self._note(req, "acknowledged")
-        return reply
+        return reply if decode is None else decode(reply, pdu, handle.address)
 
     def queue(
         self,

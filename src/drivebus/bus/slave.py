@@ -16,11 +16,12 @@ from drivebus.pdu import (
     READ_HOLDING,
     READ_INPUT,
     LengthPredictor,
+    ReplyDecoder,
     check_exception,
     decode_bits_reply,
-    decode_read_reply,
     decode_write_multiple_reply,
     decode_write_single_reply,
+    read_reply_values,
     read_request,
     response_length,
     write_coil_request,
@@ -43,8 +44,12 @@ class Executor(Protocol):
         expect: LengthPredictor | None,
         priority: Priority,
         idempotent: bool,
-    ) -> bytes:
-        """Queue one transaction and return its reply PDU (empty for a broadcast)."""
+        decode: ReplyDecoder | None = None,
+    ) -> Any:
+        """Queue one transaction and return its reply PDU (empty for a broadcast), or what
+        ``decode`` makes of it (``decode(reply, pdu, handle.address)``: a register read's
+        values, decoded in the caller's coroutine, so that it needs no coroutine of its
+        own)."""
         ...
 
 
@@ -147,16 +152,21 @@ class SlaveHandle:
         if self.is_broadcast:
             raise ConfigError("cannot read from the broadcast address 0: nobody answers")
 
-    async def _read(self, function: int, address: int, count: int, priority: Priority) -> list[int]:
-        if self.address == 0:
-            self._no_broadcast_read()
-        req = read_request(function, address, count)
-        if type(priority) is not Priority:
-            priority = _priority(priority)
-        reply = await self.bus.execute(
-            self, req, expect=response_length, priority=priority, idempotent=True
-        )
-        return decode_read_reply(reply, function, int(count), slave=self.address)
+    def _read(self, function: int, address: int, count: int, priority: Priority
+              ) -> Coroutine[Any, Any, list[int]]:
+        """The bus's ``execute`` coroutine for a register read (one coroutine per read:
+        ``execute`` decodes the reply); a refused read raises when it is awaited."""
+        try:
+            if self.address == 0:
+                self._no_broadcast_read()
+            req = read_request(function, address, count)
+            if type(priority) is not Priority:
+                priority = _priority(priority)
+        except Exception as exc:  # (raised where the read is awaited, as by a coroutine)
+            return _refused(exc)
+        return self.bus.execute(  # type: ignore[no-any-return]
+            self, req, expect=response_length, priority=priority, idempotent=True,
+            decode=read_reply_values)
 
     async def _write(
         self,
@@ -176,8 +186,8 @@ class SlaveHandle:
         if not self.is_broadcast:
             check(reply, req, slave=self.address)
 
-    # The two register reads are coroutine functions that return ``_read``'s coroutine
-    # (awaiting it here would put one more frame in every step of a poll's task).
+    # The two register reads are coroutine functions that return the bus's ``execute``
+    # coroutine (awaiting it here would put one more frame in every step of a poll's task).
 
     def read_holding_registers(
         self, address: int, count: int, *, priority: Priority = Priority.CONFIG
@@ -275,3 +285,8 @@ class SlaveHandle:
 
     def __repr__(self) -> str:
         return f"SlaveHandle({self.address}, settings={self.settings})"
+
+
+async def _refused(exc: BaseException) -> list[int]:
+    """A read refused before it was queued: raises ``exc`` when awaited."""
+    raise exc

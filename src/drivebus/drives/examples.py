@@ -25,7 +25,7 @@ from drivebus.drives.engine import DescribedProfile, profile_class
 from drivebus.drives.values import RegValue, Table
 from drivebus.errors import DrivebusError, ModbusException
 from drivebus.line.rtu import crc16, crc_ok
-from drivebus.pdu import LengthPredictor
+from drivebus.pdu import LengthPredictor, ReplyDecoder
 
 __all__ = ["ExampleResult", "Frame", "parse_frame", "verify_examples"]
 
@@ -94,7 +94,11 @@ class _Recorder:
 
     async def execute(self, handle: SlaveHandle, pdu: bytes, *,
                       expect: LengthPredictor | None, priority: Priority,
-                      idempotent: bool) -> bytes:
+                      idempotent: bool, decode: ReplyDecoder | None = None) -> Any:
+        reply = self._answer(handle, pdu)
+        return reply if decode is None else decode(reply, pdu, handle.address)
+
+    def _answer(self, handle: SlaveHandle, pdu: bytes) -> bytes:
         self.requests.append((handle.address, pdu))
         for i, (request, reply) in enumerate(self._replies):
             if request == pdu:

@@ -38,7 +38,7 @@ from drivebus.bus.slave import handle_on
 from drivebus.config import LineConfig
 from drivebus.errors import ConnectionLost, DrivebusError, LineClosed
 from drivebus.line.base import Line
-from drivebus.pdu import LengthPredictor, response_length
+from drivebus.pdu import LengthPredictor, ReplyDecoder, response_length
 from drivebus.settings import LineSettings
 from drivebus.tasks import ServiceTasks
 
@@ -164,8 +164,10 @@ class RemoteBus:
         expect: LengthPredictor | None,
         priority: Priority,
         idempotent: bool,
-    ) -> bytes:
-        """Have the worker run one transaction; its reply PDU (empty for a broadcast)."""
+        decode: ReplyDecoder | None = None,
+    ) -> Any:
+        """Have the worker run one transaction; its reply PDU (empty for a broadcast), or
+        what ``decode`` makes of it (``Bus.execute``)."""
         w = self._worker
         if not self._open:
             raise LineClosed(f"bus on {self.line.name} is not open")
@@ -184,7 +186,7 @@ class RemoteBus:
                                   else "acknowledged"))
         if reply[:1] and reply[0] & 0x80:
             handle.raise_exception(reply)
-        return reply
+        return reply if decode is None else decode(reply, pdu, handle.address)
 
     @contextlib.asynccontextmanager
     async def hold(self) -> AsyncIterator[None]:
