@@ -33,16 +33,18 @@ from drivebus.pdu import LengthPredictor
 from drivebus.settings import LineSettings
 from drivebus.timing import Timing
 
-__all__ = ["Begun", "ReplyHook", "RtuLink"]
+__all__ = ["Begun", "ReplyHook", "RtuJob", "RtuLink"]
 
 ReplyHook = Callable[[Exchange], None]
 """Told of a transaction's exchange as soon as it is complete, before ``transact``
 returns it: from the receiver's callback when the reply came in whole."""
 
 
-class _Job(Exchange):
-    """One frame waiting for its silence, then for its reply: ``step`` (the silence
-    timer's callback) sends it, ``replied`` (the receiver's) finishes it.
+class RtuJob(Exchange):
+    """One frame waiting for its silence, then for its reply: made by ``RtuLink.begin``
+    (or by a line that begins its transactions itself, with the same arguments: making a
+    job begins it), ``step`` (the silence timer's callback) sends it, ``replied`` (the
+    receiver's) finishes it.
 
     A job is also the ``Exchange`` it makes (one object per transaction, not two): its
     ``tx_start``/``tx_end`` are set when the frame goes out, the reply's fields by
@@ -56,16 +58,15 @@ class _Job(Exchange):
 
     def __init__(
         self, link: RtuLink, rx: RtuReceiver, send: Callable[[bytes], None], unit: int,
-        adu: bytes, tm: Timing, silence: float, quiet_by: float, timeout: float,
-        expect: LengthPredictor | None, local_echo: bool, withdrawable: bool,
-        future: asyncio.Future[None], on_reply: ReplyHook | None, now: float,
-        broadcast_delay: float,
+        pdu: bytes, expect: LengthPredictor | None, tm: Timing, silence: float,
+        quiet_by: float, timeout: float, broadcast_delay: float, local_echo: bool = False,
+        withdrawable: bool = False, on_reply: ReplyHook | None = None,
     ) -> None:
         self.link = link
         self.rx = rx
         self.send = send
         self.unit = unit
-        self.adu = adu
+        self.adu = frame(unit, pdu)
         self.tm = tm
         self.silence = silence
         self.quiet_by = quiet_by
@@ -80,20 +81,26 @@ class _Job(Exchange):
         q, r = link.quiet_since, rx.last_rx
         self.seen = r if r > q else q
         """The line's last activity when the job began."""
-        self.future = future
+        loop = link.loop
+        if loop is None:
+            loop = link.loop = asyncio.get_running_loop()
+        # (the loop's create_future, less its Python frame: per transaction)
+        self.future: asyncio.Future[None] = Future(loop=loop)
         self.on_reply = on_reply
         self.complete = False
         """The receiver's callback finished the exchange (``replied``)."""
-        self.started = now
+        self.started = monotonic()
         self.sent = False
         self.tx_start = 0.0
         self.tx_end = 0.0
         self.broadcast_delay = broadcast_delay
         self.stalls = STALL_EXTENSIONS
         """Times ``quiet_by`` may still move for a process that was held up (``step``)."""
+        link._job = self
+        self.step()
 
     def __repr__(self) -> str:  # (Exchange's would read the reply's fields before they are set)
-        return f"_Job(unit={self.unit}, sent={self.sent}, complete={self.complete})"
+        return f"RtuJob(unit={self.unit}, sent={self.sent}, complete={self.complete})"
 
     def step(self) -> None:
         """Send the frame if the line has been quiet for its silence; else arm the timer
@@ -188,7 +195,7 @@ class RtuLink:
         self.loop: asyncio.AbstractEventLoop | None = None
         """The event loop the link runs in (from its first transaction; ``close()`` ends
         it)."""
-        self._job: _Job | None = None
+        self._job: RtuJob | None = None
 
     def last_activity(self, rx: RtuReceiver | None) -> float:
         """When the line's last known activity (a frame of ours, a byte received) ended."""
@@ -245,22 +252,14 @@ class RtuLink:
         ``on_reply`` hears of a sound exchange from the callback that completed it; the
         returned job's ``future`` is done when the transaction needs its owner no more
         (a sound reply, or anything for ``finish`` to judge)."""
-        loop = self.loop
-        if loop is None:
-            loop = self.loop = asyncio.get_running_loop()
-        job = _Job(self, rx, send, unit, frame(unit, pdu), tm, silence, quiet_by, timeout,
-                   # (the loop's create_future, less its Python frame: per transaction)
-                   expect, local_echo, withdrawable, Future(loop=loop), on_reply,
-                   monotonic(), broadcast_delay)
-        self._job = job
-        job.step()
-        return job
+        return RtuJob(self, rx, send, unit, pdu, expect, tm, silence, quiet_by, timeout,
+                      broadcast_delay, local_echo, withdrawable, on_reply)
 
     async def finish(self, begun: Begun) -> Exchange:
         """The exchange of a transaction of ``begin``: the one the receiver's callback
         completed, or the reply read here (a typed error if there is none)."""
         job = begun
-        assert isinstance(job, _Job)
+        assert isinstance(job, RtuJob)
         rx = job.rx
         try:
             await job.future  # the frame is out and (with a reply to come) the reply is in
@@ -276,7 +275,7 @@ class RtuLink:
             if job.reply_wait and job.sent:
                 rx.release()  # whatever woke us, the reply's bytes are read below
         if job.complete:
-            return job  # finished by the receiver's callback (``_Job.replied``)
+            return job  # finished by the receiver's callback (``RtuJob.replied``)
         adu, tm, unit, expect = job.adu, job.tm, job.unit, job.expect
         try:
             if job.local_echo:

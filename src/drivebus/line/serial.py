@@ -16,7 +16,7 @@ from drivebus.clock import monotonic
 from drivebus.errors import ConfigError, LineClosed, LineConfigError
 from drivebus.line.base import Exchange, Line
 from drivebus.line.baud import port_baudrate, rate_matches
-from drivebus.line.link import Begun, ReplyHook, RtuLink
+from drivebus.line.link import Begun, ReplyHook, RtuJob, RtuLink
 from drivebus.line.receiver import RtuReceiver
 from drivebus.pdu import LengthPredictor
 from drivebus.providers import line_provider, scheme_of
@@ -96,6 +96,7 @@ class SerialLine(Line):
         self._serial: serial.Serial | None = None
         self._current: LineSettings | None = None
         self._link = RtuLink()
+        self._send_cb = self._send  # (one bound method, not one per transaction)
         self._closed = True
         self._fd = -1
         self._garbage_closed = 0  # counted by receivers of earlier openings
@@ -290,8 +291,8 @@ class SerialLine(Line):
             self._reconfigure(target, unit)
         link = self._link
         traffic = link.traffic
-        return link.begin(  # (positional: this runs once per transaction)
-            rx, self._send, unit, pdu, expect, tm,
+        return RtuJob(  # (``link.begin``, less its frame: positional, once per transaction)
+            link, rx, self._send_cb, unit, pdu, expect, tm,
             tm.t35 if traffic is target else switch_silence(traffic, target),
             monotonic() + timeout if quiet_by is None else quiet_by, timeout,
             self.broadcast_delay, self.local_echo, withdrawable, on_reply)
