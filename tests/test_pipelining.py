@@ -65,28 +65,32 @@ async def test_one_in_flight_when_the_line_declares_one() -> None:
 async def test_a_stop_goes_out_while_every_other_slot_is_busy_with_polls() -> None:
     """Polls may fill all slots but one: the stop takes that one at once, with the polls
     still outstanding, instead of waiting for one of them to come back."""
-    # Polls that take 150 ms at the slave: none comes back between the test seeing three
-    # of them arrive and the stop's arrival, however busy the machine (30 ms was not
-    # always enough on a loaded 2-core machine: a slot freed, and the stop could take it).
+    # The server holds the polls' replies (units 1, 3, 4) while the stop (unit 2) goes:
+    # every poll slot stays busy however busy the machine is. A bus that let polls take
+    # the last slot would hold the stop until a poll timed out (1 s): the poll's error or
+    # the overlap count fails the test.
     async with (
-        SimTcpServer(_slaves(0.15), pipelined=True) as srv,
+        SimTcpServer(_slaves(0.0), pipelined=True) as srv,
         Bus(TcpLine(HOST, srv.port, max_in_flight=4), timeout=1.0) as bus,
     ):
         stop = anyio.Event()
         bad: list[object] = []
         async with anyio.create_task_group() as tg:
             for i in range(12):
-                tg.start_soon(_poll, bus, 1 + i % 4, stop, bad)
+                tg.start_soon(_poll, bus, (1, 3, 4)[i % 3], stop, bad)
             for i in range(5):
-                await srv.wait_requests(srv.received + 3)
-                await bus.slave(2).write_register(7, i, priority=Priority.EMERGENCY)
-                mine = next(r for r in reversed(srv.log) if r.pdu[0] == 0x06)
-                overlapping = [
-                    r for r in srv.log
-                    if r is not mine and r.received <= mine.received
-                    and (r.replied is None or r.replied > mine.received)
-                ]
-                assert len(overlapping) == 3, (i, len(overlapping))  # every poll slot busy
+                with srv.holding_replies(1, 3, 4):
+                    with anyio.fail_after(10):  # the polls fill their three slots
+                        await srv.wait_outstanding(3)
+                    await bus.slave(2).write_register(7, i, priority=Priority.EMERGENCY)
+                    mine = next(r for r in reversed(srv.log) if r.pdu[0] == 0x06)
+                    assert mine.replied is not None
+                    overlapping = [
+                        r for r in srv.log
+                        if r is not mine and r.received <= mine.received
+                        and (r.replied is None or r.replied > mine.received)
+                    ]
+                    assert len(overlapping) == 3, (i, len(overlapping))  # every poll slot busy
             stop.set()
         assert bad == []
         assert srv.max_outstanding <= 4

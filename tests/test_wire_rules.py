@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import anyio
 import pytest
+import serial_asyncio
 
 from drivebus import Bus, LineSettings, SerialLine, SlaveHandle
 from drivebus.errors import LineClosed, ResponseTimeout
+from drivebus.line.rtu import frame
 from drivebus.sim import RegisterSlave, VirtualWire, sim_bus
 from drivebus.timing import switch_silence, timing
+from waits import within
 
 MIXED = {
     1: LineSettings.parse("9600 8N1"),
@@ -36,15 +40,20 @@ async def test_mixed_settings_line_keeps_every_silence() -> None:
         requests = wire.requests()
         assert len(requests) == len(order)
         assert wire.violations == 0
+        silences = {(p, s): switch_silence(p, s) for p in (None, *MIXED.values())
+                    for s in MIXED.values()}
+        wrong = []  # (one assert for the 4 000 frames: rewritten asserts cost ~2 us each)
         previous = None
         for f in wire.log:
-            if f.direction == "request":
-                # every frame went out at its slave's settings, after the required silence
-                assert f.settings == MIXED[f.address], f
-                assert f.required == pytest.approx(switch_silence(previous, f.settings))
-                assert f.gap >= f.required, f
-                assert f.note == "", f
+            # every request went out at its slave's settings, after the required silence
+            if f.direction == "request" and not (
+                f.settings == MIXED[f.address]
+                and math.isclose(f.required, silences[previous, f.settings])
+                and f.gap >= f.required and f.note == ""
+            ):
+                wrong.append(f)
             previous = f.settings
+        assert wrong == []
         assert bus.stats.total().errors == 0
         assert bus.stats.slave(1).transactions == order.count(1)
 
@@ -147,3 +156,32 @@ async def test_closing_fails_queued_requests_and_never_hangs() -> None:
     assert len(closed) == 20 - len(done) >= 18
     with pytest.raises(LineClosed):
         await h.read_holding_registers(0, 1)
+
+
+async def test_two_whole_frames_in_one_read_are_two_requests_and_the_last_is_answered() -> None:
+    """A pty hides the silence between frames: a master's retry read late, together with
+    the request it retries, is two requests on the wire, not one with a bad CRC. The
+    first is acted on and goes unanswered (its master has moved on); the second is
+    answered, and neither is a violation."""
+    s = LineSettings.parse("9600 8N1")
+    slave = RegisterSlave(1, s, initial=[(5, 862)])
+    write = frame(1, bytes.fromhex("06 0005 0007"))
+    read = frame(1, bytes.fromhex("03 0005 0001"))
+    async with VirtualWire("two-in-one-read") as wire:
+        wire.attach(slave)
+        reader, writer = await serial_asyncio.open_serial_connection(
+            url=wire.slave_path, baudrate=9600
+        )
+        try:
+            writer.write(write + read)  # one write: the wire reads both at once
+            with within(10, "the reply to the second frame on the raw port"):
+                assert await reader.readexactly(7) == frame(1, bytes.fromhex("03 02 0007"))
+            first, second = wire.requests()
+            assert (first.data, first.note) == (write, "unanswered: the next request came with it")
+            assert (second.data, second.note) == (read, "")
+            assert second.start >= first.end + second.required and wire.violations == 0
+            assert [f.data for f in wire.log if f.direction == "reply"] == [
+                frame(1, bytes.fromhex("03 02 0007"))
+            ]
+        finally:
+            writer.close()

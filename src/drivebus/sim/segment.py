@@ -5,7 +5,9 @@ their arrival time and the settings they were sent at (``feed``); the segment
 
 * assembles request frames, gives each its wire time (its byte count times the character
   time) and the silence before it, and logs it with what went wrong: "no slave",
-  "settings mismatch", "collision", "gap violation", "bad crc", "incomplete";
+  "settings mismatch", "collision", "gap violation", "bad crc", "incomplete", and for a
+  pty's read that held two whole frames (the silence between them hidden: a retry read
+  late on a starved machine) "unanswered: the next request came with it" on the first;
 * lets the slaves that understood the frame act (a slave only understands frames sent at
   its own settings; address 0 reaches every powered slave and nobody answers);
 * schedules their replies, with the slaves' ``FaultPlan`` faults applied, for the end of
@@ -40,6 +42,7 @@ R = TypeVar("R")
 """How a front-end routes a reply back to the master that asked (a connection, or None)."""
 
 _GARBAGE = bytes((0xFF, 0x00, 0x55))
+_UNANSWERED = "unanswered: the next request came with it"
 
 
 @dataclass(slots=True)
@@ -203,10 +206,18 @@ class Segment(Generic[R]):
             self._rx = self._begin(start, settings, route)
         self._rx.add(data)
         while (rx := self._rx) is not None and (n := self._complete_length(rx.data)) is not None:
-            rest = rx.cut(n) if self.split_frames else b""
-            self._finish("")
-            if rest:  # the next frame follows back to back: no silence at all
-                self._rx = self._begin(self._request_end, settings, route)
+            rest = rx.cut(n) if n < len(rx.data) else b""
+            if rest and not self.split_frames:
+                # Two whole frames in one read: the pty hid the silence between them (a
+                # master's retry after a timeout, read late on a starved machine). The
+                # first goes unanswered: its master has moved on to the next.
+                self._finish("", answered=False)
+                start = self._request_end + switch_silence(settings, settings)
+            else:
+                self._finish("")
+                start = self._request_end  # from a transmit buffer: no silence at all
+            if rest:
+                self._rx = self._begin(start, settings, route)
                 self._rx.add(rest)
 
     def _begin(self, start: float, settings: LineSettings, route: R) -> _Incoming[R]:
@@ -224,8 +235,24 @@ class Segment(Generic[R]):
         )
 
     def _complete_length(self, rx: bytearray) -> int | None:
-        """How many bytes of ``rx`` make the request, once all of it is there (without
-        ``split_frames``: all of them)."""
+        """How many bytes of ``rx`` make the request, once all of it is there. With
+        ``split_frames``, that frame's length; without, all the bytes, unless they are two
+        whole frames with good CRCs (then the first's length)."""
+        length = self._frame_length(rx)
+        if length is None or len(rx) < length:
+            return None
+        if self.split_frames or len(rx) == length:
+            return length
+        rest = rx[length:]
+        follows = self._frame_length(rest)
+        if crc_ok(bytes(rx[:length])) and follows is not None and len(rest) >= follows \
+                and crc_ok(bytes(rest[:follows])):
+            return length
+        return len(rx)
+
+    def _frame_length(self, rx: bytearray) -> int | None:
+        """The length of the request frame that ``rx`` begins with (address to CRC), as
+        the slave it is for reads it; None while too little of it is there to say."""
         if len(rx) < 2:
             return None
         slave = self.slave_at(rx[0])
@@ -233,11 +260,9 @@ class Segment(Generic[R]):
             length = slave.request_length(bytes(rx[1:]))
         else:
             length = request_length(bytes(rx[1:]))
-        if length is None or len(rx) < length + 3:
-            return None
-        return len(rx) if not self.split_frames else length + 3
+        return None if length is None else length + 3
 
-    def _finish(self, note: str) -> None:
+    def _finish(self, note: str, *, answered: bool = True) -> None:
         rx, self._rx = self._rx, None
         assert rx is not None
         data = bytes(rx.data)
@@ -251,9 +276,16 @@ class Segment(Generic[R]):
         self._busy_until = max(self._busy_until, rx.end)
         self._last_settings = rx.settings
         heard, note = self._hearers(data, rx, note)
+        lenient = note == "gap violation" and not self.strict
+        if not answered and not note:
+            note = _UNANSWERED
         self._log(WireFrame("request", data[0], data, rx.start, rx.end, rx.settings, rx.gap,
                             rx.required, note))
-        lenient = note == "gap violation" and not self.strict
+        if not answered:
+            if note == _UNANSWERED or lenient:
+                for sl in heard:  # the slave acts on it; its master no longer listens
+                    sl.handle_pdu(data[1:-2], rx.end)
+            return
         if note and note != "bad crc" and not lenient:
             return  # a slave that lost sync, or heard garbage, does not answer
         if lenient:

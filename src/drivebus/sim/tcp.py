@@ -21,7 +21,7 @@ import contextlib
 import math
 import socket
 import struct
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from types import TracebackType
 
@@ -287,6 +287,8 @@ class SimTcpServer(_SimServer):
         self.max_outstanding = 0
         self.noise_bytes = 0
         """Junk bytes sent by ``babbling()`` so far (to each client)."""
+        self._held_units: set[int] = set()
+        self._released = anyio.Event()
 
     async def __aenter__(self) -> SimTcpServer:
         await super().__aenter__()
@@ -299,6 +301,25 @@ class SimTcpServer(_SimServer):
 
     def _noted_noise(self, nbytes: int) -> None:
         self.noise_bytes += nbytes
+
+    @contextlib.contextmanager
+    def holding_replies(self, *units: int) -> Iterator[None]:
+        """While inside, replies to ``units`` wait (their requests still arrive and count
+        as outstanding): a test fills a client's pipeline and keeps it full. On leaving,
+        the held replies go out."""
+        held = set(units) - self._held_units
+        self._held_units |= held
+        try:
+            yield
+        finally:
+            self._held_units -= held
+            self._released.set()
+            self._released = anyio.Event()
+
+    async def wait_outstanding(self, n: int) -> None:
+        """Return once at least ``n`` requests are outstanding (tests synchronise on it)."""
+        while self.outstanding < n:
+            await self._changed.wait()
 
     async def _serve(self, client: _Client) -> None:
         send, receive = anyio.create_memory_object_stream[TcpRequest](math.inf)
@@ -333,6 +354,7 @@ class SimTcpServer(_SimServer):
         client.outstanding += 1
         self.outstanding += 1
         self.max_outstanding = max(self.max_outstanding, self.outstanding)
+        self._notify()
 
     def _closed_client(self, client: _Client) -> None:
         self.outstanding -= client.outstanding  # requests it left unanswered
@@ -354,6 +376,8 @@ class SimTcpServer(_SimServer):
     async def _answer(self, client: _Client, req: TcpRequest) -> None:
         try:
             reply = await self._reply_for(req)
+            while req.unit in self._held_units:
+                await self._released.wait()
             if reply is not None and await client.send(reply):
                 req.replied = monotonic()
         finally:
