@@ -182,6 +182,24 @@ async def test_bad_arguments_are_refused_before_the_wire() -> None:
         assert wire.request_count == 0
 
 
+async def test_a_refused_register_read_raises_where_it_is_awaited() -> None:
+    """A register read is the bus's ``execute`` coroutine, made without a coroutine of its
+    own: a read refused before the queue still raises when awaited, not when called (as
+    any coroutine function's), and one never awaited sends nothing."""
+    async with sim_bus([RegisterSlave(1, FAST, initial=[(0, 7), (1, 8)])], FAST) as (
+            wire, bus):
+        h = bus.slave(1)
+        refused = [bus.slave(0).read_input_registers(0, 1), h.read_holding_registers(0, 0),
+                   h.read_holding_registers(0, 1, priority=99)]  # type: ignore[arg-type]
+        for read, error in zip(refused, (ConfigError, ArgumentError, ArgumentError),
+                               strict=True):
+            with pytest.raises(error):
+                await read
+        assert wire.request_count == 0
+        assert await asyncio.gather(h.read_holding_registers(0, 2),
+                                    h.read_input_registers(1, 1)) == [[7, 8], [8]]
+
+
 @pytest.mark.serial  # bounds wire time against wall time: load stretches it
 async def test_stats_and_utilisation() -> None:
     s = LineSettings.parse("19200 8E1")

@@ -70,6 +70,7 @@ def test_lengths_are_predicted_from_the_first_bytes(values: list[int]) -> None:
     assert P.response_length(reply[:1]) is None
     assert P.response_length(reply[:2]) == len(reply)
     assert P.decode_read_reply(reply, 3, len(values), slave=1) == values
+    assert P.read_reply_values(reply, P.read_request(3, 9, len(values)), 1) == values
 
 
 def test_bad_requests_name_the_problem() -> None:
@@ -84,6 +85,16 @@ def test_bad_requests_name_the_problem() -> None:
 def test_reply_checks() -> None:
     with pytest.raises(FrameError, match="carries 2 bytes, 4 expected"):
         P.decode_read_reply(hx("03 02 00 01"), 3, 2, slave=1)  # 2 bytes for 2 registers
+    read2 = P.read_request(3, 0, 2)
+    for reply, error in ((hx("03 02 00 01"), "carries 2 bytes, 4 expected"),
+                         (hx("03 04 00 01 00"), "carries 4 bytes, 4 expected"),
+                         (hx("04 04 00 01 00 02"), "reply function 0x04 to request 0x03"),
+                         (hx("03"), "reply function 0x03 to request 0x03"),
+                         (b"", "reply function 0x00 to request 0x03")):
+        for decode in (lambda r: P.decode_read_reply(r, 3, 2, slave=1),
+                       lambda r: P.read_reply_values(r, read2, 1)):
+            with pytest.raises(FrameError, match=error):
+                decode(reply)
     with pytest.raises(ModbusException) as exc:
         P.check_exception(hx("83 02"), slave=5, texts={2: "vendor text"})
     assert exc.value.code == 2 and exc.value.function == 3 and "vendor text" in str(exc.value)
