@@ -79,7 +79,7 @@ class RtuJob(Exchange):
         self.waited = False
         """It had to wait for its silence (only then can it be withdrawn)."""
         q, r = link.quiet_since, rx.last_rx
-        self.seen = r if r > q else q
+        self.seen = seen = r if r > q else q
         """The line's last activity when the job began."""
         loop = link.loop
         if loop is None:
@@ -89,7 +89,7 @@ class RtuJob(Exchange):
         self.on_reply = on_reply
         self.complete = False
         """The receiver's callback finished the exchange (``replied``)."""
-        self.started = monotonic()
+        self.started = now = monotonic()
         self.sent = False
         self.tx_start = 0.0
         self.tx_end = 0.0
@@ -97,7 +97,15 @@ class RtuJob(Exchange):
         self.stalls = STALL_EXTENSIONS
         """Times ``quiet_by`` may still move for a process that was held up (``step``)."""
         link._job = self
-        self.step()
+        ready = seen + silence
+        if ready > now and (ready <= quiet_by or r <= q):
+            # ``step``'s first look, written out for its usual outcome (it runs per
+            # transaction): the silence has yet to pass, and no noise keeps it past
+            # ``quiet_by``: look again when it has passed.
+            self.waited = True
+            link.timer.call_at(ready, self.step)
+        else:
+            self.step()
 
     def __repr__(self) -> str:  # (Exchange's would read the reply's fields before they are set)
         return f"RtuJob(unit={self.unit}, sent={self.sent}, complete={self.complete})"
