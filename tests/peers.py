@@ -40,11 +40,16 @@ class PtyPeer:
             self.rx += os.read(self.fd, 4096)
         except OSError:
             return  # EIO: the master closed its side
+        answer = None
         while len(self.rx) >= 8:  # every request here is an 8-byte FC03/FC06 frame
             del self.rx[:8]
             self.requests += 1
-            if self.script:
-                os.write(self.fd, self.script.pop(0))
+            answer = self.script.pop(0) if self.script else None
+        # Two requests in one read: this end ran late (a starved machine) and the master
+        # has moved on to the last; a slave answering the first on time would have been
+        # heard before it, so only the last is answered.
+        if answer is not None:
+            os.write(self.fd, answer)
 
 
 @contextlib.asynccontextmanager
