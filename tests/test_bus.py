@@ -208,6 +208,10 @@ async def test_stats_and_utilisation() -> None:
             await bus.slave(1).read_holding_registers(0, 2)
         st = bus.stats
         assert st.slave(1).transactions == 50 and st.transactions == 50
+        # The bus's replies and reply time are its slaves' (counted once, per slave).
+        assert st.replies == 50
+        assert st.reply_time == pytest.approx(sum(st.slave(1).latency.window))
+        assert st.reply_time > 50 * 9 * 11 / 19200  # each reply's own bytes, at least
         per = (8 + 9) * 11 / 19200
         assert st.wire_time == pytest.approx(50 * per)
         assert 0.2 < st.utilisation < 1.0

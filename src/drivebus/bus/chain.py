@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import heapq
 
+from drivebus.bus.noise import NoiseWatch
 from drivebus.bus.outcomes import Outcomes
 from drivebus.bus.priority import Priority
 from drivebus.bus.request import Request
@@ -72,19 +73,19 @@ class Chains(Outcomes):
             self._flying.discard(req)
             self._waiting_for = None
             return False
-        if begun.future.done():
+        if begun.done():
             self._adopt = (req, begun)
             self._wake_owner()
         else:
             self._chained = (req, begun)
-            begun.future.add_done_callback(self._chain_trouble_cb)
+            begun.on_done = self._chain_trouble_cb  # (its future, if it needs one)
         return True
 
     def _chain_trouble(self, fut: asyncio.Future[None]) -> None:
         """The chained transaction ended without a sound reply: the owner takes it up."""
         chained = self._chained
-        if chained is None or chained[1].future is not fut:
-            return
+        if chained is None or not chained[1].done() or chained[1].future is not fut:
+            return  # (another job's, or one taken back)
         self._chained = None
         self._adopt = chained
         self._wake_owner()
@@ -100,8 +101,8 @@ class Chains(Outcomes):
         if chained is not None:
             req, begun = chained
             self._chained = None
-            begun.future.remove_done_callback(self._chain_trouble_cb)
-            begun.future.exception()  # SendWithdrawn: nothing was sent
+            begun.future.exception()  # SendWithdrawn: nothing was sent (its
+            # ``_chain_trouble`` finds it no longer chained)
             self._waiting_for = None
             self._landed(req)
             if not req.future.done():
@@ -109,18 +110,18 @@ class Chains(Outcomes):
             self._chain()
         return True
 
-    def _replied(self, ex: Exchange) -> None:
-        """The line's ``on_reply``: the transaction under way has its exchange (a chained
-        one ends here, and the next begins)."""
-        req, noise = self._replying, self._replying_noise
-        assert req is not None and noise is not None
+    def _replied(self, ex: Exchange) -> bool:
+        """The line's ``on_reply``: the transaction under way has its exchange. A chained
+        one ends here, and the next begins: True, its job's future is left unresolved
+        (nobody awaits it; its ``_chain_trouble`` callback goes with it)."""
+        req: Request = self._replying  # type: ignore[assignment]  # (set by ``_begin``)
+        noise: NoiseWatch = self._replying_noise  # type: ignore[assignment]
         self._replying = self._replying_noise = None
         # A reply's last byte is the line's last activity (a broadcast's silence is more).
         self._succeeded(req, noise, ex, None if req.expect is None else ex.rx_end)
         chained = self._chained
         if chained is not None and chained[0] is req:
             self._chained = self._waiting_for = None
-            chained[1].future.remove_done_callback(self._chain_trouble_cb)
             self._last_end = ex.rx_end
             self._trail = req.handle.frame_timeout
             if req.landed is not None:
@@ -132,3 +133,5 @@ class Chains(Outcomes):
                 self._chain(True)  # (``_succeeded`` reset the noise watch)
             else:
                 self._parked = True  # (``_chain`` with nothing queued, written out)
+            return True
+        return False

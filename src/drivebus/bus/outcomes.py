@@ -65,11 +65,8 @@ class Outcomes(BusState):
             st.broadcasts += 1
             outcome = "broadcast"
         else:
-            st.transactions += 1
-            stats.replies += 1
-            latency = ex.rx_end - ex.tx_end
-            stats.reply_time += latency
-            st.latency.add(latency)
+            st.transactions += 1  # (and so the bus's ``replies``)
+            st.latency.add(ex.rx_end - ex.tx_end)  # (and so its ``reply_time``)
             if reply and reply[0] & 0x80:
                 st.exceptions += 1
                 outcome = "exception"

@@ -169,11 +169,6 @@ class BusStats:
     """Seconds the line carried frames (request and reply bytes)."""
     transactions: int = 0
     """Attempts that went on the wire, successful or not."""
-    replies: int = 0
-    """Replies received (exception replies included; broadcasts have none)."""
-    reply_time: float = 0.0
-    """Seconds from each request's last byte to its reply's last byte, added up: with
-    ``replies``, the mean reply latency over any interval."""
     foreign_requests: int = 0
     """Requests of another master heard on the line (two masters on one line is a fault:
     see ``drivebus.line.foreign``); noise is not counted here."""
@@ -188,6 +183,18 @@ class BusStats:
         if st is None:
             st = self.slaves[address] = SlaveStats()
         return st
+
+    @property
+    def replies(self) -> int:
+        """Replies received (exception replies included; broadcasts have none): the
+        slaves' ``transactions`` added up (counted once per reply, not twice)."""
+        return sum(st.transactions for st in self.slaves.values())
+
+    @property
+    def reply_time(self) -> float:
+        """Seconds from each request's last byte to its reply's last byte, added up: with
+        ``replies``, the mean reply latency over any interval (the slaves' latency sums)."""
+        return math.fsum(st.latency.sum for st in self.slaves.values())
 
     @property
     def utilisation(self) -> float:

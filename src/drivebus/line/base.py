@@ -27,11 +27,19 @@ class SendWithdrawn(Exception):
 
 class Begun(Protocol):
     """A transaction started with ``Line.begin``: its ``future`` is done once it needs
-    its owner no more (a sound reply, told to ``on_reply``) or needs ``Line.finish``."""
+    its owner no more (a sound reply, told to ``on_reply``) or needs ``Line.finish``.
+    A sound reply that ``on_reply`` takes over (it returns True) may leave it undone."""
+
+    on_done: Callable[[asyncio.Future[None]], None] | None
+    """A done callback of its future (set before the future is first used)."""
 
     @property
     def future(self) -> asyncio.Future[None]:
         """Done when the transaction needs its owner no more, or needs ``finish``."""
+        ...
+
+    def done(self) -> bool:
+        """Whether ``future`` is done (without making one that is not needed yet)."""
         ...
 
 

@@ -35,9 +35,11 @@ from drivebus.timing import Timing
 
 __all__ = ["Begun", "ReplyHook", "RtuJob", "RtuLink"]
 
-ReplyHook = Callable[[Exchange], None]
+ReplyHook = Callable[[Exchange], "bool | None"]
 """Told of a transaction's exchange as soon as it is complete, before ``transact``
-returns it: from the receiver's callback when the reply came in whole."""
+returns it: from the receiver's callback when the reply came in whole. True from that
+callback: the hook has taken the transaction over and nobody awaits the job's future,
+which is then left as it is (a chained transaction, ``drivebus.bus.chain``)."""
 
 
 class RtuJob(Exchange):
@@ -48,12 +50,17 @@ class RtuJob(Exchange):
 
     A job is also the ``Exchange`` it makes (one object per transaction, not two): its
     ``tx_start``/``tx_end`` are set when the frame goes out, the reply's fields by
-    ``replied``; ``complete`` says they are all there."""
+    ``replied``; ``complete`` says they are all there.
+
+    Its ``future`` is made when something needs it: the task that awaits the job
+    (``RtuLink.finish``), or an outcome that is not a sound reply. A sound reply that its
+    ``on_reply`` takes over (a chained transaction) needs none. The job is also the
+    receiver's waiter (``done``, ``set_result``, ``set_exception``: its future's)."""
 
     __slots__ = (
-        "adu", "broadcast_delay", "complete", "expect", "future", "link", "local_echo",
-        "on_reply", "quiet_by", "reply_wait", "rx", "seen", "send", "sent", "silence",
-        "stalls", "started", "timeout", "tm", "unit", "waited", "withdrawable",
+        "_future", "adu", "broadcast_delay", "complete", "expect", "link", "local_echo",
+        "on_done", "on_reply", "quiet_by", "reply_wait", "rx", "seen", "send", "sent",
+        "silence", "stalls", "started", "timeout", "tm", "unit", "waited", "withdrawable",
     )
 
     def __init__(
@@ -81,11 +88,11 @@ class RtuJob(Exchange):
         q, r = link.quiet_since, rx.last_rx
         self.seen = seen = r if r > q else q
         """The line's last activity when the job began."""
-        loop = link.loop
-        if loop is None:
-            loop = link.loop = asyncio.get_running_loop()
-        # (the loop's create_future, less its Python frame: per transaction)
-        self.future: asyncio.Future[None] = Future(loop=loop)
+        if link.loop is None:  # (the loop its future will belong to)
+            link.loop = asyncio.get_running_loop()
+        self._future: asyncio.Future[None] | None = None
+        self.on_done: Callable[[asyncio.Future[None]], None] | None = None
+        """Added to the future's done callbacks when it is made (``future``)."""
         self.on_reply = on_reply
         self.complete = False
         """The receiver's callback finished the exchange (``replied``)."""
@@ -109,6 +116,31 @@ class RtuJob(Exchange):
 
     def __repr__(self) -> str:  # (Exchange's would read the reply's fields before they are set)
         return f"RtuJob(unit={self.unit}, sent={self.sent}, complete={self.complete})"
+
+    @property
+    def future(self) -> asyncio.Future[None]:
+        """Done when the transaction needs its owner no more, or needs ``finish``: made on
+        first use, with ``on_done`` as its done callback."""
+        future = self._future
+        if future is None:
+            # (the loop's create_future, less its Python frame)
+            future = self._future = Future(loop=self.link.loop)
+            if self.on_done is not None:
+                future.add_done_callback(self.on_done)
+        return future
+
+    def done(self) -> bool:
+        """Whether the future is done (False while none has been made)."""
+        future = self._future
+        return future is not None and future.done()
+
+    def set_result(self, result: None) -> None:
+        """Resolve the future (the receiver's wake-up: the task judges what is there)."""
+        self.future.set_result(result)
+
+    def set_exception(self, exc: BaseException) -> None:
+        """Fail the future (the receiver's: the stream was lost)."""
+        self.future.set_exception(exc)
 
     def step(self) -> None:
         """Send the frame if the line has been quiet for its silence; else arm the timer
@@ -148,11 +180,11 @@ class RtuJob(Exchange):
                     raise SendWithdrawn("bytes arrived during the silence")
             if rx.buf:
                 rx.discard()
-            rx.asked.append((self.unit, self.adu[1]))
+            adu = self.adu
+            rx.asked.append(adu)
             link._job = None
             self.tx_start = now = monotonic()
             self.sent = True
-            adu = self.adu
             self.send(adu)
         except Exception as exc:  # noise, a port that failed: the waiting task raises it
             link._job = None
@@ -162,10 +194,9 @@ class RtuJob(Exchange):
         tm = self.tm
         link.quiet_since = self.tx_end = tx_end = now + len(adu) * tm.char_time
         link.traffic = tm.settings
-        if self.reply_wait:
-            assert self.expect is not None
-            rx.expect_reply(self.unit, self.expect, tx_end + self.timeout, self.future,
-                            self.replied, now)
+        if self.reply_wait:  # (so ``expect`` is not None)
+            rx.expect_reply(self.unit, self.expect, tx_end + self.timeout,  # type: ignore[arg-type]
+                            self, self.replied, now)
         else:
             self.future.set_result(None)
 
@@ -182,7 +213,8 @@ class RtuJob(Exchange):
         on_reply = self.on_reply
         if on_reply is not None:
             try:
-                on_reply(self)
+                if on_reply(self):
+                    return  # taken over: nobody awaits the future (see ``ReplyHook``)
             except Exception as exc:  # an observer that failed: the waiting task raises it
                 self.future.set_exception(exc)
                 return
@@ -230,7 +262,7 @@ class RtuLink:
         ``withdrawable`` and its frame has not gone out: it ends with ``SendWithdrawn``.
         False if there is none (or its frame is out)."""
         job = self._job
-        if job is None or job.sent or not job.withdrawable or job.future.done():
+        if job is None or job.sent or not job.withdrawable or job.done():
             return False
         self._job = None
         self.timer.cancel()

@@ -16,7 +16,7 @@ import os
 import select
 from collections import deque
 from collections.abc import Callable
-from typing import cast
+from typing import Protocol, cast
 
 from drivebus.clock import DeadlineTimer, cpu_wait_of, cpu_wait_stamp, monotonic, stall_grace
 from drivebus.errors import FrameError, LineClosed, LineNoise, ResponseTimeout, WrongResponder
@@ -68,6 +68,23 @@ def read_waiting(fd: int) -> bytes:
         return b""
 
 
+class Waiter(Protocol):
+    """What the receiver resolves when a wait ends: an ``asyncio.Future``, or a serial
+    job (``drivebus.line.link.RtuJob``) that makes its future only when it is needed."""
+
+    def done(self) -> bool:
+        """Whether it has been resolved."""
+        ...
+
+    def set_result(self, result: None) -> None:
+        """Resolve it: the wait is over (the task looks at what is there)."""
+        ...
+
+    def set_exception(self, exc: BaseException) -> None:
+        """Fail it (the stream was lost)."""
+        ...
+
+
 _EARLY = 1e-6
 """How early the loop may run a timer (its clock's resolution and rounding): a waiter's
 deadline counts as come within this."""
@@ -116,7 +133,7 @@ class RtuReceiver(StreamProtocol):
         self.buf = bytearray()
         self.last_rx = 0.0
         self.need = 0
-        self.waiter: asyncio.Future[None] | None = None
+        self.waiter: Waiter | None = None
         self.garbage_bytes = 0
         """Bytes received outside any reply (late answers, noise), discarded."""
         self._pending_fd = -1
@@ -125,9 +142,10 @@ class RtuReceiver(StreamProtocol):
         on an idle line, the rule before a frame, that spares a read's EAGAIN)."""
         self._deadline = 0.0
         """When the waiter is resolved at the latest (monotonic)."""
-        self.asked: deque[tuple[int, int]] = deque(maxlen=4)
-        """(address, function code) of the master's own last requests: what a late reply
-        or an echo among the discarded bytes answers (``drivebus.line.foreign``)."""
+        self.asked: deque[bytes] = deque(maxlen=4)
+        """The master's own last request frames (their address and function code): what a
+        late reply or an echo among the discarded bytes answers
+        (``drivebus.line.foreign``)."""
         self.on_foreign: Callable[[bytes], None] | None = None
         """Called with each request of another master found among the discarded bytes."""
         self._extensions = 0
@@ -234,7 +252,7 @@ class RtuReceiver(StreamProtocol):
 
     def expect_reply(
         self, unit: int, expect: LengthPredictor, deadline: float,
-        waiter: asyncio.Future[None], on_frame: Callable[[bytes], None], now: float,
+        waiter: Waiter, on_frame: Callable[[bytes], None], now: float,
     ) -> None:
         """Assemble the reply from ``unit`` as it arrives: once it is complete (by
         ``expect``), from ``unit`` and with a good CRC, take it out of the buffer and call
@@ -266,7 +284,7 @@ class RtuReceiver(StreamProtocol):
             self._waited_before = cpu_wait_stamp()
             self._marked_at = now
 
-    def _wait(self, n: int, deadline: float, waiter: asyncio.Future[None]) -> None:
+    def _wait(self, n: int, deadline: float, waiter: Waiter) -> None:
         self.need = n
         self.waiter = waiter
         self._deadline = deadline
@@ -314,12 +332,11 @@ class RtuReceiver(StreamProtocol):
                 return
         w.set_result(None)
 
-    def _assemble(self, w: asyncio.Future[None]) -> None:
+    def _assemble(self, w: Waiter) -> None:
         """The reply so far (at least ``need`` bytes): complete it, ask for more bytes, or
         wake the waiting task to judge what is there."""
         buf = self.buf
-        expect = self._expect
-        assert expect is not None
+        expect: LengthPredictor = self._expect  # type: ignore[assignment]  # (set while assembling)
         if buf[0] != self._unit:
             w.set_result(None)  # not the frame asked for (yet): read_reply resynchronises
             return
@@ -348,9 +365,8 @@ class RtuReceiver(StreamProtocol):
             return
         pdu = bytes(buf[1:total - 2])
         del buf[:total]  # anything after it is garbage, dropped before the next frame
-        on_frame = self._on_frame
+        on_frame: Callable[[bytes], None] = self._on_frame  # type: ignore[assignment]
         self._expect = self._on_frame = None
-        assert on_frame is not None
         on_frame(pdu)
 
     def release(self) -> None:
@@ -385,7 +401,8 @@ class RtuReceiver(StreamProtocol):
         report the requests of another master among it (``on_foreign``)."""
         self.garbage_bytes += len(data) - kept
         if self.on_foreign is not None and len(data) >= 8:
-            for request in find_requests(data, self.asked):
+            asked = {(adu[0], adu[1]) for adu in self.asked}
+            for request in find_requests(data, asked):
                 self.on_foreign(request)
 
     async def take_echo(self, adu: bytes, deadline: float) -> None:
