@@ -63,6 +63,7 @@ def test_wheel_metadata(wheel: Path) -> None:
     requires = meta.get_all("Requires-Dist", [])
     runtime = [r for r in requires if "extra ==" not in r]
     assert not any(r.startswith("pymodbus") for r in runtime), runtime
+    assert any(r.startswith("crcmod-plus") for r in runtime), runtime  # the RTU CRC
     for extra in ("test", "bench"):
         assert any(r.startswith("pymodbus") and f'extra == "{extra}"' in r for r in requires)
     assert any(r.startswith("mkdocstrings-python") and 'extra == "docs"' in r for r in requires)
