@@ -3,13 +3,14 @@ jogs held by a client, events; judged by the simulated twins."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import anyio
 import pytest
 
 from drivebus import AxisState
-from drivebus.app import MachineSession
+from drivebus.app import MachineSession, axis_snapshot
 from drivebus.app.events import Event, Subscription
 from drivebus.errors import (
     ArgumentError,
@@ -35,6 +36,24 @@ async def test_snapshot_names_lines_and_axes_as_plain_data() -> None:
         assert x["position"] == pytest.approx(12.0)
         with pytest.raises(NotFound, match=r"no axis 'w'.*x, y, z, aux, r"):
             s.axis_snapshot("w")
+
+
+async def test_the_snapshot_of_a_poll_has_the_target_of_that_poll() -> None:
+    """The session's event for a status is built after the status came in: a command
+    may have set a target meanwhile. The snapshot carries the target as that status came
+    in (as a recording has it), while that status is the axis's latest; else the live
+    one."""
+    async with MachineSession.open(DEMO) as s:
+        ax = s.axis("x")
+        rec = await s.start_move("x", target=200.0)
+        assert ax.target == pytest.approx(200.0)
+        st = ax.status
+        assert st is not None
+        assert axis_snapshot(ax, target_at=(st, None)).target is None
+        assert axis_snapshot(ax).target == pytest.approx(200.0)
+        older = dataclasses.replace(st)  # (another status object: not the latest)
+        assert axis_snapshot(ax, target_at=(older, None)).target == pytest.approx(200.0)
+        await rec.done.wait()
 
 
 async def test_a_move_runs_with_an_id_and_ends_done_on_the_twin() -> None:

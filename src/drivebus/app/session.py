@@ -41,6 +41,7 @@ from drivebus.app.snapshots import (
 from drivebus.bus import Bus, Priority, SlaveHandle
 from drivebus.clock import monotonic
 from drivebus.config import MachineConfig
+from drivebus.drives.status import DriveStatus
 from drivebus.errors import (
     ArgumentError,
     DrivebusError,
@@ -56,6 +57,7 @@ from drivebus.motion import (
     GroupMotionError,
     GroupMoveReport,
     Machine,
+    MotionEvent,
 )
 from drivebus.motion.handle import check_buffer
 from drivebus.motion.machine import open_machine
@@ -677,19 +679,31 @@ class MachineSession:
 
     async def _pump_axis(self, axis: Axis) -> None:
         last_state = axis.state
-        async for _ in axis.watch():
-            snap = axis_snapshot(axis)
-            self.events.publish(Event("axes", axis.name, {
-                "type": "axis", "axis": axis.name, **snap.as_dict(),
-            }))
-            if axis.state is not last_state and axis.state in (
-                AxisState.ERROR_STOP, AxisState.OFFLINE
-            ):
-                self.events.publish(Event("errors", None, {
-                    "type": "error", "axis": axis.name, "state": str(axis.state),
-                    "error": error_record(axis.error),
+        polled: list[tuple[DriveStatus, float | None]] = []
+
+        def take_target(item: DriveStatus | MotionEvent) -> None:
+            # The target as each status comes in: this task runs later, perhaps after a
+            # command set another target (the page charts each poll with its own).
+            if isinstance(item, DriveStatus):
+                polled[:] = [(item, axis.target)]
+
+        unlisten = axis.listen(take_target)
+        try:
+            async for _ in axis.watch():
+                snap = axis_snapshot(axis, target_at=polled[0] if polled else None)
+                self.events.publish(Event("axes", axis.name, {
+                    "type": "axis", "axis": axis.name, **snap.as_dict(),
                 }))
-            last_state = axis.state
+                if axis.state is not last_state and axis.state in (
+                    AxisState.ERROR_STOP, AxisState.OFFLINE
+                ):
+                    self.events.publish(Event("errors", None, {
+                        "type": "error", "axis": axis.name, "state": str(axis.state),
+                        "error": error_record(axis.error),
+                    }))
+                last_state = axis.state
+        finally:
+            unlisten()
 
     async def _pump_lines(self) -> None:
         while True:

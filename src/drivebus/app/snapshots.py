@@ -12,6 +12,7 @@ from typing import Any
 
 from drivebus.bus import Bus
 from drivebus.clock import monotonic
+from drivebus.drives.status import DriveStatus
 from drivebus.errors import DrivebusError
 from drivebus.motion import Axis, Machine
 
@@ -84,10 +85,16 @@ class AxisSnapshot:
         return d
 
 
-def axis_snapshot(axis: Axis) -> AxisSnapshot:
-    """``axis`` as plain data."""
+def axis_snapshot(
+    axis: Axis, *, target_at: tuple[DriveStatus, float | None] | None = None
+) -> AxisSnapshot:
+    """``axis`` as plain data. ``target_at``: a status and the axis's target when that
+    status came in (taken by a listener, as a recording takes it): while that status is
+    still the axis's latest, the snapshot's target is that one, as its position and
+    velocity are that poll's (a command given since shows with the next poll)."""
     st = axis.status
     cfg = axis.config
+    target = axis.target if target_at is None or target_at[0] is not st else target_at[1]
     return AxisSnapshot(
         name=axis.name,
         drive=axis.profile.family,
@@ -105,7 +112,7 @@ def axis_snapshot(axis: Axis) -> AxisSnapshot:
         limit_positive=bool(st and st.limit_positive),
         limit_negative=bool(st and st.limit_negative),
         soft_limits=cfg.limits,
-        target=_finite(axis.target),
+        target=_finite(target),
         units=cfg.unit,
         units_per_rev=cfg.units_per_rev,
         pulses_per_rev=cfg.pulses_per_rev,
