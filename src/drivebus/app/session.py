@@ -679,18 +679,19 @@ class MachineSession:
 
     async def _pump_axis(self, axis: Axis) -> None:
         last_state = axis.state
-        polled: list[tuple[DriveStatus, float | None]] = []
+        polled: tuple[DriveStatus, float | None] | None = None
 
         def take_target(item: DriveStatus | MotionEvent) -> None:
             # The target as each status comes in: this task runs later, perhaps after a
             # command set another target (the page charts each poll with its own).
+            nonlocal polled
             if isinstance(item, DriveStatus):
-                polled[:] = [(item, axis.target)]
+                polled = (item, axis.target)
 
         unlisten = axis.listen(take_target)
         try:
             async for _ in axis.watch():
-                snap = axis_snapshot(axis, target_at=polled[0] if polled else None)
+                snap = axis_snapshot(axis, target_at=polled)
                 self.events.publish(Event("axes", axis.name, {
                     "type": "axis", "axis": axis.name, **snap.as_dict(),
                 }))
