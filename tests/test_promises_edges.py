@@ -7,6 +7,7 @@ judging it. Judged by the twins (in this process or another) and the wire log.""
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import random
 import signal
@@ -26,13 +27,15 @@ import pytest
 
 from drivebus import AxisState, Priority, open_machine
 from drivebus.bus.sent import sent_requests
+from drivebus.clock import monotonic
+from drivebus.drives.status import DriveStatus
 from drivebus.errors import MotionAborted, MotionTimeout
 from drivebus.settings import LineSettings
 from drivebus.sim.harness import sim_bus
 from drivebus.sim.slave import Fault
 from drivebus.sim.twins import twin_class
 from ports import reserved_port
-from wirelog import settle
+from wirelog import frames_text, reads_of, settle
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "configs" / "demo.toml"
@@ -306,3 +309,94 @@ async def test_no_motion_is_judged_by_a_status_requested_before_its_start() -> N
             assert twin.position() == x.units.to_pulses(target)
             assert not twin.is_moving()
             assert x.arrived_at > x.command_started_at, target
+
+
+# -- a status requested before a stop's reply says nothing of the stop -----------------------
+
+
+@pytest.mark.parametrize("stopper", ["stop", "halt_now", "cancel"])
+async def test_a_stop_on_its_way_keeps_the_axis_stopping_until_a_status_after_it(
+    stopper: str,
+) -> None:
+    """A move whose drive is already at rest (to where it is) is stopped while a poll of
+    it is on the wire (its reply held back 0.6 s): by ``stop()``, ``halt_now()`` or by
+    cancelling its caller (the axis's own stop). That poll shows the drive at rest, but it
+    was requested before the stop's reply: the axis stays Stopping (it once went
+    Standstill there, and a second stop then returned at once, with the first one still
+    on its way). A second ``halt_now()`` called at that status returns only after a
+    status requested after its call, and only a status requested after the stop's reply
+    makes the axis Standstill."""
+    cfg = {"name": f"stop-way-{stopper}",
+           "lines": {"l": {"port": f"sim://stop-way-{stopper}", "settings": "115200 8N1",
+                           "timeout": 2.0}},
+           "axes": {"x": {"line": "l", "address": 1, "drive": "NT86", "unit": "mm",
+                          "pulses_per_rev": 4000, "units_per_rev": 10.0, "speed": 20.0,
+                          "accel": 200.0, "decel": 200.0}}}
+    async with open_machine(cfg) as m:
+        x, twin, wire = m.axes["x"], m.sim_drives["x"], m.wires["l"]
+        await settle(x)
+        seen: list[tuple[float, float, AxisState]] = []  # (when, requested_at, state)
+        started = anyio.Event()
+        started_at = triggered = math.inf
+        held_status = anyio.Event()
+
+        def listener(item: Any) -> None:
+            nonlocal started_at
+            if isinstance(item, DriveStatus):
+                seen.append((monotonic(), item.requested_at, x.state))
+                if monotonic() > triggered:
+                    held_status.set()
+            elif item.kind == "started":
+                twin.faults.inject(Fault.SLOW_REPLY, value=0.6)  # the next poll's reply
+                started_at = monotonic()
+                started.set()
+
+        end_listening = x.listen(listener)
+        outcome: list[BaseException | None] = []
+
+        async def move(scope: anyio.CancelScope) -> None:
+            with scope:
+                try:
+                    await x.move_to(x.position or 0.0)
+                    outcome.append(None)
+                except MotionAborted as exc:
+                    outcome.append(exc)
+
+        second_returned = math.inf
+        second_called = math.inf
+
+        async def second_halt() -> None:
+            nonlocal second_called, second_returned
+            await held_status.wait()
+            second_called = monotonic()
+            await x.halt_now()
+            second_returned = monotonic()
+
+        with anyio.fail_after(20):
+            async with anyio.create_task_group() as tg:
+                scope = anyio.CancelScope()
+                tg.start_soon(move, scope)
+                await started.wait()
+                while not any(r > started_at for r in reads_of(m, "x")):  # noqa: ASYNC110
+                    await anyio.sleep(0.002)  # (the wire log is polled) the held poll left
+                tg.start_soon(second_halt)
+                triggered = monotonic()
+                if stopper == "cancel":
+                    scope.cancel()
+                else:
+                    await getattr(x, stopper)()
+        end_listening()
+        assert not twin.is_moving()
+        stop_replied = min(f.end for f in wire.log
+                           if f.direction == "reply" and f.address == 1
+                           and f.start > triggered and f.data[1] == 0x06)
+        after_trigger = [(r, s) for when, r, s in seen if when > triggered]
+        assert after_trigger, "no status came in after the stop"
+        for requested, state in after_trigger:
+            if requested < stop_replied:
+                assert state is AxisState.STOPPING, (requested - triggered, state, seen)
+        assert any(s is AxisState.STANDSTILL and r > stop_replied for r, s in after_trigger)
+        # the second emergency stop waited for a status requested after its call
+        assert any(second_called < r < second_returned for r in reads_of(m, "x")), (
+            frames_text(wire.log, triggered - 0.01))
+        assert x.state is AxisState.STANDSTILL

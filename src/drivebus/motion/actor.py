@@ -95,6 +95,8 @@ class AxisActor:
         self._motion: Motion | None = None
         self._rest_waits: list[RestWait] = []
         self._stop_sent_at = 0.0
+        """When the reply to the last stop came in (inf while a stop is on its way): only a
+        status requested after it may take the axis from Stopping to Standstill."""
         self._stop_due: str | None = None  # the actor must send a stop (and why)
         self._poll_at = math.inf  # poll no later than this (a stop's expected rest)
         self._check_due = False  # read the volatile settings back before the next command
@@ -466,15 +468,24 @@ class AxisActor:
                 pending.append(m.io_done)
         await self._aborted_io_ended(pending)
         self._jog_deadline = None
+        self.stop_on_its_way()
         try:
             await self.profile.stop(None)
         except DrivebusError as exc:
             log.error("axis %s: stop failed: %s", self.name, exc)
             return
-        self._stop_sent_at = monotonic()
+        finally:
+            self._stop_sent_at = monotonic()  # sent, failed or cancelled
+        self._poke_now()
+
+    def stop_on_its_way(self) -> None:
+        """A stop is about to be sent: the axis is Stopping (unless in ErrorStop, Offline
+        or Disabled) until a status requested after the stop's reply shows it at rest. A
+        status requested before that (a poll already on the wire) says nothing of the stop,
+        and a second stop meanwhile is not one of an axis at rest: it sends its own."""
+        self._stop_sent_at = math.inf
         if self.state not in (AxisState.ERROR_STOP, AxisState.OFFLINE, AxisState.DISABLED):
             self.state = AxisState.STOPPING
-        self._poke_now()
 
     async def _aborted_io_ended(self, pending: list[anyio.Event]) -> None:
         """Wait until the I/O of the motions a stop aborted has ended (cancelled, it ends

@@ -440,12 +440,11 @@ class CommandLane(AxisActor):
             AxisState.STANDSTILL, AxisState.DISABLED, AxisState.ERROR_STOP
         ):
             return
-        if self.state not in (AxisState.ERROR_STOP, AxisState.OFFLINE, AxisState.DISABLED):
-            self.state = AxisState.STOPPING
         if running and m is not None and m.io_done is not None:
             pending.append(m.io_done)
-        await self._aborted_io_ended(pending)  # nothing of theirs can follow the stop now
+        self.stop_on_its_way()
         try:
+            await self._aborted_io_ended(pending)  # nothing of theirs can follow the stop now
             # Offline or not, the stop is sent: the drive may be back (a network blip) and a
             # motor must not keep running because our polls failed.
             if emergency:
@@ -456,7 +455,8 @@ class CommandLane(AxisActor):
             if offline:
                 raise (self.error or DriveOffline(f"axis {self.name} is offline")) from exc
             raise
-        self._stop_sent_at = after = monotonic()
+        finally:
+            self._stop_sent_at = after = monotonic()  # sent, failed or cancelled
         if not emergency:
             self._poll_when_at_rest(after, m, decel_rps2)
         await self._wait_rest(after, by)

@@ -249,7 +249,8 @@ class _Soak:
         if error is None:
             self.report.stops_checked += 1
             if twin.is_moving():
-                self.violation(f"{ax.name}: {how}() returned while its twin still moves")
+                self.violation(f"{ax.name}: {how}() returned while its twin still moves "
+                               f"({ax.state}; after {list(self.history.get(ax.name, []))})")
 
     async def stopper(self, name: str) -> None:
         ax = self.m.axes[name]
