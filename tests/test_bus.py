@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import bisect
+import gc
 import pickle
 import random
 import time
@@ -20,13 +21,14 @@ from drivebus.errors import (
     ArgumentError,
     ConfigError,
     FrameError,
+    LineClosed,
     ModbusException,
     ResponseTimeout,
     StateError,
     WrongResponder,
 )
 from drivebus.sim import Fault, RegisterSlave, VirtualWire, sim_bus
-from waits import within
+from waits import until, within
 
 FAST = LineSettings.parse("115200 8N1")
 
@@ -373,3 +375,40 @@ async def test_a_reply_deadline_puts_no_timer_in_the_event_loop() -> None:
         owners = {type(getattr(t._callback, "__self__", None)).__name__
                   for t in loop._scheduled if not t.cancelled()}  # type: ignore[attr-defined]
         assert "RtuReceiver" not in owners, owners
+
+
+async def test_closing_the_bus_mid_transaction_reports_it_and_leaves_no_outcome_unread() -> None:
+    """A read begun from its caller onto an idle line (a chained transaction) is on the
+    wire when the bus closes: its caller gets LineClosed, and the line's own record of
+    that transaction (its job, failed by the line's loss) is read too: asyncio logs
+    "Future exception was never retrieved" for none of them."""
+    loop = asyncio.get_running_loop()
+    unread: list[str] = []
+    previous = loop.get_exception_handler()
+    loop.set_exception_handler(lambda _loop, ctx: unread.append(str(ctx.get("message"))))
+    try:
+        outcomes: list[str] = []
+        for delay in (0.002, 0.01, 0.02):
+            slave = RegisterSlave(1)
+            slave.faults.inject(Fault.SLOW_REPLY, value=0.05, times=None)  # still on the wire
+            async with anyio.create_task_group() as tg, \
+                    sim_bus([slave], timeout=0.5) as (wire, bus):
+
+                async def read(bus: Bus = bus) -> None:
+                    try:
+                        await bus.slave(1).read_holding_registers(0, 2)
+                        outcomes.append("read")
+                    except LineClosed:
+                        outcomes.append("LineClosed")
+
+                tg.start_soon(read)
+                await until(lambda w=wire: w.request_count > 0, "the read on the wire",
+                            every=0.001)
+                await anyio.sleep(delay)
+        gc.collect()
+        await anyio.lowlevel.checkpoint()
+        gc.collect()
+        assert outcomes == ["LineClosed"] * 3
+        assert unread == []
+    finally:
+        loop.set_exception_handler(previous)

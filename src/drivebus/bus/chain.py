@@ -87,8 +87,21 @@ class Chains(Outcomes):
         if chained is None or not chained[1].done() or chained[1].future is not fut:
             return  # (another job's, or one taken back)
         self._chained = None
+        if not self._open:
+            # The bus is closing (its line lost the job): no owner takes it up, and its
+            # caller has heard LineClosed from the close.
+            fut.exception()
+            return
         self._adopt = chained
         self._wake_owner()
+
+    def _drop_chain(self) -> None:
+        """The bus has closed: a chained transaction the owner did not take up is over (its
+        caller heard LineClosed); its job's outcome is taken, so none is left unread (one
+        still under way is taken by ``_chain_trouble`` when the line fails it)."""
+        adopt, self._adopt = self._adopt, None
+        if adopt is not None and adopt[1].done():
+            adopt[1].future.exception()
 
     def _withdraw(self) -> bool:
         """Take back the request waiting for its silence (``Line.withdraw``). A chained one

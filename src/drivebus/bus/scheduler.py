@@ -75,6 +75,7 @@ class Bus(Owner):
             with anyio.CancelScope(shield=True):
                 self._timer.close()
                 await self.line.close()
+                self._drop_chain()
 
     @property
     def is_open(self) -> bool:
