@@ -6,6 +6,7 @@ names and parameters (``PROCEDURES``).
 from __future__ import annotations
 
 from collections.abc import Mapping
+from functools import cached_property
 from typing import Annotated, Any, Literal
 
 from pydantic import BeforeValidator, ConfigDict, Field, model_validator
@@ -89,9 +90,9 @@ class Step(_Model):
             Expr.parse(self.each.split(" in ", 1)[1])
         return self
 
-    @property
+    @cached_property
     def action(self) -> str:
-        """The step's action key."""
+        """The step's action key (asked at every step of every run: found once)."""
         if self.wait is not None:
             return "wait"
         return next(a.rstrip("_") for a in _ACTIONS if getattr(self, a) is not None)

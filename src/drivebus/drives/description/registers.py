@@ -206,6 +206,8 @@ class Reg:
         """The codec register (of entry ``index`` of a table, a number or one of its
         ``names``); ``LimitViolation`` naming the table and its indices if it is not one."""
         d = self.d
+        if index is None and d.count <= 1:  # a single register (most calls)
+            return self.register
         if isinstance(index, str) and self.array:
             if index not in d.names:
                 shown = ", ".join(d.names) or f"{d.first}..{d.first + d.count - 1}"
