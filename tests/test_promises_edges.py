@@ -325,7 +325,7 @@ async def test_a_stop_on_its_way_keeps_the_axis_stopping_until_a_status_after_it
     Standstill there, and a second stop then returned at once, with the first one still
     on its way). A second ``halt_now()`` called at that status returns only after a
     status requested after its call, and only a status requested after the stop's reply
-    makes the axis Standstill."""
+    (of the last stop on its way) makes the axis Standstill."""
     cfg = {"name": f"stop-way-{stopper}",
            "lines": {"l": {"port": f"sim://stop-way-{stopper}", "settings": "115200 8N1",
                            "timeout": 2.0}},
@@ -387,7 +387,8 @@ async def test_a_stop_on_its_way_keeps_the_axis_stopping_until_a_status_after_it
                     await getattr(x, stopper)()
         end_listening()
         assert not twin.is_moving()
-        stop_replied = min(f.end for f in wire.log
+        # the stop's reply and the second one's (emergency stop) both end Stopping
+        stop_replied = max(f.end for f in wire.log
                            if f.direction == "reply" and f.address == 1
                            and f.start > triggered and f.data[1] == 0x06)
         after_trigger = [(r, s) for when, r, s in seen if when > triggered]

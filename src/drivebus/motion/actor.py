@@ -16,7 +16,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
 
 import anyio
 import anyio.lowlevel
@@ -95,8 +95,9 @@ class AxisActor:
         self._motion: Motion | None = None
         self._rest_waits: list[RestWait] = []
         self._stop_sent_at = 0.0
-        """When the reply to the last stop came in (inf while a stop is on its way): only a
-        status requested after it may take the axis from Stopping to Standstill."""
+        """When the last stop was sent (its reply came in): only a status requested after
+        it, with no stop on its way, may take the axis from Stopping to Standstill."""
+        self._stops_on_way = 0  # stops being sent now (``stop_on_its_way``)
         self._stop_due: str | None = None  # the actor must send a stop (and why)
         self._poll_at = math.inf  # poll no later than this (a stop's expected rest)
         self._check_due = False  # read the volatile settings back before the next command
@@ -296,7 +297,7 @@ class AxisActor:
         elif self.state is AxisState.STANDSTILL and st.moving:
             self.state = AxisState.DISCRETE_MOTION  # moved by someone else (a panel, a PLC)
         elif self.state in (AxisState.STOPPING, AxisState.DISCRETE_MOTION) and not st.moving and (
-            issued > self._stop_sent_at
+            issued > self._stop_sent_at and not self._stops_on_way
         ) and not self._queue:
             self.state = AxisState.STANDSTILL
         if not st.moving:
@@ -468,24 +469,29 @@ class AxisActor:
                 pending.append(m.io_done)
         await self._aborted_io_ended(pending)
         self._jog_deadline = None
-        self.stop_on_its_way()
         try:
-            await self.profile.stop(None)
+            with self.stop_on_its_way():
+                await self.profile.stop(None)
         except DrivebusError as exc:
             log.error("axis %s: stop failed: %s", self.name, exc)
             return
-        finally:
-            self._stop_sent_at = monotonic()  # sent, failed or cancelled
         self._poke_now()
 
-    def stop_on_its_way(self) -> None:
-        """A stop is about to be sent: the axis is Stopping (unless in ErrorStop, Offline
-        or Disabled) until a status requested after the stop's reply shows it at rest. A
+    @contextlib.contextmanager
+    def stop_on_its_way(self) -> Iterator[None]:
+        """Around sending a stop: the axis is Stopping (unless in ErrorStop, Offline or
+        Disabled) until a status requested after the stop's reply shows it at rest. A
         status requested before that (a poll already on the wire) says nothing of the stop,
-        and a second stop meanwhile is not one of an axis at rest: it sends its own."""
-        self._stop_sent_at = math.inf
+        and a second stop meanwhile is not one of an axis at rest: it sends its own. On
+        leaving (sent, failed or cancelled), the stop's time is taken."""
+        self._stops_on_way += 1
         if self.state not in (AxisState.ERROR_STOP, AxisState.OFFLINE, AxisState.DISABLED):
             self.state = AxisState.STOPPING
+        try:
+            yield
+        finally:
+            self._stops_on_way -= 1
+            self._stop_sent_at = monotonic()
 
     async def _aborted_io_ended(self, pending: list[anyio.Event]) -> None:
         """Wait until the I/O of the motions a stop aborted has ended (cancelled, it ends

@@ -442,21 +442,20 @@ class CommandLane(AxisActor):
             return
         if running and m is not None and m.io_done is not None:
             pending.append(m.io_done)
-        self.stop_on_its_way()
         try:
-            await self._aborted_io_ended(pending)  # nothing of theirs can follow the stop now
-            # Offline or not, the stop is sent: the drive may be back (a network blip) and a
-            # motor must not keep running because our polls failed.
-            if emergency:
-                await self.profile.emergency_stop()
-            else:
-                await self.profile.stop(decel_rps2)
+            with self.stop_on_its_way():
+                await self._aborted_io_ended(pending)  # nothing of theirs can follow it now
+                # Offline or not, the stop is sent: the drive may be back (a network blip)
+                # and a motor must not keep running because our polls failed.
+                if emergency:
+                    await self.profile.emergency_stop()
+                else:
+                    await self.profile.stop(decel_rps2)
         except TransactionError as exc:
             if offline:
                 raise (self.error or DriveOffline(f"axis {self.name} is offline")) from exc
             raise
-        finally:
-            self._stop_sent_at = after = monotonic()  # sent, failed or cancelled
+        after = self._stop_sent_at
         if not emergency:
             self._poll_when_at_rest(after, m, decel_rps2)
         await self._wait_rest(after, by)
