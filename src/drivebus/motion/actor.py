@@ -97,7 +97,7 @@ class AxisActor:
         self._stop_sent_at = 0.0
         """When the last stop was sent (its reply came in): only a status requested after
         it, with no stop on its way, may take the axis from Stopping to Standstill."""
-        self._stops_on_way = 0  # stops being sent now (``stop_on_its_way``)
+        self._stops_on_way = 0  # stops being sent now (``_stop_on_its_way``)
         self._stop_due: str | None = None  # the actor must send a stop (and why)
         self._poll_at = math.inf  # poll no later than this (a stop's expected rest)
         self._check_due = False  # read the volatile settings back before the next command
@@ -470,7 +470,7 @@ class AxisActor:
         await self._aborted_io_ended(pending)
         self._jog_deadline = None
         try:
-            with self.stop_on_its_way():
+            with self._stop_on_its_way():
                 await self.profile.stop(None)
         except DrivebusError as exc:
             log.error("axis %s: stop failed: %s", self.name, exc)
@@ -478,7 +478,7 @@ class AxisActor:
         self._poke_now()
 
     @contextlib.contextmanager
-    def stop_on_its_way(self) -> Iterator[None]:
+    def _stop_on_its_way(self) -> Iterator[None]:
         """Around sending a stop: the axis is Stopping (unless in ErrorStop, Offline or
         Disabled) until a status requested after the stop's reply shows it at rest. A
         status requested before that (a poll already on the wire) says nothing of the stop,

@@ -443,7 +443,7 @@ class CommandLane(AxisActor):
         if running and m is not None and m.io_done is not None:
             pending.append(m.io_done)
         try:
-            with self.stop_on_its_way():
+            with self._stop_on_its_way():
                 await self._aborted_io_ended(pending)  # nothing of theirs can follow it now
                 # Offline or not, the stop is sent: the drive may be back (a network blip)
                 # and a motor must not keep running because our polls failed.
