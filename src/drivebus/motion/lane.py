@@ -436,10 +436,10 @@ class CommandLane(AxisActor):
                                               f"{by}"), None)
         self._jog_deadline = None
         moving = self.status is not None and self.status.moving
-        if m is None and not queued and not offline and not moving and self.state in (
-            AxisState.STANDSTILL, AxisState.DISABLED, AxisState.ERROR_STOP
-        ):
-            return
+        if m is None and not queued and not offline and not moving and not (
+            self._stops_on_way
+        ) and self.state in (AxisState.STANDSTILL, AxisState.DISABLED, AxisState.ERROR_STOP):
+            return  # at rest, nothing under way, no stop on its way (else it sends its own)
         if running and m is not None and m.io_done is not None:
             pending.append(m.io_done)
         try:
