@@ -35,7 +35,14 @@ from drivebus.sim.harness import sim_bus
 from drivebus.sim.slave import Fault
 from drivebus.sim.twins import twin_class
 from ports import reserved_port
-from wirelog import frames_text, reads_of, settle
+from wirelog import (
+    command_frames,
+    commands,
+    frames_text,
+    reads_of,
+    requests_between,
+    settle,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "configs" / "demo.toml"
@@ -403,3 +410,72 @@ async def test_a_stop_on_its_way_keeps_the_axis_stopping_until_a_status_after_it
         assert any(second_called < r < second_returned for r in reads_of(m, "x")), (
             frames_text(wire.log, triggered - 0.01))
         assert x.state is AxisState.STANDSTILL
+
+
+# -- a stop that waits for an aborted motion's I/O keeps the line for itself meanwhile -------
+
+
+async def test_a_stop_waiting_for_aborted_io_lets_no_other_frame_go_first() -> None:
+    """x's move is stopped while its write is on the wire (x's replies come 30 ms late): the
+    stop waits for that transaction to end. y's read is queued behind it, and when x's
+    reply comes in the process is held up for 5 ms (an observer that blocks the loop, as
+    a starved machine does): y's read would find its silence over and leave from the
+    reply's callback, before the stopping task runs again. The line begins nothing but
+    the stop after the stop was called: no frame leaves between the call and the stop."""
+    cfg = {"name": "stop-keeps-line",
+           "lines": {"l": {"port": "sim://stop-keeps-line", "settings": "115200 8N1",
+                           "timeout": 0.5}},
+           "axes": {n: {"line": "l", "address": a, "drive": "NT86", "unit": "mm",
+                        "pulses_per_rev": 4000, "units_per_rev": 10.0, "speed": 20.0,
+                        "accel": 200.0, "decel": 200.0, "poll": {"moving": 1.0, "idle": 1.0}}
+                    for n, a in (("x", 1), ("y", 2))}}
+    async with open_machine(cfg) as m:
+        x, twin, wire, bus = m.axes["x"], m.sim_drives["x"], m.wires["l"], m.buses["l"]
+        await settle(x)
+        await x.enable()  # (set up now: the move's I/O is its own writes)
+        await x.move_to(1.0)
+        twin.faults.inject(Fault.SLOW_REPLY, value=0.03, times=None)
+        held_up = False
+
+        def observer(t: Any) -> None:
+            nonlocal held_up
+            if t.slave == 1 and t.function in (0x06, 0x10) and called < t.end and not held_up:
+                held_up = True
+                time.sleep(0.005)  # the point: a loop held up (as by the OS)
+
+        called = math.inf
+        end_observing = bus.observe(observer)
+        outcome: list[str] = []
+
+        async def move() -> None:
+            try:
+                await x.move_to(3.0)
+                outcome.append("done")
+            except MotionAborted:
+                outcome.append("aborted")
+
+        async def bystander() -> None:
+            await bus.slave(2).read_holding_registers(0, 2, priority=Priority.POLL)
+
+        mark = len(wire.log)
+        with anyio.fail_after(20):
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(move)
+                while not any(f.direction == "request" and f.address == 1  # noqa: ASYNC110
+                              and f.data[1] in (0x06, 0x10) for f in list(wire.log)[mark:]):
+                    await anyio.sleep(0.001)  # (the wire log is polled) x's write is out
+                tg.start_soon(bystander)
+                await anyio.lowlevel.checkpoint()  # y's read is queued behind it
+                called = monotonic()
+                await x.stop()
+        end_observing()
+        twin.faults.clear()
+        assert held_up, "x's write did not end after the stop was called"
+        assert outcome == ["aborted"]
+        assert not twin.is_moving()
+        stops = [t for k, t in command_frames(m, "x", mark) if k == "stop" and t > called]
+        assert stops, frames_text(wire.log, called - 0.05)
+        between = requests_between(m, "l", called, stops[0])
+        assert between == 0, frames_text(wire.log, called - 0.05)
+        cmds = commands(m, "x", mark)
+        assert "start" not in cmds[cmds.index("stop"):], cmds

@@ -142,6 +142,26 @@ class Bus(Owner):
                 del self._holders[me]
             self._wake_owner()
 
+    def hold_now(self) -> Callable[[], None]:
+        """Begin no request below ``Priority.EMERGENCY`` from now on (one waiting for its
+        silence goes back to the queue), without waiting for the transaction in flight:
+        a stop that must first let another task's I/O end keeps the line for itself
+        meanwhile, so nothing else leaves before it. Returns the release (idempotent); the
+        stop is queued in the same step as the release, ahead of what waited."""
+        self._holds += 1
+        if any(r.priority < Priority.EMERGENCY for r in self._flying):
+            self._withdraw()  # still waiting for its silence: it goes after the stop
+        released = False
+
+        def release() -> None:
+            nonlocal released
+            if not released:
+                released = True
+                self._holds -= 1
+                self._wake_owner()
+
+        return release
+
     # -- submitting ------------------------------------------------------------------------
 
     async def execute(

@@ -496,10 +496,19 @@ class AxisActor:
     async def _aborted_io_ended(self, pending: list[anyio.Event]) -> None:
         """Wait until the I/O of the motions a stop aborted has ended (cancelled, it ends
         with its transaction in flight), so nothing of theirs follows the stop; bounded:
-        a stop never waits on I/O that does not end."""
-        with anyio.move_on_after(_IO_END_BOUND) as scope:
-            for done in pending:
-                await done.wait()
+        a stop never waits on I/O that does not end. Meanwhile the line begins nothing below
+        ``Priority.EMERGENCY`` (``hold_now``): the stop, queued in the same step as the
+        release, is the next frame after the transaction in flight, however late this task
+        runs again on a busy machine."""
+        if not pending:
+            return
+        release = self.profile.slave.bus.hold_now()
+        try:
+            with anyio.move_on_after(_IO_END_BOUND) as scope:
+                for done in pending:
+                    await done.wait()
+        finally:
+            release()
         if scope.cancelled_caught:
             log.error("axis %s: the I/O of the motion a stop aborted did not end within "
                       "%.0f s: the stop goes out regardless; the tasks wait at:\n  %s",

@@ -57,6 +57,10 @@ _OUTCOME_WAIT = 1.5
 what became of its request (the bus's own wait, and the way there and back), seconds."""
 
 
+def _nothing() -> None:
+    """A release with nothing to release."""
+
+
 @dataclass(frozen=True)
 class LineSpec:
     """One line a worker serves: its name, the config it opens, its bus's settings."""
@@ -208,6 +212,12 @@ class RemoteBus:
         finally:
             w.holds.pop(hid, None)
             w.send((p.UNHOLD, hid))
+
+    def hold_now(self) -> Callable[[], None]:
+        """``Bus.hold_now`` has nothing to hold here: the worker begins a stop the moment it
+        takes it (``stops_taken``), and what leaves before that is the crossing between
+        the processes. Returns a release that does nothing."""
+        return _nothing
 
     def observe(self, observer: TransactionObserver) -> Callable[[], None]:
         """Call ``observer`` with every transaction's outcome from now on (from the
