@@ -123,34 +123,32 @@ class Bus(Owner):
         its lines so its start commands leave at a known moment, back to back. The body
         itself may await only ``Priority.EMERGENCY`` requests: one below that would wait
         for the hold's end, and is refused (``StateError``, nothing sent)."""
-        self._holds += 1
+        release = self.hold_now()
         me = asyncio.current_task()
         self._holders[me] = self._holders.get(me, 0) + 1
         try:
-            if any(r.priority < Priority.EMERGENCY for r in self._flying):
-                self._withdraw()  # still waiting for its silence: it goes after us
             if self._flying:
                 waiter = asyncio.get_running_loop().create_future()
                 self._idle_waiters.append(waiter)
                 await waiter
             yield
         finally:
-            self._holds -= 1
             if self._holders[me] > 1:
                 self._holders[me] -= 1
             else:
                 del self._holders[me]
-            self._wake_owner()
+            release()
 
     def hold_now(self) -> Callable[[], None]:
         """Begin no request below ``Priority.EMERGENCY`` from now on (one waiting for its
-        silence goes back to the queue), without waiting for the transaction in flight:
-        a stop that must first let another task's I/O end keeps the line for itself
-        meanwhile, so nothing else leaves before it. Returns the release (idempotent); the
-        stop is queued in the same step as the release, ahead of what waited."""
+        silence goes back to the queue), without waiting for the transaction in flight
+        (``hold`` waits for it, on top of this): a stop that must first let another task's
+        I/O end keeps the line for itself meanwhile, so nothing else leaves before it.
+        Returns the release (idempotent); the stop is queued in the same step as the
+        release, ahead of what waited."""
         self._holds += 1
         if any(r.priority < Priority.EMERGENCY for r in self._flying):
-            self._withdraw()  # still waiting for its silence: it goes after the stop
+            self._withdraw()  # still waiting for its silence: it goes after the holder
         released = False
 
         def release() -> None:
