@@ -467,10 +467,10 @@ class AxisActor:
                 f"axis {self.name}: the {m.what} was stopped: {reason}"), None)
             if running and m.io_done is not None:
                 pending.append(m.io_done)
-        await self._aborted_io_ended(pending)
         self._jog_deadline = None
         try:
             with self._stop_on_its_way():
+                await self._aborted_io_ended(pending)
                 await self.profile.stop(None)
         except DrivebusError as exc:
             log.error("axis %s: stop failed: %s", self.name, exc)
