@@ -16,6 +16,7 @@ import anyio
 import pytest
 
 from drivebus import AxisState, open_machine
+from drivebus.clock import cpu_wait
 from drivebus.errors import (
     ArgumentError,
     LimitViolation,
@@ -313,14 +314,30 @@ async def test_a_group_arrives_within_a_poll_period_for_any_mix_of_distances() -
     ]
     async with open_machine(DEMO) as m:
         for targets in mixes:
-            before = {n: m.sim_drives[n].position() for n in targets}
-            report = await m.group(*targets).move_to(targets)
-            moved = [n for n in targets if m.sim_drives[n].position() != before[n]]
-            ends = {n: m.sim_drives[n].kin.end_time() for n in moved}
-            spread = max(ends.values()) - min(ends.values())
-            poll = min(m.axes[n].config.poll.moving for n in targets)
-            assert spread <= poll, (targets, spread, report)
-            for n, t in targets.items():
-                assert m.sim_drives[n].position() == m.axes[n].units.to_pulses(t)
+            # The twins run in this process: one held up while the starts go out gets
+            # them late, and the spread wide by as much. Such an attempt is made again
+            # (from where the axes were); a spread its CPU wait does not cover fails.
+            origin = {n: m.axes[n].units.from_pulses(m.sim_drives[n].position())
+                      for n in targets}
+            held_up: list[tuple[float, float]] = []
+            for _attempt in range(3):
+                before = {n: m.sim_drives[n].position() for n in targets}
+                waited = cpu_wait()
+                report = await m.group(*targets).move_to(targets)
+                waited = cpu_wait() - waited
+                moved = [n for n in targets if m.sim_drives[n].position() != before[n]]
+                ends = {n: m.sim_drives[n].kin.end_time() for n in moved}
+                spread = max(ends.values()) - min(ends.values())
+                poll = min(m.axes[n].config.poll.moving for n in targets)
+                for n, t in targets.items():
+                    assert m.sim_drives[n].position() == m.axes[n].units.to_pulses(t)
+                if spread <= poll:
+                    break
+                assert waited >= spread - poll, (targets, spread, waited, report)
+                held_up.append((spread, waited))
+                await m.group(*origin).move_to(origin)
+            else:
+                pytest.fail(f"{targets}: held up on every attempt (spread, CPU wait): "
+                            f"{held_up}")
             assert report.duration > 0 and report.start_offsets is not None
             assert report.arrival_spread >= 0
