@@ -77,6 +77,8 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
     ("toml", MINIMAL + "\n[drive\n", ("not valid TOML",)),
     ("unknown key", MINIMAL.replace("address = 1", "adress = 1"),
      ("registers.enable.adress", "unknown key")),
+    ("unknown key beside an alias", MINIMAL + "\n[alarms]\nregister = 'status'\nsource = 'x'\n",
+     ("alarms.source", "unknown key", "(allowed: register, kind,")),
     ("missing", MINIMAL.replace("[units.pulses_per_rev]\ndefault = 1000\n", ""),
      ("units", "Field required")),
     ("expression", MINIMAL.replace("enable = 1 }", "enable = '1 +' }"),
