@@ -674,6 +674,22 @@ async def test_the_guides_example_description_passes_its_trial(tmp_path: Path) -
     assert {s.name for s in steps if s.result == "pass"} >= {"move absolute", "stop"}
 
 
+async def test_a_trial_that_finds_no_move_names_the_refusal(tmp_path: Path) -> None:
+    """A move no speed can pass names why (the description's own mistake, here a speed
+    register of 1..5 rpm), not only that nothing fits."""
+    from drivebus.sim.trial import try_description
+
+    text = MINIMAL + (
+        "\n[registers.speed]\naddress = 2\nunit = 'rpm'\nmin = 1\nmax = 5\n"
+        "\n[registers.target]\naddress = 3\nunit = 'pulses'\n"
+        "\n[procedures.move_absolute]\n"
+        "steps = [{ write = { speed = 'speed', target = 'target' } }]\n")
+    steps = await try_description(load_description(write(tmp_path, text)))
+    move = next(s for s in steps if s.name == "move absolute")
+    assert move.failed and "no speed of 10..600 rpm" in move.detail, steps
+    assert "register speed" in move.detail and "1..5" in move.detail, move.detail
+
+
 MEANINGS_ONLY = """
 [drive]
 family = "MEANINGS"
