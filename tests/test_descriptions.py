@@ -401,6 +401,46 @@ async def test_the_twin_answers_only_what_the_description_documents() -> None:
         assert exc.value.code == 0x11 and exc.value.text == "register does not support read"
 
 
+WHOLE = MINIMAL + """
+[link]
+functions = [3, 16]
+refusals = { split = 2 }
+
+[registers.target]
+address = 4
+words = 2
+"""
+
+
+@pytest.mark.parametrize("split", [True, False], ids=["whole values", "halves answered"])
+async def test_the_twin_serves_only_its_functions_and_refuses_half_a_value(
+        tmp_path: Path, split: bool) -> None:
+    """``[link] functions`` without 6: the twin answers FC06 with illegal function (it
+    once served it, so a description that sent FC06 to a drive without it passed its
+    trial). ``refusals.split``: a request that starts or ends inside a 32-bit value is
+    refused, as the JVL MIS refuses it; without it, half a value is answered."""
+    text = WHOLE if split else WHOLE.replace("refusals = { split = 2 }\n", "")
+    twin = described_twin(load_description(write(tmp_path, text)))(1, FAST)
+    async with sim_bus([twin], FAST) as (_, bus):
+        slave = bus.slave(1)
+        with pytest.raises(ModbusException) as exc:
+            await slave.write_register(4, 1)
+        assert exc.value.code == 1 and exc.value.text == "illegal function"
+        await slave.write_registers(4, [0, 7])
+        assert await slave.read_holding_registers(4, 2) == [0, 7]
+        halves = (lambda: slave.read_holding_registers(4, 1),
+                  lambda: slave.read_holding_registers(5, 1),
+                  lambda: slave.write_registers(5, [9]))
+        for half in halves:
+            if split:
+                with pytest.raises(ModbusException) as exc:
+                    await half()
+                assert exc.value.code == 2
+            else:
+                await half()
+        assert await slave.read_holding_registers(4, 2) == ([0, 7] if split else [0, 9])
+
+
 async def test_a_power_cycle_loses_the_volatile_setup_and_setup_restores_it() -> None:
     async with rig(pulses_per_rev=4000) as (twin, _, profile):
         await profile.setup()

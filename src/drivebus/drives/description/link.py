@@ -72,6 +72,9 @@ class Refusals(_Model):
     count: int = Field(3, ge=1, le=255)
     crc: int | None = Field(None, ge=1, le=255, description="reply to a bad CRC (else silence)")
     busy: int | None = Field(None, ge=1, le=255, description="a command it cannot carry out now")
+    split: int | None = Field(None, ge=1, le=255, description="a request that starts or ends "
+                              "inside a 32-bit value, where the drive reads and writes its "
+                              "values whole (else half a value is answered)")
 
 
 class Timing(_Model):
