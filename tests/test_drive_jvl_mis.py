@@ -108,6 +108,13 @@ async def test_enable_moves_nothing_though_position_mode_runs_to_p_soll() -> Non
             assert writes[0][1][:4] == bytes(4)  # P_SOLL := P_IST (0), then position mode
             st = await a.refresh()
             assert st.enabled and not st.moving and not twin.is_moving()
+            # the guard is needed: position mode entered with P_SOLL elsewhere runs there
+            await a.disable()
+            slave = a.profile.slave
+            await slave.write_registers(P_SOLL, [800, 0])
+            await slave.write_registers(MODE_REG, [2, 0])
+            await until(twin.is_moving, "position mode to run to P_SOLL on the twin")
+            await a.stop()
 
 
 async def test_what_the_manual_does_not_give_is_refused_before_any_frame() -> None:
