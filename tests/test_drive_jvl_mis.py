@@ -11,14 +11,16 @@ as soon as it is entered, so the enable writes P_SOLL = P_IST before it enters i
 from __future__ import annotations
 
 import contextlib
+import time
 from pathlib import Path
 from typing import Any
 
 import anyio
+import anyio.lowlevel
 import pytest
 
 from drivebus import AxisState, open_machine
-from drivebus.errors import MotionAborted, NotSupported
+from drivebus.errors import DrivebusError, MotionAborted, NotSupported
 from test_no_stale_motion import until
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -141,3 +143,115 @@ async def test_homing_presets_a_negative_position() -> None:
             await a.home()
             assert twin.position() == -2000 and a.position == pytest.approx(-12.5)
             assert (await a.refresh()).homed
+
+
+# -- the promises on this drive: a stop wins, a cancelled caller stops, a refusal sends
+# nothing, leaving the machine leaves it at rest (as test_promises.py on the demo) -------
+
+
+V_SOLL = 10  # register 5
+
+
+def kinds(wire: Any, address: int, since: float) -> list[tuple[str, float]]:
+    """Its starts (P_SOLL written, or velocity mode entered with V_SOLL not 0) and stops
+    (V_SOLL = 0) after ``since``, with the time each began to leave."""
+    out = []
+    v_soll = bytes(4)
+    for f in list(wire.log):
+        if f.direction != "request" or f.address != address:
+            continue
+        pdu = f.data[1:-2]
+        if pdu[0] != 16:
+            continue
+        at, first = int.from_bytes(pdu[1:3], "big"), pdu[6:10]
+        kind = None
+        if at == V_SOLL:
+            v_soll = first
+            kind = "stop" if first == bytes(4) else None
+        elif at == P_SOLL or (at == MODE_REG and first[:2] == b"\x00\x01"
+                              and v_soll != bytes(4)):
+            kind = "start"
+        if kind and f.start > since:
+            out.append((kind, f.start))
+    return out
+
+
+def two_axes(tag: str) -> dict[str, Any]:
+    cfg = machine(tag)
+    cfg["axes"]["b"] = {**cfg["axes"]["a"], "address": 2}
+    return cfg
+
+
+@pytest.mark.parametrize("point", ["setup", "moving"])
+@pytest.mark.parametrize("whose", ["its own", "a bystander's"])
+async def test_a_stop_reaches_the_wire_within_one_transaction(point: str, whose: str) -> None:
+    with anyio.fail_after(60):
+        async with open_machine(two_axes(f"stop-{point}-{whose[0]}")) as m:
+            a, b, wire = m.axes["a"], m.axes["b"], m.wires["l"]
+            await a.enable()
+            await b.enable()
+            if whose != "its own":
+                await b.jog(3.0, watchdog=None)
+                await until(m.sim_drives["b"].is_moving, "the bystander to jog")
+            stopper = a if whose == "its own" else b
+            async with anyio.create_task_group() as tg:
+                async def move() -> None:
+                    with contextlib.suppress(MotionAborted):
+                        await a.move_to(-45.0, speed=10.0)
+                tg.start_soon(move)
+                if point == "setup":
+                    for _ in range(3):
+                        await anyio.lowlevel.checkpoint()
+                else:
+                    await until(m.sim_drives["a"].is_moving, "the move to run")
+                called = time.monotonic()
+                await stopper.stop()
+                if stopper is b:
+                    tg.cancel_scope.cancel()
+            frames = kinds(wire, stopper.config.address, called)
+            stops = [t for k, t in frames if k == "stop"]
+            if stops:
+                between = sum(1 for f in list(wire.log)
+                              if f.direction == "request" and called < f.start < stops[0])
+                assert between <= 1, f"{between} requests left before the stop"
+            assert not [t for k, t in frames if k == "start" and t > (stops or [called])[0]]
+            assert not m.sim_drives[stopper.name].is_moving()
+            assert not m.sim_drives["a"].is_moving()
+
+
+@pytest.mark.parametrize("how", ["cancel", "exit", "exception"])
+async def test_a_cancelled_caller_or_a_left_machine_leaves_the_motor_at_rest(how: str) -> None:
+    twins: dict[str, Any] = {}
+    with anyio.fail_after(60), contextlib.suppress(RuntimeError):
+        async with open_machine(machine(f"leave-{how}")) as m:
+            a, twins["a"] = m.axes["a"], m.sim_drives["a"]
+            await a.enable()
+            if how == "cancel":
+                with anyio.move_on_after(60) as scope:
+                    async with anyio.create_task_group() as tg:
+                        tg.start_soon(a.move_to, -45.0)
+                        await until(twins["a"].is_moving, "the move to run")
+                        scope.cancel()
+                assert not twins["a"].is_moving()
+                return
+            await a.jog(5.0, watchdog=None)
+            await until(twins["a"].is_moving, "the jog to run")
+            if how == "exception":
+                raise RuntimeError("the owner fails")
+    assert not twins["a"].is_moving()
+
+
+async def test_a_refusal_sends_nothing() -> None:
+    with anyio.fail_after(30):
+        async with open_machine(machine("refusal")) as m:
+            a, wire = m.axes["a"], m.wires["l"]
+            await a.enable()
+            await a.refresh()
+            since = time.monotonic()
+            for refused in (lambda: a.move_to(1000.0), lambda: a.move_by(-1e6),
+                            lambda: a.move_to(10.0, speed=1e9)):
+                with pytest.raises(DrivebusError):
+                    await refused()
+            await a.refresh()
+            assert not [f for f in list(wire.log) if f.direction == "request"
+                        and f.start > since and f.data[1] == 16]
