@@ -196,6 +196,22 @@ def test_each_mistake_is_a_config_error_naming_file_key_and_problem(
         assert needle in message, (needle, message)
 
 
+def test_a_procedure_not_described_says_where_it_would_be(tmp_path: Path) -> None:
+    """A common procedure the file lacks is refused with a reason, and the drive's page
+    gives it (the page once printed an empty "no: " cell for each)."""
+    from drivebus.drives.pages import procedures
+    from drivebus.drives.registry import family_from_description
+
+    fam = family_from_description(load_description(write(tmp_path, MINIMAL)))
+    why = dict(procedures(fam))
+    assert why["enable"] == ""
+    assert why["zero_position"].endswith(
+        "cannot set its position to zero over Modbus: its description has no "
+        "[procedures.zero_position]"), why["zero_position"]
+    assert why["home"].endswith(": its description has no [procedures.home]"), why["home"]
+    assert all(w for p, w in why.items() if p != "enable"), why
+
+
 def test_a_minimal_description_loads_and_a_missing_file_is_named(tmp_path: Path) -> None:
     d = load_description(write(tmp_path, MINIMAL))
     assert d.family == "TESTDRIVE" and set(d.regs) == {"status", "enable"}
