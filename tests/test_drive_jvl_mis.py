@@ -255,3 +255,18 @@ async def test_a_refusal_sends_nothing() -> None:
             await a.refresh()
             assert not [f for f in list(wire.log) if f.direction == "request"
                         and f.start > since and f.data[1] == 16]
+
+
+async def test_a_move_of_a_disabled_axis_says_to_enable_it() -> None:
+    """The motor powers up passive (MODE_REG 0): a move is refused before any frame,
+    and the refusal says what to do (a technician's first `drivebus move` meets it)."""
+    with anyio.fail_after(30):
+        async with open_machine(machine("disabled")) as m:
+            a, wire = m.axes["a"], m.wires["l"]
+            await a.refresh()
+            assert a.state is AxisState.DISABLED
+            since = time.monotonic()
+            with pytest.raises(DrivebusError, match=r"in state Disabled: enable it first"):
+                await a.move_to(10.0)
+            assert not [f for f in list(wire.log) if f.direction == "request"
+                        and f.start > since and f.data[1] == 16]
