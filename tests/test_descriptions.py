@@ -196,6 +196,42 @@ def test_each_mistake_is_a_config_error_naming_file_key_and_problem(
         assert needle in message, (needle, message)
 
 
+def test_link_words_gives_every_register_its_width(tmp_path: Path) -> None:
+    """``[link] words = 2`` (the JVL MIS, the Lexium 32: every value in two registers):
+    each register without ``words`` is 32 bits, its bits up to 31; ``words = 1`` and a
+    coil keep theirs. Without it, a register is 16 bits, and a bit or a low_address that
+    needs 32 is an error naming the register."""
+    wide = MINIMAL.replace("bit = 1, means", "bit = 20, means").replace(
+        "address = 1\n", "address = 2\n") + """
+[link]
+word_order = "low_first"
+words = 2
+functions = [1, 3, 5, 6, 16]
+
+[registers.narrow]
+address = 8
+words = 1
+
+[registers.split]
+address = 10
+low_address = 14
+
+[registers.on]
+address = 0
+coil = true
+"""
+    d = load_description(write(tmp_path, wide))
+    widths = {k: r.register.words for k, r in d.regs.items()}
+    assert widths == {"status": 2, "enable": 2, "narrow": 1, "split": 2, "on": 1}, widths
+    assert d.regs["split"].register.hi == 0xFFFFFFFF
+    narrow = wide.replace("words = 2\nfunctions", "functions")
+    with pytest.raises(ConfigError) as err:
+        load_description(write(tmp_path, narrow, "narrow.toml"))
+    assert "registers.status: bit MOVING (20, width 1) is beyond the register's 16 bits" in \
+        str(err.value) and "registers.split.low_address: low_address is for a 32-bit " \
+        "register" in str(err.value), err.value
+
+
 def test_a_procedure_not_described_says_where_it_would_be(tmp_path: Path) -> None:
     """A common procedure the file lacks is refused with a reason, and the drive's page
     gives it (the page once printed an empty "no: " cell for each)."""
