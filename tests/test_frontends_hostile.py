@@ -13,12 +13,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import anyio
 import pytest
 from websockets.asyncio.client import connect
 
 from drivebus.motion import Machine
+from drivebus.service.bodies import MAX_BODY
 from mqtt_helpers import Broker, bridged, probe, require_tools, running_broker
-from service_rig import DEMO, at_rest, running
+from service_rig import DEMO, at_rest, moving, running
 from test_promises_frontends import writes
 from waits import within
 
@@ -124,3 +126,63 @@ async def test_a_group_move_with_an_axis_that_cannot_move_is_refused_before_202(
         assert problem["title"] == "NotSupported" and "OD2000" in problem["detail"], problem
         assert (await client.get("/api/motions")).json() == []
         await _nothing_sent(m, before)
+
+
+JSON = {"content-type": "application/json"}
+
+
+async def test_a_body_beyond_the_limit_is_a_413_and_never_parsed() -> None:
+    """A body over ``MAX_BODY`` (by its Content-Length, or chunked without one) is refused
+    with 413 ContentTooLarge naming the limit, before FastAPI parses it: parsing 15 MB held
+    the event loop for a second (every stop and poll behind it; the loop-step guard of
+    tests/conftest.py fails a test whose step takes more than 40 ms)."""
+    async with running() as (svc, client):
+        m = svc.session.machine
+        await at_rest(svc)
+        before = writes(m)
+        padded = json.dumps({"target": 20.0, "pad": "x" * MAX_BODY}).encode()
+        r = await client.post("/api/axes/x/move", content=padded, headers=JSON)
+        assert r.status_code == 413, r.text
+        problem = r.json()
+        assert problem["title"] == "ContentTooLarge", problem
+        assert f"at most {MAX_BODY}" in problem["detail"], problem
+        assert r.headers["content-type"] == "application/problem+json"
+
+        # chunked, no Content-Length, from a raw socket: it sends a little more than the
+        # limit and no end, then reads the answer
+        assert svc.url is not None
+        host, port = svc.url.removeprefix("http://").split(":")
+        piece = b"[" + b"0," * 8191 + b"0]"
+        async with await anyio.connect_tcp(host, int(port)) as sock:
+            await sock.send(b"POST /api/machine/group-move HTTP/1.1\r\nHost: x\r\n"
+                            b"Content-Type: application/json\r\n"
+                            b"Transfer-Encoding: chunked\r\n\r\n")
+            for _ in range(MAX_BODY // len(piece) + 1):
+                await sock.send(b"%x\r\n%s\r\n" % (len(piece), piece))
+            answer = b""
+            with within(20, "the answer to a chunked body beyond the limit"):
+                while b"}" not in answer:
+                    answer += await sock.receive()
+        head, _, rest = answer.partition(b"\r\n\r\n")
+        assert head.startswith(b"HTTP/1.1 413"), answer[:300]
+        assert b"ContentTooLarge" in rest and f"more than {MAX_BODY}".encode() in rest, rest
+        await _nothing_sent(m, before)
+        r = await client.post("/api/axes/x/move", json={"target": 20.0})
+        assert r.status_code == 202, r.text  # it goes on serving
+
+
+@pytest.mark.parametrize("path", ["/api/estop", "/api/axes/y/halt"])
+async def test_the_estop_and_halt_are_never_refused_for_their_body(path: str) -> None:
+    """They take no body: one nested too deeply, too large or not JSON does not keep them
+    from stopping the axis (the depth check refused an e-stop with 422, the axis jogging
+    on)."""
+    bodies = [b"[" * 40 + b"]" * 40, b"[" + b"0," * MAX_BODY + b"0]", b"not json"]
+    async with running() as (svc, client):
+        await at_rest(svc)
+        for body in bodies:
+            r = await client.post("/api/axes/y/jog", json={"speed": 5.0, "ttl": 10.0})
+            assert r.status_code == 200, r.text
+            await moving(svc, "y")
+            r = await client.post(path, content=body, headers=JSON)
+            assert r.status_code == 200, (body[:20], r.text)
+            assert not svc.session.machine.sim_drives["y"].is_moving()

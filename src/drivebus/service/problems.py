@@ -83,7 +83,8 @@ STATUS: dict[type[DrivebusError], int] = {
 
 _REASONS = {
     400: "BadRequest", 401: "Unauthorized", 403: "Forbidden", 404: "NotFound",
-    405: "MethodNotAllowed", 409: "Conflict", 415: "UnsupportedMediaType",
+    405: "MethodNotAllowed", 409: "Conflict", 413: "ContentTooLarge",
+    415: "UnsupportedMediaType",
     422: "ArgumentError", 500: "InternalError", 501: "NotSupported", 502: "BadGateway",
     503: "ServiceUnavailable", 504: "GatewayTimeout",
 }
