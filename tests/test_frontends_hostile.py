@@ -186,3 +186,26 @@ async def test_the_estop_and_halt_are_never_refused_for_their_body(path: str) ->
             r = await client.post(path, content=body, headers=JSON)
             assert r.status_code == 200, (body[:20], r.text)
             assert not svc.session.machine.sim_drives["y"].is_moving()
+
+
+@pytest.mark.parametrize("kind", [None, "text/plain", "application/x-www-form-urlencoded"])
+async def test_a_json_body_sent_as_another_content_type_is_named_so(kind: str | None) -> None:
+    """``curl -d '{"target": 20}'`` sends a form content type, a bare client none: FastAPI
+    does not parse such a body as JSON. The 422 says to send Content-Type:
+    application/json and what came (it said "Input should be a valid dictionary or object
+    to extract fields from"), and nothing is sent."""
+    async with running() as (svc, client):
+        m = svc.session.machine
+        await at_rest(svc)
+        before = writes(m)
+        headers = {} if kind is None else {"content-type": kind}
+        r = await client.post("/api/axes/x/move", content=b'{"target": 20.0}', headers=headers)
+        if r.status_code == 202:  # a FastAPI that parses a body without a type as JSON
+            assert kind is None, r.text
+            return
+        assert r.status_code == 422, r.text
+        problem = r.json()
+        assert problem["title"] == "ArgumentError", problem
+        assert "Content-Type: application/json" in problem["detail"], problem
+        assert repr(kind or "") in problem["detail"] or "no Content-Type" in problem["detail"]
+        await _nothing_sent(m, before)
