@@ -209,3 +209,33 @@ async def test_a_json_body_sent_as_another_content_type_is_named_so(kind: str | 
         assert "Content-Type: application/json" in problem["detail"], problem
         assert repr(kind or "") in problem["detail"] or "no Content-Type" in problem["detail"]
         await _nothing_sent(m, before)
+
+
+async def test_a_position_name_with_a_trailing_newline_is_refused(tmp_path: Path) -> None:
+    """``POST /api/positions/home%0A/teach``: the name pattern's ``$`` matched before a
+    final newline, so ``[positions."home\\n"]`` was written into the machine file. It is a
+    422 naming the name, and the file is left as it was."""
+    machine = tmp_path / "m.toml"
+    machine.write_text(DEMO.read_text())
+    async with running(config=machine) as (svc, client):
+        await at_rest(svc)
+        for name in ("home%0A", "home%0D%0A", "%0Ahome"):
+            r = await client.post(f"/api/positions/{name}/teach", json={"axes": ["x"]})
+            assert r.status_code == 422, (name, r.text)
+            assert r.json()["title"] == "ArgumentError" and "position name" in r.text
+        assert (await client.get("/api/positions")).json() == {}
+    assert machine.read_text() == DEMO.read_text()
+
+
+async def test_a_client_name_with_a_trailing_newline_is_not_taken() -> None:
+    """Without tokens a WebSocket client may name itself (``?client=``): a name with a
+    final newline passed the name's pattern and went into lease holders, motion records
+    and log lines as it came. It is not taken: the client is ``anonymous``."""
+    async with running() as (svc, _):
+        assert svc.url is not None
+        url = svc.url.replace("http://", "ws://") + "/api/ws"
+        for name, seen in (("alice", "alice"), ("alice%0A", "anonymous")):
+            async with connect(f"{url}?client={name}") as conn:
+                with within(10, "hello"):
+                    hello = json.loads(await conn.recv())
+                assert hello["type"] == "hello" and hello["client"] == seen, hello

@@ -66,7 +66,7 @@ class BodyLimits:
         self.app = app
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or NEVER_REFUSED.match(scope.get("path", "")):
+        if scope["type"] != "http" or NEVER_REFUSED.fullmatch(scope.get("path", "")):
             await self.app(scope, receive, send)
             return
         declared = _declared_length(scope)
