@@ -32,8 +32,9 @@ MAX_BODY = 64 * 1024
 """Largest request body (and WebSocket message) taken, bytes: the largest real one (a
 parameter set, a group of targets) is a few kilobytes."""
 
-NEVER_REFUSED = re.compile(r"^/api/(estop|axes/[^/]+/halt)$")
-"""The paths whose requests go through unread: the e-stop and the halt of an axis."""
+NEVER_REFUSED = re.compile(r"(?:/[^/]+)*/api/(?:estop|axes/[^/]+/halt)")
+"""The paths whose requests go through unread (whole): the e-stop and the halt of an axis,
+also where the application is mounted under a prefix."""
 
 
 def _json_body(scope: Scope) -> bool:
