@@ -39,6 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 MOONS = ROOT / "configs" / "drives" / "moons_stf.toml"
 FAST = LineSettings.parse("115200 8N1")
 QUICK = MoveParams(600, 100, 100)
+SLOW = MoveParams(60, 10, 10)
+"""Long enough that a status read after its start sees it moving, on a busy machine too."""
 
 MINIMAL = """
 [drive]
@@ -330,7 +332,7 @@ async def test_moves_runs_stops_and_the_status_decoding() -> None:
         st = await profile.read_status()
         assert not st.enabled and st.in_position and st.position == 0
         await profile.enable()
-        await profile.move_relative(5000, QUICK)
+        await profile.move_relative(5000, SLOW)  # (seen moving on a busy machine too)
         moving = await profile.read_status()
         assert moving.moving and not moving.in_position and moving.enabled
         st = await wait_for(profile, at_rest)
