@@ -158,8 +158,6 @@ def demo(
         "file, or into a folder) as a start for your own machine file, and exit")] = None,
 ) -> None:
     """Run the demo job on the simulator: home, group moves, a jog, a stop."""
-    import anyio
-
     from drivebus.cli.demo import DEFAULT_CONFIG, run_demo, write_demo
 
     if where or write is not None:
@@ -173,7 +171,11 @@ def demo(
             typer.echo(f"wrote {written}: the demo machine (sim:// lines); "
                        f"`drivebus demo {written}` runs it")
         return
-    raise typer.Exit(anyio.run(run_demo, config))
+    from drivebus.cli.terminal import run_guarded
+
+    # Under the signal guard: SIGINT (once or twice) and SIGTERM stop every axis the demo
+    # moves before it exits, on a running drivebus sim's twins too.
+    raise typer.Exit(run_guarded(lambda: run_demo(config)))
 
 
 # -- scan and the register tools -------------------------------------------------------------------

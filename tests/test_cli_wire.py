@@ -1,0 +1,159 @@
+"""The command line judged by the wire: a ``drivebus sim --log`` in its own process logs
+every frame its line carries, and its twins say at the end whether a motor still runs.
+
+Refused commands (a bad argument, a target beyond the soft limits, a drive that cannot do
+it, an unknown axis or position, an output that cannot be written) send nothing at all:
+what the machine file decides is refused before a port opens. Every moving command that
+is interrupted leaves its twins at rest, the stop on the wire before the process ends.
+"""
+
+from __future__ import annotations
+
+import re
+import signal
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from test_cli import DEMO, SINGLE, Proc, drivebus, sim_server, spawn
+from wirelog import KINDS
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One request frame of a ``drivebus sim --log``: when, to whom, what."""
+
+    at: float
+    address: int
+    data: bytes
+
+    @property
+    def write(self) -> bool:
+        """A write function code (FC05, 06, 0F, 10, 17)."""
+        return len(self.data) > 1 and self.data[1] in (0x05, 0x06, 0x0F, 0x10, 0x17)
+
+
+_REQUEST = re.compile(r"^(\d+\.\d+) \S+ request addr=(\d+) \S+ gap=\S+ ([0-9a-f ]+)")
+
+
+def requests(sim: Proc) -> list[Frame]:
+    """Every request frame the simulator has logged so far (its lines read off the pipe)."""
+    while not sim.lines.empty():
+        sim.seen.append(sim.lines.get())
+    return [Frame(float(m.group(1)), int(m.group(2)), bytes.fromhex(m.group(3)))
+            for line in sim.seen if (m := _REQUEST.match(line))]
+
+
+def sync(sim: Proc, port: str, address: int, settings: str) -> Frame:
+    """Read register 0 of ``address`` through ``port`` and wait until the simulator has
+    logged that request: every frame sent before it is in the log then."""
+    before = len(requests(sim))
+    r = drivebus("read", port, str(address), "0", "-S", settings)
+    assert r.returncode == 0, r.stderr
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        new = requests(sim)[before:]
+        if any(f.address == address and f.data[1] == 0x03 for f in new):
+            return new[-1]
+        time.sleep(0.05)
+    pytest.fail(f"the simulator logged no read of slave {address} within 30 s")
+
+
+def _machine(tmp_path: Path, name: str, speed: float) -> Path:
+    """single.toml on a simulated line of its own, its axis at ``speed`` mm/s."""
+    text = SINGLE.read_text().replace("sim://single", f"sim://{name}")
+    text = re.sub(r"^speed = 50\.0 .*$", f"speed = {speed}", text, count=1, flags=re.M)
+    cfg = tmp_path / f"{name}.toml"
+    cfg.write_text(text)
+    return cfg
+
+
+def _refused(tmp_path: Path) -> list[tuple[list[str | Path], tuple[str, ...]]]:
+    """Commands the machine file and the arguments refuse, and what the error names (on
+    a copy of the demo machine: a refused ``teach`` must not touch the packaged one)."""
+    demo = tmp_path / "demo.toml"
+    demo.write_text(DEMO.read_text())
+    out = tmp_path / "run.jsonl"
+    nowhere = tmp_path / "no-such-dir" / "run.html"
+    return [
+        (["move", demo, "x", "1000"], ("TARGET", "soft limits")),
+        (["move", demo, "x", "-6"], ("TARGET", "soft limits")),
+        (["move", demo, "x", "10", "--speed", "1e9"], ("speed", "its drive runs at most")),
+        (["jog", demo, "x", "1e9"], ("speed", "its drive runs at most")),
+        (["move", demo, "aux", "10"], ("OD2000", "cannot make an absolute move")),
+        (["home", demo, "aux"], ("OD2000", "cannot home")),
+        (["jog", demo, "aux", "5", "--for", "1"], ("OD2000", "cannot")),
+        (["move", demo, "nowhere"], ("no position 'nowhere'",)),
+        (["teach", demo, "pick", "q"], ("no axis", "'q'")),
+        (["record", demo, "-d", "move q 10", "-o", out], ("no axis", "'q'")),
+        (["record", demo, "q", "-s", "1", "-o", out], ("no axis", "q")),
+        (["record", demo, "-d", "move x 10", "-d", "move x 1000", "-o", out],
+         ("soft limits",)),
+        (["record", demo, "-d", "jog aux 5 1", "-o", out], ("OD2000", "cannot")),
+        (["record", demo, "-d", "move x 10", "-o", nowhere], ("no such directory",)),
+        (["record", demo, "-d", "move x 10", "--png", nowhere.with_suffix(".png")],
+         ("no such directory",)),
+    ]
+
+
+def test_a_refused_command_sends_nothing_at_all(tmp_path: Path) -> None:
+    """Each refusal: exit status 2, one line on stderr naming the cause, no traceback,
+    and not one frame on the line (the simulator's log, up to a read made after them)."""
+    cases = _refused(tmp_path)
+    with sim_server(DEMO, "--log") as (sim, _):
+        mark = len(requests(sim))
+        with ThreadPoolExecutor(3) as pool:
+            results = list(pool.map(lambda c: drivebus(*c[0]), cases))
+        last = sync(sim, "sim://demo-rs485", 4, "38400 8N2")
+        sent = [f for f in requests(sim)[mark:] if f != last]
+    for (args, needles), r in zip(cases, results, strict=True):
+        what = " ".join(map(str, args))
+        assert r.returncode == 2, (what, r.stdout, r.stderr)
+        lines = [ln for ln in r.stderr.splitlines() if not ln.startswith("note: ")]
+        assert len(lines) == 1 and lines[0].startswith("error: "), (what, r.stderr)
+        for n in needles:
+            assert n in lines[0], (what, lines[0])
+    assert sent == [], [f"{f.address}: {f.data.hex(' ')}" for f in sent]
+
+
+def _kind(frame: Frame) -> str | None:
+    """``start``/``stop`` for a CL86R command frame (FC06 to its control word)."""
+    d = frame.data
+    if len(d) < 6 or d[1] != 0x06:
+        return None
+    return KINDS["CL86R"](int.from_bytes(d[2:4], "big"), int.from_bytes(d[4:6], "big"))
+
+
+@pytest.mark.parametrize("how", ["SIGTERM", "SIGINT twice"])
+def test_an_interrupted_demo_leaves_its_twins_at_rest(tmp_path: Path, how: str) -> None:
+    """``drivebus demo CONFIG`` on a running simulator, interrupted in its first group
+    move (1 mm/s: some 40 s long): the stop is on the wire after the move's start, the
+    twin is at rest when the command has ended, and the exit status says the signal."""
+    cfg = _machine(tmp_path, "slowdemo", 1.0)
+    with sim_server(cfg, "--log") as (sim, _):
+        with spawn("demo", cfg) as demo:
+            demo.expect(r"^home x: done")
+            homed = time.monotonic()  # CLOCK_MONOTONIC: the simulator's log clock too
+            deadline = homed + 30
+            start = None
+            while start is None and time.monotonic() < deadline:
+                start = next((f for f in requests(sim)
+                              if f.at > homed and _kind(f) == "start"), None)
+                time.sleep(0.05)
+            assert start is not None, "the group move did not start within 30 s"
+            if how == "SIGTERM":
+                demo.popen.send_signal(signal.SIGTERM)
+            else:
+                demo.popen.send_signal(signal.SIGINT)
+                demo.popen.send_signal(signal.SIGINT)
+            code = demo.popen.wait(30)
+            said = demo.rest()
+        assert code == (143 if how == "SIGTERM" else 130), said
+        assert f"interrupted ({how.split()[0]})" in said
+        stops = [f for f in requests(sim) if f.at > start.at and _kind(f) == "stop"]
+        assert stops, "no stop on the wire after the move's start"
+        assert sim.interrupt() == 0
+        twins = sim.rest()
+    assert re.search(r"^twin x: position=-?\d+ pulses moving=False$", twins, re.M), twins
