@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+
 from test_cli import DEMO, SINGLE, Proc, drivebus, sim_server, spawn
 from wirelog import KINDS
 
@@ -86,9 +87,9 @@ def _refused(tmp_path: Path) -> list[tuple[list[str | Path], tuple[str, ...]]]:
         (["home", demo, "aux"], ("OD2000", "cannot home")),
         (["jog", demo, "aux", "5", "--for", "1"], ("OD2000", "cannot")),
         (["move", demo, "nowhere"], ("no position 'nowhere'",)),
-        (["teach", demo, "pick", "q"], ("no axis", "'q'")),
-        (["record", demo, "-d", "move q 10", "-o", out], ("no axis", "'q'")),
-        (["record", demo, "q", "-s", "1", "-o", out], ("no axis", "q")),
+        (["teach", demo, "pick", "q"], ("no axis q",)),
+        (["record", demo, "-d", "move q 10", "-o", out], ("--during", "no axis 'q'")),
+        (["record", demo, "q", "-s", "1", "-o", out], ("no axis q",)),
         (["record", demo, "-d", "move x 10", "-d", "move x 1000", "-o", out],
          ("soft limits",)),
         (["record", demo, "-d", "jog aux 5 1", "-o", out], ("OD2000", "cannot")),

@@ -9,7 +9,6 @@ this module parses and renders.
 from __future__ import annotations
 
 import contextlib
-import os
 import sys
 import time
 from pathlib import Path
@@ -19,7 +18,7 @@ import typer
 
 from drivebus import text
 from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
-from drivebus.cli.options import ConfigArg, JsonOpt
+from drivebus.cli.options import ConfigArg, JsonOpt, check_output
 from drivebus.errors import ArgumentError, ConfigError, LimitViolation
 
 if TYPE_CHECKING:
@@ -80,7 +79,7 @@ def dump(
         raise ConfigError(f"no axis {axis!r} in machine {cfg.name} (axes: "
                           f"{', '.join(cfg.axes)})")
     if output is not None:
-        _check_output(output)  # before the drive is read
+        check_output(output)  # before the drive is read
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
     source = str(config.resolve())
@@ -104,21 +103,6 @@ def dump(
         return 0
 
     _run(run)
-
-
-def _check_output(output: Path) -> None:
-    """``--output`` names a file that can be written: its directory exists and takes it
-    (``ArgumentError`` naming the path otherwise, before anything is read)."""
-    where = output.parent
-    if output.is_dir():
-        raise ArgumentError(f"--output {output}: is a directory: give a file's name "
-                            f"(e.g. {output / 'axis.toml'})")
-    if not where.is_dir():
-        raise ArgumentError(f"--output {output}: no such directory {where}: create it "
-                            f"first, or write the file elsewhere")
-    if not os.access(where, os.W_OK | os.X_OK) or (
-            output.exists() and not os.access(output, os.W_OK)):
-        raise ArgumentError(f"--output {output}: not writable by this user (in {where})")
 
 
 def _write_set(out: Out, pset: ParameterSet, output: Path | None) -> None:
