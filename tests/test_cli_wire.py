@@ -4,13 +4,16 @@ every frame its line carries, and its twins say at the end whether a motor still
 Refused commands (a bad argument, a target beyond the soft limits, a drive that cannot do
 it, an unknown axis or position, an output that cannot be written) send nothing at all:
 what the machine file decides is refused before a port opens. Every moving command that
-is interrupted leaves its twins at rest, the stop on the wire before the process ends.
+is interrupted leaves its twins at rest, the stop on the wire before the process ends;
+interrupted before anything opened, it says so in one line (exit status 130).
 """
 
 from __future__ import annotations
 
 import re
 import signal
+import subprocess
+import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -18,7 +21,8 @@ from pathlib import Path
 
 import pytest
 
-from test_cli import DEMO, SINGLE, Proc, drivebus, sim_server, spawn
+from drivebus.cli.root import _fail
+from test_cli import DEMO, ROOT, SINGLE, Proc, drivebus, sim_server, spawn
 from wirelog import KINDS
 
 
@@ -158,3 +162,52 @@ def test_an_interrupted_demo_leaves_its_twins_at_rest(tmp_path: Path, how: str) 
         assert sim.interrupt() == 0
         twins = sim.rest()
     assert re.search(r"^twin x: position=-?\d+ pulses moving=False$", twins, re.M), twins
+
+
+_CTRL_C_AT = """
+import sys
+
+class CtrlC:  # Ctrl-C that lands while MODULE is being imported
+    def find_spec(self, name, path=None, target=None):
+        if name == MODULE:
+            raise KeyboardInterrupt
+        return None
+
+sys.meta_path.insert(0, CtrlC())
+sys.argv = ["drivebus", *ARGS]
+from drivebus.cli import main
+main()
+"""
+
+
+@pytest.mark.parametrize("module", ["drivebus.cli.commissioning", "drivebus.motion"])
+def test_ctrl_c_while_the_command_starts_is_130_without_a_traceback(module: str) -> None:
+    """Ctrl-C during the imports of the start-up (the entry point's, then the command's
+    own), made deterministic by an import hook that raises it there: exit status 130, at
+    most the one line ``interrupted``, no traceback."""
+    program = _CTRL_C_AT.replace("MODULE", repr(module)).replace(
+        "ARGS", repr(["move", str(SINGLE), "x", "10"]))
+    r = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
+                       timeout=60, check=False, cwd=ROOT)
+    assert r.returncode == 130, (r.returncode, r.stderr[-2000:])
+    assert r.stderr in ("", "interrupted\n"), r.stderr[-2000:]
+    assert r.stdout == ""
+
+
+def test_an_error_raised_because_of_ctrl_c_is_an_interruption(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A library that wraps the Ctrl-C that hit it (pydantic building a model: a
+    SchemaError whose context is the KeyboardInterrupt) is ``interrupted``, 130, not an
+    internal error."""
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise RuntimeError('Error building "literal" validator')  # noqa: B904
+    except RuntimeError as exc:
+        wrapped = exc
+    with pytest.raises(SystemExit) as ex:
+        _fail(wrapped, debug=False)
+    assert ex.value.code == 130
+    assert capsys.readouterr().err == "interrupted\n"

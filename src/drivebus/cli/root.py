@@ -706,9 +706,20 @@ def _leaves(exc: BaseException) -> list[BaseException]:
     return [exc]
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """``exc`` is Ctrl-C, or an error raised because of it (a library that wraps what
+    interrupted it, as pydantic does a model being built when Ctrl-C came)."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, KeyboardInterrupt):
+            return True
+        seen = seen.__cause__ or seen.__context__
+    return False
+
+
 def _explain_any(exc: BaseException) -> tuple[str, int]:
     """``explain`` for the errors drivebus raises on purpose; one line for anything else."""
-    if isinstance(exc, KeyboardInterrupt):
+    if _interrupted(exc):
         return "interrupted", 130
     if isinstance(exc, DrivebusError | OSError | termios.error):
         from drivebus.cli.terminal import explain

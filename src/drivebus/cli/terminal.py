@@ -106,11 +106,19 @@ def run_guarded(fn: Callable[[], Awaitable[int]], *, interrupt_ok: bool = False)
 
     from drivebus.app.lifecycle import run_until_signalled
 
+    caught: list[signal.Signals] = []
+
     def said(sig: signal.Signals) -> None:
+        caught.append(sig)
         if not interrupt_ok:
             print(f"interrupted ({sig.name})", file=sys.stderr, flush=True)
 
-    return run_until_signalled(fn, interrupt_ok=interrupt_ok, on_signal=said)
+    code = run_until_signalled(fn, interrupt_ok=interrupt_ok, on_signal=said)
+    if caught:  # stopped and on its way out: a late Ctrl-C must not change its status
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    return code
+
 
 def fmt_number(v: float | None) -> str:
     """A position or velocity as printed (``-``: unknown)."""
