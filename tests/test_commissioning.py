@@ -186,6 +186,13 @@ async def test_commission_gives_a_drive_its_address_and_format() -> None:
                                       "-S", "38400 8N1", "--to-address", "9", "--wait", "5")
         assert code == 1 and "another slave already answers at address 9" in out, out
         assert not [f for f in wire.log if f.direction == "request" and f.data[1] == 0x06]
+        # where it answers already: nothing to change, refused with nothing sent at all (it
+        # wrote the same address again and saved it, an EEPROM write for nothing)
+        frames = wire.frames
+        code, out = await _commission(wire, twin, "--drive", "CL86R", "--address", "1",
+                                      "-S", "38400 8N1", "--to-address", "1")
+        assert code == 2 and "nothing to change" in out and "address 1" in out, out
+        assert wire.frames == frames
         # a free address and 8N2: written, saved, the drive answers there after power-up
         code, out = await _commission(wire, twin, "--drive", "CL86R", "--address", "1",
                                       "-S", "38400 8N1", "--to-address", "7",
@@ -204,10 +211,13 @@ async def test_commission_gives_a_drive_its_address_and_format() -> None:
             ok=False))
         assert r.returncode != 0
         assert other.address == 9
-        # a drive set by DIP switches says so
+        # a drive set by DIP switches says so: a refusal, with nothing sent (exit status 2,
+        # as for any command its drive cannot do)
+        frames = wire.frames
         code, out = await _commission(wire, twin, "--drive", "NT86", "--address", "1",
                                       "--to-address", "3")
-        assert code == 1 and "DIP switches" in out
+        assert code == 2 and "DIP switches" in out
+        assert wire.frames == frames
 
 
 # -- the CLI's option handling --------------------------------------------------------------------

@@ -19,7 +19,7 @@ import typer
 from drivebus import text
 from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
 from drivebus.cli.options import ConfigArg, JsonOpt, check_output
-from drivebus.errors import ArgumentError, ConfigError, LimitViolation
+from drivebus.errors import ArgumentError, ConfigError, LimitViolation, NotSupported
 
 if TYPE_CHECKING:
     from drivebus.app.params import Difference, ParameterSet
@@ -367,9 +367,12 @@ def commission(
     hint = _power_hint(target, address)
 
     async def run() -> int:
-        report = await run_commission(target, drive, address, now, to_address=to_address,
-                                      to_settings=new, timeout=timeout, wait=wait,
-                                      say=out.line, power_hint=hint)
+        try:
+            report = await run_commission(target, drive, address, now, to_address=to_address,
+                                          to_settings=new, timeout=timeout, wait=wait,
+                                          say=out.line, power_hint=hint)
+        except NotSupported as exc:  # decided before anything is sent: a refusal
+            raise ArgumentError(f"--drive {drive}: {exc}") from None
         out.result(report.as_dict())
         for name, value in report.writes:
             out.line(f"  wrote {name} = {value}")
