@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 from drivebus.cli.root import _fail
-from test_cli import DEMO, ROOT, SINGLE, Proc, drivebus, sim_server, spawn
+from test_cli import DEMO, ROOT, SINGLE, Proc, drivebus, serving, sim_server, spawn
 from wirelog import KINDS
 
 
@@ -121,6 +121,42 @@ def test_a_refused_command_sends_nothing_at_all(tmp_path: Path) -> None:
         for n in needles:
             assert n in lines[0], (what, lines[0])
     assert sent == [], [f"{f.address}: {f.data.hex(' ')}" for f in sent]
+
+
+def test_a_command_the_serve_refuses_sends_nothing_and_exits_2(tmp_path: Path) -> None:
+    """The same refusals through the ``drivebus serve`` that owns the machine (on a running
+    simulator): exit status 2 as when the machine is opened here, and not one write on
+    the line; a refused jog sends no stop either: it stopped someone else's motion."""
+    demo = tmp_path / "demo.toml"
+    demo.write_text(DEMO.read_text())
+    cases: list[tuple[list[str | Path], str]] = [
+        (["jog", demo, "x", "1e9", "--for", "1"], "its drive runs at most"),
+        (["move", demo, "x", "1000"], "soft limits"),
+        (["move", demo, "aux", "10"], "cannot make an absolute move"),
+        (["home", demo, "aux"], "cannot home"),
+        (["move", demo, "nowhere"], "no position 'nowhere'"),
+        (["status", demo, "q"], "no axis 'q'"),
+    ]
+    # someone else's motion on x (5 mm/s: a minute long) runs meanwhile
+    with (sim_server(demo, "--log") as (sim, _), serving(demo),
+          spawn("move", demo, "x", "300", "--speed", "5") as move):
+        move.expect(r"x: position=\S+ .*state=DiscreteMotion")
+        began = time.monotonic()  # the move's own frames went out before: at < began
+        results = [drivebus(*args) for args, _ in cases]
+        ended = time.monotonic()
+        deadline = ended + 30  # the service polls: a frame after them shows they are in
+        while not any(f.at > ended for f in requests(sim)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        sent = [f for f in requests(sim) if f.at > began]
+        assert move.popen.poll() is None, move.rest()  # not stopped by a refusal
+        assert move.interrupt() == 130
+    assert any(f.at > ended for f in sent), "the service's polls were not logged"
+    assert [f for f in sent if f.write] == [], [f.data.hex(" ") for f in sent if f.write]
+    for (args, needle), r in zip(cases, results, strict=True):
+        what = " ".join(map(str, args))
+        assert r.returncode == 2, (what, r.stderr)
+        assert "served by a running drivebus serve" in r.stderr, what
+        assert r.stderr.splitlines()[-1].startswith("error: ") and needle in r.stderr, what
 
 
 def _kind(frame: Frame) -> str | None:

@@ -152,8 +152,8 @@ def _errno(exc: BaseException) -> int | None:
 
 def explain(exc: BaseException) -> tuple[str, int]:
     """The one line to print for ``exc`` (cause; what to do) and the exit status."""
-    if isinstance(exc, ConfigError | ArgumentError):
-        return f"error: {exc}", 2
+    if isinstance(exc, ConfigError | ArgumentError | errors.NotFound):  # NotFound: named a
+        return f"error: {exc}", 2  # thing there is not (an axis, a position, a motion)
     code = _errno(exc)
     if isinstance(exc, LineClosed | OSError) and code in _PORT_HINTS:
         port = getattr(exc, "filename", None)
