@@ -107,10 +107,21 @@ def test_params_dump_diff_load_on_a_running_sim_agree_with_mbpoll(tmp_path: Path
         assert theirs[0x46] == 75
         r = drivebus("params", "diff", backup)
         assert r.returncode == 0 and "no parameter differs" in r.stdout
-        # a value out of range: nothing is written (exit 2), mbpoll sees the old values
+        # a value out of range: nothing is written (exit 2), mbpoll sees the old values;
+        # the file alone decides it: not even the drive is read (the log, between two marks)
         backup.write_text(text.replace("jog_speed = { value = 75", "jog_speed = { value = 7500"))
+
+        def mark() -> int:
+            r = drivebus("read", "sim://demo-rs485", "4", "0", "-S", "38400 8N2")
+            assert r.returncode == 0, r.stderr
+            sim.expect(r"request addr=4 38400-8N2 gap=\S+ 04 03 00 00 00 01 ")
+            return len(sim.seen)
+
+        before = mark()
         r = drivebus("params", "load", backup, "--save")
         assert r.returncode == 2 and "nothing written: jog_speed" in r.stderr
+        after = mark()
+        assert [x for x in sim.seen[before:after - 1] if " request " in x] == []
         theirs = mbpoll_values(mbpoll("-b", "38400", "-P", "none", "-s", "2", "-a", "4",
                                       "-r", "0x0046", pty))
         assert theirs[0x46] == 75
