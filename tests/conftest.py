@@ -8,7 +8,10 @@ subprocesses, not on the CPU), then the ``serial`` ones alone, one after the oth
 Mark a test ``@pytest.mark.serial`` (a module: ``pytestmark = pytest.mark.serial``) only
 when it must run alone: when it asserts something the machine's load changes (a duration
 bound such as a start skew or an arrival spread, a count against wall time) or measures
-(the bench). A test that shares something with others is not serial: give it its own
+(the bench). Such a bound is judged with ``tests/held_up.py``'s ``within_bound``: an
+attempt whose miss the process's own CPU wait covers (the twins run in it, and were held
+up with it) is made again; any other miss fails. A test that shares something with
+others is not serial: give it its own
 (port 0, or ``ports.reserved_port()`` for a port chosen before its server listens;
 ``tmp_path``; a ``sim://`` name of its own; ``$XDG_RUNTIME_DIR`` is already its own). An
 expensive build several tests read (the docs site, the wheel) is made once per run with

@@ -18,6 +18,7 @@ from drivebus.errors import (
     StateError,
 )
 from drivebus.motion import GroupMotionError
+from held_up import within_bound
 
 
 def machine(n: int = 1, drive: str = "CL86R", **axis: Any) -> MachineConfig:
@@ -180,27 +181,35 @@ async def test_power_loss_makes_the_axis_offline_and_it_comes_back() -> None:
 async def test_group_arrives_together_and_reports_start_skew() -> None:
     async with open_machine(machine(3)) as m:
         g = m.group("a1", "a2", "a3")
-        arrived: dict[str, float] = {}
 
-        async def note_arrival(name: str) -> None:
-            async for st in m.axes[name].watch():
-                if st.moving:
-                    break
-            async for st in m.axes[name].watch():
-                if not st.moving:
-                    arrived[name] = anyio.current_time()
-                    return
+        async def group_move(attempt: int) -> float:
+            arrived: dict[str, float] = {}
 
-        async with anyio.create_task_group() as tg:
-            for n in ("a1", "a2", "a3"):
-                tg.start_soon(note_arrival, n)
-            report = await g.move_to({"a1": 40.0, "a2": 10.0, "a3": -20.0})
-        assert report.duration > 0 and report.start_skew >= 0
-        poll = m.config.axes["a1"].poll.moving
-        assert max(arrived.values()) - min(arrived.values()) <= poll + report.start_skew + 0.01
-        assert [m.sim_drives[n].position() for n in ("a1", "a2", "a3")] == [4000, 1000, -2000]
-        # the short moves were slowed down to match the long one
-        assert report.plans["a2"].speed < report.plans["a1"].speed
+            async def note_arrival(name: str) -> None:
+                async for st in m.axes[name].watch():
+                    if st.moving:
+                        break
+                async for st in m.axes[name].watch():
+                    if not st.moving:
+                        arrived[name] = anyio.current_time()
+                        return
+
+            there = {"a1": 40.0, "a2": 10.0, "a3": -20.0}
+            async with anyio.create_task_group() as tg:
+                for n in ("a1", "a2", "a3"):
+                    tg.start_soon(note_arrival, n)
+                report = await g.move_to(
+                    there if attempt % 2 else {n: 0.0 for n in there})  # (again: back)
+            assert report.duration > 0 and report.start_skew >= 0
+            assert [m.sim_drives[n].position() for n in ("a1", "a2", "a3")] == (
+                [4000, 1000, -2000] if attempt % 2 else [0, 0, 0])
+            # the short moves were slowed down to match the long one
+            assert report.plans["a2"].speed < report.plans["a1"].speed
+            poll = m.config.axes["a1"].poll.moving
+            spread = max(arrived.values()) - min(arrived.values())
+            return spread - (poll + report.start_skew + 0.01)
+
+        await within_bound(group_move, "arrivals within a poll and the start skew")
 
 
 async def test_a_fault_on_one_axis_stops_the_group() -> None:
@@ -300,18 +309,24 @@ def test_shipped_configs_validate(name: str) -> None:
 async def test_group_prepares_every_axis_then_starts_them_back_to_back() -> None:
     async with open_machine(machine(3)) as m:
         wire = m.wires["rs485"]
-        wire.clear_log()  # type: ignore[union-attr]
-        report = await m.group().move_to({"a1": 30.0, "a2": -20.0, "a3": 10.0})
-        frames = wire.requests()  # type: ignore[union-attr]
-        # CL86R: parameters go to 0x0030.. (FC16), the start is a write of 0x0036 (FC06)
-        def at(fc: int, reg: bytes) -> list[int]:
-            return [i for i, f in enumerate(frames) if f.data[1] == fc and f.data[2:4] == reg]
 
-        params, starts = at(0x10, b"\x00\x30"), at(0x06, b"\x00\x36")
-        assert len(params) == 3 and len(starts) == 3
-        assert max(params) < min(starts)  # every axis prepared before any starts
-        assert starts[-1] - starts[0] <= 3  # back to back (at most a poll in flight between)
-        assert report.start_skew < 0.02
+        async def group_move(attempt: int) -> float:
+            wire.clear_log()  # type: ignore[union-attr]
+            there = {"a1": 30.0, "a2": -20.0, "a3": 10.0}
+            report = await m.group().move_to(
+                there if attempt % 2 else {n: 0.0 for n in there})  # (again: back)
+            frames = wire.requests()  # type: ignore[union-attr]
+            # CL86R: parameters go to 0x0030.. (FC16), the start is a write of 0x0036 (FC06)
+            def at(fc: int, reg: bytes) -> list[int]:
+                return [i for i, f in enumerate(frames) if f.data[1] == fc and f.data[2:4] == reg]
+
+            params, starts = at(0x10, b"\x00\x30"), at(0x06, b"\x00\x36")
+            assert len(params) == 3 and len(starts) == 3
+            assert max(params) < min(starts)  # every axis prepared before any starts
+            assert starts[-1] - starts[0] <= 3  # back to back (at most a poll in flight between)
+            return report.start_skew - 0.02
+
+        await within_bound(group_move, "a start skew under 20 ms")
 
 
 async def test_group_move_by_moves_each_axis_from_where_it_is() -> None:

@@ -15,6 +15,7 @@ import pytest
 from drivebus import MotionEvent, Recording, open_machine
 from drivebus.config import MachineConfig, parse_config
 from drivebus.errors import ConfigError
+from held_up import within_bound
 from waits import within
 
 POLL = 0.01
@@ -183,13 +184,18 @@ def _same(a: list[tuple[Any, ...]], b: list[tuple[Any, ...]]) -> None:
 @pytest.mark.serial  # planned ends within 20 ms of each other: CPU load from other tests
 # moves the group's starts (and the ends planned from them) further apart
 async def test_a_group_move_records_planned_and_observed_arrivals() -> None:
-    rec = await recorded_group_move("rec-group")
-    started = {e.axis: e for e in rec.events() if e.kind == "started"}
-    arrived = {e.axis: e for e in rec.events() if e.kind == "in_position"}
-    assert set(started) == set(arrived) == {"x", "y", "r"}
-    # one plan: the group's axes are planned to arrive together (within the group's own
-    # tolerance and its start offsets' rounding), and each was seen arriving after it
-    ends = [started[n].planned_end or 0.0 for n in ("y", "r")]
-    assert max(ends) - min(ends) < 0.02
-    for n in ("y", "r"):
-        assert arrived[n].time >= started[n].time
+
+    async def recorded(attempt: int) -> float:
+        rec = await recorded_group_move(f"rec-group-{attempt}")
+        started = {e.axis: e for e in rec.events() if e.kind == "started"}
+        arrived = {e.axis: e for e in rec.events() if e.kind == "in_position"}
+        assert set(started) == set(arrived) == {"x", "y", "r"}
+        for n in ("y", "r"):
+            assert arrived[n].time >= started[n].time
+        # one plan: the group's axes are planned to arrive together (within the group's
+        # own tolerance and its start offsets' rounding), and each was seen arriving after
+        # it; a held-up process (the twins' too) sends a start late, and its end with it
+        ends = [started[n].planned_end or 0.0 for n in ("y", "r")]
+        return max(ends) - min(ends) - 0.02
+
+    await within_bound(recorded, "the recorded planned ends within 20 ms")

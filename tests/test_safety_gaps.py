@@ -26,6 +26,7 @@ import pytest
 from drivebus import AxisState, errors, open_machine
 from drivebus.errors import ArgumentError, GroupMotionError, LimitViolation, MotionTimeout
 from drivebus.motion import Axis, Machine
+from held_up import within_bound
 from mqtt_helpers import bridged, running_broker
 from service_rig import running
 from service_rig import until as service_until
@@ -306,21 +307,28 @@ async def test_group_report_counts_only_moving_axes_beside_the_twins() -> None:
         x, y, z = (m.axes[n] for n in "xyz")
         still = z.position
         assert still is not None
-        report = await m.group("x", "y", "z").move_to(
-            {"x": (x.position or 0) + 40.0, "y": (y.position or 0) + 20.0, "z": still}
-        )
-        ends = {n: m.sim_drives[n].kin.end_time() for n in ("x", "y")}
-        twins_spread = max(ends.values()) - min(ends.values())
-        assert set(report.planned_arrivals) == {"x", "y"} == set(report.observed_arrivals)
-        assert report.observed_resolution > 0
-        # The plan predicts the twins' spread to within the start replies' wire time;
-        # the polls see it to within their windows.
-        assert abs(report.planned_arrival_spread - twins_spread) < 0.01
-        assert abs(report.observed_arrival_spread - twins_spread) <= (
-            report.observed_resolution + 1e-6
-        )
-        assert report.arrival_spread == report.observed_arrival_spread
-        assert report.start_skew < report.duration
+
+        async def group_move(attempt: int) -> float:
+            way = 1.0 if attempt % 2 else -1.0  # (again: back)
+            report = await m.group("x", "y", "z").move_to(
+                {"x": (x.position or 0) + way * 40.0, "y": (y.position or 0) + way * 20.0,
+                 "z": still}
+            )
+            ends = {n: m.sim_drives[n].kin.end_time() for n in ("x", "y")}
+            twins_spread = max(ends.values()) - min(ends.values())
+            assert set(report.planned_arrivals) == {"x", "y"} == set(report.observed_arrivals)
+            assert report.observed_resolution > 0
+            # The polls see the twins' spread to within their windows.
+            assert abs(report.observed_arrival_spread - twins_spread) <= (
+                report.observed_resolution + 1e-6
+            )
+            assert report.arrival_spread == report.observed_arrival_spread
+            assert report.start_skew < report.duration
+            # The plan predicts the twins' spread to within the start replies' wire time
+            # (a held-up process, the twins' too, sends a start late).
+            return abs(report.planned_arrival_spread - twins_spread) - 0.01
+
+        await within_bound(group_move, "the plan's arrival spread within 10 ms of the twins'")
 
 
 # -- 5. errors that say enough ------------------------------------------------------------------
