@@ -123,6 +123,26 @@ def test_a_refused_command_sends_nothing_at_all(tmp_path: Path) -> None:
     assert sent == [], [f"{f.address}: {f.data.hex(' ')}" for f in sent]
 
 
+def test_a_jog_with_no_room_before_the_soft_limit_is_refused_with_nothing_written(
+    tmp_path: Path,
+) -> None:
+    """At the negative soft limit, a jog down is refused as a move beyond it is (exit
+    status 2, the limit named) with not one write on the line; up, it runs."""
+    cfg = _machine(tmp_path, "edge", 50.0)
+    with sim_server(cfg, "--log") as (sim, _):
+        assert drivebus("move", cfg, "x", "-10").returncode == 0
+        mark = sync(sim, "sim://edge", 1, "115200 8N1")
+        down = drivebus("jog", cfg, "x", "-5", "--for", "1")
+        last = sync(sim, "sim://edge", 1, "115200 8N1")
+        between = requests(sim)
+        between = between[between.index(mark) + 1:between.index(last)]
+        up = drivebus("jog", cfg, "x", "5", "--for", "0.2")
+    assert down.returncode == 2, down.stderr
+    assert down.stderr.splitlines()[-1].startswith("error: SPEED: axis x: at the soft limit")
+    assert [f.data.hex(" ") for f in between if f.write] == []
+    assert up.returncode == 0, up.stderr
+
+
 def test_a_command_the_serve_refuses_sends_nothing_and_exits_2(tmp_path: Path) -> None:
     """The same refusals through the ``drivebus serve`` that owns the machine (on a running
     simulator): exit status 2 as when the machine is opened here, and not one write on
@@ -141,7 +161,8 @@ def test_a_command_the_serve_refuses_sends_nothing_and_exits_2(tmp_path: Path) -
     with (sim_server(demo, "--log") as (sim, _), serving(demo),
           spawn("move", demo, "x", "300", "--speed", "5") as move):
         move.expect(r"x: position=\S+ .*state=DiscreteMotion")
-        began = time.monotonic()  # the move's own frames went out before: at < began
+        start = _await_start(sim, 2, "NT86", 0.0)  # the move's own frames: up to this one
+        began = start.at
         results = [drivebus(*args) for args, _ in cases]
         ended = time.monotonic()
         deadline = ended + 30  # the service polls: a frame after them shows they are in
@@ -159,12 +180,23 @@ def test_a_command_the_serve_refuses_sends_nothing_and_exits_2(tmp_path: Path) -
         assert r.stderr.splitlines()[-1].startswith("error: ") and needle in r.stderr, what
 
 
-def _kind(frame: Frame) -> str | None:
-    """``start``/``stop`` for a CL86R command frame (FC06 to its control word)."""
+def _kind(frame: Frame, drive: str = "CL86R") -> str | None:
+    """``start``/``stop`` for a command frame of ``drive`` (FC06 to its control word)."""
     d = frame.data
     if len(d) < 6 or d[1] != 0x06:
         return None
-    return KINDS["CL86R"](int.from_bytes(d[2:4], "big"), int.from_bytes(d[4:6], "big"))
+    return KINDS[drive](int.from_bytes(d[2:4], "big"), int.from_bytes(d[4:6], "big"))
+
+
+def _await_start(sim: Proc, address: int, drive: str, after: float) -> Frame:
+    """The first start command to ``address`` logged after ``after`` (monotonic s)."""
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        for f in requests(sim):
+            if f.at > after and f.address == address and _kind(f, drive) == "start":
+                return f
+        time.sleep(0.05)
+    pytest.fail(f"no start command to slave {address} within 30 s")
 
 
 @pytest.mark.parametrize("how", ["SIGTERM", "SIGINT twice"])
@@ -177,13 +209,7 @@ def test_an_interrupted_demo_leaves_its_twins_at_rest(tmp_path: Path, how: str) 
         with spawn("demo", cfg) as demo:
             demo.expect(r"^home x: done")
             homed = time.monotonic()  # CLOCK_MONOTONIC: the simulator's log clock too
-            deadline = homed + 30
-            start = None
-            while start is None and time.monotonic() < deadline:
-                start = next((f for f in requests(sim)
-                              if f.at > homed and _kind(f) == "start"), None)
-                time.sleep(0.05)
-            assert start is not None, "the group move did not start within 30 s"
+            start = _await_start(sim, 1, "CL86R", homed)  # the group move's
             if how == "SIGTERM":
                 demo.popen.send_signal(signal.SIGTERM)
             else:

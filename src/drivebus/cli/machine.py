@@ -241,6 +241,10 @@ async def jog_axis(out: Out, config: Path | MachineConfig, axis: str, speed: flo
     """Jog an axis at ``speed`` units/s for ``seconds`` (until Ctrl-C without it)."""
     async with _one_axis(out, config, axis) as run:
         ax = run.axis
+        try:  # no room before a limit in its direction: a bad argument, as a move's target
+            ax.envelope.check_jog_room(speed, ax.status)
+        except errors.LimitViolation as exc:
+            raise ArgumentError(f"SPEED: {exc}") from None
         what = f"jog at {speed:g}/s" + (f" for {seconds:g} s" if seconds else " (Ctrl-C ends it)")
 
         async def motion() -> None:
