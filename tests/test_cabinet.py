@@ -223,7 +223,9 @@ def test_check_probe_reports_an_axis_that_does_not_answer_and_goes_on(tmp_path: 
 
 
 def test_scan_shows_its_progress_on_stderr_when_piped_and_rich_on_a_terminal() -> None:
-    scan = ["scan", "sim://demo-rs485", "-b", "9600,115200", "-f", "8N1,8N2", "-a", "1-4,7"]
+    # (a probe timeout a simulator in another process answers within on a busy machine)
+    scan = ["scan", "sim://demo-rs485", "-b", "9600,115200", "-f", "8N1,8N2", "-a", "1-4,7",
+            "-t", "0.15"]
     with sim_server(DEMO):
         r = drivebus(*scan)  # stdout and stderr both pipes
         assert r.returncode == 0, r.stderr

@@ -100,6 +100,9 @@ address = 40
 [registers.spare]
 address = 41
 
+[registers.copied]
+address = 42
+
 [status]
 moving = "status.MOVING"
 
@@ -139,6 +142,10 @@ block = true
 [procedures.run_at]
 params = ["rpm"]
 steps = [{ read = ["status"] }, { write = { speed = "rpm" } }]
+
+[procedures.copy_points]
+doc = "a register read in the procedure, written as it is (JVL's P_SOLL = P_IST)"
+steps = [{ read = ["extra"] }, { write = { copied = "extra" } }]
 
 [procedures.home]
 steps = [{ write = { extra = "home.code" } }]
@@ -248,6 +255,19 @@ async def test_the_dry_run_checks_writes_after_a_read(base: Description) -> None
         with pytest.raises(LimitViolation, match="speed"):
             await profile.run_at(4000)
         assert sent(wire) == []
+
+
+async def test_a_register_read_in_the_procedure_is_written_as_it_is(
+        base: Description) -> None:
+    """A value that is a register named bare (``copied = "extra"`` after a read of it) is
+    the drive's answer: the dry run leaves it to the run (it once range-checked the
+    not-yet-read placeholder and refused the procedure: "value <Unread ...> is not a finite
+    number")."""
+    async with rig(base) as (wire, profile):
+        await profile.slave.write_register(40, 7)
+        wire.clear_log()
+        await profile.copy_points()
+        assert sent(wire)[1][:17] == "01 06 00 2A 00 07"  # copied (42) := 7, as read
 
 
 async def test_outputs_by_name_and_function_names(base: Description) -> None:

@@ -39,6 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 MOONS = ROOT / "configs" / "drives" / "moons_stf.toml"
 FAST = LineSettings.parse("115200 8N1")
 QUICK = MoveParams(600, 100, 100)
+SLOW = MoveParams(60, 10, 10)
+"""Long enough that a status read after its start sees it moving, on a busy machine too."""
 
 MINIMAL = """
 [drive]
@@ -77,6 +79,8 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
     ("toml", MINIMAL + "\n[drive\n", ("not valid TOML",)),
     ("unknown key", MINIMAL.replace("address = 1", "adress = 1"),
      ("registers.enable.adress", "unknown key")),
+    ("unknown key beside an alias", MINIMAL + "\n[alarms]\nregister = 'status'\nsource = 'x'\n",
+     ("alarms.source", "unknown key", "(allowed: register, kind,")),
     ("missing", MINIMAL.replace("[units.pulses_per_rev]\ndefault = 1000\n", ""),
      ("units", "Field required")),
     ("expression", MINIMAL.replace("enable = 1 }", "enable = '1 +' }"),
@@ -192,6 +196,58 @@ def test_each_mistake_is_a_config_error_naming_file_key_and_problem(
     assert message.startswith(f"{path}:"), message
     for needle in needles:
         assert needle in message, (needle, message)
+
+
+def test_link_words_gives_every_register_its_width(tmp_path: Path) -> None:
+    """``[link] words = 2`` (the JVL MIS, the Lexium 32: every value in two registers):
+    each register without ``words`` is 32 bits, its bits up to 31; ``words = 1`` and a
+    coil keep theirs. Without it, a register is 16 bits, and a bit or a low_address that
+    needs 32 is an error naming the register."""
+    wide = MINIMAL.replace("bit = 1, means", "bit = 20, means").replace(
+        "address = 1\n", "address = 2\n") + """
+[link]
+word_order = "low_first"
+words = 2
+functions = [1, 3, 5, 6, 16]
+
+[registers.narrow]
+address = 8
+words = 1
+
+[registers.split]
+address = 10
+low_address = 14
+
+[registers.on]
+address = 0
+coil = true
+"""
+    d = load_description(write(tmp_path, wide))
+    widths = {k: r.register.words for k, r in d.regs.items()}
+    assert widths == {"status": 2, "enable": 2, "narrow": 1, "split": 2, "on": 1}, widths
+    assert d.regs["split"].register.hi == 0xFFFFFFFF
+    narrow = wide.replace("words = 2\nfunctions", "functions")
+    with pytest.raises(ConfigError) as err:
+        load_description(write(tmp_path, narrow, "narrow.toml"))
+    assert "registers.status: bit MOVING (20, width 1) is beyond the register's 16 bits" in \
+        str(err.value) and "registers.split.low_address: low_address is for a 32-bit " \
+        "register" in str(err.value), err.value
+
+
+def test_a_procedure_not_described_says_where_it_would_be(tmp_path: Path) -> None:
+    """A common procedure the file lacks is refused with a reason, and the drive's page
+    gives it (the page once printed an empty "no: " cell for each)."""
+    from drivebus.drives.pages import procedures
+    from drivebus.drives.registry import family_from_description
+
+    fam = family_from_description(load_description(write(tmp_path, MINIMAL)))
+    why = dict(procedures(fam))
+    assert why["enable"] == ""
+    assert why["zero_position"].endswith(
+        "cannot set its position to zero over Modbus: its description has no "
+        "[procedures.zero_position]"), why["zero_position"]
+    assert why["home"].endswith(": its description has no [procedures.home]"), why["home"]
+    assert all(w for p, w in why.items() if p != "enable"), why
 
 
 def test_a_minimal_description_loads_and_a_missing_file_is_named(tmp_path: Path) -> None:
@@ -330,7 +386,7 @@ async def test_moves_runs_stops_and_the_status_decoding() -> None:
         st = await profile.read_status()
         assert not st.enabled and st.in_position and st.position == 0
         await profile.enable()
-        await profile.move_relative(5000, QUICK)
+        await profile.move_relative(5000, SLOW)  # (seen moving on a busy machine too)
         moving = await profile.read_status()
         assert moving.moving and not moving.in_position and moving.enabled
         st = await wait_for(profile, at_rest)
@@ -397,6 +453,46 @@ async def test_the_twin_answers_only_what_the_description_documents() -> None:
         with pytest.raises(ModbusException) as exc:
             await slave.read_holding_registers(124, 1)  # the opcode register is write-only
         assert exc.value.code == 0x11 and exc.value.text == "register does not support read"
+
+
+WHOLE = MINIMAL + """
+[link]
+functions = [3, 16]
+refusals = { split = 2 }
+
+[registers.target]
+address = 4
+words = 2
+"""
+
+
+@pytest.mark.parametrize("split", [True, False], ids=["whole values", "halves answered"])
+async def test_the_twin_serves_only_its_functions_and_refuses_half_a_value(
+        tmp_path: Path, split: bool) -> None:
+    """``[link] functions`` without 6: the twin answers FC06 with illegal function (it
+    once served it, so a description that sent FC06 to a drive without it passed its
+    trial). ``refusals.split``: a request that starts or ends inside a 32-bit value is
+    refused, as the JVL MIS refuses it; without it, half a value is answered."""
+    text = WHOLE if split else WHOLE.replace("refusals = { split = 2 }\n", "")
+    twin = described_twin(load_description(write(tmp_path, text)))(1, FAST)
+    async with sim_bus([twin], FAST) as (_, bus):
+        slave = bus.slave(1)
+        with pytest.raises(ModbusException) as exc:
+            await slave.write_register(4, 1)
+        assert exc.value.code == 1 and exc.value.text == "illegal function"
+        await slave.write_registers(4, [0, 7])
+        assert await slave.read_holding_registers(4, 2) == [0, 7]
+        halves = (lambda: slave.read_holding_registers(4, 1),
+                  lambda: slave.read_holding_registers(5, 1),
+                  lambda: slave.write_registers(5, [9]))
+        for half in halves:
+            if split:
+                with pytest.raises(ModbusException) as exc:
+                    await half()
+                assert exc.value.code == 2
+            else:
+                await half()
+        assert await slave.read_holding_registers(4, 2) == ([0, 7] if split else [0, 9])
 
 
 async def test_a_power_cycle_loses_the_volatile_setup_and_setup_restores_it() -> None:
@@ -670,6 +766,22 @@ async def test_the_guides_example_description_passes_its_trial(tmp_path: Path) -
     steps = await try_description(load_description(write(tmp_path, example, "acme.toml")))
     assert [s.name for s in steps if s.failed] == [], steps
     assert {s.name for s in steps if s.result == "pass"} >= {"move absolute", "stop"}
+
+
+async def test_a_trial_that_finds_no_move_names_the_refusal(tmp_path: Path) -> None:
+    """A move no speed can pass names why (the description's own mistake, here a speed
+    register of 1..5 rpm), not only that nothing fits."""
+    from drivebus.sim.trial import try_description
+
+    text = MINIMAL + (
+        "\n[registers.speed]\naddress = 2\nunit = 'rpm'\nmin = 1\nmax = 5\n"
+        "\n[registers.target]\naddress = 3\nunit = 'pulses'\n"
+        "\n[procedures.move_absolute]\n"
+        "steps = [{ write = { speed = 'speed', target = 'target' } }]\n")
+    steps = await try_description(load_description(write(tmp_path, text)))
+    move = next(s for s in steps if s.name == "move absolute")
+    assert move.failed and "no speed of 10..600 rpm" in move.detail, steps
+    assert "register speed" in move.detail and "1..5" in move.detail, move.detail
 
 
 MEANINGS_ONLY = """

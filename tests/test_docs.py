@@ -183,3 +183,16 @@ def test_drive_pages_are_committed_as_the_profiles_declare_them() -> None:
     bhss = (ROOT / "docs/drives/bhss.md").read_text()
     assert "| save parameters | yes |" not in bhss  # it raises NotSupported by default
     assert "| save parameters | no: the BHSS drive has no save command" in bhss
+
+
+def test_the_reference_names_every_key_of_an_example() -> None:
+    """Each key an ``[[examples]]`` entry takes has its row in the reference's table (a
+    user writing a frame the description cannot run found ``listed`` only in another
+    description)."""
+    from drivebus.drives.description.examples import ExampleDef
+
+    text = (ROOT / "docs/reference/descriptions.md").read_text(encoding="utf-8")
+    section = text.split("## `[[examples]]`", 1)[1].split("\n## ", 1)[0]
+    for name, field in ExampleDef.model_fields.items():
+        key = field.alias or name
+        assert f"`{key}`" in section or f"`{key} =" in section, key

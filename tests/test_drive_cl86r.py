@@ -29,6 +29,8 @@ from drivebus.sim.drives.cl86r import SimCL86R
 FAST = LineSettings.parse("115200 8N1")
 FACTORY = LineSettings.parse("9600 8N1")
 QUICK = MoveParams(1500, 300, 300)  # 25 rev/s, 83 ms ramps: short test moves
+SLOW = MoveParams(600, 100, 100)
+"""Long enough that a status read after its start sees it moving, on a busy machine too."""
 
 
 def hexframes(wire: VirtualWire) -> list[str]:
@@ -209,7 +211,7 @@ async def test_enable_relative_and_absolute_moves_land_on_target() -> None:
         assert not (await profile.read_status()).enabled
         await profile.enable()
         assert (await profile.read_status()).enabled
-        await profile.move_relative(5000, QUICK)
+        await profile.move_relative(5000, SLOW)  # (seen moving on a busy machine too)
         moving = await profile.read_status()
         assert moving.moving and not moving.in_position
         st = await wait_for(profile, at_rest)

@@ -69,25 +69,31 @@ async def test_a_buffered_sequence_of_ten_moves_never_stands_still_longer_than_a
     async with open_machine(DEMO) as m:
         ax, twin = m.axes[name], m.sim_drives[name]
         start = base(ax)
-        await ax.move_to(start)
         step = ax.config.units_per_rev * 0.5
         targets = [start + step * ((i + 1) % 2) + 0.1 * i for i in range(10)]
-        t0 = anyio.current_time()
-        handles = [await ax.move_to(t, buffer="buffered") for t in targets]
-        assert all(isinstance(h, MotionHandle) for h in handles)
-        assert [h.plan.runs for h in handles] == ["now"] + ["buffered"] * 9
-        with anyio.fail_after(30):
-            for h in handles:
-                await h
-        assert all(h.done and h.error is None for h in handles)
-        assert twin.position() == ax.units.to_pulses(targets[-1])
-        segments = motion_between(twin, t0, anyio.current_time())
-        dwells = standstills(segments)
-        assert len(dwells) == 9  # it stopped at each target, in position
-        reads = reads_of(m, name)
-        polls = [sum(1 for t in reads if a < t < b) for a, b in standstill_spans(segments)]
-        assert max(polls) <= 1, (polls, dwells)  # the start followed the first poll after
-        assert ax.state is AxisState.STANDSTILL and ax.queued == 0
+
+        async def sequence(attempt: int) -> float:
+            await ax.move_to(start)
+            t0 = anyio.current_time()
+            handles = [await ax.move_to(t, buffer="buffered") for t in targets]
+            assert all(isinstance(h, MotionHandle) for h in handles)
+            assert [h.plan.runs for h in handles] == ["now"] + ["buffered"] * 9
+            with anyio.fail_after(30):
+                for h in handles:
+                    await h
+            assert all(h.done and h.error is None for h in handles)
+            assert twin.position() == ax.units.to_pulses(targets[-1])
+            segments = motion_between(twin, t0, anyio.current_time())
+            assert len(standstills(segments)) == 9  # it stopped at each target, in position
+            reads = reads_of(m, name)
+            # The start follows the first poll after each arrival: a second read that
+            # began during a standstill says the start came that much too late.
+            late = [b - inside[1] for a, b in standstill_spans(segments)
+                    if len(inside := sorted(t for t in reads if a < t < b)) > 1]
+            assert ax.state is AxisState.STANDSTILL and ax.queued == 0
+            return max(late, default=-1.0)
+
+        await within_bound(sequence, "each start before a second poll of its standstill")
 
 
 @pytest.mark.serial  # the next move must reach the drive before it stops: a deadline that

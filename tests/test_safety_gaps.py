@@ -9,6 +9,7 @@ arrivals from the axes that moved; errors name their axis and speak in its units
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
@@ -22,6 +23,7 @@ from typing import Any
 
 import anyio
 import pytest
+from websockets.asyncio.client import connect
 
 from drivebus import AxisState, errors, open_machine
 from drivebus.errors import ArgumentError, GroupMotionError, LimitViolation, MotionTimeout
@@ -236,14 +238,29 @@ def test_viewing_commands_send_zero_writes(tmp_path: Path) -> None:
 
 
 async def test_service_get_routes_and_mqtt_telemetry_send_zero_writes(tmp_path: Path) -> None:
-    """Every GET route of the service, and the MQTT bridge publishing telemetry (to a
-    real Mosquitto), on the demo machine: its wires carry reads only."""
+    """Every GET route of the service, a raw register read, a recording and a WebSocket
+    subscription to every topic, and the MQTT bridge publishing telemetry (to a real
+    Mosquitto), on the demo machine: its wires carry reads only."""
     async with running() as (svc, client):
         for path in ("/api/machine", "/api/axes", "/api/lines/rs485", "/api/lines/eth",
-                     "/api/motions", "/api/lease", "/api/client", "/"):
+                     "/api/motions", "/api/lease", "/api/client", "/", "/metrics",
+                     "/api/positions", "/api/override", "/api/recordings", "/openapi.json",
+                     "/docs"):
             assert (await client.get(path)).status_code == 200, path
         for name in svc.session.machine.axes:
-            assert (await client.get(f"/api/axes/{name}")).status_code == 200
+            for tail in ("", "/parameters", "/io"):  # parameters and I/O: read from the drive
+                r = await client.get(f"/api/axes/{name}{tail}")
+                assert r.status_code == 200, (name, tail, r.text)
+        r = await client.post("/api/lines/rs485/read", json={"address": 2, "register": 0,
+                                                             "count": 3})
+        assert r.status_code == 200, r.text
+        assert (await client.post("/api/recordings", json={})).status_code == 201
+        assert svc.url is not None
+        async with connect(svc.url.replace("http://", "ws://") + "/api/ws") as ws:
+            await ws.send(json.dumps({"subscribe": ["axes", "lines", "motions", "errors"]}))
+            with anyio.fail_after(20):
+                for _ in range(2 * len(svc.session.machine.axes)):  # states as polled
+                    await ws.recv()
         await service_until(svc, lambda: all(
             a.status is not None for a in svc.session.machine.axes.values()))
         assert writes_on_wires(svc.session.machine) == []

@@ -166,7 +166,7 @@ def _allowed_keys(model: type[BaseModel] | None, loc: Sequence[int | str]) -> li
     node: Any = model
     for part in loc[:-1]:
         if isinstance(node, type) and issubclass(node, BaseModel):
-            field = node.model_fields.get(str(part))
+            field = _fields_by_key(node).get(str(part))
             node = field.annotation if field is not None else None
             args = get_args(node)
             if get_origin(node) is dict and args:
@@ -179,8 +179,14 @@ def _allowed_keys(model: type[BaseModel] | None, loc: Sequence[int | str]) -> li
         else:
             return []
     if isinstance(node, type) and issubclass(node, BaseModel):
-        return list(node.model_fields)
+        return list(_fields_by_key(node))
     return []
+
+
+def _fields_by_key(model: type[BaseModel]) -> dict[str, Any]:
+    """A model's fields by the key a file writes: the alias where a field has one (the
+    ``register`` of ``[alarms]``, not its Python name ``reg``)."""
+    return {(f.alias or name): f for name, f in model.model_fields.items()}
 
 
 def validation_problems(

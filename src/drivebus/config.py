@@ -77,7 +77,7 @@ def position_problems(config: MachineConfig, positions: Mapping[str, Any],
         return [f"{where}: expected tables of axis = position, not {positions!r}"]
     for name, values in positions.items():
         key = f"{where}.{name}"
-        if not isinstance(name, str) or not re.match(POSITION_NAME, name):
+        if not isinstance(name, str) or not re.fullmatch(POSITION_NAME, name):
             out.append(f"{key}: a position's name is a letter or _, then letters, digits, "
                        f"_ or - (64 at most)")
             continue

@@ -76,7 +76,7 @@ class PositionStore:
     def teach(self, name: str, values: Mapping[str, float]) -> dict[str, float]:
         """Store ``values`` (axis -> position) under ``name`` (the axes it already had
         keep theirs) and write the file back; returns the position as stored."""
-        if not isinstance(name, str) or not re.match(POSITION_NAME, name):
+        if not isinstance(name, str) or not re.fullmatch(POSITION_NAME, name):
             raise ArgumentError(f"position name {name!r}: a letter or _, then letters, "
                                 f"digits, _ or - (64 at most)")
         rounded = {a: round(float(v), _DIGITS) for a, v in values.items()}

@@ -484,9 +484,11 @@ class MachineSession:
         accel: float | None = None,
         decel: float | None = None,
         owner: str | None = None,
+        accepted: Callable[[], object] | None = None,
     ) -> None:
         """Jog at ``speed`` for a client: it stops ``ttl`` seconds after the last call
         unless fed by another (the same speed feeds, another changes it; 0 stops).
+        ``accepted()`` is called once the axis has taken it (every check passed).
 
         The jog is held by ``owner`` (default: ``client``): ``release(owner)`` stops it.
         A front end passes one owner per connection, so that a connection that goes away
@@ -497,9 +499,11 @@ class MachineSession:
         self.authorize(client)
         if checks.finite("speed", speed) == 0:
             self._jogs.pop(axis, None)
+            if accepted is not None:
+                accepted()
             await ax.stop()
             return
-        await ax.jog(speed, watchdog=ttl, accel=accel, decel=decel)
+        await ax.jog(speed, watchdog=ttl, accel=accel, decel=decel, accepted=accepted)
         self._jogs[axis] = owner or client or ""
 
     async def release(self, client: str) -> None:

@@ -84,8 +84,8 @@ class Axis(Jogging, AxisIO):
         self.check_limits(target)
         self.profile.check_supported("move_absolute")
         target_p = self.envelope.pulses(target)
+        self.check_drive(plan)  # first: a refusal in the axis's units, naming it
         params = self.drive_params(plan)
-        self.check_drive(plan)
         what = f"move to {target:g}"
         if buffer == "aborting":
             await self._start_on_its_way()
@@ -221,8 +221,8 @@ class Axis(Jogging, AxisIO):
             buffer == "aborting" and self._may_take_over()
         ):
             self.profile.check_supported("move_absolute")
-            params = self.drive_params(plan)
             self.check_drive(plan)
+            params = self.drive_params(plan)
             if buffer == "aborting":
                 origin = self.status.position if self.status is not None else None
             else:
@@ -238,8 +238,8 @@ class Axis(Jogging, AxisIO):
                 return None
             return self._queue_move(what, target_p, base, buffer, accepted)
         self.profile.check_supported("move_relative")
+        self.check_drive(plan)  # first: a refusal in the axis's units, naming it
         params = self.drive_params(plan)
-        self.check_drive(plan)
         if self.position is not None:
             self.check_limits(self.position + distance)
         direction = self.envelope.drive_direction(distance)

@@ -21,6 +21,9 @@ from drivebus.motion.units import Units
 
 __all__ = ["Envelope", "MotionPlan"]
 
+_EDGE_STEPS = 64
+"""Most steps of the search for a drive's edge (it needs ~25 from the float range's ends)."""
+
 
 @dataclass(frozen=True)
 class MotionPlan:
@@ -119,8 +122,14 @@ class Envelope:
             if fits(value) or not fits(good):
                 continue
             lo, hi = sorted((value, good))
-            while hi / lo > 1.0001:  # the edge between a value that fits and one that does not
-                mid = (lo * hi) ** 0.5
+            # the edge between a value that fits and one that does not, halving the ratio's
+            # logarithm each step: ~25 steps even from the float range's ends. The mean of
+            # the square roots, not the root of the product, which overflows to infinity
+            # for values near the float range (and then never gets closer).
+            for _ in range(_EDGE_STEPS):
+                if hi / lo <= 1.0001:
+                    break
+                mid = math.sqrt(lo) * math.sqrt(hi)
                 if fits(mid) == (value > good):
                     lo = mid
                 else:

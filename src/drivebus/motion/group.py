@@ -89,6 +89,8 @@ class AxisGroup:
         if not values:
             raise ArgumentError(f"{what}: no axes given")
         checked = {n: checks.finite(f"axis {n}: {what} {n!r}", v) for n, v in values.items()}
+        for n in checked:  # each axis moves by absolute moves: one that cannot is refused now
+            self.axes[n].profile.check_supported("move_absolute")
         if free:
             for n in checked:
                 self.axes[n].check_free("group move")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from dataclasses import replace
 
@@ -50,9 +50,11 @@ class Jogging(ProgramRunner):
         decel: float | None = None,
         watchdog: float | None = 1.0,
         buffer: BufferMode = "aborting",
+        accepted: Callable[[], object] | None = None,
     ) -> MotionHandle | None:
         """Run at ``speed`` units/s (sign = direction) until ``stop()`` or until the
-        watchdog expires; returns once running.
+        watchdog expires; returns once running. ``accepted()`` is called once every check
+        has passed and the axis has taken the jog (as for ``move_to``).
 
         The ``watchdog`` is on by default: the application must call ``jog`` (or ``feed``)
         again within ``watchdog`` seconds (1 s by default), or the actor stops the axis and
@@ -75,6 +77,8 @@ class Jogging(ProgramRunner):
         if watchdog is not None:
             watchdog = checks.positive(f"axis {self.name}: watchdog", watchdog, unit="s")
         if speed == 0 and buffer == "aborting":
+            if accepted is not None:
+                accepted()
             await self.stop()
             return None
         if speed == 0:
@@ -87,10 +91,12 @@ class Jogging(ProgramRunner):
         self.check_drive(plan)
         what = f"jog at {speed:g}"
         if buffer != "aborting" and (self._motion is not None or self._queue):
-            return self._queue_jog(what, speed, base, bound, watchdog, buffer)
+            return self._queue_jog(what, speed, base, bound, watchdog, buffer, accepted)
         self.envelope.check_jog_room(speed, self.status)
         m = self._motion
         if m is not None and m.kind == "jog" and self.state is AxisState.CONTINUOUS_MOTION:
+            if accepted is not None:
+                accepted()
             if m.speed == speed and m.base_plan == base:
                 self._arm_watchdog(watchdog)  # the same jog again: a feed
                 return None
@@ -98,7 +104,7 @@ class Jogging(ProgramRunner):
             m.base_plan = base
             return None
         m = self._begin("jog", what, AxisState.CONTINUOUS_MOTION,
-                        direction=self.envelope.drive_direction(speed))
+                        direction=self.envelope.drive_direction(speed), accepted=accepted)
         m.speed, m.plan, m.target, m.buffer = speed, plan, bound, buffer
         m.base_plan = base
         await self._run_motion(m, lambda: self._start_jog(m), timeout=None, wait=False)
@@ -108,6 +114,7 @@ class Jogging(ProgramRunner):
     def _queue_jog(
         self, what: str, speed: float, base: MotionPlan, bound: int | None,
         watchdog: float | None, buffer: BufferMode,
+        accepted: Callable[[], object] | None = None,
     ) -> MotionHandle:
         """Queue a jog behind the motions under way (checked against where they end)."""
         origin, _ = self._queue_origin(what)
@@ -124,7 +131,7 @@ class Jogging(ProgramRunner):
                 await self.profile.retarget_absolute(bound, self.drive_params(m.plan))
 
             m.retarget = retarget
-        return self._enqueue(m, None)
+        return self._enqueue(m, accepted)
 
     async def _start_jog(self, m: Motion) -> None:
         assert m.plan is not None

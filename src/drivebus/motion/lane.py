@@ -235,6 +235,8 @@ class CommandLane(AxisActor):
             running = f"; the {self._motion.what} is under way" if self._motion else ""
             if self._queue:
                 running += f"; {len(self._queue)} more queued"
+            if self.state is AxisState.DISABLED:  # what the user does next
+                running += ": enable it first"
             raise StateError(
                 f"axis {self.name}: cannot start the {what} in state {self.state}{detail}"
                 f"{running}"

@@ -36,17 +36,29 @@ class Units:
         return pulses * self.units_per_rev / self.pulses_per_rev
 
     def to_rpm(self, units_per_s: float) -> float:
-        """A speed in user units/s as motor rev/min."""
-        return units_per_s / abs(self.units_per_rev) * 60.0
+        """A speed in user units/s as motor rev/min; ``LimitViolation`` if that is not
+        finite (a speed near the float range's end)."""
+        return _finite(units_per_s / abs(self.units_per_rev) * 60.0, units_per_s,
+                       "units/s", "rpm")
 
     def from_rpm(self, rpm: float) -> float:
         """Motor rev/min as user units/s."""
         return rpm / 60.0 * abs(self.units_per_rev)
 
     def to_rps2(self, units_per_s2: float) -> float:
-        """An acceleration in user units/s² as motor rev/s²."""
-        return units_per_s2 / abs(self.units_per_rev)
+        """An acceleration in user units/s² as motor rev/s²; ``LimitViolation`` if that is
+        not finite."""
+        return _finite(units_per_s2 / abs(self.units_per_rev), units_per_s2, "units/s²",
+                       "rev/s²")
 
     def from_rps2(self, rps2: float) -> float:
         """Motor rev/s² as user units/s²."""
         return rps2 * abs(self.units_per_rev)
+
+
+def _finite(converted: float, given: float, unit: str, drive_unit: str) -> float:
+    """``converted`` if it is finite; else ``LimitViolation`` naming ``given``."""
+    if not math.isfinite(converted):
+        raise LimitViolation(f"{given!r} {unit} is {converted} {drive_unit}: beyond any "
+                             f"drive's range")
+    return converted

@@ -16,8 +16,9 @@ every axis at once.
 
 Replies: every command gets exactly one final reply, ``done``, ``aborted`` or ``failed``
 (with the typed error's name and text); one that was taken up gets ``accepted`` before it
-(a move or homing once the axis admitted it: its motion id comes with it). A command
-that was refused or could not be parsed gets only ``failed``. Replies go to the MQTT 5
+(a move or homing once the axis admitted it: its motion id comes with it; a jog once
+the axis took it). A command that was refused or could not be parsed gets only
+``failed``. Replies go to the MQTT 5
 response topic with the correlation data when the command has them, else to
 ``drivebus/<node>/replies``; the command's ``id`` is echoed either way.
 
@@ -556,7 +557,8 @@ class Bridge:
         except DrivebusError as exc:
             self._final(rt, a, cmd.verb, exc)
             return
-        self._accepted(rt, a, cmd.verb)
+        if cmd.verb != "jog":  # a jog is accepted once the axis took it: a refusal only fails
+            self._accepted(rt, a, cmd.verb)
         try:
             if cmd.verb == "stop":
                 await s.stop(a, decel=args.get("decel"), client=client)
@@ -574,7 +576,8 @@ class Bridge:
                 await s.set_output(a, cmd.values["output"], cmd.values["state"], client=client)
             elif cmd.verb == "jog":
                 await s.jog(a, args["speed"], ttl=args["ttl"], accel=args.get("accel"),
-                            decel=args.get("decel"), client=client)
+                            decel=args.get("decel"), client=client,
+                            accepted=lambda: self._accepted(rt, a, "jog"))
                 if not self._up:  # the broker went away while it started: no feed can come
                     await s.release(client)
                     raise MotionAborted(f"axis {a}: the jog was stopped: the broker "

@@ -23,7 +23,7 @@ from fastapi.staticfiles import StaticFiles
 from drivebus.app import MachineSession
 from drivebus.service import metrics, problems
 from drivebus.service.auth import TokenStore
-from drivebus.service.bodies import JsonDepthLimit
+from drivebus.service.bodies import BodyLimits
 from drivebus.service.deps import (
     ERRORS,
     Commander,
@@ -404,7 +404,7 @@ def create_app(session: MachineSession, tokens: TokenStore | None = None) -> Fas
     )
     app.state.drivebus = state
     problems.install(app)
-    app.add_middleware(JsonDepthLimit)  # the same answer to a deep body on every Python
+    app.add_middleware(BodyLimits)  # size and depth: refused before FastAPI parses them
     app.include_router(router)
     root = APIRouter()
     metrics.install(root, reader)  # GET /metrics, for Prometheus

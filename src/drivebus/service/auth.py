@@ -106,11 +106,11 @@ class TokenStore:
                 raise ConfigError(f"{p}:{n}: expected 'NAME SCOPE TOKEN' "
                                   f"({len(parts)} fields)")
             name, scope, token = parts
-            if not _NAME.match(name):
+            if not _NAME.fullmatch(name):
                 raise ConfigError(f"{p}:{n}: name {name!r}: use 1-64 letters, digits, _.@-")
             if scope not in SCOPES:
                 raise ConfigError(f"{p}:{n}: scope {scope!r}: expected read or command")
-            if len(token) < MIN_TOKEN_LENGTH or not _TOKEN.match(token):
+            if len(token) < MIN_TOKEN_LENGTH or not _TOKEN.fullmatch(token):
                 raise ConfigError(f"{p}:{n}: the token must be at least {MIN_TOKEN_LENGTH} "
                                   f"characters of letters, digits and _.~+/=- "
                                   f"(e.g. `openssl rand -hex 16`)")
@@ -131,7 +131,7 @@ class TokenStore:
         """The caller presenting ``token`` (``AuthError`` 401 if it is missing or
         unknown); without tokens, the client named ``client`` may command."""
         if not self.enabled:
-            name = client if client and _CLIENT_HEADER.match(client) else "anonymous"
+            name = client if client and _CLIENT_HEADER.fullmatch(client) else "anonymous"
             return Principal(name, "command")
         if not token:
             raise AuthError(401, "this service needs a bearer token: "

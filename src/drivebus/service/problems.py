@@ -83,7 +83,8 @@ STATUS: dict[type[DrivebusError], int] = {
 
 _REASONS = {
     400: "BadRequest", 401: "Unauthorized", 403: "Forbidden", 404: "NotFound",
-    405: "MethodNotAllowed", 409: "Conflict", 415: "UnsupportedMediaType",
+    405: "MethodNotAllowed", 409: "Conflict", 413: "ContentTooLarge",
+    415: "UnsupportedMediaType",
     422: "ArgumentError", 500: "InternalError", 501: "NotSupported", 502: "BadGateway",
     503: "ServiceUnavailable", 504: "GatewayTimeout",
 }
@@ -135,6 +136,16 @@ def problem_data(exc: BaseException, instance: str | None = None) -> dict[str, A
     return data
 
 
+def _not_json(content_type: str | None) -> str | None:
+    """What a request's content type is if it is not JSON's (None if it is)."""
+    if content_type is None:
+        return "no Content-Type"
+    base = content_type.split(";", 1)[0].strip().lower()
+    if base == "application/json" or (base.startswith("application/") and base.endswith("+json")):
+        return None
+    return f"Content-Type {content_type!r}"
+
+
 def problem(status: int, data: dict[str, Any], headers: dict[str, str] | None = None
             ) -> JSONResponse:
     """A problem+json response."""
@@ -172,6 +183,10 @@ def install(app: FastAPI) -> None:
         detail = "; ".join(
             f"{'.'.join(str(p) for p in e['loc'][1:]) or 'body'}: {e['msg']}" for e in errors
         ) or "invalid request"
+        kind = _not_json(request.headers.get("content-type"))
+        if kind and any(e["loc"] == ["body"] and e["type"] != "missing" for e in errors):
+            detail = (f"body: not read as JSON ({kind}): send it with "
+                      f"'Content-Type: application/json'")
         data = {
             "type": "urn:drivebus:error:ArgumentError",
             "title": "ArgumentError",

@@ -33,6 +33,7 @@ from drivebus.errors import ConfigError
 from drivebus.service import systemd
 from drivebus.service.api import create_app
 from drivebus.service.auth import TokenStore
+from drivebus.service.bodies import MAX_BODY
 
 __all__ = [
     "Service",
@@ -233,7 +234,7 @@ async def open_service(
                             log_config=None,
                             access_log=False,
                             ws="websockets-sansio",
-                            ws_max_size=64 * 1024,
+                            ws_max_size=MAX_BODY,
                             ws_per_message_deflate=False,
                             timeout_graceful_shutdown=GRACEFUL_SHUTDOWN,
                         ))

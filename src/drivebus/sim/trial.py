@@ -64,15 +64,18 @@ def _settings(d: Description) -> LineSettings | None:
 
 def _params(profile: DriveProfile) -> MoveParams:
     """The fastest modest move the drive accepts."""
+    last: Exception | None = None
     for speed in _SPEEDS:
         for rate in _RATES:
             p = MoveParams(speed, rate, rate)
             try:
                 profile.check_move(p)
-            except (LimitViolation, NotSupported):
+            except (LimitViolation, NotSupported) as exc:
+                last = exc
                 continue
             return p
-    raise _Failed("no speed of 10..600 rpm with a ramp of 5..1000 rev/s² fits its registers")
+    raise _Failed("no speed of 10..600 rpm with a ramp of 5..1000 rev/s² fits its registers"
+                  f" (the last refused: {last})")
 
 
 _FIELDS = {"enabled": ("enabled",), "in position at rest": ("in_position", "moving"),

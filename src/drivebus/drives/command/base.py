@@ -90,8 +90,8 @@ class ProfileBase(DriveProfile):
         d = self.description
         proc = d.procedures.get(name)
         what = self._what(name, proc, args)
-        if proc is None:
-            raise self.unsupported(what)
+        if proc is None:  # say where it would be: a page and an error with a reason
+            raise self.unsupported(what, f"its description has no [procedures.{name}]")
         if proc.unsupported is not None:
             raise self.unsupported(what, proc.unsupported)
         if proc.supported is not None and not proc.supported(self._scope(None)):

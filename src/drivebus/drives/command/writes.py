@@ -13,7 +13,7 @@ from drivebus.drives.command.base import ProfileBase
 from drivebus.drives.command.reads import parsed_target
 from drivebus.drives.command.runs import _Item, _Run
 from drivebus.drives.description import Reg, Step
-from drivebus.drives.expr import Expr
+from drivebus.drives.expr import Expr, Unknown
 from drivebus.drives.registers import Register
 from drivebus.drives.units import Kind
 from drivebus.drives.values import RegValue, Table, Unread
@@ -50,6 +50,8 @@ class Writes(ProfileBase):
             for key, w in step.write.items():
                 reg, index = self._target(key, each)
                 value = w.value(each)
+                if isinstance(value, Unread):  # a register named bare, not read yet: the
+                    raise Unknown(f"register {value.key} was not read")  # drive answers it
                 items.append(_Item(reg, index, reg.at(index), value, w.value, w.nonzero, w.raw))
         for item in items:  # ramp times last: they refer to the speeds written with them
             if item.reg.codec.kind is not Kind.RAMP:

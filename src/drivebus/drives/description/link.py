@@ -72,6 +72,9 @@ class Refusals(_Model):
     count: int = Field(3, ge=1, le=255)
     crc: int | None = Field(None, ge=1, le=255, description="reply to a bad CRC (else silence)")
     busy: int | None = Field(None, ge=1, le=255, description="a command it cannot carry out now")
+    split: int | None = Field(None, ge=1, le=255, description="a request that starts or ends "
+                              "inside a 32-bit value, where the drive reads and writes its "
+                              "values whole (else half a value is answered)")
 
 
 class Timing(_Model):
@@ -157,6 +160,10 @@ class Link(_Model):
     max_write: int = Field(123, ge=1, le=123)
     max_hole: int = Field(0, ge=0, le=124, description="largest gap a coalesced read spans")
     word_order: Literal["high_first", "low_first"] = "high_first"
+    words: Literal[1, 2] = Field(1, description="the width of every register that gives no "
+                                 "words of its own (2: a drive that stores every value in two "
+                                 "registers, its 16-bit ones too); coils and discrete inputs "
+                                 "are one bit")
     register_base: Literal[0, 1, 40001] = Field(
         0, description="the number the manual gives the first register: 0 (PDU addresses, "
         "as on the wire), 1 (1-based) or 40001 (4xxxx numbering; input registers 3xxxx); "

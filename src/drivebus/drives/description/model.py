@@ -80,7 +80,7 @@ class Description(_Model):
     def regs(self) -> dict[str, Reg]:
         """Every register, by key (with those a CiA 402 address rule places)."""
         out = {}
-        placed = {k: self._pdu_addresses(d) for k, d in self.registers.items()}
+        placed = {k: self._pdu_addresses(self._width(d)) for k, d in self.registers.items()}
         for key, d in {**placed, **self._generated()}.items():
             codec = UnitCodec.make(d.unit, d.scale, d.ramp, d.table, d.values)
             order = WordOrder(d.order) if d.order else self.link.order
@@ -94,6 +94,13 @@ class Description(_Model):
         if base != 40001:
             return base
         return 30001 if d.input else 1 if d.coil else 10001 if d.discrete else base
+
+    def _width(self, d: RegisterDef) -> RegisterDef:
+        """``d`` with its width: its own ``words``, else ``[link] words`` (a coil or a
+        discrete input: one bit)."""
+        if d.words is not None:
+            return d
+        return d.model_copy(update={"words": 1 if d.coil or d.discrete else self.link.words})
 
     def _pdu_addresses(self, d: RegisterDef) -> RegisterDef:
         """``d`` with PDU addresses (its numbers less the register base; a number below

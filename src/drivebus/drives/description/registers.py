@@ -86,7 +86,8 @@ class RegisterDef(_Model):
 
     address: Word
     name: str = ""
-    words: Literal[1, 2] = 1
+    words: Literal[1, 2] | None = Field(None, description="1 or 2 registers (default: "
+                                        "[link] words, 1 for a coil or discrete input)")
     signed: bool = False
     order: Literal["high_first", "low_first"] | None = None
     low_address: Word | None = None
@@ -143,7 +144,7 @@ class RegisterDef(_Model):
 
     @model_validator(mode="after")
     def _check(self) -> RegisterDef:
-        if self.low_address is not None and self.words != 2:
+        if self.low_address is not None and self.words == 1:
             raise ValueError("low_address is for a 32-bit register (words = 2)")
         if self.min is not None and self.max is not None and self.min > self.max:
             raise ValueError(f"min {self.min} is above max {self.max}")
@@ -156,7 +157,7 @@ class RegisterDef(_Model):
             raise ValueError("an input register is read-only: access = \"R\"")
         if sum((self.input, self.coil, self.discrete)) > 1:
             raise ValueError("a register is one of input, coil or discrete (address spaces)")
-        if (self.coil or self.discrete) and (self.words != 1 or self.unit or self.bits or
+        if (self.coil or self.discrete) and (self.words == 2 or self.unit or self.bits or
                                              self.signed):
             raise ValueError("a coil or discrete input is one bit (0/1): no words, signed, "
                              "unit or bits")
@@ -168,7 +169,7 @@ class RegisterDef(_Model):
             raise ValueError(f"defaults: {len(self.defaults)} values for {self.count} entries")
         if isinstance(self.parameter, str):
             self._check_parameter_key(self.parameter)
-        bits = 16 * self.words
+        bits = 16 * (self.words or 2)  # the link's width is known later: checked again
         for name, b in self.bits.items():
             if b.bit + b.width > bits:
                 raise ValueError(f"bit {name} ({b.bit}, width {b.width}) is beyond the "

@@ -10,7 +10,14 @@ from typing import Any
 from drivebus.drives.description import TWIN_MEANINGS, Reg
 from drivebus.drives.units import Kind
 from drivebus.drives.values import reg_value
-from drivebus.pdu import READ_COILS, READ_DISCRETE, READ_INPUT, WRITE_COIL
+from drivebus.pdu import (
+    READ_COILS,
+    READ_DISCRETE,
+    READ_INPUT,
+    WRITE_COIL,
+    WRITE_MULTIPLE,
+    WRITE_SINGLE,
+)
 from drivebus.sim.described.base import TwinBase
 from drivebus.sim.registers import SlaveException, signed32
 
@@ -28,6 +35,7 @@ class Registers(TwinBase):
     def read_registers(self, function: int, address: int, count: int, now: float) -> list[int]:
         """Holding registers (FC03), or the description's input registers (FC04)."""
         if function != READ_INPUT:
+            self._check_whole(address, count)
             return super().read_registers(function, address, count, now)
         out = []
         for a in range(address, address + count):
@@ -46,6 +54,8 @@ class Registers(TwinBase):
         registers as any twin."""
         function = pdu[0]
         fcs = self.description.link.functions
+        if function in (WRITE_SINGLE, WRITE_MULTIPLE) and function not in fcs:
+            raise SlaveException(self.exception_codes.function)  # [link] functions: not served
         if function in (READ_COILS, READ_DISCRETE) and function in fcs:
             address, count = struct.unpack_from(">HH", pdu, 1)
             self.check_count(count)
@@ -155,6 +165,7 @@ class Registers(TwinBase):
         """Word by word, then each 32-bit register written whole against its range."""
         if len(values) > self.description.link.max_write:
             raise SlaveException(self.exception_codes.count)
+        self._check_whole(address, len(values))
         super().check_write(address, values)
         written = dict(zip(range(address, address + len(values)), values, strict=True))
         for a in written:
@@ -202,6 +213,23 @@ class Registers(TwinBase):
             return bool(self._eval(d.twin.eeprom_write_through, now))
         wt = d.eeprom.write_through
         return wt is not None and self._raw(d.regs[wt.reg], None) == wt.on
+
+    def _check_whole(self, address: int, count: int) -> None:
+        """``[link] refusals.split``: a request that starts or ends inside a 32-bit value
+        (two registers side by side) is refused, as a drive that keeps its values whole
+        refuses it (the JVL MIS: "a 32-bit register must be read or written as two
+        consecutive 16-bit registers")."""
+        code = self.description.link.refusals.split
+        if code is None:
+            return
+        span = range(address, address + count)
+        for a in (address, address + count - 1):  # only the ends can split a value
+            pair = self._pairs.get(a)
+            if pair is None:
+                continue
+            r = pair[0].at(pair[1])
+            if r.low_address is None and (r.address not in span or r.address + 1 not in span):
+                raise SlaveException(code)
 
     def write_register(self, address: int, word: int, now: float) -> None:
         """One word (FC06): as a write of one register."""

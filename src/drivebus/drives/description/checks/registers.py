@@ -61,6 +61,13 @@ class RegisterChecks(CheckCore):
                     d.max > _width_hi(d)):
                 self.out.append(f"{where}: range {lo}..{hi} does not fit {16 * d.words} "
                                 f"{'signed' if d.signed else 'unsigned'} bits")
+            if d.words == 1 and d.low_address is not None:  # 1 by [link] words
+                self.out.append(f"{where}.low_address: low_address is for a 32-bit register "
+                                f"(words = 2)")
+            for bit, b in d.bits.items():  # a register 16 bits wide by [link] words
+                if b.bit + b.width > 16 * d.words:
+                    self.out.append(f"{where}: bit {bit} ({b.bit}, width {b.width}) is "
+                                    f"beyond the register's {16 * d.words} bits")
             if d.offset and not reg.objects:
                 self.out.append(f"{where}.offset: an offset is for a sub-index of an "
                                 f"object-addressed map ([link] map = \"objects\")")
