@@ -732,7 +732,7 @@ def test_one_shot_commands_talk_to_the_serve_that_owns_the_machine() -> None:
         assert r.returncode == 0, r.stderr
         assert json.loads(r.stdout)["words"][0] == 862  # the CL86R's model code
         r = drivebus("move", SINGLE, "x", "1000")  # its typed error, through the service
-        assert r.returncode == 1, r.stderr  # as when the machine is opened here
+        assert r.returncode == 2, r.stderr  # a refusal, as when the machine is opened here
         assert r.stderr.splitlines()[-1].startswith("error: axis x: target 1000 is outside "
                                                     "the soft limits")
         with spawn("move", SINGLE, "x", "150", "--speed", "20") as move:

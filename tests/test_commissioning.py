@@ -107,10 +107,21 @@ def test_params_dump_diff_load_on_a_running_sim_agree_with_mbpoll(tmp_path: Path
         assert theirs[0x46] == 75
         r = drivebus("params", "diff", backup)
         assert r.returncode == 0 and "no parameter differs" in r.stdout
-        # a value out of range: nothing is written (exit 2), mbpoll sees the old values
+        # a value out of range: nothing is written (exit 2), mbpoll sees the old values;
+        # the file alone decides it: not even the drive is read (the log, between two marks)
         backup.write_text(text.replace("jog_speed = { value = 75", "jog_speed = { value = 7500"))
+
+        def mark() -> int:
+            r = drivebus("read", "sim://demo-rs485", "4", "0", "-S", "38400 8N2")
+            assert r.returncode == 0, r.stderr
+            sim.expect(r"request addr=4 38400-8N2 gap=\S+ 04 03 00 00 00 01 ")
+            return len(sim.seen)
+
+        before = mark()
         r = drivebus("params", "load", backup, "--save")
         assert r.returncode == 2 and "nothing written: jog_speed" in r.stderr
+        after = mark()
+        assert [x for x in sim.seen[before:after - 1] if " request " in x] == []
         theirs = mbpoll_values(mbpoll("-b", "38400", "-P", "none", "-s", "2", "-a", "4",
                                       "-r", "0x0046", pty))
         assert theirs[0x46] == 75
@@ -186,6 +197,13 @@ async def test_commission_gives_a_drive_its_address_and_format() -> None:
                                       "-S", "38400 8N1", "--to-address", "9", "--wait", "5")
         assert code == 1 and "another slave already answers at address 9" in out, out
         assert not [f for f in wire.log if f.direction == "request" and f.data[1] == 0x06]
+        # where it answers already: nothing to change, refused with nothing sent at all (it
+        # wrote the same address again and saved it, an EEPROM write for nothing)
+        frames = wire.frames
+        code, out = await _commission(wire, twin, "--drive", "CL86R", "--address", "1",
+                                      "-S", "38400 8N1", "--to-address", "1")
+        assert code == 2 and "nothing to change" in out and "address 1" in out, out
+        assert wire.frames == frames
         # a free address and 8N2: written, saved, the drive answers there after power-up
         code, out = await _commission(wire, twin, "--drive", "CL86R", "--address", "1",
                                       "-S", "38400 8N1", "--to-address", "7",
@@ -204,10 +222,13 @@ async def test_commission_gives_a_drive_its_address_and_format() -> None:
             ok=False))
         assert r.returncode != 0
         assert other.address == 9
-        # a drive set by DIP switches says so
+        # a drive set by DIP switches says so: a refusal, with nothing sent (exit status 2,
+        # as for any command its drive cannot do)
+        frames = wire.frames
         code, out = await _commission(wire, twin, "--drive", "NT86", "--address", "1",
                                       "--to-address", "3")
-        assert code == 1 and "DIP switches" in out
+        assert code == 2 and "DIP switches" in out
+        assert wire.frames == frames
 
 
 # -- the CLI's option handling --------------------------------------------------------------------

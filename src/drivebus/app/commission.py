@@ -100,6 +100,9 @@ async def commission(
     settings = settings or LineSettings()
     new_address = address if to_address is None else to_address
     new_settings = settings if to_settings is None else to_settings
+    if (new_address, new_settings) == (address, settings):
+        raise ArgumentError(f"nothing to change: the drive is to answer at address {address} "
+                            f"at {settings}, where it answers now (nothing was sent)")
     if new_address not in fam.profile.addresses:
         raise ArgumentError(f"--to-address: the {fam.name} drive has addresses "
                             f"{describe_values(fam.profile.addresses)}, "

@@ -30,6 +30,7 @@ __all__ = [
     "first_status",
     "jog_ended_by_axis",
     "opened",
+    "refuse_before_opening",
     "run_operation",
     "subset",
 ]
@@ -48,6 +49,50 @@ def subset(cfg: MachineConfig, axes: Sequence[str]) -> MachineConfig:
     used = {a.line for a in chosen.values()}
     lines = {n: ln for n, ln in cfg.lines.items() if n in used}
     return cfg.model_copy(update={"axes": chosen, "lines": lines})
+
+
+def refuse_before_opening(
+    cfg: MachineConfig, axis: str, procedure: str, *, target: float | None = None,
+    speed: float | None = None,
+) -> None:
+    """Raise the refusal the machine file alone decides for ``procedure`` on ``axis``
+    (``"move"``, ``"move_by"``, ``"jog"`` at the signed ``speed``, ``"home"``), before any
+    port opens: an unknown axis (``ConfigError``), a drive that cannot do it
+    (``NotSupported``), an absolute ``target`` beyond the soft limits, a speed beyond
+    ``max_speed`` or beyond what its drive runs (``LimitViolation``). The axis checks all of
+    it again (and what needs its status) when the command runs; this only makes a refusal
+    send nothing at all, not even the reads of opening."""
+    from drivebus.bus import Bus
+    from drivebus.drives.registry import family
+    from drivebus.line import SerialLine
+    from drivebus.motion.envelope import Envelope
+    from drivebus.motion.units import Units
+
+    ac = subset(cfg, [axis]).axes[axis]
+    fam = family(ac.drive)
+    detached = Bus(SerialLine("/dev/null", LineSettings())).slave(  # never opened
+        max(min(fam.profile.addresses), 1))
+    try:
+        profile = fam.profile(detached, pulses_per_rev=ac.pulses_per_rev, **ac.drive_options)
+    except TypeError as exc:
+        raise ConfigError(f"axes.{axis}.drive_options: {exc}") from None
+    if procedure == "home":
+        profile.check_supported("home")
+        return
+    envelope = Envelope(axis, ac, profile, Units(ac.pulses_per_rev, ac.units_per_rev))
+    plan = envelope.plan(None if speed is None else abs(speed))
+    if procedure == "jog":
+        jog_speed = speed if speed is not None else plan.speed
+        procedure = "move_absolute" if envelope.jog_bound(jog_speed) is not None \
+            else "speed_run"
+    elif procedure == "move":
+        procedure = "move_absolute"
+        if target is not None:
+            envelope.check_limits(target)
+    else:
+        procedure = "move_relative"
+    profile.check_supported(procedure)
+    envelope.check_drive(plan)
 
 
 async def first_status(m: Machine, timeout: float = 5.0) -> None:

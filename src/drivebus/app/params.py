@@ -44,6 +44,7 @@ __all__ = [
     "Difference",
     "LoadReport",
     "ParameterSet",
+    "check_values",
     "diff_parameters",
     "load_parameters",
     "open_drive",
@@ -274,28 +275,35 @@ class LoadReport:
                 "skipped": self.skipped, "saved": self.saved, "notes": self.notes}
 
 
+def check_values(profile: DriveProfile | type[DriveProfile], wanted: ParameterSet) -> None:
+    """``wanted`` is for this drive and every value is in its range (``ConfigError``,
+    ``LimitViolation`` naming each one out of range): decided from the file alone, before
+    the drive is read or written."""
+    if wanted.family != profile.family:
+        raise ConfigError(f"the parameters are {text.a(wanted.family)} drive's; this drive "
+                          f"is {text.a(profile.family)}")
+    problems = []
+    for p in profile.parameters():  # the manual's order
+        if p.key not in wanted.values:
+            continue
+        try:
+            p.register.check(wanted.values[p.key])
+        except LimitViolation as exc:
+            problems.append(f"{p.key}: {exc}")
+    if problems:
+        raise LimitViolation("nothing written: " + "; ".join(problems))
+
+
 def plan_load(
     profile: DriveProfile | type[DriveProfile], current: ParameterSet, wanted: ParameterSet,
     *, include_comms: bool = False,
 ) -> LoadReport:
     """The writes that make the drive (holding ``current``) hold ``wanted``: every wanted
-    value range-checked (``LimitViolation`` naming each one out of range; nothing is
-    written then), read-only parameters that differ refused, comms ones skipped unless
-    ``include_comms``."""
-    if wanted.family != profile.family:
-        raise ConfigError(f"the parameters are {text.a(wanted.family)} drive's; this drive "
-                          f"is {text.a(profile.family)}")
+    value range-checked (``check_values``), read-only parameters that differ refused,
+    comms ones skipped unless ``include_comms``."""
+    check_values(profile, wanted)
     params = {p.key: p for p in profile.parameters()}
     problems = []
-    for key, p in params.items():  # the manual's order
-        if key not in wanted.values:
-            continue
-        try:
-            p.register.check(wanted.values[key])
-        except LimitViolation as exc:
-            problems.append(f"{key}: {exc}")
-    if problems:
-        raise LimitViolation("nothing written: " + "; ".join(problems))
     report = LoadReport(profile.family, [])
     for key, p in params.items():  # the manual's order
         if key not in wanted.values or wanted.values[key] == current.values.get(key):
@@ -327,6 +335,7 @@ async def load_parameters(
     """
     if save and not profile.saves_by_write_through and (why := profile.save_problem()):
         raise NotSupported(f"--save: {why}")
+    check_values(profile, wanted)  # a bad file: refused before the drive is read
     current = await read_parameters(profile)
     plan = plan_load(profile, current, wanted, include_comms=include_comms)
     if report is None:

@@ -11,9 +11,15 @@ from __future__ import annotations
 
 
 def main() -> None:
-    """Console-script entry point (``drivebus``): see ``drivebus.cli.root.main``."""
-    from drivebus.cli.root import main as run
+    """Console-script entry point (``drivebus``): see ``drivebus.cli.root.main``. Ctrl-C
+    while it starts (nothing is open yet) is ``interrupted``, exit status 130."""
+    try:
+        from drivebus.cli.root import main as run
+    except KeyboardInterrupt:
+        import sys
 
+        print("interrupted", file=sys.stderr, flush=True)
+        sys.exit(130)
     run()
 
 

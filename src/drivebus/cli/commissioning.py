@@ -9,7 +9,6 @@ this module parses and renders.
 from __future__ import annotations
 
 import contextlib
-import os
 import sys
 import time
 from pathlib import Path
@@ -19,8 +18,8 @@ import typer
 
 from drivebus import text
 from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
-from drivebus.cli.options import ConfigArg, JsonOpt
-from drivebus.errors import ArgumentError, ConfigError, LimitViolation
+from drivebus.cli.options import ConfigArg, JsonOpt, check_output
+from drivebus.errors import ArgumentError, ConfigError, LimitViolation, NotSupported
 
 if TYPE_CHECKING:
     from drivebus.app.params import Difference, ParameterSet
@@ -80,7 +79,7 @@ def dump(
         raise ConfigError(f"no axis {axis!r} in machine {cfg.name} (axes: "
                           f"{', '.join(cfg.axes)})")
     if output is not None:
-        _check_output(output)  # before the drive is read
+        check_output(output)  # before the drive is read
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
     source = str(config.resolve())
@@ -104,21 +103,6 @@ def dump(
         return 0
 
     _run(run)
-
-
-def _check_output(output: Path) -> None:
-    """``--output`` names a file that can be written: its directory exists and takes it
-    (``ArgumentError`` naming the path otherwise, before anything is read)."""
-    where = output.parent
-    if output.is_dir():
-        raise ArgumentError(f"--output {output}: is a directory: give a file's name "
-                            f"(e.g. {output / 'axis.toml'})")
-    if not where.is_dir():
-        raise ArgumentError(f"--output {output}: no such directory {where}: create it "
-                            f"first, or write the file elsewhere")
-    if not os.access(where, os.W_OK | os.X_OK) or (
-            output.exists() and not os.access(output, os.W_OK)):
-        raise ArgumentError(f"--output {output}: not writable by this user (in {where})")
 
 
 def _write_set(out: Out, pset: ParameterSet, output: Path | None) -> None:
@@ -383,9 +367,12 @@ def commission(
     hint = _power_hint(target, address)
 
     async def run() -> int:
-        report = await run_commission(target, drive, address, now, to_address=to_address,
-                                      to_settings=new, timeout=timeout, wait=wait,
-                                      say=out.line, power_hint=hint)
+        try:
+            report = await run_commission(target, drive, address, now, to_address=to_address,
+                                          to_settings=new, timeout=timeout, wait=wait,
+                                          say=out.line, power_hint=hint)
+        except NotSupported as exc:  # decided before anything is sent: a refusal
+            raise ArgumentError(f"--drive {drive}: {exc}") from None
         out.result(report.as_dict())
         for name, value in report.writes:
             out.line(f"  wrote {name} = {value}")

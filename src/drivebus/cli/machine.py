@@ -27,12 +27,19 @@ from rich.live import Live
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 from drivebus import errors
-from drivebus.app.operations import Operation, jog_ended_by_axis, opened, run_operation
+from drivebus.app.operations import (
+    Operation,
+    jog_ended_by_axis,
+    opened,
+    refuse_before_opening,
+    run_operation,
+)
 from drivebus.app.operations import check_config as check_machine_file
 from drivebus.app.snapshots import machine_snapshot
 from drivebus.cli.remote import announce_sim_lines
 from drivebus.cli.terminal import Out, explain, fmt_number
 from drivebus.cli.views import axes_table, axis_line, axis_record, slaves_table, stats_lines
+from drivebus.config import MachineConfig, load_config
 from drivebus.errors import ArgumentError
 from drivebus.motion import Axis, AxisState, Machine
 from drivebus.text import count
@@ -43,10 +50,34 @@ __all__ = [
     "jog_axis",
     "monitor",
     "move_axis",
+    "refuse_early",
     "serve_sim",
     "show_status",
     "stop_axes",
 ]
+
+
+# -- refusals before anything opens ------------------------------------------------------------
+
+
+def refuse_early(config: Path | MachineConfig, axis: str, procedure: str, *,
+                 target: float | None = None, speed: float | None = None,
+                 speed_name: str = "--speed") -> MachineConfig:
+    """The machine file, loaded, once the refusals it decides alone for ``procedure`` on
+    ``axis`` have passed (``drivebus.app.operations.refuse_before_opening``): a refused
+    command is an ``ArgumentError`` naming its argument (exit status 2) and opens nothing,
+    so not one frame goes on the line. A ``ConfigError`` (an unknown axis) stays one."""
+    cfg = config if isinstance(config, MachineConfig) else load_config(config)
+    try:
+        refuse_before_opening(cfg, axis, procedure, target=target, speed=speed)
+    except errors.LimitViolation as exc:
+        name = "TARGET" if target is not None and "target" in str(exc) else speed_name
+        raise ArgumentError(f"{name}: {exc}") from None
+    except errors.NotSupported as exc:
+        if isinstance(exc, errors.ConfigError):
+            raise
+        raise ArgumentError(f"AXIS: axis {axis}: {exc}") from None
+    return cfg
 
 
 # -- status, stop --------------------------------------------------------------------------------
@@ -126,7 +157,7 @@ class _Run:
 
 
 @asynccontextmanager
-async def _one_axis(out: Out, config: Path, axis: str) -> AsyncIterator[_Run]:
+async def _one_axis(out: Out, config: Path | MachineConfig, axis: str) -> AsyncIterator[_Run]:
     """Open the machine with just ``axis``; once it is closed again (every moving axis
     stopped and at standstill), report where an operation that did not complete left it."""
     run: _Run | None = None
@@ -173,7 +204,7 @@ async def _with_progress(
 
 
 async def move_axis(
-    out: Out, config: Path, axis: str, target: float, by: bool, speed: float | None
+    out: Out, config: Path | MachineConfig, axis: str, target: float, by: bool, speed: float | None
 ) -> int:
     """Move one axis to ``target`` (or by it); Ctrl-C stops the axis before exiting."""
     async with _one_axis(out, config, axis) as run:
@@ -196,7 +227,7 @@ async def move_axis(
     return 0
 
 
-async def home_axis(out: Out, config: Path, axis: str) -> int:
+async def home_axis(out: Out, config: Path | MachineConfig, axis: str) -> int:
     """Run an axis's configured homing procedure."""
     async with _one_axis(out, config, axis) as run:
         ax = run.axis
@@ -205,10 +236,15 @@ async def home_axis(out: Out, config: Path, axis: str) -> int:
     return 0
 
 
-async def jog_axis(out: Out, config: Path, axis: str, speed: float, seconds: float | None) -> int:
+async def jog_axis(out: Out, config: Path | MachineConfig, axis: str, speed: float,
+                   seconds: float | None) -> int:
     """Jog an axis at ``speed`` units/s for ``seconds`` (until Ctrl-C without it)."""
     async with _one_axis(out, config, axis) as run:
         ax = run.axis
+        try:  # no room before a limit in its direction: a bad argument, as a move's target
+            ax.envelope.check_jog_room(speed, ax.status)
+        except errors.LimitViolation as exc:
+            raise ArgumentError(f"SPEED: {exc}") from None
         what = f"jog at {speed:g}/s" + (f" for {seconds:g} s" if seconds else " (Ctrl-C ends it)")
 
         async def motion() -> None:

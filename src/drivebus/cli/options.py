@@ -3,6 +3,7 @@ the ``drivebus serve`` that owns a machine (used by ``cli`` and its command modu
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -15,7 +16,8 @@ from drivebus.errors import ArgumentError
 if TYPE_CHECKING:
     from drivebus.service.client import ServiceClient
 
-__all__ = ["ConfigArg", "JsonOpt", "LocalOpt", "ServerOpt", "TokenOpt", "machine_file", "owner"]
+__all__ = ["ConfigArg", "JsonOpt", "LocalOpt", "ServerOpt", "TokenOpt", "check_output",
+           "machine_file", "owner"]
 
 _URL = re.compile(r"([a-z][a-z0-9+.-]+):/+(.*)")
 """A line's URL as a path makes it (``sim://x`` -> ``sim:/x``)."""
@@ -41,6 +43,21 @@ def machine_file(ctx: typer.Context, value: Path) -> Path:
 ConfigArg = Annotated[Path, typer.Argument(help="machine file (TOML)", metavar="CONFIG",
                                            callback=machine_file)]
 JsonOpt = Annotated[bool, typer.Option("--json", "-j", help="print the result as JSON")]
+
+
+def check_output(output: Path, option: str = "--output", example: str = "axis.toml") -> None:
+    """``option`` names a file that can be written: its directory exists and takes it
+    (``ArgumentError`` naming the path otherwise, before anything is read or moved)."""
+    where = output.parent
+    if output.is_dir():
+        raise ArgumentError(f"{option} {output}: is a directory: give a file's name "
+                            f"(e.g. {output / example})")
+    if not where.is_dir():
+        raise ArgumentError(f"{option} {output}: no such directory {where}: create it "
+                            f"first, or write the file elsewhere")
+    if not os.access(where, os.W_OK | os.X_OK) or (
+            output.exists() and not os.access(output, os.W_OK)):
+        raise ArgumentError(f"{option} {output}: not writable by this user (in {where})")
 
 
 def owner(

@@ -71,7 +71,17 @@ def teach(
     owner = _owner(config, server, token, local)
     if owner is not None:
         raise typer.Exit(run_guarded(lambda: _teach_remote(out, owner, name, axes or [])))
+    _refuse_teaching(config, axes or [])
     raise typer.Exit(run_guarded(lambda: _teach_here(out, config, name, axes or [])))
+
+
+def _refuse_teaching(config: Path, axes: list[str]) -> None:
+    """What the machine file alone refuses of ``teach``, before anything opens: an
+    unknown axis (a ``ConfigError`` naming those there are)."""
+    from drivebus.app.operations import subset
+    from drivebus.config import load_config
+
+    subset(load_config(config), axes)
 
 
 async def _move_here(out: Out, config: Path, name: str, speed: float | None) -> int:
@@ -111,7 +121,26 @@ def move_position(config: Path, name: str, speed: float | None, as_json: bool,
     owner = _owner(config, server, token, local)
     if owner is not None:
         return run_guarded(lambda: _move_remote(out, owner, name, speed))
+    _refuse_moving(config, name, speed)
     return run_guarded(lambda: _move_here(out, config, name, speed))
+
+
+def _refuse_moving(config: Path, name: str, speed: float | None) -> None:
+    """What the machine file alone refuses of a move to the taught position ``name``,
+    before anything opens: no such position, an axis of it that cannot move or not at
+    ``speed`` (``ArgumentError``, exit status 2)."""
+    from drivebus.cli.machine import refuse_early
+    from drivebus.config import load_config
+    from drivebus.errors import NotFound
+    from drivebus.positions import PositionStore
+
+    cfg = load_config(config)
+    try:
+        targets = PositionStore.of(cfg, cfg.source).get(name)
+    except NotFound as exc:
+        raise ArgumentError(f"POSITION: {exc}") from None
+    for axis, target in targets.items():
+        refuse_early(cfg, axis, "move", target=target, speed=speed)
 
 
 async def _list(out: Out, config: Path) -> int:

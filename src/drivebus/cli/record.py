@@ -19,10 +19,11 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from drivebus import checks
-from drivebus.cli.options import ConfigArg, LocalOpt, ServerOpt, TokenOpt
+from drivebus.cli.options import ConfigArg, LocalOpt, ServerOpt, TokenOpt, check_output
 from drivebus.errors import ArgumentError, ConfigError
 
 if TYPE_CHECKING:
+    from drivebus.config import MachineConfig
     from drivebus.motion import Recording
     from drivebus.service.client import ServiceClient
 
@@ -116,8 +117,37 @@ def _runner(step: Step, machine: object) -> Callable[[], Awaitable[object]]:
     return lambda: anyio.sleep(step.values[0])
 
 
-async def _record(config: Path, axes: list[str], steps: list[Step], seconds: float | None,
-                  outputs: list[Path], png: Path | None) -> int:
+def _refuse_early(config: Path, axes: list[str], steps: list[Step]) -> MachineConfig:
+    """The machine file, once what it refuses alone of the recording and its steps has
+    passed, before anything opens: an unknown axis, a drive that cannot do a step, a
+    target beyond the soft limits (``drivebus.cli.machine.refuse_early``)."""
+    from drivebus.app.operations import subset
+    from drivebus.cli.machine import refuse_early
+    from drivebus.config import load_config
+
+    cfg = load_config(config)
+    subset(cfg, axes)
+    for step in steps:
+        for name in step.axes:
+            if name not in cfg.axes:
+                raise ConfigError(f"--during: no axis {name!r} (axes: {', '.join(cfg.axes)})")
+        procedure = {"move": "move", "move-by": "move_by", "home": "home", "jog": "jog"}.get(
+            step.op)
+        if procedure is None:
+            continue
+        for i, name in enumerate(step.axes):
+            value = step.values[i] if i < len(step.values) else None
+            try:
+                refuse_early(cfg, name, procedure, target=value if step.op == "move" else None,
+                             speed=value if step.op == "jog" else None)
+            except ArgumentError as exc:
+                raise ArgumentError(f"--during {step.op} {name}: "
+                                    f"{str(exc).split(': ', 1)[-1]}") from None
+    return cfg
+
+
+async def _record(config: Path | MachineConfig, axes: list[str], steps: list[Step],
+                  seconds: float | None, outputs: list[Path], png: Path | None) -> int:
     import anyio
 
     from drivebus.motion import open_machine
@@ -278,9 +308,14 @@ def record(
     if not outputs and png is None:
         raise ArgumentError("nothing to write: give -o run.html (or .jsonl, .csv, .parquet) "
                             "or --png FILE")
+    for path in outputs:  # a file that cannot be written: refused before anything moves
+        check_output(path, "--output", "run.html")
+    if png is not None:
+        check_output(png, "--png", "run.png")
     owner = service_owner(config, server, token, local)
     if owner is not None:
         raise typer.Exit(run_guarded(lambda: _record_through(owner, axes or [], steps,
                                                              seconds, outputs, png)))
-    raise typer.Exit(run_guarded(lambda: _record(config, axes or [], steps, seconds,
+    cfg = _refuse_early(config, axes or [], steps)
+    raise typer.Exit(run_guarded(lambda: _record(cfg, axes or [], steps, seconds,
                                                  outputs, png)))

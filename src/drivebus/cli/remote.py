@@ -23,7 +23,7 @@ import anyio.to_thread
 
 from drivebus import errors
 from drivebus.cli.terminal import Out, fmt_number
-from drivebus.errors import ConfigError, DrivebusError
+from drivebus.errors import ArgumentError, ConfigError, DrivebusError
 from drivebus.text import quantity
 
 if TYPE_CHECKING:
@@ -160,7 +160,7 @@ async def follow_motion(
     """Start a motion on the service (``POST path``) and follow it to its end: its last
     record (``tick`` gets each running one, the first included). Cancelled (Ctrl-C), the
     motion is cancelled, its axes stopped, before this re-raises."""
-    record: dict[str, Any] = await call(client.start, path, body)
+    record: dict[str, Any] = await _refusal_as_argument(call(client.start, path, body))
     try:
         while record.get("state") == "running":
             if tick is not None:
@@ -172,6 +172,18 @@ async def follow_motion(
             await call(client.cancel, record["id"])
         raise
     return record
+
+
+async def _refusal_as_argument(request: Awaitable[Any]) -> Any:
+    """``request``'s reply; the service refusing it for a limit or what the drive cannot
+    do (nothing was started) is an ``ArgumentError``, exit status 2, as when the machine
+    is opened here."""
+    try:
+        return await request
+    except (errors.LimitViolation, errors.NotSupported) as exc:
+        if isinstance(exc, errors.ConfigError):
+            raise
+        raise ArgumentError(str(exc)) from None
 
 
 def motion_error(record: dict[str, Any], what: str) -> DrivebusError:
@@ -228,21 +240,38 @@ async def remote_jog(out: Out, client: ServiceClient, axis: str, speed: float,
                      seconds: float | None) -> int:
     """Jog through the service, fed every 0.2 s (a 0.5 s watchdog); stop at the end."""
     started = time.monotonic()
+    refused = False
     try:
+        try:
+            await _refusal_as_argument(
+                call(client.command, axis, "jog", {"speed": speed, "ttl": 0.5}))
+        except DrivebusError as exc:
+            # the service answered no (a limit, a drive that cannot, the wrong state): the
+            # jog started nothing, so no stop either, which would stop a motion someone
+            # else runs on the axis; unreachable, it may have started: stop it
+            refused = not isinstance(exc, errors.ServiceUnreachable)
+            raise
         with anyio.move_on_after(seconds if seconds else math.inf):
             while True:
-                await call(client.command, axis, "jog", {"speed": speed, "ttl": 0.5})
                 await anyio.sleep(0.2)
+                await call(client.command, axis, "jog", {"speed": speed, "ttl": 0.5})
     finally:
-        with anyio.CancelScope(shield=True):
-            await call(client.command, axis, "stop")
-            a = await call(client.axis, axis)
-            out.line(f"{axis}: jog at {speed:g}/s ended after "
-                     f"{time.monotonic() - started:.2f} s, "
-                     f"position={fmt_number(a.get('position'))} state={a['state']}")
-            out.result({"axis": axis, "what": f"jog at {speed:g}", "done": True,
-                        "position": a.get("position"), "state": a["state"]})
+        if not refused:
+            await _stop_jog(out, client, axis, speed, started)
     return 0
+
+
+async def _stop_jog(out: Out, client: ServiceClient, axis: str, speed: float,
+                    started: float) -> None:
+    """The end of a jog through the service: its stop, and where it left the axis."""
+    with anyio.CancelScope(shield=True):
+        await call(client.command, axis, "stop")
+        a = await call(client.axis, axis)
+        out.line(f"{axis}: jog at {speed:g}/s ended after "
+                 f"{time.monotonic() - started:.2f} s, "
+                 f"position={fmt_number(a.get('position'))} state={a['state']}")
+        out.result({"axis": axis, "what": f"jog at {speed:g}", "done": True,
+                    "position": a.get("position"), "state": a["state"]})
 
 
 async def remote_stop(out: Out, client: ServiceClient, axes: Sequence[str]) -> int:

@@ -38,7 +38,7 @@ app = typer.Typer(
     help="Modbus stepper and servo drives on shared RS-485 lines and Modbus TCP. "
     "Global options (--trace, -v, --log-level, --debug) go before or after the command. "
     "Exit status: 0 done, 1 a runtime failure (a port, a drive, a motion), 2 a usage, "
-    "argument or configuration error, 130 interrupted.",
+    "argument or configuration error, 130 interrupted (143 by SIGTERM).",
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
@@ -158,8 +158,6 @@ def demo(
         "file, or into a folder) as a start for your own machine file, and exit")] = None,
 ) -> None:
     """Run the demo job on the simulator: home, group moves, a jog, a stop."""
-    import anyio
-
     from drivebus.cli.demo import DEFAULT_CONFIG, run_demo, write_demo
 
     if where or write is not None:
@@ -173,7 +171,11 @@ def demo(
             typer.echo(f"wrote {written}: the demo machine (sim:// lines); "
                        f"`drivebus demo {written}` runs it")
         return
-    raise typer.Exit(anyio.run(run_demo, config))
+    from drivebus.cli.terminal import run_guarded
+
+    # Under the signal guard: SIGINT (once or twice) and SIGTERM stop every axis the demo
+    # moves before it exits, on a running drivebus sim's twins too.
+    raise typer.Exit(run_guarded(lambda: run_demo(config)))
 
 
 # -- scan and the register tools -------------------------------------------------------------------
@@ -444,7 +446,7 @@ def move(
 ) -> None:
     """Move an axis to TARGET (or by it), or the axes of a taught POSITION there together,
     and wait until they are there; Ctrl-C stops them."""
-    from drivebus.cli.machine import move_axis
+    from drivebus.cli.machine import move_axis, refuse_early
     from drivebus.cli.remote import remote_motion
     from drivebus.cli.terminal import Out, run_guarded
 
@@ -467,14 +469,16 @@ def move(
         what = f"move {'by' if by else 'to'} {target:g}"
         raise typer.Exit(run_guarded(lambda: remote_motion(
             out, owner, axis, what, f"/axes/{axis}/move", body)))
-    raise typer.Exit(run_guarded(lambda: move_axis(out, config, axis, target, by, speed)))
+    cfg = refuse_early(config, axis, "move_by" if by else "move",
+                       target=None if by else target, speed=speed)
+    raise typer.Exit(run_guarded(lambda: move_axis(out, cfg, axis, target, by, speed)))
 
 
 @app.command()
 def home(config: ConfigArg, axis: AxisArg, as_json: JsonOpt = False, server: ServerOpt = None,
          token: TokenOpt = None, local: LocalOpt = False) -> None:
     """Run the axis's configured homing procedure; Ctrl-C stops it."""
-    from drivebus.cli.machine import home_axis
+    from drivebus.cli.machine import home_axis, refuse_early
     from drivebus.cli.remote import remote_motion
     from drivebus.cli.terminal import Out, run_guarded
 
@@ -483,7 +487,8 @@ def home(config: ConfigArg, axis: AxisArg, as_json: JsonOpt = False, server: Ser
     if owner is not None:
         raise typer.Exit(run_guarded(lambda: remote_motion(
             out, owner, axis, "home", f"/axes/{axis}/home")))
-    raise typer.Exit(run_guarded(lambda: home_axis(out, config, axis)))
+    cfg = refuse_early(config, axis, "home")
+    raise typer.Exit(run_guarded(lambda: home_axis(out, cfg, axis)))
 
 
 @app.command(context_settings=_SIGNED)
@@ -500,7 +505,7 @@ def jog(
     local: LocalOpt = False,
 ) -> None:
     """Jog an axis at SPEED until Ctrl-C (or for --for seconds), then stop it."""
-    from drivebus.cli.machine import jog_axis
+    from drivebus.cli.machine import jog_axis, refuse_early
     from drivebus.cli.remote import remote_jog
     from drivebus.cli.terminal import Out, run_guarded
 
@@ -513,7 +518,8 @@ def jog(
     if owner is not None:
         raise typer.Exit(run_guarded(lambda: remote_jog(out, owner, axis, speed, seconds),
                                      interrupt_ok=seconds is None))
-    code = run_guarded(lambda: jog_axis(out, config, axis, speed, seconds),
+    cfg = refuse_early(config, axis, "jog", speed=speed, speed_name="SPEED")
+    code = run_guarded(lambda: jog_axis(out, cfg, axis, speed, seconds),
                        interrupt_ok=seconds is None)
     raise typer.Exit(code)
 
@@ -700,9 +706,20 @@ def _leaves(exc: BaseException) -> list[BaseException]:
     return [exc]
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """``exc`` is Ctrl-C, or an error raised because of it (a library that wraps what
+    interrupted it, as pydantic does a model being built when Ctrl-C came)."""
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, KeyboardInterrupt):
+            return True
+        seen = seen.__cause__ or seen.__context__
+    return False
+
+
 def _explain_any(exc: BaseException) -> tuple[str, int]:
     """``explain`` for the errors drivebus raises on purpose; one line for anything else."""
-    if isinstance(exc, KeyboardInterrupt):
+    if _interrupted(exc):
         return "interrupted", 130
     if isinstance(exc, DrivebusError | OSError | termios.error):
         from drivebus.cli.terminal import explain
@@ -737,7 +754,8 @@ def main() -> None:
     """Console-script entry point: one clear line per error, no traceback (unless --debug).
 
     Exit status: 0 done, 1 a runtime failure (a port, a drive, a motion), 2 a usage or
-    configuration error, 130 interrupted (after stopping what the command started).
+    configuration error, 130 interrupted, 143 by SIGTERM (after stopping what the command
+    started).
     """
     from drivebus.cli.args import hoist_global_options, parse_command_line
 

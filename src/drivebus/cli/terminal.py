@@ -106,11 +106,19 @@ def run_guarded(fn: Callable[[], Awaitable[int]], *, interrupt_ok: bool = False)
 
     from drivebus.app.lifecycle import run_until_signalled
 
+    caught: list[signal.Signals] = []
+
     def said(sig: signal.Signals) -> None:
+        caught.append(sig)
         if not interrupt_ok:
             print(f"interrupted ({sig.name})", file=sys.stderr, flush=True)
 
-    return run_until_signalled(fn, interrupt_ok=interrupt_ok, on_signal=said)
+    code = run_until_signalled(fn, interrupt_ok=interrupt_ok, on_signal=said)
+    if caught:  # stopped and on its way out: a late Ctrl-C must not change its status
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    return code
+
 
 def fmt_number(v: float | None) -> str:
     """A position or velocity as printed (``-``: unknown)."""
@@ -144,8 +152,8 @@ def _errno(exc: BaseException) -> int | None:
 
 def explain(exc: BaseException) -> tuple[str, int]:
     """The one line to print for ``exc`` (cause; what to do) and the exit status."""
-    if isinstance(exc, ConfigError | ArgumentError):
-        return f"error: {exc}", 2
+    if isinstance(exc, ConfigError | ArgumentError | errors.NotFound):  # NotFound: named a
+        return f"error: {exc}", 2  # thing there is not (an axis, a position, a motion)
     code = _errno(exc)
     if isinstance(exc, LineClosed | OSError) and code in _PORT_HINTS:
         port = getattr(exc, "filename", None)
