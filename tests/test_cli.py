@@ -31,8 +31,9 @@ from typer.testing import CliRunner
 
 from drivebus.app.scan import scan_settings
 from drivebus.cli.bustools import scan_line
+from drivebus.cli.failures import fail
 from drivebus.cli.machine import check_config
-from drivebus.cli.root import _fail, app
+from drivebus.cli.root import app
 from drivebus.cli.terminal import Out, explain
 from drivebus.config import load_config
 from drivebus.errors import ConfigError, DriveOffline, LineClosed
@@ -406,19 +407,19 @@ def test_exception_groups_are_unwrapped_into_one_line_per_cause(
         DriveOffline("axis y: no answer"),
     ])
     with pytest.raises(SystemExit) as ex:
-        _fail(group, debug=False)
+        fail(group, debug=False)
     assert ex.value.code == 2
     err = capsys.readouterr().err.splitlines()
     assert err[0] == "error: m.toml: axes.x.speed: bad"
     assert err[1].startswith("error: axis y: no answer; check power") and len(err) == 2
     with pytest.raises(SystemExit) as ex:
-        _fail(ExceptionGroup("g", [ZeroDivisionError("division by zero")]), debug=False)
+        fail(ExceptionGroup("g", [ZeroDivisionError("division by zero")]), debug=False)
     assert ex.value.code == 1
     assert capsys.readouterr().err == (
         "internal error: ZeroDivisionError: division by zero (run the command again with "
         "--debug to see where, and please report it)\n")
     with pytest.raises(ExceptionGroup):
-        _fail(ExceptionGroup("g", [ZeroDivisionError()]), debug=True)
+        fail(ExceptionGroup("g", [ZeroDivisionError()]), debug=True)
 
 
 def test_permission_denied_names_the_fix() -> None:

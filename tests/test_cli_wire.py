@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from drivebus.cli.root import _fail
+from drivebus.cli.failures import fail
 from test_cli import DEMO, ROOT, SINGLE, Proc, drivebus, serving, sim_server, spawn
 from wirelog import KINDS
 
@@ -270,6 +270,6 @@ def test_an_error_raised_because_of_ctrl_c_is_an_interruption(
     except RuntimeError as exc:
         wrapped = exc
     with pytest.raises(SystemExit) as ex:
-        _fail(wrapped, debug=False)
+        fail(wrapped, debug=False)
     assert ex.value.code == 130
     assert capsys.readouterr().err == "interrupted\n"

@@ -9,11 +9,9 @@ motion stops the axis before the command exits.
 
 from __future__ import annotations
 
-import json
 import sys
-import termios
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated
 
 import typer
 import typer.main
@@ -22,11 +20,12 @@ from drivebus import checks
 from drivebus.cli.args import LocalOpt, ServerOpt, TokenOpt
 from drivebus.cli.commissioning import commission as commission_command
 from drivebus.cli.commissioning import params_app
+from drivebus.cli.failures import fail, json_error, usage
 from drivebus.cli.options import ConfigArg, JsonOpt
 from drivebus.cli.options import owner as _owner
 from drivebus.cli.positions import positions, teach
 from drivebus.cli.record import record
-from drivebus.errors import ArgumentError, ConfigError, DrivebusError
+from drivebus.errors import ArgumentError, ConfigError
 
 try:  # typer vendors click from 0.2x on; before, it used click itself
     from typer._click.exceptions import UsageError
@@ -696,60 +695,6 @@ app.add_typer(params_app, name="params")
 app.command(name="commission")(commission_command)
 
 
-# -- errors ----------------------------------------------------------------------------------------
-
-
-def _leaves(exc: BaseException) -> list[BaseException]:
-    """The errors inside ``exc``: task groups wrap them in (nested) exception groups."""
-    if isinstance(exc, BaseExceptionGroup):
-        return [leaf for e in exc.exceptions for leaf in _leaves(e)]
-    return [exc]
-
-
-def _interrupted(exc: BaseException) -> bool:
-    """``exc`` is Ctrl-C, or an error raised because of it (a library that wraps what
-    interrupted it, as pydantic does a model being built when Ctrl-C came)."""
-    seen: BaseException | None = exc
-    while seen is not None:
-        if isinstance(seen, KeyboardInterrupt):
-            return True
-        seen = seen.__cause__ or seen.__context__
-    return False
-
-
-def _explain_any(exc: BaseException) -> tuple[str, int]:
-    """``explain`` for the errors drivebus raises on purpose; one line for anything else."""
-    if _interrupted(exc):
-        return "interrupted", 130
-    if isinstance(exc, DrivebusError | OSError | termios.error):
-        from drivebus.cli.terminal import explain
-
-        return explain(exc)
-    return (f"internal error: {type(exc).__name__}: {exc} (run the command again with --debug "
-            f"to see where, and please report it)"), 1
-
-
-def _fail(exc: BaseException, debug: bool) -> NoReturn:
-    """Print one line per distinct cause inside ``exc`` and exit with the gravest status
-    (``--debug``: the traceback instead)."""
-    if debug:
-        raise exc
-    explained = [_explain_any(e) for e in _leaves(exc)]
-    for text in dict.fromkeys(t for t, _ in explained):
-        typer.echo(text, err=True)
-    sys.exit(max(c for _, c in explained))
-
-
-def _usage(exc: UsageError) -> NoReturn:
-    """A command-line usage error as one line (exit status 2); no arguments: the help."""
-    if type(exc).__name__ == "NoArgsIsHelpError":  # no arguments at all: show the help
-        exc.show()
-        sys.exit(exc.exit_code)
-    where = exc.ctx.command_path if exc.ctx is not None else "drivebus"
-    typer.echo(f"error: {exc.format_message().rstrip('.')}; see `{where} --help`", err=True)
-    sys.exit(2)
-
-
 def main() -> None:
     """Console-script entry point: one clear line per error, no traceback (unless --debug).
 
@@ -772,29 +717,15 @@ def main() -> None:
     except UsageError as exc:
         if debug:
             raise
-        _usage(exc)
+        usage(exc)
     except (KeyboardInterrupt, typer.Abort):
         typer.echo("interrupted", err=True)
         sys.exit(130)
     except (Exception, BaseExceptionGroup) as exc:
         if as_json and not debug:
-            _json_error(exc)
-        _fail(exc, debug)
+            json_error(exc)
+        fail(exc, debug)
     sys.exit(code if isinstance(code, int) else 0)
-
-
-def _json_error(exc: BaseException) -> None:
-    """With ``--json``, a failure is a JSON object on stdout too (unless the command
-    already printed its result there)."""
-    from drivebus.cli.terminal import Out
-
-    if Out.results:
-        return
-    leaves = _leaves(exc)
-    errors = [{"type": type(e).__name__, "message": _explain_any(e)[0].removeprefix("error: "),
-               "exit_status": _explain_any(e)[1]} for e in leaves]
-    print(json.dumps({"error": errors[0], **({"errors": errors} if len(errors) > 1 else {})},
-                     indent=2), flush=True)
 
 
 __all__ = ["app", "main"]
