@@ -98,7 +98,8 @@ class _Lines:
         self.proc = proc
         self.seen: list[str] = []
         self._cv = threading.Condition()
-        threading.Thread(target=self._read, daemon=True).start()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
 
     def _read(self) -> None:
         assert self.proc.stdout is not None
@@ -106,6 +107,13 @@ class _Lines:
             with self._cv:
                 self.seen.append(line.rstrip())
                 self._cv.notify_all()
+
+    def all_of_it(self, timeout: float = 30.0) -> str:
+        """Every line, once the process has ended and the last one was read (the reader
+        thread may lag behind the process's end on a busy machine)."""
+        self._reader.join(timeout)
+        assert not self._reader.is_alive(), f"output still open after {timeout:g} s"
+        return "\n".join(self.seen)
 
     def wait_for(self, text: str, timeout: float = 60.0) -> None:
         with self._cv:
@@ -160,7 +168,7 @@ def test_a_force_quit_embedded_app_leaves_no_axis_moving(
         finally:
             if app.poll() is None:
                 app.kill()
-    said = "\n".join(out.seen)
+    said = out.all_of_it()
     # the log says what was stopped and that it came to rest (by the motion's own
     # cancellation or by leaving the machine, whichever came first)
     assert ("axis x: stopped at" in said or "stopped x at" in said) and "(at rest)" in said, \
