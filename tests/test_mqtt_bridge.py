@@ -123,6 +123,14 @@ async def test_every_verb_gets_accepted_then_its_final_reply(broker: Broker) -> 
         refused = await p.command("demo", "z", "move", {"by": 1.0})
         assert [r["status"] for r in refused] == ["failed"]
         assert refused[0]["error"]["type"] == "StateError"
+        # a command that returns when it is over, refused (nothing sent): only failed too
+        for verb, axis, body, error in (
+                ("disable", "aux", None, "NotSupported"),
+                ("set_output", "x", {"output": "nope", "state": True}, "ArgumentError"),
+                ("set_output", "aux", {"output": "OUT1", "state": True}, "NotSupported")):
+            refused = await p.command("demo", axis, verb, body)
+            assert [r["status"] for r in refused] == ["failed"], (verb, refused)
+            assert refused[0]["error"]["type"] == error, (verb, refused[0]["error"])
         await ok("z", "reset")
         assert s.axis("z").state is AxisState.STANDSTILL
         # the replies topic, with the id echoed, from a third-party client

@@ -17,7 +17,8 @@ every axis at once.
 Replies: every command gets exactly one final reply, ``done``, ``aborted`` or ``failed``
 (with the typed error's name and text); one that was taken up gets ``accepted`` before it
 (a move or homing once the axis admitted it: its motion id comes with it; a jog once
-the axis took it). A command that was refused or could not be parsed gets only
+the axis took it; a stop or halt at once; the others once they ran, or failed on the
+way). A command that was refused (nothing sent) or could not be parsed gets only
 ``failed``. Replies go to the MQTT 5
 response topic with the correlation data when the command has them, else to
 ``drivebus/<node>/replies``; the command's ``id`` is echoed either way.
@@ -51,12 +52,25 @@ from paho.mqtt.subscribeoptions import SubscribeOptions
 from drivebus import checks
 from drivebus.app import MachineSession, MotionRecord, error_record
 from drivebus.config import BrokerUrl, MachineConfig, parse_broker_url
-from drivebus.errors import ArgumentError, ConfigError, DrivebusError, MotionAborted
+from drivebus.errors import (
+    ArgumentError,
+    ConfigError,
+    DrivebusError,
+    LeaseHeld,
+    LimitViolation,
+    MotionAborted,
+    NotFound,
+    NotSupported,
+    StateError,
+)
 from drivebus.motion import GroupMotionError
 from drivebus.mqtt.commands import Command, Id, parse_command, peek_id
 from drivebus.mqtt.discovery import discovery_messages
 from drivebus.mqtt.outbox import Outbox, Outgoing
 from drivebus.mqtt.topics import PLANT_ESTOP, Topics, check_node
+
+REFUSALS = (ArgumentError, StateError, NotSupported, LimitViolation, NotFound, LeaseHeld)
+"""A command refused before it sent anything (promise 3): its only reply is ``failed``."""
 
 __all__ = ["NO_DELAY", "Bridge", "BridgeOptions", "run_bridge", "run_configured_bridge"]
 
@@ -557,7 +571,11 @@ class Bridge:
         except DrivebusError as exc:
             self._final(rt, a, cmd.verb, exc)
             return
-        if cmd.verb != "jog":  # a jog is accepted once the axis took it: a refusal only fails
+        # A stop or halt is taken up at once (nothing refuses it but a lease); the others
+        # once they are over or failed on the way: a refusal (nothing sent) only fails. A
+        # jog is accepted once the axis took it.
+        early = cmd.verb in ("stop", "halt")
+        if early:
             self._accepted(rt, a, cmd.verb)
         try:
             if cmd.verb == "stop":
@@ -585,9 +603,14 @@ class Bridge:
             else:  # pragma: no cover - parse_command knows the verbs
                 raise ArgumentError(f"unknown verb {cmd.verb!r}")
         except DrivebusError as exc:
+            if not early and cmd.verb != "jog" and not isinstance(exc, REFUSALS):
+                self._accepted(rt, a, cmd.verb)  # taken up, then failed on the way
             self._final(rt, a, cmd.verb, exc)
             return
+        if not early and cmd.verb != "jog":
+            self._accepted(rt, a, cmd.verb)
         self._final(rt, a, cmd.verb, None)
+
 
 
 async def run_bridge(
