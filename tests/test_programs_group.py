@@ -18,7 +18,7 @@ from drivebus.motion.path import GroupHandle
 from held_up import within_bound
 from test_axis_guarantees import commands, log_size
 from test_motion import machine
-from wirelog import frames_text, reads_of
+from wirelog import reads_of
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 
@@ -79,29 +79,37 @@ async def test_a_buffered_path_stops_in_position_at_each_corner_within_a_poll_pe
     load does to the period itself; the dwell is the bench's figure)."""
     async with open_machine(DEMO) as m:
         xy = m.group("x", "y")
-        await xy.move_to({"x": 20.0, "y": 10.0})
         corners = [{"x": 60.0}, {"y": 40.0}, {"x": 20.0, "y": 20.0}, {"y": 10.0}]
-        t0 = anyio.current_time()
-        report = await xy.path(corners, speed=50.0)
-        t1 = anyio.current_time()
-        assert [s.ends for s in report.segments] == ["stop", "stop", "stop", "end"]
-        assert all("blend is 0" in s.reason for s in report.segments[:-1])
-        assert m.sim_drives["x"].position() == m.axes["x"].units.to_pulses(20.0)
-        assert m.sim_drives["y"].position() == m.axes["y"].units.to_pulses(10.0)
-        xs, ys = moves(m.sim_drives["x"], t0, t1), moves(m.sim_drives["y"], t0, t1)
-        assert len(xs) == 2 and len(ys) == 3  # x: segments 1, 3; y: 2, 3, 4
-        segment_moves = [[("x", *xs[0])], [("y", *ys[0])],
-                         [("x", *xs[1]), ("y", *ys[1])], [("y", *ys[2])]]
-        reads = {n: reads_of(m, n) for n in ("x", "y")}
-        for before, after in itertools.pairwise(segment_moves):
-            arrived = max(end for _, _, end in before)
-            started = min(start for _, start, _ in after)
-            assert started >= arrived, (before, after)
-            polls = {n: sum(1 for t in reads[n] if end < t < started) for n, _, end in before}
-            assert max(polls.values()) <= 1, (
-                polls, before, after,
-                "\n" + frames_text(m.wires["rs485"].log, arrived - 0.05, started + 0.01))
-        assert report.segments[2].max_deviation < 0.5
+
+        async def path(attempt: int) -> float:
+            await xy.move_to({"x": 20.0, "y": 10.0})
+            t0 = anyio.current_time()
+            report = await xy.path(corners, speed=50.0)
+            t1 = anyio.current_time()
+            assert [s.ends for s in report.segments] == ["stop", "stop", "stop", "end"]
+            assert all("blend is 0" in s.reason for s in report.segments[:-1])
+            assert m.sim_drives["x"].position() == m.axes["x"].units.to_pulses(20.0)
+            assert m.sim_drives["y"].position() == m.axes["y"].units.to_pulses(10.0)
+            xs, ys = moves(m.sim_drives["x"], t0, t1), moves(m.sim_drives["y"], t0, t1)
+            assert len(xs) == 2 and len(ys) == 3  # x: segments 1, 3; y: 2, 3, 4
+            assert report.segments[2].max_deviation < 0.5
+            segment_moves = [[("x", *xs[0])], [("y", *ys[0])],
+                             [("x", *xs[1]), ("y", *ys[1])], [("y", *ys[2])]]
+            reads = {n: reads_of(m, n) for n in ("x", "y")}
+            late = [-1.0]
+            for before, after in itertools.pairwise(segment_moves):
+                arrived = max(end for _, _, end in before)
+                started = min(start for _, start, _ in after)
+                assert started >= arrived, (before, after)
+                # a second read of an arrived axis before the next start: the start came
+                # that much too late (a held-up process: the twins run in it)
+                for n, _, end in before:
+                    inside = sorted(t for t in reads[n] if end < t < started)
+                    if len(inside) > 1:
+                        late.append(started - inside[1])
+            return max(late)
+
+        await within_bound(path, "each corner's start before a second poll of an arrived axis")
 
 
 @pytest.mark.serial  # each blend must reach the drives before they stop: a deadline that CPU
