@@ -612,7 +612,6 @@ class Bridge:
         self._final(rt, a, cmd.verb, None)
 
 
-
 async def run_bridge(
     session: MachineSession,
     url: str,
