@@ -11,6 +11,7 @@ from typing import NoReturn
 import typer
 
 from drivebus.errors import DrivebusError
+from drivebus.tasks import leaf_errors
 
 try:  # typer vendors click from 0.2x on; before, it used click itself
     from typer._click.exceptions import UsageError
@@ -18,13 +19,6 @@ except ImportError:  # pragma: no cover
     from click.exceptions import UsageError  # type: ignore[no-redef]
 
 __all__ = ["fail", "json_error", "usage"]
-
-
-def _leaves(exc: BaseException) -> list[BaseException]:
-    """The errors inside ``exc``: task groups wrap them in (nested) exception groups."""
-    if isinstance(exc, BaseExceptionGroup):
-        return [leaf for e in exc.exceptions for leaf in _leaves(e)]
-    return [exc]
 
 
 def _interrupted(exc: BaseException) -> bool:
@@ -55,7 +49,7 @@ def fail(exc: BaseException, debug: bool) -> NoReturn:
     (``--debug``: the traceback instead)."""
     if debug:
         raise exc
-    explained = [_explain_any(e) for e in _leaves(exc)]
+    explained = [_explain_any(e) for e in leaf_errors(exc)]
     for text in dict.fromkeys(t for t, _ in explained):
         typer.echo(text, err=True)
     sys.exit(max(c for _, c in explained))
@@ -78,7 +72,7 @@ def json_error(exc: BaseException) -> None:
 
     if Out.results:
         return
-    leaves = _leaves(exc)
+    leaves = leaf_errors(exc)
     errors = [{"type": type(e).__name__, "message": _explain_any(e)[0].removeprefix("error: "),
                "exit_status": _explain_any(e)[1]} for e in leaves]
     print(json.dumps({"error": errors[0], **({"errors": errors} if len(errors) > 1 else {})},

@@ -20,6 +20,7 @@ from drivebus.app.lifecycle import run_until_signalled
 from drivebus.config import load_config
 from drivebus.errors import ConfigError, DrivebusError
 from drivebus.mqtt.bridge import Bridge, BridgeOptions
+from drivebus.tasks import leaf_errors
 
 __all__ = ["main"]
 
@@ -77,7 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.debug:
             raise
         status = 0
-        for leaf in dict.fromkeys(_leaves(exc)):  # task groups wrap errors in groups
+        for leaf in dict.fromkeys(leaf_errors(exc)):  # task groups wrap errors in groups
             if isinstance(leaf, DrivebusError | OSError):
                 print(f"error: {type(leaf).__name__}: {leaf}", file=sys.stderr)
             else:
@@ -85,12 +86,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                       file=sys.stderr)
             status = max(status, 2 if isinstance(leaf, ConfigError) else 1)
         return status
-
-
-def _leaves(exc: BaseException) -> list[BaseException]:
-    if isinstance(exc, BaseExceptionGroup):
-        return [leaf for e in exc.exceptions for leaf in _leaves(e)]
-    return [exc]
 
 
 if __name__ == "__main__":
