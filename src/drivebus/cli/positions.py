@@ -21,6 +21,7 @@ from drivebus.errors import ArgumentError
 
 if TYPE_CHECKING:
     from drivebus.cli.terminal import Out
+    from drivebus.config import MachineConfig
     from drivebus.service.client import ServiceClient
 
 __all__ = ["move_position", "positions", "teach"]
@@ -29,7 +30,7 @@ def _shown(position: dict[str, float]) -> str:
     return " ".join(f"{a}={v:.3f}" for a, v in position.items())
 
 
-async def _teach_here(out: Out, config: Path, name: str, axes: list[str]) -> int:
+async def _teach_here(out: Out, config: MachineConfig, name: str, axes: list[str]) -> int:
     from drivebus.motion import open_machine
 
     async with open_machine(config, stop_on_exit=False) as m:
@@ -71,20 +72,22 @@ def teach(
     owner = _owner(config, server, token, local)
     if owner is not None:
         raise typer.Exit(run_guarded(lambda: _teach_remote(out, owner, name, axes or [])))
-    _refuse_teaching(config, axes or [])
-    raise typer.Exit(run_guarded(lambda: _teach_here(out, config, name, axes or [])))
+    cfg = _refuse_teaching(config, axes or [])
+    raise typer.Exit(run_guarded(lambda: _teach_here(out, cfg, name, axes or [])))
 
 
-def _refuse_teaching(config: Path, axes: list[str]) -> None:
-    """What the machine file alone refuses of ``teach``, before anything opens: an
-    unknown axis (a ``ConfigError`` naming those there are)."""
+def _refuse_teaching(config: Path, axes: list[str]) -> MachineConfig:
+    """The machine file, once what it alone refuses of ``teach`` has passed, before
+    anything opens: an unknown axis (a ``ConfigError`` naming those there are)."""
     from drivebus.app.operations import subset
     from drivebus.config import load_config
 
-    subset(load_config(config), axes)
+    cfg = load_config(config)
+    subset(cfg, axes)
+    return cfg
 
 
-async def _move_here(out: Out, config: Path, name: str, speed: float | None) -> int:
+async def _move_here(out: Out, config: MachineConfig, name: str, speed: float | None) -> int:
     from drivebus.motion import GroupMoveReport, open_machine
 
     started = time.monotonic()
@@ -121,14 +124,14 @@ def move_position(config: Path, name: str, speed: float | None, as_json: bool,
     owner = _owner(config, server, token, local)
     if owner is not None:
         return run_guarded(lambda: _move_remote(out, owner, name, speed))
-    _refuse_moving(config, name, speed)
-    return run_guarded(lambda: _move_here(out, config, name, speed))
+    cfg = _refuse_moving(config, name, speed)
+    return run_guarded(lambda: _move_here(out, cfg, name, speed))
 
 
-def _refuse_moving(config: Path, name: str, speed: float | None) -> None:
-    """What the machine file alone refuses of a move to the taught position ``name``,
-    before anything opens: no such position, an axis of it that cannot move or not at
-    ``speed`` (``ArgumentError``, exit status 2)."""
+def _refuse_moving(config: Path, name: str, speed: float | None) -> MachineConfig:
+    """The machine file, once what it alone refuses of a move to the taught position
+    ``name`` has passed, before anything opens: no such position, an axis of it that
+    cannot move or not at ``speed`` (``ArgumentError``, exit status 2)."""
     from drivebus.cli.machine import refuse_early
     from drivebus.config import load_config
     from drivebus.errors import NotFound
@@ -141,6 +144,7 @@ def _refuse_moving(config: Path, name: str, speed: float | None) -> None:
         raise ArgumentError(f"POSITION: {exc}") from None
     for axis, target in targets.items():
         refuse_early(cfg, axis, "move", target=target, speed=speed)
+    return cfg
 
 
 async def _list(out: Out, config: Path) -> int:
