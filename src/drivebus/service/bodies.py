@@ -24,7 +24,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from drivebus import checks
 from drivebus.errors import ArgumentError
-from drivebus.service.problems import problem, problem_data
+from drivebus.service.problems import is_json_type, problem, problem_data
 
 __all__ = ["MAX_BODY", "NEVER_REFUSED", "BodyLimits"]
 
@@ -42,9 +42,7 @@ def _json_body(scope: Scope) -> bool:
     ``application/json`` or ``application/*+json`` one)."""
     for name, value in scope.get("headers", ()):
         if name == b"content-type":
-            kind = value.split(b";", 1)[0].strip().lower()
-            return kind == b"application/json" or (
-                kind.startswith(b"application/") and kind.endswith(b"+json"))
+            return is_json_type(value.decode("latin-1"))
     return True
 
 

@@ -52,7 +52,8 @@ from drivebus.errors import (
 )
 from drivebus.service.auth import AuthError
 
-__all__ = ["PROBLEM", "STATUS", "install", "problem", "problem_data", "status_of"]
+__all__ = ["PROBLEM", "STATUS", "install", "is_json_type", "problem", "problem_data",
+           "status_of"]
 
 log = logging.getLogger(__name__)
 
@@ -136,14 +137,19 @@ def problem_data(exc: BaseException, instance: str | None = None) -> dict[str, A
     return data
 
 
+def is_json_type(content_type: str) -> bool:
+    """Whether a ``Content-Type`` is JSON's: ``application/json`` or ``application/*+json``
+    (parameters such as ``charset`` aside)."""
+    base = content_type.split(";", 1)[0].strip().lower()
+    return base == "application/json" or (
+        base.startswith("application/") and base.endswith("+json"))
+
+
 def _not_json(content_type: str | None) -> str | None:
     """What a request's content type is if it is not JSON's (None if it is)."""
     if content_type is None:
         return "no Content-Type"
-    base = content_type.split(";", 1)[0].strip().lower()
-    if base == "application/json" or (base.startswith("application/") and base.endswith("+json")):
-        return None
-    return f"Content-Type {content_type!r}"
+    return None if is_json_type(content_type) else f"Content-Type {content_type!r}"
 
 
 def problem(status: int, data: dict[str, Any], headers: dict[str, str] | None = None
