@@ -574,8 +574,8 @@ class Bridge:
         # A stop or halt is taken up at once (nothing refuses it but a lease); the others
         # once they are over or failed on the way: a refusal (nothing sent) only fails. A
         # jog is accepted once the axis took it.
-        early = cmd.verb in ("stop", "halt")
-        if early:
+        at_end = cmd.verb not in ("stop", "halt", "jog")
+        if cmd.verb in ("stop", "halt"):
             self._accepted(rt, a, cmd.verb)
         try:
             if cmd.verb == "stop":
@@ -603,11 +603,11 @@ class Bridge:
             else:  # pragma: no cover - parse_command knows the verbs
                 raise ArgumentError(f"unknown verb {cmd.verb!r}")
         except DrivebusError as exc:
-            if not early and cmd.verb != "jog" and not isinstance(exc, REFUSALS):
+            if at_end and not isinstance(exc, REFUSALS):
                 self._accepted(rt, a, cmd.verb)  # taken up, then failed on the way
             self._final(rt, a, cmd.verb, exc)
             return
-        if not early and cmd.verb != "jog":
+        if at_end:
             self._accepted(rt, a, cmd.verb)
         self._final(rt, a, cmd.verb, None)
 
