@@ -33,6 +33,7 @@ __all__ = [
     "TransactionError",
     "UnknownMethod",
     "WrongResponder",
+    "leaf_errors",
 ]
 
 
@@ -234,3 +235,11 @@ class LeaseHeld(DrivebusError):
 
 class ServiceUnreachable(DrivebusError):
     """A ``drivebus serve`` that should own the machine could not be reached."""
+
+
+def leaf_errors(exc: BaseException) -> list[BaseException]:
+    """The errors inside ``exc``, in order: task groups wrap them in (nested) exception
+    groups, and a front end reports each cause on its own."""
+    if isinstance(exc, BaseExceptionGroup):
+        return [leaf for e in exc.exceptions for leaf in leaf_errors(e)]
+    return [exc]

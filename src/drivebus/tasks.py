@@ -16,7 +16,7 @@ from typing import Any
 import anyio
 import anyio.abc
 
-__all__ = ["ServiceTasks", "leaf_errors", "where_tasks_wait"]
+__all__ = ["ServiceTasks", "where_tasks_wait"]
 
 
 class ServiceTasks:
@@ -92,11 +92,3 @@ def where_tasks_wait(*, limit: int = 40) -> list[str]:
             coro = getattr(coro, "cr_await", None) or getattr(coro, "ag_await", None)
         found.append(f"{task.get_name()}: " + " > ".join(frames[-6:]))
     return found
-
-
-def leaf_errors(exc: BaseException) -> list[BaseException]:
-    """The errors inside ``exc``, in order: task groups wrap them in (nested) exception
-    groups, and a front end reports each cause on its own."""
-    if isinstance(exc, BaseExceptionGroup):
-        return [leaf for e in exc.exceptions for leaf in leaf_errors(e)]
-    return [exc]

@@ -10,8 +10,7 @@ from typing import NoReturn
 
 import typer
 
-from drivebus.errors import DrivebusError
-from drivebus.tasks import leaf_errors
+from drivebus.errors import DrivebusError, leaf_errors
 
 try:  # typer vendors click from 0.2x on; before, it used click itself
     from typer._click.exceptions import UsageError

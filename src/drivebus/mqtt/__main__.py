@@ -18,9 +18,8 @@ from pathlib import Path
 from drivebus.app import MachineSession
 from drivebus.app.lifecycle import run_until_signalled
 from drivebus.config import load_config
-from drivebus.errors import ConfigError, DrivebusError
+from drivebus.errors import ConfigError, DrivebusError, leaf_errors
 from drivebus.mqtt.bridge import Bridge, BridgeOptions
-from drivebus.tasks import leaf_errors
 
 __all__ = ["main"]
 
