@@ -449,10 +449,12 @@ def test_commission_finishes_on_drivebus_sim_power_cycled_from_the_command_line_
     with sim_at_a_terminal(machine) as (sim, console):
         sim.expect(r"^simulating machine cabinet")
         sim.expect(r"^console: type `power-cycle AXIS`")
-        # 1. from another terminal: drivebus sim CONFIG --power-cycle ADDRESS
+        # 1. from another terminal: drivebus sim CONFIG --power-cycle ADDRESS (each
+        # commission with a response timeout that the simulator in another process
+        # answers within on a busy machine)
         with spawn("commission", "sim://cabinet", "--drive", "CL86R", "--address", "4",
                    "-S", "38400 8N2", "--to-address", "6", "--to-settings", "38400 8E1",
-                   "--wait", "30") as commission:
+                   "--wait", "30", "--timeout", "0.5") as commission:
             asked = commission.expect(r"power-cycle the CL86R now", timeout=30).string
             assert asked == (
                 "written and saved; power-cycle the CL86R now; waiting for it at address 6 at "
@@ -471,7 +473,7 @@ def test_commission_finishes_on_drivebus_sim_power_cycled_from_the_command_line_
         # 2. at drivebus sim's console: back to 4 at 38400 8N2
         with spawn("commission", "sim://cabinet", "--drive", "CL86R", "--address", "6",
                    "-S", "38400 8E1", "--to-address", "4", "--to-settings", "38400 8N2",
-                   "--wait", "30") as commission:
+                   "--wait", "30", "--timeout", "0.5") as commission:
             commission.expect(r"power-cycle the CL86R now", timeout=30)
             os.write(console, b"power-cycle z\n")
             sim.expect(r"^power-cycled axis z \(CL86R\): it answers at address 4 at 38400 8N2 "
