@@ -42,6 +42,7 @@ async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
             assert r.figures["floor_violations"] == 0, r
         if r.scenario == "scale":
             assert r.figures["transactions"] > 0 and r.figures["moves"] > 0, r
+            assert r.figures["busy_cores"] > r.figures["sim_cpu_cores"] > 0, r
         assert set(r.targets) <= set(r.figures), r  # every target sits beside its figure
     tcp = {r.case.split(",")[1].strip(): r.figures for r in results
            if r.scenario == "pipelined tcp"}
@@ -137,3 +138,13 @@ def test_bench_without_pymodbus_says_so_and_runs_the_rest() -> None:
     assert "== cpu" in out
     assert "== pymodbus baseline" in out
     assert "note=pymodbus is not installed" in out and "drivebus[bench]" in out
+
+
+def test_the_scale_rows_simulators_take_the_cores_the_master_and_its_workers_leave() -> None:
+    from drivebus.bench.scale import sim_processes
+
+    assert sim_processes(16, 1, cores=2) == 2  # a small machine: the drives share its cores
+    assert sim_processes(16, 0, cores=16) == 15
+    assert sim_processes(16, 4, cores=16) == 11  # ~1.5 lines each: a late reply is not theirs
+    assert sim_processes(4, 0, cores=64) == 4  # at most one per line
+    assert sim_processes(1, 0, cores=2) == 1  # never a simulator with no line

@@ -5,14 +5,17 @@ A machine of ``lines`` RS-485 lines at 115200 8N1 with 8 simulated CL86R drives 
 every axis polls as fast as its line allows (poll period 1 ms, moving or not) and moves
 back and forth, all through one ``open_machine`` in this process (``workers``: its lines
 served by that many worker processes, ``workers`` in the machine file). The drives run in
-other processes (``SimProcess`` serving the machine file's ``sim://`` lines, half the
-lines each), and each line's efficiency comes from its own wire log there. Meanwhile a
+other processes (``SimProcess`` serving the machine file's ``sim://`` lines: as many as
+the cores the master and its workers leave, at least two, ``sim_processes``), and each
+line's efficiency comes from its own wire log there. Meanwhile a
 stop goes to a random axis every few tens of milliseconds (a ``Priority.EMERGENCY``
 write, the path of ``halt_now`` through the machine and, with workers, across to the
 worker): its latency is from the call to its first byte on the wire, against the time of
 one transaction of the line. Reported: the worst and mean line efficiency, gap
 violations, the master's CPU in cores (the machine's process, each worker's, and per
-line), and the stop latency. A run of one line first gives the same figures with the
+line), the simulators' CPU, the busy cores of all of them against the host's cores (a
+row whose busy cores come near the host's is limited by the machine, not by the
+master), and the stop latency. A run of one line first gives the same figures with the
 machine otherwise idle: the most a line gets here, against which the many-line figures
 measure what sharing the cores costs.
 """
@@ -52,12 +55,22 @@ from drivebus.motion.workers import auto_workers
 from drivebus.settings import LineSettings
 from drivebus.timing import timing
 
-__all__ = ["EFFICIENCY_TARGET", "SCENARIO", "machine_mapping", "scale"]
+__all__ = ["EFFICIENCY_TARGET", "SCENARIO", "machine_mapping", "scale", "sim_processes"]
 
 EFFICIENCY_TARGET = 0.95
 SETTINGS = "115200 8N1"
 TURNAROUND = 0.001
-SIM_PROCESSES = int(os.environ.get("DRIVEBUS_BENCH_SIM_PROCESSES", "2"))
+SIM_PROCESSES = int(os.environ.get("DRIVEBUS_BENCH_SIM_PROCESSES", "0")) or None
+"""Simulator processes for the drives (default: ``sim_processes``)."""
+
+
+def sim_processes(lines: int, workers: int, cores: int | None = None) -> int:
+    """How many simulator processes serve a row's drives: the cores the master and its
+    workers leave (one each), at least two and at most one per line. On a small machine
+    the drives share the master's cores; on a large one they get cores of their own, so
+    that a late reply is the master's doing, not the simulated drives'."""
+    cores = (os.cpu_count() or 1) if cores is None else cores
+    return max(min(2, lines), min(lines, cores - 1 - workers))
 
 
 def machine_mapping(lines: int, axes: int, port: Callable[[int], str], workers: int = 0
@@ -80,13 +93,13 @@ def machine_mapping(lines: int, axes: int, port: Callable[[int], str], workers: 
 
 
 @contextlib.contextmanager
-def _sim_files(lines: int, axes: int) -> Iterator[list[Path]]:
+def _sim_files(lines: int, axes: int, processes: int) -> Iterator[list[Path]]:
     """The machine's simulated half, as one JSON machine file per simulator process."""
     full = machine_mapping(lines, axes, lambda i: f"sim://bench-scale-{i}")
     paths = []
     try:
-        for p in range(SIM_PROCESSES):
-            mine = {f"l{i}" for i in range(lines) if i % SIM_PROCESSES == p}
+        for p in range(processes):
+            mine = {f"l{i}" for i in range(lines) if i % processes == p}
             part = dict(full, lines={k: v for k, v in full["lines"].items() if k in mine},
                         axes={k: v for k, v in full["axes"].items() if v["line"] in mine})
             fd, name = tempfile.mkstemp(prefix="drivebus-bench-", suffix=".json")
@@ -119,7 +132,8 @@ async def scale(lines: int, axes: int, seconds: float, workers: int = 0) -> Benc
     in ``workers`` worker processes (0: in this one)."""
     moves = failed = 0
     called: dict[int, float] = {}
-    with _sim_files(lines, axes) as files:
+    sim_count = SIM_PROCESSES or sim_processes(lines, workers)
+    with _sim_files(lines, axes, sim_count) as files:
         async with contextlib.AsyncExitStack() as stack:
             sims = [await stack.enter_async_context(SimProcess("--machine", str(f)))
                     for f in files]
@@ -211,6 +225,9 @@ async def scale(lines: int, axes: int, seconds: float, workers: int = 0) -> Benc
         "worker_cpu_cores": ",".join(f"{c:.2f}" for c in worker_cores) or "-",
         "cpu_per_line": total_cores / lines,
         "sim_cpu_cores": sim_cores,
+        "sim_processes": sim_count,
+        "host_cores": os.cpu_count() or 1,
+        "busy_cores": total_cores + sim_cores,
         "stops": len(stops),
         "stop_p99_ms": percentile(stops, 0.99) * 1e3,
         "stop_max_ms": max(stops) * 1e3 if stops else float("nan"),
