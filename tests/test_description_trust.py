@@ -595,3 +595,20 @@ async def test_the_stf_seeks_home_on_the_edge_its_sensor_type_gives() -> None:
             await profile.home(speed_rpm=60, creep_rpm=10, accel_rps2=10)
             params = [f.data for f in wire.requests() if f.data[1] == 0x10 and f.data[3] == 125]
             assert params and params[-1][7:11] == bytes([0, 0x33, 0, edge]), params
+
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGED = sorted([*(ROOT / "src/drivebus/drives/descriptions").glob("*.toml"),
+                   *(ROOT / "configs/drives").glob("*.toml")])
+
+
+@pytest.mark.parametrize("path", PACKAGED, ids=lambda p: p.stem)
+def test_no_packaged_stop_is_marked_never_to_be_sent_again(path: Path) -> None:
+    # ``idempotent = false`` is for a start. A stop sent again after a lost reply can only
+    # stop a motor the first one did not reach; one that is not leaves it running.
+    d = load_description(path)
+    for name in ("stop", "emergency_stop", "quick_stop", "halt"):
+        proc = d.procedures.get(name)
+        if proc is None:
+            continue
+        assert all(step.idempotent for step in proc.steps), (path.name, name)

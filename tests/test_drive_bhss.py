@@ -20,6 +20,7 @@ from drivebus.settings import LineSettings
 from drivebus.sim import sim_bus
 from drivebus.sim.drive import TwinSetup
 from drivebus.sim.drives.bhss import SimBHSS
+from drivebus.sim.slave import Fault
 from drivebus.sim.wire import VirtualWire
 from wirelog import frames_text
 
@@ -314,6 +315,23 @@ async def test_emergency_stop_halts_at_once() -> None:
         await profile.emergency_stop()
         assert not sim.is_moving()
         assert not (await profile.read_status()).moving
+
+
+@pytest.mark.parametrize("which", ["stop", "emergency_stop"])
+async def test_a_stop_whose_reply_is_lost_is_sent_again(which: str) -> None:
+    # A stop is not a start: sending it again after a lost reply can only stop a motor that
+    # the first one did not reach (its frame lost on the wire). Before, both stops were
+    # marked not idempotent: one lost reply was a ResponseTimeout and no second stop.
+    async with bhss() as (wire, sim, profile):
+        await profile.speed_run(600, 100.0, 50.0)
+        await wait_for(profile, lambda s: s.moving)
+        sim.faults.inject(Fault.NO_REPLY)  # the next reply: the stop's
+        before = len(wire.requests())
+        await getattr(profile, which)()
+        stops = [f for f in sent(wire)[before:] if f[1] == 0x06 and f[2:4] == b"\x00\x28"]
+        assert len(stops) == 2, frames_text(wire.log, limit=6)  # the stop, then again
+        await wait_for(profile, lambda s: not s.moving)
+        assert not sim.is_moving()
 
 
 async def test_speed_run_zero_is_a_stop() -> None:
