@@ -10,6 +10,7 @@ import pytest
 import serial_asyncio
 
 from drivebus import Bus, LineSettings, SerialLine, SlaveHandle
+from drivebus.clock import monotonic
 from drivebus.errors import LineClosed, ResponseTimeout
 from drivebus.line.rtu import frame
 from drivebus.sim import RegisterSlave, VirtualWire, sim_bus
@@ -190,5 +191,36 @@ async def test_two_whole_frames_in_one_read_are_two_requests_and_the_last_is_ans
             assert [f.data for f in wire.log if f.direction == "reply"] == [
                 frame(1, bytes.fromhex("03 02 0007"))
             ]
+        finally:
+            writer.close()
+
+
+async def test_two_frames_handed_over_in_pieces_are_two_requests_and_the_last_is_answered(
+) -> None:
+    """The kernel may hand one write of two frames to the wire's side in pieces (its
+    buffer ending inside the second frame): a whole frame and the start of another are
+    not yet a request. Before, the wire took them for one frame with a bad CRC and the
+    rest for the start of a broadcast, and nothing was answered. The pieces go straight
+    to the wire's segment here, with the times a pty read would give them."""
+    s = LineSettings.parse("9600 8N1")
+    slave = RegisterSlave(1, s, initial=[(5, 862)])
+    write = frame(1, bytes.fromhex("06 0005 0007"))
+    read = frame(1, bytes.fromhex("03 0005 0001"))
+    async with VirtualWire("two-in-pieces") as wire:
+        wire.attach(slave)
+        reader, writer = await serial_asyncio.open_serial_connection(
+            url=wire.slave_path, baudrate=9600
+        )
+        try:
+            now = monotonic()
+            wire.segment.feed(write + read[:2], now, s, None)
+            assert wire.requests() == []  # not yet: the second frame is still coming
+            wire.segment.feed(read[2:], now + 0.0001, s, None)
+            with within(10, "the reply to the second frame on the raw port"):
+                assert await reader.readexactly(7) == frame(1, bytes.fromhex("03 02 0007"))
+            first, second = wire.requests()
+            assert (first.data, first.note) == (write, "unanswered: the next request came with it")
+            assert (second.data, second.note) == (read, "")
+            assert slave.registers[5] == 7 and wire.violations == 0
         finally:
             writer.close()

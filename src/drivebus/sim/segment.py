@@ -235,20 +235,24 @@ class Segment(Generic[R]):
         )
 
     def _complete_length(self, rx: bytearray) -> int | None:
-        """How many bytes of ``rx`` make the request, once all of it is there. With
-        ``split_frames``, that frame's length; without, all the bytes, unless they are two
-        whole frames with good CRCs (then the first's length)."""
+        """How many bytes of ``rx`` make the request, once all of it is there (None: not
+        yet). With ``split_frames``, that frame's length; without, all the bytes, unless
+        they are two whole frames with good CRCs (then the first's length; a frame with a
+        good CRC and the start of another: not yet)."""
         length = self._frame_length(rx)
         if length is None or len(rx) < length:
             return None
         if self.split_frames or len(rx) == length:
             return length
+        if not crc_ok(bytes(rx[:length])):
+            return len(rx)
         rest = rx[length:]
         follows = self._frame_length(rest)
-        if crc_ok(bytes(rx[:length])) and follows is not None and len(rest) >= follows \
-                and crc_ok(bytes(rest[:follows])):
-            return length
-        return len(rx)
+        if follows is None or len(rest) < follows:
+            # A whole frame, and the start of another: the kernel handed one write of two
+            # frames over in pieces (its buffer ended inside the second). Wait for the rest.
+            return None
+        return length if crc_ok(bytes(rest[:follows])) else len(rx)
 
     def _frame_length(self, rx: bytearray) -> int | None:
         """The length of the request frame that ``rx`` begins with (address to CRC), as
