@@ -80,6 +80,8 @@ def _refused(tmp_path: Path) -> list[tuple[list[str | Path], tuple[str, ...]]]:
     a copy of the demo machine: a refused ``teach`` must not touch the packaged one)."""
     demo = tmp_path / "demo.toml"
     demo.write_text(DEMO.read_text())
+    watched = tmp_path / "watched.toml"  # a position that has aux, which cannot move
+    watched.write_text(DEMO.read_text() + "\n[positions.watch]\naux = 0.0\n")
     out = tmp_path / "run.jsonl"
     nowhere = tmp_path / "no-such-dir" / "run.html"
     return [
@@ -92,6 +94,8 @@ def _refused(tmp_path: Path) -> list[tuple[list[str | Path], tuple[str, ...]]]:
         (["jog", demo, "aux", "5", "--for", "1"], ("OD2000", "cannot")),
         (["move", demo, "nowhere"], ("no position 'nowhere'",)),
         (["teach", demo, "pick", "q"], ("no axis q",)),
+        (["teach", demo, "pick", "x", "aux"], ("AXIS", "axis aux cannot be taught", "OD2000")),
+        (["teach", watched, "watch"], ("AXIS", "axis aux cannot be taught", "OD2000")),
         (["record", demo, "-d", "move q 10", "-o", out], ("--during", "no axis 'q'")),
         (["record", demo, "q", "-s", "1", "-o", out], ("no axis q",)),
         (["record", demo, "-d", "move x 10", "-d", "move x 1000", "-o", out],
@@ -156,6 +160,7 @@ def test_a_command_the_serve_refuses_sends_nothing_and_exits_2(tmp_path: Path) -
         (["home", demo, "aux"], "cannot home"),
         (["move", demo, "nowhere"], "no position 'nowhere'"),
         (["status", demo, "q"], "no axis 'q'"),
+        (["teach", demo, "pick", "aux"], "axis aux cannot be taught"),
     ]
     # someone else's motion on x (5 mm/s: a minute long) runs meanwhile
     with (sim_server(demo, "--log") as (sim, _), serving(demo),

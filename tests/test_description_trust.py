@@ -545,9 +545,10 @@ def test_drive_check_counts_sources_and_verifies_the_manuals_example_frames(
     done = cli("drive", "check", write(tmp_path, EXAMPLES, "examples.toml"))
     assert done.returncode == 0, done.stderr
     out = done.stdout
-    # 6 registers, 2 bits, 2 procedures: all from the manual but the inferred current
-    assert "provenance of 10 registers, bits, procedures and homing methods: 9 manual, " \
-        "0 code, 1 inferred, 0 unnamed" in out, out
+    # 6 registers, 2 bits, 2 procedures, [link] and [status]: all from the manual but the
+    # inferred current
+    assert "provenance of 12 registers, bits, procedures, homing methods and sections: " \
+        "11 manual, 0 code, 1 inferred, 0 unnamed" in out, out
     assert "inferred (not from the manual or public code): registers.current" in out
     assert "examples: 3 of 4 of the manual's example frames verified" in out, out
     assert "ok   examples[0] (set the electronic gearing to 20000 steps/rev): 1 frame as " \
@@ -580,6 +581,57 @@ def test_the_drive_page_names_each_registers_source_and_the_inferred_items(
     assert "## The manual's example frames" in page
     assert "| set the electronic gearing to 20000 steps/rev (manual: 4.3, p. 27) | " \
         "`01 06 00 34 27 10 D2 38` | - | write steps_per_rev = 20000 |" in page
+
+
+SECTIONS = EXAMPLES.replace('[registers.status]\n', '''[identify]
+read = ["steps_per_rev"]
+match = "steps_per_rev > 0"
+source = "inferred: any drive answering at 52 is taken for one"
+
+[link]
+baud_rates = [9600]
+source = "manual: 2.1, p. 9 (communication settings)"
+
+[status]
+poll = ["status"]
+moving = "status.MOVING"
+source = "manual: 4.2 (status word)"
+
+[alarms]
+register = "current"
+texts = { 1 = "over-current" }
+source = "code: github.com/acme/st-driver alarms.py"
+
+[registers.status]
+''', 1)
+
+
+def test_the_sections_name_their_sources_too(tmp_path: Path) -> None:
+    """[identify], [link], [status] and [alarms] take ``source`` as items do: checked the
+    same way, counted by ``drive check`` (an inferred one named), listed on the page."""
+    d = load_description(write(tmp_path, SECTIONS, "sections.toml"))
+    assert d.section_sources() == {
+        "identify": "inferred: any drive answering at 52 is taken for one",
+        "link": "manual: 2.1, p. 9 (communication settings)",
+        "status": "manual: 4.2 (status word)",
+        "alarms": "code: github.com/acme/st-driver alarms.py"}
+    prov = d.provenance()
+    assert "[identify]" in prov["inferred"] and "[link]" in prov["manual"]
+    assert "[alarms]" in prov["code"] and "[status]" in prov["manual"]
+    out = cli("drive", "check", tmp_path / "sections.toml").stdout
+    assert "provenance of 14 registers, bits, procedures, homing methods and sections: " \
+        "11 manual, 1 code, 2 inferred, 0 unnamed" in out, out
+    assert "inferred (not from the manual or public code): registers.current, " \
+        "[identify]" in out, out
+    page = cli("drive", "doc", tmp_path / "sections.toml").stdout
+    assert "`registers.current`, `[identify]`." in page, page
+    assert "- `[link]`: manual: 2.1, p. 9 (communication settings)" in page, page
+    assert "- `[alarms]`: code: github.com/acme/st-driver alarms.py" in page, page
+    for section, source in d.section_sources().items():
+        bad = SECTIONS.replace(f'source = "{source}"', 'source = "p. 12"')
+        with pytest.raises(ConfigError, match=rf"{section}\.source: .*say where it comes "
+                                              r"from, starting with manual"):
+            load_description(write(tmp_path, bad, "bad.toml"))
 
 
 # -- item 10: the shipped descriptions re-checked against their manuals ---------------------

@@ -88,6 +88,20 @@ async def test_teach_writes_back_atomically_and_keeps_the_comments(tmp_path: Pat
     assert load_config(path).positions["pick"] == {"x": 130.5, "y": 42.25, "z": 7.5}
 
 
+async def test_an_axis_that_cannot_move_is_not_taught(tmp_path: Path) -> None:
+    """aux (an OD2000: monitoring only) can never be moved to a position: teaching it is
+    refused naming the axis and why, before anything is read or written; with no axes
+    named, a position that already has it is refused the same way."""
+    path = demo_copy(tmp_path, "posaux", POSITIONS + "\n[positions.watch]\naux = 0.0\n")
+    before = path.read_text()
+    async with open_machine(path) as m:
+        for name, axes in (("pick", ["x", "aux"]), ("watch", None)):
+            with pytest.raises(ArgumentError, match=r"axis aux cannot be taught: .*OD2000"):
+                await m.teach(name, axes)
+        assert m.positions["pick"] == {"x": 120.0, "y": 40.0}
+    assert path.read_text() == before
+
+
 async def test_positions_kept_in_a_file_beside_the_machine_file(tmp_path: Path) -> None:
     path = demo_copy(tmp_path, "posfile")
     text = path.read_text().replace('name = "demo"\n',

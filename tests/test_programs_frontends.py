@@ -41,6 +41,11 @@ async def test_positions_override_and_io_over_http(tmp_path: Path) -> None:
         r = await client.post("/api/positions/pick/teach", json={"axes": ["z"]})
         assert r.status_code == 200 and r.json()["axes"] == {"x": 100.0, "y": 50.0, "z": -1.0}
         assert "[positions.pick]" in path.read_text() and "z = -1.0" in path.read_text()
+        before = path.read_text()  # aux (OD2000) cannot move: a position for it is no use
+        r = await client.post("/api/positions/pick/teach", json={"axes": ["z", "aux"]})
+        data = problem(r, 422, "ArgumentError")
+        assert "axis aux cannot be taught" in data["detail"] and "OD2000" in data["detail"]
+        assert path.read_text() == before
 
         r = await client.put("/api/override", json={"factor": 0.5})
         assert r.status_code == 200 and r.json() == {"machine": 0.5}

@@ -4,6 +4,7 @@ the fixed axis message, motion events, jogs held by a connection, auth, errors."
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -231,19 +232,50 @@ async def test_bad_messages_get_typed_error_replies_and_the_connection_lives_on(
         await at_rest(svc)
 
 
-async def test_websocket_authentication_and_scopes(tmp_path: Path) -> None:
+async def _refused_in_the_handshake(svc: Service, authorization: str, cause: str) -> None:
+    """A handshake with this ``Authorization`` header is refused as an HTTP route refuses
+    it: 401, ``WWW-Authenticate``, a problem naming ``cause``; the token not in it."""
+    with pytest.raises(InvalidStatus) as refused:
+        async with ws(svc, {"Authorization": authorization}):
+            pass
+    r = refused.value.response
+    assert r.status_code == 401 and r.headers["WWW-Authenticate"] == 'Bearer realm="drivebus"'
+    assert r.headers["Content-Type"] == "application/problem+json"
+    body = json.loads(r.body)
+    assert body["error"] == "Unauthorized" and body["status"] == 401, body
+    assert cause in body["detail"] and body["instance"] == "/api/ws", body
+    assert authorization.split()[-1] not in r.body.decode()
+
+
+async def _told_and_closed(conn: ClientConnection, cause: str) -> None:
+    """The connection gets one ``error`` message naming ``cause`` (no hello, no topic
+    data), then is closed with code 4401 and ``cause`` in the reason."""
+    msg = await recv(conn)
+    assert msg["type"] == "error" and msg["error"]["error"] == "Unauthorized", msg
+    assert cause in msg["error"]["detail"] and "0123456789" not in json.dumps(msg), msg
+    with pytest.raises(ConnectionClosed) as closed:
+        await recv(conn)
+    assert closed.value.rcvd is not None and closed.value.rcvd.code == 4401
+    assert cause in closed.value.rcvd.reason and "0123456789" not in closed.value.rcvd.reason
+
+
+async def test_websocket_authentication_and_scopes(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.DEBUG)
     tokens = TokenStore.load(token_file(tmp_path))
     async with running(tokens=tokens) as (svc, client):
-        with pytest.raises(InvalidStatus):  # a bad token in the handshake: refused
-            async with ws(svc, {"Authorization": "Bearer wrong-token-0123456789"}):
-                pass
+        await _refused_in_the_handshake(svc, "Bearer wrong-token-0123456789", "unknown token")
+        await _refused_in_the_handshake(svc, "Basic d3Jvbmc6dG9rZW4=", "Bearer TOKEN")
         async with ws(svc) as conn:  # no header: the first message must authenticate
             await send(conn, subscribe=["axes"])
-            msg = await recv(conn)
-            assert msg["type"] == "error" and msg["error"]["error"] == "Unauthorized"
-            with pytest.raises(ConnectionClosed) as closed:
-                await recv(conn)
-            assert closed.value.rcvd is not None and closed.value.rcvd.code == 4401
+            await _told_and_closed(conn, 'send {"auth": "TOKEN"} first')
+        async with ws(svc) as conn:  # a token sent bare (not JSON) is never quoted back
+            await conn.send("wrong-token-0123456789")
+            await _told_and_closed(conn, 'send {"auth": "TOKEN"} first')
+        async with ws(svc) as conn:
+            await send(conn, auth="wrong-token-0123456789")
+            await _told_and_closed(conn, "unknown token")
         async with ws(svc) as conn:  # a browser: the token as its first message
             await send(conn, auth=TOKENS["viewer"][1])
             hello = await recv(conn)
@@ -262,6 +294,8 @@ async def test_websocket_authentication_and_scopes(tmp_path: Path) -> None:
             reply = await recv_until(conn, lambda m: m["type"] == "reply")
             assert reply["error"]["error"] == "LeaseHeld" and reply["error"]["holder"] == "bob"
             assert not svc.session.machine.sim_drives["z"].is_moving()
+    said = [r.getMessage() for r in caplog.records if r.name.startswith("drivebus")]
+    assert said and not [m for m in said if "0123456789" in m]  # tokens never logged
 
 
 async def test_the_fan_out_feeds_every_mailbox_and_a_slow_one_keeps_only_the_latest() -> None:

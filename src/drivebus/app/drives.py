@@ -165,11 +165,13 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
 
 
 def provenance_lines(d: Description, r: DescriptionReport) -> list[str]:
-    """Where the registers, bits, procedures and homing methods come from (counts of
-    each kind), the inferred ones named, and the manual's example frames verified."""
+    """Where the registers, bits, procedures, homing methods and sections come from
+    (counts of each kind), the inferred ones named, and the manual's example frames
+    verified."""
     prov = d.provenance()
     total = sum(len(v) for v in prov.values())
-    lines = [f"  provenance of {total} registers, bits, procedures and homing methods: "
+    lines = [f"  provenance of {total} registers, bits, procedures, homing methods and "
+             f"sections: "
              + ", ".join(f"{len(prov[k])} {k}" for k in ("manual", "code", "inferred",
                                                          "unnamed"))]
     if prov["inferred"]:

@@ -56,16 +56,18 @@ def refuse_before_opening(
     speed: float | None = None,
 ) -> None:
     """Raise the refusal the machine file alone decides for ``procedure`` on ``axis``
-    (``"move"``, ``"move_by"``, ``"jog"`` at the signed ``speed``, ``"home"``), before any
-    port opens: an unknown axis (``ConfigError``), a drive that cannot do it
-    (``NotSupported``), an absolute ``target`` beyond the soft limits, a speed beyond
-    ``max_speed`` or beyond what its drive runs (``LimitViolation``). The axis checks all of
+    (``"move"``, ``"move_by"``, ``"jog"`` at the signed ``speed``, ``"home"``,
+    ``"teach"``), before any port opens: an unknown axis (``ConfigError``), a drive that
+    cannot do it (``NotSupported``; for ``"teach"``, a drive that cannot move to a
+    position: ``ArgumentError``), an absolute ``target`` beyond the soft limits, a speed
+    beyond ``max_speed`` or beyond what its drive runs (``LimitViolation``). The axis checks all of
     it again (and what needs its status) when the command runs; this only makes a refusal
     send nothing at all, not even the reads of opening."""
     from drivebus.bus import Bus
     from drivebus.drives.registry import family
     from drivebus.line import SerialLine
     from drivebus.motion.envelope import Envelope
+    from drivebus.motion.machine import check_teachable
     from drivebus.motion.units import Units
 
     ac = subset(cfg, [axis]).axes[axis]
@@ -78,6 +80,9 @@ def refuse_before_opening(
         raise ConfigError(f"axes.{axis}.drive_options: {exc}") from None
     if procedure == "home":
         profile.check_supported("home")
+        return
+    if procedure == "teach":
+        check_teachable(axis, profile)
         return
     envelope = Envelope(axis, ac, profile, Units(ac.pulses_per_rev, ac.units_per_rev))
     plan = envelope.plan(None if speed is None else abs(speed))

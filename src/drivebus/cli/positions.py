@@ -72,18 +72,27 @@ def teach(
     owner = _owner(config, server, token, local)
     if owner is not None:
         raise typer.Exit(run_guarded(lambda: _teach_remote(out, owner, name, axes or [])))
-    cfg = _refuse_teaching(config, axes or [])
+    cfg = _refuse_teaching(config, name, axes or [])
     raise typer.Exit(run_guarded(lambda: _teach_here(out, cfg, name, axes or [])))
 
 
-def _refuse_teaching(config: Path, axes: list[str]) -> MachineConfig:
+def _refuse_teaching(config: Path, name: str, axes: list[str]) -> MachineConfig:
     """The machine file, once what it alone refuses of ``teach`` has passed, before
-    anything opens: an unknown axis (a ``ConfigError`` naming those there are)."""
-    from drivebus.app.operations import subset
+    anything opens: an unknown axis (a ``ConfigError`` naming those there are), an axis
+    whose drive cannot move to a position (``ArgumentError``, exit status 2), among the
+    named axes or, with none named, the position's own."""
+    from drivebus.app.operations import refuse_before_opening, subset
     from drivebus.config import load_config
+    from drivebus.positions import PositionStore
 
     cfg = load_config(config)
     subset(cfg, axes)
+    chosen = axes or list(PositionStore.of(cfg, cfg.source).positions.get(name, {}))
+    for axis in dict.fromkeys(chosen):
+        try:
+            refuse_before_opening(cfg, axis, "teach")
+        except ArgumentError as exc:
+            raise ArgumentError(f"AXIS: {exc}") from None
     return cfg
 
 

@@ -115,12 +115,19 @@ def description_sections(family: DriveFamily) -> list[str]:
 
 
 def _provenance(d: Description) -> str:
-    """Where the description's items come from, by kind; the inferred ones named."""
+    """Where the description's items come from, by kind; the inferred ones named; the
+    sources the sections ``[identify]``, ``[link]``, ``[status]``, ``[alarms]`` name."""
     prov = d.provenance()
     total = sum(len(v) for v in prov.values())
-    text = (f"Provenance of its {total} registers, bits, procedures and homing methods: "
-            + ", ".join(f"{len(prov[k])} {k}" for k in ("manual", "code", "inferred",
-                                                         "unnamed") if prov[k]) + ".")
+    text = (f"Provenance of its {total} registers, bits, procedures, homing methods and "
+            f"sections: " + ", ".join(f"{len(prov[k])} {k}" for k in (
+                "manual", "code", "inferred", "unnamed") if prov[k]) + ".")
+    own = {k: v for k, v in d.section_sources().items() if v}
+    if own:
+        text += ("\n\nWhere its sections come from" + (
+            f" (the others: {d.drive.source})" if d.drive.source and len(own) < len(
+                d.section_sources()) else "") + ":\n\n"
+            + "\n".join(f"- `[{k}]`: {cell(v)}" for k, v in own.items()))
     if prov["inferred"]:
         text = (f"**{len(prov['inferred'])} items are inferred** (neither the manual nor "
                 f"public code says them; check them on the drive): "

@@ -23,6 +23,7 @@ from drivebus.errors import (
     ConnectionLost,
     DrivebusError,
     DriveOffline,
+    NotSupported,
     StateError,
     TransactionError,
 )
@@ -36,7 +37,7 @@ from drivebus.motion.state import MOVING_STATES
 from drivebus.positions import PositionStore
 from drivebus.tasks import ServiceTasks, where_tasks_wait
 
-__all__ = ["Machine", "open_machine"]
+__all__ = ["Machine", "check_teachable", "open_machine"]
 
 if TYPE_CHECKING:
     from drivebus.motion.workers import WorkerPool
@@ -122,7 +123,8 @@ class Machine:
         has, or every axis that can move) as ``name`` and write it back to the machine
         file (or its positions file) atomically, comments kept; the position's other
         axes keep theirs. Each axis is read fresh and must be at rest. Returns the
-        position as stored."""
+        position as stored. An axis whose drive cannot move to a position (a
+        monitoring-only drive) is refused before anything is read (``ArgumentError``)."""
         if axes is None:
             known = self.taught.positions.get(name)
             names = list(known) if known else [
@@ -132,6 +134,8 @@ class Machine:
             self.group(*names)  # ConfigError naming an unknown axis
         if not names:
             raise ArgumentError(f"teach {name!r}: no axes to teach")
+        for n in names:  # before anything is read: a refusal sends nothing
+            check_teachable(n, self.axes[n].profile)
         values: dict[str, float] = {}
         async with self._teaching:
             for n in names:
@@ -236,6 +240,19 @@ class Machine:
         async with anyio.create_task_group() as tg:
             for a in axes:
                 tg.start_soon(fn, a)
+
+
+def check_teachable(axis: str, profile: DriveProfile) -> None:
+    """``ArgumentError`` if a position taught for ``axis`` could never be moved to: its
+    drive (``profile``) cannot make an absolute move, as a monitoring-only drive such as
+    the OD2000 cannot. No I/O: ``teach`` asks before it reads anything."""
+    try:
+        profile.check_supported("move_absolute")
+    except NotSupported as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ArgumentError(f"axis {axis} cannot be taught: a taught position is moved "
+                            f"to, and {exc}") from None
 
 
 def _can_move(axis: Axis) -> bool:

@@ -53,7 +53,7 @@ from drivebus.errors import (
 from drivebus.service.auth import AuthError
 
 __all__ = ["PROBLEM", "STATUS", "install", "is_json_type", "problem", "problem_data",
-           "status_of"]
+           "problem_response", "status_of"]
 
 log = logging.getLogger(__name__)
 
@@ -158,12 +158,18 @@ def problem(status: int, data: dict[str, Any], headers: dict[str, str] | None = 
     return JSONResponse(data, status_code=status, media_type=PROBLEM, headers=headers)
 
 
-def _respond(request: Request, exc: BaseException) -> JSONResponse:
-    data = problem_data(exc, request.url.path)
+def problem_response(exc: BaseException, instance: str | None = None) -> JSONResponse:
+    """``exc`` as a problem+json response (a 401 with ``WWW-Authenticate``): what an
+    HTTP route answers, and what a WebSocket handshake is refused with."""
+    data = problem_data(exc, instance)
     headers = None
     if isinstance(exc, AuthError) and exc.status == 401:
         headers = {"WWW-Authenticate": 'Bearer realm="drivebus"'}
     return problem(data["status"], data, headers)
+
+
+def _respond(request: Request, exc: BaseException) -> JSONResponse:
+    return problem_response(exc, request.url.path)
 
 
 def install(app: FastAPI) -> None:

@@ -4,7 +4,10 @@ The client sends JSON objects with one operation each (and optionally an ``id`` 
 reply carries back):
 
 - ``{"auth": "TOKEN"}``: first message, when the service has tokens and the handshake
-  carried no ``Authorization: Bearer`` header (browsers cannot set one).
+  carried no ``Authorization: Bearer`` header (browsers cannot set one). A wrong or
+  missing one gets one ``{"type": "error", ...}`` message and the close code 4401 with
+  the cause as the reason; a wrong header refuses the handshake itself with a 401
+  problem, as an HTTP route answers. Neither quotes the token.
 - ``{"subscribe": ["axes", "lines", "motions", "errors"]}``: what to receive from now on
   (it replaces the previous set). Answered by ``{"type": "subscribed", "topics": [...]}``
   and then, for ``axes``, the present state of every axis. With ``"max_rate": N`` the
@@ -52,7 +55,7 @@ from drivebus.service.auth import AuthError, Principal, bearer_token, require_co
 from drivebus.service.deps import ServiceState
 from drivebus.service.encoding import dumps
 from drivebus.service.models import MAX_JOG_TTL
-from drivebus.service.problems import problem_data
+from drivebus.service.problems import problem_data, problem_response
 
 __all__ = ["websocket_endpoint"]
 
@@ -64,6 +67,12 @@ COMMAND_QUEUE = 16
 """Jogs waiting per connection; beyond that a jog is refused, never queued."""
 EVENT_CAPACITY = 256
 """Discrete events (motions, errors) kept per connection."""
+
+CLOSE_UNAUTHORIZED = 4401
+"""The close code of a connection the service does not let in (HTTP's 401 in the range
+RFC 6455 leaves to applications); the close reason says why."""
+MAX_CLOSE_REASON = 123
+"""Longest close reason a close frame carries, bytes of UTF-8 (RFC 6455 5.5.1)."""
 
 _OPS = ("auth", "subscribe", "jog", "stop", "estop", "ping")
 
@@ -284,7 +293,7 @@ def _parse(text: str) -> tuple[str, Any, Any]:
 
 async def _authenticate(ws: WebSocket, state: ServiceState) -> Principal | None:
     """The caller, from the handshake's header or a first ``{"auth": TOKEN}`` message;
-    None (the connection closed) if it is not allowed in."""
+    None (the connection refused, saying why) if it is not allowed in."""
     tokens = state.tokens
     client = ws.headers.get("x-drivebus-client") or ws.query_params.get("client")
     header = ws.headers.get("authorization")
@@ -292,28 +301,56 @@ async def _authenticate(ws: WebSocket, state: ServiceState) -> Principal | None:
         try:
             principal = tokens.authenticate(bearer_token(header), client)
         except AuthError as exc:
-            await ws.close(code=4401, reason=str(exc)[:100])
+            await _refuse_handshake(ws, exc)
             return None
         await ws.accept()
         return principal
     await ws.accept()
-    error: AuthError | ArgumentError
     try:
         with anyio.fail_after(AUTH_TIMEOUT):
             message = await ws.receive()
         if message["type"] == "websocket.disconnect":
             return None
-        op, _, token = _parse(message.get("text") or "")
-        if op != "auth" or not isinstance(token, str):
-            raise AuthError(401, 'this service needs a token: send {"auth": "TOKEN"} first')
-        return tokens.check(token)
+        return tokens.check(_first_token(message.get("text") or ""))
     except TimeoutError:
         error = AuthError(401, f'no {{"auth": "TOKEN"}} within {AUTH_TIMEOUT:g} s')
-    except (AuthError, ArgumentError) as exc:
+    except AuthError as exc:
         error = exc
-    await ws.send_text(dumps({"type": "error", "error": problem_data(error)}))
-    await ws.close(code=4401)
+    await _refuse(ws, error)
     return None
+
+
+def _first_token(text: str) -> str:
+    """The token of a first message ``{"auth": TOKEN}``; ``AuthError`` 401 for anything
+    else, never quoting the message (it may be a token sent bare)."""
+    try:
+        op, _, token = _parse(text)
+    except ArgumentError:
+        op, token = "", None
+    if op != "auth" or not isinstance(token, str):
+        raise AuthError(401, 'this service needs a token: send {"auth": "TOKEN"} first')
+    return token
+
+
+async def _refuse_handshake(ws: WebSocket, error: AuthError) -> None:
+    """Refuse a handshake whose ``Authorization`` header does not let it in as an HTTP
+    route refuses a request: ``401`` with ``WWW-Authenticate`` and the problem+json body
+    naming the cause (the WebSocket Denial Response extension, which uvicorn offers). A
+    server without it gets ``_refuse``: accepted, told why, closed. Nothing else is
+    sent either way."""
+    if "websocket.http.response" in (ws.scope.get("extensions") or {}):
+        await ws.send_denial_response(problem_response(error, ws.url.path))
+        return
+    await ws.accept()
+    await _refuse(ws, error)
+
+
+async def _refuse(ws: WebSocket, error: AuthError) -> None:
+    """Close an accepted connection that is not let in: the problem as an ``error``
+    message, then close code ``CLOSE_UNAUTHORIZED`` with its detail as the reason."""
+    await ws.send_text(dumps({"type": "error", "error": problem_data(error)}))
+    reason = str(error).encode()[:MAX_CLOSE_REASON].decode(errors="ignore")
+    await ws.close(code=CLOSE_UNAUTHORIZED, reason=reason)
 
 
 async def websocket_endpoint(ws: WebSocket) -> None:

@@ -68,6 +68,11 @@ SOURCE_KINDS = ("manual", "code", "inferred")
 public code that drives the drive, or inferred (the description's author's reading)."""
 
 
+SECTION_SOURCE = ("where the section's facts come from ('manual: ...', 'code: ...', "
+                  "'inferred: ...'); without it, [drive] source")
+"""What ``source`` means in ``[identify]``, ``[link]``, ``[status]`` and ``[alarms]``."""
+
+
 def _source(v: Any) -> Any:
     if not isinstance(v, str):
         return v

@@ -10,7 +10,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
-from drivebus.drives.description.fields import E, IntKeyed, Source, T, _Model
+from drivebus.drives.description.fields import SECTION_SOURCE, E, IntKeyed, Source, T, _Model
 from drivebus.drives.expr import FUNCTIONS, Template
 from drivebus.drives.registers import WordOrder
 from drivebus.settings import LineSettings
@@ -40,6 +40,7 @@ class Identify(_Model):
     firmware: T = Template.parse("")
     raw: dict[str, E] = {}
     cannot: str = ""
+    source: Source | None = Field(None, description=SECTION_SOURCE)
 
     @model_validator(mode="after")
     def _either(self) -> Identify:
@@ -179,6 +180,7 @@ class Link(_Model):
     exceptions: Annotated[dict[int, str], IntKeyed] = {}
     refusals: Refusals = Refusals()
     timing: Timing = Timing()
+    source: Source | None = Field(None, description=SECTION_SOURCE)
 
     @field_validator("addresses", "register_addresses", mode="before")
     @classmethod

@@ -58,9 +58,10 @@ class Description(_Model):
     examples: list[ExampleDef] = []
 
     def provenance(self) -> dict[str, list[str]]:
-        """Where every register, bit, procedure and homing method comes from, by kind
-        (``manual``, ``code``, ``inferred``, ``unnamed``): the item's own ``source``, else
-        the register's (for its bits), else ``[drive] source``."""
+        """Where every register, bit, procedure and homing method, and the sections
+        ``[identify]``, ``[link]``, ``[status]`` and ``[alarms]`` (those it has), come
+        from, by kind (``manual``, ``code``, ``inferred``, ``unnamed``): the item's own
+        ``source``, else the register's (for its bits), else ``[drive] source``."""
         default = self.drive.source
         out: dict[str, list[str]] = {k: [] for k in (*SOURCE_KINDS, "unnamed")}
         for key, r in self.registers.items():
@@ -72,7 +73,16 @@ class Description(_Model):
             out[source_kind(p.source or default)].append(f"procedures.{name}")
         for name, m in (self.homing.methods.items() if self.homing else ()):
             out[source_kind(m.source or default)].append(f"homing.methods.{name}")
+        for name, source in self.section_sources().items():
+            out[source_kind(source or default)].append(f"[{name}]")
         return out
+
+    def section_sources(self) -> dict[str, str | None]:
+        """The own ``source`` of each of the sections ``identify``, ``link``, ``status``
+        and ``alarms`` the description has (None: it has none of its own)."""
+        sections = {"identify": self.identify, "link": self.link, "status": self.status,
+                    "alarms": self.alarms}
+        return {k: s.source for k, s in sections.items() if s is not None}
 
     # -- compiled views ---------------------------------------------------------------------
 

@@ -9,7 +9,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
-from drivebus.drives.description.fields import E, IntKeyed, T, _Model
+from drivebus.drives.description.fields import SECTION_SOURCE, E, IntKeyed, Source, T, _Model
 from drivebus.drives.expr import Template
 
 
@@ -57,6 +57,7 @@ class StatusDef(_Model):
     learn_first: bool = Field(False, description="run learn before the first poll (else "
                               "decoding uses the registers' defaults until setup or learn)")
     completion: CompletionDef | None = None
+    source: Source | None = Field(None, description=SECTION_SOURCE)
 
 
 class IoDef(_Model):
@@ -97,6 +98,7 @@ class AlarmsDef(_Model):
     texts: Annotated[dict[int, str], IntKeyed] = {}
     unknown: T = Template.parse("alarm code {code}")
     clears: Annotated[dict[int, Literal["command", "power_cycle", "supply"]], IntKeyed] = {}
+    source: Source | None = Field(None, description=SECTION_SOURCE)
 
 
 class SignalDef(_Model):
