@@ -1,0 +1,113 @@
+"""What writing a drive from its manual as a newcomer found (the Arcus TITAN-SVX,
+configs/drives/arcus_titan_svx.toml): each on the generic twin of a small description, on
+the wire.
+
+* ``DriveStatus.raw`` keeps each polled register's own value: a register with a unit gave
+  its physical value (a count scaled by 2 read twice its word) or, where that was not a
+  whole number (a speed in 0.1 rpm), was left out.
+* A command coil the drive does not read back (``coil = true, access = "W"``: the TITAN
+  serves FC01 on coils 0..6 only) is refused to FC01 by the twin, as a write-only register
+  is to FC03; the twin answered it.
+* A drive without a homed flag, homed by a method that sets the position at once
+  (``behaviour = "set"``: the TITAN writes its encoder position EX), reports homed once
+  that homing is done; ``axis.home()`` waited for a flag the drive does not have.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+import pytest
+
+from drivebus import LineSettings
+from drivebus.drives.description import Description, load_description
+from drivebus.drives.engine import DescribedProfile, profile_class
+from drivebus.errors import ModbusException
+from drivebus.sim import VirtualWire, sim_bus
+from drivebus.sim.described import described_twin
+
+FAST = LineSettings.parse("115200 8N1")
+
+DRIVE = """
+[drive]
+family = "NEWCOMER"
+source = "inferred: a test's drive"
+
+[link]
+functions = [1, 3, 5, 16]
+
+[units.pulses_per_rev]
+default = 1000
+
+[registers.status]
+address = 0
+access = "R"
+bits.ENABLED = { bit = 0, means = "enabled" }
+bits.MOVING = { bit = 1, means = "moving" }
+
+[registers.position]
+address = 2
+words = 2
+signed = true
+unit = "pulses"
+means = "position"
+
+[registers.speed]
+address = 4
+signed = true
+unit = "rpm"
+scale = 0.1
+access = "R"
+means = "velocity"
+
+[registers.steps]
+address = 5
+unit = "steps/rev"
+scale = 2
+default = 5000
+
+[registers.servo_on]
+address = 104
+coil = true
+access = "W"
+
+[status]
+poll = ["status", "position", "speed", "steps"]
+
+[homing.methods]
+set_here = { code = 0, behaviour = "set" }
+
+[procedures.enable]
+steps = [{ write = { servo_on = 1 } }]
+
+[procedures.home]
+steps = [{ write = { position = "offset" } }]
+
+[twin]
+on_write = [
+  { register = "servo_on", when = "value == 1", do = "enable" },
+  { register = "position", when = "not moving", do = "home", method = 0, offset = "value" },
+]
+"""
+
+
+@asynccontextmanager
+async def rig(tmp_path: Path) -> AsyncIterator[tuple[VirtualWire, DescribedProfile, object]]:
+    path = tmp_path / "newcomer.toml"
+    path.write_text(textwrap.dedent(DRIVE), encoding="utf-8")
+    d: Description = load_description(path)
+    twin = described_twin(d)(1, FAST)
+    async with sim_bus([twin], FAST) as (wire, bus):
+        yield wire, profile_class(d)(bus.slave(1)), twin
+
+
+async def test_a_write_only_coil_is_not_read_back_by_the_twin(tmp_path: Path) -> None:
+    async with rig(tmp_path) as (_, profile, twin):
+        await profile.enable()
+        assert twin.enabled  # type: ignore[attr-defined]
+        with pytest.raises(ModbusException) as refused:
+            await profile.slave.read_coils(104, 1)
+        assert refused.value.function == 0x01
