@@ -104,6 +104,15 @@ async def rig(tmp_path: Path) -> AsyncIterator[tuple[VirtualWire, DescribedProfi
         yield wire, profile_class(d)(bus.slave(1)), twin
 
 
+async def test_status_raw_keeps_each_polled_registers_own_value(tmp_path: Path) -> None:
+    async with rig(tmp_path) as (_, profile, _twin):
+        st = await profile.read_status()
+        assert st.velocity_rpm == 0.0
+        assert st.raw["speed"] == 0  # a physical 0.0 rpm: it was left out
+        assert st.raw["steps"] == 5000  # the word, not the 10 000 steps/rev it stands for
+        assert st.raw["position"] == 0
+
+
 async def test_a_write_only_coil_is_not_read_back_by_the_twin(tmp_path: Path) -> None:
     async with rig(tmp_path) as (_, profile, twin):
         await profile.enable()
