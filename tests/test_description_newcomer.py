@@ -23,6 +23,7 @@ from pathlib import Path
 import pytest
 
 from drivebus import LineSettings
+from drivebus.drives.base import HomingParams
 from drivebus.drives.description import Description, load_description
 from drivebus.drives.engine import DescribedProfile, profile_class
 from drivebus.errors import ModbusException
@@ -120,3 +121,31 @@ async def test_a_write_only_coil_is_not_read_back_by_the_twin(tmp_path: Path) ->
         with pytest.raises(ModbusException) as refused:
             await profile.slave.read_coils(104, 1)
         assert refused.value.function == 0x01
+
+
+async def test_a_set_homing_without_a_homed_flag_reports_homed(tmp_path: Path) -> None:
+    async with rig(tmp_path) as (_, profile, twin):
+        await profile.setup()
+        await profile.enable()
+        assert not (await profile.read_status()).homed
+        await profile.start_homing(HomingParams(offset=-250))
+        st = await profile.read_status()
+        assert st.homed and st.position == -250 and twin.position() == -250  # type: ignore[attr-defined]
+        await profile.setup()  # set up again (after a power loss): no longer homed
+        assert not (await profile.read_status()).homed
+
+
+def test_check_warns_where_home_cannot_complete(tmp_path: Path) -> None:
+    """A homing method that runs on the drive (not ``behaviour = "set"``) and no homed
+    decoding: ``home()`` waits for a flag the drive does not show. ``drive check`` said
+    nothing of it; ``drive try`` failed after 30 s."""
+    from drivebus.app.drives import check_report, load
+
+    path = tmp_path / "newcomer.toml"
+    path.write_text(textwrap.dedent(DRIVE), encoding="utf-8")
+    assert not [w for w in check_report(load(path)).warnings if "homed" in w]
+    path.write_text(textwrap.dedent(DRIVE).replace(
+        'set_here = { code = 0, behaviour = "set" }', "switch = { code = 1, cia402 = 19 }"),
+        encoding="utf-8")
+    assert [w for w in check_report(load(path)).warnings
+            if w.startswith("status.homed is not decoded: home() with switch waits")]

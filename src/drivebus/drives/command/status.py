@@ -209,7 +209,7 @@ class Status(ProfileBase):
             enabled=flag("enabled"),
             moving=flag("moving"),
             in_position=flag("in_position"),
-            homed=flag("homed"),
+            homed=flag("homed") if "homed" in fields else self.homed_here,
             alarm=alarm,
             alarm_code=code,
             alarm_text=text,
