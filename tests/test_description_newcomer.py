@@ -135,6 +135,33 @@ async def test_a_set_homing_without_a_homed_flag_reports_homed(tmp_path: Path) -
         assert not (await profile.read_status()).homed
 
 
+def test_the_drive_page_shows_the_status_decoded_from_the_meanings(tmp_path: Path) -> None:
+    """``drivebus drive doc`` showed '-' for every status field a description decodes from
+    its registers' and bits' meanings (as most do), though ``drive check`` shows them."""
+    from drivebus.app.drives import doc_page, load
+
+    path = tmp_path / "newcomer.toml"
+    path.write_text(textwrap.dedent(DRIVE), encoding="utf-8")
+    page = doc_page(load(path))
+    assert "| moving | `status.MOVING` (from the meanings) |" in page
+    assert "| position | `position` (from the meanings) |" in page
+    assert "| homed | - |" in page
+
+
+def test_the_drive_page_says_a_save_is_refused_where_the_drive_has_none(
+        tmp_path: Path) -> None:
+    """The page said '`--save` makes the drive store them once at the end (its save
+    command)' for a drive without one, where ``params load --save`` is refused."""
+    from drivebus.app.drives import doc_page, load
+
+    path = tmp_path / "newcomer.toml"
+    path.write_text(textwrap.dedent(DRIVE), encoding="utf-8")
+    page = doc_page(load(path))
+    assert "its save command" not in page
+    assert ("`--save` is refused: the NEWCOMER drive cannot save parameters over Modbus: "
+            "its description has no [procedures.save_parameters]") in page
+
+
 def test_check_warns_where_home_cannot_complete(tmp_path: Path) -> None:
     """A homing method that runs on the drive (not ``behaviour = "set"``) and no homed
     decoding: ``home()`` waits for a flag the drive does not show. ``drive check`` said
