@@ -26,7 +26,7 @@ from drivebus import LineSettings
 from drivebus.drives.base import HomingParams
 from drivebus.drives.description import Description, load_description
 from drivebus.drives.engine import DescribedProfile, profile_class
-from drivebus.errors import ModbusException
+from drivebus.errors import ConfigError, ModbusException
 from drivebus.sim import VirtualWire, sim_bus
 from drivebus.sim.described import described_twin
 
@@ -176,3 +176,16 @@ def test_check_warns_where_home_cannot_complete(tmp_path: Path) -> None:
         encoding="utf-8")
     assert [w for w in check_report(load(path)).warnings
             if w.startswith("status.homed is not decoded: home() with switch waits")]
+
+
+def test_a_function_code_drivebus_does_not_send_is_refused_with_what_to_do(
+        tmp_path: Path) -> None:
+    """The TITAN's manual lists FC08 (diagnostics) among its function codes; copied into
+    ``[link] functions`` it was refused as 'Input should be 1, 2, 3, 4, 5, 6 or 16'."""
+    path = tmp_path / "newcomer.toml"
+    path.write_text(textwrap.dedent(DRIVE).replace("functions = [1, 3, 5, 16]",
+                                                   "functions = [1, 3, 5, 8, 16]"),
+                    encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"link\.functions: 08: list only the function "
+                       r"codes drivebus sends \(01, 02, 03, 04, 05, 06, 16\); leave out"):
+        load_description(path)
