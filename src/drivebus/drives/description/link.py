@@ -15,7 +15,6 @@ from drivebus.drives.expr import FUNCTIONS, Template
 from drivebus.drives.registers import WordOrder
 from drivebus.settings import LineSettings
 
-
 _SENT_FUNCTIONS = frozenset({1, 2, 3, 4, 5, 6, 16})
 """The function codes drivebus sends: a description's ``[link] functions`` lists these."""
 
