@@ -221,3 +221,39 @@ def test_parameter_files_round_trip_and_bad_ones_name_the_problem(tmp_path: Path
         ParameterSet.from_toml("[parameters]\n", "x.toml")
     with pytest.raises(ConfigError, match="cannot compare a CL86R"):
         diff_parameters(pset, ParameterSet("NT86", {}))
+
+
+# -- a drive given as a description file (the Arcus TITAN-SVX: at most a pair a read) -------
+
+
+SVX = ROOT / "configs" / "drives" / "arcus_titan_svx.toml"
+
+
+def svx_machine(tmp_path: Path) -> Path:
+    config = tmp_path / "machine.toml"
+    config.write_text(f"""
+name = "svx-params"
+[lines.l]
+port = "sim://svx-params"
+settings = "115200 8N1"
+timeout = 0.1
+[axes.a]
+line = "l"
+address = 1
+drive = "{SVX}"
+pulses_per_rev = 10000
+""")
+    return config
+
+
+async def test_dump_reads_no_more_registers_at_once_than_the_drive_takes(
+        tmp_path: Path) -> None:
+    """HSPD, ACC and DEC side by side were read in one FC03 of 6 registers (at most 16,
+    whatever the description's ``[link] max_read``); the TITAN reads a pair at a time
+    and refuses it (its twin too: illegal data address)."""
+    from drivebus.app.params import open_drive
+
+    async with open_drive(load_config(svx_machine(tmp_path)), "a") as profile:
+        assert (await read_parameters(profile)).values == {"hspd": 1000, "acc": 300,
+                                                           "dec": 300}
+
