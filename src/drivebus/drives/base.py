@@ -206,6 +206,9 @@ class DriveProfile:
     """Base of the drive-family profiles; unsupported procedures raise ``NotSupported``."""
 
     family: ClassVar[str] = "generic"
+    description_file: ClassVar[str] = ""
+    """The description file the family was loaded from (a drive given as a file, not
+    known by name): what finds the family again (``drivebus.drives.registry.family``)."""
     word_order: ClassVar[WordOrder] = WordOrder.HIGH_FIRST
     exception_texts: ClassVar[dict[int, str]] = {}
     unsupported_reason: ClassVar[str] = ""
