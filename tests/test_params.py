@@ -221,3 +221,63 @@ def test_parameter_files_round_trip_and_bad_ones_name_the_problem(tmp_path: Path
         ParameterSet.from_toml("[parameters]\n", "x.toml")
     with pytest.raises(ConfigError, match="cannot compare a CL86R"):
         diff_parameters(pset, ParameterSet("NT86", {}))
+
+
+# -- a drive given as a description file (the Arcus TITAN-SVX: at most a pair a read) -------
+
+
+SVX = ROOT / "configs" / "drives" / "arcus_titan_svx.toml"
+
+
+def svx_machine(tmp_path: Path) -> Path:
+    config = tmp_path / "machine.toml"
+    config.write_text(f"""
+name = "svx-params"
+[lines.l]
+port = "sim://svx-params"
+settings = "115200 8N1"
+timeout = 0.1
+[axes.a]
+line = "l"
+address = 1
+drive = "{SVX}"
+pulses_per_rev = 10000
+""")
+    return config
+
+
+async def test_dump_reads_no_more_registers_at_once_than_the_drive_takes(
+        tmp_path: Path) -> None:
+    """HSPD, ACC and DEC side by side were read in one FC03 of 6 registers (at most 16,
+    whatever the description's ``[link] max_read``); the TITAN reads a pair at a time
+    and refuses it (its twin too: illegal data address)."""
+    from drivebus.app.params import open_drive
+
+    async with open_drive(load_config(svx_machine(tmp_path)), "a") as profile:
+        assert (await read_parameters(profile)).values == {"hspd": 1000, "acc": 300,
+                                                           "dec": 300}
+
+
+async def test_dump_diff_and_load_of_a_drive_given_as_a_description_file(
+        tmp_path: Path) -> None:
+    """``drive = "drives/x.toml"`` (the guide's way to add a drive): its parameter file
+    names the description file, so diff and load find the family again. Before: every
+    ``params`` command failed with "unknown drive 'ARCUS-TITAN-SVX'" (the family was looked
+    up by name)."""
+    from drivebus.app.params import about_axis, open_drive
+
+    cfg = load_config(svx_machine(tmp_path))
+    async with open_drive(cfg, "a") as profile:
+        dumped = await read_parameters(profile, about=about_axis(cfg, "a"))
+        text = dumped.to_toml()
+        assert f'description = "{SVX}"' in text
+        path = tmp_path / "a.toml"
+        path.write_text(text.replace("hspd = { value = 1000", "hspd = { value = 2000"))
+        wanted = ParameterSet.load(path)
+        assert wanted.description == str(SVX) and wanted.values["hspd"] == 2000
+        assert [d.key for d in diff_parameters(wanted, dumped)] == ["hspd"]
+        report = await load_parameters(profile, wanted)
+        assert report.written == ["hspd"]
+        assert (await read_parameters(profile)).values["hspd"] == 2000
+        assert ParameterSet.from_mapping(profile.family, {"acc": 100},
+                                         profile.description_file).values == {"acc": 100}

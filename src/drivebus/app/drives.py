@@ -135,6 +135,12 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
             f"{n} ({m.code if m.code is not None else '-'}"
             f"{', CiA 402 ' + str(m.cia402) if m.cia402 is not None else ''})"
             for n, m in d.homing.methods.items()))
+        waits = [n for n, m in d.homing.methods.items() if m.behaviour != "set"]
+        if waits and derived.get("homed") is None:
+            r.warnings.append(
+                f"status.homed is not decoded: home() with {', '.join(waits)} waits for the "
+                f"drive to report homed and cannot complete (a method that sets the position "
+                f"at once, behaviour = \"set\", is homed when its procedure is done)")
     elif "home" in d.procedures:
         r.warnings.append("procedures.home exists but [homing.methods] lists no method")
     offers = [k for k in ("preload", "preload_braking", "retarget", "jog_speed")

@@ -62,17 +62,22 @@ class ParameterSet:
     values: dict[str, int]
     about: dict[str, Any] = field(default_factory=dict)
     """Where from: machine, axis, address, line, read_at (as a file's ``[drive]`` table)."""
+    description: str = ""
+    """The description file of a family given as a file (``drive = "drives/x.toml"``),
+    which its name alone does not find; "" for a family known by name."""
 
     @property
     def params(self) -> dict[str, Parameter]:
         """The family's parameters by key."""
-        return {p.key: p for p in family(self.family).profile.parameters()}
+        return {p.key: p for p in family(self.description or self.family).profile.parameters()}
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready data: each parameter with its value, unit, register and storage."""
         params = self.params
         return {
-            "family": self.family, **{k: v for k, v in self.about.items() if k != "family"},
+            "family": self.family,
+            **({"description": self.description} if self.description else {}),
+            **{k: v for k, v in self.about.items() if k != "family"},
             "parameters": {k: _parameter_dict(params[k], v) for k, v in self.values.items()},
         }
 
@@ -85,6 +90,8 @@ class ParameterSet:
         head.append("# restore: drivebus params load FILE [AXIS] [--save]; compare: "
                     "drivebus params diff FILE")
         out = [*head, "", "[drive]", f"family = {_toml(self.family)}"]
+        if self.description:
+            out.append(f"description = {_toml(self.description)}")
         out += [f"{k} = {_toml(v)}" for k, v in self.about.items() if k != "family"]
         out += ["", "[parameters]"]
         for k, v in self.values.items():
@@ -113,7 +120,14 @@ class ParameterSet:
         drive = data.get("drive")
         if not isinstance(drive, dict) or not isinstance(drive.get("family"), str):
             raise ConfigError(f"{where}: no [drive] table with the drive's family")
-        fam = family(drive["family"])
+        described = drive.get("description", "")
+        if not isinstance(described, str):
+            raise ConfigError(f"{where}: drive.description: the description file's path, "
+                              f"not {described!r}")
+        fam = family(described or drive["family"])
+        if fam.name.upper() != drive["family"].upper():
+            raise ConfigError(f"{where}: {described} describes the {fam.name} drive, not "
+                              f"{drive['family']}")
         params = {p.key: p for p in fam.profile.parameters()}
         raw = data.get("parameters")
         if not isinstance(raw, dict):
@@ -132,14 +146,19 @@ class ParameterSet:
                 raise ConfigError(f"{where}: parameters.{key}: the value must be a whole "
                                   f"number, not {v!r}")
             values[key] = v
-        return cls(fam.name, values, {k: v for k, v in drive.items() if k != "family"})
+        return cls(fam.name, values, {k: v for k, v in drive.items()
+                                      if k not in ("family", "description")},
+                   fam.profile.description_file)
 
     @classmethod
-    def from_mapping(cls, family_name: str, values: Mapping[str, object]) -> ParameterSet:
-        """Values by key for a drive of ``family_name`` (a request body's); ``ConfigError``
+    def from_mapping(cls, family_name: str, values: Mapping[str, object],
+                     description: str = "") -> ParameterSet:
+        """Values by key for a drive of ``family_name`` (a request body's; ``description``:
+        its description file, where the family is one given as a file); ``ConfigError``
         naming unknown keys and values that are no whole numbers."""
-        return cls.from_toml_data({"drive": {"family": family_name},
-                                   "parameters": dict(values)}, "parameters")
+        drive = {"family": family_name, **({"description": description} if description
+                                           else {})}
+        return cls.from_toml_data({"drive": drive, "parameters": dict(values)}, "parameters")
 
     @classmethod
     def load(cls, path: str | Path) -> ParameterSet:
@@ -192,7 +211,7 @@ async def read_parameters(
         raise NotSupported(f"the {profile.family} profile documents no parameters")
     values = await profile.read_parameter_values(params, priority=priority)
     return ParameterSet(profile.family, {p.key: v for p, v in zip(params, values, strict=True)},
-                        dict(about or {}))
+                        dict(about or {}), profile.description_file)
 
 
 @dataclass(frozen=True)

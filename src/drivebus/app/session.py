@@ -545,7 +545,8 @@ class MachineSession:
         """Write the parameters of ``values`` that differ from the drive's (``load_parameters``
         of ``drivebus.app.params``); refused while the axis moves, and by the lease."""
         ax = self.axis(axis)
-        wanted = ParameterSet.from_mapping(ax.profile.family, values)
+        wanted = ParameterSet.from_mapping(ax.profile.family, values,
+                                           ax.profile.description_file)
         if not dry_run:
             self.authorize(client)
             if ax.state in MOVING_STATES:

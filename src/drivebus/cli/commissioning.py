@@ -90,7 +90,7 @@ def dump(
             data = await _call(owner.parameters, axis)
             pset = ParameterSet(data["family"], {k: v["value"] for k, v in
                                                  data["parameters"].items()},
-                                about_axis(cfg, axis, source))
+                                about_axis(cfg, axis, source), data.get("description", ""))
         else:
             async with open_drive(cfg, axis) as profile:
                 pset = await read_parameters(profile, about=about_axis(cfg, axis, source))
@@ -161,7 +161,8 @@ async def _drive_set(config: Path, axis: str, owner: ServiceClient | None) -> An
     if owner is not None:
         data = await _call(owner.parameters, axis)
         yield ParameterSet(data["family"],
-                           {k: v["value"] for k, v in data["parameters"].items()})
+                           {k: v["value"] for k, v in data["parameters"].items()},
+                           description=data.get("description", ""))
         return
     async with open_drive(config, axis) as profile:
         yield await read_parameters(profile)

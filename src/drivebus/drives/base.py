@@ -206,6 +206,9 @@ class DriveProfile:
     """Base of the drive-family profiles; unsupported procedures raise ``NotSupported``."""
 
     family: ClassVar[str] = "generic"
+    description_file: ClassVar[str] = ""
+    """The description file the family was loaded from (a drive given as a file, not
+    known by name): what finds the family again (``drivebus.drives.registry.family``)."""
     word_order: ClassVar[WordOrder] = WordOrder.HIGH_FIRST
     exception_texts: ClassVar[dict[int, str]] = {}
     unsupported_reason: ClassVar[str] = ""
@@ -246,11 +249,15 @@ class DriveProfile:
         """The drive's documented readable parameters, in the manual's order."""
         return cls.parameter_list
 
+    parameter_read_words: ClassVar[int] = 16
+    """The most registers ``read_parameter_values`` reads in one request: 16, the
+    smallest limit among the drives, or a description's ``[link] max_read`` below it."""
+
     async def read_parameter_values(
         self, params: Sequence[Parameter], *, priority: Priority = Priority.CONFIG
     ) -> list[int]:
         """The values of ``params`` (reads only: registers side by side in one read, at
-        most 16 words, the smallest limit among the drives)."""
+        most ``parameter_read_words`` words)."""
         values: list[int] = []
         i = 0
         while i < len(params):
@@ -260,7 +267,8 @@ class DriveProfile:
             if first.contiguous:
                 for p in params[i + 1 :]:
                     r = p.register
-                    if not r.contiguous or r.address != end or end + r.words - first.address > 16:
+                    if not r.contiguous or r.address != end or (
+                            end + r.words - first.address > self.parameter_read_words):
                         break
                     group.append(r)
                     end += r.words

@@ -139,6 +139,7 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "line_kinds": link.line_kinds,
         "baud_rates": tuple(link.baud_rates),
         "line_formats": tuple(link.formats),
+        "parameter_read_words": min(DescribedProfile.parameter_read_words, link.max_read),
         "_status_plan": _status_plan(d),
         "_identity_plan": ident,
         "_extra_plans": extras,

@@ -303,13 +303,17 @@ def _toml(v: Any) -> str:
     return repr(v)
 
 
+def _idle_profile(p: type[DriveProfile]) -> DriveProfile:
+    """A profile of ``p`` with its default options on a line never opened (no I/O: for
+    what ``check_supported`` and ``save_problem`` read from its declarations)."""
+    bus = Bus(SerialLine("/dev/null", LineSettings.parse("9600 8N1")))
+    return p(bus.slave(min(p.addresses)))
+
+
 def procedures(family: DriveFamily) -> list[tuple[str, str]]:
     """(procedure, why not or "") for every common procedure, asked of a profile built
     with its default options (no I/O: ``check_supported`` only reads declarations)."""
-    p = family.profile
-    address = min(p.addresses)
-    bus = Bus(SerialLine("/dev/null", LineSettings.parse("9600 8N1")))
-    profile = p(bus.slave(address))
+    profile = _idle_profile(family.profile)
     out = []
     for proc in _PROCEDURES:
         try:
@@ -374,6 +378,8 @@ def parameters_section(p: type[DriveProfile]) -> str:
                     f"{prm.register.lo}..{prm.register.hi} | {prm.unit or '-'} | {kept} |")
     wt = p.write_through
     how = "`--save` makes the drive store them once at the end (its save command)."
+    if not p.saves_by_write_through and (why := _idle_profile(p).save_problem()):
+        how = f"`--save` is refused: {cell(why)}."
     if p.saves_by_write_through and wt is not None:
         how = (f"The drive has no save command: with `--save` each value is stored as it is "
                f"written, with {cell(wt.register.name)} ({register_address(wt.register)}) = "
@@ -398,12 +404,17 @@ def commissioning_section(p: type[DriveProfile]) -> str:
 
 def _status(d: Description) -> str:
     s = d.status
+    # the command engine decodes a field [status] does not give from the meanings
+    derived = d.status_exprs if d.drive.engine == "command" else {}
     rows = ["| Field | From |", "|---|---|"]
     for field in ("enabled", "moving", "in_position", "homed", "homing", "homing_error",
                   "alarm", "alarm_code", "limit_positive", "limit_negative", "position",
                   "velocity"):
         e = getattr(s, field)
-        rows.append(f"| {field} | {'`' + cell(str(e)) + '`' if e is not None else '-'} |")
+        how = ""
+        if e is None and derived.get(field) is not None:
+            e, how = derived[field], " (from the meanings)"
+        rows.append(f"| {field} | {'`' + cell(str(e)) + '`' + how if e is not None else '-'} |")
     polled = ", ".join(f"[{a[0]}..{a[1]}]" if isinstance(a, list) else a for a in s.poll)
     text = "## Status\n\n" + (f"Polled: {polled}.\n\n" if polled else "") + "\n".join(rows)
     if d.alarms is not None and d.alarms.texts:

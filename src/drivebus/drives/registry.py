@@ -219,6 +219,7 @@ def _from_file(path: Path) -> DriveFamily:
         if cached is not None and cached[0] == mtime:
             return cached[1]
         fam = family_from_description(load_description(p), str(p))
+        fam.profile.description_file = str(p)  # its own class: the file finds it again
         _file_cache[p] = (mtime, fam)
         return fam
 

@@ -51,6 +51,10 @@ class ProfileBase(DriveProfile):
         self.last: dict[str, Any] = {}
         self.learned: dict[str, Any] = {}
         self._learned = False
+        self.homed_here = False
+        """A homing by a method that sets the position at once (``behaviour = "set"``)
+        ran here since the drive was set up: the status's ``homed`` where the description
+        decodes none (a drive without a homed flag)."""
         self._signal_due: dict[str, float] = {}
         self.signals: dict[str, Any] = {}
         """The latest value of each of the description's signals (``read_signals``)."""

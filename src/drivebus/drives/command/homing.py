@@ -64,8 +64,13 @@ class Homing(ProfileBase):
                 "offset": params.offset}
 
     async def start_homing(self, params: HomingParams) -> None:
-        """The description's ``home`` with the method's code and extras as ``home.*``."""
+        """The description's ``home`` with the method's code and extras as ``home.*``.
+        A method that sets the position at once (``behaviour = "set"``) has homed when
+        the procedure is done: ``homed_here`` says so where no register does."""
+        _, m = self._home_method(params.method)
+        self.homed_here = False
         await self.run("home", **self._homing_args(params))
+        self.homed_here = m.behaviour == "set"
 
     def check_homing(self, params: HomingParams) -> None:
         """The method known, and what ``home`` writes within range (a dry run)."""

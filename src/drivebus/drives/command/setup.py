@@ -27,6 +27,7 @@ class Setup(ProfileBase):
     async def setup(self) -> None:
         """The description's ``setup`` writes (before the first command), then ``learn``."""
         self._learned = False
+        self.homed_here = False  # set up anew (a power loss): the position is not homed
         if self._steps_of("setup") is not None:
             await self._run("setup", {})
         if not self._learned:  # unless setup called it where the drive needs it

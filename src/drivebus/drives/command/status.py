@@ -204,13 +204,12 @@ class Status(ProfileBase):
             if "position" in fields else None
         velocity = _physical(fields["velocity"], scope, d, "velocity") \
             if "velocity" in fields else None
-        raw = _raw_values(s.raw, scope) if s.raw else {
-            k: int(v) for k, v in values.items() if isinstance(v, int)}
+        raw = _raw_values(s.raw, scope) if s.raw else _polled_raw(d, values, raw_words)
         return DriveStatus(
             enabled=flag("enabled"),
             moving=flag("moving"),
             in_position=flag("in_position"),
-            homed=flag("homed"),
+            homed=flag("homed") if "homed" in fields else self.homed_here,
             alarm=alarm,
             alarm_code=code,
             alarm_text=text,
@@ -326,6 +325,21 @@ def _raw_values(raw: Mapping[str, Expr], scope: Mapping[str, Any]) -> dict[str, 
         except Unknown:
             continue
         if v is not None:
+            out[k] = int(v)
+    return out
+
+
+def _polled_raw(d: Description, values: Mapping[str, Any],
+                raw_words: Mapping[str, list[int]] | None) -> dict[str, int]:
+    """Each polled register's own value, what its words hold before scale and unit (a
+    speed in 0.1 rpm, a ramp in ms, a count scaled by 2); without the words, the values
+    that are integers."""
+    out: dict[str, int] = {}
+    for k, v in values.items():
+        ws = raw_words.get(k) if raw_words is not None else None
+        if ws is not None:
+            out[k] = d.regs[k].at(None).decode(ws)
+        elif isinstance(v, int):
             out[k] = int(v)
     return out
 

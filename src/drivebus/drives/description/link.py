@@ -15,6 +15,9 @@ from drivebus.drives.expr import FUNCTIONS, Template
 from drivebus.drives.registers import WordOrder
 from drivebus.settings import LineSettings
 
+_SENT_FUNCTIONS = frozenset({1, 2, 3, 4, 5, 6, 16})
+"""The function codes drivebus sends: a description's ``[link] functions`` lists these."""
+
 
 class DriveInfo(_Model):
     """``[drive]``: who the drive is and which engine interprets it."""
@@ -181,6 +184,19 @@ class Link(_Model):
     refusals: Refusals = Refusals()
     timing: Timing = Timing()
     source: Source | None = Field(None, description=SECTION_SOURCE)
+
+    @field_validator("functions", mode="before")
+    @classmethod
+    def _functions(cls, v: Any) -> Any:
+        if isinstance(v, list):
+            other = [f for f in v if isinstance(f, int) and not isinstance(f, bool)
+                     and f not in _SENT_FUNCTIONS]
+            if other:
+                raise ValueError(
+                    f"{', '.join(f'{f:02d}' for f in other)}: list only the function codes "
+                    f"drivebus sends ({', '.join(f'{f:02d}' for f in sorted(_SENT_FUNCTIONS))})"
+                    f"; leave out the others the manual lists (08 diagnostics, 15, 23, ...)")
+        return v
 
     @field_validator("addresses", "register_addresses", mode="before")
     @classmethod
