@@ -1,5 +1,5 @@
 """What writing a drive from its manual as a newcomer found (the Arcus TITAN-SVX,
-configs/drives/arcus_titan_svx.toml): each on the generic twin of a small description, on
+tests/drives/arcus_titan_svx.toml): each on the generic twin of a small description, on
 the wire.
 
 * ``DriveStatus.raw`` keeps each polled register's own value: a register with a unit gave

@@ -1,7 +1,9 @@
-"""The Arcus TITAN-SVX servo controller (configs/drives/arcus_titan_svx.toml), a drive written
-from its public manual by a user who never saw it: a machine on its generic twin, driven
-through the public API (enable, move_to, jog, stop, halt_now, home, reset, status), judged
-by the twin and the wire log, not by the axis's own view.
+"""The Arcus TITAN-SVX servo controller (tests/drives/arcus_titan_svx.toml), a drive written
+from its public manual by a user who never saw it (a test description, not shipped: the
+pages of its manual read give two of its Modbus addresses, the rest is inferred): a
+machine on its generic twin, driven through the public API (enable, move_to, jog, stop,
+halt_now, home, reset, status), judged by the twin and the wire log, not by the axis's own
+view.
 
 The manual's link rules (TITAN-SVX Software Manual Rev 4.01, ch. 4, pp. 14-15): function
 codes 1, 2, 3, 5, 8 and 16 only; FC03 and FC16 "only a pair of a register", from an even
@@ -24,7 +26,7 @@ from drivebus.errors import DrivebusError, ModbusException, MotionAborted, NotSu
 from test_no_stale_motion import until
 
 ROOT = Path(__file__).resolve().parents[1]
-SVX = ROOT / "configs" / "drives" / "arcus_titan_svx.toml"
+SVX = ROOT / "tests" / "drives" / "arcus_titan_svx.toml"
 EX, VX, HSPD, DEC, TARGET = 0, 6, 20, 24, 26  # the 32-bit variables' (even) addresses
 SVON, STOPX, ABORTX, MOVEX, JOG_PLUS, JOG_MINUS = 104, 106, 107, 109, 110, 111
 

@@ -226,7 +226,7 @@ def test_parameter_files_round_trip_and_bad_ones_name_the_problem(tmp_path: Path
 # -- a drive given as a description file (the Arcus TITAN-SVX: at most a pair a read) -------
 
 
-SVX = ROOT / "configs" / "drives" / "arcus_titan_svx.toml"
+SVX = ROOT / "tests" / "drives" / "arcus_titan_svx.toml"
 
 
 def svx_machine(tmp_path: Path) -> Path:
