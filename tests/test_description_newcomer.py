@@ -178,14 +178,20 @@ def test_check_warns_where_home_cannot_complete(tmp_path: Path) -> None:
             if w.startswith("status.homed is not decoded: home() with switch waits")]
 
 
-def test_a_function_code_drivebus_does_not_send_is_refused_with_what_to_do(
+def test_a_manuals_whole_list_of_function_codes_is_taken_less_those_never_sent(
         tmp_path: Path) -> None:
     """The TITAN's manual lists FC08 (diagnostics) among its function codes; copied into
-    ``[link] functions`` it was refused as 'Input should be 1, 2, 3, 4, 5, 6 or 16'."""
+    ``[link] functions`` it was refused as 'Input should be 1, 2, 3, 4, 5, 6 or 16'. The
+    list is true of the drive: the codes drivebus never sends are left out. What is no
+    function code at all is still refused, naming it."""
     path = tmp_path / "newcomer.toml"
     path.write_text(textwrap.dedent(DRIVE).replace("functions = [1, 3, 5, 16]",
-                                                   "functions = [1, 3, 5, 8, 16]"),
+                                                   "functions = [1, 3, 5, 8, 15, 16, 23]"),
                     encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"link\.functions: 08: list only the function "
-                       r"codes drivebus sends \(01, 02, 03, 04, 05, 06, 16\); leave out"):
+    assert load_description(path).link.functions == [1, 3, 5, 16]
+    path.write_text(textwrap.dedent(DRIVE).replace("functions = [1, 3, 5, 16]",
+                                                   "functions = [1, 3, 131, 16]"),
+                    encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"link\.functions: 131: not a Modbus function "
+                       r"code \(1\.\.127\)"):
         load_description(path)

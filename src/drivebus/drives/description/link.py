@@ -16,7 +16,8 @@ from drivebus.drives.registers import WordOrder
 from drivebus.settings import LineSettings
 
 _SENT_FUNCTIONS = frozenset({1, 2, 3, 4, 5, 6, 16})
-"""The function codes drivebus sends: a description's ``[link] functions`` lists these."""
+"""The function codes drivebus sends: what a description's ``[link] functions`` keeps of
+the manual's list (the others, 08 diagnostics, 15, 23, ..., are left out)."""
 
 
 class DriveInfo(_Model):
@@ -188,14 +189,13 @@ class Link(_Model):
     @field_validator("functions", mode="before")
     @classmethod
     def _functions(cls, v: Any) -> Any:
-        if isinstance(v, list):
-            other = [f for f in v if isinstance(f, int) and not isinstance(f, bool)
-                     and f not in _SENT_FUNCTIONS]
-            if other:
-                raise ValueError(
-                    f"{', '.join(f'{f:02d}' for f in other)}: list only the function codes "
-                    f"drivebus sends ({', '.join(f'{f:02d}' for f in sorted(_SENT_FUNCTIONS))})"
-                    f"; leave out the others the manual lists (08 diagnostics, 15, 23, ...)")
+        if isinstance(v, list):  # the manual's list as it is: keep the codes drivebus sends
+            wrong = [f for f in v if not isinstance(f, int) or isinstance(f, bool)
+                     or not 1 <= f <= 127]
+            if wrong:
+                raise ValueError(f"{', '.join(map(repr, wrong))}: not a Modbus function code "
+                                 f"(1..127)")
+            return [f for f in dict.fromkeys(v) if f in _SENT_FUNCTIONS]
         return v
 
     @field_validator("addresses", "register_addresses", mode="before")
