@@ -127,8 +127,9 @@ async def test_stopping_one_axis_of_a_group_move_stops_the_whole_group(
             no_start_after_stop(m, n, marks[n])
 
 
-async def test_a_stop_of_one_axis_drops_the_queued_group_move_of_a_program(
-    demo: Machinefile,
+@pytest.mark.parametrize("how", ["stop", "halt_now"])
+async def test_a_stop_of_one_axis_drops_the_queued_group_moves_of_a_program(
+    how: str, demo: Machinefile,
 ) -> None:
     """A program: x's buffered move, then a group move queued behind it. y, idle in the
     queue, is stopped while x runs: the queued group move is dropped on both axes (x,
@@ -139,12 +140,14 @@ async def test_a_stop_of_one_axis_drops_the_queued_group_move_of_a_program(
         marks = {n: log_size(m, n) for n in ("x", "y")}
         first = await x.move_to(120.0, speed=100.0, buffer="buffered")
         queued = await m.group("x", "y").move_to({"x": 60.0, "y": 50.0}, buffer="buffered")
+        later = await m.group("x", "y").move_to({"x": 30.0, "y": 20.0}, buffer="buffered")
         await until(moving(m, "x"), "x running its first move")
-        with within(30, "y's stop"):
-            await y.stop()
+        with within(30, f"y's {how}"):
+            await getattr(y, how)()
         stopped_at = time.monotonic()
-        with within(30, "the queued group move to end"), pytest.raises(DrivebusError):
-            await queued
+        for handle in (queued, later):
+            with within(30, "the queued group moves to end"), pytest.raises(DrivebusError):
+                await handle
         with within(30, "x's own move to end"):  # it runs on, or the failed group stops it
             try:
                 await first
@@ -186,6 +189,42 @@ async def test_a_program_task_cancelled_twice_stops_every_axis_and_leaves_them_u
         assert m.sim_drives["x"].position() == m.axes["x"].units.to_pulses(25.0)
 
 
+async def test_a_queued_group_move_cancelled_twice_at_once_starts_nothing(
+    demo: Machinefile,
+) -> None:
+    """Two tasks cancel the same queued group move while the move before it runs, and a
+    third awaits it: all return, the axes at rest, the queued move never starts."""
+    async with open_machine(demo) as m:
+        x = m.axes["x"]
+        await m.group("x", "y").move_to({"x": 20.0, "y": 10.0})
+        marks = {n: log_size(m, n) for n in ("x", "y")}
+        await x.move_to(200.0, speed=100.0, buffer="buffered")
+        queued = await m.group("x", "y").move_to({"x": 60.0, "y": 50.0}, buffer="buffered")
+        await until(moving(m, "x"), "x running the move before")
+        waited: list[BaseException] = []
+
+        async def waiter() -> None:
+            try:
+                await queued
+            except DrivebusError as exc:
+                waited.append(exc)
+
+        with within(30, "two cancellations of the queued group move"):
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(waiter)
+                tg.start_soon(queued.cancel)
+                tg.start_soon(queued.cancel)
+        called = time.monotonic()
+        assert waited, "the cancelled group move returned as if it had arrived"
+        assert not at_rest(m, ("x", "y"))
+        assert "start" not in commands(m, "y", marks["y"])
+        assert not [t for k, t in command_frames(m, "x", marks["x"])
+                    if k == "start" and t > called]
+        assert x.queued == 0 and m.axes["y"].queued == 0
+        with within(30, "a move after the cancellations"):
+            await m.group("x", "y").move_to({"x": 25.0, "y": 15.0})
+
+
 class _Boom(Exception):
     pass
 
@@ -220,7 +259,31 @@ async def test_an_exception_in_the_machine_block_stops_every_queued_program(
     assert "start" not in commands(m, "y", marks["y"])
 
 
-@pytest.mark.parametrize("what", ["group move", "path", "queued group move"])
+async def test_an_exception_while_a_long_path_is_planned_starts_nothing(
+    demo: Machinefile,
+) -> None:
+    names = ("x", "y")
+    marks: dict[str, int] = {}
+    box: dict[str, Machine] = {}
+    with within(90, "the machine to close after the exception"), \
+            pytest.raises(BaseExceptionGroup) as caught:
+        async with open_machine(demo) as m:
+            box["m"] = m
+            await m.group(*names).move_to({"x": 60.0, "y": 30.0})
+            marks.update({n: log_size(m, n) for n in names})
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(lambda: m.group(*names).path(WAYPOINTS, speed=200.0))
+                for _ in range(3):
+                    await anyio.lowlevel.checkpoint()
+                raise _Boom
+    assert caught.group_contains(_Boom)
+    m = box["m"]
+    assert not at_rest(m, names)
+    for n in names:
+        assert starts(m, n, marks[n]) == 0, (n, commands(m, n, marks[n]))
+
+
+@pytest.mark.parametrize("what", ["group move", "path", "queued group move", "planned path"])
 async def test_leaving_the_machine_while_a_task_outside_it_runs_a_group_move(
     what: str, demo: Machinefile,
 ) -> None:
@@ -238,12 +301,14 @@ async def test_leaving_the_machine_while_a_task_outside_it_runs_a_group_move(
                 await xy.move_to({"x": 300.0, "y": 150.0}, speed=60.0)
             elif what == "path":
                 await xy.path([{"x": 200.0}, {"y": 150.0}, {"x": 30.0}], speed=60.0)
+            elif what == "planned path":
+                await xy.path(WAYPOINTS, speed=200.0)
             else:
                 await m.axes["x"].move_to(250.0, speed=60.0, buffer="buffered")
                 handle = await xy.move_to({"x": 30.0, "y": 150.0}, buffer="buffered")
                 await handle
             ended.append(None)
-        except Exception as exc:  # noqa: BLE001 - any error will do; it must end
+        except Exception as exc:  # any error will do: it must end
             ended.append(exc)
 
     with within(90, f"the machine left during a {what}, and its task's end"):
@@ -253,12 +318,19 @@ async def test_leaving_the_machine_while_a_task_outside_it_runs_a_group_move(
                 await m.group(*names).move_to({"x": 20.0, "y": 10.0})
                 marks.update({n: log_size(m, n) for n in names})
                 tg.start_soon(program, m)
-                await until(moving(m, "x"), f"the {what} under way")
+                if what == "planned path":  # left while it is being planned
+                    for _ in range(3):
+                        await anyio.lowlevel.checkpoint()
+                else:
+                    await until(moving(m, "x"), f"the {what} under way")
             left = time.monotonic()
             m = box["m"]
             assert not at_rest(m, names), at_rest(m, names)
     m = box["m"]
     assert ended and ended[0] is not None, "the motion returned as if it had arrived"
+    if what == "planned path":
+        assert all(starts(m, n, marks[n]) == 0 for n in names), \
+            {n: commands(m, n, marks[n]) for n in names}
     assert not at_rest(m, names)
     for n in names:
         no_start_after_stop(m, n, marks[n])
@@ -342,6 +414,34 @@ async def test_an_override_raised_during_a_move_to_the_limit_lands_on_it(name: s
         _, high = travel(m, name, t0)
         assert high <= hi + 1e-9, (name, high, hi)
         assert m.sim_drives[name].position() == ax.units.to_pulses(hi)
+
+
+async def test_an_override_raised_during_a_blended_program_never_passes_the_limit(
+    demo: Machinefile,
+) -> None:
+    """z (CL86R) blends into a last move whose target is its soft limit; the override
+    is raised to 2 while the first runs and again while it blends: the twin ends on the
+    limit and never passes it."""
+    async with open_machine(demo) as m:
+        z = m.axes["z"]
+        _, hi = z.config.limits  # type: ignore[misc]
+        await z.move_to(40.0)
+        m.override = 0.25
+        t0 = anyio.current_time()
+        await z.move_to(70.0, buffer="blending")
+        await z.move_to(90.0, buffer="blending")
+        last = await z.move_to(hi, buffer="blending")
+        with within(60, "z's blended program to its limit"):
+            await until(moving(m, "z"), "z moving")
+            m.override = 2.0
+            await until(lambda: z.units.from_pulses(m.sim_drives["z"].position()) > 80.0,
+                        "z past 80")
+            m.override = 1.0
+            m.override = 2.0
+            await last
+        _, high = travel(m, "z", t0)
+        assert high <= hi + 1e-9, (high, hi)
+        assert m.sim_drives["z"].position() == z.units.to_pulses(hi)
 
 
 def writes(m: Machine) -> int:
