@@ -558,6 +558,37 @@ async def test_a_stop_of_a_path_axis_while_it_is_planned_starts_nothing() -> Non
         assert not at_rest(m, ("x", "y"))
 
 
+@pytest.mark.parametrize("how", ["stop_all", "halt_now"])
+async def test_stopping_the_whole_machine_while_a_path_is_planned_starts_nothing(
+    how: str,
+) -> None:
+    """``machine.stop_all()`` and ``machine.halt_now()`` issued while a long path is
+    planned (no axis moves yet): the path is aborted, nothing of it ever starts."""
+    async with open_machine(DEMO) as m:
+        await m.group("x", "y").move_to({"x": 60.0, "y": 30.0})
+        marks = {n: log_size(m, n) for n in ("x", "y")}
+        outcome: list[BaseException | None] = []
+
+        async def path() -> None:
+            try:
+                await m.group("x", "y").path(WAYPOINTS, speed=200.0)
+                outcome.append(None)
+            except DrivebusError as exc:
+                outcome.append(exc)
+
+        with within(60, f"the path after {how}"):
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(path)
+                for _ in range(3):
+                    await anyio.lowlevel.checkpoint()
+                assert not starts(m, "x", marks["x"]), "the path started before the stop"
+                await getattr(m, how)()
+        assert outcome and isinstance(outcome[0], MotionAborted), outcome
+        assert starts(m, "x", marks["x"]) == 0 and starts(m, "y", marks["y"]) == 0, \
+            {n: commands(m, n, marks[n]) for n in ("x", "y")}
+        assert not at_rest(m, ("x", "y"))
+
+
 async def test_a_stop_reaches_the_wire_while_another_axis_is_set_up() -> None:
     """y (BHSS at 19200 8E1, the slowest format on the line) is set up, several config
     writes, while z jogs: z's stop overtakes them."""
