@@ -355,11 +355,14 @@ async def rested(ax: Axis) -> None:
     await settle(ax)
 
 
-@pytest.mark.parametrize("when", ["at once", "near the limit"])
+@pytest.mark.parametrize("when", ["at once", "near the limit", "jogged faster near it"])
 @pytest.mark.parametrize("name", LIMITED)
 async def test_an_override_raised_during_a_jog_never_carries_the_axis_past_its_soft_limit(
     name: str, when: str,
 ) -> None:
+    """Toward each soft limit at half speed under an override of 0.5, then the override
+    raised to 2 (or the jog given again at twice its speed, near the limit): the twin
+    never passes the limit."""
     async with open_machine(DEMO) as m:
         ax = m.axes[name]
         lo, hi = ax.config.limits  # type: ignore[misc]
@@ -370,9 +373,11 @@ async def test_an_override_raised_during_a_jog_never_carries_the_axis_past_its_s
         with within(30, f"{name}'s jog to its positive soft limit"):
             await ax.jog(ax.config.speed * 0.5, watchdog=None)
             await until(moving(m, name), f"{name} jogging")
-            if when == "near the limit":
+            if when != "at once":
                 await until(lambda: ax.units.from_pulses(m.sim_drives[name].position())
                             > hi - span * 0.3, f"{name} near its limit")
+            if when == "jogged faster near it":
+                await ax.jog(ax.config.speed, watchdog=None)
             m.override = 2.0
             await until(lambda: not m.sim_drives[name].is_moving(),
                         f"{name} at rest at its limit")
@@ -397,10 +402,12 @@ async def test_an_override_raised_during_a_jog_never_carries_the_axis_past_its_s
 
 
 @pytest.mark.parametrize("name", LIMITED)
-async def test_an_override_raised_during_a_move_to_the_limit_lands_on_it(name: str) -> None:
+async def test_an_override_raised_during_a_move_to_the_limit_lands_on_it(
+    name: str, demo: Machinefile,
+) -> None:
     """A move whose target is the soft limit, its speed raised on the fly where the drive
     can (the CL86R) or from the next move: the twin never passes the target."""
-    async with open_machine(DEMO) as m:
+    async with open_machine(demo) as m:
         ax = m.axes[name]
         lo, hi = ax.config.limits  # type: ignore[misc]
         await ax.move_to(lo + (hi - lo) * 0.6)
