@@ -31,7 +31,13 @@ import anyio.lowlevel
 import pytest
 
 from drivebus import AxisState, LineSettings, Priority, open_machine
-from drivebus.errors import ArgumentError, DrivebusError, GroupMotionError, MotionAborted
+from drivebus.errors import (
+    ArgumentError,
+    DrivebusError,
+    GroupMotionError,
+    LimitViolation,
+    MotionAborted,
+)
 from drivebus.motion import Axis, Machine
 from waits import until, within
 from wirelog import command_frames, commands, frames_text, log_size, requests_between, settle
@@ -449,6 +455,33 @@ async def test_an_override_raised_during_a_blended_program_never_passes_the_limi
         _, high = travel(m, "z", t0)
         assert high <= hi + 1e-9, (high, hi)
         assert m.sim_drives["z"].position() == z.units.to_pulses(hi)
+
+
+async def test_an_override_past_what_the_drive_runs_refuses_the_queued_move_with_none_sent(
+    demo: Machinefile,
+) -> None:
+    """x (NT86, at most 500 mm/s; no ``max_speed`` in the file) runs a buffered move at
+    200 mm/s with another queued; the machine's and the axis's overrides raised to 2 each
+    (800 mm/s): the queued move is refused when it would be written, a LimitViolation,
+    none of it sent, and x comes to rest where the first move ends."""
+    async with open_machine(demo) as m:
+        x = m.axes["x"]
+        await x.move_to(20.0)
+        mark = log_size(m, "x")
+        first = await x.move_to(300.0, buffer="buffered")
+        queued = await x.move_to(100.0, buffer="buffered")
+        await until(moving(m, "x"), "x moving")
+        m.override = 2.0
+        x.override = 2.0
+        with within(30, "the queued move's end"):
+            await first
+            with pytest.raises(LimitViolation, match=r"axis x: speed 800 mm/s is beyond the "
+                               r"500 mm/s .*speed override .*: 4"):
+                await queued
+        assert commands(m, "x", mark).count("start") == 1, commands(m, "x", mark)
+        assert not at_rest(m, ("x",))
+        assert m.sim_drives["x"].position() == x.units.to_pulses(300.0)
+        assert x.queued == 0
 
 
 def writes(m: Machine) -> int:
