@@ -575,8 +575,10 @@ async def test_a_stop_of_another_axis_reaches_the_wire_while_a_long_path_is_plan
         assert not at_rest(m, ("x", "y", "z"))
 
 
-async def test_a_stop_of_a_path_axis_while_it_is_planned_starts_nothing() -> None:
-    async with open_machine(DEMO) as m:
+async def test_a_stop_of_a_path_axis_while_it_is_planned_starts_nothing(
+    demo: Machinefile,
+) -> None:
+    async with open_machine(demo) as m:
         await m.group("x", "y").move_to({"x": 60.0, "y": 30.0})
         marks = {n: log_size(m, n) for n in ("x", "y")}
         outcome: list[BaseException] = []
@@ -600,11 +602,11 @@ async def test_a_stop_of_a_path_axis_while_it_is_planned_starts_nothing() -> Non
 
 @pytest.mark.parametrize("how", ["stop_all", "halt_now"])
 async def test_stopping_the_whole_machine_while_a_path_is_planned_starts_nothing(
-    how: str,
+    how: str, demo: Machinefile,
 ) -> None:
     """``machine.stop_all()`` and ``machine.halt_now()`` issued while a long path is
     planned (no axis moves yet): the path is aborted, nothing of it ever starts."""
-    async with open_machine(DEMO) as m:
+    async with open_machine(demo) as m:
         await m.group("x", "y").move_to({"x": 60.0, "y": 30.0})
         marks = {n: log_size(m, n) for n in ("x", "y")}
         outcome: list[BaseException | None] = []
@@ -627,6 +629,32 @@ async def test_stopping_the_whole_machine_while_a_path_is_planned_starts_nothing
         assert starts(m, "x", marks["x"]) == 0 and starts(m, "y", marks["y"]) == 0, \
             {n: commands(m, n, marks[n]) for n in ("x", "y")}
         assert not at_rest(m, ("x", "y"))
+
+
+async def test_a_stop_reaches_the_wire_while_a_group_move_starts_its_axes() -> None:
+    """z jogs; a group move of x, y and r holds the lines and sends its starts back to
+    back: z's stop, called the moment x's start is on the wire, still leaves within one
+    transaction (the start gate lets emergencies through)."""
+    async with open_machine(DEMO) as m:
+        z = m.axes["z"]
+        names = ("x", "y", "r")
+        for attempt in range(3):
+            for n in (*names, "z"):
+                await settle(m.axes[n])
+            await z.jog(5.0 if (z.position or 0.0) < 50.0 else -5.0, watchdog=None)
+            await until(moving(m, "z"), "z jogging")
+            marks = {n: log_size(m, n) for n in (*names, "z")}
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(lambda: m.group(*names).move_to({n: far(m, n) for n in names}))
+                await until(lambda: starts(m, "x", marks["x"]) > 0,
+                            "x's start of the group move on the wire", every=0.0002)
+                called = time.monotonic()
+                with within(10, "z's stop during the group's starts"):
+                    await z.stop()
+                stop_within_one_transaction(m, "z", marks["z"], called,
+                                            f"during the group's starts, attempt {attempt}")
+                tg.cancel_scope.cancel()
+            assert not at_rest(m, (*names, "z"))
 
 
 async def test_a_stop_reaches_the_wire_while_another_axis_is_set_up() -> None:
