@@ -654,7 +654,8 @@ async def test_a_stop_reaches_the_wire_while_a_group_move_starts_its_axes() -> N
             marks = {n: log_size(m, n) for n in (*names, "z")}
             async with anyio.create_task_group() as tg:
                 tg.start_soon(lambda: m.group(*names).move_to({n: far(m, n) for n in names}))
-                await until(lambda: starts(m, "x", marks["x"]) > 0,
+                mark_x = marks["x"]
+                await until(lambda mark_x=mark_x: starts(m, "x", mark_x) > 0,
                             "x's start of the group move on the wire", every=0.0002)
                 called = time.monotonic()
                 with within(10, "z's stop during the group's starts"):
