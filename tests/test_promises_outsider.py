@@ -9,8 +9,9 @@ matrix (``test_promises.py``) does not reach:
   a group move runs in a task that outlives it;
 - the feed override raised while a jog or a move runs toward a soft limit, and bad
   overrides during a motion;
-- the stop latency while a long path is planned, while another axis is set up and
-  while polls saturate the line.
+- the whole machine stopped (``stop_all``, ``halt_now``) while a path is planned;
+- the stop latency while a long path is planned, while a group move sends its starts,
+  while another axis is set up and while polls saturate the line.
 
 Safety is judged by the simulated drives (``m.sim_drives``) and the wire log, never by
 the axes' own view: every axis of the command at rest on its twin, no start frame of
@@ -31,6 +32,7 @@ import anyio.lowlevel
 import pytest
 
 from drivebus import AxisState, LineSettings, Priority, open_machine
+from drivebus.app import MachineSession
 from drivebus.errors import (
     ArgumentError,
     DrivebusError,
@@ -237,6 +239,30 @@ async def test_a_queued_group_move_cancelled_twice_at_once_starts_nothing(
         assert x.queued == 0 and m.axes["y"].queued == 0
         with within(30, "a move after the cancellations"):
             await m.group("x", "y").move_to({"x": 25.0, "y": 15.0})
+
+
+async def test_a_session_group_move_cancelled_twice_at_once_stops_both_axes() -> None:
+    """The embedding API (docs/guide/embedding.md): a group motion started by
+    ``start_group_move``, cancelled by two callers at once: both get its record,
+    aborted; both axes at rest, no start after their stops."""
+    async with MachineSession.open(DEMO) as session:
+        m = session.machine
+        marks = {n: log_size(m, n) for n in ("x", "y")}
+        record = await session.start_group_move({"x": 300.0, "y": 150.0}, client="cell")
+        await until(moving(m, "x"), "the session's group move under way")
+        states: list[str] = []
+
+        async def cancel() -> None:
+            states.append((await session.cancel_motion(record.id, client="cell")).state)
+
+        with within(30, "two cancellations of the session's group move"):
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(cancel)
+                tg.start_soon(cancel)
+        assert states == ["aborted", "aborted"] and record.state == "aborted"
+        assert not at_rest(m, ("x", "y"))
+        for n in ("x", "y"):
+            assert "stop" in no_start_after_stop(m, n, marks[n])
 
 
 class _Boom(Exception):
