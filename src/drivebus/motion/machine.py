@@ -33,7 +33,7 @@ from drivebus.motion.handle import BufferMode, check_override
 from drivebus.motion.lines import make_line, open_line, provide_elsewhere, serves_elsewhere
 from drivebus.motion.path import GroupHandle
 from drivebus.motion.recording import Recording
-from drivebus.motion.state import MOVING_STATES
+from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.positions import PositionStore
 from drivebus.tasks import ServiceTasks, where_tasks_wait
 
@@ -190,20 +190,32 @@ class Machine:
         """Stop every moving axis (or only those this machine set moving), in parallel,
         each returning once a status polled after its stop shows it at rest. Decelerating
         (``halt_now`` is the emergency stop). Errors are logged, never raised; returns the
-        axes it stopped and saw at rest, each with its position ("x at 12.5000 mm")."""
-        stopped: list[str] = []
+        axes it stopped and saw at rest, each with its position ("x at 12.5000 mm").
 
-        async def stop(axis: Axis) -> None:
+        A command still being planned (a group move, a path) has not taken its axes yet:
+        the axes at rest get a stop too, which sends nothing to an axis at rest but
+        aborts what is planned on it, so that nothing starts once ``stop_all`` returns."""
+        stopped: list[str] = []
+        moving = self._moving(only_commanded)
+
+        async def stop(axis: Axis, report: bool) -> None:
             try:
                 await axis.stop()
             except DrivebusError as exc:
                 log.error("axis %s: stop failed: %s", axis.name, exc)
                 return
-            where = "" if axis.position is None else \
-                f" at {axis.position:.4f} {axis.config.unit}"
-            stopped.append(f"{axis.name}{where}")
+            if report:
+                where = "" if axis.position is None else \
+                    f" at {axis.position:.4f} {axis.config.unit}"
+                stopped.append(f"{axis.name}{where}")
 
-        await self._each(self._moving(only_commanded), stop)
+        at_rest = [] if only_commanded else [
+            a for a in self.axes.values() if a not in moving and a.state is not AxisState.OFFLINE]
+        async with anyio.create_task_group() as tg:
+            for a in moving:
+                tg.start_soon(stop, a, True)
+            for a in at_rest:
+                tg.start_soon(stop, a, False)
         return stopped
 
     async def halt_now(self) -> dict[str, DrivebusError | None]:

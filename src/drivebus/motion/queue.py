@@ -10,6 +10,7 @@ from collections.abc import Awaitable, Callable
 
 from drivebus.drives.base import MoveParams
 from drivebus.errors import (
+    LimitViolation,
     StateError,
 )
 from drivebus.motion.envelope import MotionPlan
@@ -108,12 +109,25 @@ class MotionQueue(CommandLane):
             assert m.plan is not None
             return self.drive_params(m.plan)
 
+        def overridden() -> MotionPlan:
+            """``base`` at the override in force now: a speed its drive cannot run is
+            refused in the axis's units, naming the override, before anything is sent."""
+            plan = self._effective(base)
+            if plan != base:
+                try:
+                    self.check_drive(plan)
+                except LimitViolation as exc:
+                    raise LimitViolation(f"{exc}; the speed override in force when the "
+                                         f"{what} was due: {self.effective_override:g}"
+                                         ) from exc
+            return plan
+
         async def prepare() -> None:
-            m.plan = self._effective(base)
+            m.plan = overridden()
             await profile.prepare_absolute(target_p, params())
 
         async def retarget() -> None:
-            m.plan = self._effective(base)
+            m.plan = overridden()
             await profile.retarget_absolute(target_p, params())
 
         m.prepare, m.begin, m.retarget = prepare, profile.start_absolute, retarget
