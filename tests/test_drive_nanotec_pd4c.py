@@ -137,7 +137,7 @@ async def test_status_decodes_through_scale_and_unit() -> None:
             assert a.position == pytest.approx(twin.position() / 10.0)
 
 
-@pytest.mark.parametrize("left", ["velocity", "position"])
+@pytest.mark.parametrize("left", ["velocity", "position", "homing"])
 async def test_a_set_point_left_from_before_does_not_run_on_enable(left: str) -> None:
     """A target velocity (profile velocity) or a new target (profile position) left in the
     Rx image by an earlier master: enabling, and a reset after a fault, never move."""
@@ -148,6 +148,10 @@ async def test_a_set_point_left_from_before_does_not_run_on_enable(left: str) ->
             if left == "velocity":
                 await slave.write_registers(TARGET_V, [0, 300])
                 await slave.write_register(MODE, 3)
+            elif left == "homing":
+                await slave.write_register(HOMING_METHOD, 17)
+                await slave.write_register(MODE, 6)
+                await slave.write_register(CONTROLWORD, NEW_SET_POINT)  # homing start bit
             else:
                 await slave.write_registers(TARGET, [0, 3000])
                 await slave.write_register(MODE, 1)
@@ -259,3 +263,22 @@ async def test_a_fault_shows_its_code_and_resets() -> None:
             assert any(w & 0x80 for w in controlwords(wire, since))
             st = await a.refresh()
             assert not st.alarm and not twin.is_moving()
+
+
+async def test_a_jog_without_soft_limits_stops_at_the_limit_switch() -> None:
+    """No soft limits: a jog is a speed run, and the drive stops it at its limit switch
+    (60FDh bit 0, the negative limit: CiA 402); the status shows the switch."""
+    cfg = machine("switch")
+    del cfg["axes"]["a"]["limits"]
+    with anyio.fail_after(30):
+        async with open_machine(cfg) as m:
+            a, twin = m.axes["a"], m.sim_drives["a"]
+            await a.enable()
+            await a.jog(-360.0, watchdog=None)
+            await until(lambda: twin.physical_position() < -SWITCH * 10 + 10,
+                        "the jog to reach the negative limit switch")
+            await until(lambda: not twin.is_moving(), "the twin to stop at the switch")
+            assert twin.physical_position() >= -SWITCH * 10 - 120  # braking at 60 rpm
+            st = await a.refresh()
+            assert st.limit_negative and not st.limit_positive
+            assert st.raw["digital_inputs"] & 1
