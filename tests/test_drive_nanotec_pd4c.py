@@ -189,8 +189,9 @@ async def test_every_homing_method_homes_and_never_passes_a_limit_switch(
         method: str, code: int, origin: float | None) -> None:
     with anyio.fail_after(60):
         cfg = machine(f"home-{code}", home_switch=90.0)
-        cfg["axes"]["a"]["homing"] = {"method": method, "speed": 60.0, "creep": 15.0,
-                                      "accel": 600.0}
+        cfg["axes"]["a"]["homing"] = {"method": method, "speed": 360.0, "creep": 15.0,
+                                      "accel": 3600.0}
+        braking = 10 * 360.0 ** 2 / (2 * 3600.0) + 1  # pulses, from the search speed
         async with open_machine(cfg) as m:
             a, twin, wire = m.axes["a"], m.sim_drives["a"], m.wires["l"]
             await a.enable()
@@ -202,7 +203,7 @@ async def test_every_homing_method_homes_and_never_passes_a_limit_switch(
             st = await a.refresh()
             assert st.homed and not twin.is_moving() and not twin.homing_failed
             assert twin.position() == pytest.approx(0, abs=30)  # home is 0 (no offset)
-            lo, hi = -SWITCH * 10 - 60, SWITCH * 10 + 60  # braking at the creep speed
+            lo, hi = -SWITCH * 10 - braking, SWITCH * 10 + braking
             assert all(lo <= p <= hi for p in trace), (min(trace), max(trace))
             if origin is None:
                 assert twin.physical_position() == here
