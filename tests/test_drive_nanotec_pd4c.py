@@ -283,3 +283,37 @@ async def test_a_jog_without_soft_limits_stops_at_the_limit_switch() -> None:
             st = await a.refresh()
             assert st.limit_negative and not st.limit_positive
             assert st.raw["digital_inputs"] & 1
+
+
+async def test_a_stopped_move_never_resumes() -> None:
+    """A stop is a halt (controlword bit 8); a CiA 402 drive continues the interrupted
+    positioning when halt clears without a new set-point, and the twin does too: no
+    command after the stop (reset, enable, a jog, a move) clears halt that way."""
+    with anyio.fail_after(60):
+        async with open_machine(machine("resume")) as m:
+            a, twin = m.axes["a"], m.sim_drives["a"]
+            await a.enable()
+
+            async def long_move() -> None:
+                with contextlib.suppress(MotionAborted):
+                    await a.move_to(-500.0, speed=90.0)
+
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(long_move)
+                await until(lambda: twin.position() < -300, "the long move to run")
+                await a.stop()
+            stopped = twin.position()
+            for command in (a.reset, a.enable):
+                await command()
+                with anyio.move_on_after(0.3):
+                    await until(twin.is_moving, "(not) the stopped move")
+                assert not twin.is_moving() and twin.position() == stopped
+            await a.move_to(0.0)
+            assert twin.position() == 0
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(long_move)
+                await until(lambda: twin.position() < -300, "the long move to run")
+                await a.stop()
+            async with a.jogging(90.0):
+                await until(twin.is_moving, "the jog")
+            assert not twin.is_moving() and twin.position() > -500 * 10 + 1
