@@ -317,3 +317,30 @@ async def test_a_stopped_move_never_resumes() -> None:
             async with a.jogging(90.0):
                 await until(twin.is_moving, "the jog")
             assert not twin.is_moving() and twin.position() > -500 * 10 + 1
+
+
+async def test_a_negative_home_switch_homes_on_the_cia402_twin(tmp_path: Path) -> None:
+    """CiA 402 methods 21 and 22 expect a home switch active on the negative side of its
+    edge; the machine's `sim.options.home_cam = "negative"` puts one there. Before: the described
+    CiA 402 twin refused `home_cam` (its device was always a positive cam), so no
+    description offering 5, 6, 21 or 22 could home on its twin."""
+    text = PD4C.read_text().replace(
+        "[homing.methods]\n",
+        '[homing.methods]\nhome_switch_negative = { code = 21, cia402 = 21, '
+        'source = "manual: Homing (CiA 402 method 21)" }\n', 1)
+    drive = tmp_path / "pd4c21.toml"
+    drive.write_text(text)
+    for start in (0.0, 180.0):  # the switch inactive, then active at the start
+        cfg = machine(f"home21-{int(start)}", home_switch=90.0,
+                      options={"home_cam": "negative"},
+                      position=start)
+        cfg["axes"]["a"]["drive"] = str(drive)
+        cfg["axes"]["a"]["homing"] = {"method": "home_switch_negative", "speed": 360.0,
+                                      "creep": 15.0, "accel": 3600.0}
+        with anyio.fail_after(30):
+            async with open_machine(cfg) as m:
+                a, twin = m.axes["a"], m.sim_drives["a"]
+                await a.enable()
+                await a.home()
+                assert (await a.refresh()).homed and not twin.homing_failed
+                assert abs(twin.physical_position() - 900) <= 60
