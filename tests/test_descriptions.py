@@ -1045,20 +1045,3 @@ async def test_parameters_and_commissioning_come_from_the_description(tmp_path: 
         assert (twin.address, str(twin.settings)) == (7, "38400 8N2")
         assert wire.requests()  # every write went over the wire
 
-
-async def test_a_trial_homes_by_every_method_the_description_names() -> None:
-    """`drive try` homes by each method, not the first only (before: the Kinco FD's
-    methods 18-22, 24 and 28 were never tried, and 21/22 could not have homed: the CiA
-    402 twin's home switch was always a positive cam). Each runs on the switch it
-    expects; a method the profile refuses is named with its reason."""
-    from drivebus.sim.trial import try_description
-
-    d = load_description(ROOT / "configs" / "drives" / "kinco_fd.toml")
-    steps = await try_description(d)
-    (home,) = [s for s in steps if s.name == "home"]
-    assert home.result == "pass", home
-    assert d.homing is not None
-    for name in d.homing.methods:
-        assert f"{name}: homed" in home.detail, (name, home.detail)
-    nt86 = cli("drive", "try", "NT86").stdout
-    assert "hard_stop_positive: refused (" in nt86 and "closed-loop" in nt86, nt86
