@@ -1044,4 +1044,3 @@ async def test_parameters_and_commissioning_come_from_the_description(tmp_path: 
         twin.power_restore()
         assert (twin.address, str(twin.settings)) == (7, "38400 8N2")
         assert wire.requests()  # every write went over the wire
-
