@@ -518,10 +518,35 @@ def test_relative_targets_add_to_the_last_target_or_to_where_a_halt_left_the_axi
     stopped = d.read("position_actual_value", t)
     assert 10_000 < stopped < 30_000
     assert d.statusword(t) & Statusword.TARGET_REACHED  # halted: at rest counts as reached
-    d.write("controlword", 0x0F, t)  # halt off: the motion does not resume
-    assert not d.is_moving(t + 0.1)
-    t = handshake(d, t + 0.1, 1_000, relative=True)
+    # halt off with a new set-point in the same controlword: it replaces the interrupted
+    # one, relative to where the halt left the axis
+    d.write("target_position", 1_000, t)
+    d.write("controlword", 0x0F | Controlword.NEW_SET_POINT | Controlword.RELATIVE, t)
     assert d.read("position_actual_value", settle(d, t)) == stopped + 1_000
+
+
+def test_halt_cleared_alone_continues_the_interrupted_positioning() -> None:
+    """CiA 402-2, profile position, controlword bit 8: "0: positioning shall be executed or
+    continued". Clearing halt without a new set-point takes the interrupted positioning on
+    to its target (before: the twin dropped it, more lenient than the drives, so an engine
+    that cleared halt after a stop would not have been caught). A mode change, a quick
+    stop or a limit switch drops it; a new set-point replaces it."""
+    d = device()
+    t = handshake(d, pp(d), 30_000)
+    d.write("controlword", 0x0F | Controlword.HALT, t + 0.5)
+    t = settle(d, t + 0.5)
+    stopped = d.read("position_actual_value", t)
+    assert 0 < stopped < 30_000
+    d.write("controlword", 0x0F, t)  # halt off: the positioning goes on
+    assert d.is_moving(t + 0.1)
+    assert d.read("position_actual_value", settle(d, t + 0.1)) == 30_000
+    t = handshake(d, settle(d, t + 0.1), 0)
+    d.write("controlword", 0x0F | Controlword.HALT, t + 0.5)
+    t = settle(d, t + 0.5)
+    d.write("modes_of_operation", Mode.PROFILE_VELOCITY, t)
+    d.write("modes_of_operation", Mode.PROFILE_POSITION, t)
+    d.write("controlword", 0x0F, t)  # the mode change dropped it
+    assert not d.is_moving(t + 0.1)
 
 
 def test_a_new_set_point_is_ignored_while_halt_is_set() -> None:

@@ -664,3 +664,22 @@ def test_no_packaged_stop_is_marked_never_to_be_sent_again(path: Path) -> None:
         if proc is None:
             continue
         assert all(step.idempotent for step in proc.steps), (path.name, name)
+
+
+def test_a_manual_source_that_says_part_is_inferred_is_named_apart(tmp_path: Path) -> None:
+    """A source such as "manual: 3602h:03; the object in the low byte is inferred" counts
+    as the manual's, but `drive check` and the drive's page name it apart, so a reader
+    (or an auditor counting inferred items) sees it. Before: it was counted as the
+    manual's and nowhere named, as a source that was the manual's throughout."""
+    text = SECTIONS.replace('source = "manual: 2.1, p. 9 (communication settings)"',
+                            'source = "manual: 2.1, p. 9; the word order is inferred"')
+    path = write(tmp_path, text, "partly.toml")
+    done = cli("drive", "check", path)
+    assert done.returncode == 0, done.stderr
+    assert "partly inferred (a manual or code source that says part is inferred): [link]" \
+        in done.stdout, done.stdout
+    page = cli("drive", "doc", path).stdout
+    assert "**1 items are partly inferred** (their source says which part; check it on " \
+        "the drive): `[link]`." in page, page
+    assert "partly inferred" not in cli("drive", "check", write(tmp_path, SECTIONS,
+                                                                "whole.toml")).stdout

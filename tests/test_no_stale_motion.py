@@ -94,6 +94,7 @@ TWINS: list[tuple[str, str, int, str, dict[str, Any], int]] = [
     ("iai", str(DRIVES / "iai_robo_cylinder.toml"), 1000, "115200 8N1", {}, 0x0E0),
     ("jvl", str(DRIVES / "jvl_mis.toml"), 1600, "115200 8N1", {}, 0x0001),
     ("svx", str(ROOT / "tests/drives/arcus_titan_svx.toml"), 10000, "115200 8N1", {}, 4),
+    ("pd4c", str(ROOT / "tests/drives/nanotec_pd4c.toml"), 3600, "115200 8N1", {}, 0x3210),
     ("nt86", "NT86", 4000, "115200 8N1",
      {"drive_options": {"enable_input": 3, "clear_alarm_input": 4}}, 1),
     ("epr60", "EPR60", 4000, "tcp",

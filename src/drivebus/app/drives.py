@@ -185,6 +185,11 @@ def provenance_lines(d: Description, r: DescriptionReport) -> list[str]:
                      + ", ".join(prov["inferred"][:12])
                      + (f", and {len(prov['inferred']) - 12} more"
                         if len(prov["inferred"]) > 12 else ""))
+    partly = d.partly_inferred()
+    if partly:
+        lines.append("    partly inferred (a manual or code source that says part is inferred): "
+                     + ", ".join(partly[:12])
+                     + (f", and {len(partly) - 12} more" if len(partly) > 12 else ""))
     if prov["unnamed"]:
         r.warnings.append(f"{len(prov['unnamed'])} items name no source (give [drive] "
                           f"source or each its own source = 'manual: ...'): "

@@ -39,6 +39,7 @@ from drivebus.drives.cia402 import (
 )
 from drivebus.drives.command.profile import DescribedProfile
 from drivebus.drives.command.reads import plan_reads
+from drivebus.drives.command.status import _polled_raw, _raw_values
 from drivebus.drives.description import Reg
 from drivebus.drives.status import DriveStatus
 from drivebus.drives.values import Attrs, Unread
@@ -170,9 +171,10 @@ class Cia402Profile(DescribedProfile):
         if not self._learned and self.description.status.learn_first:
             await self.learn(priority=max(priority, Priority.CONFIG))  # (as the engine's)
         requested = monotonic()
-        values = await self._poll_values(self._status_plan, priority)
+        raw_words: dict[str, list[int]] = {}
+        values = await self._poll_values(self._status_plan, priority, raw_words)
         await self._read_due_signals(priority)
-        return self.decode_status(values, requested_at=requested)
+        return self.decode_status(values, raw_words, requested_at=requested)
 
     def decode_status(self, values: Mapping[str, Any],
                       raw_words: Mapping[str, list[int]] | None = None, *,
@@ -233,13 +235,23 @@ class Cia402Profile(DescribedProfile):
             int(obj["position_actual_value"]),
             velocity_rpm=None if velocity is None else float(velocity),
             requested_at=requested_at or 0.0,
-            raw={"statusword": sw, "state": list(State).index(state) if state else -1,
+            raw={**self._polled_raw(values, raw_words),
+                 "statusword": sw, "state": list(State).index(state) if state else -1,
                  **({"mode": int(mode)} if mode is not None else {}),
                  **({"error_code": int(code)} if code is not None else {}),
                  **({"inputs": int(inputs)} if inputs is not None else {})},
             timestamp=monotonic(),
         )
         return self._overrides(st, values)
+
+    def _polled_raw(self, values: Mapping[str, Any],
+                    raw_words: Mapping[str, list[int]] | None) -> dict[str, int]:
+        """``[status] raw``'s entries where the description gives them, else each polled
+        register's own value (its words before scale and unit), as the command engine's."""
+        s = self.description.status
+        if s.raw:
+            return _raw_values(s.raw, self._scope(None, values))
+        return _polled_raw(self.description, values, raw_words)
 
     def _bit_says(self, meaning: str, values: Mapping[str, Any]) -> bool:
         """Whether a bit of a polled register that ``means`` it is set: a drive's own flag

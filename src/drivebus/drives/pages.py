@@ -128,6 +128,11 @@ def _provenance(d: Description) -> str:
             f" (the others: {d.drive.source})" if d.drive.source and len(own) < len(
                 d.section_sources()) else "") + ":\n\n"
             + "\n".join(f"- `[{k}]`: {cell(v)}" for k, v in own.items()))
+    partly = d.partly_inferred()
+    if partly:
+        text = (f"**{len(partly)} items are partly inferred** (their source says which "
+                f"part; check it on the drive): " + ", ".join(f"`{x}`" for x in partly)
+                + ".\n\n" + text)
     if prov["inferred"]:
         text = (f"**{len(prov['inferred'])} items are inferred** (neither the manual nor "
                 f"public code says them; check them on the drive): "

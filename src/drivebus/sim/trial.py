@@ -16,10 +16,11 @@ from dataclasses import dataclass
 import anyio
 
 from drivebus.drives.base import DriveProfile, MoveParams
+from drivebus.drives.cia402 import HomeSwitch, homing_method
 from drivebus.drives.description import Description, HomingMethod
 from drivebus.drives.engine import profile_class
 from drivebus.drives.status import DriveStatus
-from drivebus.errors import DrivebusError, LimitViolation, NotSupported
+from drivebus.errors import ArgumentError, DrivebusError, LimitViolation, NotSupported
 from drivebus.settings import LineSettings
 from drivebus.sim.described import twin_of
 from drivebus.sim.drive import TwinSetup
@@ -259,24 +260,37 @@ async def try_description(d: Description, *, address: int | None = None) -> list
             return f"at rest at {st.position}"
 
         async def home() -> str:
+            """Every homing method the description names, one after the other (before:
+            the first only, so a wrong CiA 402 number or a method the twin cannot end
+            in any other passed ``try``)."""
             p = move()
             assert d.homing is not None
-            name, method = next(iter(d.homing.methods.items()))
-            if not (await profile.read_status()).enabled:  # a quick stop may disable it
-                await profile.enable()
-            where, origin = _origin(method, ppr, twin.physical_position())
-            # a gentle homing ramp (0.1 s to 120 rpm): drives with a minimum ramp time
-            await profile.home(speed_rpm=min(p.speed_rpm, 120.0),
-                               creep_rpm=max(min(p.speed_rpm, 120.0) / 4, 1.0),
-                               accel_rps2=min(p.accel_rps2, 20.0))
-            st = await _wait(profile, lambda s: s.homed and not s.moving and not s.homing,
-                             "homed at rest", timeout=3 * _TIMEOUT)
-            if origin is None:
-                return f"{name}: homed; position {st.position}"
-            off = twin.physical_position() - origin
-            if abs(off) > 0.5 * ppr:
-                raise _Failed(f"{name}: homed {off:+.0f} pulses away from {where}")
-            return f"{name}: homed {off:+.0f} pulses from {where}; position {st.position}"
+            done = []
+            for name, method in d.homing.methods.items():
+                if not (await profile.read_status()).enabled:  # a quick stop may disable it
+                    await profile.enable()
+                twin.set_home_shape(*_home_shape(method, ppr))  # the switch it expects
+                where, origin = _origin(method, ppr, twin.physical_position())
+                # a gentle homing ramp (0.1 s to 120 rpm): drives with a minimum ramp time
+                try:
+                    await profile.home(name, speed_rpm=min(p.speed_rpm, 120.0),
+                                       creep_rpm=max(min(p.speed_rpm, 120.0) / 4, 1.0),
+                                       accel_rps2=min(p.accel_rps2, 20.0))
+                except NotSupported as e:  # refused before any frame: it says why
+                    done.append(f"{name}: refused ({e})")
+                    continue
+                st = await _wait(profile,
+                                 lambda s: s.homed and not s.moving and not s.homing,
+                                 f"{name}: homed at rest", timeout=3 * _TIMEOUT)
+                if origin is None:
+                    done.append(f"{name}: homed; position {st.position}")
+                    continue
+                off = twin.physical_position() - origin
+                if abs(off) > 0.5 * ppr:
+                    raise _Failed(f"{name}: homed {off:+.0f} pulses away from {where}")
+                done.append(f"{name}: homed {off:+.0f} pulses from {where}; position "
+                            f"{st.position}")
+            return "; ".join(done)
 
         async def alarm() -> str:
             code = _alarm_code(d)
@@ -345,6 +359,30 @@ def _trial_ppr(d: Description, allowed: object) -> int:
     return ppr.default
 
 
+def _cia402_switch(m: HomingMethod) -> HomeSwitch | None:
+    """The home switch CiA 402 method ``m`` expects (None: none, or not a CiA 402 one)."""
+    if m.cia402 is None:
+        return None
+    try:
+        return homing_method(m.cia402).home_switch
+    except ArgumentError:
+        return None
+
+
+def _home_shape(m: HomingMethod, ppr: int) -> tuple[str | None, float | None]:
+    """The trial twin's home switch for method ``m``: a cam on the side the method
+    expects, or a dog of one revolution from 1.5 revolutions where it homes on an edge
+    of a switch over part of the travel (else the twin's own)."""
+    switch = _cia402_switch(m)
+    if switch is HomeSwitch.POSITIVE:
+        return "positive", None
+    if switch is HomeSwitch.NEGATIVE:
+        return "negative", None
+    if switch in (HomeSwitch.LOWER_EDGE, HomeSwitch.UPPER_EDGE):
+        return None, float(ppr)
+    return None, None
+
+
 def _origin(m: HomingMethod, ppr: int, start: float) -> tuple[str, float | None]:
     """Where homing method ``m`` (its CiA 402 method, or its reference input) puts the
     origin on the trial's twin."""
@@ -359,6 +397,8 @@ def _origin(m: HomingMethod, ppr: int, start: float) -> tuple[str, float | None]
     if method in (2, 18):
         return "the positive limit switch", _LIMIT * ppr
     if method is not None and 3 <= method <= 30:
+        if _cia402_switch(m) is HomeSwitch.UPPER_EDGE:
+            return "the home switch's upper edge", 2.5 * ppr
         return "the home switch's edge", 1.5 * ppr
     if method in (33, 34, 35, 37):
         return "where it stood", start

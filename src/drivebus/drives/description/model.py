@@ -77,6 +77,24 @@ class Description(_Model):
             out[source_kind(source or default)].append(f"[{name}]")
         return out
 
+    def partly_inferred(self) -> list[str]:
+        """The items whose source is the manual or code but says part of it is inferred
+        (``"manual: 3602h:02 ...; the low byte is inferred"``): counted as the manual's,
+        named apart so a reader checks that part on the drive."""
+        default = self.drive.source
+        items: list[tuple[str, str | None]] = []
+        for key, r in self.registers.items():
+            items.append((f"registers.{key}", r.source or default))
+            items += [(f"registers.{key}.bits.{bit}", b.source or r.source or default)
+                      for bit, b in r.bits.items()]
+        items += [(f"procedures.{n}", p.source or default) for n, p in self.procedures.items()]
+        items += [(f"homing.methods.{n}", m.source or default)
+                  for n, m in (self.homing.methods.items() if self.homing else ())]
+        items += [(f"[{n}]", s or default) for n, s in self.section_sources().items()]
+        return [name for name, source in items
+                if source and source_kind(source) in ("manual", "code")
+                and "inferred" in source.lower()]
+
     def section_sources(self) -> dict[str, str | None]:
         """The own ``source`` of each of the sections ``identify``, ``link``, ``status``
         and ``alarms`` the description has (None: it has none of its own)."""

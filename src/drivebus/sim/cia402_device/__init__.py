@@ -31,7 +31,9 @@ Choices where the profile leaves room (documented here, asserted in tests/test_c
   homing, as the homing status table says; other states, standing still;
 * halt (bit 8) decelerates per the halt option code (605Dh: 1 profile deceleration, 2
   quick stop deceleration, 3 and 4 at once) and holds; profile position drops its
-  set-points (a new edge of bit 4 is ignored while halt is set), profile velocity resumes
+  waiting set-point (a new edge of bit 4 is ignored while halt is set) and continues the
+  interrupted one to its target when halt clears without a new set-point (CiA 402-2:
+  "positioning shall be executed or continued"), profile velocity resumes
   the target velocity when halt clears, homing is interrupted (as by bit 4 falling);
 * a limit switch (60FDh bits 0, 1) in the way stops a profile position or velocity motion
   on the quick stop deceleration and sets internal limit active (bit 11) while active; a

@@ -76,6 +76,7 @@ class StateMachine(DeviceBase):
         motion in progress ended short."""
         self._profile.pending = None
         self._profile.ended_short = True
+        self._profile.halted = None
         if not self.values["controlword"] & Controlword.NEW_SET_POINT:
             self._profile.acknowledge = False
         self._watch_from = None
@@ -100,6 +101,8 @@ class StateMachine(DeviceBase):
         if self.mode == Mode.PROFILE_POSITION:
             if rising and not halt:
                 self._new_set_point(word, now)
+            elif not halt and old & Controlword.HALT and self._profile.halted is not None:
+                self._continue(now)  # "positioning shall be executed or continued"
             elif falling and self._profile.pending is None:
                 self._profile.acknowledge = False
         elif self.mode == Mode.PROFILE_VELOCITY:
@@ -112,6 +115,14 @@ class StateMachine(DeviceBase):
                 self._end_motion(now, self._rate("homing_acceleration"))
 
     def _halt(self, now: float) -> None:
+        prof = self._profile
+        interrupted = (prof.target if self.mode == Mode.PROFILE_POSITION and prof.target
+                       is not None and abs(self.kin.position(now) - prof.target) >= 0.5
+                       else None)
+        self._halt_motion(now)
+        prof.halted = interrupted
+
+    def _halt_motion(self, now: float) -> None:
         option = self.values["halt_option_code"]
         if self.mode == Mode.HOMING:
             ramp = self._rate("homing_acceleration")

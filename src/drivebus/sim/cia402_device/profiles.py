@@ -39,9 +39,21 @@ class Profiles(DeviceBase):
             prof.pending = None
             self._start_point(point, now)
 
+    def _continue(self, now: float) -> None:
+        """Halt cleared in profile position: the interrupted positioning goes on to its
+        target, with the profile's present velocity and ramps (CiA 402-2, controlword bit
+        8: "0: positioning shall be executed or continued")."""
+        target, self._profile.halted = self._profile.halted, None
+        assert target is not None
+        self._start_point(_PointSet(
+            target, self._speed("profile_velocity"),
+            self.values["profile_acceleration"] * self.setup.acceleration_unit,
+            self.values["profile_deceleration"] * self.setup.acceleration_unit), now)
+
     def _start_point(self, point: _PointSet, now: float) -> None:
         prof = self._profile
         prof.target, prof.ended_short, prof.stalled = point.target, False, False
+        prof.halted = None
         p = self.kin.position(now)
         if min(point.velocity, point.acceleration, point.deceleration) <= 0:
             prof.stalled = True

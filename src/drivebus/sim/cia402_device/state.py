@@ -142,6 +142,7 @@ class _Profile:
     acknowledge: bool = False
     ended_short: bool = False  # halt, limit switch, quick stop: relative moves start here
     stalled: bool = False  # taken but cannot move (no speed or ramp)
+    halted: float | None = None  # the target a halt interrupted: continued when halt clears
 
 
 _Action = Callable[[float], None]

@@ -4,6 +4,7 @@ simulated CiA 402 device (``drivebus.sim.cia402_device``).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import ClassVar
 
 from drivebus.clock import monotonic
@@ -13,7 +14,7 @@ from drivebus.drives.units import Kind
 from drivebus.settings import LineSettings
 from drivebus.sim.cia402_device import Cia402Device, Cia402Setup
 from drivebus.sim.described.drive import DescribedDrive
-from drivebus.sim.drive import SimDrive, TwinSetup, time_or_present
+from drivebus.sim.drive import HomeCam, SimDrive, TwinSetup, time_or_present
 from drivebus.sim.registers import signed32
 
 
@@ -26,8 +27,10 @@ class DescribedCia402Drive(DescribedDrive):
 
     @classmethod
     def twin_options(cls) -> list[str]:
-        """The keyword options this twin takes (the device has no home cam side option)."""
-        return [o for o in super().twin_options() if o not in ("home_cam", "soft_address")]
+        """The keyword options this twin takes (``home_cam``: the side the home switch
+        is active on, its device's; before, it was refused and the device's cam was
+        always positive, so methods 5, 6, 21 and 22 could not home on any CiA 402 twin)."""
+        return [o for o in super().twin_options() if o != "soft_address"]
 
     def __init__(
         self,
@@ -36,11 +39,12 @@ class DescribedCia402Drive(DescribedDrive):
         setup: TwinSetup | None = None,
         *,
         home_switch_width: float | None = None,
+        home_cam: HomeCam | None = None,
         crc_error_reply: bool = True,
         **constants: int,
     ) -> None:
         super().__init__(address, settings, setup, home_switch_width=home_switch_width,
-                         crc_error_reply=crc_error_reply, **constants)
+                         home_cam=home_cam, crc_error_reply=crc_error_reply, **constants)
         d = self.description
         s = setup or TwinSetup()
         ppr = self.pulses_per_rev
@@ -49,7 +53,8 @@ class DescribedCia402Drive(DescribedDrive):
         self.device = Cia402Device(
             Cia402Setup(
                 position=s.position, home_switch=s.home_switch,
-                home_switch_width=home_switch_width, limit_negative=s.limit_negative,
+                home_switch_width=home_switch_width, home_cam=home_cam or "positive",
+                limit_negative=s.limit_negative,
                 limit_positive=s.limit_positive, increments_per_rev=ppr,
                 velocity_unit=_pulses_per_raw(d, "velocity", ppr),
                 acceleration_unit=_pulses_per_raw(d, "acceleration", ppr),
@@ -59,6 +64,15 @@ class DescribedCia402Drive(DescribedDrive):
                       if reg.d.default and OBJECTS[name].writable},
             codes=self.exception_codes, kin=self.kin, now=0.0,
         )
+
+    def set_home_shape(self, home_cam: str | None, home_switch_width: float | None) -> None:
+        """The home switch's shape, the device's too (a cam on ``home_cam``'s side, by
+        default positive, or a dog of ``home_switch_width``)."""
+        super().set_home_shape(home_cam, home_switch_width)
+        device = getattr(self, "device", None)
+        if device is not None:
+            device.setup = replace(device.setup, home_cam=self.home_cam or "positive",
+                                   home_switch_width=self.home_switch_width)
 
     # -- the device's state as a twin shows it ------------------------------------------------
 
