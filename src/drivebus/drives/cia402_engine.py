@@ -39,7 +39,7 @@ from drivebus.drives.cia402 import (
 )
 from drivebus.drives.command.profile import DescribedProfile
 from drivebus.drives.command.reads import plan_reads
-from drivebus.drives.command.status import _polled_raw, _raw_values
+from drivebus.drives.command.status import polled_raw, raw_values
 from drivebus.drives.description import Reg
 from drivebus.drives.status import DriveStatus
 from drivebus.drives.values import Attrs, Unread
@@ -250,8 +250,8 @@ class Cia402Profile(DescribedProfile):
         register's own value (its words before scale and unit), as the command engine's."""
         s = self.description.status
         if s.raw:
-            return _raw_values(s.raw, self._scope(None, values))
-        return _polled_raw(self.description, values, raw_words)
+            return raw_values(s.raw, self._scope(None, values))
+        return polled_raw(self.description, values, raw_words)
 
     def _bit_says(self, meaning: str, values: Mapping[str, Any]) -> bool:
         """Whether a bit of a polled register that ``means`` it is set: a drive's own flag

@@ -204,7 +204,7 @@ class Status(ProfileBase):
             if "position" in fields else None
         velocity = _physical(fields["velocity"], scope, d, "velocity") \
             if "velocity" in fields else None
-        raw = _raw_values(s.raw, scope) if s.raw else _polled_raw(d, values, raw_words)
+        raw = raw_values(s.raw, scope) if s.raw else polled_raw(d, values, raw_words)
         return DriveStatus(
             enabled=flag("enabled"),
             moving=flag("moving"),
@@ -316,7 +316,7 @@ class Status(ProfileBase):
                              firmware=ident_d.firmware(scope), raw=raw)
 
 
-def _raw_values(raw: Mapping[str, Expr], scope: Mapping[str, Any]) -> dict[str, int]:
+def raw_values(raw: Mapping[str, Expr], scope: Mapping[str, Any]) -> dict[str, int]:
     """``[status] raw``'s values; one whose register this read did not cover is left out."""
     out: dict[str, int] = {}
     for k, e in raw.items():
@@ -329,8 +329,8 @@ def _raw_values(raw: Mapping[str, Expr], scope: Mapping[str, Any]) -> dict[str, 
     return out
 
 
-def _polled_raw(d: Description, values: Mapping[str, Any],
-                raw_words: Mapping[str, list[int]] | None) -> dict[str, int]:
+def polled_raw(d: Description, values: Mapping[str, Any],
+               raw_words: Mapping[str, list[int]] | None) -> dict[str, int]:
     """Each polled register's own value, what its words hold before scale and unit (a
     speed in 0.1 rpm, a ramp in ms, a count scaled by 2); without the words, the values
     that are integers."""
