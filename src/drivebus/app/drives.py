@@ -180,16 +180,12 @@ def provenance_lines(d: Description, r: DescriptionReport) -> list[str]:
              f"sections: "
              + ", ".join(f"{len(prov[k])} {k}" for k in ("manual", "code", "inferred",
                                                          "unnamed"))]
-    if prov["inferred"]:
-        lines.append("    inferred (not from the manual or public code): "
-                     + ", ".join(prov["inferred"][:12])
-                     + (f", and {len(prov['inferred']) - 12} more"
-                        if len(prov["inferred"]) > 12 else ""))
-    partly = d.partly_inferred()
-    if partly:
-        lines.append("    partly inferred (a manual or code source that says part is inferred): "
-                     + ", ".join(partly[:12])
-                     + (f", and {len(partly) - 12} more" if len(partly) > 12 else ""))
+    for what, names in (("inferred (not from the manual or public code)", prov["inferred"]),
+                        ("partly inferred (a manual or code source that says part is "
+                         "inferred)", d.partly_inferred())):
+        if names:
+            lines.append(f"    {what}: " + ", ".join(names[:12])
+                         + (f", and {len(names) - 12} more" if len(names) > 12 else ""))
     if prov["unnamed"]:
         r.warnings.append(f"{len(prov['unnamed'])} items name no source (give [drive] "
                           f"source or each its own source = 'manual: ...'): "

@@ -57,30 +57,11 @@ class Description(_Model):
     twin: TwinDef = TwinDef()
     examples: list[ExampleDef] = []
 
-    def provenance(self) -> dict[str, list[str]]:
-        """Where every register, bit, procedure and homing method, and the sections
-        ``[identify]``, ``[link]``, ``[status]`` and ``[alarms]`` (those it has), come
-        from, by kind (``manual``, ``code``, ``inferred``, ``unnamed``): the item's own
-        ``source``, else the register's (for its bits), else ``[drive] source``."""
-        default = self.drive.source
-        out: dict[str, list[str]] = {k: [] for k in (*SOURCE_KINDS, "unnamed")}
-        for key, r in self.registers.items():
-            out[source_kind(r.source or default)].append(f"registers.{key}")
-            for bit, b in r.bits.items():
-                out[source_kind(b.source or r.source or default)].append(
-                    f"registers.{key}.bits.{bit}")
-        for name, p in self.procedures.items():
-            out[source_kind(p.source or default)].append(f"procedures.{name}")
-        for name, m in (self.homing.methods.items() if self.homing else ()):
-            out[source_kind(m.source or default)].append(f"homing.methods.{name}")
-        for name, source in self.section_sources().items():
-            out[source_kind(source or default)].append(f"[{name}]")
-        return out
-
-    def partly_inferred(self) -> list[str]:
-        """The items whose source is the manual or code but says part of it is inferred
-        (``"manual: 3602h:02 ...; the low byte is inferred"``): counted as the manual's,
-        named apart so a reader checks that part on the drive."""
+    def sourced_items(self) -> list[tuple[str, str | None]]:
+        """Every register, bit, procedure and homing method, and the sections
+        ``[identify]``, ``[link]``, ``[status]`` and ``[alarms]`` (those it has), with the
+        source that stands for it: its own ``source``, else the register's (for its
+        bits), else ``[drive] source`` (None: none)."""
         default = self.drive.source
         items: list[tuple[str, str | None]] = []
         for key, r in self.registers.items():
@@ -91,7 +72,21 @@ class Description(_Model):
         items += [(f"homing.methods.{n}", m.source or default)
                   for n, m in (self.homing.methods.items() if self.homing else ())]
         items += [(f"[{n}]", s or default) for n, s in self.section_sources().items()]
-        return [name for name, source in items
+        return items
+
+    def provenance(self) -> dict[str, list[str]]:
+        """Where each of ``sourced_items`` comes from, by kind (``manual``, ``code``,
+        ``inferred``, ``unnamed``)."""
+        out: dict[str, list[str]] = {k: [] for k in (*SOURCE_KINDS, "unnamed")}
+        for name, source in self.sourced_items():
+            out[source_kind(source)].append(name)
+        return out
+
+    def partly_inferred(self) -> list[str]:
+        """The items whose source is the manual or code but says part of it is inferred
+        (``"manual: 3602h:02 ...; the low byte is inferred"``): counted as the manual's,
+        named apart so a reader checks that part on the drive."""
+        return [name for name, source in self.sourced_items()
                 if source and source_kind(source) in ("manual", "code")
                 and "inferred" in source.lower()]
 
