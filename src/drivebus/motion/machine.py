@@ -198,24 +198,20 @@ class Machine:
         stopped: list[str] = []
         moving = self._moving(only_commanded)
 
-        async def stop(axis: Axis, report: bool) -> None:
+        async def stop(axis: Axis) -> None:
             try:
                 await axis.stop()
             except DrivebusError as exc:
                 log.error("axis %s: stop failed: %s", axis.name, exc)
                 return
-            if report:
+            if axis in moving:
                 where = "" if axis.position is None else \
                     f" at {axis.position:.4f} {axis.config.unit}"
                 stopped.append(f"{axis.name}{where}")
 
         at_rest = [] if only_commanded else [
             a for a in self.axes.values() if a not in moving and a.state is not AxisState.OFFLINE]
-        async with anyio.create_task_group() as tg:
-            for a in moving:
-                tg.start_soon(stop, a, True)
-            for a in at_rest:
-                tg.start_soon(stop, a, False)
+        await self._each([*moving, *at_rest], stop)
         return stopped
 
     async def halt_now(self) -> dict[str, DrivebusError | None]:
@@ -269,7 +265,7 @@ def check_teachable(axis: str, profile: DriveProfile) -> None:
 
 def _can_move(axis: Axis) -> bool:
     try:
-        axis.profile.check_supported("move_absolute")
+        check_teachable(axis.name, axis.profile)
     except DrivebusError:
         return False
     return True
