@@ -54,6 +54,11 @@ class ExceptionCodes:
     """A read of a write-only register, where it differs from ``access`` (the MOONS'
     0x11 "register does not support read" beside 0x12 "does not support write")."""
 
+    @property
+    def read_refused(self) -> int:
+        """The code of a read of a write-only register (or coil)."""
+        return self.access if self.read_access is None else self.read_access
+
 
 def signed16(word: int) -> int:
     """A 16-bit word read as a two's-complement value."""
@@ -92,8 +97,7 @@ class RegisterSpec:
     def check_read(self, codes: ExceptionCodes) -> None:
         """Refuse a read of a write-only register with the drive's code."""
         if self.access is Access.W:
-            raise SlaveException(codes.access if codes.read_access is None
-                                 else codes.read_access)
+            raise SlaveException(codes.read_refused)
 
     def check_write(self, word: int, codes: ExceptionCodes) -> int:
         """The value a write of ``word`` sets; a refusal raises the drive's code."""

@@ -86,9 +86,7 @@ class Registers(TwinBase):
         if w is None:
             raise SlaveException(self.exception_codes.address)
         if w.reg.d.access == "W":  # a command coil the drive does not read back
-            codes = self.exception_codes
-            raise SlaveException(codes.access if codes.read_access is None
-                                 else codes.read_access)
+            raise SlaveException(self.exception_codes.read_refused)
         means = w.reg.d.means
         signals = self._signals(now)
         if means in signals:
