@@ -13,7 +13,7 @@ import anyio
 import pytest
 
 from drivebus import open_machine
-from test_no_stale_motion import until
+from waits import until
 
 DRIVES = Path(__file__).resolve().parents[1] / "configs" / "drives"
 

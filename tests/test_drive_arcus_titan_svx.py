@@ -23,7 +23,8 @@ import pytest
 
 from drivebus import AxisState, open_machine
 from drivebus.errors import DrivebusError, ModbusException, MotionAborted, NotSupported
-from test_no_stale_motion import until
+from waits import until
+from wirelog import request_pdus
 
 ROOT = Path(__file__).resolve().parents[1]
 SVX = ROOT / "tests" / "drives" / "arcus_titan_svx.toml"
@@ -41,15 +42,10 @@ def machine(tag: str) -> dict[str, Any]:
                            "poll": {"moving": 0.01, "idle": 0.05}}}}
 
 
-def pdus(wire: Any, since: float = 0.0) -> list[bytes]:
-    return [f.data[1:-2] for f in list(wire.log)
-            if f.direction == "request" and f.start > since]
-
-
 def assert_the_manuals_link_rules(wire: Any) -> None:
     """FC03/FC16 a pair from an even address; FC05 FF00h on a command coil; FC01 only at
     coils 0..6; nothing else."""
-    for pdu in pdus(wire):
+    for pdu in request_pdus(wire):
         fc, address = pdu[0], int.from_bytes(pdu[1:3], "big")
         assert fc in (1, 2, 3, 5, 16), pdu.hex(" ")
         if fc in (3, 16):
@@ -61,7 +57,7 @@ def assert_the_manuals_link_rules(wire: Any) -> None:
 
 
 def coils_forced(wire: Any, since: float = 0.0) -> list[int]:
-    return [int.from_bytes(p[1:3], "big") for p in pdus(wire, since) if p[0] == 5]
+    return [int.from_bytes(p[1:3], "big") for p in request_pdus(wire, since) if p[0] == 5]
 
 
 async def test_the_public_commands_on_the_twin() -> None:
@@ -169,7 +165,7 @@ async def test_what_the_drive_cannot_is_refused_before_any_frame() -> None:
                 await a.move_to(1000.0)  # beyond the soft limit
             with pytest.raises(DrivebusError):
                 await a.move_to(10.0, speed=1e9)  # HSPD's range
-            assert not [p for p in pdus(wire, since) if p[0] in (5, 16)]
+            assert not [p for p in request_pdus(wire, since) if p[0] in (5, 16)]
 
 
 async def test_the_twin_keeps_the_manuals_link_rules() -> None:
@@ -286,4 +282,4 @@ async def test_a_move_of_a_disabled_axis_says_to_enable_it() -> None:
             since = time.monotonic()
             with pytest.raises(DrivebusError, match=r"in state Disabled: enable it first"):
                 await a.move_to(10.0)
-            assert not [p for p in pdus(wire, since) if p[0] in (5, 16)]
+            assert not [p for p in request_pdus(wire, since) if p[0] in (5, 16)]

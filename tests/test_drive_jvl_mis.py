@@ -21,7 +21,8 @@ import pytest
 
 from drivebus import AxisState, open_machine
 from drivebus.errors import DrivebusError, MotionAborted, NotSupported
-from test_no_stale_motion import until
+from waits import until
+from wirelog import request_pdus
 
 ROOT = Path(__file__).resolve().parents[1]
 JVL = ROOT / "configs" / "drives" / "jvl_mis.toml"
@@ -38,12 +39,8 @@ def machine(tag: str) -> dict[str, Any]:
                            "poll": {"moving": 0.01, "idle": 0.05}}}}
 
 
-def pdus(wire: Any) -> list[bytes]:
-    return [f.data[1:-2] for f in wire.requests()]
-
-
 def assert_the_manuals_link_rules(wire: Any) -> None:
-    for pdu in pdus(wire):
+    for pdu in request_pdus(wire):
         fc, address, count = pdu[0], int.from_bytes(pdu[1:3], "big"), int.from_bytes(
             pdu[3:5], "big")
         assert fc in (3, 16), pdu.hex(" ")
@@ -105,7 +102,8 @@ async def test_enable_moves_nothing_though_position_mode_runs_to_p_soll() -> Non
             wire.clear_log()
             await a.enable()
             assert twin.enabled and not twin.is_moving() and twin.position() == 0
-            writes = [(int.from_bytes(p[1:3], "big"), p[6:]) for p in pdus(wire) if p[0] == 16]
+            writes = [(int.from_bytes(p[1:3], "big"), p[6:]) for p in request_pdus(wire)
+                      if p[0] == 16]
             assert [w[0] for w in writes] == [P_SOLL, MODE_REG]
             assert writes[0][1][:4] == bytes(4)  # P_SOLL := P_IST (0), then position mode
             st = await a.refresh()
@@ -127,7 +125,7 @@ async def test_what_the_manual_does_not_give_is_refused_before_any_frame() -> No
             wire.clear_log()
             with pytest.raises(NotSupported, match="clears ERR_BITS"):
                 await a.profile.clear_alarm()
-            assert not [p for p in pdus(wire) if p[0] == 16]
+            assert not [p for p in request_pdus(wire) if p[0] == 16]
 
 
 async def test_homing_presets_a_negative_position() -> None:

@@ -17,7 +17,8 @@ import pytest
 
 from drivebus import AxisState, open_machine
 from drivebus.errors import DrivebusError, MotionAborted, NotSupported
-from test_no_stale_motion import until
+from waits import until
+from wirelog import request_pdus
 
 ROOT = Path(__file__).resolve().parents[1]
 PD4C = ROOT / "tests" / "drives" / "nanotec_pd4c.toml"
@@ -41,15 +42,10 @@ def machine(tag: str, **sim: Any) -> dict[str, Any]:
                            "poll": {"moving": 0.01, "idle": 0.05}}}}
 
 
-def requests(wire: Any, since: float = 0.0) -> list[bytes]:
-    return [f.data[1:-2] for f in list(wire.log)
-            if f.direction == "request" and f.start > since]
-
-
 def writes(wire: Any, since: float = 0.0) -> list[tuple[int, list[int]]]:
     """(address, register values) of every FC06/FC16 after ``since``."""
     out = []
-    for pdu in requests(wire, since):
+    for pdu in request_pdus(wire, since):
         address = int.from_bytes(pdu[1:3], "big")
         if pdu[0] == 6:
             out.append((address, [int.from_bytes(pdu[3:5], "big")]))
@@ -66,7 +62,7 @@ def controlwords(wire: Any, since: float = 0.0) -> list[int]:
 
 def assert_only_the_images(wire: Any) -> None:
     """Only 03, 06 and 16, only at the two images the manual's PDO chapter places."""
-    for pdu in requests(wire):
+    for pdu in request_pdus(wire):
         assert pdu[0] in (3, 6, 16), pdu.hex(" ")
         address = int.from_bytes(pdu[1:3], "big")
         assert 5000 <= address < 5010 or 6000 <= address < 6021, pdu.hex(" ")

@@ -41,7 +41,14 @@ from drivebus import open_machine
 from drivebus.app.params import ParameterSet, load_parameters, read_parameters
 from drivebus.errors import DrivebusError, GroupMotionError, MotionAborted
 from drivebus.motion import Machine
-from wirelog import command_frames, frames_text, log_size, requests_between, settle
+from wirelog import (
+    command_frames,
+    frames_text,
+    log_size,
+    requests_between,
+    settle,
+    write_frames,
+)
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 
@@ -278,32 +285,18 @@ async def test_cancelling_its_caller_stops_what_it_started(c: Command, demo: Mac
 # -- (c) a refusal sends nothing -----------------------------------------------------------
 
 
-def writes(m: Machine) -> int:
-    """Write frames (FC05/06/0F/10) on every line so far."""
-    count = 0
-    for wire in m.wires.values():
-        for f in list(wire.log):  # type: ignore[attr-defined]
-            data = getattr(f, "data", None)
-            if data is not None:
-                fc = data[1] if len(data) > 1 else 0
-                count += getattr(f, "direction", "") == "request" and fc in (5, 6, 15, 16)
-            else:
-                pdu = f.pdu
-                count += bool(pdu) and pdu[0] in (5, 6, 15, 16)
-    return count
-
 
 @pytest.mark.parametrize("c", COMMANDS, ids=ids)
 async def test_a_refusal_sends_nothing(c: Command, demo: Machinefile) -> None:
     async with open_machine(demo) as m:
         for ax in m.axes.values():
             await settle(ax)
-        before = writes(m)
+        before = write_frames(m)
         with pytest.raises(DrivebusError):
             await c.refuse(m)
         for ax in m.axes.values():  # a full poll round later: still nothing written
             await ax.refresh()
-        assert writes(m) == before, c.name
+        assert write_frames(m) == before, c.name
 
 
 # -- (d) leaving the machine leaves every axis at rest ---------------------------------------

@@ -20,7 +20,7 @@ import pytest
 from drivebus.motion import Machine
 from mqtt_helpers import Broker, bridged, probe, require_tools, running_broker
 from service_rig import DEMO, at_rest, moving, running
-from wirelog import command_frames, log_size
+from wirelog import command_frames, log_size, write_frames
 
 
 @dataclass(frozen=True)
@@ -61,18 +61,6 @@ ROUTES = [
 def ids(r: Route) -> str:
     return r.name
 
-
-def writes(m: Machine) -> int:
-    """Write frames (FC05/06/0F/10) on every line so far."""
-    count = 0
-    for wire in m.wires.values():
-        for f in list(wire.log):  # type: ignore[attr-defined]
-            data = getattr(f, "data", None)
-            if data is not None:
-                count += f.direction == "request" and len(data) > 1 and data[1] in (5, 6, 15, 16)
-            else:
-                count += bool(f.pdu) and f.pdu[0] in (5, 6, 15, 16)
-    return count
 
 
 @pytest.mark.parametrize("r", ROUTES, ids=ids)
@@ -119,12 +107,12 @@ async def test_a_refused_request_sends_nothing(r: Route) -> None:
     async with running() as (svc, client):
         m = svc.session.machine
         await at_rest(svc)
-        before = writes(m)
+        before = write_frames(m)
         refused = await client.request(r.method, r.refused_path or r.path, json=r.refused)
         assert 400 <= refused.status_code < 500 or refused.status_code == 501, refused.text
         for ax in m.axes.values():
             await ax.refresh()
-        assert writes(m) == before, (r.name, refused.text)
+        assert write_frames(m) == before, (r.name, refused.text)
 
 
 async def test_leaving_the_service_leaves_every_axis_at_rest() -> None:
@@ -162,14 +150,14 @@ async def test_mqtt_commands_keep_the_promises(broker: Broker) -> None:
             async for st in ax.watch():
                 if not st.moving:
                     break
-        before = writes(m)
+        before = write_frames(m)
         for raw in (b'{"target": 1000000}', b'{"target": "far"}', b'{"target": NaN}',
                     b"not json"):
             replies = await p.final(await p.send("demo", "x", "move", raw=raw))
             assert replies[-1]["status"] == "failed", (raw, replies)
         for ax in m.axes.values():
             await ax.refresh()
-        assert writes(m) == before
+        assert write_frames(m) == before
         await p.send("demo", "z", "jog", {"speed": 2.0, "ttl": 10.0})
         move = await p.send("demo", "x", "move", {"target": _far(m, "x"), "speed": 30.0})
         with anyio.fail_after(20):

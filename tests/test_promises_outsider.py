@@ -42,7 +42,15 @@ from drivebus.errors import (
 )
 from drivebus.motion import Axis, Machine
 from waits import until, within
-from wirelog import command_frames, commands, frames_text, log_size, requests_between, settle
+from wirelog import (
+    command_frames,
+    commands,
+    frames_text,
+    log_size,
+    requests_between,
+    settle,
+    write_frames,
+)
 
 DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 
@@ -518,18 +526,6 @@ async def test_an_override_past_what_the_drive_runs_refuses_the_queued_move_with
         assert x.queued == 0
 
 
-def writes(m: Machine) -> int:
-    """Write frames (FC05/06/0F/10) on every line so far."""
-    count = 0
-    for wire in m.wires.values():
-        for f in list(wire.log):  # type: ignore[attr-defined]
-            data = getattr(f, "data", None)
-            if data is not None:
-                count += f.direction == "request" and len(data) > 1 and data[1] in (5, 6, 15, 16)
-            else:
-                count += bool(f.pdu) and f.pdu[0] in (5, 6, 15, 16)
-    return count
-
 
 BAD = [0.0, -0.0, -1.0, math.nan, math.inf, -math.inf, 1e308, 2.0000001, None, "0.5"]
 
@@ -547,7 +543,7 @@ async def test_a_bad_override_during_a_jog_is_refused_with_nothing_sent(tmp_path
             await until(lambda: abs(z.units.from_pulses(m.sim_drives["z"].velocity()))
                         == pytest.approx(10.0, rel=1e-3), "z cruising at 10 mm/s")
             speeds = {n: m.sim_drives[n].velocity() for n in ("x", "z")}
-            before = writes(m)
+            before = write_frames(m)
             for bad in BAD:
                 with pytest.raises(ArgumentError, match="override"):
                     m.override = bad  # type: ignore[assignment]
@@ -555,7 +551,7 @@ async def test_a_bad_override_during_a_jog_is_refused_with_nothing_sent(tmp_path
                     z.override = bad  # type: ignore[assignment]
             for n in ("x", "z"):  # a poll of each after the refusals
                 await m.axes[n].refresh()
-            assert writes(m) == before
+            assert write_frames(m) == before
             assert m.override == 1.0 and z.override == 1.0 and x.effective_override == 1.0
             assert m.sim_drives["z"].velocity() == speeds["z"]
             await z.stop()

@@ -32,6 +32,7 @@ from held_up import within_bound
 from mqtt_helpers import bridged, running_broker
 from service_rig import running
 from service_rig import until as service_until
+from wirelog import write_requests
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "configs" / "demo.toml"
@@ -158,19 +159,6 @@ async def test_the_homing_method_limit_switch_is_not_a_violation() -> None:
 # -- 2. viewing never writes ------------------------------------------------------------------
 
 
-def writes_on_wires(m: Machine) -> list[str]:
-    """Every request on the machine's simulated wires that writes (FC05/06/15/16)."""
-    out: list[str] = []
-    for wire in m.wires.values():
-        for f in list(wire.log):
-            data = getattr(f, "data", None)
-            if data is not None:
-                if f.direction == "request" and len(data) > 1 and data[1] in (5, 6, 15, 16):
-                    out.append(data.hex(" "))
-            elif f.pdu and f.pdu[0] in (5, 6, 15, 16):
-                out.append(f.pdu.hex(" "))
-    return out
-
 
 async def test_opening_and_watching_a_machine_writes_nothing() -> None:
     async with open_machine(DEMO, stop_on_exit=False) as m:
@@ -181,11 +169,11 @@ async def test_opening_and_watching_a_machine_writes_nothing() -> None:
                     seen += 1
                     if seen >= 3:
                         break
-        assert writes_on_wires(m) == []
+        assert write_requests(m) == []
         # The first command sets the drive up: the writes come with it, not before.
         x = m.axes["x"]
         await x.move_by(1.0)
-        assert writes_on_wires(m)
+        assert write_requests(m)
 
 
 def traced_writes(output: str) -> list[str]:
@@ -263,12 +251,12 @@ async def test_service_get_routes_and_mqtt_telemetry_send_zero_writes(tmp_path: 
                     await ws.recv()
         await service_until(svc, lambda: all(
             a.status is not None for a in svc.session.machine.axes.values()))
-        assert writes_on_wires(svc.session.machine) == []
+        assert write_requests(svc.session.machine) == []
     for broker in running_broker(tmp_path):
         async with bridged(DEMO, broker.url, state_rate=50.0) as (session, _):
             async with broker.watch("drivebus/demo/axes/+/state") as sub:
                 await sub.until(lambda lines: len(lines) >= len(session.machine.axes))
-            assert writes_on_wires(session.machine) == []
+            assert write_requests(session.machine) == []
 
 
 async def test_setup_comes_with_the_first_command_and_says_what_it_changes(
@@ -282,7 +270,7 @@ async def test_setup_comes_with_the_first_command_and_says_what_it_changes(
         twin.params[24] = 8000
         async for _ in x.watch():  # a poll after the change: still only reads
             break
-        assert twin.params[24] == 8000 and writes_on_wires(m) == []
+        assert twin.params[24] == 8000 and write_requests(m) == []
         with caplog.at_level(logging.WARNING, logger="drivebus"):
             changes = await x.setup()
         assert twin.params[24] == 4000

@@ -12,8 +12,8 @@ import anyio
 from drivebus import AxisState
 from drivebus.motion import Axis, Machine
 
-__all__ = ["KINDS", "command_frames", "commands", "frames_text", "log_size", "reads_of", "room",
-           "settle"]
+__all__ = ["KINDS", "command_frames", "commands", "frames_text", "log_size", "reads_of",
+           "request_pdus", "room", "settle", "write_frames", "write_requests"]
 
 
 def _rtu_write(data: bytes) -> tuple[int, int] | None:
@@ -137,6 +137,34 @@ def reads_of(m: Machine, name: str) -> list[float]:
     return [f.start for f in list(wire.log)
             if f.direction == "request" and f.address == ax.config.address
             and f.data[1:2] in _READS]
+
+
+def write_requests(m: Machine) -> list[str]:
+    """Every request that writes (FC05/06/0F/10) on the lines of ``m`` so far (an RTU
+    wire's log or a Modbus TCP simulator's), in hex: a refusal or a viewing command adds
+    none."""
+    out: list[str] = []
+    for wire in m.wires.values():
+        for f in list(wire.log):  # type: ignore[attr-defined]
+            data = getattr(f, "data", None)
+            if data is not None:
+                if f.direction == "request" and len(data) > 1 and data[1] in (5, 6, 15, 16):
+                    out.append(data.hex(" "))
+            elif f.pdu and f.pdu[0] in (5, 6, 15, 16):
+                out.append(f.pdu.hex(" "))
+    return out
+
+
+def write_frames(m: Machine) -> int:
+    """How many ``write_requests`` the lines of ``m`` have carried so far."""
+    return len(write_requests(m))
+
+
+def request_pdus(wire: Any, since: float = -math.inf) -> list[bytes]:
+    """The PDUs (address and CRC off) of an RTU wire's requests that started after
+    ``since``, oldest first."""
+    return [f.data[1:-2] for f in list(wire.log)
+            if f.direction == "request" and f.start > since]
 
 
 def frames_text(log: Any, after: float = -math.inf, before: float = math.inf,
