@@ -21,8 +21,8 @@ from drivebus.motion import Machine
 from drivebus.service.bodies import MAX_BODY
 from mqtt_helpers import Broker, bridged, probe, require_tools, running_broker
 from service_rig import DEMO, at_rest, moving, running
-from test_promises_frontends import writes
 from waits import within
+from wirelog import write_frames
 
 HUGE = sys.float_info.max
 """The largest finite float: a valid JSON number, far beyond any drive."""
@@ -33,7 +33,7 @@ async def _nothing_sent(m: Machine, before: int) -> None:
     so that a write queued by the refused request would have gone out)."""
     for ax in m.axes.values():
         await ax.refresh()
-    assert writes(m) == before
+    assert write_frames(m) == before
     assert not [n for n, t in m.sim_drives.items() if t.is_moving()]
 
 
@@ -57,7 +57,7 @@ async def test_numbers_far_beyond_the_drive_are_refused_over_http_at_once() -> N
         m = svc.session.machine
         await at_rest(svc)
         for path, body, quantity in HUGE_HTTP:
-            before = writes(m)
+            before = write_frames(m)
             with within(20, f"the answer to {path} {body}"):
                 r = await client.post(path, json=body)
             assert r.status_code == 422, (path, body, r.text)
@@ -78,7 +78,7 @@ async def test_numbers_far_beyond_the_drive_are_refused_over_the_websocket() -> 
         async with connect(svc.url.replace("http://", "ws://") + "/api/ws") as conn:
             with within(10, "hello"):
                 assert json.loads(await conn.recv())["type"] == "hello"
-            before = writes(m)
+            before = write_frames(m)
             await conn.send(json.dumps({"id": 1, "jog": {"axis": "y", "speed": HUGE}}))
             with within(20, "the reply to the jog"):
                 reply = json.loads(await conn.recv())
@@ -99,7 +99,7 @@ async def test_numbers_far_beyond_the_drive_are_refused_over_mqtt(broker: Broker
         m = s.machine
         for ax in m.axes.values():
             await ax.refresh()
-        before = writes(m)
+        before = write_frames(m)
         for verb, body in (("move", {"target": 20.0, "speed": HUGE}),
                            ("jog", {"speed": -HUGE, "ttl": 1.0})):
             with within(20, f"the reply to {verb} {body}"):
@@ -118,7 +118,7 @@ async def test_a_group_move_with_an_axis_that_cannot_move_is_refused_before_202(
     async with running() as (svc, client):
         m = svc.session.machine
         await at_rest(svc)
-        before = writes(m)
+        before = write_frames(m)
         r = await client.post("/api/machine/group-move",
                               json={"targets": {"x": 30.0, "aux": 5.0}})
         assert r.status_code == 501, r.text
@@ -139,7 +139,7 @@ async def test_a_body_beyond_the_limit_is_a_413_and_never_parsed() -> None:
     async with running() as (svc, client):
         m = svc.session.machine
         await at_rest(svc)
-        before = writes(m)
+        before = write_frames(m)
         padded = json.dumps({"target": 20.0, "pad": "x" * MAX_BODY}).encode()
         r = await client.post("/api/axes/x/move", content=padded, headers=JSON)
         assert r.status_code == 413, r.text
@@ -197,7 +197,7 @@ async def test_a_json_body_sent_as_another_content_type_is_named_so(kind: str | 
     async with running() as (svc, client):
         m = svc.session.machine
         await at_rest(svc)
-        before = writes(m)
+        before = write_frames(m)
         headers = {} if kind is None else {"content-type": kind}
         r = await client.post("/api/axes/x/move", content=b'{"target": 20.0}', headers=headers)
         if r.status_code == 202:  # a FastAPI that parses a body without a type as JSON
