@@ -43,6 +43,15 @@ R = TypeVar("R")
 
 _GARBAGE = bytes((0xFF, 0x00, 0x55))
 _UNANSWERED = "unanswered: the next request came with it"
+_ROUNDING = 1e-9
+"""A silence short of the required one by less than this (1 ns) is the float rounding of
+times near the monotonic clock's magnitude (a start computed as an end plus a silence),
+not a violation: one that fell either way with the hour of the clock was flaky."""
+
+
+def _too_short(gap: float, required: float) -> bool:
+    """Whether a silence of ``gap`` s broke a rule that requires ``required`` s."""
+    return gap < required - _ROUNDING
 
 
 @dataclass(slots=True)
@@ -62,7 +71,7 @@ class WireFrame:
     @property
     def violation(self) -> bool:
         """True if the frame started before the required silence had passed."""
-        return self.gap < self.required
+        return _too_short(self.gap, self.required)
 
 
 def add_slave(slaves: dict[int, SimSlave], slave: SimSlave, where: str) -> SimSlave:
@@ -315,7 +324,7 @@ class Segment(Generic[R]):
             note = "settings mismatch"
         if rx.collided and not note:
             note = "collision"
-        if rx.gap < rx.required and not note:
+        if _too_short(rx.gap, rx.required) and not note:
             note = "gap violation"
         if heard and not note and not crc_ok(data):
             note = "bad crc"
