@@ -277,6 +277,31 @@ async def test_a_hold_takes_back_a_request_waiting_for_its_silence_and_it_goes_a
         assert wire.violations == 0
 
 
+async def test_a_stop_to_another_slave_does_not_wait_out_a_guard_interval() -> None:
+    """A stop queued while the owner keeps a slave's guard interval (here 1 s) is planned
+    again at once: it leaves after the line's own silence, long before the guard is over,
+    and the guarded read still keeps its whole guard after the stop. Before, the owner
+    woke for the stop and then spun on the clock until the guard's end (holding the event
+    loop that long: the loop-step guard fails that too), so the stop waited it out."""
+    async with sim_bus([RegisterSlave(1, FAST), RegisterSlave(2, FAST)], FAST) as (wire, bus):
+        guarded, other = bus.slave(1, guard=1.0), bus.slave(2)
+        await other.read_holding_registers(0, 1)
+        with within(30, "the stop, then the guarded read"):
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(guarded.read_holding_registers, 7, 1)  # waits its 1 s guard
+                await anyio.wait_all_tasks_blocked()
+                await other.write_register(60, 1, priority=Priority.EMERGENCY)
+        last_read, stop, read = wire.requests()[-3:]
+        assert (stop.address, stop.data[1], read.address) == (2, 0x06, 1)
+        replies = [f for f in wire.log if f.direction == "reply"]
+        before_stop = max(f.end for f in replies if f.end <= stop.start)
+        assert before_stop >= last_read.end
+        assert stop.start - before_stop < 0.5  # it did not wait for the guard's 1 s
+        stop_reply = min((f for f in replies if f.start >= stop.end), key=lambda f: f.start)
+        assert read.start - stop_reply.end >= 1.0  # the guard, counted from the stop's reply
+        assert wire.violations == 0
+
+
 async def test_a_request_below_emergency_inside_its_own_hold_is_refused_not_hung() -> None:
     """Inside its own hold a task's request below EMERGENCY would wait for the hold's end
     (forever): it is refused at once, nothing sent; an emergency one goes out, and

@@ -150,7 +150,8 @@ class PreciseTimer:
     def __init__(self) -> None:
         self._fd: int | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._waiter: asyncio.Future[None] | None = None
+        self._waiter: asyncio.Future[bool] | None = None
+        """What ``sleep_until`` awaits: True if ``wake()`` ended it, False at its time."""
         self._spec = _Itimerspec()
         self._value = self._spec.it_value
         self._spec_ref = ctypes.byref(self._spec)
@@ -214,7 +215,7 @@ class PreciseTimer:
             return
         waiter, self._waiter = self._waiter, None
         if waiter is not None and not waiter.done():
-            waiter.set_result(None)
+            waiter.set_result(False)
 
     def _call_now(self) -> None:
         """The fallback timer of ``call_at`` (no timerfd): asyncio's clock, then spin."""
@@ -259,21 +260,22 @@ class PreciseTimer:
             self._disarm()
 
     async def sleep_until(self, deadline: float) -> None:
-        """Return once ``time.monotonic()`` has reached ``deadline``."""
+        """Return once ``time.monotonic()`` has reached ``deadline``, or as soon as
+        ``wake()`` is called (then before it, and without spinning toward it)."""
         delay = deadline - monotonic()
         if delay <= 0:
             return
         fallback = self._fd is None and not self._ensure()
         loop = asyncio.get_running_loop()
-        waiter = loop.create_future()
+        waiter: asyncio.Future[bool] = loop.create_future()
         self._waiter = waiter
         lead = PreciseTimer.lead
         if fallback:
-            handle = loop.call_later(delay, self.wake)
+            handle = loop.call_later(delay, self._timed_out)
         else:
             self._arm(max(deadline - lead, monotonic() + 1e-6))
         try:
-            await waiter
+            woken = await waiter
         finally:
             if fallback:
                 handle.cancel()
@@ -281,7 +283,14 @@ class PreciseTimer:
                 self._waiter = None
                 if not fallback:
                     self._disarm()
-        self._reach(deadline, adapt=not fallback and delay > lead)
+        if not woken:  # (woken: the owner re-plans now; the deadline may not matter any more)
+            self._reach(deadline, adapt=not fallback and delay > lead)
+
+    def _timed_out(self) -> None:
+        """The fallback timer of ``sleep_until`` (no timerfd): its time has come."""
+        waiter, self._waiter = self._waiter, None
+        if waiter is not None and not waiter.done():
+            waiter.set_result(False)
 
     @staticmethod
     def _reach(deadline: float, *, adapt: bool) -> None:
@@ -303,10 +312,11 @@ class PreciseTimer:
                 PreciseTimer._LEAD_MAX
 
     def wake(self) -> None:
-        """End the sleep in progress now (the owner has something more urgent to do)."""
+        """End the sleep in progress now (the owner has something more urgent to do):
+        ``sleep_until`` returns at once, not at its deadline."""
         waiter, self._waiter = self._waiter, None
         if waiter is not None and not waiter.done():
-            waiter.set_result(None)
+            waiter.set_result(True)
 
     def close(self) -> None:
         """Release the timer's file descriptor."""
