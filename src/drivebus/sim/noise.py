@@ -27,7 +27,7 @@ class JunkStream:
 
     def __init__(self, seed: int = 0, size: int = 65536) -> None:
         rng = random.Random(seed)
-        self._block = bytes(rng.randrange(256) for _ in range(size))
+        self._block = rng.randbytes(size)
         self._pos = 0
         self.total = 0
         """Bytes handed out so far."""
