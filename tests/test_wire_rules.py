@@ -206,11 +206,17 @@ def rounding_short(before: float, n: int, s: LineSettings) -> float:
     of the clock do): the wire judged such a silence a violation and answered nothing,
     flakily, with the hour of the clock."""
     tm = timing(s)
-    for k in range(10_000):
-        t = before - k * 1e-6
-        end = t + tm.frame_time(n)
-        if (end + switch_silence(s, s)) - end < switch_silence(s, s):
-            return t
+    silence = switch_silence(s, s)
+    # Whether it rounds short depends mostly on the binade of the time (at some hours of
+    # the clock no time within milliseconds does): look in each lower binade in turn.
+    base = before
+    while base > 1.0:
+        for k in range(200):
+            t = base - k * 1e-6
+            end = t + tm.frame_time(n)
+            if (end + silence) - end < silence:
+                return t
+        base /= 2
     raise AssertionError("no time whose silence rounds short")  # pragma: no cover
 
 
