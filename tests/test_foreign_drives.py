@@ -29,12 +29,13 @@ from pathlib import Path
 from typing import Any
 
 import anyio
+import anyio.to_thread
 import pytest
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
 from drivebus import AxisState, LineSettings, open_machine
 from drivebus.drives.base import MoveParams
-from drivebus.drives.description import load_description
+from drivebus.drives.description import Description, load_description
 from drivebus.drives.engine import profile_class
 from drivebus.errors import (
     ConfigError,
@@ -747,12 +748,17 @@ async def test_the_bus_keeps_a_drives_guard_interval_and_frame_timeout(tmp_path:
     """``[link.timing]``: the line stays quiet ``guard`` longer before each frame to the
     guarded drive, and ``frame_timeout`` longer after each reply of the drive that trails
     bytes; the wire log's silences show it (lower bounds only: load only lengthens them)."""
-    guarded = load_description(variant(tmp_path, "max_read = 32\n",
-                                       "max_read = 32\ntiming = { guard = 0.02 }\n", "g.toml"))
-    trailing = load_description(variant(
-        tmp_path, "max_read = 32\n", "max_read = 32\ntiming = { frame_timeout = 0.03 }\n",
-        "t.toml"))
-    plain = load_description(LEADSHINE)
+    def descriptions() -> tuple[Description, Description, Description]:
+        return (load_description(variant(tmp_path, "max_read = 32\n",
+                                          "max_read = 32\ntiming = { guard = 0.02 }\n",
+                                          "g.toml")),
+                load_description(variant(tmp_path, "max_read = 32\n",
+                                         "max_read = 32\ntiming = { frame_timeout = 0.03 }\n",
+                                         "t.toml")),
+                load_description(LEADSHINE))
+
+    # (three descriptions parsed: the test's own setup, off the loop the bus shares)
+    guarded, trailing, plain = await anyio.to_thread.run_sync(descriptions)
     twins = [described_twin(d)(a, FAST) for a, d in ((1, guarded), (2, trailing), (3, plain))]
     async with sim_bus(twins, FAST) as (wire, bus):
         profiles = [profile_class(d)(bus.slave(a))
