@@ -24,6 +24,7 @@ from typing import Any, Literal
 
 import anyio
 import anyio.abc
+import anyio.lowlevel
 
 from drivebus import checks
 from drivebus.app.events import Event, EventHub
@@ -716,6 +717,7 @@ class MachineSession:
             for name in self.machine.buses:
                 snap = self.line_snapshot(name)
                 self.events.publish(Event("lines", name, {"type": "line", **snap.as_dict()}))
+                await anyio.lowlevel.checkpoint()  # (a line's snapshot at a time: many lines)
             await anyio.sleep(self.stats_period)
 
 

@@ -88,10 +88,7 @@ class Latency:
 
     def quantile(self, q: float) -> float | None:
         """The ``q`` quantile (0..1) of the window, None before the first reply."""
-        if not self.window:
-            return None
-        ordered = sorted(self.window)
-        return ordered[min(len(ordered) - 1, round(q * (len(ordered) - 1)))]
+        return _quantile(sorted(self.window), q)
 
     def merge(self, other: Latency) -> None:
         """Add ``other``'s replies (a line's total)."""
@@ -112,10 +109,18 @@ class Latency:
 
     def summary(self) -> dict[str, Any]:
         """p50/p99 of the window (ms) and the totals, as plain data."""
-        p50, p99 = self.quantile(0.5), self.quantile(0.99)
+        ordered = sorted(self.window)  # (once for both: quantile would sort it twice)
+        p50, p99 = _quantile(ordered, 0.5), _quantile(ordered, 0.99)
         return {"p50_ms": None if p50 is None else round(p50 * 1e3, 3),
                 "p99_ms": None if p99 is None else round(p99 * 1e3, 3),
                 "window": len(self.window), "count": self.count}
+
+
+def _quantile(ordered: list[float], q: float) -> float | None:
+    """The ``q`` quantile (0..1) of sorted values, None for none."""
+    if not ordered:
+        return None
+    return ordered[min(len(ordered) - 1, round(q * (len(ordered) - 1)))]
 
 
 @dataclass

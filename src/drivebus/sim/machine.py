@@ -13,6 +13,9 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
+import anyio
+import anyio.lowlevel
+
 from drivebus.config import AxisConfig, LineConfig, MachineConfig
 from drivebus.errors import ConfigError
 from drivebus.sim.drive import SimDrive, TwinSetup
@@ -144,6 +147,9 @@ async def start_sim_line(
         except (ValueError, TypeError) as exc:  # ConfigError included
             raise ConfigError(f"axes.{n}.sim: the simulated {a.drive} refuses this axis: "
                               f"{exc}") from exc
+        # A twin takes some milliseconds to build: one at a time, so that a machine
+        # opening here never holds a loop whose other lines carry motion.
+        await anyio.lowlevel.checkpoint()
     server: SimServer
     if line.kind == "serial":
         adapter = adapter_options(line)
