@@ -25,7 +25,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, Literal, Protocol
@@ -279,6 +279,21 @@ class Recording:
 
         return observer
 
+    def snapshot(self) -> Recording:
+        """A detached copy of what is recorded so far (its rings copied, their entries
+        shared: they do not change): what an export reads away from the event loop while
+        this recording goes on. Its end is now if this one still records."""
+        copy = Recording(max_samples=self._max_samples, max_events=self._max_events,
+                         max_transactions=self._max_transactions)
+        copy.machine_name, copy.bus = self.machine_name, self.bus
+        copy.started, copy.started_wall = self.started, self.started_wall
+        copy.stopped = self.stopped if self.stopped is not None else monotonic()
+        copy.axes = {n: replace(t, samples=deque(t.samples), events=deque(t.events))
+                     for n, t in self.axes.items()}
+        copy.lines = {n: LineTrace(n, deque(t.transactions)) for n, t in self.lines.items()}
+        copy.dropped = replace(self.dropped)
+        return copy
+
     # -- looking at it -----------------------------------------------------------------------
 
     @property
@@ -434,13 +449,16 @@ class Recording:
         with ``"type"``), times in seconds since the start; ``from_jsonl`` reads it back."""
         t0 = self.started
         lines = [json.dumps({"type": "header", **self.header()})]
-        for t in self.axes.values():
-            lines += [json.dumps({"type": "sample", "axis": t.name, **asdict(s),
-                                  "time": s.time - t0}) for s in t.samples]
-            lines += [json.dumps({"type": "event", **_event_dict(e, t0)}) for e in t.events]
+        dumps = json.dumps
+        for t in self.axes.values():  # (fields read plainly: ``asdict`` costs 4x as much)
+            lines += [dumps({"type": "sample", "axis": t.name,
+                             **{n: getattr(s, n) for n in _SAMPLE_FIELDS},
+                             "time": s.time - t0}) for s in t.samples]
+            lines += [dumps({"type": "event", **_event_dict(e, t0)}) for e in t.events]
         for name, lt in self.lines.items():
-            lines += [json.dumps({"type": "transaction", "line": name, **asdict(x),
-                                  "start": x.start - t0, "end": x.end - t0})
+            lines += [dumps({"type": "transaction", "line": name,
+                             **{n: getattr(x, n) for n in _TRANSACTION_FIELDS},
+                             "start": x.start - t0, "end": x.end - t0})
                       for x in lt.transactions]
         text = "\n".join(lines) + "\n"
         if path is not None:
@@ -506,6 +524,10 @@ class Recording:
         arrays = [pa.array([r[i] for r in rows], type=types[c.type])
                   for i, c in enumerate(cols)]
         pq.write_table(pa.Table.from_arrays(arrays, schema=schema), str(path))
+
+
+_SAMPLE_FIELDS = tuple(f.name for f in fields(Sample))
+_TRANSACTION_FIELDS = tuple(f.name for f in fields(Transaction))
 
 
 def _event_dict(e: MotionEvent, t0: float) -> dict[str, Any]:

@@ -17,7 +17,7 @@ import anyio
 import anyio.to_thread
 from fastapi import APIRouter, FastAPI, Request, Response
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
-from fastapi.responses import FileResponse, HTMLResponse
+from fastapi.responses import FileResponse, HTMLResponse, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 
 from drivebus.app import MachineSession
@@ -316,15 +316,38 @@ def _download(name: str) -> dict[str, str]:
     return {"Content-Disposition": f'attachment; filename="{name}"'}
 
 
+DOWNLOAD_CHUNK = 1 << 20
+"""Bytes a recording's download sends at a time: one event-loop step each (a long
+recording's JSON lines are tens of megabytes)."""
+
+
+def _in_chunks(data: bytes) -> AsyncIterator[bytes]:
+    """``data`` a ``DOWNLOAD_CHUNK`` at a time, for a ``StreamingResponse``."""
+    async def chunks() -> AsyncIterator[bytes]:
+        for at in range(0, len(data), DOWNLOAD_CHUNK):
+            yield data[at:at + DOWNLOAD_CHUNK]
+
+    return chunks()
+
+
+async def _exported(export: Any) -> bytes:
+    """What ``export()`` makes of a recording's copy, UTF-8, made in a worker thread: a
+    long recording takes seconds to write out, which on the event loop would hold up
+    every stop meanwhile."""
+    return await anyio.to_thread.run_sync(lambda: export().encode("utf-8"))
+
+
 @router.get("/recordings/{rec_id}/report", tags=["recordings"], response_class=HTMLResponse)
-async def recording_report(rec_id: str, session: Session, _: Reader) -> HTMLResponse:
+async def recording_report(rec_id: str, session: Session, _: Reader) -> Response:
     """The recording as one self-contained HTML report (charts per axis and line; it
     opens with no network), as a download."""
-    from drivebus.service.report import report_html
+    from drivebus.service import report
 
     record = session.recordings.get(rec_id)
-    return HTMLResponse(report_html(record.recording), headers=_download(
-        f"drivebus-{session.name}-{record.id}.html"))
+    copy = record.recording.snapshot()  # (its rings as they are now: it may go on)
+    html = await _exported(lambda: report.report_html(copy))
+    return StreamingResponse(_in_chunks(html), media_type="text/html; charset=utf-8",
+                             headers=_download(f"drivebus-{session.name}-{record.id}.html"))
 
 
 @router.get("/recordings/{rec_id}/jsonl", tags=["recordings"])
@@ -332,8 +355,9 @@ async def recording_jsonl(rec_id: str, session: Session, _: Reader) -> Response:
     """The whole recording as JSON lines (a header with the units, then samples, events
     and transactions), as a download; ``drivebus.Recording.from_jsonl`` reads it."""
     record = session.recordings.get(rec_id)
-    return Response(record.recording.to_jsonl(), media_type="application/x-ndjson",
-                    headers=_download(f"drivebus-{session.name}-{record.id}.jsonl"))
+    lines = await _exported(record.recording.snapshot().to_jsonl)
+    return StreamingResponse(_in_chunks(lines), media_type="application/x-ndjson",
+                             headers=_download(f"drivebus-{session.name}-{record.id}.jsonl"))
 
 
 # -- the application --------------------------------------------------------------------------
