@@ -6,15 +6,19 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
+import time
 import tomllib
 from pathlib import Path
 
 import anyio
 import pytest
 
-from drivebus import open_machine
+from drivebus import open_machine, positions
 from drivebus.config import load_config
-from drivebus.errors import ArgumentError, ConfigError, NotFound, StateError
+from drivebus.errors import ArgumentError, ConfigError, MotionAborted, NotFound, StateError
+from drivebus.motion import Axis
+from wirelog import command_frames, log_size
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMO = ROOT / "configs" / "demo.toml"
@@ -86,6 +90,52 @@ async def test_teach_writes_back_atomically_and_keeps_the_comments(tmp_path: Pat
                 await m.teach("pick", axes=["x"])
         assert tomllib.loads(path.read_text())["positions"]["pick"]["x"] == 130.5
     assert load_config(path).positions["pick"] == {"x": 130.5, "y": 42.25, "z": 7.5}
+
+
+async def test_a_stop_reaches_the_wire_while_a_teach_waits_for_a_slow_disk(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """x moves while y is taught, and the position's file write hangs in its flush (a
+    controller's flash that takes its time): a stop of x goes out meanwhile, and the teach
+    ends with the file written once the disk lets go. Before, the write ran on the event
+    loop: the stop waited for the disk."""
+    path = demo_copy(tmp_path, "posdisk", POSITIONS)
+    writing, let_go = threading.Event(), threading.Event()
+    replace = positions._replace
+    written: list[float] = []
+
+    def slow(target: Path, text: str) -> None:
+        writing.set()
+        let_go.wait(10)  # (bounded: the loop it holds, before, must not hang the test)
+        replace(target, text)
+        written.append(time.monotonic())
+
+    monkeypatch.setattr(positions, "_replace", slow)
+    async with open_machine(path) as m:
+        await m.axes["x"].enable()
+        with anyio.fail_after(60):
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(_stopped_move, m.axes["x"], 390.0)
+                async for st in m.axes["x"].watch():
+                    if st.moving:
+                        break
+                mark = log_size(m, "x")
+                tg.start_soon(m.teach, "pick", ["y"])
+                assert await anyio.to_thread.run_sync(writing.wait, 30), "no write began"
+                await m.axes["x"].stop()
+                stops = [at for kind, at in command_frames(m, "x", mark) if kind == "stop"]
+                hanging = not written
+                let_go.set()
+        assert stops, "no stop of x on the wire"
+        assert hanging, "the stop waited for the disk"
+        assert not m.sim_drives["x"].is_moving() and written
+    assert tomllib.loads(path.read_text())["positions"]["pick"]["y"] == \
+        m.axes["y"].units.from_pulses(m.sim_drives["y"].position())
+
+
+async def _stopped_move(axis: Axis, target: float) -> None:
+    """A move that a stop is to end."""
+    with pytest.raises(MotionAborted):
+        await axis.move_to(target)
 
 
 async def test_an_axis_that_cannot_move_is_not_taught(tmp_path: Path) -> None:

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import anyio
+import anyio.to_thread
 
 from drivebus.bus import Bus
 from drivebus.config import AxisConfig, MachineConfig, machine_config_in_thread
@@ -146,7 +147,9 @@ class Machine:
                 if st.position is None:
                     raise StateError(f"axis {n}: its drive reports no position to teach")
                 values[n] = axis.units.from_pulses(st.position)
-            stored = self.taught.teach(name, values)
+            # (the file is parsed, written and flushed to disk in a worker thread: an
+            # fsync may take long on a controller's flash, and the loop carries the stops)
+            stored = await anyio.to_thread.run_sync(self.taught.teach, name, values)
         log.info("taught %s: %s%s", name, stored,
                  f" ({self.taught.path})" if self.taught.path else " (in memory)")
         return stored
