@@ -113,6 +113,26 @@ def test_sigterm_stops_every_moving_axis_before_the_service_exits() -> None:
         served.kill()
 
 
+def test_the_served_process_freezes_its_start_up_heap_and_reports_its_gc_pauses() -> None:
+    """``drivebus serve`` settles its heap before it says it is ready (``drivebus.heap``):
+    /metrics shows tens of thousands of frozen objects, and the collector's passes and
+    longest pause per generation."""
+    served = Served(DEMO, "--port", "0")
+    try:
+        with httpx.Client(base_url=served.url(), timeout=30) as client:
+            text = client.get("/metrics").text
+            code, _, err = served.end(signal.SIGTERM)
+        assert code == 0, err[-3000:]
+    finally:
+        served.kill()
+    figures = dict(line.rsplit(" ", 1) for line in text.splitlines()
+                   if line and not line.startswith("#"))
+    assert int(figures["python_gc_frozen_objects"]) > 10_000
+    for generation in range(3):
+        assert float(figures[f'drivebus_gc_pause_max_seconds{{generation="{generation}"}}']) >= 0
+        assert int(figures[f'python_gc_collections_total{{generation="{generation}"}}']) >= 0
+
+
 def test_sigint_with_tokens_serves_only_authenticated_clients(tmp_path: Path) -> None:
     served = Served(DEMO, "--port", "0", "--token-file", token_file(tmp_path))
     try:

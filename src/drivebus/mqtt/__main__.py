@@ -15,6 +15,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from drivebus import heap
 from drivebus.app import MachineSession
 from drivebus.app.lifecycle import run_until_signalled
 from drivebus.config import load_config
@@ -66,6 +67,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     async def node() -> int:
         async with MachineSession.open(cfg) as session:
+            heap.settle()  # (start-up is over: what is alive now stays, see drivebus.heap)
             print(f"node {options.node}: machine {cfg.name} on {options.broker}; "
                   f"Ctrl-C or SIGTERM ends it", flush=True)
             await Bridge(session, options).run()

@@ -6,7 +6,8 @@ counters, quantiles only on a summary) so that Grafana's defaults work:
 ``drivebus_transactions_total{line,slave,outcome}``, the reply latency as a histogram
 ``drivebus_reply_latency_seconds{line,slave}`` (``histogram_quantile()``) and the last
 replies' quantiles as a summary ``drivebus_reply_latency_window_seconds``, retries, line
-utilisation and wire time, and each axis's position in a base unit
+utilisation and wire time, the garbage collector's passes and longest pause (the event
+loop is held meanwhile: ``drivebus.heap``), and each axis's position in a base unit
 (``drivebus_axis_position_meters`` for an axis in mm, ``_radians`` for one in degrees,
 ``_revolutions`` of the motor for any other unit), state and whether it is online.
 Hand-written: the format is a few lines of text, and drivebus takes no dependency for it.
@@ -15,6 +16,7 @@ With tokens, ``/metrics`` needs one (any scope), as every other route.
 
 # No ``from __future__ import annotations`` here: FastAPI reads the annotations at runtime.
 
+import gc
 import math
 from collections.abc import Iterable
 from typing import Annotated
@@ -22,6 +24,7 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import PlainTextResponse
 
+from drivebus import heap
 from drivebus.app import MachineSession
 from drivebus.bus.stats import SlaveStats
 
@@ -68,6 +71,8 @@ def _label(value: object) -> str:
 
 
 def _labels(**labels: object) -> str:
+    if not labels:
+        return ""
     return "{" + ",".join(f'{k}="{_label(v)}"' for k, v in labels.items()) + "}"
 
 
@@ -116,6 +121,17 @@ def exposition(session: MachineSession) -> str:
                                      "motor revolutions."))}
     state = _Family("drivebus_axis_state", "gauge", "1 for the axis's PLCopen state.")
     online = _Family("drivebus_axis_online", "gauge", "1 while the axis's drive answers.")
+    gc_passes = _Family("python_gc_collections_total", "counter",
+                        "Passes of Python's garbage collector per generation.")
+    gc_pause = _Family("drivebus_gc_pause_max_seconds", "gauge",
+                       "Longest pass of the garbage collector per generation since the "
+                       "service started: the event loop was held that long.")
+    frozen = _Family("python_gc_frozen_objects", "gauge",
+                     "Objects frozen at start-up, which the collector no longer scans.")
+    for generation, figures in enumerate(gc.get_stats()):
+        gc_passes.add(figures["collections"], generation=generation)
+        gc_pause.add(heap.PAUSES.longest[generation], generation=generation)
+    frozen.add(gc.get_freeze_count())
     m = session.machine
     for line, bus in m.buses.items():
         util.add(bus.stats.utilisation, line=line)
@@ -130,7 +146,8 @@ def exposition(session: MachineSession) -> str:
         state.add(1, axis=name, state=str(ax.state))
         online.add(0 if str(ax.state) == "Offline" else 1, axis=name)
     families = (tx, retries, latency, window, util, wire, foreign,
-                *(f for f in positions.values() if f.samples), state, online)
+                *(f for f in positions.values() if f.samples), state, online, gc_passes,
+                gc_pause, frozen)
     return "\n".join(line for f in families for line in f.text()) + "\n"
 
 
@@ -157,7 +174,9 @@ def _session(request: Request) -> MachineSession:
 
 
 def install(app_router: APIRouter, reader: object) -> None:
-    """Add ``GET /metrics`` to ``app_router``, readable by whoever ``reader`` admits."""
+    """Add ``GET /metrics`` to ``app_router``, readable by whoever ``reader`` admits (the
+    garbage collector's pauses are watched from now on)."""
+    heap.PAUSES.install()
 
     @app_router.get("/metrics", tags=["machine"], response_class=PlainTextResponse)
     async def metrics(session: Annotated[MachineSession, Depends(_session)],

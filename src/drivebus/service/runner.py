@@ -26,7 +26,7 @@ import anyio.abc
 import anyio.to_thread
 import uvicorn
 
-from drivebus import runtime
+from drivebus import heap, runtime
 from drivebus.app import MachineSession
 from drivebus.config import MachineConfig
 from drivebus.errors import ConfigError
@@ -283,6 +283,7 @@ async def serve(
     try:
         async with open_service(config, host=host, port=port, tokens=tokens,
                                 token_file=token_file, http=http, extra=extra) as service:
+            heap.settle()  # (start-up is over, before it says it is ready: drivebus.heap)
             where = f"on {service.url}/ (API /api, docs /docs)" if service.url else "without HTTP"
             entries = {file: [service.url]} if file and service.url else {}
             with runtime.publish("serve", entries) as problems:

@@ -24,6 +24,7 @@ import anyio
 import anyio.abc
 
 import drivebus.motion.workers.protocol as p
+from drivebus import heap
 from drivebus.bus import Bus, Priority, SlaveHandle, Transaction
 from drivebus.bus.scheduler import Queued
 from drivebus.bus.sent import sent_requests
@@ -208,6 +209,7 @@ class _Worker:
             except (DrivebusError, OSError) as exc:
                 self.send((p.READY, p.encode_error(exc)))
                 return
+            heap.settle()  # (before the first request: see drivebus.heap)
             self.send((p.READY, None))
             async with anyio.create_task_group() as tg:
                 tg.start_soon(self._stats_loop)
