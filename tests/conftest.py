@@ -164,8 +164,10 @@ LOOP_STEP_LIMIT = 0.040 if os.environ.get("PYTEST_XDIST_WORKER") else 0.020
 holds the loop longer delays every stop behind it (promise 1). CPU time, not wall time, so
 preemption does not trip it. 20 ms for a test run alone; 40 ms in the parallel part of
 ``make test`` (four workers on two cores), where the same work measures up to twice the
-CPU time it takes alone (shared caches and cores: steps of the simulator's own babblers and
-pty reader, 8-12 ms alone, measured 20-30 ms there). Either catches what the guard is for:
+CPU time it takes alone (shared caches and cores: the simulator's pty reader, up to 18 ms
+alone on a slow 2-core host, and a test's own setup, 24 ms alone for three descriptions
+parsed in one step, measured 36-47 ms there: such setup goes to a worker thread). Either
+catches what the guard is for:
 steps of 100 ms to seconds (the group planning of issue 30 held the loop 1-4 s); the exact
 longest steps are bench figures (``longest_loop_step_ms``)."""
 
