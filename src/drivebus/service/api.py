@@ -8,7 +8,7 @@ checks arguments, states and the lease and raises typed errors, which
 
 # No ``from __future__ import annotations`` here: FastAPI reads the annotations at runtime.
 
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
@@ -330,7 +330,7 @@ def _in_chunks(data: bytes) -> AsyncIterator[bytes]:
     return chunks()
 
 
-async def _exported(export: Any) -> bytes:
+async def _exported(export: Callable[[], str]) -> bytes:
     """What ``export()`` makes of a recording's copy, UTF-8, made in a worker thread: a
     long recording takes seconds to write out, which on the event loop would hold up
     every stop meanwhile."""
