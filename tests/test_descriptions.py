@@ -8,6 +8,7 @@ import re
 import subprocess
 import sys
 import textwrap
+import zipfile
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -325,6 +326,27 @@ def test_a_package_ships_descriptions_through_an_entry_point(
     monkeypatch.syspath_prepend(str(tmp_path))
     assert family("PLUGINDRIVE").spec is not None
     assert resolve_drive("plugindrive").endswith("plugin_drive.toml")
+
+
+def test_a_zipped_package_ships_descriptions_through_an_entry_point(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The same from a zip on sys.path: its description is copied out once (the plug-ins'
+    files are kept for the process), and it still reads when asked again."""
+    archive = tmp_path / "vendor_zip.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        z.writestr("vendor_zip/__init__.py", "")
+        z.writestr("vendor_zip/zip_drive.toml", MINIMAL.replace("TESTDRIVE", "ZIPDRIVE"))
+        z.writestr("vendor_zip-1.0.dist-info/METADATA",
+                   "Metadata-Version: 2.1\nName: vendor-zip\nVersion: 1.0\n")
+        z.writestr("vendor_zip-1.0.dist-info/entry_points.txt",
+                   "[drivebus.drives]\nzipped = vendor_zip\n")
+    monkeypatch.syspath_prepend(str(archive))
+    assert family("ZIPDRIVE").spec is not None
+    path = Path(resolve_drive("zipdrive"))
+    assert path.name == "zip_drive.toml" and path.is_file()
+    assert "drivebus-plugins-" in str(path)  # (copied out of the zip)
+    assert family("ZIPDRIVE").spec is not None  # (found again from the kept copy)
 
 
 # -- the engine on the generic twin (the MOONS' STF description) --------------------------

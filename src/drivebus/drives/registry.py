@@ -18,14 +18,19 @@ A family found by path keeps its file's absolute path as its reference
 
 from __future__ import annotations
 
+import atexit
 import os
 import re
+import shutil
+import sys
+import tempfile
 import threading
 import tomllib
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from importlib.metadata import entry_points
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -251,7 +256,24 @@ def _files_in(directory: Path) -> list[Path]:
         return []
 
 
-def _entry_point_files() -> Iterator[Path]:
+_plugins: tuple[tuple[str, ...], list[Path]] | None = None
+"""The plug-ins' description files, and the ``sys.path`` they were found on."""
+
+
+def _entry_point_files() -> list[Path]:
+    """The description files the installed plug-ins ship, found again only when
+    ``sys.path`` has changed: asking ``importlib.metadata`` reads every installed
+    distribution's metadata (16 ms on Python 3.11 and 60 ms on 3.13 with 94 of them),
+    and a scan asks before every probe, on the event loop. A plug-in installed while the
+    process runs is seen after a restart."""
+    global _plugins
+    where = tuple(sys.path)
+    if _plugins is None or _plugins[0] != where:
+        _plugins = (where, list(_installed_plugin_files()))
+    return _plugins[1]
+
+
+def _installed_plugin_files() -> Iterator[Path]:
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         try:
             target = ep.load()
@@ -261,13 +283,29 @@ def _entry_point_files() -> Iterator[Path]:
         yield from _plugin_files(target, ep.name)
 
 
+_copies: Path | None = None
+"""Where the files of zipped plug-ins are copied out to (removed at exit)."""
+
+
+def _copied_out(plugin: str, entry: Traversable) -> Path:
+    """A zipped plug-in's description as a file of its own (the list of plug-in files is
+    kept, so a temporary copy that ends with a ``with`` block would not do)."""
+    global _copies
+    if _copies is None:
+        _copies = Path(tempfile.mkdtemp(prefix="drivebus-plugins-"))
+        atexit.register(shutil.rmtree, _copies, ignore_errors=True)
+    path = _copies / plugin / entry.name
+    path.parent.mkdir(exist_ok=True)
+    path.write_bytes(entry.read_bytes())
+    return path
+
+
 def _plugin_files(target: Any, name: str) -> Iterator[Path]:
     if isinstance(target, ModuleType):
         root = resources.files(target)
         for entry in root.iterdir():
             if entry.name.endswith(".toml"):
-                with resources.as_file(entry) as path:
-                    yield Path(path)
+                yield entry if isinstance(entry, Path) else _copied_out(name, entry)
         return
     if callable(target):
         target = target()
