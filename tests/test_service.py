@@ -3,6 +3,7 @@ every route, each error mapping, leases, tokens, e-stop; judged by the simulated
 
 from __future__ import annotations
 
+import mimetypes
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +42,12 @@ async def finished(client: httpx.AsyncClient, motion_id: str,
             await anyio.sleep(0.05)
 
 
-async def test_the_machine_its_axes_lines_and_the_dashboard_are_served() -> None:
+async def test_the_machine_its_axes_lines_and_the_dashboard_are_served(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(mimetypes, "inited", False)  # (as in a new process)
     async with running() as (svc, client):
+        # the media types were read off the loop, before the first file is served
+        assert mimetypes.inited
         r = await client.get("/api/machine")
         assert r.status_code == 200
         m = r.json()
