@@ -46,7 +46,7 @@ import anyio
 import pytest
 
 import drivebus
-from held_up import stolen
+from drivebus.clock import StolenSince
 
 Build = Callable[[Path], None]
 """Fills the directory it is given (see ``built_once``)."""
@@ -242,25 +242,7 @@ for _name in ("load_verify_locations", "load_default_certs", "set_default_verify
     _SETUP.wrap(ssl.SSLContext, _name)
 
 
-class _Steal:
-    """The machine's stolen CPU time (``held_up.stolen``) as it was shortly before now:
-    read again when the last reading is older than ``FRESH`` (a read per step would cost
-    more than most steps), so a step's share of it is known when the step was slow."""
-
-    FRESH = 0.005
-
-    def __init__(self) -> None:
-        self.value = stolen()
-        self.at = time.perf_counter()
-
-    def before(self) -> float:
-        now = time.perf_counter()
-        if now - self.at > self.FRESH:
-            self.value, self.at = stolen(), now
-        return self.value
-
-
-_STOLEN = _Steal()
+_STOLEN = StolenSince()
 
 
 def _guarded_run(run: Callable[[asyncio.Handle], None]) -> Callable[[asyncio.Handle], None]:
@@ -271,7 +253,7 @@ def _guarded_run(run: Callable[[asyncio.Handle], None]) -> Callable[[asyncio.Han
             return
         modules = len(sys.modules)
         collected, setup = _GC.spent, _SETUP.spent
-        stolen_before = _STOLEN.before()
+        stolen_mark = _STOLEN.mark()
         started = time.thread_time()
         try:
             run(self)
@@ -285,7 +267,7 @@ def _guarded_run(run: Callable[[asyncio.Handle], None]) -> Callable[[asyncio.Han
             # code under test holding the loop; nor is the time a virtual machine's
             # hypervisor took the CPU away, which the thread's clock counts as its own.
             if took > LOOP_STEP_LIMIT and len(sys.modules) == modules:
-                took -= stolen() - stolen_before
+                took -= _STOLEN.since(stolen_mark)
                 if took > LOOP_STEP_LIMIT:
                     steps.slow.append((took, _describe(self)))
 

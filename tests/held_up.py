@@ -3,35 +3,19 @@ happened (a gap the simulated wire stamps, a group's start skew, a blend's devia
 measures this process as much as the code when the simulator runs in it. An attempt
 that misses its bound by no more than the time its thread waited for a CPU meanwhile
 (the kernel's schedstat, ``drivebus.clock.cpu_wait``), or the hypervisor took the
-machine's CPUs away (``stolen``), was held up, not wrong: it is made again, a bounded
-number of times. A miss that neither covers fails at once, so a real lateness fails on a
-quiet machine and on a busy one alike."""
+machine's CPUs away (``drivebus.clock.cpu_stolen``), was held up, not wrong: it is made
+again, a bounded number of times. A miss that neither covers fails at once, so a real
+lateness fails on a quiet machine and on a busy one alike."""
 
 from __future__ import annotations
 
-import os
 from collections.abc import Awaitable, Callable
 
 import pytest
 
-from drivebus.clock import cpu_wait
+from drivebus.clock import cpu_stolen, cpu_wait
 
-__all__ = ["stolen", "within_bound"]
-
-_HZ = os.sysconf("SC_CLK_TCK")
-
-
-def stolen() -> float:
-    """Seconds the hypervisor has taken this machine's CPUs away so far, all CPUs added
-    up (``/proc/stat``'s steal; 0.0 where it does not say). On such a virtual machine a
-    thread's CPU clock counts that time as the thread's own: a 1 ms piece of work was
-    measured at up to 38 ms of thread CPU time while the suite loaded a 2-core VM, every
-    time with steal ticks over it, and never without."""
-    try:
-        with open("/proc/stat", "rb") as f:
-            return int(f.readline().split()[8]) / _HZ
-    except (OSError, IndexError, ValueError):
-        return 0.0
+__all__ = ["within_bound"]
 
 
 async def within_bound(attempt: Callable[[int], Awaitable[float]], what: str, *,
@@ -42,9 +26,9 @@ async def within_bound(attempt: Callable[[int], Awaitable[float]], what: str, *,
     ``what`` names the bound in the failure."""
     held_up: list[tuple[float, float]] = []
     for n in range(1, tries + 1):
-        waited = cpu_wait() + stolen()
+        waited = cpu_wait() + cpu_stolen()
         excess = await attempt(n)
-        waited = cpu_wait() + stolen() - waited
+        waited = cpu_wait() + cpu_stolen() - waited
         if excess <= 0:
             return n
         assert waited >= excess, (

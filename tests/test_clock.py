@@ -97,3 +97,22 @@ async def test_a_deadline_timer_fires_from_the_loop_never_early_and_schedules_no
 def _timer_handles(loop: asyncio.AbstractEventLoop) -> set[asyncio.TimerHandle]:
     """The asyncio timers the event loop will look at on its turns."""
     return {h for h in loop._scheduled if not h.cancelled()}  # type: ignore[attr-defined]
+
+
+def test_the_stolen_cpu_time_counts_up_and_a_mark_is_read_at_most_so_old(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``cpu_stolen`` never goes back; ``StolenSince.mark`` reads /proc/stat again only
+    once its last reading is ``FRESH`` old, and ``since`` is what was stolen after it."""
+    from drivebus import clock
+
+    first = clock.cpu_stolen()
+    assert first >= 0.0 and clock.cpu_stolen() >= first
+    readings = iter([10.0, 10.0, 10.5, 11.0])
+    monkeypatch.setattr(clock, "cpu_stolen", lambda: next(readings))
+    watch = clock.StolenSince()  # reads 10.0
+    assert watch.mark() == 10.0  # fresh: not read again
+    watch._at -= clock.StolenSince.FRESH * 2  # (as if time had passed)
+    assert watch.mark() == 10.0  # read again: 10.0
+    assert watch.since(10.0) == 0.5  # read: 10.5
+    watch._at -= clock.StolenSince.FRESH * 2
+    assert watch.mark() == 11.0
