@@ -11,6 +11,7 @@ import random
 import re
 import subprocess
 import sys
+from typing import Any
 
 import pytest
 
@@ -87,6 +88,16 @@ def _client_kwargs() -> dict[str, int]:
     return {"device_id": 1} if PYMODBUS >= (3, 10) else {"slave": 1}
 
 
+async def _heard(bus: Bus, n: int, what: str) -> None:
+    """Until ``n`` bytes nobody asked for wait in our port's receiver. A pty hands what
+    the line's other ports sent to each port through the kernel's worker: on a busy
+    machine our port may get the other master's frames after the other master got its
+    reply (a real line carries them to every node at once), and a request of ours sent
+    meanwhile would take the slave's late echo for its reply."""
+    rx: Any = bus.line._rx  # type: ignore[attr-defined]  # (the rig's timing, not the API)
+    await until(lambda: len(rx.buf) >= n, f"{what} in our port")
+
+
 async def test_a_pymodbus_client_on_the_same_line_is_reported_as_another_master(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
@@ -109,12 +120,14 @@ async def test_a_pymodbus_client_on_the_same_line_is_reported_as_another_master(
                     assert await client.connect()
                     rr = await client.read_holding_registers(2, count=2, **_client_kwargs())
                     assert rr.registers == [33, 44]
+                    await _heard(bus, 8 + 9, "the other master's read and its reply")
                     assert await h.read_holding_registers(0, 1) == [11]
                     assert bus.stats.foreign_requests == 1
                     assert bus.stats.foreign_last == \
                         "read holding registers 0x0002 (2) from slave 1"
                     wr = await client.write_register(3, 45, **_client_kwargs())
                     assert not wr.isError()
+                    await _heard(bus, 8 + 8, "the other master's write and its echo")
                     assert await h.read_holding_registers(3, 1) == [45]
                     # the write and the slave's echo of it: one request
                     assert bus.stats.foreign_requests == 2
