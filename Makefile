@@ -9,6 +9,13 @@ STAMP := $(VENV)/.installed
 TEST_WORKERS ?= 4
 
 .PHONY: demo test test-install lint docs bench pictures clean
+
+# The tests start some thousand Python processes (the CLI, simulators, services, workers)
+# and pytest's workers each import the whole suite: they read the bytecode cache, which
+# an environment with PYTHONDONTWRITEBYTECODE set never writes, so each of them compiled
+# drivebus (about 0.4 s of CPU a process) and the suite (about 7 s a worker) again. The
+# test runs write it (to __pycache__ folders, which git ignores).
+test test-py% test-install: export PYTHONDONTWRITEBYTECODE =
 .PRECIOUS: .venv-%/.installed
 
 $(STAMP): pyproject.toml
