@@ -130,11 +130,14 @@ def bench(
     """Measure bus efficiency, stop latency, CPU per transaction and scale on simulated lines."""
     import anyio
 
-    from drivebus.bench import format_table, results_json, run_bench
+    from drivebus.bench import format_table, results_json, run_bench, scenarios
+    from drivebus.heap import settle
 
     if not 0 <= checks.finite("--turnaround", turnaround) <= 1:
         raise ArgumentError(f"--turnaround: {turnaround!r} s is outside 0..1 s")
     draw = None if no_plots else plots
+    scenarios()  # (imports them all)
+    settle()  # a process of drivebus's own, as the service: its start-up heap is frozen
     results = anyio.run(lambda: run_bench(quick=quick, turnaround=turnaround, plots=draw,
                                           only=only))
     typer.echo(format_table(results))
