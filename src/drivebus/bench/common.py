@@ -19,7 +19,7 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any, ClassVar, Self
+from typing import Any, Self
 
 import anyio
 import anyio.abc
@@ -27,7 +27,6 @@ from anyio.streams.buffered import BufferedByteReceiveStream
 
 from drivebus.bus import Priority, SlaveHandle
 from drivebus.clock import StolenSince
-from drivebus.heap import settle
 from drivebus.line.base import Exchange, Line
 from drivebus.settings import LineSettings
 from drivebus.sim.process import frame_from_record
@@ -61,7 +60,6 @@ __all__ = [
     "register_slaves",
     "results_json",
     "stage_figures",
-    "start_up_over",
     "wire_figures",
     "wire_in_process",
 ]
@@ -495,24 +493,18 @@ class LoopSteps:
     """The longest event-loop step (thread CPU time) while installed: how long anything
     in this process held the loop, during which no stop could go out; and the longest
     pass of Python's garbage collector, which runs inside whatever step allocates (a full
-    pass over a large heap is usually the longest step). The step of ``start_up_over``
-    is start-up, as a service's before it is ready, and not counted."""
-
-    installed: ClassVar[list[LoopSteps]] = []
-    """Those installed now (``start_up_over`` tells them which step to leave out)."""
+    pass over a large heap is usually the longest step)."""
 
     def __init__(self) -> None:
         self.longest = 0.0
         self.longest_gc = 0.0
-        self.settling = False
-        """The running step is ``start_up_over``'s (its collection and it are not counted)."""
         self._run: Any = None
         self._gc_started = 0.0
 
     def _on_gc(self, phase: str, info: dict[str, Any]) -> None:
         if phase == "start":
             self._gc_started = time.thread_time()
-        elif not self.settling:
+        else:
             self.longest_gc = max(self.longest_gc, time.thread_time() - self._gc_started)
 
     def __enter__(self) -> LoopSteps:
@@ -528,9 +520,7 @@ class LoopSteps:
                 run(handle)
             finally:
                 took = time.thread_time() - started
-                if steps.settling:
-                    steps.settling = False
-                elif took > steps.longest:
+                if took > steps.longest:
                     # (on a virtual machine, the time its hypervisor took the CPU away
                     # counts in the thread's clock: not the step's)
                     took -= stolen.since(mark)
@@ -539,20 +529,8 @@ class LoopSteps:
 
         asyncio.events.Handle._run = timed  # type: ignore[method-assign]
         gc.callbacks.append(self._on_gc)
-        LoopSteps.installed.append(self)
         return self
 
     def __exit__(self, *exc: object) -> None:
-        LoopSteps.installed.remove(self)
         gc.callbacks.remove(self._on_gc)
         asyncio.events.Handle._run = self._run  # type: ignore[method-assign]
-
-
-def start_up_over() -> None:
-    """A scenario's machine is open and about to carry motion: its heap is frozen
-    (``drivebus.heap.settle``), as ``drivebus serve`` does before it says it is ready and
-    the embedding guide asks of an application, so that the collector's later passes scan
-    only what the motion makes. This step is start-up: ``LoopSteps`` leaves it out."""
-    for steps in LoopSteps.installed:
-        steps.settling = True
-    settle()

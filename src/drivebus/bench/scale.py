@@ -46,7 +46,6 @@ from drivebus.bench.common import (
     percentile,
     record_exchanges,
     stage_figures,
-    start_up_over,
     wire_figures,
 )
 from drivebus.bus import Bus, Priority
@@ -145,7 +144,6 @@ async def scale(lines: int, axes: int, seconds: float, workers: int = 0) -> Benc
             async with open_machine(mapping) as m:
                 for ax in m.axes.values():
                     await ax.enable()
-                start_up_over()
                 exchanges = {name: record_exchanges(bus.line) for name, bus in m.buses.items()
                              if isinstance(bus, Bus)}
                 pids = [w["pid"] for w in m.workers]
