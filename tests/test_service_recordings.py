@@ -39,19 +39,35 @@ async def _long(rec: Recording, transactions: int, samples: int) -> None:
     next(iter(rec.axes.values())).samples.extendleft(reversed(made_samples))
 
 
+STOP_WAIT = 30.0
+"""How long the export waits for the stop, and the test for its frame, seconds."""
+
+
+def _stops(m: Any, mark: int) -> list[float]:
+    """When x's stop frames since ``mark`` went on the wire."""
+    return [at for kind, at in command_frames(m, "x", mark) if kind == "stop"]
+
+
 @pytest.mark.parametrize("what", ["jsonl", "report"])
 async def test_a_stop_reaches_the_wire_while_a_long_recording_is_downloaded(
         what: str, monkeypatch: pytest.MonkeyPatch) -> None:
     """x moves; a recording as long as a service keeps is downloaded (JSON lines, or its
     HTML report); a stop of x asked once the export has begun reaches the wire before the
-    download is over, x's twin comes to rest, and the download holds every entry."""
+    download is over, x's twin comes to rest, and the download holds every entry.
+
+    The export, once begun, waits (bounded) until x's stop is on the wire: in a worker
+    thread it lets the stop go first whatever the host's load (the report alone takes
+    only some 100 ms); on the event loop it would hold the stop back until its bound ran
+    out, and the stop would come after the download."""
     exporting = threading.Event()
+    stop_on_wire = threading.Event()
     owner: Any = Recording if what == "jsonl" else report
     name = "to_jsonl" if what == "jsonl" else "report_html"
     export: Callable[..., Any] = getattr(owner, name)
 
     def marked(*args: Any, **kwargs: Any) -> Any:
         exporting.set()  # (the export has begun, wherever it runs)
+        stop_on_wire.wait(STOP_WAIT)
         return export(*args, **kwargs)
 
     monkeypatch.setattr(owner, name, marked)
@@ -89,9 +105,15 @@ async def test_a_stop_reaches_the_wire_while_a_long_recording_is_downloaded(
                 tg.start_soon(download)
                 assert await anyio.to_thread.run_sync(exporting.wait, 60), \
                     "the export never began"
-                r = await client.post("/api/axes/x/stop")
-                assert r.status_code == 200
-        stops = [at for kind, at in command_frames(m, "x", mark) if kind == "stop"]
+                try:
+                    r = await client.post("/api/axes/x/stop")
+                    assert r.status_code == 200
+                    with anyio.move_on_after(STOP_WAIT):
+                        while not _stops(m, mark):  # noqa: ASYNC110 (the wire log is polled)
+                            await anyio.sleep(0.005)
+                finally:
+                    stop_on_wire.set()
+        stops = _stops(m, mark)
         assert stops, "no stop of x on the wire"
         assert stops[0] < done[0], "the stop waited for the download"
         assert not m.sim_drives["x"].is_moving()
