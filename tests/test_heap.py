@@ -25,6 +25,7 @@ def test_settle_freezes_what_is_alive_and_later_passes_leave_it_alone(unfrozen: 
     alive = len(gc.get_objects())
     frozen = heap.settle()
     assert frozen == gc.get_freeze_count() >= alive // 2
+    assert heap.frozen() == frozen  # (kept: asking the collector walks every frozen object)
     assert heap.PAUSES in gc.callbacks and gc.callbacks.count(heap.PAUSES) == 1
     heap.settle()  # (again: the watch is not installed twice)
     assert gc.callbacks.count(heap.PAUSES) == 1

@@ -15,7 +15,7 @@ import gc
 import time
 from typing import Any
 
-__all__ = ["PAUSES", "GcPauses", "settle"]
+__all__ = ["PAUSES", "GcPauses", "frozen", "settle"]
 
 
 class GcPauses:
@@ -45,13 +45,24 @@ class GcPauses:
 PAUSES = GcPauses()
 """The process's watch of the collector's passes (installed by ``settle``)."""
 
+_frozen = 0
+
+
+def frozen() -> int:
+    """How many objects ``settle`` froze (0 before it ran). For ``/metrics``: asking the
+    collector (``gc.get_freeze_count``) walks every frozen object, 5-13 ms for the
+    service's 68 000 on a 2-core host, too long for a step of the event loop."""
+    return _frozen
+
 
 def settle() -> int:
     """Collect once and freeze every object alive (start-up is over: what is here now
     lives as long as the process); returns how many are frozen. For a process that
     drivebus owns, once, before it carries motion: a library leaves the heap of its host
     application alone."""
+    global _frozen
     PAUSES.install()
     gc.collect()
     gc.freeze()
-    return gc.get_freeze_count()
+    _frozen = gc.get_freeze_count()
+    return _frozen

@@ -131,7 +131,7 @@ def exposition(session: MachineSession) -> str:
     for generation, figures in enumerate(gc.get_stats()):
         gc_passes.add(figures["collections"], generation=generation)
         gc_pause.add(heap.PAUSES.longest[generation], generation=generation)
-    frozen.add(gc.get_freeze_count())
+    frozen.add(heap.frozen())
     m = session.machine
     for line, bus in m.buses.items():
         util.add(bus.stats.utilisation, line=line)
