@@ -21,6 +21,7 @@ import math
 from collections.abc import Iterable
 from typing import Annotated
 
+import anyio.lowlevel
 from fastapi import APIRouter, Depends, Request
 from fastapi.responses import PlainTextResponse
 
@@ -28,7 +29,7 @@ from drivebus import heap
 from drivebus.app import MachineSession
 from drivebus.bus.stats import SlaveStats
 
-__all__ = ["CONTENT_TYPE", "base_unit", "exposition", "install"]
+__all__ = ["AXES_PER_STEP", "CONTENT_TYPE", "base_unit", "exposition", "install"]
 
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
 
@@ -98,8 +99,14 @@ class _Family:
         yield from self.samples
 
 
-def exposition(session: MachineSession) -> str:
-    """The machine's figures as Prometheus text."""
+AXES_PER_STEP = 32
+"""How many axes' figures are written in one step of the event loop."""
+
+
+async def exposition(session: MachineSession) -> str:
+    """The machine's figures as Prometheus text, a line's slaves (or ``AXES_PER_STEP``
+    axes) per step of the event loop: a machine of 16 lines of 8 drives takes 15-24 ms
+    of CPU to write out on a 2-core host, which in one step would hold up every stop."""
     tx = _Family("drivebus_transactions_total", "counter",
                  "Transaction attempts per slave by outcome (retries count again).")
     retries = _Family("drivebus_retries_total", "counter", "Retried attempts per slave.")
@@ -133,18 +140,21 @@ def exposition(session: MachineSession) -> str:
         gc_pause.add(heap.PAUSES.longest[generation], generation=generation)
     frozen.add(heap.frozen())
     m = session.machine
-    for line, bus in m.buses.items():
+    for line, bus in list(m.buses.items()):
         util.add(bus.stats.utilisation, line=line)
         wire.add(bus.stats.wire_time, line=line)
         foreign.add(bus.stats.foreign_requests, line=line)
         for address, s in sorted(bus.stats.slaves.items()):
             _slave(tx, retries, latency, window, line, address, s)
-    for name, ax in m.axes.items():
+        await anyio.lowlevel.checkpoint()
+    for i, (name, ax) in enumerate(list(m.axes.items()), 1):
         if ax.position is not None:
             base, factor = base_unit(ax.config.unit, ax.config.units_per_rev)
             positions[base].add(ax.position * factor, axis=name)
         state.add(1, axis=name, state=str(ax.state))
         online.add(0 if str(ax.state) == "Offline" else 1, axis=name)
+        if i % AXES_PER_STEP == 0:
+            await anyio.lowlevel.checkpoint()
     families = (tx, retries, latency, window, util, wire, foreign,
                 *(f for f in positions.values() if f.samples), state, online, gc_passes,
                 gc_pause, frozen)
@@ -182,4 +192,4 @@ def install(app_router: APIRouter, reader: object) -> None:
     async def metrics(session: Annotated[MachineSession, Depends(_session)],
                       _: Annotated[object, Depends(reader)]) -> PlainTextResponse:
         """The bus and axis figures in Prometheus's text format."""
-        return PlainTextResponse(exposition(session), media_type=CONTENT_TYPE)
+        return PlainTextResponse(await exposition(session), media_type=CONTENT_TYPE)
