@@ -7,7 +7,7 @@ WebSocket messages, the MQTT bridge's retained state. ``as_dict()`` gives JSON-r
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from drivebus.bus import Bus
@@ -37,6 +37,14 @@ def error_record(exc: BaseException | None) -> dict[str, str] | None:
     if exc is None:
         return None
     return {"type": type(exc).__name__, "message": str(exc)}
+
+
+def _fields(snapshot: Any) -> dict[str, Any]:
+    """A flat snapshot's fields by name, each dict among them copied: what
+    ``dataclasses.asdict`` makes of it without its deep copy of every value (a fifth of
+    the time, which counts for a machine of 128 axes: 16 ms in one step of the loop)."""
+    return {f.name: dict(v) if isinstance(v := getattr(snapshot, f.name), dict) else v
+            for f in fields(snapshot)}
 
 
 @dataclass(frozen=True)
@@ -80,7 +88,7 @@ class AxisSnapshot:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready data."""
-        d = asdict(self)
+        d = _fields(self)
         d["soft_limits"] = list(self.soft_limits) if self.soft_limits else None
         return d
 
@@ -157,8 +165,10 @@ class LineSnapshot:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready data."""
-        d = asdict(self)
-        d["slaves"] = {str(k): v for k, v in self.slaves.items()}
+        d = _fields(self)
+        d["slaves"] = {str(k): {name: dict(v) if isinstance(v, dict) else v
+                                for name, v in slave.items()}
+                       for k, slave in self.slaves.items()}
         return d
 
 
