@@ -6,9 +6,10 @@ STAMP := $(VENV)/.installed
 # `make test` runs the tests on this many xdist workers, then the `serial` ones alone
 # (tests/conftest.py). The suite mostly waits on simulated wires and subprocesses, so
 # more workers than cores pay: on 2 cores the parallel part took 8:10 on 4 workers, 6:11
-# on 6 and 5:45 on 8, for the same 10.5 minutes of CPU (since the test runs write the
-# bytecode cache); 6 leaves the timing tests some room.
-TEST_WORKERS ?= 6
+# on 6 and 5:45 on 8, for the same 10.5 minutes of CPU. It stays at 4: under the load of
+# 6, a simulated mixed-format line served by a worker process garbled a reply twice in
+# six runs (its format channel races the pty; see CHANGELOG), which 4 has not shown.
+TEST_WORKERS ?= 4
 
 .PHONY: demo test test-install lint docs bench pictures clean
 
