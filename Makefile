@@ -7,8 +7,8 @@ STAMP := $(VENV)/.installed
 # (tests/conftest.py). The suite mostly waits on simulated wires and subprocesses, so
 # more workers than cores pay: on 2 cores the parallel part took 8:10 on 4 workers, 6:11
 # on 6 and 5:45 on 8, for the same 10.5 minutes of CPU. It stays at 4: under the load of
-# 6, a simulated mixed-format line served by a worker process garbled a reply twice in
-# six runs (its format channel races the pty; see CHANGELOG), which 4 has not shown.
+# 6, a pytest worker that hosts simulated drives for a line in a worker process went
+# 340 ms without the CPU, so a group move's write timed out and failed (see CHANGELOG).
 TEST_WORKERS ?= 4
 
 .PHONY: demo test test-install lint docs bench pictures clean
