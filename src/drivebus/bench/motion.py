@@ -174,6 +174,8 @@ async def run(opts: BenchOptions) -> list[BenchResult]:
     seconds = min(20.0, 40 * opts.seconds) if opts.quick else 600.0
     with _quiet_axes():  # the soak's injected alarms and expired watchdogs, logged by the hundred
         report = await run_soak(seconds, seed=20261124, name="bench-soak")
+    for text in report.violations:  # (what broke an invariant, in the log beside the row)
+        log.error("bench soak: %s", text)
     calls = sum(report.calls.values())
     results.append(BenchResult("motion", f"soak {seconds:.0f} s, 8 axes", {
         "calls": calls,
