@@ -39,12 +39,16 @@ def error_record(exc: BaseException | None) -> dict[str, str] | None:
     return {"type": type(exc).__name__, "message": str(exc)}
 
 
+def _copied(values: dict[str, Any]) -> dict[str, Any]:
+    """``values`` with each dict among them copied: what ``dataclasses.asdict`` makes of
+    a flat snapshot's data without its deep copy of every value (a fifth of the time,
+    which counts for a machine of 128 axes: 16 ms in one step of the loop)."""
+    return {k: dict(v) if isinstance(v, dict) else v for k, v in values.items()}
+
+
 def _fields(snapshot: Any) -> dict[str, Any]:
-    """A flat snapshot's fields by name, each dict among them copied: what
-    ``dataclasses.asdict`` makes of it without its deep copy of every value (a fifth of
-    the time, which counts for a machine of 128 axes: 16 ms in one step of the loop)."""
-    return {f.name: dict(v) if isinstance(v := getattr(snapshot, f.name), dict) else v
-            for f in fields(snapshot)}
+    """A flat snapshot's fields by name, as ``_copied`` gives them."""
+    return _copied({f.name: getattr(snapshot, f.name) for f in fields(snapshot)})
 
 
 @dataclass(frozen=True)
@@ -166,9 +170,7 @@ class LineSnapshot:
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready data."""
         d = _fields(self)
-        d["slaves"] = {str(k): {name: dict(v) if isinstance(v, dict) else v
-                                for name, v in slave.items()}
-                       for k, slave in self.slaves.items()}
+        d["slaves"] = {str(k): _copied(slave) for k, slave in self.slaves.items()}
         return d
 
 
