@@ -8,7 +8,6 @@ during a motion is ErrorStop until reset.
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -25,17 +24,15 @@ from drivebus.errors import (
 )
 from drivebus.motion import Axis, Machine
 from held_up import within_bound
+from machines import DEMO, demo_machine
 from wirelog import commands, log_size, room, settle
 
-DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
 MOTION_AXES = ("x", "y", "z", "r")  # the aux axis (OD2000) cannot move
 
 
 def demo(workers: int) -> Path | dict[str, Any]:
     """The demo machine, its lines served by ``workers`` worker processes (0: by its own)."""
-    if not workers:
-        return DEMO
-    return {**tomllib.loads(DEMO.read_text()), "workers": workers}
+    return demo_machine(workers)
 
 
 # The lines in this process, or in a worker process. (A stop that hit the BHSS's setup used

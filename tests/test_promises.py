@@ -26,10 +26,8 @@ import asyncio
 import logging
 import math
 import time
-import tomllib
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import anyio
@@ -40,6 +38,7 @@ from drivebus import open_machine
 from drivebus.app.params import ParameterSet, load_parameters, read_parameters
 from drivebus.errors import DrivebusError, GroupMotionError, MotionAborted
 from drivebus.motion import Machine
+from machines import Machinefile, demo_machine
 from wirelog import (
     command_frames,
     frames_text,
@@ -49,19 +48,12 @@ from wirelog import (
     write_frames,
 )
 
-DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
-
-
-Machinefile = Path | dict[str, Any]
-
 
 @pytest.fixture(params=[0, 1], ids=["in process", "1 worker"])
 def demo(request: pytest.FixtureRequest) -> Machinefile:
     """The demo machine, its lines served by this process or by a worker process (the
     promises hold across the process boundary too)."""
-    if not request.param:
-        return DEMO
-    return {**tomllib.loads(DEMO.read_text()), "workers": request.param}
+    return demo_machine(request.param)
 
 
 RS485 = ("x", "y", "z")

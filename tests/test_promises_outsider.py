@@ -22,7 +22,6 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -41,6 +40,7 @@ from drivebus.errors import (
     MotionAborted,
 )
 from drivebus.motion import Axis, Machine
+from machines import DEMO, Machinefile, demo_machine
 from waits import until, within
 from wirelog import (
     command_frames,
@@ -52,17 +52,11 @@ from wirelog import (
     write_frames,
 )
 
-DEMO = Path(__file__).resolve().parents[1] / "configs" / "demo.toml"
-
-Machinefile = Path | dict[str, Any]
-
 
 @pytest.fixture(params=[0, 1], ids=["in process", "1 worker"])
 def demo(request: pytest.FixtureRequest) -> Machinefile:
     """The demo machine, its lines in this process or in one worker process."""
-    if not request.param:
-        return DEMO
-    return {**tomllib.loads(DEMO.read_text()), "workers": request.param}
+    return demo_machine(request.param)
 
 
 def at_rest(m: Machine, names: list[str] | tuple[str, ...]) -> list[str]:

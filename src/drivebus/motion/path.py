@@ -51,6 +51,8 @@ __all__ = ["GroupHandle", "PathReport", "SegmentReport"]
 
 _SAMPLES = 200
 """Moments a segment's predicted path is looked at (besides its phase boundaries)."""
+_SAMPLES_PER_TURN = 50
+"""Moments of a segment's report looked at per event-loop turn (about 1 ms of CPU)."""
 _LEAST_BLEND = 0.002
 """A corner blended less than this long before its end is not worth it, seconds."""
 
@@ -461,9 +463,11 @@ async def report(run: _PathRun) -> PathReport:
         a, b = run.points[k], run.points[k + 1]
         lines = [(run.points[i], run.points[i + 1])
                  for i in range(max(0, k - 1), min(len(run.points) - 1, k + 2))]
-        deviation = max(
-            (_off_path({n: where(n, t, k) for n in names}, lines)
-             for t in _moments(start, window_end)), default=0.0)
+        deviation = 0.0
+        for i, t in enumerate(_moments(start, window_end)):
+            if i and i % _SAMPLES_PER_TURN == 0:
+                await anyio.lowlevel.checkpoint()
+            deviation = max(deviation, _off_path({n: where(n, t, k) for n in names}, lines))
         if blended:
             observed = _spread(next_began)
         else:

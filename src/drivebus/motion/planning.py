@@ -49,9 +49,9 @@ _NETWORK_DELAY = 0.0003
 """Assumed delay of a start command on a Modbus TCP line, seconds."""
 _FIT_MEMO = 512
 """Fits remembered per axis (``fit_plan``) before the memo starts afresh."""
-_CANDIDATES_PER_TURN = 48
-"""Candidate plans weighed per event-loop turn (each a dry run through the drive's codecs,
-about 50 us): a few ms of CPU at most between two turns."""
+_CANDIDATES_PER_TURN = 16
+"""Candidate plans weighed per event-loop turn (each a rounding through the drive's
+codecs, 50-100 us): about a millisecond of CPU between two turns."""
 
 
 def synchronise(
@@ -203,6 +203,7 @@ async def _fit(axis: Axis, d: float, duration: float, shape: MotionPlan, at_leas
             profile.check_move(axis.drive_params(plan))
         except LimitViolation as exc:
             first_error = first_error or exc
+            await anyio.lowlevel.checkpoint()  # each check is a dry run of the move
             continue
         return plan
     raise first_error or LimitViolation(
