@@ -6,10 +6,11 @@ STAMP := $(VENV)/.installed
 # `make test` runs the tests on this many xdist workers, then the `serial` ones alone
 # (tests/conftest.py). The suite mostly waits on simulated wires and subprocesses, so
 # more workers than cores pay: on 2 cores the parallel part took 8:10 on 4 workers, 6:11
-# on 6 and 5:45 on 8, for the same 10.5 minutes of CPU. It stays at 4: under the load of
-# 6, a pytest worker that hosts simulated drives for a line in a worker process went
-# 340 ms without the CPU, so a group move's write timed out and failed (see CHANGELOG).
-TEST_WORKERS ?= 4
+# to 7:01 on 6 (8:07 beside a CPU-bound process) and 5:45 on 8, for the same 10.5
+# minutes of CPU. (Under 6, a test whose line a worker process served failed when the
+# pytest process hosting its simulated drives went 340 ms without the CPU: those tests
+# give such lines a 1 s response timeout now, tests/machines.py.)
+TEST_WORKERS ?= 6
 
 .PHONY: demo test test-install lint docs bench pictures clean
 

@@ -164,7 +164,7 @@ LOOP_STEP_LIMIT = 0.040 if os.environ.get("PYTEST_XDIST_WORKER") else 0.020
 """The most thread CPU time one event-loop step may take in a test, seconds: a step that
 holds the loop longer delays every stop behind it (promise 1). CPU time, not wall time, so
 preemption does not trip it. 20 ms for a test run alone; 40 ms in the parallel part of
-``make test`` (four workers on two cores), where the same work measures up to twice the
+``make test`` (six workers on two cores), where the same work measures up to twice the
 CPU time it takes alone (shared caches and cores: the simulator's pty reader, up to 18 ms
 alone on a slow 2-core host, and a test's own setup, 24 ms alone for three descriptions
 parsed in one step, measured 36-47 ms there: such setup goes to a worker thread). Either
