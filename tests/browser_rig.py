@@ -165,8 +165,10 @@ def zoom(driver: webdriver.Chrome, chart: str, t0: float, t1: float) -> None:
         wait(driver, shows, f"{chart} did not zoom out to show {t0}..{t1}")
     # Up to eight drags (one or two do on a quiet machine): a busy browser may apply a drag
     # after the wait below saw the scale change for another reason (new samples).
+    seen = []  # the spans shown before each drag (said when the drags fall short)
     for _ in range(8):
         lo, hi = driver.execute_script(span)
+        seen.append(f"{lo - t0:+.4f}..{hi - t1:+.4f}")
         if hi - lo <= 2 * (t1 - t0):
             break
         x0, x1, width = driver.execute_script("""
@@ -181,5 +183,7 @@ def zoom(driver: webdriver.Chrome, chart: str, t0: float, t1: float) -> None:
              f"{chart} did not zoom in on a drag across {t0}..{t1}")
         assert shows(driver), f"{chart}: a drag across {t0}..{t1} showed {lo}..{hi}"
     lo, hi = driver.execute_script(span)
-    assert hi - lo <= 2 * (t1 - t0), f"{chart}: eight drags across {t0}..{t1} show {lo}..{hi}"
+    assert hi - lo <= 2 * (t1 - t0), (
+        f"{chart}: eight drags across {t0}..{t1} show {lo}..{hi} (before each drag, the "
+        f"span from t0 and t1: {', '.join(seen)})")
     driver.execute_script("scrollTo(...arguments[0])", scrolled)
