@@ -45,8 +45,11 @@ def busy(seconds: float) -> None:
 
 
 def trust_store() -> None:
-    """Load certifi's CA bundle three times (about 60 ms of CPU here)."""
-    for _ in range(3):
+    """Load certifi's CA bundle again and again (about 20 ms of CPU each here) until 70 ms
+    of CPU are used, less the time a hypervisor took the CPUs away (as ``busy``: the guard
+    leaves that out, and three loads once measured under the 40 ms limit so)."""
+    began, stolen = time.thread_time(), cpu_stolen()
+    while time.thread_time() - began - (cpu_stolen() - stolen) < 0.07:
         ssl.create_default_context().load_verify_locations(certifi.where())
 
 

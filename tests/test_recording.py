@@ -17,6 +17,7 @@ from drivebus.config import MachineConfig, parse_config
 from drivebus.errors import ConfigError
 from held_up import within_bound
 from waits import within
+from wirelog import frames_text
 
 POLL = 0.01
 
@@ -79,7 +80,10 @@ async def test_a_recorded_move_follows_the_twin_within_one_poll_period() -> None
         assert started.time < arrived.time
         # the line's transactions: every one observed, none added by recording
         txs = rec.lines["rs485"].transactions
-        assert txs and all(t.outcome == "ok" and t.slave in (1, 2, 3) for t in txs)
+        bad = [t for t in txs if t.outcome != "ok" or t.slave not in (1, 2, 3)]
+        assert txs
+        assert bad == [], f"{bad[:3]}; the wire around the first:\n" + frames_text(
+            m.wires["rs485"].log, bad[0].start - 0.1, bad[0].end + 0.1)  # type: ignore[union-attr]
         assert all(t.start <= t.end and t.latency is not None for t in txs)
 
 
