@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Literal, Protocol
 
@@ -52,7 +52,7 @@ __all__ = ["GroupHandle", "PathReport", "SegmentReport"]
 _SAMPLES = 200
 """Moments a segment's predicted path is looked at (besides its phase boundaries)."""
 _SAMPLES_PER_TURN = 50
-"""Moments of a segment's report looked at per event-loop turn (about 1 ms of CPU)."""
+"""Moments of a segment or a blend looked at per event-loop turn (about 1-2 ms of CPU)."""
 _LEAST_BLEND = 0.002
 """A corner blended less than this long before its end is not worth it, seconds."""
 
@@ -212,7 +212,7 @@ async def run_path(
     ahead = _from_rest(group, plans[0], 0.0)
     for k in range(1, len(plans)):
         await anyio.lowlevel.checkpoint()  # a long path's corners: no long hold of the loop
-        tau, reason = _corner(group, ahead, plans[k - 1], plans[k], blend)
+        tau, reason = await _corner(group, ahead, plans[k - 1], plans[k], blend)
         taus.append(tau)
         reasons.append(reason)
         if tau is None:
@@ -359,7 +359,7 @@ def _synchronise_blend(
     return out
 
 
-def _corner(
+async def _corner(
     group: Group, first: dict[str, Trajectory], before: GroupPlan, after: GroupPlan,
     blend: float,
 ) -> tuple[float | None, str]:
@@ -381,7 +381,7 @@ def _corner(
 
     lines = [(before.starts, corner), (corner, after.targets)]
 
-    def cut(tau: float) -> float:
+    async def cut(tau: float) -> float:
         """How far the path strays from the two straight segments when blended ``tau``
         before the corner."""
         trajectories = {
@@ -389,16 +389,17 @@ def _corner(
                                    quantized[n](after.plans[n])) for n in group.axes}
         t0 = min(t.end for t in first.values()) - tau
         t1 = max(t.end for t in trajectories.values())
-        return max(_off_path({n: tr.position(t) for n, tr in trajectories.items()}, lines)
-                   for t in _moments(t0, t1))
+        return await _farthest(
+            lambda t: {n: tr.position(t) for n, tr in trajectories.items()},
+            _moments(t0, t1), lines)
 
-    if cut(longest) <= blend:
+    if await cut(longest) <= blend:
         tau = longest
     else:
         lo, hi = 0.0, longest
         for _ in range(30):
             mid = (lo + hi) / 2
-            lo, hi = (mid, hi) if cut(mid) <= blend else (lo, mid)
+            lo, hi = (mid, hi) if await cut(mid) <= blend else (lo, mid)
         tau = lo
     if tau < _LEAST_BLEND:
         return None, f"the corner is too sharp to blend within {blend:g}"
@@ -422,6 +423,19 @@ def _off_segment(p: Mapping[str, float], a: Mapping[str, float], b: Mapping[str,
         return _distance(p, a)
     s = max(0.0, min(1.0, sum((p[n] - a[n]) * ab[n] for n in a) / length2))
     return _distance(p, {n: a[n] + s * ab[n] for n in a})
+
+
+async def _farthest(point: Callable[[float], Mapping[str, float]], moments: Sequence[float],
+                    lines: Sequence[tuple[Mapping[str, float], Mapping[str, float]]]
+                    ) -> float:
+    """How far the axes, at ``point(t)``, stray from the straight segments ``lines`` at
+    ``moments`` (``_SAMPLES_PER_TURN`` moments per event-loop turn)."""
+    farthest = 0.0
+    for i, t in enumerate(moments):
+        if i and i % _SAMPLES_PER_TURN == 0:
+            await anyio.lowlevel.checkpoint()
+        farthest = max(farthest, _off_path(point(t), lines))
+    return farthest
 
 
 def _off_path(p: Mapping[str, float],
@@ -463,11 +477,8 @@ async def report(run: _PathRun) -> PathReport:
         a, b = run.points[k], run.points[k + 1]
         lines = [(run.points[i], run.points[i + 1])
                  for i in range(max(0, k - 1), min(len(run.points) - 1, k + 2))]
-        deviation = 0.0
-        for i, t in enumerate(_moments(start, window_end)):
-            if i and i % _SAMPLES_PER_TURN == 0:
-                await anyio.lowlevel.checkpoint()
-            deviation = max(deviation, _off_path({n: where(n, t, k) for n in names}, lines))
+        deviation = await _farthest(lambda t, k=k: {n: where(n, t, k) for n in names},
+                                    _moments(start, window_end), lines)
         if blended:
             observed = _spread(next_began)
         else:
