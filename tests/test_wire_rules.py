@@ -45,7 +45,7 @@ async def test_mixed_settings_line_keeps_every_silence() -> None:
         assert wire.violations == 0
         # The 4 000 frames are checked on a worker thread: ~30 ms of CPU (pydantic's
         # equality per frame), the test's own work, not a step of the loop under test.
-        wrong = await anyio.to_thread.run_sync(_misplaced_requests, wire.log)
+        wrong = await anyio.to_thread.run_sync(_misplaced_requests, list(wire.log))
         assert wrong == []
         assert bus.stats.total().errors == 0
         assert bus.stats.slave(1).transactions == order.count(1)
