@@ -9,7 +9,6 @@ during a motion is ErrorStop until reset.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import anyio
 import pytest
@@ -30,11 +29,6 @@ from wirelog import commands, log_size, room, settle
 MOTION_AXES = ("x", "y", "z", "r")  # the aux axis (OD2000) cannot move
 
 
-def demo(workers: int) -> Path | dict[str, Any]:
-    """The demo machine, its lines served by ``workers`` worker processes (0: by its own)."""
-    return demo_machine(workers)
-
-
 # The lines in this process, or in a worker process. (A stop that hit the BHSS's setup used
 # to leave the line stopped now and then: the axis's emergency poll inside its own hold
 # learned the drive again at CONFIG priority and waited for the hold's end.)
@@ -47,7 +41,7 @@ async def test_a_stop_always_wins_over_a_move_for_every_drive_kind_and_delay(
     stopper: str, workers: int,
 ) -> None:
     delays = (0.0, 0.001, 0.002, 0.004, 0.006, 0.009, 0.013, 0.02, 0.03, 0.05, 0.08, 0.15, 0.4)
-    async with open_machine(demo(workers)) as m:
+    async with open_machine(demo_machine(workers)) as m:
         for name in MOTION_AXES:
             ax, twin = m.axes[name], m.sim_drives[name]
             await settle(ax)
@@ -84,7 +78,7 @@ async def test_a_stop_always_wins_over_a_move_for_every_drive_kind_and_delay(
 @pytest.mark.parametrize("motion", ["move_by", "jog", "home"])
 async def test_a_stop_wins_over_move_by_jog_and_homing(motion: str, workers: int) -> None:
     delays = (0.0, 0.002, 0.005, 0.01, 0.03, 0.1)
-    async with open_machine(demo(workers)) as m:
+    async with open_machine(demo_machine(workers)) as m:
         for name in MOTION_AXES:
             ax, twin = m.axes[name], m.sim_drives[name]
             await settle(ax)

@@ -36,21 +36,19 @@ def watched() -> Iterator[Any]:
         conftest._STEPS = outer
 
 
-def busy(seconds: float) -> None:
-    """Use ``seconds`` of CPU time without yielding (time a virtual machine's hypervisor
-    takes the CPU away not counted: the guard does not count it either)."""
+def busy(seconds: float, work: Callable[[], object] = lambda: None) -> None:
+    """Do ``work`` again and again, without yielding, until ``seconds`` of CPU time are
+    used (time a virtual machine's hypervisor takes the CPU away not counted: the guard
+    does not count it either)."""
     began, stolen = time.thread_time(), cpu_stolen()
     while time.thread_time() - began - (cpu_stolen() - stolen) < seconds:
-        pass
+        work()
 
 
 def trust_store() -> None:
-    """Load certifi's CA bundle again and again (about 20 ms of CPU each here) until 70 ms
-    of CPU are used, less the time a hypervisor took the CPUs away (as ``busy``: the guard
-    leaves that out, and three loads once measured under the 40 ms limit so)."""
-    began, stolen = time.thread_time(), cpu_stolen()
-    while time.thread_time() - began - (cpu_stolen() - stolen) < 0.07:
-        ssl.create_default_context().load_verify_locations(certifi.where())
+    """Load certifi's CA bundle (about 20 ms of CPU each here) until 70 ms of CPU are
+    used (three loads once measured under the 40 ms limit, the guard leaving steal out)."""
+    busy(0.07, lambda: ssl.create_default_context().load_verify_locations(certifi.where()))
 
 
 async def move_with(work: Callable[[], None], monkeypatch: pytest.MonkeyPatch) -> list[Any]:
