@@ -86,7 +86,8 @@ async def test_a_trust_store_loaded_by_drivebus_code_fails_the_guard(
 
 async def test_a_tests_own_tls_client_setup_is_not_drivebus_holding_the_loop() -> None:
     clients = [httpx.AsyncClient(timeout=30)]  # its lazy imports (a step that imports
-    # is left out anyway) before the step watched
+    # is left out anyway) before the step watched, and certifi's (its first where())
+    certifi.where()
     with watched() as steps:
         await checkpoint()
         modules, began = len(sys.modules), time.thread_time()
