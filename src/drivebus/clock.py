@@ -145,6 +145,14 @@ _PR_SET_TIMERSLACK = 29
 _TIMER_SLACK_NS = 10_000
 
 
+def spin_until(deadline: float) -> None:
+    """Spin on the clock until ``time.monotonic()`` reaches ``deadline``: for the last few
+    tens of microseconds before an action that must happen on time (no sleep is that
+    precise), never for a longer wait."""
+    while monotonic() < deadline:
+        pass
+
+
 class _Timespec(ctypes.Structure):
     _fields_ = (("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long))
 

@@ -12,7 +12,9 @@ their arrival time and the settings they were sent at (``feed``); the segment
   its own settings; address 0 reaches every powered slave and nobody answers);
 * schedules their replies, with the slaves' ``FaultPlan`` faults applied, for the end of
   the turnaround plus the reply's wire time; ``run`` hands each reply to the front-end's
-  ``deliver`` callback at that time, with the route the request came by.
+  ``deliver`` callback at that time, with the route the request came by. It judges the
+  reply (the master's settings, a collision) a little before, so that its own
+  bookkeeping does not make the reply late, and logs it after the bytes have left.
 
 Front-ends: ``VirtualWire`` (a pty; settings observed from termios and a side channel)
 and ``SimSerialServer`` (RTU over TCP; the port's fixed settings, replies per client).
@@ -29,7 +31,7 @@ from typing import Any, Generic, TypeVar
 
 import anyio
 
-from drivebus.clock import PreciseTimer, monotonic
+from drivebus.clock import PreciseTimer, monotonic, spin_until
 from drivebus.line.rtu import crc_ok, frame
 from drivebus.pdu import request_length
 from drivebus.settings import LineSettings
@@ -43,6 +45,9 @@ R = TypeVar("R")
 
 _GARBAGE = bytes((0xFF, 0x00, 0x55))
 _UNANSWERED = "unanswered: the next request came with it"
+_PREPARE = 40e-6
+"""How long before a reply is due ``run`` wakes to judge it (reading the master's settings
+takes some 20-30 us in a busy simulator process); the rest of the time is spun."""
 _ROUNDING = 1e-9
 """A silence short of the required one by less than this (1 ns) is the float rounding of
 times near the monotonic clock's magnitude (a start computed as an end plus a silence),
@@ -134,23 +139,24 @@ class _Reply(Generic[R]):
 class Segment(Generic[R]):
     """One simulated RS-485 segment with its slaves, wire log and pending replies.
 
-    ``deliver(data, route)`` sends reply bytes to the master (``route`` is what ``feed``
-    got with the request); ``master_settings()`` says what the master's port is set to
-    when a reply arrives (a master at other settings decodes noise). ``split_frames``:
-    the master's bytes reach the wire through a transmit buffer, as in a serial server,
-    so frames that arrive in one chunk go out back to back and a frame starts no earlier
-    than the previous one ended; without it, what arrives is on the wire at once, and
-    the bytes received when a frame is complete are that frame. ``on_request(route,
-    note)`` lets the front-end judge each finished request before it goes out: it
-    returns the note to go on with and whether the frame goes out on the wire at all
-    (False: the front-end discarded it first, as a serial server that closes the
-    connection instead of sending it; the frame is logged with that note, and the wire
-    stays as quiet as it was).
+    ``deliver(data, route)`` hands reply bytes to the master at once (``route`` is what
+    ``feed`` got with the request), or returns an awaitable that finishes the handing
+    over (a stream, an adapter that holds the bytes); ``master_settings()`` says what the
+    master's port is set to when a reply arrives (a master at other settings decodes
+    noise). ``split_frames``: the master's bytes reach the wire through a transmit
+    buffer, as in a serial server, so frames that arrive in one chunk go out back to back
+    and a frame starts no earlier than the previous one ended; without it, what arrives
+    is on the wire at once, and the bytes received when a frame is complete are that
+    frame. ``on_request(route, note)`` lets the front-end judge each finished request
+    before it goes out: it returns the note to go on with and whether the frame goes out
+    on the wire at all (False: the front-end discarded it first, as a serial server that
+    closes the connection instead of sending it; the frame is logged with that note, and
+    the wire stays as quiet as it was).
     """
 
     def __init__(
         self,
-        deliver: Callable[[bytes, R], Awaitable[object]],
+        deliver: Callable[[bytes, R], Awaitable[object] | None],
         master_settings: Callable[[], LineSettings],
         *,
         slaves: dict[int, SimSlave] | None = None,
@@ -364,26 +370,32 @@ class Segment(Generic[R]):
                 self._wake = anyio.Event()
                 await self._wake.wait()
                 continue
-            await self._timer.sleep_until(self._pending[0].due)
+            await self._timer.sleep_until(self._pending[0].due - _PREPARE)
             await self._send(self._pending.popleft())
 
     async def _send(self, reply: _Reply[R]) -> None:
         adu, settings = reply.adu, reply.slave.settings
+        # Judged just before its time (``_PREPARE``): a master that changes its settings
+        # in the last tens of microseconds of a reply is not a case a UART resolves either.
+        other_settings = self._master_settings() != settings
+        spin_until(reply.due)
         note = ""
         if reply.collided:
             note = "collision"
-        elif self._master_settings() != settings:
+        elif other_settings:
             note = "master at other settings"  # its UART decodes noise, not our frame
         data = bytes(self._rng.randrange(256) for _ in adu) if note else adu
-        # The reply's last byte is on the wire when it is handed over: stamp it then, after
-        # the simulator's own bookkeeping, so that the log shows the wire, not the sim.
+        # The reply's last byte is on the wire when it is handed over: stamp it then, and
+        # log it after the bytes have left, so that the log shows the wire, not the sim.
         now = monotonic()
+        rest = self._deliver(data, reply.route)
         start = now - timing(settings).frame_time(len(adu))
         gap = start - self._busy_until
         self._busy_until = max(self._busy_until, now)
         self._last_settings = settings
         self._log(WireFrame("reply", adu[0], adu, start, now, settings, gap, 0.0, note))
-        await self._deliver(data, reply.route)
+        if rest is not None:
+            await rest
 
     def close(self) -> None:
         """Release the reply timer (once ``run`` has ended)."""

@@ -509,6 +509,6 @@ class SimSerialServer(SegmentView, _SimServer):
         return note, True
 
 
-async def _to_client(data: bytes, client: _Client) -> None:
+def _to_client(data: bytes, client: _Client) -> Awaitable[bool]:
     """Forward reply bytes to the client that asked (one that has gone just misses them)."""
-    await client.send(data)
+    return client.send(data)

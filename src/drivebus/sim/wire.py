@@ -19,7 +19,7 @@ import math
 import os
 import termios
 import tty
-from collections.abc import AsyncIterator, Callable, Collection
+from collections.abc import AsyncIterator, Awaitable, Callable, Collection
 from types import TracebackType
 
 import anyio
@@ -194,11 +194,20 @@ class VirtualWire(SegmentView):
             self.format_source()
         self.segment.feed(data, now, self.observed_settings(), None)
 
-    async def _to_master(self, data: bytes, _route: None) -> None:
-        if self.adapter_latency > 0:  # held in the adapter until its timer's next tick
-            now = monotonic()
-            await anyio.sleep(math.ceil(now / self.adapter_latency) * self.adapter_latency
-                              - now)
+    def _to_master(self, data: bytes, _route: None) -> Awaitable[None] | None:
+        """Hand a reply to the master's side of the pty now, or (an adapter with a latency
+        timer) return what holds it until the timer's next tick and then hands it."""
+        if self.adapter_latency > 0:
+            return self._held_to_master(data)
+        self._write_to_master(data)
+        return None
+
+    async def _held_to_master(self, data: bytes) -> None:
+        now = monotonic()
+        await anyio.sleep(math.ceil(now / self.adapter_latency) * self.adapter_latency - now)
+        self._write_to_master(data)
+
+    def _write_to_master(self, data: bytes) -> None:
         try:
             os.write(self._master_fd, data)
         except OSError:
