@@ -543,7 +543,7 @@ write = { steps_per_rev = 0 }
 def test_drive_check_counts_sources_and_verifies_the_manuals_example_frames(
         tmp_path: Path) -> None:
     done = cli("drive", "check", write(tmp_path, EXAMPLES, "examples.toml"))
-    assert done.returncode == 0, done.stderr
+    assert done.returncode == 1, done.stderr  # an example fails: so does the check
     out = done.stdout
     # 6 registers, 2 bits, 2 procedures, [link] and [status]: all from the manual but the
     # inferred current
@@ -558,6 +558,12 @@ def test_drive_check_counts_sources_and_verifies_the_manuals_example_frames(
     assert "ok   examples[2] (enable): 1 frame as printed" in out
     # EG/2 = 0 is below the register's 100: the engine refuses what the manual printed
     assert "FAIL examples[3]" in out and "outside its range 100..25600" in out, out
+    assert "failed (the manual's example frames):\n  - examples[3]" in out, out
+    # without the failing example the check passes
+    passing = EXAMPLES[:EXAMPLES.rindex("[[examples]]")]
+    done = cli("drive", "check", write(tmp_path, passing, "passing.toml"))
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "examples: 3 of 3 of the manual's example frames verified" in done.stdout
     # a wrong scale is caught by the manual's own frame
     wrong = EXAMPLES.replace("scale = 2\n", "", 1)
     done = cli("drive", "check", write(tmp_path, wrong, "wrong.toml"))
@@ -675,7 +681,8 @@ def test_a_manual_source_that_says_part_is_inferred_is_named_apart(tmp_path: Pat
                             'source = "manual: 2.1, p. 9; the word order is inferred"')
     path = write(tmp_path, text, "partly.toml")
     done = cli("drive", "check", path)
-    assert done.returncode == 0, done.stderr
+    assert done.returncode == 1, done.stderr  # (only its examples[3] fails, as above)
+    assert "failed (the manual's example frames):\n  - examples[3]" in done.stdout
     assert "partly inferred (a manual or code source that says part is inferred): [link]" \
         in done.stdout, done.stdout
     page = cli("drive", "doc", path).stdout

@@ -8,6 +8,7 @@ will miss; ``doc_page`` is the page the docs site shows for a built-in family.
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,12 +45,18 @@ class DescriptionReport:
 
     lines: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    failed: list[str] = field(default_factory=list)
+    """The manual's example frames that the description does not reproduce: the check
+    fails (``drivebus drive check`` exits 1)."""
 
     def text(self) -> str:
         """The report as text."""
         out = list(self.lines)
         if self.warnings:
             out += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
+        if self.failed:
+            out += ["", "failed (the manual's example frames):"] + [
+                f"  - {f}" for f in self.failed]
         return "\n".join(out)
 
 
@@ -127,14 +134,34 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
     missing = [n for n in _PROCEDURES if n not in d.procedures]
     if missing:
         r.lines.append("  not described (NotSupported): " + ", ".join(missing))
+    stops = [n for n in ("stop", "emergency_stop") if n in d.procedures
+             and d.procedures[n].unsupported is None]
     for n in _NEEDED:
-        if n not in d.procedures:
+        if n in d.procedures:
+            continue
+        if n in ("stop", "emergency_stop") and stops:
+            other = stops[0]
+            r.warnings.append(f"no procedure {n}: the axis sends its {other} instead "
+                              f"({'halt_now()' if n == 'emergency_stop' else 'stop()'} "
+                              f"stops the motor, as the {other} does)")
+        else:
             r.warnings.append(f"no procedure {n}: the axis cannot {_PROCEDURES[n]}")
+    if not stops:
+        r.warnings.append("no stop at all (neither procedures.stop nor emergency_stop): "
+                          "nothing stops this drive's motor over Modbus: stop() and halt_now() "
+                          "are refused, and leaving the machine cannot stop it")
     if d.homing is not None:
         r.lines.append("  homing methods: " + ", ".join(
             f"{n} ({m.code if m.code is not None else '-'}"
             f"{', CiA 402 ' + str(m.cia402) if m.cia402 is not None else ''})"
             for n, m in d.homing.methods.items()))
+        known = list(type(next(iter(d.homing.methods.values()))).model_fields)
+        for n, m in d.homing.methods.items():
+            for key in m.extras:
+                close = difflib.get_close_matches(key, known, n=1, cutoff=0.75)
+                if close:
+                    r.warnings.append(f"homing.methods.{n}.{key}: did you mean {close[0]!r}? "
+                                      f"(taken as a value of the drive's own, home.{key})")
         waits = [n for n, m in d.homing.methods.items() if m.behaviour != "set"]
         if waits and derived.get("homed") is None:
             r.warnings.append(
@@ -203,7 +230,7 @@ def provenance_lines(d: Description, r: DescriptionReport) -> list[str]:
             mark = "ok  " if x.ok and x.ran else "said" if x.ok else "FAIL"
             lines.append(f"    {mark} {x.where}: {x.detail}")
             if not x.ok:
-                r.warnings.append(f"{x.where}: {x.detail}")
+                r.failed.append(f"{x.where}: {x.detail}")
     else:
         lines.append("  examples: none (add the manual's example frames as [[examples]])")
     return lines

@@ -28,10 +28,13 @@ FileArg = Annotated[str, typer.Argument(
 
 @drive_app.command("check")
 def check(file: FileArg) -> None:
-    """Validate a description and print what drivebus understood of it."""
+    """Validate a description and print what drivebus understood of it; exit 1 if one of
+    the manual's example frames it lists does not come out as the manual prints it."""
     from drivebus.app.drives import check_report, load
 
-    typer.echo(check_report(load(file)).text())
+    report = check_report(load(file))
+    typer.echo(report.text())
+    raise typer.Exit(1 if report.failed else 0)
 
 
 @drive_app.command("doc")

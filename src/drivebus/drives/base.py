@@ -10,6 +10,7 @@ register. What a drive cannot do raises ``NotSupported`` naming drive and functi
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -37,6 +38,8 @@ __all__ = [
     "describe_values",
     "ramp_time_quantized",
 ]
+
+log = logging.getLogger(__name__)
 
 LINE_KINDS = frozenset({"serial", "rtu-over-tcp", "tcp"})
 """Every kind of line (as in a machine file's ``kind``)."""
@@ -665,6 +668,42 @@ class DriveProfile:
     async def emergency_stop(self) -> None:
         """Stop as fast as the drive can."""
         raise self.unsupported("make an emergency stop")
+
+    def check_can_stop(self) -> None:
+        """``NotSupported`` (no I/O) if this drive has neither a stop nor an emergency stop:
+        a stop is then refused before the motion under way is touched."""
+        try:
+            self.check_supported("stop")
+            return
+        except NotSupported as exc:
+            refused = exc
+        try:
+            self.check_supported("emergency_stop")
+        except NotSupported:
+            raise refused from None
+
+    async def send_stop(self, decel_rps2: float | None = None, *, emergency: bool = False
+                        ) -> None:
+        """The stop asked for (``emergency``: the emergency stop), or the other one where
+        this drive cannot make it: a motor must not run on because its description lacks
+        one kind of stop. ``NotSupported`` (nothing sent) only if it can make neither."""
+        try:
+            if emergency:
+                await self.emergency_stop()
+            else:
+                await self.stop(decel_rps2)
+            return
+        except NotSupported as exc:
+            refused = exc
+        log.warning("%s: %s instead", refused,
+                    "a decelerating stop" if emergency else "an emergency stop")
+        try:
+            if emergency:
+                await self.stop(None)
+            else:
+                await self.emergency_stop()
+        except NotSupported:
+            raise refused from None
 
     async def home(
         self,

@@ -21,7 +21,7 @@ import anyio
 
 from drivebus.bus import Priority
 from drivebus.clock import monotonic
-from drivebus.drives.base import HomingParams, MoveParams
+from drivebus.drives.base import DriveProfile, HomingParams, MoveParams
 from drivebus.drives.cia402 import (
     COMMAND_WORDS,
     MAX_STEPS,
@@ -489,6 +489,16 @@ class Cia402Profile(DescribedProfile):
         self._velocity_set = True
         await self._set_mode(Mode.PROFILE_VELOCITY)
         await self._controlword(_ENABLED)  # halt clear: run
+
+    def check_stop(self, decel_rps2: float | None) -> None:
+        """A deceleration the halt cannot take, or one beyond the profile deceleration's
+        range, is refused before anything is sent."""
+        if self._described("stop"):
+            super().check_stop(decel_rps2)
+            return
+        DriveProfile.check_stop(self, decel_rps2)
+        if decel_rps2 is not None:
+            self._raw("profile_deceleration", decel_rps2)
 
     def stop_takes_decel(self) -> bool:
         """The halt takes the profile deceleration where the description maps it."""

@@ -471,7 +471,7 @@ class AxisActor:
         try:
             with self._stop_on_its_way():
                 await self._aborted_io_ended(pending)
-                await self.profile.stop(None)
+                await self.profile.send_stop()
         except DrivebusError as exc:
             log.error("axis %s: stop failed: %s", self.name, exc)
             return

@@ -173,7 +173,7 @@ class Jogging(ProgramRunner):
                         self._drive_started(monotonic()), limit, self.envelope.quantized(plan))
             else:
                 m.restarting = True
-                await self.profile.stop(None)
+                await self.profile.send_stop()
                 after = self._stop_sent_at = monotonic()
                 st = await self._wait_rest(after, f"the {m.what}'s change of speed")
                 self.envelope.check_switch(direction, st)

@@ -411,12 +411,26 @@ class CommandLane(AxisActor):
         It aborts whatever motion is being prepared or under way (its caller gets
         ``MotionAborted``); a later command from another task does not change its outcome.
         """
-        decel_rps2 = None
-        if decel is not None:
-            decel_rps2 = self.units.to_rps2(checks.positive(f"axis {self.name}: decel", decel,
-                                                           unit="units/s²"))
-            self.profile.check_stop(decel_rps2)  # one it cannot honour: refused, none sent
-        await self._halt(emergency=False, decel_rps2=decel_rps2)
+        await self._halt(emergency=False, decel_rps2=self.check_stop(decel))
+
+    def check_stop(self, decel: float | None = None) -> float | None:
+        """Refuse ``stop(decel=...)`` as it would be refused, nothing sent and the motion
+        left as it is: a deceleration that is no positive number, or that the drive's stop
+        cannot take (``ArgumentError``, ``NotSupported``, ``LimitViolation``); else the
+        deceleration in rev/s² (None: the drive's own)."""
+        if decel is None:
+            return None
+        decel_rps2 = self.units.to_rps2(checks.positive(f"axis {self.name}: decel", decel,
+                                                       unit="units/s²"))
+        try:
+            self.profile.check_stop(decel_rps2)
+        except LimitViolation as exc:
+            raise LimitViolation(
+                f"axis {self.name}: stop(decel={decel:g}) refused: {decel:g} "
+                f"{self.config.unit}/s² is outside what its drive's stop takes (drive "
+                f"{self.profile.family}: {exc}); stop() without decel stops on the "
+                f"axis's own") from exc
+        return decel_rps2
 
     async def halt_now(self) -> None:
         """Emergency stop; returns when a status polled after it shows the drive at rest."""
@@ -424,12 +438,18 @@ class CommandLane(AxisActor):
 
     async def _halt(self, *, emergency: bool, decel_rps2: float | None) -> None:
         by = "halt_now()" if emergency else "stop()"
-        self.stops += 1
         log.debug("axis %s: %s in state %s", self.name, by, self.state)
         offline = self.state is AxisState.OFFLINE
         m = self._motion
-        self._note("stop", by, m=m)
         queued = bool(self._queue)
+        moving = self.status is not None and self.status.moving
+        at_rest = m is None and not queued and not offline and not moving and not (
+            self._stops_on_way
+        ) and self.state in (AxisState.STANDSTILL, AxisState.DISABLED, AxisState.ERROR_STOP)
+        if not at_rest:
+            self.profile.check_can_stop()  # a drive with no stop at all: refused, untouched
+        self.stops += 1
+        self._note("stop", by, m=m)
         pending = self._drop_queue(MotionAborted(
             f"axis {self.name}: the queued motions were dropped by {by}"))
         running = m is not None and m.io is not None
@@ -437,11 +457,8 @@ class CommandLane(AxisActor):
             self._end_motion(m, MotionAborted(f"axis {self.name}: the {m.what} was aborted by "
                                               f"{by}"), None)
         self._jog_deadline = None
-        moving = self.status is not None and self.status.moving
-        if m is None and not queued and not offline and not moving and not (
-            self._stops_on_way
-        ) and self.state in (AxisState.STANDSTILL, AxisState.DISABLED, AxisState.ERROR_STOP):
-            return  # at rest, nothing under way, no stop on its way (else it sends its own)
+        if at_rest:
+            return  # nothing under way, no stop on its way (else it sends its own)
         if running and m is not None and m.io_done is not None:
             pending.append(m.io_done)
         try:
@@ -449,10 +466,7 @@ class CommandLane(AxisActor):
                 await self._aborted_io_ended(pending)  # nothing of theirs can follow it now
                 # Offline or not, the stop is sent: the drive may be back (a network blip)
                 # and a motor must not keep running because our polls failed.
-                if emergency:
-                    await self.profile.emergency_stop()
-                else:
-                    await self.profile.stop(decel_rps2)
+                await self.profile.send_stop(decel_rps2, emergency=emergency)
         except TransactionError as exc:
             if offline:
                 raise (self.error or DriveOffline(f"axis {self.name} is offline")) from exc

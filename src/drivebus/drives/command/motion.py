@@ -181,6 +181,13 @@ class Commands(ProfileBase):
         proc = self._steps_of("stop")
         return proc is not None and proc.honours("decel")
 
+    def check_stop(self, decel_rps2: float | None) -> None:
+        """A deceleration the stop cannot honour, or one beyond its register's range, is
+        refused before anything is sent (``NotSupported``, ``LimitViolation``)."""
+        super().check_stop(decel_rps2)
+        if decel_rps2 is not None:
+            self.dry_run("stop", decel=decel_rps2)
+
     async def stop(self, decel_rps2: float | None = None) -> None:
         """The description's ``stop`` (a deceleration it cannot honour is refused first)."""
         self.check_stop(decel_rps2)

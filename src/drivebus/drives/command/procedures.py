@@ -24,6 +24,19 @@ class Procedures(ProfileBase):
 
     async def run(self, name: str, *args: Any, **kwargs: Any) -> Any:
         """Run procedure ``name`` with its parameters (positional or by name)."""
+        return await self._run(name, self._call(name, args, kwargs))
+
+    def dry_run(self, name: str, **kwargs: Any) -> None:
+        """Check procedure ``name`` with these parameters as ``run`` would before its first
+        frame (``NotSupported``, a value out of its register's range), sending nothing."""
+        call = self._call(name, (), kwargs)
+        proc = self._procedure(name, call)
+        home = self._home_attrs(call) if name == "home" else None
+        self._dry(proc, _Run(name, dict(call), True, self._priority(name, proc), 0, home=home))
+
+    def _call(self, name: str, args: Sequence[Any], kwargs: Mapping[str, Any]
+              ) -> dict[str, Any]:
+        """The parameters of a call of procedure ``name``, by name, defaults filled in."""
         d = self.description
         proc = d.procedures.get(name)
         params = list(PROCEDURES[name][1]) if name in PROCEDURES else \
@@ -40,7 +53,7 @@ class Procedures(ProfileBase):
                 call.setdefault(p.name, p.default)
         for p in params:
             call.setdefault(p, None)
-        return await self._run(name, call)
+        return call
 
     async def _run(self, name: str, args: dict[str, Any], *, depth: int = 0,
                    priority: Priority | None = None) -> Any:
