@@ -178,6 +178,22 @@ def test_check_warns_where_home_cannot_complete(tmp_path: Path) -> None:
             if w.startswith("status.homed is not decoded: home() with switch waits")]
 
 
+def test_check_warns_of_a_homing_method_key_that_looks_misspelt(tmp_path: Path) -> None:
+    """A homing method's further values are the drive's own (``home.NAME``), so ``cod``
+    for ``code`` was taken silently and ``drive try`` failed with "home.code is not
+    given"; ``drive check`` now asks."""
+    from drivebus.app.drives import check_report, load
+
+    path = tmp_path / "newcomer.toml"
+    path.write_text(textwrap.dedent(DRIVE).replace(
+        'set_here = { code = 0, behaviour = "set" }',
+        'set_here = { cod = 0, behaviour = "set", speed_table = 3 }'), encoding="utf-8")
+    warnings = check_report(load(path)).warnings
+    assert "homing.methods.set_here.cod: did you mean 'code'? (taken as a value of the " \
+        "drive's own, home.cod)" in warnings, warnings
+    assert not [w for w in warnings if "speed_table" in w]  # a value of its own: no question
+
+
 def test_a_manuals_whole_list_of_function_codes_is_taken_less_those_never_sent(
         tmp_path: Path) -> None:
     """The TITAN's manual lists FC08 (diagnostics) among its function codes; copied into

@@ -183,6 +183,14 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
     ("scale of a table", MINIMAL.replace("address = 1", "address = 1\ntable = [200, 400]\n"
                                          "scale = 2"),
      ("registers.enable", "scale does not apply to a table")),
+    # an outside audit: a CiA 402 method that does not exist, factory settings the drive
+    # does not offer (drive check said nothing; drive try timed out)
+    ("cia402 method", MINIMAL + "\n[homing.methods]\nswitch = { code = 1, cia402 = 99 }\n",
+     ("homing.methods.switch", "99 is no CiA 402 homing method")),
+    ("factory baud", MINIMAL + "\n[link]\nbaud_rates = [9600, 19200]\nformats = ['8N1']\n"
+     "factory = '57600 8N1'\n", ("link", "57600 baud, which is not among")),
+    ("factory format", MINIMAL + "\n[link]\nbaud_rates = [9600, 19200]\nformats = ['8N1']\n"
+     "factory = '9600 8O1'\n", ("link", "8O1, which is not among the drive's formats")),
 ]
 
 

@@ -8,6 +8,7 @@ wire log, not by the axis's own view."""
 from __future__ import annotations
 
 import contextlib
+import itertools
 import time
 from pathlib import Path
 from typing import Any
@@ -317,19 +318,21 @@ async def test_a_stopped_move_never_resumes() -> None:
 
 async def test_a_negative_home_switch_homes_on_the_cia402_twin(tmp_path: Path) -> None:
     """CiA 402 methods 21 and 22 expect a home switch active on the negative side of its
-    edge; the machine's `sim.options.home_cam = "negative"` puts one there. Before: the described
-    CiA 402 twin refused `home_cam` (its device was always a positive cam), so no
-    description offering 5, 6, 21 or 22 could home on its twin."""
+    edge; the machine's `sim.options.home_cam = "negative"` puts one there, and without
+    the option the twin's cam covers the side the method in 6098h expects, as the
+    simulator guide says (before, it was a positive cam, and from either side the
+    homing ran into a limit switch or timed out). Earlier still the described CiA 402
+    twin refused `home_cam`, so no description offering 5, 6, 21 or 22 could home."""
     text = PD4C.read_text().replace(
         "[homing.methods]\n",
         '[homing.methods]\nhome_switch_negative = { code = 21, cia402 = 21, '
         'source = "manual: Homing (CiA 402 method 21)" }\n', 1)
     drive = tmp_path / "pd4c21.toml"
     drive.write_text(text)
-    for start in (0.0, 180.0):  # the switch inactive, then active at the start
-        cfg = machine(f"home21-{int(start)}", home_switch=90.0,
-                      options={"home_cam": "negative"},
-                      position=start)
+    for options, start in itertools.product(({"home_cam": "negative"}, {}), (0.0, 180.0)):
+        # the switch active, then inactive at the start
+        cfg = machine(f"home21-{int(start)}-{len(options)}", home_switch=90.0,
+                      options=options, position=start)
         cfg["axes"]["a"]["drive"] = str(drive)
         cfg["axes"]["a"]["homing"] = {"method": "home_switch_negative", "speed": 360.0,
                                       "creep": 15.0, "accel": 3600.0}

@@ -8,6 +8,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from drivebus.drives.cia402 import HOMING_METHODS
 from drivebus.drives.description.fields import Source, _Model
 
 
@@ -29,6 +30,10 @@ class HomingMethod(BaseModel):
 
     @model_validator(mode="after")
     def _reference(self) -> HomingMethod:
+        if self.cia402 is not None and self.cia402 not in HOMING_METHODS:
+            raise ValueError(f"cia402: {self.cia402} is no CiA 402 homing method (6098h: "
+                             f"1-14, 17-30, 33-35 and 37; -128..-1 are the manufacturer's, "
+                             f"which a twin cannot play)")
         if self.behaviour == "reference_edge" and (self.reference is None or
                                                    self.direction is None):
             raise ValueError("behaviour reference_edge needs 'reference' and 'direction'")

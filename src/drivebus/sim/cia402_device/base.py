@@ -7,7 +7,15 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Literal
 
-from drivebus.drives.cia402 import OBJECTS, DigitalInput, Mode, State, Statusword
+from drivebus.drives.cia402 import (
+    HOMING_METHODS,
+    OBJECTS,
+    DigitalInput,
+    HomeSwitch,
+    Mode,
+    State,
+    Statusword,
+)
 from drivebus.sim.cia402_device.state import (
     _HALT_OPTIONS,
     _QUICK_STOP_OPTIONS,
@@ -164,6 +172,20 @@ class DeviceBase:
         """The physical position on the motion planned so far (no events run)."""
         return self.kin.position(now) - self._shift
 
+    def cam_side(self) -> int:
+        """The side of ``home_switch`` a home cam covers: ``home_cam``'s, else the side the
+        homing method in 6098h expects (its home switch's, else the side it searches
+        first; +1 with no method)."""
+        s = self.setup
+        if s.home_cam is not None:
+            return 1 if s.home_cam == "positive" else -1
+        method = HOMING_METHODS.get(self.values.get("homing_method", 0))
+        if method is None or method.home_switch is HomeSwitch.POSITIVE:
+            return 1
+        if method.home_switch is HomeSwitch.NEGATIVE:
+            return -1
+        return method.initial_direction or 1
+
     def _switches(self, now: float) -> tuple[bool, bool, bool]:
         """The switches on the motion planned so far (no events run)."""
         p = self._physical(now)
@@ -173,7 +195,7 @@ class DeviceBase:
         elif s.home_switch_width is not None:
             home = s.home_switch <= p <= s.home_switch + s.home_switch_width
         else:
-            home = p >= s.home_switch if s.home_cam == "positive" else p <= s.home_switch
+            home = p >= s.home_switch if self.cam_side() > 0 else p <= s.home_switch
         neg = s.limit_negative is not None and p <= s.limit_negative
         pos = s.limit_positive is not None and p >= s.limit_positive
         return home, neg, pos

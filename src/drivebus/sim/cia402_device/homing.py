@@ -29,7 +29,7 @@ class Homing(DeviceBase):
             if method.home_switch is HomeSwitch.UPPER_EDGE:
                 return _Edge(s.home_switch + s.home_switch_width, -1, "home switch upper edge")
             return _Edge(s.home_switch, +1, "home switch lower edge")
-        return _Edge(s.home_switch, +1 if s.home_cam == "positive" else -1, "home switch")
+        return _Edge(s.home_switch, self.cam_side(), "home switch")
 
     def _start_homing(self, now: float) -> None:
         self.homed = False

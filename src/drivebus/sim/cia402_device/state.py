@@ -53,8 +53,9 @@ class Cia402Setup:
     """The position counter (increments) at power-up; the switches' frame."""
     home_switch: float | None = None
     """Where the home switch's edge is (its lower edge for a switch of ``home_switch_width``)."""
-    home_cam: Literal["positive", "negative"] = "positive"
-    """Without a width: the home switch is active on this side of ``home_switch``."""
+    home_cam: Literal["positive", "negative"] | None = None
+    """Without a width: the home switch is active on this side of ``home_switch`` (None:
+    on the side the homing method in 6098h expects, so that it homes from either side)."""
     home_switch_width: float | None = None
     """The home switch covers [home_switch, home_switch + width] (homing methods 7-14, 23-30)."""
     limit_negative: float | None = None

@@ -28,8 +28,7 @@ class DescribedCia402Drive(DescribedDrive):
     @classmethod
     def twin_options(cls) -> list[str]:
         """The keyword options this twin takes (``home_cam``: the side the home switch
-        is active on, its device's; before, it was refused and the device's cam was
-        always positive, so methods 5, 6, 21 and 22 could not home on any CiA 402 twin)."""
+        is active on, its device's; without it, the side the method in 6098h expects)."""
         return [o for o in super().twin_options() if o != "soft_address"]
 
     def __init__(
@@ -53,7 +52,7 @@ class DescribedCia402Drive(DescribedDrive):
         self.device = Cia402Device(
             Cia402Setup(
                 position=s.position, home_switch=s.home_switch,
-                home_switch_width=home_switch_width, home_cam=home_cam or "positive",
+                home_switch_width=home_switch_width, home_cam=home_cam,
                 limit_negative=s.limit_negative,
                 limit_positive=s.limit_positive, increments_per_rev=ppr,
                 velocity_unit=_pulses_per_raw(d, "velocity", ppr),
@@ -67,11 +66,11 @@ class DescribedCia402Drive(DescribedDrive):
 
     def set_home_shape(self, home_cam: str | None, home_switch_width: float | None) -> None:
         """The home switch's shape, the device's too (a cam on ``home_cam``'s side, by
-        default positive, or a dog of ``home_switch_width``)."""
+        default the side the homing method expects, or a dog of ``home_switch_width``)."""
         super().set_home_shape(home_cam, home_switch_width)
         device = getattr(self, "device", None)
         if device is not None:
-            device.setup = replace(device.setup, home_cam=self.home_cam or "positive",
+            device.setup = replace(device.setup, home_cam=self.home_cam,
                                    home_switch_width=self.home_switch_width)
 
     # -- the device's state as a twin shows it ------------------------------------------------
