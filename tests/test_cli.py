@@ -594,6 +594,19 @@ def test_ctrl_c_ends_an_open_ended_jog_cleanly(tmp_path: Path) -> None:
         assert status_json(cfg)["x"]["moving"] is False
 
 
+def test_sigterm_ends_an_open_ended_jog_as_143(tmp_path: Path) -> None:
+    """Ctrl-C is the normal end of an open-ended jog; SIGTERM (a supervisor ending it) is
+    not: the axis stops as for Ctrl-C, and the status says the signal (it was 0)."""
+    with sim_server(SINGLE) as (_, ends):
+        cfg = pty_config(tmp_path, ends["bus"])
+        with spawn("jog", cfg, "x", "-10") as jog:
+            jog.expect(r"position=-[1-9]\.\d+ .*state=ContinuousMotion")
+            jog.popen.send_signal(signal.SIGTERM)
+            assert jog.popen.wait(30) == 143
+            assert "interrupted (SIGTERM)" in jog.rest()
+        assert status_json(cfg)["x"]["moving"] is False
+
+
 def test_sim_log_prints_frames(tmp_path: Path) -> None:
     with sim_server(SINGLE, "--log") as (sim, ends):
         cfg = pty_config(tmp_path, ends["bus"])

@@ -65,6 +65,15 @@ async def test_numbers_far_beyond_the_drive_are_refused_over_http_at_once() -> N
             assert problem["title"] == "LimitViolation", problem
             assert quantity in problem["detail"] and "at most" in problem["detail"], problem
             await _nothing_sent(m, before)
+        # integers beyond any float and beyond Python's 4300 digits (a 400 "error parsing
+        # the body" named no cause): a 422 that says so
+        for digits in (400, 4400):
+            before = write_frames(m)
+            r = await client.post("/api/axes/x/move", content=b'{"target": 1' + b"0" * digits
+                                  + b"}", headers={"content-type": "application/json"})
+            assert r.status_code == 422, r.text[:300]
+            assert f"{digits + 1} digits" in r.json()["detail"], r.text[:300]
+            await _nothing_sent(m, before)
         r = await client.post("/api/axes/x/move", json={"target": 20.0})
         assert r.status_code == 202, r.text  # it goes on serving
 
@@ -84,7 +93,20 @@ async def test_numbers_far_beyond_the_drive_are_refused_over_the_websocket() -> 
                 reply = json.loads(await conn.recv())
             assert reply["type"] == "reply" and reply["ok"] is False, reply
             assert reply["error"]["title"] == "LimitViolation", reply
+            # integers beyond any float, and beyond what Python converts (4300 digits):
+            # refused as such, and the connection goes on (it used to be dropped)
+            for digits in (400, 4400):
+                await conn.send('{"id": 2, "jog": {"axis": "y", "speed": 1' + "0" * digits
+                                + ', "ttl": 1.0}}')
+                with within(20, f"the reply to a speed of {digits + 1} digits"):
+                    reply = json.loads(await conn.recv())
+                assert reply["type"] == "reply" and reply["ok"] is False, reply
+                assert reply["error"]["title"] == "ArgumentError", reply
+                assert f"{digits + 1} digits" in reply["error"]["detail"], reply
             await _nothing_sent(m, before)
+            await conn.send(json.dumps({"id": 3, "ping": {}}))
+            with within(10, "the pong after them"):
+                assert json.loads(await conn.recv())["type"] == "pong"
 
 
 @pytest.fixture
@@ -100,12 +122,13 @@ async def test_numbers_far_beyond_the_drive_are_refused_over_mqtt(broker: Broker
         for ax in m.axes.values():
             await ax.refresh()
         before = write_frames(m)
-        for verb, body in (("move", {"target": 20.0, "speed": HUGE}),
-                           ("jog", {"speed": -HUGE, "ttl": 1.0})):
+        for verb, body, error in (("move", {"target": 20.0, "speed": HUGE}, "LimitViolation"),
+                                  ("jog", {"speed": -HUGE, "ttl": 1.0}, "LimitViolation"),
+                                  ("move", {"target": 10**400}, "ArgumentError")):
             with within(20, f"the reply to {verb} {body}"):
                 replies = await p.command("demo", "x", verb, body)
             assert [r["status"] for r in replies] == ["failed"], replies  # no "accepted"
-            assert replies[0]["error"]["type"] == "LimitViolation", replies
+            assert replies[0]["error"]["type"] == error, replies
         await _nothing_sent(m, before)
         ok = await p.command("demo", "x", "move", {"target": 13.0})
         assert ok[-1]["status"] == "done", ok
@@ -239,3 +262,64 @@ async def test_a_client_name_with_a_trailing_newline_is_not_taken() -> None:
                 with within(10, "hello"):
                     hello = json.loads(await conn.recv())
                 assert hello["type"] == "hello" and hello["client"] == seen, hello
+
+
+@pytest.mark.parametrize("verb", ["home", "enable", "disable", "reset"])
+async def test_a_command_without_parameters_refuses_a_body_that_gives_some(verb: str) -> None:
+    """Home, enable, disable and reset take no parameters: a body that gives some (a
+    homing method, speeds) is a 422 naming the key, not ignored; home used to answer 202
+    and home with the machine file's method."""
+    async with running() as (svc, client):
+        m = svc.session.machine
+        await at_rest(svc)
+        before = write_frames(m)
+        for body in ({"method": "limit_negative", "speed": 1}, [1, 2]):
+            r = await client.post(f"/api/axes/x/{verb}", json=body)
+            assert r.status_code == 422, (verb, body, r.text)
+            assert "method" in r.text or "valid dictionary" in r.text, r.text
+        r = await client.post(f"/api/axes/x/{verb}", content=b"not json",
+                              headers={"content-type": "application/json"})
+        assert r.status_code == 422, r.text
+        await _nothing_sent(m, before)
+        r = await client.post(f"/api/axes/x/{verb}", json={})  # an empty one is no parameter
+        assert r.status_code in (200, 202, 501), r.text  # (x's NT86 cannot disable: 501)
+
+
+async def test_a_stop_at_a_deceleration_the_drive_cannot_take_leaves_the_motion_alone() -> None:
+    """``stop(decel=...)`` beyond the range of the drive's stop register: a 422 naming the
+    axis and the deceleration in its units, nothing sent, and the jog under way goes on
+    under the axis's watch (it used to be aborted first, the motor left running with the
+    axis Stopping and no stop sent); a stop without decel then stops it."""
+    async with running() as (svc, client):
+        m = svc.session.machine
+        await at_rest(svc)
+        twin = m.sim_drives["x"]
+        r = await client.post("/api/axes/x/jog", json={"speed": 20.0 if twin.position() < 0
+                                                        else -20.0, "ttl": 5.0})
+        assert r.status_code == 200, r.text
+        await moving(svc, "x")
+        before = write_frames(m)
+        for decel in (50.0, 1e7):
+            r = await client.post("/api/axes/x/stop", json={"decel": decel})
+            assert r.status_code == 422, r.text
+            detail = r.json()["detail"]
+            assert detail.startswith(f"axis x: stop(decel={decel:g}) refused") and \
+                "mm/s²" in detail, detail
+        assert write_frames(m) == before and twin.is_moving()
+        assert m.axes["x"].state.name == "CONTINUOUS_MOTION"
+        r = await client.post("/api/axes/x/stop")
+        assert r.status_code == 200 and not twin.is_moving(), r.text
+
+
+@pytest.mark.timeout(120)
+async def test_a_stop_the_drive_cannot_take_is_only_failed_over_mqtt(broker: Broker) -> None:
+    async with bridged(DEMO, broker.url) as (s, _), probe(broker.url) as p:
+        m = s.machine
+        for ax in m.axes.values():
+            await ax.refresh()
+        before = write_frames(m)
+        with within(20, "the reply to a stop at 50 mm/s²"):
+            replies = await p.command("demo", "x", "stop", {"decel": 50.0})
+        assert [r["status"] for r in replies] == ["failed"], replies  # no "accepted"
+        assert replies[0]["error"]["type"] == "LimitViolation", replies
+        await _nothing_sent(m, before)

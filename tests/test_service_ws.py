@@ -198,7 +198,9 @@ async def test_stop_and_estop_over_the_websocket_overtake_queued_jogs() -> None:
         await send(conn, stop={"axis": "z"}, id="s")
         reply = await recv_until(conn, lambda m: m.get("id") == "s")
         assert reply["ok"] and not twins["z"].is_moving() and twins["x"].is_moving()
-        await send(conn, estop={}, id="e")
+        # with a key of the client's own beside it: an e-stop is never refused for that
+        # (it was, as one operation and an unknown key, and x ran on)
+        await send(conn, estop={}, id="e", reason="operator pressed the e-stop")
         reply = await recv_until(conn, lambda m: m.get("id") == "e")
         assert reply["ok"] and reply["axes"] == {n: None for n in AXES}
         assert not any(t.is_moving() for t in twins.values())

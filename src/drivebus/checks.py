@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import json
 import math
+import re
+import sys
 from collections.abc import Sequence
 from enum import IntEnum
 from numbers import Integral, Real
@@ -28,6 +30,7 @@ __all__ = [
     "MAX_RETRIES",
     "MAX_TIMEOUT",
     "check_json_depth",
+    "check_json_numbers",
     "finite",
     "load_json",
     "member",
@@ -58,7 +61,10 @@ def finite(name: str, value: object, *, error: type[DrivebusError] = ArgumentErr
     """``value`` as a float if it is a finite real number; else ``error``."""
     if isinstance(value, bool) or not isinstance(value, Real):
         raise error(f"{name}: expected a number, got {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an int beyond any float (its repr may be too long to make)
+        raise error(f"{name}: a number beyond ±{sys.float_info.max:.4g}") from None
     if not math.isfinite(v):
         raise error(f"{name}: {value!r} is not a finite number")
     return v
@@ -250,6 +256,21 @@ def check_json_depth(name: str, data: str | bytes, *, max_depth: int = MAX_JSON_
         raise ArgumentError(f"{name}: JSON nested too deeply (more than {max_depth} levels)")
 
 
+_MAX_INT_DIGITS = 309
+"""The longest integer JSON from outside may hold: about the largest float's."""
+_LONG_DIGITS = re.compile(rb"\d{%d,}" % (_MAX_INT_DIGITS + 1))
+
+
+def check_json_numbers(name: str, data: bytes) -> None:
+    """``ArgumentError`` naming ``name`` if JSON ``data`` holds a run of digits longer than
+    any number a drive takes (for a parser that would fail on it without saying why:
+    Python refuses integers of 4300 digits with a ``ValueError``)."""
+    long = _LONG_DIGITS.search(data)
+    if long is not None:
+        raise ArgumentError(f"{name}: a number of {len(long.group())} digits is beyond any "
+                            f"number a drive takes")
+
+
 def load_json(name: str, text: str, *, max_depth: int = MAX_JSON_DEPTH) -> Any:
     """JSON ``text`` from outside as data, alike on every Python version: nested at most
     ``max_depth`` deep, no NaN or infinity; else ``ArgumentError`` naming ``name`` (e.g.
@@ -260,8 +281,14 @@ def load_json(name: str, text: str, *, max_depth: int = MAX_JSON_DEPTH) -> Any:
         raise ArgumentError(f"{name}: {constant} is not a finite number (JSON has no "
                             f"{constant})")
 
+    def integer(digits: str) -> int:
+        if len(digits) > _MAX_INT_DIGITS:  # (Python refuses 4300 digits, a float 309)
+            raise ArgumentError(f"{name}: an integer of {len(digits)} digits is beyond any "
+                                f"number a drive takes")
+        return int(digits)
+
     try:
-        return json.loads(text, parse_constant=no_constant)
+        return json.loads(text, parse_constant=no_constant, parse_int=integer)
     except json.JSONDecodeError as exc:
         raise ArgumentError(f"{name}: not JSON ({exc.msg} at line {exc.lineno} column "
                             f"{exc.colno}): {text[:80]!r}") from None

@@ -101,19 +101,25 @@ class Out:
 
 def run_guarded(fn: Callable[[], Awaitable[int]], *, interrupt_ok: bool = False) -> int:
     """Run a command: SIGINT/SIGTERM cancel it (its cleanup, e.g. stopping moving axes,
-    runs in full) and give exit status 128+signal, or 0 if ``interrupt_ok`` (commands that
-    run until Ctrl-C); an interrupted command says so on stderr."""
+    runs in full) and give exit status 128+signal, or for Ctrl-C 0 if ``interrupt_ok``
+    (commands that run until Ctrl-C: SIGTERM still ends them as 143); an interrupted
+    command says so on stderr."""
 
     from drivebus.app.lifecycle import run_until_signalled
 
     caught: list[signal.Signals] = []
 
+    def normal_end(sig: signal.Signals) -> bool:
+        return interrupt_ok and sig is signal.SIGINT
+
     def said(sig: signal.Signals) -> None:
         caught.append(sig)
-        if not interrupt_ok:
+        if not normal_end(sig):
             print(f"interrupted ({sig.name})", file=sys.stderr, flush=True)
 
     code = run_until_signalled(fn, interrupt_ok=interrupt_ok, on_signal=said)
+    if caught and not normal_end(caught[0]):
+        code = 128 + caught[0]
     if caught:  # stopped and on its way out: a late Ctrl-C must not change its status
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)

@@ -568,12 +568,14 @@ class Bridge:
         try:
             if cmd.verb != "halt":
                 s.authorize(client)  # refused by a lease: only a failed reply
+            if cmd.verb == "stop":  # a deceleration the drive cannot take: the same
+                s.axis(a).check_stop(args.get("decel"))
         except DrivebusError as exc:
             self._final(rt, a, cmd.verb, exc)
             return
-        # A stop or halt is taken up at once (nothing refuses it but a lease); the others
-        # once they are over or failed on the way: a refusal (nothing sent) only fails. A
-        # jog is accepted once the axis took it.
+        # A stop or halt is taken up at once (nothing refuses it but a lease or a stop's
+        # deceleration); the others once they are over or failed on the way: a refusal
+        # (nothing sent) only fails. A jog is accepted once the axis took it.
         at_end = cmd.verb not in ("stop", "halt", "jog")
         if cmd.verb in ("stop", "halt"):
             self._accepted(rt, a, cmd.verb)

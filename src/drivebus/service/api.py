@@ -40,6 +40,7 @@ from drivebus.service.models import (
     JogRequest,
     LeaseRequest,
     MoveRequest,
+    NoParameters,
     ParametersRequest,
     ReadRequest,
     RecordingRequest,
@@ -120,9 +121,10 @@ async def move(
 
 
 @router.post("/axes/{name}/home", status_code=202, tags=["motions"])
-async def home(name: str, session: Session, who: Commander, response: Response
-               ) -> dict[str, Any]:
-    """Start the axis's homing procedure; ``202`` once accepted."""
+async def home(name: str, session: Session, who: Commander, response: Response,
+               _: NoParameters | None = None) -> dict[str, Any]:
+    """Start the axis's homing procedure (its machine file's method and speeds: a body
+    may only be ``{}``); ``202`` once accepted."""
     rec = await session.start_home(name, client=who.name)
     accepted(response, rec.id)
     return rec.as_dict()
@@ -174,21 +176,24 @@ async def halt(name: str, session: Session, who: Commander) -> dict[str, Any]:
 
 
 @router.post("/axes/{name}/enable", tags=["axes"])
-async def enable(name: str, session: Session, who: Commander) -> dict[str, Any]:
+async def enable(name: str, session: Session, who: Commander,
+                 _: NoParameters | None = None) -> dict[str, Any]:
     """Energise the motor."""
     await session.enable(name, client=who.name)
     return session.axis_snapshot(name).as_dict()
 
 
 @router.post("/axes/{name}/disable", tags=["axes"])
-async def disable(name: str, session: Session, who: Commander) -> dict[str, Any]:
+async def disable(name: str, session: Session, who: Commander,
+                  _: NoParameters | None = None) -> dict[str, Any]:
     """De-energise the motor (at rest)."""
     await session.disable(name, client=who.name)
     return session.axis_snapshot(name).as_dict()
 
 
 @router.post("/axes/{name}/reset", tags=["axes"])
-async def reset(name: str, session: Session, who: Commander) -> dict[str, Any]:
+async def reset(name: str, session: Session, who: Commander,
+                _: NoParameters | None = None) -> dict[str, Any]:
     """Leave ErrorStop (clear the drive's alarm if it has one)."""
     await session.reset(name, client=who.name)
     return session.axis_snapshot(name).as_dict()

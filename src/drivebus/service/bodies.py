@@ -8,9 +8,11 @@ answers a body larger than ``MAX_BODY`` with a 413 ``ContentTooLarge`` problem, 
 
 FastAPI parses a JSON body with Python's own parser, which gives up at a nesting depth
 that depends on the Python version and the stack (400 "error parsing the body" on one,
-a 422 validation error on another). ``BodyLimits`` reads a JSON body first and answers
-one nested deeper than ``checks.MAX_JSON_DEPTH`` with a 422 ``ArgumentError`` naming the
-cause, on every version; any other body reaches the application unchanged.
+a 422 validation error on another), and fails on an integer of 4300 digits with a 400
+that names no cause. ``BodyLimits`` reads a JSON body first and answers one nested deeper
+than ``checks.MAX_JSON_DEPTH``, or with a number of more digits than any float, with a
+422 ``ArgumentError`` naming the cause, on every version; any other body reaches the
+application unchanged.
 
 The e-stop and ``halt`` are never refused: they take no body, and their requests go to
 the application unread, whatever body they carry.
@@ -91,6 +93,7 @@ class BodyLimits:
         if _json_body(scope):
             try:
                 checks.check_json_depth("body", body)
+                checks.check_json_numbers("body", body)
             except ArgumentError as exc:
                 await problem(422, problem_data(exc, scope.get("path")))(scope, receive, send)
                 return

@@ -74,6 +74,11 @@ class GroupMoveRequest(_Body):
     )
 
 
+class NoParameters(_Body):
+    """A command that takes no parameters (home, enable, disable, reset): no body or
+    ``{}``; a key in it is refused (``422``) rather than ignored."""
+
+
 class StopRequest(_Body):
     """A decelerating stop, optionally with its own deceleration (units/s²)."""
 

@@ -280,6 +280,8 @@ def _parse(text: str) -> tuple[str, Any, Any]:
     msg = checks.load_json("message", text)
     if not isinstance(msg, dict):
         raise ArgumentError("expected a JSON object with one operation")
+    if "estop" in msg:  # an emergency stop is never refused for what comes with it
+        return "estop", msg.get("id"), msg["estop"]
     ops = [k for k in msg if k in _OPS]
     unknown = [k for k in msg if k not in _OPS and k != "id"
                and not (k == "max_rate" and ops == ["subscribe"])]
