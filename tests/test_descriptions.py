@@ -611,6 +611,19 @@ def test_drive_check_prints_what_was_understood_and_names_mistakes(tmp_path: Pat
     assert f"{bad}: procedures.enable.steps[0].write: no register 'enabel'" in done.stderr
 
 
+def test_drive_check_fails_a_procedure_that_writes_what_its_register_never_takes(
+        tmp_path: Path) -> None:
+    """``enable`` writing 70000 to a register of 0..1: every enable() would be refused
+    (nothing sent), and ``drive check`` said nothing of it (an outside audit)."""
+    ranged = MINIMAL.replace("address = 1\n", "address = 1\nmax = 1\n", 1)
+    assert cli("drive", "check", write(tmp_path, ranged, "ok.toml")).returncode == 0
+    done = cli("drive", "check", write(tmp_path, ranged.replace("enable = 1 }",
+                                                                "enable = 70000 }"), "bad.toml"))
+    assert done.returncode == 1, done.stdout + done.stderr
+    failed = done.stdout.split("\nfailed:\n", 1)[1]
+    assert failed.startswith("  - procedures.enable: value 70000") and "0..1" in failed, failed
+
+
 def test_drive_doc_renders_the_reference_page() -> None:
     done = cli("drive", "doc", MOONS)
     assert done.returncode == 0, done.stderr

@@ -46,8 +46,9 @@ class DescriptionReport:
     lines: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     failed: list[str] = field(default_factory=list)
-    """The manual's example frames that the description does not reproduce: the check
-    fails (``drivebus drive check`` exits 1)."""
+    """What the description gets wrong for certain: a manual's example frame it does not
+    reproduce, a procedure that writes a value its register never takes. The check fails
+    (``drivebus drive check`` exits 1)."""
 
     def text(self) -> str:
         """The report as text."""
@@ -55,8 +56,7 @@ class DescriptionReport:
         if self.warnings:
             out += ["", "warnings:"] + [f"  - {w}" for w in self.warnings]
         if self.failed:
-            out += ["", "failed (the manual's example frames):"] + [
-                f"  - {f}" for f in self.failed]
+            out += ["", "failed:"] + [f"  - {f}" for f in self.failed]
         return "\n".join(out)
 
 
@@ -96,6 +96,9 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
         f"wear EEPROM, {sum(x.d.volatile for x in regs)} volatile)"
         + (f"; tables {', '.join(tables)}" if tables else ""))
     r.lines += provenance_lines(d, r)
+    from drivebus.drives.examples import out_of_range_writes
+
+    r.failed += out_of_range_writes(d)
     r.lines += conversion_lines(d)
     plan = p._status_plan  # type: ignore[attr-defined]
     by_space = {0: (3, plan.blocks + plan.object_blocks), 1: (4, plan.input_blocks),

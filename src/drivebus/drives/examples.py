@@ -23,11 +23,12 @@ from drivebus.bus import Priority, SlaveHandle
 from drivebus.drives.description import Description, ExampleDef
 from drivebus.drives.engine import DescribedProfile, profile_class
 from drivebus.drives.values import RegValue, Table
-from drivebus.errors import DrivebusError, ModbusException
+from drivebus.errors import DrivebusError, LimitViolation, ModbusException
 from drivebus.line.rtu import crc16, crc_ok
 from drivebus.pdu import LengthPredictor, ReplyDecoder
 
-__all__ = ["ExampleResult", "Frame", "parse_frame", "verify_examples"]
+__all__ = ["ExampleResult", "Frame", "Recorder", "out_of_range_writes", "parse_frame",
+           "verify_examples"]
 
 
 @dataclass(frozen=True)
@@ -85,8 +86,9 @@ class ExampleResult:
     """False for an erratum that stands for nothing the drive does (listed, not run)."""
 
 
-class _Recorder:
-    """An executor that records every request and answers from the printed replies."""
+class Recorder:
+    """An executor that records every request and answers from the printed replies (and
+    echoes writes, zeros for other reads)."""
 
     def __init__(self, replies: list[tuple[bytes, bytes]]) -> None:
         self.requests: list[tuple[int, bytes]] = []
@@ -130,7 +132,7 @@ def _same(value: Any, expected: Any) -> bool:
 async def _run(d: Description, ex: ExampleDef, requests: list[Frame],
                replies: list[Frame]) -> tuple[list[tuple[int, bytes]], dict[str, Any]]:
     """The requests the engine sends for ``ex`` and what it read."""
-    recorder = _Recorder([(q.pdu, r.pdu) for q, r in zip(requests, replies, strict=False)])
+    recorder = Recorder([(q.pdu, r.pdu) for q, r in zip(requests, replies, strict=False)])
     slave = SlaveHandle(recorder, requests[0].unit, settings=None, timeout=1.0, retries=0,
                         max_address=255)
     profile: DescribedProfile = profile_class(d)(  # type: ignore[call-arg]
@@ -197,6 +199,38 @@ def verify_examples(d: Description) -> list[ExampleResult]:
     """Every ``[[examples]]`` entry of ``d``, verified against its engine (no I/O; not
     from inside an event loop: it runs its own)."""
     return [_check(d, i, ex) for i, ex in enumerate(d.examples)]
+
+
+_WITHOUT_PARAMETERS = ("enable", "disable", "stop", "emergency_stop", "clear_alarm",
+                       "zero_position", "save_parameters")
+"""The common procedures whose writes need no argument: what they write is known now
+(``setup`` and ``start_table`` write what the options and a prepared table say)."""
+
+
+def out_of_range_writes(d: Description) -> list[str]:
+    """The common procedures that take no argument, run dry on ``d``'s engine with its
+    default options (as the axis runs them before their first frame; no I/O): each that
+    writes a value outside its register's range, a constant the drive never takes, is
+    named with the value (it would be refused every time it is called)."""
+    slave = SlaveHandle(Recorder([]), 1, settings=None, timeout=1.0, retries=0,
+                        max_address=255)
+    try:
+        profile: DescribedProfile = profile_class(d)(  # type: ignore[call-arg]
+            slave, pulses_per_rev=d.units.pulses_per_rev.default)
+    except DrivebusError:  # options it needs are not given: nothing to say without them
+        return []
+    out = []
+    for name in _WITHOUT_PARAMETERS:
+        proc = d.procedures.get(name)
+        if proc is None or proc.unsupported is not None:
+            continue
+        try:
+            profile.dry_run(name)
+        except LimitViolation as exc:
+            out.append(f"procedures.{name}: {exc}")
+        except DrivebusError:  # not supported with these options, or needs the drive's
+            continue           # answers: checked when it runs
+    return out
 
 
 def example_values(values: Mapping[str, Any]) -> str:
