@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import gc
 import os
 import signal
 import tomllib
@@ -145,8 +146,13 @@ async def test_an_emergency_write_goes_before_the_polls_queued_after_it() -> Non
             assert frames[order[0]].data[1] == 0x06, i  # the stop left first
 
 
-async def test_a_worker_that_dies_makes_its_axes_offline_at_once_and_comes_back() -> None:
-    async with open_machine(demo("w-death")) as m:
+@pytest.mark.parametrize("how", [signal.SIGKILL, signal.SIGSTOP], ids=["dies", "hangs"])
+async def test_a_worker_that_dies_makes_its_axes_offline_at_once_and_comes_back(
+        how: signal.Signals) -> None:
+    """Killed, or stopped (hung: its lines' stops could not leave; nothing noticed it, and
+    a stop or a cancelled move waited 30 s for a drive that ran on): its axes go Offline,
+    at once or once the watchdog has heard nothing for 1.5 s and killed it."""
+    async with open_machine(demo(f"w-death-{how.name}")) as m:
         x = m.axes["x"]
         twin = m.sim_drives["x"]
         await x.enable()
@@ -162,7 +168,7 @@ async def test_a_worker_that_dies_makes_its_axes_offline_at_once_and_comes_back(
             tg.start_soon(move)
             await until("x moving", twin.is_moving)
             pid = m.workers[0]["pid"]
-            os.kill(pid, signal.SIGKILL)
+            os.kill(pid, how)
             # at once: every axis of its lines is Offline, the move ends with DriveOffline
             await until("axes offline",
                         lambda: all(a.state is AxisState.OFFLINE for a in m.axes.values()),
@@ -182,6 +188,26 @@ async def test_a_worker_that_dies_makes_its_axes_offline_at_once_and_comes_back(
         assert not twin.is_moving()
         await x.move_to(10.0)
         assert twin.position() == x.units.to_pulses(10.0)
+
+
+async def test_a_handle_collected_in_another_thread_leaves_the_worker_channel_working(
+) -> None:
+    """A slave handle of a worker's line, collected by the garbage collector in a worker
+    thread (a handle in a reference cycle: an exception's traceback is enough): its
+    finalizer, which tells the worker, ran in that thread, found no event loop and left
+    the channel to the worker stuck, every later request waiting for ever."""
+    async with open_machine(demo("w-gc")) as m:
+        bus = m.buses["rs485"]
+        assert isinstance(bus, RemoteBus)
+        tmp = bus.slave(2)  # x's NT86, at the line's settings
+        await tmp.read_holding_registers(0, 2)  # the worker knows the handle now
+        cycle: list[Any] = [tmp]
+        cycle.append(cycle)
+        del tmp, cycle
+        await anyio.to_thread.run_sync(gc.collect)  # its finalizer runs in that thread
+        with anyio.fail_after(10):
+            assert len(await bus.slave(2).read_holding_registers(0, 2)) == 2
+            await m.axes["x"].refresh()
 
 
 async def test_leaving_a_machine_with_workers_stops_every_axis_first() -> None:

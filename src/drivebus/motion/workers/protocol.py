@@ -12,7 +12,9 @@ From the machine: ``OPEN`` (the lines to serve), ``HANDLE`` (a slave handle's se
 ``CANCEL`` (its caller gave up), ``HOLD``/``UNHOLD`` (``Bus.hold``), ``OBSERVE`` (send a
 line's transactions), ``CLOSE``. From a worker: ``READY``, ``OK``/``ERR`` (a transaction's
 reply or error), ``CANCELLED`` (what became of a cancelled one), ``HELD``, ``STATS``,
-``SEEN`` (observed transactions), ``LOG`` (its log records), ``CLOSED``.
+``SEEN`` (observed transactions), ``LOG`` (its log records), ``CLOSED``, and ``ALIVE``
+every ``ALIVE_PERIOD`` (the machine's watchdog: a worker it has not heard from for
+``WATCHDOG`` is taken for hung and killed).
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ from typing import Any
 from drivebus.errors import DrivebusError, TransactionError
 
 __all__ = [
+    "ALIVE",
+    "ALIVE_PERIOD",
     "CANCEL",
     "CANCELLED",
     "CLOSE",
@@ -47,15 +51,23 @@ __all__ = [
     "TAKEN",
     "TX",
     "UNHOLD",
+    "WATCHDOG",
     "Channel",
     "decode_error",
     "encode_error",
 ]
 
 OPEN, HANDLE, EXPECT, TX, CANCEL, HOLD, UNHOLD, OBSERVE, CLOSE, FORGET = range(10)
-READY, OK, ERR, CANCELLED, HELD, STATS, SEEN, LOG, CLOSED, TAKEN = range(100, 110)
+READY, OK, ERR, CANCELLED, HELD, STATS, SEEN, LOG, CLOSED, TAKEN, ALIVE = range(100, 111)
 """``TAKEN, line, when``: the worker queued an emergency request on that line (a stop) at
 ``when`` (``time.monotonic``, the host's clock): where the stop's own scheduling begins."""
+
+ALIVE_PERIOD = 0.2
+"""How often a serving worker says it is alive, seconds."""
+WATCHDOG = 1.5
+"""How long the machine goes without a word from a serving worker before it kills it
+(hung, or stopped: its lines' stops could not leave) and starts it again, seconds: some
+seven periods, so that a worker starved of the CPU for a moment is not taken for hung."""
 
 _LENGTH = struct.Struct("<I")
 _MAX_MESSAGE = 64 << 20
@@ -123,8 +135,10 @@ class Channel(asyncio.Protocol):
         self._out.append(_LENGTH.pack(len(data)))
         self._out.append(data)
         if not self._flushing:
-            self._flushing = True
+            # (the flush scheduled before it is marked: called with no loop running, it
+            # raises here and the next send schedules it, not leaves it never scheduled)
             asyncio.get_running_loop().call_soon(self._flush)
+            self._flushing = True
 
     def send_now(self, message: tuple[Any, ...]) -> None:
         """Send ``message`` at once, with whatever is queued before it (a stop: it does

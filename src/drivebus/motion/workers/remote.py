@@ -9,7 +9,10 @@ else waits (shielded, bounded) for its outcome, as with a bus of its own process
 A worker that dies fails what it had in hand with ``ConnectionLost`` (a transaction
 error: the axes' polls count it), tells the machine at once (``on_lost``: its axes go
 Offline) and is started again; while it is away its lines' requests fail at once. If it
-cannot be started again, its lines stay failed and the log says why.
+cannot be started again, its lines stay failed and the log says why. A worker that hangs
+(stopped, deadlocked: its lines' stops cannot leave) is one the machine has not heard
+from for ``WATCHDOG`` seconds (a serving worker says it is alive five times a second): it
+is killed, and goes the same way.
 """
 
 from __future__ import annotations
@@ -29,12 +32,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import anyio
+import anyio.lowlevel
 
 import drivebus.motion.workers.protocol as p
 from drivebus import checks
 from drivebus.bus import BusStats, Priority, SlaveHandle, Transaction, TransactionObserver
 from drivebus.bus.sent import SentRequest, note_sent, noted_in
 from drivebus.bus.slave import handle_on
+from drivebus.clock import monotonic
 from drivebus.config import LineConfig
 from drivebus.errors import ConnectionLost, DrivebusError, LineClosed
 from drivebus.line.base import Line
@@ -272,6 +277,11 @@ class _Worker:
         self.restarts = 0
         self.proc: subprocess.Popen[bytes] | None = None
         self.channel: p.Channel | None = None
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.heard = 0.0
+        """When the worker's last message came (monotonic s): the watchdog's measure."""
+        self._silent: float | None = None
+        """How long the worker was silent when the watchdog killed it (None: it was not)."""
         self._ready: asyncio.Future[Any] | None = None
         self._closed: asyncio.Future[None] | None = None
         self._closing = False
@@ -293,10 +303,42 @@ class _Worker:
                 self.channel.send(message)
 
     def forget(self, hid: int) -> None:
+        """Handle ``hid`` is gone (its finalizer: in whatever thread the collector ran)."""
+        loop = self.loop
+        if loop is None or loop.is_closed():
+            return  # no loop any more: no worker either
+        try:
+            running = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is loop:
+            self._forget(hid)
+        else:  # another thread: the socket and the handle set are the loop's alone
+            with contextlib.suppress(RuntimeError):  # closed meanwhile
+                loop.call_soon_threadsafe(self._forget, hid)
+
+    def _forget(self, hid: int) -> None:
         if hid in self.handles:
             self.handles.discard(hid)
-            with contextlib.suppress(RuntimeError):  # no loop running any more: no worker
-                self.send((p.FORGET, hid))
+            self.send((p.FORGET, hid))
+
+    @property
+    def serving(self) -> bool:
+        """Whether the worker is up and serving its lines (what the watchdog watches)."""
+        return (self.down is None and self.channel is not None and not self._closing
+                and self._ready is not None and self._ready.done())
+
+    def hung(self, silent: float) -> None:
+        """The worker said nothing for ``silent`` seconds: kill it (its socket then closes,
+        and ``on_lost`` fails what it had in hand and has it started again)."""
+        self._silent = silent
+        log.error("worker %d for line %s said nothing for %.1f s: taken for hung, killed",
+                  self.number, ", ".join(self.names), silent)
+        if self.proc is not None:
+            with contextlib.suppress(OSError):
+                self.proc.kill()
+        if self.channel is not None and self.channel.transport is not None:
+            self.channel.transport.abort()
 
     def request(self, hid: int, pdu: bytes, expect: LengthPredictor | None, priority: int,
                 idempotent: bool) -> tuple[int, asyncio.Future[bytes]]:
@@ -336,6 +378,7 @@ class _Worker:
     # -- messages from the worker ---------------------------------------------------------------
 
     def on_message(self, m: tuple[Any, ...]) -> None:
+        self.heard = monotonic()
         tag = m[0]
         if tag == p.OK or tag == p.ERR:
             fut = self.pending.get(m[1])
@@ -386,6 +429,9 @@ class _Worker:
             return
         code = self.proc.poll() if self.proc is not None else None
         why = f"exit code {code}" if code is not None else (str(exc) if exc else "no answer")
+        if self._silent is not None:
+            why = f"silent for {self._silent:.1f} s: killed as hung"
+            self._silent = None
         self.down = ConnectionLost(
             f"the worker process serving line {', '.join(self.names)} died ({why})")
         log.error("%s: its axes are Offline; starting it again", self.down)
@@ -412,7 +458,7 @@ class _Worker:
 
     async def start(self) -> None:
         """Start the process, have it open its lines; ``DrivebusError`` if it cannot."""
-        loop = asyncio.get_running_loop()
+        loop = self.loop = asyncio.get_running_loop()
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
         try:  # a fork and exec, once per worker: quick enough to do in the loop
             self.proc = subprocess.Popen(  # noqa: ASYNC220
@@ -444,6 +490,7 @@ class _Worker:
         if error is not None:
             await self._end()
             raise p.decode_error(error)
+        self.heard = monotonic()
         self.down = None
         for bus in self.buses:
             bus._reattached()
@@ -504,6 +551,7 @@ class WorkerPool:
         self._tasks = ServiceTasks()
         await self._tasks.__aenter__()
         self._tasks.start_soon(self._supervise, name="drivebus workers' supervisor")
+        self._tasks.start_soon(self._watch, name="drivebus workers' watchdog")
         return self
 
     async def __aexit__(self, *exc: object) -> None:
@@ -534,6 +582,26 @@ class WorkerPool:
             self._wake.clear()
             while self._lost:
                 await self._restart(self._lost.pop(0))
+
+    async def _watch(self) -> None:
+        """Kill each serving worker not heard from for ``p.WATCHDOG`` seconds (``hung``).
+        A watchdog that itself waited long for the CPU judges nobody that turn: the
+        messages that came meanwhile are not taken in yet."""
+        period = p.ALIVE_PERIOD
+        while True:
+            asked = monotonic()
+            await anyio.sleep(period)
+            for _ in range(2):  # two turns: what a select after the wake-up found has been
+                await anyio.lowlevel.checkpoint()  # taken in (its callbacks ran after ours)
+            now = monotonic()
+            if now - asked > 2 * period:  # our own loop was held: silence says nothing
+                for w in self.workers:
+                    w.heard = max(w.heard, now)
+                continue
+            for w in self.workers:
+                silent = now - w.heard
+                if w.serving and silent > p.WATCHDOG:
+                    w.hung(silent)
 
     async def _restart(self, worker: _Worker) -> None:
         with contextlib.suppress(Exception):

@@ -37,7 +37,7 @@ __all__ = ["main", "serve"]
 
 log = logging.getLogger("drivebus.motion.workers.serve")  # also when run as __main__
 
-STATS_PERIOD = 0.2
+STATS_PERIOD = p.ALIVE_PERIOD
 """How often a line's statistics go to the machine (when they changed), seconds."""
 
 
@@ -231,9 +231,12 @@ class _Worker:
                     sent[i] = n
 
     async def _stats_loop(self) -> None:
+        """The statistics that changed and a word that the worker is alive, every period
+        (``p.ALIVE_PERIOD``: the machine's watchdog counts on it)."""
         sent: dict[int, int] = {}
         while True:
             self.send_stats(sent=sent)
+            self.send((p.ALIVE,))
             await anyio.sleep(STATS_PERIOD)
 
 
