@@ -20,7 +20,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -93,10 +93,11 @@ class Proc:
 
 
 @contextlib.contextmanager
-def spawn(*args: str | Path) -> Iterator[Proc]:
-    """Start ``drivebus ARGS``; killed at the end if still running."""
+def spawn(*args: str | Path, program: Sequence[str] = CLI) -> Iterator[Proc]:
+    """Start ``drivebus ARGS`` (or ``program ARGS``); killed at the end if still running."""
     p = subprocess.Popen(
-        [*CLI, *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        [*program, *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True
     )
     proc = Proc(p)
 

@@ -231,6 +231,57 @@ def test_an_interrupted_demo_leaves_its_twins_at_rest(tmp_path: Path, how: str) 
     assert re.search(r"^twin x: position=-?\d+ pulses moving=False$", twins, re.M), twins
 
 
+_APP = """
+import sys
+
+import anyio
+
+from drivebus import open_machine
+
+
+async def main() -> None:  # an application that leaves SIGTERM as Python sets it
+    async with open_machine(sys.argv[1]) as m:
+        x = m.axes["x"]
+        await x.enable()
+        async with anyio.create_task_group() as tg:
+            tg.start_soon(x.move_to, 190.0)
+            async for st in x.watch():
+                if st.moving:
+                    print("moving", flush=True)
+                    break
+            await anyio.sleep_forever()
+
+
+anyio.run(main)
+"""
+
+
+def test_sigterm_to_an_application_embedding_a_machine_stops_its_axes_first(
+        tmp_path: Path) -> None:
+    """An application that runs ``open_machine`` and leaves SIGTERM at Python's default
+    (which ends the process at once: it died with its axis moving) gets its axes stopped
+    first, then ends by SIGTERM as it would have."""
+    cfg = _machine(tmp_path, "sigterm-app", 1.0)
+    app = tmp_path / "app.py"
+    app.write_text(_APP)
+    with sim_server(cfg, "--log") as (sim, _):
+        began = time.monotonic()  # CLOCK_MONOTONIC: the simulator's log clock too
+        with spawn(app, cfg, program=[sys.executable]) as proc:
+            proc.expect(r"^moving$")
+            start = _await_start(sim, 1, "CL86R", began)
+            proc.popen.send_signal(signal.SIGTERM)
+            code = proc.popen.wait(60)
+            said = proc.rest()
+        assert code == -signal.SIGTERM, (code, said)
+        assert said.startswith("SIGTERM: stopping the machines' axes") and \
+            "axis x: stopped at" in said, said
+        stops = [f for f in requests(sim) if f.at > start.at and _kind(f) == "stop"]
+        assert stops, "no stop on the wire after the move's start"
+        assert sim.interrupt() == 0
+        twins = sim.rest()
+    assert re.search(r"^twin x: position=-?\d+ pulses moving=False$", twins, re.M), twins
+
+
 _CTRL_C_AT = """
 import sys
 

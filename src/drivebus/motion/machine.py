@@ -34,6 +34,7 @@ from drivebus.motion.handle import BufferMode, check_override
 from drivebus.motion.lines import make_line, open_line, provide_elsewhere, serves_elsewhere
 from drivebus.motion.path import GroupHandle
 from drivebus.motion.recording import Recording
+from drivebus.motion.sigterm import stops_before_sigterm
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.positions import PositionStore
 from drivebus.tasks import ServiceTasks, where_tasks_wait
@@ -322,9 +323,21 @@ async def open_machine(
     this machine are stopped. ``sim://NAME`` lines start the built-in simulator with a
     twin per axis. ``config`` is a machine file's path, its content as a mapping, or a
     ``MachineConfig``; it is validated in full (``ConfigError``) before anything opens.
+    Where the application leaves SIGTERM at its default, an open machine takes it: its
+    axes are stopped before the process ends by it (``drivebus.motion.sigterm``).
     """
     cfg = await machine_config_in_thread(config)  # parsing descriptions: off the loop
     machine = Machine(cfg)
+    with stops_before_sigterm():  # (where the application left SIGTERM to its default)
+        async with _opened(machine, cfg, stop_on_exit=stop_on_exit,
+                           require_all=require_all) as opened:
+            yield opened
+
+
+@asynccontextmanager
+async def _opened(machine: Machine, cfg: MachineConfig, *, stop_on_exit: bool,
+                  require_all: bool) -> AsyncIterator[Machine]:
+    """``open_machine``'s lines, workers and axes, and its stops on leaving."""
     async with contextlib.AsyncExitStack() as stack:
         groups = _placement(cfg)
         remote = {name for group in groups for name in group}
