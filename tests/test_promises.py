@@ -295,6 +295,32 @@ async def test_cancelling_its_caller_stops_what_it_started(c: Command, demo: Mac
             assert not twins_at_rest(m, c.axes), (c.name, point)
 
 
+@pytest.mark.parametrize("c", MOVING, ids=ids)
+async def test_cancelling_its_caller_twice_stops_what_it_started(
+        c: Command, demo: Machinefile) -> None:
+    """asyncio's own ``Task.cancel()`` twice in a row (a teardown, a timeout and an outer
+    cancel): an anyio shield does not hold off the second, which cut the cancelled
+    motion's stop short: no stop sent, the motor running, the axis left Stopping."""
+    async with open_machine(demo) as m:
+        for n in c.axes:
+            await settle(m.axes[n])
+        run = Running(c, m)
+        task = asyncio.ensure_future(run.main())
+        with anyio.fail_after(60):
+            await reach(m, run, "moving")
+            seen = 0  # under way: two statuses polled show the axis moving
+            async for st in m.axes[c.axes[0]].watch():
+                seen += st.moving
+                if seen == 2:
+                    break
+            task.cancel()
+            await anyio.lowlevel.checkpoint()  # the first is taken: its stop is on its way
+            task.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await task
+        assert not twins_at_rest(m, c.axes), c.name
+
+
 # -- (c) a refusal sends nothing -----------------------------------------------------------
 
 

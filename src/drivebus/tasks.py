@@ -11,12 +11,14 @@ from __future__ import annotations
 
 from collections.abc import Awaitable, Callable
 from types import TracebackType
-from typing import Any
+from typing import Any, TypeVar
 
 import anyio
 import anyio.abc
 
-__all__ = ["ServiceTasks", "where_tasks_wait"]
+__all__ = ["ServiceTasks", "shielded", "where_tasks_wait"]
+
+T = TypeVar("T")
 
 
 class ServiceTasks:
@@ -74,6 +76,43 @@ class ServiceTasks:
             if exc is not None and len(group.exceptions) == 1 and group.exceptions[0] is exc:
                 raise exc from exc.__cause__
             raise
+
+
+async def shielded(fn: Callable[[], Awaitable[T]]) -> T:
+    """``fn()`` run to its end whatever cancels its caller meanwhile: a cleanup that must
+    not be cut short (a cancelled motion's stop). An anyio shield does not hold off
+    asyncio's own ``Task.cancel()`` (a second one while the first's cleanup runs, as a
+    teardown or a timeout and an outer cancel give): on asyncio the cleanup runs as a task
+    of its own, awaited again after each such cancel, and the cancellation is raised once
+    it is done."""
+    import asyncio
+
+    try:
+        loop = asyncio.get_running_loop()
+    except RuntimeError:  # another backend: its shield holds
+        with anyio.CancelScope(shield=True):
+            return await fn()
+
+    async def run() -> T:
+        return await fn()
+
+    inner = loop.create_task(run(), name="drivebus cleanup")  # awaited to its end below
+    cancelled: BaseException | None = None
+    while True:
+        try:
+            with anyio.CancelScope(shield=True):
+                result = await asyncio.shield(inner)
+            break
+        except asyncio.CancelledError as exc:
+            if inner.done():
+                raise  # the cleanup itself was cancelled: nothing of ours to wait for
+            cancelled = exc  # the caller's own cancel: the cleanup goes on
+            task = asyncio.current_task()
+            if task is not None:
+                task.uncancel()
+    if cancelled is not None:
+        raise cancelled
+    return result
 
 
 def where_tasks_wait(*, limit: int = 40) -> list[str]:

@@ -63,6 +63,7 @@ from drivebus.motion import (
 from drivebus.motion.handle import check_buffer
 from drivebus.motion.machine import open_machine
 from drivebus.motion.state import MOVING_STATES
+from drivebus.tasks import shielded
 
 __all__ = ["Lease", "MachineSession", "MotionRecord", "MotionState"]
 
@@ -517,10 +518,13 @@ class MachineSession:
         # A jog its watchdog already ended may have been followed by another client's
         # motion: that one is not ours to stop.
         mine = [a for a in held if self.axis(a).state is AxisState.CONTINUOUS_MOTION]
-        with anyio.CancelScope(shield=True):
+
+        async def stop_mine() -> None:
             async with anyio.create_task_group() as tg:
                 for a in mine:
                     tg.start_soon(self._stop_quietly, self.axis(a))
+
+        await shielded(stop_mine)  # (a second cancel does not cut the stops short)
 
     @staticmethod
     async def _stop_quietly(axis: Axis) -> None:

@@ -22,6 +22,7 @@ import anyio
 
 from drivebus import checks
 from drivebus.errors import ArgumentError
+from drivebus.tasks import shielded
 
 if TYPE_CHECKING:
     from drivebus.motion.trajectory import Trajectory
@@ -158,9 +159,8 @@ class MotionHandle:
             if fresh is not None and self._ticket.outcome is None:
                 await fresh.wait()  # a full status after the arrival: positions are current
         except BaseException:
-            with anyio.CancelScope(shield=True):
-                if not self.done:
-                    await self._stop()
+            if not self.done:
+                await shielded(self._stop)  # (a second cancel does not cut it short)
             raise
         if self._ticket.outcome is not None:
             raise self._ticket.outcome

@@ -9,14 +9,12 @@ the jog again. A jog not fed within its watchdog period is stopped by the actor.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from dataclasses import replace
-
-import anyio
-import anyio.lowlevel
 
 from drivebus import checks
 from drivebus.clock import monotonic
@@ -32,6 +30,7 @@ from drivebus.motion.handle import (
 from drivebus.motion.motions import Motion
 from drivebus.motion.program import ProgramRunner
 from drivebus.motion.state import AxisState
+from drivebus.tasks import shielded
 
 __all__ = ["Jogging"]
 
@@ -188,9 +187,9 @@ class Jogging(ProgramRunner):
             await self._exclusive(io, motion=m)
         except BaseException as exc:
             m.restarting = False
-            with anyio.CancelScope(shield=True):
-                if not m.over:
-                    await self._stop_now(f"changing the jog failed: {exc!r}", error=exc)
+            if not m.over:
+                await shielded(functools.partial(
+                    self._stop_now, f"changing the jog failed: {exc!r}", error=exc))
             raise
         self._arm_watchdog(watchdog)
 
@@ -212,5 +211,4 @@ class Jogging(ProgramRunner):
         try:
             yield self
         finally:
-            with anyio.CancelScope(shield=True):
-                await self.stop()
+            await shielded(self.stop)  # (a second cancel does not cut it short)

@@ -47,6 +47,7 @@ from drivebus.motion.handle import (
 from drivebus.motion.motions import Motion, MotionKind
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.motion.trajectory import Trajectory
+from drivebus.tasks import shielded
 from drivebus.timing import Timing, timing
 
 __all__ = ["CommandLane"]
@@ -273,10 +274,15 @@ class CommandLane(AxisActor):
             if m.outcome is not None:
                 raise m.outcome
         except BaseException as exc:
-            with anyio.CancelScope(shield=True):
-                await self._after_failure(m, exc)
-                if not isinstance(exc, _NO_REST_WAIT):  # an error, or a cancellation
-                    await self._come_to_rest(exc if isinstance(exc, DrivebusError) else None)
+            failure = exc
+
+            async def clean_up() -> None:
+                await self._after_failure(m, failure)
+                if not isinstance(failure, _NO_REST_WAIT):  # an error, or a cancellation
+                    await self._come_to_rest(
+                        failure if isinstance(failure, DrivebusError) else None)
+
+            await shielded(clean_up)  # (a second cancel does not cut the stop short)
             raise
 
     async def _outcome(self, m: Motion, timeout: float | None) -> None:

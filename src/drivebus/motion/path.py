@@ -29,6 +29,7 @@ from drivebus.motion.gate import SegmentGate
 from drivebus.motion.handle import BufferMode, MotionHandle
 from drivebus.motion.planning import GroupPlan, StartGate
 from drivebus.motion.trajectory import Trajectory
+from drivebus.tasks import shielded
 
 if TYPE_CHECKING:
     from drivebus.motion.axis import Axis
@@ -165,8 +166,7 @@ class _PathRun:
                         tg.start_soon(one, name, handle, tg.cancel_scope)
         finally:
             if failure or not all(h.done for p in self.handles for h in p.values()):
-                with anyio.CancelScope(shield=True):
-                    await self.group.stop()
+                await shielded(self.group.stop)
         if failure:
             name, exc = failure[0]
             raise GroupMotionError(f"axis {name} failed, the group was stopped: {exc}",
@@ -317,8 +317,7 @@ async def _queue_and_start(run: _PathRun, gate: StartGate) -> None:
             await gate.open()
             tg.cancel_scope.cancel()
     except BaseException:
-        with anyio.CancelScope(shield=True):
-            await group.stop()
+        await shielded(group.stop)
         raise
 
 

@@ -42,6 +42,7 @@ from drivebus.motion.motions import Motion
 from drivebus.motion.queue import MotionQueue
 from drivebus.motion.state import AxisState
 from drivebus.motion.trajectory import Trajectory
+from drivebus.tasks import shielded
 
 __all__ = ["ProgramRunner"]
 
@@ -335,14 +336,19 @@ class ProgramRunner(MotionQueue):
         try:
             await self._locked_io(io, motion=m)
         except BaseException as exc:
-            with anyio.CancelScope(shield=True):
+            failure = exc
+
+            async def clean_up() -> None:
                 if current:
-                    await self._after_failure(m, exc)
+                    await self._after_failure(m, failure)
                 elif not m.over:
-                    self._note("error", m.what, m=m, detail=str(exc))
-                    m.finish(exc)
+                    self._note("error", m.what, m=m, detail=str(failure))
+                    m.finish(failure)
                 self._drop_queue(MotionAborted(
-                    f"axis {self.name}: the queue was dropped: the {m.what} failed: {exc}"))
+                    f"axis {self.name}: the queue was dropped: the {m.what} failed: "
+                    f"{failure}"))
+
+            await shielded(clean_up)
             if not isinstance(exc, DrivebusError):
                 raise
             log.warning("axis %s: %s", self.name, exc)
