@@ -353,12 +353,24 @@ def _shape(
     for n, r in share.items():
         axis = axes[n]
         plan = axis.plan(v * r, a * r, b * r)  # LimitViolation beyond max_speed
-        axis.check_drive(plan)
+        mine = own[n]
+        try:
+            axis.check_drive(plan)
+            floor = MotionPlan(0.0, 0.0, 0.0)
+        except LimitViolation:
+            # Below what the drive runs at least (ramps too gentle for it: the small
+            # share of an axis that moves little) the fit takes ramps up to the axis's
+            # own, as for a move without a speed; beyond what it runs at most is refused.
+            axis.check_drive(MotionPlan(max(plan.speed, mine.speed),
+                                        max(plan.accel, mine.accel),
+                                        max(plan.decel, mine.decel)))
+            floor = mine
         limits[n] = plan
         top = axis.config.max_speed or math.inf
         # a little room to suit the drive's steps, not more: the path's own values
-        ceilings[n] = MotionPlan(min(top, plan.speed * 1.02), plan.accel * 1.02,
-                                 plan.decel * 1.02)
+        ceilings[n] = MotionPlan(min(top, plan.speed * 1.02),
+                                 max(plan.accel * 1.02, floor.accel),
+                                 max(plan.decel * 1.02, floor.decel))
     return limits, ceilings, 0.0
 
 async def plan(
