@@ -9,10 +9,17 @@ from pathlib import Path
 from typing import Any
 
 import anyio
+import anyio.lowlevel
 import pytest
 
 from drivebus import open_machine
-from drivebus.errors import ArgumentError, GroupMotionError, LimitViolation, MotionAborted
+from drivebus.errors import (
+    ArgumentError,
+    GroupMotionError,
+    LimitViolation,
+    MotionAborted,
+    StateError,
+)
 from drivebus.motion import Machine
 from drivebus.motion.path import GroupHandle
 from held_up import within_bound
@@ -88,6 +95,36 @@ async def test_a_path_speed_takes_an_axis_that_moves_too_little_for_its_drives_r
         await xy.path([{"x": 12.0, "y": 7.0}], speed=speed)
         for n, target in (("x", 12.0), ("y", 7.0)):
             assert m.sim_drives[n].position() == m.axes[n].units.to_pulses(target)
+
+
+async def test_a_path_planned_while_one_of_its_axes_starts_another_move_is_refused(
+) -> None:
+    """Planning a long path takes a while; an axis of it that another task moves meanwhile
+    is no longer where the plan starts. The path used to run its first segment from the
+    stale start and fail on its deadline; it is refused, nothing of it
+    started."""
+    async with open_machine(DEMO) as m:
+        xy = m.group("x", "y")
+        await xy.move_to({"x": 12.0, "y": 7.0})
+        corners = [{"x": 100.0 + 2.0 * (i % 2), "y": 50.0 + i} for i in range(100)]
+        y_at = m.sim_drives["y"].position()
+        outcome: list[BaseException] = []
+
+        async def path() -> None:
+            try:
+                await xy.path(corners)
+            except StateError as exc:
+                outcome.append(exc)
+
+        with anyio.fail_after(120):
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(path)
+                await anyio.lowlevel.checkpoint()  # the path has its axes' places
+                await m.axes["x"].move_to(20.0)  # done while the path is planned
+        assert [str(e) for e in outcome] == ["the path was refused: axis x started another "
+                                             "motion while it was being planned, from where "
+                                             "it no longer is"]
+        assert m.sim_drives["y"].position() == y_at  # nothing of the path started
 
 
 async def test_a_buffered_path_stops_in_position_at_each_corner_within_a_poll_period() -> None:

@@ -20,6 +20,7 @@ from drivebus.errors import (
     DrivebusError,
     GroupMotionError,
     MotionAborted,
+    StateError,
 )
 from drivebus.motion import planning
 from drivebus.motion.axis import Axis, MotionPlan
@@ -109,6 +110,19 @@ class AxisGroup:
                 raise MotionAborted(f"the {what} was aborted: axis {n} was stopped while it "
                                     f"was being planned")
 
+    def started(self, names: Iterable[str]) -> dict[str, float]:
+        """When each named axis last started a motion: a command that plans from where
+        its axes are notes it first and calls ``check_not_started`` after."""
+        return {n: self.axes[n].command_started_at for n in names}
+
+    def check_not_started(self, before: Mapping[str, float], what: str) -> None:
+        """``StateError`` if an axis started another motion since ``before`` (``started``):
+        the plan was made from where it no longer is, and nothing of it starts."""
+        for n, at in before.items():
+            if self.axes[n].command_started_at != at:
+                raise StateError(f"the {what} was refused: axis {n} started another motion "
+                                 f"while it was being planned, from where it no longer is")
+
     async def positions(self, names: Iterable[str]) -> dict[str, float]:
         """The named axes' present positions (user units), read from the drives at once."""
         found: dict[str, float] = {}
@@ -151,8 +165,9 @@ class AxisGroup:
         if buffer != "aborting":
             return await queue_group_move(self, targets, buffer, accepted, stops=stops,
                                           **shape)
+        started = self.started(targets)
         return await self._move(targets, await self.positions(targets), accepted,
-                                stops=stops, **shape)
+                                stops=stops, started=started, **shape)
 
     async def move_by(
         self,
@@ -167,13 +182,13 @@ class AxisGroup:
         """Move the named axes by their distances, together (the rest: as for
         ``move_to``)."""
         distances = self.checked(distances, "distances")
-        stops = self.stops(distances)
+        stops, started = self.stops(distances), self.started(distances)
         starts = await self.positions(distances)
         targets = {n: starts[n] + d for n, d in distances.items()}
         for name, t in targets.items():
             self.axes[name].check_limits(t)
-        return await self._move(targets, starts, accepted, stops=stops, speed=speed,
-                                accel=accel, decel=decel, duration=duration)
+        return await self._move(targets, starts, accepted, stops=stops, started=started,
+                                speed=speed, accel=accel, decel=decel, duration=duration)
 
     async def path(
         self,
@@ -211,12 +226,14 @@ class AxisGroup:
         accepted: Callable[[], object] | None = None,
         *,
         stops: Mapping[str, int],
+        started: Mapping[str, float],
         **shape: float | None,
     ) -> GroupMoveReport:
         plan = await self._plan(targets, starts, **shape)  # type: ignore[arg-type]
         plans, offsets, distances = plan.plans, plan.offsets, plan.distances
         gate = self.start_gate(plan)
         self.check_not_stopped(stops, "group move")
+        self.check_not_started(started, "group move")
         for n in targets:
             self.axes[n].check_free("group move")
         if accepted is not None:

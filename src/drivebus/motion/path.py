@@ -45,6 +45,8 @@ class Group(Protocol):
     async def positions(self, names: Iterable[str]) -> dict[str, float]: ...
     def stops(self, names: Iterable[str]) -> dict[str, int]: ...
     def check_not_stopped(self, before: Mapping[str, int], what: str) -> None: ...
+    def started(self, names: Iterable[str]) -> dict[str, float]: ...
+    def check_not_started(self, before: Mapping[str, float], what: str) -> None: ...
     def start_gate(self, plan: GroupPlan) -> StartGate: ...
     async def stop(self) -> None: ...
 
@@ -191,7 +193,7 @@ async def run_path(
         raise ArgumentError("a path needs a list of waypoints (mappings of axis to position)")
     names = list(group.axes)
     checked = [group.checked(wp, f"waypoint {i + 1}") for i, wp in enumerate(waypoints)]
-    stops = group.stops(names)
+    stops, started = group.stops(names), group.started(names)
     points = [await group.positions(names)]
     for i, wp in enumerate(checked):
         point = {**points[-1], **wp}
@@ -207,6 +209,7 @@ async def run_path(
             {n: points[k + 1][n] for n in movers}, {n: points[k][n] for n in movers},
             speed=speed, accel=accel, decel=decel,
             offsets=None if k == 0 else dict.fromkeys(movers, 0.0)))
+        group.check_not_stopped(stops, "path")  # a stop meanwhile: no more planning
     taus: list[float | None] = [None]
     reasons: list[str] = []
     ahead = _from_rest(group, plans[0], 0.0)
@@ -215,12 +218,14 @@ async def run_path(
         tau, reason = await _corner(group, ahead, plans[k - 1], plans[k], blend)
         taus.append(tau)
         reasons.append(reason)
+        group.check_not_stopped(stops, "path")
         if tau is None:
             ahead = _from_rest(group, plans[k], max(t.end for t in ahead.values()))
         else:
             ahead = _synchronise_blend(group, ahead, plans[k], tau)
     reasons.append("")
     group.check_not_stopped(stops, "path")
+    group.check_not_started(started, "path")
     for n in names:
         group.axes[n].check_free("path")
     run = _PathRun(group, points, plans, taus, reasons, [])
