@@ -167,6 +167,8 @@ async def test_a_worker_that_dies_makes_its_axes_offline_at_once_and_comes_back(
         async with anyio.create_task_group() as tg:
             tg.start_soon(move)
             await until("x moving", twin.is_moving)
+            bus = m.buses["rs485"]
+            counted = (bus.stats.transactions, bus.stats.wire_time, bus.stats.started)
             pid = m.workers[0]["pid"]
             os.kill(pid, how)
             # at once: every axis of its lines is Offline, the move ends with DriveOffline
@@ -188,6 +190,10 @@ async def test_a_worker_that_dies_makes_its_axes_offline_at_once_and_comes_back(
         assert not twin.is_moving()
         await x.move_to(10.0)
         assert twin.position() == x.units.to_pulses(10.0)
+        # the line's counters go on from where they were (the new worker's begin at 0)
+        assert m.workers[0]["pid"] not in (None, pid)
+        await until("the new worker's counters", lambda: bus.stats.transactions > counted[0])
+        assert bus.stats.wire_time > counted[1] and bus.stats.started == counted[2]
 
 
 async def test_a_handle_collected_in_another_thread_leaves_the_worker_channel_working(

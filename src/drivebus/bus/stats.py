@@ -207,6 +207,28 @@ class BusStats:
         elapsed = monotonic() - self.started
         return self.wire_time / elapsed if elapsed > 0 else 0.0
 
+    def after(self, earlier: BusStats) -> BusStats:
+        """These counters carried on from ``earlier``'s: a line served anew (its worker
+        process started again, with counters of its own from zero) goes on counting from
+        where it was, never back."""
+        out = BusStats(started=earlier.started, wire_time=earlier.wire_time + self.wire_time,
+                       transactions=earlier.transactions + self.transactions,
+                       foreign_requests=earlier.foreign_requests + self.foreign_requests,
+                       foreign_last=self.foreign_last or earlier.foreign_last,
+                       foreign_warned=max(earlier.foreign_warned, self.foreign_warned))
+        counters = [f.name for f in fields(SlaveStats) if f.name not in ("last_error",
+                                                                          "latency")]
+        for address in {**earlier.slaves, **self.slaves}:
+            st = out.slave(address)
+            for part in (earlier.slaves.get(address), self.slaves.get(address)):
+                if part is None:
+                    continue
+                for name in counters:
+                    setattr(st, name, getattr(st, name) + getattr(part, name))
+                st.latency.merge(part.latency)
+                st.last_error = part.last_error or st.last_error
+        return out
+
     def total(self) -> SlaveStats:
         """All slaves' counters added up."""
         t = SlaveStats()

@@ -111,6 +111,9 @@ class RemoteBus:
         self.timeout = checks.response_timeout("response timeout", timeout)
         self.retries = checks.retry_count("retries", retries)
         self.stats = BusStats()
+        self._earlier: BusStats | None = None
+        """The line's counters when its last worker died (None: none has): the next one's
+        go on from them (``BusStats.after``)."""
         self.stops_taken: collections.deque[float] = collections.deque(maxlen=16)
         """When the worker queued the last emergency requests (stops) on this line
         (``time.monotonic``, the host's clock): from there on a stop is the worker's to
@@ -397,7 +400,7 @@ class _Worker:
             self.buses[m[1]].stops_taken.append(m[2])
         elif tag == p.STATS:
             bus = self.buses[m[1]]
-            bus.stats = m[2]
+            bus.stats = m[2] if bus._earlier is None else m[2].after(bus._earlier)
             bus.line.garbage_bytes = m[3]
         elif tag == p.SEEN:
             self.buses[m[1]]._seen(m[2])
@@ -432,6 +435,8 @@ class _Worker:
         if self._silent is not None:
             why = f"silent for {self._silent:.1f} s: killed as hung"
             self._silent = None
+        for bus in self.buses:  # the next worker's counters go on from these
+            bus._earlier = bus.stats
         self.down = ConnectionLost(
             f"the worker process serving line {', '.join(self.names)} died ({why})")
         log.error("%s: its axes are Offline; starting it again", self.down)
