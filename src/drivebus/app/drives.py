@@ -13,7 +13,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivebus.drives.base import _PROCEDURES, DriveProfile, describe_values
-from drivebus.drives.description import PROCEDURES, Description, load_description
+from drivebus.drives.description import (
+    PROCEDURES,
+    Description,
+    HomingMethod,
+    load_description,
+)
 from drivebus.drives.pages import family_page
 from drivebus.drives.registry import (
     DriveFamily,
@@ -158,7 +163,7 @@ def check_report(fam: DriveFamily) -> DescriptionReport:
             f"{n} ({m.code if m.code is not None else '-'}"
             f"{', CiA 402 ' + str(m.cia402) if m.cia402 is not None else ''})"
             for n, m in d.homing.methods.items()))
-        known = list(type(next(iter(d.homing.methods.values()))).model_fields)
+        known = list(HomingMethod.model_fields)
         for n, m in d.homing.methods.items():
             for key in m.extras:
                 close = difflib.get_close_matches(key, known, n=1, cutoff=0.75)

@@ -152,6 +152,12 @@ class SlaveStats:
         d["latency"] = self.latency.summary()
         return d
 
+    def add(self, other: SlaveStats) -> None:
+        """Count ``other``'s attempts and reply latencies in with these."""
+        for name in _COUNTERS:
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+        self.latency.merge(other.latency)
+
     @property
     def errors(self) -> int:
         """All failed attempts."""
@@ -162,6 +168,11 @@ class SlaveStats:
             + self.connection_errors
             + self.line_noise
         )
+
+
+_COUNTERS = tuple(f.name for f in fields(SlaveStats) if f.name not in ("last_error",
+                                                                          "latency"))
+"""The counters of ``SlaveStats`` (what adds up)."""
 
 
 @dataclass
@@ -216,26 +227,16 @@ class BusStats:
                        foreign_requests=earlier.foreign_requests + self.foreign_requests,
                        foreign_last=self.foreign_last or earlier.foreign_last,
                        foreign_warned=max(earlier.foreign_warned, self.foreign_warned))
-        counters = [f.name for f in fields(SlaveStats) if f.name not in ("last_error",
-                                                                          "latency")]
-        for address in {**earlier.slaves, **self.slaves}:
-            st = out.slave(address)
-            for part in (earlier.slaves.get(address), self.slaves.get(address)):
-                if part is None:
-                    continue
-                for name in counters:
-                    setattr(st, name, getattr(st, name) + getattr(part, name))
-                st.latency.merge(part.latency)
-                st.last_error = part.last_error or st.last_error
+        for part in (earlier, self):
+            for address, st in part.slaves.items():
+                mine = out.slave(address)
+                mine.add(st)
+                mine.last_error = st.last_error or mine.last_error
         return out
 
     def total(self) -> SlaveStats:
         """All slaves' counters added up."""
         t = SlaveStats()
-        counters = [f.name for f in fields(SlaveStats) if f.name not in ("last_error",
-                                                                          "latency")]
         for s in self.slaves.values():
-            for name in counters:
-                setattr(t, name, getattr(t, name) + getattr(s, name))
-            t.latency.merge(s.latency)
+            t.add(s)
         return t

@@ -231,13 +231,12 @@ class Link(_Model):
             raise ValueError(f"addresses: {bad[0]} is outside {first}..{last}: {what}")
         if self.factory is not None:
             f = LineSettings.parse(self.factory)
-            fmt = f"{f.bytesize}{f.parity}{f.stopbits}"
             if self.baud_rates and f.baudrate not in self.baud_rates:
                 raise ValueError(f"factory: {self.factory!r} is at {f.baudrate} baud, which is "
                                  f"not among the drive's baud_rates {self.baud_rates}")
-            if self.formats and fmt not in self.formats:
-                raise ValueError(f"factory: {self.factory!r} is in {fmt}, which is not among "
-                                 f"the drive's formats {self.formats}")
+            if self.formats and f.format not in self.formats:
+                raise ValueError(f"factory: {self.factory!r} is in {f.format}, which is not "
+                                 f"among the drive's formats {self.formats}")
         return self
 
     @property
