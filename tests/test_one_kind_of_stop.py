@@ -18,6 +18,7 @@ import pytest
 
 from drivebus import AxisState, open_machine
 from drivebus.errors import DrivebusError, MotionAborted, NotSupported
+from waits import until
 
 ROOT = Path(__file__).resolve().parents[1]
 LEADSHINE = ROOT / "configs" / "drives" / "leadshine_pr.toml"
@@ -45,10 +46,8 @@ def machine(drive: Path, tag: str) -> dict[str, Any]:
 
 async def moving(m: Any) -> None:
     """Until the twin of axis a moves (bounded)."""
-    twin = m.sim_drives["a"]
-    with anyio.fail_after(5):
-        while not twin.is_moving():  # noqa: ASYNC110 - the twin has no event to wait on
-            await anyio.sleep(0.005)
+    await until(m.sim_drives["a"].is_moving, "axis a's twin to move", seconds=5,
+                every=0.005)
 
 
 def stops_after(m: Any, since: int) -> list[int]:
