@@ -88,10 +88,16 @@ async def test_a_path_speed_takes_an_axis_that_moves_too_little_for_its_drives_r
     async with open_machine(DEMO) as m:
         xy = m.group("x", "y")
         speed = 50.0  # y's own is 60 mm/s
-        await xy.move_to({"x": 12.0, "y": 7.0})
-        report = await xy.move_to({"x": 14.0, "y": 150.0}, speed=speed)
-        assert report.plans["y"].speed <= speed * 1.02  # the path's speed holds
-        assert report.arrival_spread <= 0.05, report
+
+        async def group_move(attempt: int) -> float:
+            await xy.move_to({"x": 12.0, "y": 7.0})
+            report = await xy.move_to({"x": 14.0, "y": 150.0}, speed=speed)
+            assert report.plans["y"].speed <= speed * 1.02  # the path's speed holds
+            # arrival is the twins' own: the end of their planned motion
+            ends = [m.sim_drives[n].kin.end_time() for n in ("x", "y")]
+            return max(ends) - min(ends) - min(m.axes[n].config.poll.moving for n in "xy")
+
+        await within_bound(group_move, "x and y arriving within a poll period")
         await xy.path([{"x": 12.0, "y": 7.0}], speed=speed)
         for n, target in (("x", 12.0), ("y", 7.0)):
             assert m.sim_drives[n].position() == m.axes[n].units.to_pulses(target)
