@@ -275,6 +275,38 @@ async def test_a_stop_of_another_axis_on_its_line_is_never_held_up(
             assert not twins_at_rest(m, [*c.axes, by.name]), (c.name, point)
 
 
+GROUPS = [c for c in MOVING if c.name.startswith("group.")]
+
+
+@pytest.mark.parametrize("c", GROUPS, ids=ids)
+async def test_a_stop_goes_out_before_the_stops_it_leads_to(
+        c: Command, demo: Machinefile) -> None:
+    """A stop of one axis of a group move or path stops the group: that axis's own stop is
+    the first stop frame on its line, whichever loop step of the command it meets (its
+    I/O in flight, a round trip to a worker under way). It had waited for the aborted
+    I/O to end first, while the group's other stops went out ahead of it."""
+    async with open_machine(demo) as m:
+        first, other = c.axes[0], c.axes[1]
+        for steps in range(0, 20, 4):
+            for n in c.axes:
+                await settle(m.axes[n])
+            marks = {n: log_size(m, n) for n in (first, other)}
+            with anyio.fail_after(60):
+                async with anyio.create_task_group() as tg:
+                    run = Running(c, m)
+                    tg.start_soon(run.main)
+                    for _ in range(steps):
+                        await anyio.lowlevel.checkpoint()
+                    called = time.monotonic()
+                    await m.axes[first].stop()
+            stops = {n: [t for k, t in command_frames(m, n, marks[n]) if k == "stop"
+                         and t > called] for n in (first, other)}
+            if stops[other]:
+                assert stops[first] and stops[first][0] < stops[other][0], (
+                    c.name, steps, stops)
+            assert not twins_at_rest(m, c.axes), (c.name, steps)
+
+
 # -- (b) cancelling the caller stops what it started --------------------------------------
 
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
 
 import anyio
 import anyio.lowlevel
@@ -470,8 +470,7 @@ class AxisActor:
         self._jog_deadline = None
         try:
             with self._stop_on_its_way():
-                await self._aborted_io_ended(pending)
-                await self.profile.send_stop()
+                await self._send_stop_first(pending, self.profile.send_stop)
         except DrivebusError as exc:
             log.error("axis %s: stop failed: %s", self.name, exc)
             return
@@ -493,26 +492,44 @@ class AxisActor:
             self._stops_on_way -= 1
             self._stop_sent_at = monotonic()
 
-    async def _aborted_io_ended(self, pending: list[anyio.Event]) -> None:
-        """Wait until the I/O of the motions a stop aborted has ended (cancelled, it ends
-        with its transaction in flight), so nothing of theirs follows the stop; bounded:
-        a stop never waits on I/O that does not end. Meanwhile the line begins nothing below
-        ``Priority.EMERGENCY`` (``hold_now``): the stop, queued in the same step as the
-        release, is the next frame after the transaction in flight, however late this task
-        runs again on a busy machine."""
+    async def _send_stop_first(self, pending: list[anyio.Event],
+                               send: Callable[[], Awaitable[None]]) -> None:
+        """Send the stop (``send``) now, ahead of the I/O of the motions it aborted
+        (``pending``, cancelled: each ends with its transaction in flight), so that nothing
+        of theirs follows it: the line begins nothing below ``Priority.EMERGENCY``
+        (``hold_now``) until that I/O has ended, bounded (a stop never waits on I/O that
+        does not end). The stop is queued in this step, before any stop its abort leads to
+        (a group's other axes), and leaves after the transaction in flight however late the
+        aborted tasks run on a busy machine. A failed stop is raised once that I/O ended."""
         if not pending:
+            await send()
             return
         release = self.profile.slave.bus.hold_now()
+        failure: TransactionError | None = None
+
+        async def aborted_io_ended() -> None:
+            try:
+                with anyio.move_on_after(_IO_END_BOUND) as scope:
+                    for done in pending:
+                        await done.wait()
+            finally:
+                release()  # a step of the stop below EMERGENCY may go from here on
+            if scope.cancelled_caught:
+                log.error("axis %s: the I/O of the motion a stop aborted did not end within "
+                          "%.0f s: the line was let go regardless; the tasks wait at:\n  %s",
+                          self.name, _IO_END_BOUND, "\n  ".join(where_tasks_wait()))
+
         try:
-            with anyio.move_on_after(_IO_END_BOUND) as scope:
-                for done in pending:
-                    await done.wait()
+            async with anyio.create_task_group() as tg:
+                tg.start_soon(aborted_io_ended)
+                try:
+                    await send()
+                except TransactionError as exc:
+                    failure = exc
         finally:
             release()
-        if scope.cancelled_caught:
-            log.error("axis %s: the I/O of the motion a stop aborted did not end within "
-                      "%.0f s: the stop goes out regardless; the tasks wait at:\n  %s",
-                      self.name, _IO_END_BOUND, "\n  ".join(where_tasks_wait()))
+        if failure is not None:
+            raise failure
 
     def listen(self, listener: AxisListener) -> Callable[[], None]:
         """Call ``listener`` with every status polled and every ``MotionEvent`` from now

@@ -14,6 +14,7 @@ onto the wire, and returns when a status polled after it shows the drive at rest
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 from collections.abc import Awaitable, Callable
 from dataclasses import replace
@@ -469,10 +470,10 @@ class CommandLane(AxisActor):
             pending.append(m.io_done)
         try:
             with self._stop_on_its_way():
-                await self._aborted_io_ended(pending)  # nothing of theirs can follow it now
                 # Offline or not, the stop is sent: the drive may be back (a network blip)
                 # and a motor must not keep running because our polls failed.
-                await self.profile.send_stop(decel_rps2, emergency=emergency)
+                await self._send_stop_first(pending, functools.partial(
+                    self.profile.send_stop, decel_rps2, emergency=emergency))
         except TransactionError as exc:
             if offline:
                 raise (self.error or DriveOffline(f"axis {self.name} is offline")) from exc

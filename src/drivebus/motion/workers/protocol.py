@@ -9,7 +9,8 @@ same typed ``DrivebusError``.
 
 From the machine: ``OPEN`` (the lines to serve), ``HANDLE`` (a slave handle's settings),
 ``FORGET`` (a handle gone), ``EXPECT`` (a reply-length function), ``TX`` (a transaction),
-``CANCEL`` (its caller gave up), ``HOLD``/``UNHOLD`` (``Bus.hold``), ``OBSERVE`` (send a
+``CANCEL`` (its caller gave up), ``HOLD``/``UNHOLD`` (``Bus.hold``), ``HOLD_NOW`` (``Bus.hold_now``,
+let go by ``UNHOLD``), ``OBSERVE`` (send a
 line's transactions), ``CLOSE``. From a worker: ``READY``, ``OK``/``ERR`` (a transaction's
 reply or error), ``CANCELLED`` (what became of a cancelled one), ``HELD``, ``STATS``,
 ``SEEN`` (observed transactions), ``LOG`` (its log records), ``CLOSED``, and ``ALIVE``
@@ -41,6 +42,7 @@ __all__ = [
     "HANDLE",
     "HELD",
     "HOLD",
+    "HOLD_NOW",
     "LOG",
     "OBSERVE",
     "OK",
@@ -57,7 +59,7 @@ __all__ = [
     "encode_error",
 ]
 
-OPEN, HANDLE, EXPECT, TX, CANCEL, HOLD, UNHOLD, OBSERVE, CLOSE, FORGET = range(10)
+OPEN, HANDLE, EXPECT, TX, CANCEL, HOLD, UNHOLD, OBSERVE, CLOSE, FORGET, HOLD_NOW = range(11)
 READY, OK, ERR, CANCELLED, HELD, STATS, SEEN, LOG, CLOSED, TAKEN, ALIVE = range(100, 111)
 """``TAKEN, line, when``: the worker queued an emergency request on that line (a stop) at
 ``when`` (``time.monotonic``, the host's clock): where the stop's own scheduling begins."""

@@ -222,10 +222,24 @@ class RemoteBus:
             w.send((p.UNHOLD, hid))
 
     def hold_now(self) -> Callable[[], None]:
-        """``Bus.hold_now`` has nothing to hold here: the worker begins a stop the moment it
-        takes it (``stops_taken``), and what leaves before that is the crossing between
-        the processes. Returns a release that does nothing."""
-        return _nothing
+        """``Bus.hold_now`` in the worker: from when it takes this (before any request
+        sent after it) it begins nothing below ``Priority.EMERGENCY`` until the release
+        (idempotent) reaches it."""
+        w = self._worker
+        if w.down is not None:
+            return _nothing  # nothing goes out on it anyway
+        hid = next(w.ids)
+        w.send((p.HOLD_NOW, hid, self._index))
+        released = False
+
+        def release() -> None:
+            nonlocal released
+            if not released:
+                released = True
+                if w.down is None:
+                    w.send((p.UNHOLD, hid))
+
+        return release
 
     def observe(self, observer: TransactionObserver) -> Callable[[], None]:
         """Call ``observer`` with every transaction's outcome from now on (from the

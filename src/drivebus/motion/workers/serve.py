@@ -18,6 +18,7 @@ import logging
 import signal
 import socket
 import sys
+from collections.abc import Callable
 from typing import Any
 
 import anyio
@@ -66,6 +67,7 @@ class _Worker:
         self.expects: dict[int, LengthPredictor | None] = {0: response_length, 1: None}
         self.pending: dict[int, tuple[Bus, Queued]] = {}
         self.holds: dict[int, anyio.Event] = {}
+        self.holds_now: dict[int, Callable[[], None]] = {}
         self.observing: dict[int, Any] = {}
         self.seen: dict[int, list[Transaction]] = {}
         self.opened = anyio.Event()
@@ -89,10 +91,15 @@ class _Worker:
                 self._cancel(m[1])
             elif tag == p.HOLD:
                 self._hold(m[1], m[2])
+            elif tag == p.HOLD_NOW:
+                self.holds_now[m[1]] = self.buses[m[2]].hold_now()
             elif tag == p.UNHOLD:
                 event = self.holds.pop(m[1], None)
                 if event is not None:
                     event.set()
+                release = self.holds_now.pop(m[1], None)
+                if release is not None:
+                    release()
             elif tag == p.EXPECT:
                 self.expects[m[1]] = m[2]
             elif tag == p.FORGET:
