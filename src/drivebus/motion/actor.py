@@ -36,7 +36,7 @@ from drivebus.errors import (
 )
 from drivebus.motion.envelope import Envelope
 from drivebus.motion.events import AxisListener, MotionEvent, MotionEventKind
-from drivebus.motion.judge import judge
+from drivebus.motion.judge import judge, position_lost
 from drivebus.motion.motions import Latest, Motion, RestWait
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.motion.units import Units
@@ -255,6 +255,17 @@ class AxisActor:
         if issued < self._status_issued:
             return  # an older read that finished late
         prev, prev_issued = self.status, self._status_issued
+        if prev is not None and self._motion is None and position_lost(
+                prev, st, tolerance=self.config.in_position_tolerance,
+                back_from_offline=self.state is AxisState.OFFLINE,
+                disabled_by_command=self.state is AxisState.DISABLED):
+            if prev.homed and not self._homed_lost:
+                log.warning("axis %s: its position went from %s to %s pulses at rest while "
+                            "the drive %s: taken for a power cycle, the axis is no longer "
+                            "homed", self.name, prev.position, st.position,
+                            "did not answer" if self.state is AxisState.OFFLINE
+                            else "dropped its enable")
+            self._homed_lost = self._check_due = True
         if self.state is AxisState.OFFLINE:
             log.info("axis %s: drive answers again", self.name)
             self.error = None

@@ -25,7 +25,8 @@ from drivebus.drives.status import DriveStatus
 from drivebus.errors import DrivebusError, LimitViolation, MotionError
 from drivebus.motion.state import AxisState
 
-__all__ = ["Judged", "Verdict", "judge", "judge_homing", "limit_error", "switch_ahead"]
+__all__ = ["Judged", "Verdict", "judge", "judge_homing", "limit_error", "position_lost",
+           "switch_ahead"]
 
 Outcome = Literal["going", "arrived", "done", "failed"]
 
@@ -182,3 +183,19 @@ def judge_homing(axis: str, m: Judged, st: DriveStatus, issued: float, *,
             why = "the homing method does not use it"
         return _limit(axis, m, st, where, seen, side=side, why=why)
     return Verdict("going", seen, switch_seen=switch_seen, switch_left=frozenset(switch_left))
+
+
+def position_lost(before: DriveStatus, now: DriveStatus, *, tolerance: int,
+                  back_from_offline: bool, disabled_by_command: bool) -> bool:
+    """Whether the drive's position counter started again (a power cycle): at rest in both
+    statuses, no motion of ours, it moved by more than ``tolerance`` pulses while it did
+    not answer (``back_from_offline``) or while it dropped its enable on its own. Its home
+    is lost then, whatever volatile settings it kept; a drive that only lost its enable
+    (a fault, a safe torque off) kept its position, and so did one that rests where it
+    was."""
+    if before.moving or now.moving or before.position is None or now.position is None:
+        return False
+    if abs(now.position - before.position) <= tolerance:
+        return False
+    return back_from_offline or (before.enabled and not now.enabled
+                                 and not disabled_by_command)

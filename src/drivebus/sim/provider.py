@@ -91,6 +91,10 @@ class SimLineProvider:
         return ProvidedLine(master, dict(sim.twins), sim.server)
 
 
+_SWITCHES = {"home_switch": "home switch", "limit_negative": "negative limit switch",
+             "limit_positive": "positive limit switch"}
+
+
 def _axis_problems(ax: AxisConfig) -> list[str]:
     """What makes the simulated axis unusable: unknown twin options, positions beyond the
     drive's range, switches that leave it no room (``.key: problem``)."""
@@ -111,6 +115,12 @@ def _axis_problems(ax: AxisConfig) -> list[str]:
         if key not in known:
             out.append(f".options.{key}: the simulated {ax.drive} has no option {key!r} "
                        f"(it has {', '.join(known) or 'none'})")
+    sees = getattr(twin, "sees", None)
+    for key in ("home_switch", "limit_negative", "limit_positive"):
+        if getattr(s, key) is not None and sees is not None and not sees(key):
+            out.append(f".{key}: drive {ax.drive} has no input for a {_SWITCHES[key]} "
+                       f"(its description wires none and sees none directly): its twin "
+                       f"would run through it; leave it out")
     pulses_per_unit = ax.pulses_per_rev / ax.units_per_rev
     for key in ("position", "home_switch", "limit_negative", "limit_positive"):
         v = getattr(s, key)

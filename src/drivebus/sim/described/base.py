@@ -125,6 +125,21 @@ class TwinBase(SimDrive):
         return self.regs
 
     @classmethod
+    def sees(cls, switch: str) -> bool:
+        """Whether the drive can see ``switch`` (home_switch, limit_positive,
+        limit_negative) at all. A twin with ``[twin] wiring`` or ``direct`` sees the
+        switches wired to its terminals and those it sees directly; one without sees every
+        switch where it has no ``[inputs]``, else those on an input bit of that name or a
+        terminal whose function code it has. One it cannot see, the twin runs through,
+        as the drive would."""
+        d = cls.description
+        twin, io = d.twin, d.inputs
+        if twin.wiring or twin.direct:
+            return switch in twin.direct or switch in twin.wiring
+        return io is None or switch in io.bits or (
+            io.functions is not None and switch in io.codes)
+
+    @classmethod
     def twin_options(cls) -> list[str]:
         """The keyword options this twin takes (a machine file's ``sim.options``)."""
         d = cls.description
