@@ -24,7 +24,7 @@ from drivebus.errors import (
 from drivebus.motion import Axis, Machine
 from held_up import within_bound
 from machines import DEMO, demo_machine
-from wirelog import commands, log_size, room, settle
+from wirelog import commands, log_size, room, settle, write_frames
 
 MOTION_AXES = ("x", "y", "z", "r")  # the aux axis (OD2000) cannot move
 
@@ -326,3 +326,22 @@ async def test_a_group_arrives_within_a_poll_period_for_any_mix_of_distances() -
                 return max(ends.values()) - min(ends.values()) - poll
 
             await within_bound(group_move, f"{targets}: the twins' arrivals within a poll")
+
+
+async def test_a_refusal_decided_from_what_the_drive_said_sends_no_set_up(tmp_path: Path) -> None:
+    """The NT86 homes on a hard stop only in closed-loop control mode (register 22, which
+    opening the machine reads): on the demo's open-loop twin that homing is refused before
+    the set-up's first write, as every refusal is. It was refused only after it."""
+    text = DEMO.read_text().replace(  # axis x's (the first), an NT86
+        'homing = { method = "home_switch_positive"', 'homing = { method = "hard_stop_positive"',
+        1)
+    path = tmp_path / "demo-hard-stop.toml"
+    path.write_text(text)
+    async with open_machine(path) as m:
+        x = m.axes["x"]
+        await settle(x)
+        before = write_frames(m)
+        with pytest.raises(NotSupported, match="closed-loop"):
+            await x.home()
+        assert write_frames(m) == before
+        assert x.state is AxisState.STANDSTILL

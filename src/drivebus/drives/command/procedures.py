@@ -102,7 +102,9 @@ class Procedures(ProfileBase):
                     args = self._args(step, run)
                     self._dry(sub, _Run(step.call, args, True, run.priority, run.depth + 1))
                 elif step.action == "fail":
-                    break  # raised for real by the run
+                    if self._decided_now(step):
+                        self._fail(step, run)
+                    break  # else raised for real by the run
                 elif step.action == "check" and step.error == "limit":
                     assert step.check is not None
                     if not step.check(self._scope(run)):  # Unknown: not known before I/O
@@ -164,13 +166,29 @@ class Procedures(ProfileBase):
             updates = {k: e(scope) for k, e in step.set.items()}
             self.state.update(updates)
         elif action == "fail":
-            assert step.fail is not None
-            raise self.unsupported(self._what(run.proc, self.description.procedures.get(
-                run.proc), run.args),
-                                   step.fail(self._scope(run)))
+            self._fail(step, run)
         elif action == "return":
             assert step.return_ is not None
             run.result = step.return_(self._scope(run))
+
+    def _fail(self, step: Step, run: _Run) -> None:
+        """Raise the ``NotSupported`` a ``fail`` step says."""
+        assert step.fail is not None
+        raise self.unsupported(self._what(run.proc, self.description.procedures.get(
+            run.proc), run.args), step.fail(self._scope(run)))
+
+    def _decided_now(self, step: Step) -> bool:
+        """Whether a dry run may raise ``step`` (a ``fail`` whose condition held): only
+        where that condition uses no state but what ``learn`` sets, and the drive has been
+        learned (a refusal decided from reads, before the set-up writes; state the set-up
+        itself sets is known only after it)."""
+        if not self._learned:
+            return False
+        learn = self.description.procedures.get("learn")
+        learned = {f"state.{k}" for st in (learn.steps if learn else []) if st.set
+                   for k in st.set}
+        used = step.when.paths if step.when is not None else frozenset()
+        return all(p in learned for p in used if p.startswith("state."))
 
     def _fail_check(self, step: Step, run: _Run, default: str | None = None) -> None:
         """Raise the error ``step`` says (``error``), with its ``message`` or ``default``."""
