@@ -24,6 +24,7 @@ from drivebus.errors import (
 from drivebus.motion import Axis, Machine
 from held_up import within_bound
 from machines import DEMO, demo_machine
+from waits import until
 from wirelog import commands, log_size, room, settle, write_frames
 
 MOTION_AXES = ("x", "y", "z", "r")  # the aux axis (OD2000) cannot move
@@ -345,3 +346,28 @@ async def test_a_refusal_decided_from_what_the_drive_said_sends_no_set_up(tmp_pa
             await x.home()
         assert write_frames(m) == before
         assert x.state is AxisState.STANDSTILL
+
+
+async def test_a_target_beyond_the_drives_register_is_refused_before_any_write(
+        tmp_path: Path) -> None:
+    """Soft limits wider than the NT86's target register (±16 777 216 pulses, 41 943 mm
+    at 400 pulses/mm): a move beyond it is refused like one beyond the soft limits,
+    nothing written (it was refused after the set-up's four writes); a jog towards that
+    limit runs to the end of the register's range instead of failing."""
+    text = DEMO.read_text().replace("limits = [-5.0, 400.0]", "limits = [-5.0, 50000.0]")
+    path = tmp_path / "demo-wide.toml"
+    path.write_text(text)
+    async with open_machine(path) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        await settle(x)
+        before = write_frames(m)
+        for call in (lambda: x.move_to(45000.0), lambda: x.move_by(45000.0)):
+            with pytest.raises(LimitViolation, match=r"axis x: target .* beyond what drive "
+                               r"NT86's target position takes"):
+                await call()
+        assert write_frames(m) == before
+        assert x.state is AxisState.STANDSTILL
+        await x.jog(20.0, watchdog=None)
+        await until(lambda: twin.is_moving(), "the jog under way")
+        await x.stop()
+        assert not twin.is_moving()

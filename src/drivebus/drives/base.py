@@ -626,8 +626,9 @@ class DriveProfile:
         """De-energise the motor."""
         raise self.unsupported("disable the motor")
 
-    def check_move(self, params: MoveParams) -> None:
-        """LimitViolation if the drive cannot take ``params`` (no I/O; planners use it)."""
+    def check_move(self, params: MoveParams, position: int = 0) -> None:
+        """LimitViolation if the drive cannot take ``params``, or an absolute move to
+        ``position`` pulses (no I/O; planners use it)."""
 
     def quantize(self, params: MoveParams) -> MoveParams:
         """The speed and ramps the drive really runs for ``params``, after its registers'

@@ -375,11 +375,13 @@ class Cia402Profile(DescribedProfile):
                 values.append((name, v))
         return values
 
-    def check_move(self, params: MoveParams) -> None:
-        """Range-check the profile velocity, acceleration and deceleration (no I/O)."""
+    def check_move(self, params: MoveParams, position: int = 0) -> None:
+        """Range-check the profile velocity, acceleration and deceleration and the target
+        position (no I/O)."""
         if self._described("move_absolute"):
-            super().check_move(params)
+            super().check_move(params, position)
             return
+        self._raw("target_position", position)
         for name, v in self._move_values(params):
             raw = self._raw(name, v)
             if raw == 0:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from drivebus import checks
@@ -20,6 +21,26 @@ from drivebus.errors import LimitViolation
 from drivebus.motion.units import Units
 
 __all__ = ["Envelope", "MotionPlan"]
+
+_POSITION_PULSES = 1 << 31
+"""A position beyond every drive's counter (32 bits, signed)."""
+
+
+def _edge(takes: Callable[[int], bool], far: int) -> int:
+    """The magnitude of the farthest position towards ``far`` that ``takes`` accepts,
+    given that it accepts 0 and its accepted positions around 0 are one interval."""
+    if takes(far):
+        return abs(far)
+    sign = 1 if far > 0 else -1
+    good, bad = 0, abs(far)
+    while bad - good > 1:
+        mid = (good + bad) // 2
+        if takes(sign * mid):
+            good = mid
+        else:
+            bad = mid
+    return good
+
 
 _EDGE_STEPS = 64
 """Most steps of the search for a drive's edge (it needs ~25 from the float range's ends)."""
@@ -52,6 +73,7 @@ class Envelope:
         self.config = config
         self.profile = profile
         self.units = units
+        self._target_range: tuple[int, int] | None = None
 
     # -- speed and ramps ----------------------------------------------------------------------
 
@@ -148,13 +170,43 @@ class Envelope:
     # -- where the axis may go ----------------------------------------------------------------
 
     def check_limits(self, target: float) -> None:
-        """LimitViolation if ``target`` lies outside the soft limits; nothing is sent."""
+        """LimitViolation if ``target`` lies outside the soft limits or beyond what the
+        drive's target position takes; nothing is sent."""
         lim = self.config.limits
         if lim is not None and not lim[0] <= target <= lim[1]:
             raise LimitViolation(
                 f"axis {self.name}: target {target:g} is outside the soft limits "
                 f"{lim[0]:g}..{lim[1]:g}"
             )
+        lo, hi = self.target_range()
+        p = self.units.to_pulses(target)
+        if not lo <= p <= hi:
+            u = self.units
+            raise LimitViolation(
+                f"axis {self.name}: target {target:g} {self.config.unit} is {p} pulses, "
+                f"beyond what drive {self.profile.family}'s target position takes "
+                f"({u.from_pulses(lo):g}..{u.from_pulses(hi):g} {self.config.unit}, "
+                f"{lo}..{hi} pulses)")
+
+    def target_range(self) -> tuple[int, int]:
+        """The pulses an absolute move of the drive can target (its target register's
+        range, found once from the profile's own range check; 32 bits where it has none)."""
+        if self._target_range is not None:
+            return self._target_range
+        params = self.drive_params(self.plan())
+
+        def takes(p: int) -> bool:
+            try:
+                self.profile.check_move(params, p)
+            except LimitViolation:
+                return False
+            return True
+
+        if not takes(0):  # its default speed is refused: the moves say why
+            return (-_POSITION_PULSES, _POSITION_PULSES - 1)
+        self._target_range = (-_edge(takes, -_POSITION_PULSES),
+                              _edge(takes, _POSITION_PULSES - 1))
+        return self._target_range
 
     def pulses(self, target: float) -> int:
         """``target`` (user units, within the soft limits) as pulses that stay within them."""
@@ -186,11 +238,13 @@ class Envelope:
             )
 
     def jog_bound(self, speed: float) -> int | None:
-        """Pulses of the soft limit a jog at ``speed`` runs towards (None: no limits)."""
+        """Pulses of the soft limit a jog at ``speed`` runs towards, or of the end of what
+        the drive's target position takes where that comes first (None: no limits)."""
         lim = self.config.limits
         if lim is None:
             return None
-        return self.pulses(lim[1] if speed > 0 else lim[0])
+        lo, hi = self.target_range()
+        return min(max(self.pulses(lim[1] if speed > 0 else lim[0]), lo), hi)
 
     def check_jog_room(self, speed: float, status: DriveStatus | None) -> None:
         """LimitViolation if a jog at ``speed`` has no room before a limit switch or a

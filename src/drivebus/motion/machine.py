@@ -288,6 +288,7 @@ async def _make_axis(
     except TypeError as exc:
         raise ConfigError(f"axes.{name}.drive_options: {exc}") from None
     axis = Axis(name, cfg, profile)
+    axis.envelope.target_range()  # found now (some ms of dry runs), not at a first move
     try:
         await profile.read_status()
         await profile.learn()  # reads only: the drive is set up by the first command

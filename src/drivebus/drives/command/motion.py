@@ -44,9 +44,9 @@ class Commands(ProfileBase):
         self._dry(proc, run)
         return run.trace
 
-    def check_move(self, params: MoveParams) -> None:
-        """Range-check what a move with ``params`` would write (no I/O)."""
-        self._dry_trace("move_absolute", self._move_args(0, params, "move_absolute"))
+    def check_move(self, params: MoveParams, position: int = 0) -> None:
+        """Range-check what a move to ``position`` with ``params`` would write (no I/O)."""
+        self._dry_trace("move_absolute", self._move_args(position, params, "move_absolute"))
 
     def quantize(self, params: MoveParams) -> MoveParams:
         """The speed and ramps the drive runs after its registers' rounding.
