@@ -74,6 +74,10 @@ def decode(words: Sequence[int], fmt: str) -> list[int | float | str]:
     return out
 
 
+_FLOAT32_MAX = struct.unpack(">f", bytes.fromhex("7f7fffff"))[0]
+"""The largest finite 32-bit float."""
+
+
 def encode(values: Sequence[str | int | float], fmt: str) -> list[int]:
     """Values (as typed on a command line, or numbers) as register words in ``fmt``."""
     fmt = _check_format(fmt)
@@ -82,7 +86,13 @@ def encode(values: Sequence[str | int | float], fmt: str) -> list[int]:
         name = f"VALUE {i + 1}"
         if fmt == "float":
             v = checks.finite(name, _number(text, name, float))
-            hi, lo = struct.unpack(">HH", struct.pack(">f", v))
+            try:
+                packed = struct.pack(">f", v)
+            except OverflowError:
+                raise ArgumentError(f"{name}: {text} is beyond what format float holds (a "
+                                    f"32-bit float: -{_FLOAT32_MAX:.8g}..{_FLOAT32_MAX:.8g})"
+                                    ) from None
+            hi, lo = struct.unpack(">HH", packed)
             words += [hi, lo]
             continue
         n = _number(text, name, int)

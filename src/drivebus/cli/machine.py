@@ -46,6 +46,8 @@ from drivebus.text import count
 
 __all__ = [
     "check_config",
+    "check_goal",
+    "check_jog_room",
     "home_axis",
     "jog_axis",
     "monitor",
@@ -78,6 +80,24 @@ def refuse_early(config: Path | MachineConfig, axis: str, procedure: str, *,
             raise
         raise ArgumentError(f"AXIS: axis {axis}: {exc}") from None
     return cfg
+
+
+def check_goal(ax: Axis, goal: float, name: str = "TARGET") -> None:
+    """A goal beyond ``ax``'s soft limits refused as the bad argument ``name`` it is
+    (``ArgumentError``, exit status 2), before anything is sent."""
+    try:
+        ax.check_limits(goal)
+    except errors.LimitViolation as exc:
+        raise ArgumentError(f"{name}: {exc}") from None
+
+
+def check_jog_room(ax: Axis, speed: float, name: str = "SPEED") -> None:
+    """No room before a soft limit in the jog's direction: the bad argument ``name``, as a
+    move's target beyond it (``ArgumentError``, exit status 2)."""
+    try:
+        ax.envelope.check_jog_room(speed, ax.status)
+    except errors.LimitViolation as exc:
+        raise ArgumentError(f"{name}: {exc}") from None
 
 
 # -- status, stop --------------------------------------------------------------------------------
@@ -212,10 +232,7 @@ async def move_axis(
         start = ax.position
         goal = (start or 0.0) + target if by else target
         what = f"move {'by' if by else 'to'} {target:g}"
-        try:
-            ax.check_limits(goal)  # a target beyond the soft limits is a bad argument
-        except errors.LimitViolation as exc:
-            raise ArgumentError(f"TARGET: {exc}") from None
+        check_goal(ax, goal)  # a target beyond the soft limits is a bad argument
 
         async def motion() -> None:
             if by:
@@ -241,10 +258,7 @@ async def jog_axis(out: Out, config: Path | MachineConfig, axis: str, speed: flo
     """Jog an axis at ``speed`` units/s for ``seconds`` (until Ctrl-C without it)."""
     async with _one_axis(out, config, axis) as run:
         ax = run.axis
-        try:  # no room before a limit in its direction: a bad argument, as a move's target
-            ax.envelope.check_jog_room(speed, ax.status)
-        except errors.LimitViolation as exc:
-            raise ArgumentError(f"SPEED: {exc}") from None
+        check_jog_room(ax, speed)  # no room before a limit in its direction
         what = f"jog at {speed:g}/s" + (f" for {seconds:g} s" if seconds else " (Ctrl-C ends it)")
 
         async def motion() -> None:

@@ -68,12 +68,25 @@ def teach(
     """Store the axes' present positions as POSITION in the machine file (comments kept)."""
     from drivebus.cli.terminal import Out, run_guarded
 
+    _check_name(name)  # whoever teaches: refused before anything opens or is asked
     out = Out(as_json=as_json)
     owner = _owner(config, server, token, local)
     if owner is not None:
         raise typer.Exit(run_guarded(lambda: _teach_remote(out, owner, name, axes or [])))
     cfg = _refuse_teaching(config, name, axes or [])
     raise typer.Exit(run_guarded(lambda: _teach_here(out, cfg, name, axes or [])))
+
+
+def _check_name(name: str) -> None:
+    """POSITION as a position's name (``drivebus.config.POSITION_NAME``), else an
+    ``ArgumentError`` naming it (exit status 2)."""
+    import re
+
+    from drivebus.config import POSITION_NAME
+
+    if not re.fullmatch(POSITION_NAME, name):
+        raise ArgumentError(f"POSITION: {name!r} is not a position's name: a letter or _, "
+                            f"then letters, digits, _ or - (64 at most)")
 
 
 def _refuse_teaching(config: Path, name: str, axes: list[str]) -> MachineConfig:
@@ -86,6 +99,9 @@ def _refuse_teaching(config: Path, name: str, axes: list[str]) -> MachineConfig:
     from drivebus.positions import PositionStore
 
     cfg = load_config(config)
+    if name in cfg.axes:
+        raise ArgumentError(f"POSITION: {name!r} is an axis's name: a position may not have "
+                            f"one (drivebus move MACHINE {name} would be ambiguous)")
     subset(cfg, axes)
     chosen = axes or list(PositionStore.of(cfg, cfg.source).positions.get(name, {}))
     for axis in dict.fromkeys(chosen):

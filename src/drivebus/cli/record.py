@@ -82,6 +82,7 @@ def parse_step(text: str) -> Step:
 def _runner(step: Step, machine: object) -> Callable[[], Awaitable[object]]:
     import anyio
 
+    from drivebus.cli.machine import check_goal, check_jog_room
     from drivebus.motion import Machine
 
     assert isinstance(machine, Machine)
@@ -96,10 +97,19 @@ def _runner(step: Step, machine: object) -> Callable[[], Awaitable[object]]:
             return lambda: m.axes[name].move_to(target)
         return lambda: m.group(*targets).move_to(targets)
     if step.op == "move-by":
-        if len(targets) == 1:
-            (name, distance), = targets.items()
-            return lambda: m.axes[name].move_by(distance)
-        return lambda: m.group(*targets).move_by(targets)
+
+        async def move_by() -> None:
+            for name, distance in targets.items():  # refused as `move --by` refuses it
+                here = m.axes[name].position
+                if here is not None:
+                    check_goal(m.axes[name], here + distance, f"--during move-by {name}")
+            if len(targets) == 1:
+                (name, distance), = targets.items()
+                await m.axes[name].move_by(distance)
+            else:
+                await m.group(*targets).move_by(targets)
+
+        return move_by
     if step.op == "home":
         return m.axes[step.axes[0]].home
     if step.op == "enable":
@@ -110,6 +120,7 @@ def _runner(step: Step, machine: object) -> Callable[[], Awaitable[object]]:
         axis, (speed, seconds) = m.axes[step.axes[0]], step.values
 
         async def jog() -> None:
+            check_jog_room(axis, speed, f"--during jog {axis.name}")  # as `jog` refuses it
             async with axis.jogging(speed):
                 await anyio.sleep(seconds)
 
@@ -146,14 +157,36 @@ def _refuse_early(config: Path, axes: list[str], steps: list[Step]) -> MachineCo
     return cfg
 
 
+def _refuse_relative(steps: list[Step], machine: object) -> None:
+    """Each ``move-by`` whose start is known before the steps run (where the axis is, or
+    a ``move`` step's target before it) refused beyond the soft limits, as ``move --by``."""
+    from drivebus.cli.machine import check_goal
+    from drivebus.motion import Machine
+
+    assert isinstance(machine, Machine)
+    at = {name: ax.position for name, ax in machine.axes.items()}
+    for step in steps:
+        for name, value in zip(step.axes, step.values, strict=False):
+            if step.op == "move":
+                at[name] = value
+            elif step.op == "move-by" and (here := at[name]) is not None:
+                check_goal(machine.axes[name], here + value, f"--during move-by {name}")
+                at[name] = here + value
+        if step.op in ("home", "jog"):  # where they end is the drive's to say
+            at.update(dict.fromkeys(step.axes))
+
+
 async def _record(config: Path | MachineConfig, axes: list[str], steps: list[Step],
                   seconds: float | None, outputs: list[Path], png: Path | None) -> int:
     import anyio
 
     from drivebus.motion import open_machine
 
-    async with open_machine(config) as m:
+    # A recording only listens: on its end it stops what its own steps set moving, never
+    # an axis that was moving when it began (the observer's rule, as status and teach).
+    async with open_machine(config, stop_on_exit=False) as m:
         runs = [_runner(s, m) for s in steps]  # every step checked before anything moves
+        _refuse_relative(steps, m)
         async with m.record(axes=axes or None) as rec:
             for run in runs:
                 await run()
@@ -291,7 +324,8 @@ def record(
     --during steps run; write a self-contained HTML report (-o run.html) and exports.
 
     When a drivebus serve owns the machine, it records through it (its recordings API;
-    the steps run as its motions): the line keeps its one master."""
+    the steps run as its motions): the line keeps its one master. At its end (Ctrl-C,
+    SIGTERM too) it stops only what its steps moved: an axis moving before goes on."""
     from drivebus.cli.remote import service_owner
     from drivebus.cli.terminal import run_guarded
 

@@ -301,11 +301,19 @@ def _settings(text: str | None, baud: int | None = None, parity: str | None = No
         return LineSettings.parse(text)
     if not split:
         return None
-    letter = {"none": "N", "n": "N", "even": "E", "e": "E", "odd": "O", "o": "O"}.get(
-        (parity or "even").lower())
+    # Each given as it is (a 0 or an empty --parity is refused, not taken for the default).
+    letter = "E" if parity is None else {"none": "N", "n": "N", "even": "E", "e": "E",
+                                         "odd": "O", "o": "O"}.get(parity.lower())
     if letter is None:
         raise ArgumentError(f"--parity: {parity!r} is not none, even or odd")
-    return LineSettings.parse(f"{baud or 19200} 8{letter}{stopbits or 1}")
+    if stopbits is not None:
+        checks.whole("--stopbits", stopbits, 1, 2)
+    try:
+        rate = LineSettings(**({} if baud is None else {"baudrate": baud})).baudrate
+    except ConfigError as exc:
+        raise ArgumentError(f"--baud: {baud} is not a baud rate: "
+                            f"{str(exc).rsplit('baudrate: ', 1)[-1]}") from None
+    return LineSettings.parse(f"{rate} 8{letter}{1 if stopbits is None else stopbits}")
 
 
 @app.command(context_settings=_SIGNED)
