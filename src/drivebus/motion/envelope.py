@@ -17,7 +17,7 @@ from drivebus import checks
 from drivebus.config import AxisConfig
 from drivebus.drives.base import DriveProfile, MoveParams
 from drivebus.drives.status import DriveStatus
-from drivebus.errors import LimitViolation
+from drivebus.errors import DrivebusError, LimitViolation
 from drivebus.motion.units import Units
 
 __all__ = ["Envelope", "MotionPlan"]
@@ -198,11 +198,11 @@ class Envelope:
         def takes(p: int) -> bool:
             try:
                 self.profile.check_move(params, p)
-            except LimitViolation:
+            except DrivebusError:
                 return False
             return True
 
-        if not takes(0):  # its default speed is refused: the moves say why
+        if not takes(0):  # no absolute moves, or its default speed refused: they say why
             return (-_POSITION_PULSES, _POSITION_PULSES - 1)
         self._target_range = (-_edge(takes, -_POSITION_PULSES),
                               _edge(takes, _POSITION_PULSES - 1))
