@@ -206,6 +206,23 @@ async def test_stop_and_estop_over_the_websocket_overtake_queued_jogs() -> None:
         assert not any(t.is_moving() for t in twins.values())
 
 
+@pytest.mark.parametrize("raw", ['{"estop": {}, "id": NaN}', '{"estop": {"why": Infinity}}',
+                                 '{"estop": {}, "x": ' + "9" * 5000 + "}"])
+async def test_an_estop_is_not_refused_for_a_number_json_cannot_carry_beside_it(
+        raw: str) -> None:
+    """A NaN, an infinity or a 5000-digit integer anywhere in an e-stop message: the
+    message's numbers were checked first, the e-stop refused, and x ran on."""
+    async with running() as (svc, client), ws(svc) as conn:
+        twins = svc.session.machine.sim_drives
+        await recv(conn)
+        await client.post("/api/axes/x/move", json={"target": 390.0, "speed": 50.0})
+        await moving(svc, "x")
+        await conn.send(raw)
+        reply = await recv_until(conn, lambda m: m["type"] == "reply")
+        assert reply["ok"] and reply["op"] == "estop", reply
+        assert not any(t.is_moving() for t in twins.values())
+
+
 async def test_bad_messages_get_typed_error_replies_and_the_connection_lives_on() -> None:
     async with running() as (svc, _), ws(svc) as conn:
         await recv(conn)

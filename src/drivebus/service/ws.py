@@ -37,6 +37,7 @@ client that fell behind further is told ``{"type": "lost", "count": N}``.
 
 # No ``from __future__ import annotations`` here: FastAPI reads the annotations at runtime.
 
+import json
 import logging
 import time
 from typing import Annotated, Any
@@ -277,7 +278,12 @@ class _Connection:
 
 
 def _parse(text: str) -> tuple[str, Any, Any]:
-    msg = checks.load_json("message", text)
+    try:
+        msg = checks.load_json("message", text)
+    except ArgumentError:
+        if _asks_estop(text):  # a NaN or a huge number beside it refuses nothing
+            return "estop", None, {}
+        raise
     if not isinstance(msg, dict):
         raise ArgumentError("expected a JSON object with one operation")
     if "estop" in msg:  # an emergency stop is never refused for what comes with it
@@ -291,6 +297,16 @@ def _parse(text: str) -> tuple[str, Any, Any]:
     if ops[0] == "subscribe":
         return ops[0], msg.get("id"), (msg["subscribe"], msg.get("max_rate"))
     return ops[0], msg.get("id"), msg[ops[0]]
+
+
+def _asks_estop(text: str) -> bool:
+    """Whether ``text``, refused as a message for a number in it (NaN, infinity, too
+    many digits), is a JSON object with ``estop`` in it: read leniently, numbers aside."""
+    try:
+        msg = json.loads(text, parse_constant=lambda _: None, parse_int=lambda _: 0)
+    except (ValueError, RecursionError):
+        return False
+    return isinstance(msg, dict) and "estop" in msg
 
 
 async def _authenticate(ws: WebSocket, state: ServiceState) -> Principal | None:
