@@ -117,12 +117,22 @@ async def test_a_node_process_says_offline_and_stops_its_axes_on_sigterm(
         async with probe(broker.url, "drivebus/calm/status", "drivebus/calm/axes/x/state") as p:
             await p.wait(lambda: any(m == b"online" for _, m, _ in p.messages), timeout=120)
             await p.command("calm", "x", "jog", {"speed": 20.0, "ttl": 5.0})
+            move = await p.send("calm", "y", "move", {"target": 190.0, "speed": 5.0})
             await p.wait(lambda: (st := p.latest("drivebus/calm/axes/x/state"))
                          and st["moving"])
+            await p.wait(lambda: (r := p.replies.get(move)) and r[-1]["status"] == "accepted")
             code, out, err = await anyio.to_thread.run_sync(node.stop)
             assert code == 0, err
             assert out.startswith("node calm: machine calm on mqtt://127.0.0.1:")
             await p.wait(lambda: any(m == b"offline" for _, m, _ in p.messages))
+            # the move under way got its one final reply, before the node went offline
+            # (it had only ever been accepted)
+            replies = await p.final(move)
+            assert [r["status"] for r in replies] == ["accepted", "aborted"], replies
+            assert replies[-1]["error"]["type"] == "MotionAborted"
+            said = [m for _, m, _ in p.messages]
+            final = next(i for i, m in enumerate(said) if b'"aborted"' in m)
+            assert final < said.index(b"offline")
     finally:
         node.kill()
     with pytest.raises(subprocess.CalledProcessError) as bad:

@@ -363,6 +363,12 @@ class MachineSession:
                     raise  # refused: the caller of start_... hears it
                 self._finish(record, "aborted" if _is_abort(exc) else "failed", exc)
                 return
+            except BaseException:  # cancelled from outside: the session is closing
+                if accepted:  # its axes were stopped (shielded) before this came
+                    self._finish(record, "aborted", MotionAborted(
+                        f"the {kind} of {', '.join(axes)} was cut short: the machine "
+                        f"session is closing"))
+                raise
             finally:
                 record.scope = None
             if scope.cancelled_caught:

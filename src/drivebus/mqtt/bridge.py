@@ -86,6 +86,9 @@ _RECONNECT_MIN = 0.2
 """First wait before reconnecting, s; it doubles up to ``reconnect_max``."""
 _GOODBYE = 3.0
 """Longest a bridge that is being cancelled spends saying ``offline``, s."""
+_LAST_REPLIES = 10.0
+"""Longest a bridge that is being cancelled spends stopping the motions its commands
+started and publishing their final replies, before it says ``offline``, s."""
 
 NO_DELAY = (socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 """Small messages (an e-stop, a reply) leave at once, not after Nagle's wait for an ACK."""
@@ -159,6 +162,8 @@ class _ReplyTo:
     topic: str
     correlation: bytes | None = None
     id: Id = None
+    answered: bool = False
+    """Its final reply is out (there is exactly one)."""
 
 
 @dataclass
@@ -238,6 +243,9 @@ class Bridge:
         self._queues = {name: _AxisQueue() for name in session.machine.axes}
         self._last_state: dict[str, dict[str, Any]] = {}
         self._tg: anyio.abc.TaskGroup | None = None
+        self._open: dict[int, tuple[Command, _ReplyTo, MotionRecord | None]] = {}
+        """Commands taken up and not answered finally yet (by ``id`` of their _ReplyTo)."""
+        self._replies_sending = 0
 
     # -- observing --------------------------------------------------------------------------
 
@@ -254,19 +262,60 @@ class Bridge:
     # -- running ----------------------------------------------------------------------------
 
     async def run(self) -> None:
-        """Bridge until cancelled; then say ``offline`` and stop the jogs held over MQTT."""
+        """Bridge until cancelled; then stop the motions and jogs its commands started,
+        publish every command's final reply, and say ``offline``: the broker connection
+        outlives the rest of the bridge for that (bounded)."""
+        link = anyio.CancelScope(shield=True)
+
+        async def connection() -> None:
+            with link:
+                await self._connect_loop()
+
         with self.session.events.subscribe({"axes", "lines"}) as sub:
             try:
                 async with anyio.create_task_group() as tg:
                     self._tg = tg
+                    tg.start_soon(connection, name="mqtt connection")
                     tg.start_soon(self._collect, sub, name="mqtt collector")
                     for axis in self._queues:
                         tg.start_soon(self._axis_worker, axis, name=f"mqtt axis {axis}")
-                    tg.start_soon(self._connect_loop, name="mqtt connection")
+                    try:
+                        await anyio.sleep_forever()
+                    finally:
+                        with anyio.CancelScope(shield=True):
+                            with anyio.move_on_after(_LAST_REPLIES):
+                                await self._answer_the_rest()
+                            link.cancel()  # now ``offline``
             finally:
                 self._tg = None
                 with anyio.CancelScope(shield=True):
                     await self.session.release(self.client_name)
+
+    async def _answer_the_rest(self) -> None:
+        """Leaving: queued commands are dropped, the motions commands started are stopped
+        and answered when at rest, the rest answered ``aborted``; then the replies go out
+        (while the broker is there)."""
+        for axis in self._queues:
+            self._drop_queued(axis, "the node is shutting down")
+        await self.session.release(self.client_name)  # its jogs stop
+        running = [(cmd, rt, rec) for cmd, rt, rec in self._open.values()
+                   if rec is not None and not rec.done.is_set()]
+        for axis in dict.fromkeys(cmd.axis for cmd, _, _ in running):
+            try:
+                await self.session.stop(axis, client=self.client_name)
+            except DrivebusError as exc:
+                log.error("mqtt %s: leaving, axis %s: %s", self.options.node, axis, exc)
+        for cmd, rt, rec in list(self._open.values()):
+            if rec is not None:
+                await rec.done.wait()
+                self._final(rt, cmd.axis, cmd.verb, rec.error, motion=rec.id,
+                            result=rec.result)
+            else:
+                self._final(rt, cmd.axis, cmd.verb, MotionAborted(
+                    f"axis {cmd.axis}: the {cmd.verb} was cut short: the node is shutting "
+                    f"down"))
+        while self._up and (self.outbox.replies_waiting or self._replies_sending):
+            await self.outbox.sent.wait()
 
     async def _connect_loop(self) -> None:
         delay = _RECONNECT_MIN
@@ -385,6 +434,7 @@ class Bridge:
             tg.start_soon(self._send, client, msg, slots)
 
     async def _send(self, client: aiomqtt.Client, msg: Outgoing, slots: anyio.Semaphore) -> None:
+        self._replies_sending += msg.reply
         try:
             await client.publish(msg.topic, msg.payload, qos=msg.qos, retain=msg.retain,
                                  properties=msg.properties)
@@ -395,7 +445,9 @@ class Bridge:
                 self.outbox.reply(msg, first=True)  # not sent: it goes after reconnecting
             raise
         finally:
+            self._replies_sending -= msg.reply
             slots.release()
+            self.outbox.note_sent()
 
     # -- state and statistics ---------------------------------------------------------------
 
@@ -457,6 +509,10 @@ class Bridge:
         self, rt: _ReplyTo, axis: str | None, verb: str, error: BaseException | None,
         **extra: Any,
     ) -> None:
+        if rt.answered:
+            return  # exactly one final reply
+        rt.answered = True
+        self._open.pop(id(rt), None)
         status = "done" if error is None else "aborted" if _is_abort(error) else "failed"
         self._send_reply(rt, {**self._body(rt, axis, verb, status),
                               "error": error_record(error), **extra})
@@ -540,6 +596,7 @@ class Bridge:
     async def _queued(self, cmd: Command, rt: _ReplyTo) -> None:
         """A queued command (everything but stop and halt), in the axis's worker."""
         s, a, client = self.session, cmd.axis, self.client_name
+        self._open[id(rt)] = (cmd, rt, None)
         try:
             if cmd.verb == "move":
                 rec = await s.start_move(
@@ -556,6 +613,8 @@ class Bridge:
             self._final(rt, a, cmd.verb, exc)
             return
         self._accepted(rt, a, cmd.verb, motion=rec.id)
+        if not rt.answered:
+            self._open[id(rt)] = (cmd, rt, rec)
         self._spawn(self._motion_end, cmd, rt, rec)
 
     async def _motion_end(self, cmd: Command, rt: _ReplyTo, rec: MotionRecord) -> None:
@@ -565,6 +624,7 @@ class Bridge:
     async def _direct(self, cmd: Command, rt: _ReplyTo) -> None:
         """A command that returns when it is over (stop, halt, enable, disable, reset, jog)."""
         s, a, client, args = self.session, cmd.axis, self.client_name, cmd.args
+        self._open.setdefault(id(rt), (cmd, rt, None))
         try:
             if cmd.verb != "halt":
                 s.authorize(client)  # refused by a lease: only a failed reply

@@ -50,6 +50,8 @@ class Outbox:
         self._interval: dict[str, float] = {}
         self._sent_at: dict[str, float] = {}
         self._changed = anyio.Event()
+        self.sent = anyio.Event()
+        """Set when a publish ended (``note_sent``): a new one each time."""
 
     def __len__(self) -> int:
         return len(self._replies) + len(self._latest)
@@ -57,6 +59,16 @@ class Outbox:
     def pending_replies(self) -> list[Outgoing]:
         """The replies waiting for the broker, oldest first."""
         return list(self._replies)
+
+    @property
+    def replies_waiting(self) -> int:
+        """Replies queued and not yet taken to be published."""
+        return len(self._replies)
+
+    def note_sent(self) -> None:
+        """A publish ended (acknowledged or failed): wake who waits for ``sent``."""
+        self.sent.set()
+        self.sent = anyio.Event()
 
     def reply(self, msg: Outgoing, *, first: bool = False) -> None:
         """Queue a reply (``first``: ahead of the others, e.g. one whose publish failed)."""
