@@ -196,6 +196,41 @@ async def test_enable_and_reset_after_a_jog_start_nothing_on_the_twin(
             assert not st.moving and a.state is AxisState.STANDSTILL
 
 
+@pytest.mark.parametrize(("name", "drive", "ppr", "settings", "extra", "code"), TWINS,
+                         ids=[t[0] for t in TWINS])
+async def test_a_jog_after_a_fault_ended_one_never_runs_the_old_one_first(
+        name: str, drive: str, ppr: int, settings: str, extra: dict[str, Any],
+        code: int) -> None:
+    """A drive fault ends a jog (the drive stops itself: no stop is sent, its target
+    speed stays), reset, then a jog the other way: the motor never runs the old direction
+    on the way (the ZLAC8015D changed to speed mode before it wrote the new speed, and
+    ran the stale one first)."""
+    with anyio.fail_after(30):
+        async with open_machine(twin_machine(name, drive, ppr, settings, extra,
+                                             "refault")) as m:
+            a, twin = m.axes["a"], m.sim_drives["a"]
+            a.profile.check_supported("speed_run")
+            try:
+                a.profile.check_supported("clear_alarm")
+            except NotSupported:
+                pytest.skip(f"{name}: no documented error clear (its own test covers it)")
+            await a.enable()
+            await a.jog(5.0, watchdog=None)
+            await until(twin.is_moving, "the jog to run on the twin")
+            twin.raise_alarm(code)
+            await first_alarm(a)
+            await a.reset()
+            await a.enable()
+            assert not twin.is_moving()
+            t0 = monotonic()
+            await a.jog(-5.0, watchdog=None)
+            await until(twin.is_moving, "the jog the other way to run on the twin")
+            await a.stop()
+            forward = [seg for seg in twin.kin.trace(t0, monotonic())
+                       if seg.v0 > 0 or seg.at(seg.t1)[1] > 0]
+            assert not forward, f"{name}: ran the old jog's direction: {forward}"
+
+
 @pytest.mark.parametrize("name", ["kinco", "lexium", "zlac"])
 async def test_a_stopped_speed_run_leaves_no_target_speed(name: str) -> None:
     """A stop and an emergency stop of a speed run leave target velocity (60FFh; the
@@ -325,3 +360,22 @@ async def test_enable_and_reset_after_a_jog_start_nothing_on_the_lexium_emulator
                 await a.refresh()
                 assert not lx.moving and lx.vel == 0, sequence
                 assert lx.get(L_PV_TARGET) == 0, sequence
+
+
+async def test_a_zlac_move_that_arrived_is_not_taken_for_motion_after_a_power_cycle() -> None:
+    """The ZLAC8015D has no moving bit for a position move: its description remembered
+    the move against the position counter, and a power cycle's zeroed counter read as
+    motion for good (the axis in DiscreteMotion, every command refused)."""
+    with anyio.fail_after(30):
+        async with open_machine(twin_machine(*TWINS[2][:5], tag="power")) as m:
+            a, twin = m.axes["a"], m.sim_drives["a"]
+            await a.enable()
+            await a.move_by(1.0)
+            assert twin.position() != 0
+            twin.power_cycle()
+            async for st in a.watch():  # a status polled after it: the counter at 0
+                if st.position == 0:
+                    break
+            st = await a.refresh()
+            assert not st.moving and not twin.is_moving()
+            assert a.state is not AxisState.DISCRETE_MOTION
