@@ -516,7 +516,7 @@ class AxisActor:
             await send()
             return
         release = self.profile.slave.bus.hold_now()
-        failure: TransactionError | None = None
+        failure: DrivebusError | None = None  # raised as it is, not in a group
 
         async def aborted_io_ended() -> None:
             try:
@@ -535,7 +535,7 @@ class AxisActor:
                 tg.start_soon(aborted_io_ended)
                 try:
                     await send()
-                except TransactionError as exc:
+                except DrivebusError as exc:
                     failure = exc
         finally:
             release()
