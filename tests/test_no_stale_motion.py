@@ -379,3 +379,25 @@ async def test_a_zlac_move_that_arrived_is_not_taken_for_motion_after_a_power_cy
             st = await a.refresh()
             assert not st.moving and not twin.is_moving()
             assert a.state is not AxisState.DISCRETE_MOTION
+
+
+async def test_a_jvl_in_error_is_not_taken_for_moving_once_enabled() -> None:
+    """The JVL MIS has no documented error clear: after an alarm during a jog, enable()
+    put it back in position mode with its in-position bit clear, which its description
+    read as motion for good (the twin at rest; disable() waited 30 s for a timeout)."""
+    name, drive, ppr, settings, extra, code = next(t for t in TWINS if t[0] == "jvl")
+    with anyio.fail_after(30):
+        async with open_machine(twin_machine(name, drive, ppr, settings, extra,
+                                             "error")) as m:
+            a, twin = m.axes["a"], m.sim_drives["a"]
+            await a.enable()
+            await a.jog(5.0, watchdog=None)
+            await until(twin.is_moving, "the jog to run on the twin")
+            twin.raise_alarm(code)
+            await first_alarm(a)
+            await until(lambda: not twin.is_moving(), "the drive to stop on its fault")
+            await a.enable()
+            st = await a.refresh()
+            assert not st.moving and not twin.is_moving()
+            with anyio.fail_after(5):  # at rest: nothing to wait for
+                await a.disable()
