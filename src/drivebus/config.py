@@ -43,6 +43,7 @@ from drivebus.settings import LineSettings
 __all__ = [
     "NODE_PATTERN",
     "POSITION_NAME",
+    "POSITION_NAME_RULE",
     "AxisConfig",
     "BrokerUrl",
     "HomingConfig",
@@ -50,6 +51,7 @@ __all__ = [
     "MachineConfig",
     "MqttConfig",
     "PollConfig",
+    "is_position_name",
     "load_config",
     "machine_config",
     "parse_broker_url",
@@ -65,6 +67,13 @@ def _settings(v: Any) -> Any:
 
 
 POSITION_NAME = r"^[A-Za-z_][A-Za-z0-9_-]{0,63}$"
+POSITION_NAME_RULE = "a letter or _, then letters, digits, _ or - (64 at most)"
+"""What ``POSITION_NAME`` asks of a position's name, in words."""
+
+
+def is_position_name(name: object) -> bool:
+    """Whether ``name`` may name a position (``POSITION_NAME``)."""
+    return isinstance(name, str) and re.fullmatch(POSITION_NAME, name) is not None
 """A position's name: a TOML bare key (and one MQTT topic level)."""
 
 
@@ -77,9 +86,8 @@ def position_problems(config: MachineConfig, positions: Mapping[str, Any],
         return [f"{where}: expected tables of axis = position, not {positions!r}"]
     for name, values in positions.items():
         key = f"{where}.{name}"
-        if not isinstance(name, str) or not re.fullmatch(POSITION_NAME, name):
-            out.append(f"{key}: a position's name is a letter or _, then letters, digits, "
-                       f"_ or - (64 at most)")
+        if not is_position_name(name):
+            out.append(f"{key}: a position's name is {POSITION_NAME_RULE}")
             continue
         if name in config.axes:
             out.append(f"{key}: a position may not have an axis's name (drivebus move "

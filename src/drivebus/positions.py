@@ -16,7 +16,6 @@ before the rename, so a failed teach leaves the old file as it was.
 from __future__ import annotations
 
 import os
-import re
 import tempfile
 import tomllib
 from collections.abc import Mapping
@@ -25,7 +24,13 @@ from pathlib import Path
 
 import tomlkit
 
-from drivebus.config import POSITION_NAME, MachineConfig, position_problems
+from drivebus.config import (
+    POSITION_NAME,
+    POSITION_NAME_RULE,
+    MachineConfig,
+    is_position_name,
+    position_problems,
+)
 from drivebus.errors import ArgumentError, ConfigError, NotFound
 
 __all__ = ["POSITION_NAME", "PositionStore", "position_problems"]  # the names: from config
@@ -76,9 +81,8 @@ class PositionStore:
     def teach(self, name: str, values: Mapping[str, float]) -> dict[str, float]:
         """Store ``values`` (axis -> position) under ``name`` (the axes it already had
         keep theirs) and write the file back; returns the position as stored."""
-        if not isinstance(name, str) or not re.fullmatch(POSITION_NAME, name):
-            raise ArgumentError(f"position name {name!r}: a letter or _, then letters, "
-                                f"digits, _ or - (64 at most)")
+        if not is_position_name(name):
+            raise ArgumentError(f"position name {name!r}: {POSITION_NAME_RULE}")
         rounded = {a: round(float(v), _DIGITS) for a, v in values.items()}
         merged = {**self.positions.get(name, {}), **rounded}
         problems = position_problems(self.config, {name: merged})

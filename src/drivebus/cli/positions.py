@@ -80,13 +80,11 @@ def teach(
 def _check_name(name: str) -> None:
     """POSITION as a position's name (``drivebus.config.POSITION_NAME``), else an
     ``ArgumentError`` naming it (exit status 2)."""
-    import re
+    from drivebus.config import POSITION_NAME_RULE, is_position_name
 
-    from drivebus.config import POSITION_NAME
-
-    if not re.fullmatch(POSITION_NAME, name):
-        raise ArgumentError(f"POSITION: {name!r} is not a position's name: a letter or _, "
-                            f"then letters, digits, _ or - (64 at most)")
+    if not is_position_name(name):
+        raise ArgumentError(f"POSITION: {name!r} is not a position's name: "
+                            f"{POSITION_NAME_RULE}")
 
 
 def _refuse_teaching(config: Path, name: str, axes: list[str]) -> MachineConfig:

@@ -203,9 +203,10 @@ class Envelope:
             return True
 
         if not takes(0):  # no absolute moves, or its default speed refused: they say why
-            return (-_POSITION_PULSES, _POSITION_PULSES - 1)
-        self._target_range = (-_edge(takes, -_POSITION_PULSES),
-                              _edge(takes, _POSITION_PULSES - 1))
+            self._target_range = (-_POSITION_PULSES, _POSITION_PULSES - 1)
+        else:
+            self._target_range = (-_edge(takes, -_POSITION_PULSES),
+                                  _edge(takes, _POSITION_PULSES - 1))
         return self._target_range
 
     def pulses(self, target: float) -> int:

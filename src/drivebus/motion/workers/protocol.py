@@ -9,9 +9,9 @@ same typed ``DrivebusError``.
 
 From the machine: ``OPEN`` (the lines to serve), ``HANDLE`` (a slave handle's settings),
 ``FORGET`` (a handle gone), ``EXPECT`` (a reply-length function), ``TX`` (a transaction),
-``CANCEL`` (its caller gave up), ``HOLD``/``UNHOLD`` (``Bus.hold``), ``HOLD_NOW`` (``Bus.hold_now``,
-let go by ``UNHOLD``), ``OBSERVE`` (send a
-line's transactions), ``CLOSE``. From a worker: ``READY``, ``OK``/``ERR`` (a transaction's
+``CANCEL`` (its caller gave up), ``HOLD``/``UNHOLD`` (``Bus.hold``), ``HOLD_NOW``
+(``Bus.hold_now``, let go by ``UNHOLD``), ``OBSERVE`` (send a line's transactions),
+``CLOSE``. From a worker: ``READY``, ``OK``/``ERR`` (a transaction's
 reply or error), ``CANCELLED`` (what became of a cancelled one), ``HELD``, ``STATS``,
 ``SEEN`` (observed transactions), ``LOG`` (its log records), ``CLOSED``, and ``ALIVE``
 every ``ALIVE_PERIOD`` (the machine's watchdog: a worker it has not heard from for
