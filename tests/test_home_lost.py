@@ -18,7 +18,7 @@ import pytest
 from drivebus import AxisState, open_machine
 from drivebus.drives.status import DriveStatus
 from drivebus.errors import ConfigError, LimitViolation
-from drivebus.motion.judge import position_lost
+from drivebus.motion.judge import drive_restarted, position_lost
 from waits import until
 
 DRIVES = Path(__file__).resolve().parents[1] / "configs" / "drives"
@@ -142,3 +142,20 @@ def test_position_lost_is_decided_from_two_statuses(
         lost: bool) -> None:
     assert position_lost(before, now, tolerance=2, back_from_offline=offline,
                          disabled_by_command=by_command) is lost
+
+
+@pytest.mark.parametrize(("before", "now", "offline", "tracked", "restarted"), [
+    (_status(12000), _status(12000), True, True, True),  # silent: it cannot say
+    (_status(12000), _status(12000), True, False, False),  # it says it is enabled
+    (_status(12000), _status(0), False, True, True),  # its counter moved at rest
+    (_status(12000), _status(12001), False, True, False),  # within 2
+    (_status(12000), _status(0, enabled=False), False, False, True),  # position lost
+    (_status(12000, moving=True), _status(0), False, True, False),  # moving: no rest
+])
+def test_a_restart_is_decided_from_two_statuses(
+        before: DriveStatus, now: DriveStatus, offline: bool, tracked: bool,
+        restarted: bool) -> None:
+    """A drive whose enable the profile only tracks cannot say it dropped it: its silence
+    or its counter moving at rest is taken for a restart."""
+    assert drive_restarted(before, now, tolerance=2, back_from_offline=offline,
+                           disabled_by_command=False, enable_tracked=tracked) is restarted

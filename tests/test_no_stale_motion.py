@@ -381,6 +381,37 @@ async def test_a_zlac_move_that_arrived_is_not_taken_for_motion_after_a_power_cy
             assert a.state is not AxisState.DISCRETE_MOTION
 
 
+@pytest.mark.parametrize("how", ["answered at once", "offline a while"])
+async def test_a_zlac_is_enabled_again_after_a_power_cycle(how: str) -> None:
+    """The ZLAC8015D reports no enable: its description tracks what it last commanded. A
+    power cycle left it "enabled", so enable() sent nothing and the next move timed out on
+    a drive that had come back released. A restart (the counter moved at rest, or the
+    drive did not answer a while) leaves the axis Disabled, and enable() enables it."""
+    with anyio.fail_after(30):
+        async with open_machine(twin_machine(*TWINS[2][:5], tag=f"cycle-{how}")) as m:
+            a, twin = m.axes["a"], m.sim_drives["a"]
+            await a.enable()
+            if how == "answered at once":
+                await a.move_by(1.0)
+                assert twin.position() != 0
+                twin.power_cycle()
+            else:  # at 0 throughout: only the silence says it may have restarted
+                twin.power_loss()
+                async for _ in a.watch():
+                    if a.state is AxisState.OFFLINE:
+                        break
+                twin.power_restore()
+            assert not twin.enabled
+            async for st in a.watch():  # a status polled after the power came back
+                if a.state is not AxisState.OFFLINE and st.position == 0:
+                    break
+            assert a.state is AxisState.DISABLED and not a.status.enabled
+            await a.enable()
+            assert twin.enabled
+            await a.move_by(1.0)
+            assert twin.position() == a.units.to_pulses(1.0) and not twin.is_moving()
+
+
 async def test_a_jvl_in_error_is_not_taken_for_moving_once_enabled() -> None:
     """The JVL MIS has no documented error clear: after an alarm during a jog, enable()
     put it back in position mode with its in-position bit clear, which its description

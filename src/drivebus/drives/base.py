@@ -479,6 +479,16 @@ class DriveProfile:
         would be refused (no I/O): the axis asks before anything is sent."""
         self.check_supported("home")
 
+    @property
+    def enable_tracked(self) -> bool:
+        """Whether the status's ``enabled`` is only what the profile last commanded (the
+        drive has no enable status to read): a restart then goes unseen by it."""
+        return False
+
+    def restarted(self) -> None:
+        """The drive may have restarted (a power cycle, a reset): forget what the profile
+        tracked of it (no I/O; the axis sets the drive up again before its next command)."""
+
     def volatile_settings(self) -> list[tuple[Register, int]]:
         """The (register, value) pairs this profile wrote that a power cycle undoes.
 

@@ -17,6 +17,7 @@ import contextlib
 import logging
 import math
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
+from dataclasses import replace
 
 import anyio
 import anyio.lowlevel
@@ -36,7 +37,7 @@ from drivebus.errors import (
 )
 from drivebus.motion.envelope import Envelope
 from drivebus.motion.events import AxisListener, MotionEvent, MotionEventKind
-from drivebus.motion.judge import judge, position_lost
+from drivebus.motion.judge import drive_restarted, judge
 from drivebus.motion.motions import Latest, Motion, RestWait
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.motion.units import Units
@@ -255,17 +256,12 @@ class AxisActor:
         if issued < self._status_issued:
             return  # an older read that finished late
         prev, prev_issued = self.status, self._status_issued
-        if prev is not None and self._motion is None and position_lost(
+        if prev is not None and self._motion is None and drive_restarted(
                 prev, st, tolerance=self.config.in_position_tolerance,
                 back_from_offline=self.state is AxisState.OFFLINE,
-                disabled_by_command=self.state is AxisState.DISABLED):
-            if prev.homed and not self._homed_lost:
-                log.warning("axis %s: its position went from %s to %s pulses at rest while "
-                            "the drive %s: taken for a power cycle, the axis is no longer "
-                            "homed", self.name, prev.position, st.position,
-                            "did not answer" if self.state is AxisState.OFFLINE
-                            else "dropped its enable")
-            self._homed_lost = self._check_due = True
+                disabled_by_command=self.state is AxisState.DISABLED,
+                enable_tracked=self.profile.enable_tracked):
+            st = self._restarted(prev, st)
         if self.state is AxisState.OFFLINE:
             log.info("axis %s: drive answers again", self.name)
             self.error = None
@@ -399,6 +395,20 @@ class AxisActor:
                 self.state = state
         self._wake_queue()
 
+    def _restarted(self, prev: DriveStatus, st: DriveStatus) -> DriveStatus:
+        """The drive may have restarted (``drive_restarted``): not homed, set up again
+        before the next command, the profile's tracked state forgotten; ``st`` as it reads
+        then (a drive whose enable is only tracked is not enabled after a restart)."""
+        if prev.homed and not self._homed_lost:
+            log.warning("axis %s: its position went from %s to %s pulses at rest while the "
+                        "drive %s: taken for a restart, the axis is no longer homed",
+                        self.name, prev.position, st.position,
+                        "did not answer" if self.state is AxisState.OFFLINE
+                        else "dropped its enable or cannot say it is enabled")
+        self._homed_lost = self._setup_due = True
+        self.profile.restarted()
+        return replace(st, enabled=False) if self.profile.enable_tracked else st
+
     async def _act(self) -> None:
         """What a poll asked for: a stop (limit, watchdog, alarm), a settings check."""
         reason = self._stop_due
@@ -459,6 +469,7 @@ class AxisActor:
                         "next command; its position is no longer homed",
                         self.name, "; ".join(lost))
             self._setup_due = self._homed_lost = True
+            self.profile.restarted()
             self._publish()
         return lost
 

@@ -25,8 +25,8 @@ from drivebus.drives.status import DriveStatus
 from drivebus.errors import DrivebusError, LimitViolation, MotionError
 from drivebus.motion.state import AxisState
 
-__all__ = ["Judged", "Verdict", "judge", "judge_homing", "limit_error", "position_lost",
-           "switch_ahead"]
+__all__ = ["Judged", "Verdict", "drive_restarted", "judge", "judge_homing", "limit_error",
+           "position_lost", "switch_ahead"]
 
 Outcome = Literal["going", "arrived", "done", "failed"]
 
@@ -193,9 +193,28 @@ def position_lost(before: DriveStatus, now: DriveStatus, *, tolerance: int,
     is lost then, whatever volatile settings it kept; a drive that only lost its enable
     (a fault, a safe torque off) kept its position, and so did one that rests where it
     was."""
-    if before.moving or now.moving or before.position is None or now.position is None:
-        return False
-    if abs(now.position - before.position) <= tolerance:
+    if not _moved_at_rest(before, now, tolerance):
         return False
     return back_from_offline or (before.enabled and not now.enabled
                                  and not disabled_by_command)
+
+
+def drive_restarted(before: DriveStatus, now: DriveStatus, *, tolerance: int,
+                    back_from_offline: bool, disabled_by_command: bool,
+                    enable_tracked: bool) -> bool:
+    """Whether the drive may have restarted between two statuses with no motion of ours:
+    its position was lost (``position_lost``), or it is a drive whose enable the profile
+    only tracks (it cannot say it dropped it) and it did not answer a while or its
+    position moved at rest. What the profile tracked of it is then stale: the drive is
+    taken for not enabled, not homed, and is set up again."""
+    if enable_tracked and (back_from_offline or _moved_at_rest(before, now, tolerance)):
+        return True
+    return position_lost(before, now, tolerance=tolerance, back_from_offline=back_from_offline,
+                         disabled_by_command=disabled_by_command)
+
+
+def _moved_at_rest(before: DriveStatus, now: DriveStatus, tolerance: int) -> bool:
+    """At rest in both statuses, its position changed by more than ``tolerance``."""
+    if before.moving or now.moving or before.position is None or now.position is None:
+        return False
+    return abs(now.position - before.position) > tolerance

@@ -84,6 +84,20 @@ class ProfileBase(DriveProfile):
         the options does not hold)."""
         self._procedure(procedure, {})
 
+    @property
+    def enable_tracked(self) -> bool:
+        """Whether the description's ``enabled`` reads nothing of the drive (``state``
+        only: what the profile last commanded)."""
+        e = self.description.status_exprs.get("enabled")
+        return e is not None and "state" in e.names and not e.names & {
+            *self.description.regs, "words", "input", "output"}
+
+    def restarted(self) -> None:
+        """The state variables start again from the description's ``[state]`` (what
+        ``learn`` set is read again by the next setup)."""
+        self.state.clear()
+        self.state.update(self.description.state)
+
     def _steps_of(self, name: str) -> Procedure | None:
         """The description's procedure ``name`` where it has steps (None: absent, or
         marked unsupported)."""
