@@ -26,12 +26,14 @@ import pytest
 from websockets.asyncio.client import connect
 
 from drivebus import AxisState, errors, open_machine
+from drivebus.clock import monotonic
 from drivebus.errors import ArgumentError, GroupMotionError, LimitViolation, MotionTimeout
 from drivebus.motion import Axis, Machine
 from held_up import within_bound
 from mqtt_helpers import bridged, running_broker
 from service_rig import running
 from service_rig import until as service_until
+from waits import until
 from wirelog import write_requests
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -396,3 +398,33 @@ async def test_jog_default_watchdog_is_documented_and_logged(
         assert any("watchdog" in r.getMessage() and r.levelno == logging.WARNING
                    for r in caplog.records)
         assert not m.sim_drives["x"].is_moving()
+
+
+# -- 5. a twin stopped on its limit switch at once reads it active ---------------------------------
+
+
+@pytest.mark.parametrize(("drive", "limit_stop", "ppr", "top"), [
+    ("BHSS", 0x0017, 12800, 73.0),  # its 200 kHz pulse output: 187 000 pulses/s
+    ("CL86R", 0x0025, 51200, 99.0),  # 1 013 760 pulses/s
+])
+async def test_an_immediate_limit_stop_leaves_the_switch_active(
+        drive: str, limit_stop: int, ppr: int, top: float) -> None:
+    """With its limit stop mode register at 1 the drive stops dead on the switch. The twin
+    planned the stop onto the switch's position, and the float rounding of that stop (its
+    time solved on a clock near 1e5 s) left it a hair short at a million pulses/s: the
+    switch read inactive, the axis took the stop for a move ended short (Standstill), and
+    a move on towards the switch was sent. Found by an outside audit."""
+    cfg = machine_for(drive, pulses_per_rev=ppr, units_per_rev=5.0,
+                      sim={"position": 0.0, "limit_negative": -200.0, "limit_positive": 50.0})
+    async with open_machine(cfg) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        twin.write_register(limit_stop, 1, monotonic())  # stop at a limit: at once
+        for speed in (20.0, 37.0, 50.0, 61.0, top * 0.88, top):
+            with anyio.fail_after(20):
+                with pytest.raises(LimitViolation, match="positive limit switch"):
+                    await x.move_to(100.0, speed=speed)
+                assert x.state is AxisState.ERROR_STOP, speed
+                await until(lambda: not twin.is_moving(), "the twin at rest on the switch")
+                assert twin.switch_states(monotonic())[2], (speed, twin.physical_position())
+                await x.reset()
+                await x.move_to(0.0, speed=top)  # away from it: allowed

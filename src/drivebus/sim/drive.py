@@ -44,8 +44,9 @@ class TwinSetup:
     """The positive limit switch is active at and above this position."""
 
 
-_ON_EDGE = 1e-6
-"""Pulses within which a position counts as on a switch's end (float rounding)."""
+_ON_EDGE = 1e-3
+"""Pulses within which a position counts as on a switch's end: the float rounding of a stop
+planned onto it (its time solved at a monotonic clock near 1e5 s, at up to 1e7 pulses/s)."""
 
 
 @dataclass(frozen=True)
