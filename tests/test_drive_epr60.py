@@ -107,6 +107,7 @@ async def test_homing_methods(method: str, sim_kw: dict[str, Any], origin: int) 
         assert frames[0].startswith(f"01 10 00 4F 00 05 0A 00 0{code} 01 F4 00 C8 03 E8 00 64")
         assert frames[1:] == [
             "01 06 00 14 00 01 08 0E",  # 20=1 homing mode
+            "01 03 00 01 00 01 D5 CA",  # status: HOME before the start
             "01 03 00 40 00 01 85 DE",  # IN5 setting (function 12)
             "01 06 00 40 00 2C 89 C3",  # polarity flipped: start homing
             "01 06 00 40 00 0C 88 1B",  # and back
@@ -121,6 +122,25 @@ async def test_homing_methods(method: str, sim_kw: dict[str, Any], origin: int) 
         await profile.move_relative(away, QUICK)  # back to register-18 mode first
         assert sent(wire)[-2] == "01 06 00 14 00 00 C9 CE"
         assert (await wait_for(profile, idle)).position == away
+
+
+async def test_an_earlier_homings_home_bit_does_not_end_the_next_one() -> None:
+    """No trigger register reads back: a homing is over once it moved and rests, or once
+    it reports a HOME it did not report when it began. A drive that keeps HOME from an
+    earlier homing and raises MOV a little late had its new homing taken for done on the
+    first status after the start."""
+    sim = SimEPR60(1, setup=TwinSetup(limit_negative=-6000))
+    async with epr60(sim, home_input=5) as (_, profile, _):
+        await profile.home("limit_negative", **HOMING)
+        st = await wait_for(profile, lambda s: not s.homing)
+        assert st.homed and not st.moving  # the twin rests with HOME set
+        assert not profile.state["home_before"]
+        # a new homing just started, nothing moved yet, HOME still set from the last one
+        profile.state.update(homing=True, seen_moving=False, home_before=True)
+        st = await profile.read_status()
+        assert st.homing, "an earlier homing's HOME ended this one"
+        profile.state.update(home_before=False)  # HOME came up since it began: done
+        assert not (await profile.read_status()).homing
 
 
 async def test_homing_needs_opt_in_and_stop_aborts_it() -> None:
