@@ -106,6 +106,10 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
      ("registers.enable", "min 5 is above max 2")),
     ("width", MINIMAL.replace("address = 1", "address = 1\nmax = 70000"),
      ("registers.enable", "does not fit 16 unsigned bits")),
+    ("default", MINIMAL.replace("address = 1", "address = 1\nmin = 1\nmax = 9\ndefault = 0"),
+     ("registers.enable.default", "0 is outside the register's range 1..9")),
+    ("pulses/rev default", MINIMAL.replace("default = 1000", "default = 500\nrange = [1000, 8000]"),
+     ("units.pulses_per_rev.default", "cannot be set to 500 pulses/rev", "1000..8000")),
     ("bit width", MINIMAL.replace("bit = 1,", "bit = 16,"),
      ("registers.status", "beyond the register's 16 bits")),
     ("ramp", MINIMAL + "\n[registers.acc]\naddress = 2\nunit = 'ms'\nramp = 'enable'\n",
@@ -1087,3 +1091,25 @@ async def test_parameters_and_commissioning_come_from_the_description(tmp_path: 
         twin.power_restore()
         assert (twin.address, str(twin.settings)) == (7, "38400 8N2")
         assert wire.requests()  # every write went over the wire
+
+
+async def test_an_axis_without_pulses_per_rev_takes_its_drives_default() -> None:
+    """A machine file without ``pulses_per_rev`` took 10000 whatever the drive: setup
+    wrote it into the drive's microstep register (20000 on the MOONS', 4000 on the NT86),
+    silently, since the first command's setup writes what the axis says. The description's
+    ``[units.pulses_per_rev] default`` is what the drive holds; the axis takes it."""
+    cfg = {"name": "ppr", "lines": {"l": {"port": "sim://ppr-default",
+                                          "settings": "115200 8N1"}},
+           "axes": {"x": {"line": "l", "address": 1, "drive": str(MOONS)},
+                    "y": {"line": "l", "address": 2, "drive": "NT86"},
+                    "z": {"line": "l", "address": 3, "drive": "NT86",
+                          "pulses_per_rev": 8000}}}
+    parsed = parse_config(cfg)
+    assert {n: a.pulses_per_rev for n, a in parsed.axes.items()} == \
+        {"x": 20000, "y": 4000, "z": 8000}
+    async with open_machine(cfg) as m:
+        for name in "xy":
+            assert await m.axes[name].setup() == [], name  # setup changed nothing
+        await m.axes["y"].enable()
+        await m.axes["y"].move_by(1.0)  # one unit: one revolution of 4000 pulses
+        assert m.sim_drives["y"].position() == 4000

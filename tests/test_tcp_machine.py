@@ -283,13 +283,14 @@ async def test_tcp_homing_on_the_negative_limit_with_the_default_parameters() ->
             # §6.6: 79-83 = method 0 (negative limit), 200 rpm, 40 rpm, 100 rev/s², 100
             "00 01 00 00 00 11 01 10 00 4F 00 05 0A 00 00 00 C8 00 28 00 64 00 64",
             "00 01 00 00 00 06 01 06 00 14 00 01",  # 20=1 homing mode
+            "00 01 00 00 00 06 01 03 00 01 00 01",  # status: HOME before the start
             "00 01 00 00 00 06 01 03 00 40 00 01",  # IN5's setting (function 12)
             "00 01 00 00 00 06 01 06 00 40 00 2C",  # polarity flipped: start homing
             "00 01 00 00 00 06 01 06 00 40 00 0C",  # and back
         ]
         assert rig.commands()[1:] == [rtu_pdu(f) for f in (  # as over RTU
-            "01 06 00 14 00 01 08 0E", "01 03 00 40 00 01 85 DE", "01 06 00 40 00 2C 89 C3",
-            "01 06 00 40 00 0C 88 1B",
+            "01 06 00 14 00 01 08 0E", "01 03 00 01 00 01 D5 CA", "01 03 00 40 00 01 85 DE",
+            "01 06 00 40 00 2C 89 C3", "01 06 00 40 00 0C 88 1B",
         )]
         st = await wait_for(p, lambda s: not s.homing)
         assert st.homed and not st.moving and st.in_position and st.position == 0

@@ -266,6 +266,17 @@ class AxisConfig(_Model):
             raise ValueError(f"lower limit {v[0]} must be below upper limit {v[1]}")
         return v
 
+    @model_validator(mode="after")
+    def _drive_default_pulses(self) -> AxisConfig:
+        """Without ``pulses_per_rev`` the axis takes its drive's own default (a
+        description's ``[units.pulses_per_rev] default``): setup writes it to a drive
+        with a microstep register, so a number of ours would have changed the drive."""
+        if "pulses_per_rev" not in self.model_fields_set:
+            from drivebus.drives.registry import family
+
+            object.__setattr__(self, "pulses_per_rev", family(self.drive).default_pulses_per_rev)
+        return self
+
 
 NODE_PATTERN = r"^[A-Za-z0-9_-]{1,64}$"
 """A plant node's name: one MQTT topic level (no wildcards, no slash), usable by Home

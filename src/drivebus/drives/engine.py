@@ -86,36 +86,6 @@ def options_model(d: Description) -> type[DriveOptions]:
     return create_model(f"{d.family}Options", __base__=base, **fields)
 
 
-def _ppr_allowed(d: Description) -> Any:
-    p = d.units.pulses_per_rev
-    if p.allowed:
-        return tuple(sorted(p.allowed))
-    if p.range is not None:
-        return range(p.range[0], p.range[1] + 1)
-    if p.reg is not None:
-        reg = d.regs[p.reg]
-        if reg.codec.table:
-            return tuple(sorted(reg.codec.table))
-        return scaled_range(max(reg.register.lo, 1), reg.register.hi, reg.codec.scale)
-    return range(1, 1 << 31)
-
-
-def scaled_range(lo: int, hi: int, scale: float) -> Any:
-    """The whole values ``raw × scale`` for raw in ``lo..hi``: what a register of that
-    range and scale can be set to, in the user's units (pulses/rev through EG/2)."""
-    if scale == 1.0:
-        return range(lo, hi + 1)
-    if scale == int(scale):
-        s = int(scale)
-        return range(lo * s, hi * s + 1, s)
-    inverse = 1.0 / scale
-    if abs(inverse - round(inverse)) < 1e-9:
-        n = round(inverse)
-        return range(-(-lo // n), hi // n + 1)
-    return tuple(sorted({round(raw * scale) for raw in range(lo, hi + 1)
-                         if abs(raw * scale - round(raw * scale)) < 1e-9}))
-
-
 def profile_class(d: Description) -> type[DescribedProfile]:
     """The ``DriveProfile`` class of description ``d``."""
     link = d.link
@@ -134,7 +104,7 @@ def profile_class(d: Description) -> type[DescribedProfile]:
         "exception_texts": dict(link.exceptions),
         "homing_methods": homing,
         "options": options_model(d),
-        "pulses_per_rev_allowed": _ppr_allowed(d),
+        "pulses_per_rev_allowed": d.pulses_per_rev_allowed,
         "addresses": link.address_set,
         "line_kinds": link.line_kinds,
         "baud_rates": tuple(link.baud_rates),

@@ -19,6 +19,7 @@ A family found by path keeps its file's absolute path as its reference
 from __future__ import annotations
 
 import atexit
+import inspect
 import os
 import re
 import shutil
@@ -74,6 +75,14 @@ class DriveFamily:
     """The drive description the profile runs (None: a hand-written profile)."""
     source: str = ""
     """Where the description came from (a file path, or "built in")."""
+
+    @property
+    def default_pulses_per_rev(self) -> int:
+        """The pulses per revolution an axis takes when its machine file gives none: the
+        description's ``[units.pulses_per_rev] default``, else the profile's own."""
+        if self.spec is not None:
+            return int(self.spec.units.pulses_per_rev.default)
+        return int(inspect.signature(self.profile).parameters["pulses_per_rev"].default)
 
 
 def family_from_description(d: Description, source: str = "") -> DriveFamily:

@@ -110,6 +110,22 @@ class Description(_Model):
             out[key] = Reg(key, d, codec, order, objects=self.link.map == "objects")
         return out
 
+    @cached_property
+    def pulses_per_rev_allowed(self) -> range | tuple[int, ...]:
+        """The pulses per revolution the drive can be set to: ``[units.pulses_per_rev]``'s
+        list or range, else what its register takes through its scale or table."""
+        p = self.units.pulses_per_rev
+        if p.allowed:
+            return tuple(sorted(p.allowed))
+        if p.range is not None:
+            return range(p.range[0], p.range[1] + 1)
+        if p.reg is not None and p.reg in self.regs:
+            reg = self.regs[p.reg]
+            if reg.codec.table:
+                return tuple(sorted(reg.codec.table))
+            return scaled_range(max(reg.register.lo, 1), reg.register.hi, reg.codec.scale)
+        return range(1, 1 << 31)
+
     def register_base(self, d: RegisterDef) -> int:
         """What ``d``'s numbers count from (``link.register_base``; under 4xxxx numbering,
         input registers 3xxxx, coils 0xxxx, discrete inputs 1xxxx)."""
@@ -292,3 +308,19 @@ class _KeyName(str):
         if spec == "upper":
             return self.upper()
         return format(str(self), spec)
+
+
+def scaled_range(lo: int, hi: int, scale: float) -> range | tuple[int, ...]:
+    """The whole values ``raw × scale`` for raw in ``lo..hi``: what a register of that
+    range and scale can be set to, in the user's units (pulses/rev through EG/2)."""
+    if scale == 1.0:
+        return range(lo, hi + 1)
+    if scale == int(scale):
+        s = int(scale)
+        return range(lo * s, hi * s + 1, s)
+    inverse = 1.0 / scale
+    if abs(inverse - round(inverse)) < 1e-9:
+        n = round(inverse)
+        return range(-(-lo // n), hi // n + 1)
+    return tuple(sorted({round(raw * scale) for raw in range(lo, hi + 1)
+                         if abs(raw * scale - round(raw * scale)) < 1e-9}))

@@ -61,6 +61,12 @@ class RegisterChecks(CheckCore):
                     d.max > _width_hi(d)):
                 self.out.append(f"{where}: range {lo}..{hi} does not fit {16 * d.words} "
                                 f"{'signed' if d.signed else 'unsigned'} bits")
+            given = [("default", d.default)] if "default" in d.model_fields_set else []
+            given += [(f"defaults[{i}]", v) for i, v in enumerate(d.defaults)]
+            for what, v in given:
+                if not lo <= v <= hi:
+                    self.out.append(f"{where}.{what}: {v} is outside the register's range "
+                                    f"{lo}..{hi}")
             if d.words == 1 and d.low_address is not None:  # 1 by [link] words
                 self.out.append(f"{where}.low_address: low_address is for a 32-bit register "
                                 f"(words = 2)")

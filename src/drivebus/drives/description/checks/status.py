@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+from drivebus.drives.base import describe_values
 from drivebus.drives.description.checks.core import CheckCore
 from drivebus.drives.description.status import IoDef
 
@@ -15,6 +16,12 @@ class StatusChecks(CheckCore):
         ppr = self.d.units.pulses_per_rev
         if ppr.reg is not None:
             self._reg_key("units.pulses_per_rev.register", ppr.reg)
+            if ppr.reg not in self.d.regs:
+                return
+        allowed = self.d.pulses_per_rev_allowed
+        if ppr.default not in allowed:
+            self.out.append(f"units.pulses_per_rev.default: the drive cannot be set to "
+                            f"{ppr.default} pulses/rev (allowed: {describe_values(allowed)})")
 
     def _identify(self) -> None:
         ident = self.d.identify
