@@ -128,7 +128,14 @@ class AxisActor:
     @property
     def commanded(self) -> bool:
         """True if a motion commanded through this axis may still be under way."""
-        return self._commanded and self.state in MOVING_STATES
+        return self._commanded and (self.state in MOVING_STATES or self.started_unseen)
+
+    @property
+    def started_unseen(self) -> bool:
+        """True if a start was acknowledged after the last status was requested: the
+        drive may be moving whatever that status said (one that stopped answering right
+        after its start went Offline with an older status at rest)."""
+        return self.command_started_at > self._status_issued
 
     @property
     def position(self) -> float | None:

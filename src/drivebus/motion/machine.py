@@ -34,6 +34,7 @@ from drivebus.motion.handle import BufferMode, check_override
 from drivebus.motion.lines import make_line, open_line, provide_elsewhere, serves_elsewhere
 from drivebus.motion.path import GroupHandle
 from drivebus.motion.recording import Recording
+from drivebus.motion.sigint import second_sigint_waits
 from drivebus.motion.sigterm import stops_before_sigterm
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.positions import PositionStore
@@ -242,7 +243,7 @@ class Machine:
         """The axes that may be moving (``only_commanded``: those this machine set going)."""
         out = []
         for a in self.axes.values():
-            moving = a.status is not None and a.status.moving
+            moving = (a.status is not None and a.status.moving) or a.started_unseen
             if a.commanded if only_commanded else a.state in MOVING_STATES or moving:
                 out.append(a)
         return out
@@ -325,11 +326,13 @@ async def open_machine(
     twin per axis. ``config`` is a machine file's path, its content as a mapping, or a
     ``MachineConfig``; it is validated in full (``ConfigError``) before anything opens.
     Where the application leaves SIGTERM at its default, an open machine takes it: its
-    axes are stopped before the process ends by it (``drivebus.motion.sigterm``).
+    axes are stopped before the process ends by it (``drivebus.motion.sigterm``); a
+    second Ctrl-C waits for those stops (``drivebus.motion.sigint``).
     """
     cfg = await machine_config_in_thread(config)  # parsing descriptions: off the loop
     machine = Machine(cfg)
-    with stops_before_sigterm():  # (where the application left SIGTERM to its default)
+    # (where the application left SIGTERM to its default, SIGINT to Python or asyncio)
+    with stops_before_sigterm(), second_sigint_waits():
         async with _opened(machine, cfg, stop_on_exit=stop_on_exit,
                            require_all=require_all) as opened:
             yield opened
