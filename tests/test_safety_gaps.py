@@ -428,3 +428,35 @@ async def test_an_immediate_limit_stop_leaves_the_switch_active(
                 assert twin.switch_states(monotonic())[2], (speed, twin.physical_position())
                 await x.reset()
                 await x.move_to(0.0, speed=top)  # away from it: allowed
+
+
+# -- 6. a jog's speed changed while it brakes onto its soft limit ---------------------------------
+
+
+async def test_a_jog_speed_changed_while_braking_onto_its_limit_stops_within_it() -> None:
+    """A jog with soft limits is a move to the limit; the CL86R takes a new speed on the
+    fly (a retarget), and its stop ramps by the deceleration time it was last given. A
+    new speed given while the jog braked onto the limit wrote a ramp time whose rounding
+    (whole ms) was a little gentler, and a stop then braked past the limit (0.05 mm at
+    rest beyond it; found by the soak)."""
+    cfg = machine_for("CL86R", units_per_rev=10.0, speed=200.0, accel=2000.0, decel=2000.0,
+                      limits=[-100.0, 100.0],
+                      sim={"limit_negative": -120.0, "limit_positive": 120.0})
+    async with open_machine(cfg) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        await x.enable()
+        for fast, slow in ((141.0, 45.1), (191.7, 79.2), (138.0, 88.9), (176.7, 111.6)):
+            for part in (0.4, 0.8):  # of the braking distance left when the change comes
+                with anyio.fail_after(30):
+                    await x.move_to(-70.0)
+                    await x.jog(-fast, watchdog=None)
+                    braking = fast * fast / (2 * 2000.0)
+                    async for st in x.watch():
+                        if x.units.from_pulses(st.position or 0) <= -100.0 + braking * part:
+                            break
+                    if x.state is AxisState.CONTINUOUS_MOTION:
+                        await x.jog(-slow, watchdog=None)
+                    await x.stop()
+                    await until(lambda: not twin.is_moving(), "the twin at rest")
+                rest = twin.physical_position() / 100.0  # 1000 pulses per 10 mm
+                assert rest >= -100.0 - 1e-6, (fast, slow, part, rest)

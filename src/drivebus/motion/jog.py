@@ -164,12 +164,20 @@ class Jogging(ProgramRunner):
                 rpm = math.copysign(params.speed_rpm, direction)
                 await self.profile.speed_run(rpm, params.accel_rps2, params.decel_rps2)
             elif bound is not None and direction == m.direction and programs.blends:
-                # towards the same limit at another speed, given on the fly
-                await self.profile.retarget_absolute(bound, self.drive_params(plan))
+                # towards the same limit at another speed, given on the fly; not once the
+                # move brakes onto the limit: a drive whose stop ramps by the ramp it was
+                # last given would brake a gentler one's rounding past the limit
                 before, limit = m.trajectory, self.units.from_pulses(bound)
-                if before is not None:
-                    m.trajectory = before.retargeted(
-                        self._drive_started(monotonic()), limit, self.envelope.quantized(plan))
+                if before is None or not before.can_brake_by(
+                        monotonic(), self.envelope.quantized(plan).decel,
+                        lead=self._retarget_lead()):
+                    log.info("axis %s: the jog brakes onto its limit already: its speed "
+                             "is not changed", self.name)
+                    m.speed, m.what = speed, f"jog at {speed:g}"
+                    return
+                await self.profile.retarget_absolute(bound, self.drive_params(plan))
+                m.trajectory = before.retargeted(
+                    self._drive_started(monotonic()), limit, self.envelope.quantized(plan))
             else:
                 m.restarting = True
                 await self.profile.send_stop()
@@ -192,6 +200,14 @@ class Jogging(ProgramRunner):
                     self._stop_now, f"changing the jog failed: {exc!r}", error=exc))
             raise
         self._arm_watchdog(watchdog)
+
+    def _retarget_lead(self) -> float:
+        """How long a new ramp given on the fly takes to reach the drive: its block write
+        and its start, each a request and a reply (on Modbus TCP: 10 ms)."""
+        wire = self._wire()
+        if wire is None:
+            return 0.01
+        return 2 * (wire.frame_time(29) + wire.frame_time(8)) + 0.005
 
     def _arm_watchdog(self, watchdog: float | None) -> None:
         self._watchdog_period = watchdog

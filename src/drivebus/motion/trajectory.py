@@ -75,6 +75,15 @@ class Trajectory:
         last = self.phases[-1]
         return last.t0 if last.v0 * last.a < 0 else last.t1
 
+    def can_brake_by(self, t: float, decel: float, *, lead: float,
+                     margin: float = 1.25) -> bool:
+        """Whether a ramp of ``decel`` given on the fly at ``t`` still brings it to rest on
+        its target: from where it is ``lead`` seconds later at its speed (the new ramp's
+        frames on their way), the braking distance with ``margin`` fits before the target."""
+        pos, vel = self.state(t)
+        room = abs(self.target - pos) - abs(vel) * lead
+        return room >= margin * vel * vel / (2 * decel)
+
     def times(self, samples: int = 64) -> list[float]:
         """Moments to look at it: every phase boundary and ``samples`` in between."""
         out = {p.t0 for p in self.phases} | {self.end}
