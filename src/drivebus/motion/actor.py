@@ -407,11 +407,12 @@ class AxisActor:
         before the next command, the profile's tracked state forgotten; ``st`` as it reads
         then (a drive whose enable is only tracked is not enabled after a restart)."""
         if prev.homed and not self._homed_lost:
-            log.warning("axis %s: its position went from %s to %s pulses at rest while the "
-                        "drive %s: taken for a restart, the axis is no longer homed",
-                        self.name, prev.position, st.position,
-                        "did not answer" if self.state is AxisState.OFFLINE
-                        else "dropped its enable or cannot say it is enabled")
+            log.warning("axis %s: taken for restarted (position %s -> %s pulses at rest, "
+                        "the drive %s): the axis is no longer homed", self.name,
+                        prev.position, st.position,
+                        "did not answer a while" if self.state is AxisState.OFFLINE
+                        else "reports no enable of its own" if self.profile.enable_tracked
+                        else "dropped its enable")
         self._homed_lost = self._setup_due = True
         self.profile.restarted()
         return replace(st, enabled=False) if self.profile.enable_tracked else st
