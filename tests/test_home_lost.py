@@ -9,6 +9,7 @@ Judged by the twins.
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +35,9 @@ FAMILIES: dict[str, tuple[dict[str, Any], str, bool]] = {
                    "pulses_per_rev": 16384}, "negative_limit", True),
     "MOONS' STF": ({"address": 5, "drive": str(DRIVES / "moons_stf.toml"),
                     "pulses_per_rev": 20000}, "home_switch_positive", False),
+    "Nanotec PD4-C (CiA 402, no homed flag)": (
+        {"address": 1, "drive": str(Path(__file__).parent / "drives" / "nanotec_pd4c.toml"),
+         "pulses_per_rev": 3600}, "home_switch_forward", False),
 }
 
 
@@ -84,6 +88,38 @@ async def test_a_power_cycle_leaves_the_axis_not_homed(family: str, how: str) ->
             await ax.enable()
             await ax.home()  # and a homing makes it homed again
             assert ax.homed
+
+
+@pytest.mark.parametrize("how", ["answered at once", "offline a while"])
+@pytest.mark.parametrize("family", list(FAMILIES))
+async def test_a_power_cycle_at_the_homed_position_leaves_the_axis_not_homed(
+        family: str, how: str) -> None:
+    """Homing set 0 and the axis rests there: a power cycle starts the counter at 0
+    again, so it did not move. The CiA 402 engine (and any profile that alone records
+    the homing) kept homed=True, and a move went to a position the drive no longer
+    knew (an outside audit)."""
+    async with open_machine(machine(family, SWITCHES)) as m:
+        ax, twin = m.axes["x"], m.sim_drives["x"]
+        with anyio.fail_after(60):
+            await ax.enable()
+            await ax.home()
+            await ax.move_to(ax.units.from_pulses(0))
+            assert ax.homed and twin.position() == 0
+            if how == "answered at once":
+                twin.power_cycle()
+            else:
+                twin.power_loss()
+                async for _ in ax.watch():
+                    if ax.state is AxisState.OFFLINE:
+                        break
+                twin.power_restore()
+            async for st in ax.watch():  # a status polled after the power came back
+                if ax.state is not AxisState.OFFLINE and (
+                        not st.enabled or not st.homed or not twin.enabled):
+                    break
+            async for _ in ax.watch():  # and the next: the change is judged
+                break
+            assert not ax.homed, (family, how, ax.state)
 
 
 async def test_a_moons_seek_home_ended_by_a_limit_switch_homed_nothing() -> None:
@@ -144,18 +180,25 @@ def test_position_lost_is_decided_from_two_statuses(
                          disabled_by_command=by_command) is lost
 
 
+ENABLED, HOMED = frozenset({"enabled"}), frozenset({"homed"})
+
+
 @pytest.mark.parametrize(("before", "now", "offline", "tracked", "restarted"), [
-    (_status(12000), _status(12000), True, True, True),  # silent: it cannot say
-    (_status(12000), _status(12000), True, False, False),  # it says it is enabled
-    (_status(12000), _status(0), False, True, True),  # its counter moved at rest
-    (_status(12000), _status(12001), False, True, False),  # within 2
-    (_status(12000), _status(0, enabled=False), False, False, True),  # position lost
-    (_status(12000, moving=True), _status(0), False, True, False),  # moving: no rest
+    (_status(12000), _status(12000), True, ENABLED, True),  # silent: it cannot say
+    (_status(12000), _status(12000), True, frozenset(), False),  # it says it is enabled
+    (_status(12000), _status(0), False, ENABLED, True),  # its counter moved at rest
+    (_status(12000), _status(12001), False, ENABLED, False),  # within 2
+    (_status(12000), _status(0, enabled=False), False, frozenset(), True),  # position lost
+    (_status(12000, moving=True), _status(0), False, ENABLED, False),  # moving: no rest
+    (_status(0), _status(0, enabled=False), False, HOMED, True),  # back at 0, disabled
+    (_status(0), _status(0, enabled=False), False, frozenset(), False),  # its flag tells
+    (_status(0), replace(_status(0, enabled=False), alarm=True), False, HOMED, False),
 ])
 def test_a_restart_is_decided_from_two_statuses(
-        before: DriveStatus, now: DriveStatus, offline: bool, tracked: bool,
+        before: DriveStatus, now: DriveStatus, offline: bool, tracked: frozenset[str],
         restarted: bool) -> None:
     """A drive whose enable the profile only tracks cannot say it dropped it: its silence
-    or its counter moving at rest is taken for a restart."""
+    or its counter moving at rest is taken for a restart. Where only the profile keeps
+    the homed state, an enable dropped on its own with no alarm is one (a fault is not)."""
     assert drive_restarted(before, now, tolerance=2, back_from_offline=offline,
-                           disabled_by_command=False, enable_tracked=tracked) is restarted
+                           disabled_by_command=False, tracked=tracked) is restarted

@@ -480,10 +480,10 @@ class DriveProfile:
         self.check_supported("home")
 
     @property
-    def enable_tracked(self) -> bool:
-        """Whether the status's ``enabled`` is only what the profile last commanded (the
-        drive has no enable status to read): a restart then goes unseen by it."""
-        return False
+    def tracked(self) -> frozenset[str]:
+        """The status fields (``enabled``, ``homed``) that are only what the profile
+        commanded or saw, not read from the drive: a restart goes unseen by them."""
+        return frozenset()
 
     def restarted(self) -> None:
         """The drive may have restarted (a power cycle, a reset): forget what the profile

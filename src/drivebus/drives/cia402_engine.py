@@ -71,6 +71,19 @@ class Cia402Profile(DescribedProfile):
         self._velocity_set = False
         """A speed run of this session left a target velocity (60FFh) other than 0."""
 
+    @property
+    def tracked(self) -> frozenset[str]:
+        """``homed``, unless a polled bit the drive keeps says it (the Lexium 32's ref_ok):
+        the statusword tells a homing's end only in homing mode, so the engine records it."""
+        polled = (reg for reg, _ in self._status_plan.regs)
+        bits = (b for reg in polled for b in reg.d.bits.values())
+        return frozenset() if any(b.means == "homed" for b in bits) else frozenset({"homed"})
+
+    def restarted(self) -> None:
+        """No homing was done here since the drive started again."""
+        super().restarted()
+        self._homing = self._homed = False
+
     # -- objects ---------------------------------------------------------------------------
 
     def _obj(self, name: str) -> Reg:
@@ -223,7 +236,8 @@ class Cia402Profile(DescribedProfile):
             enabled=enabled,
             moving=moving,
             in_position=not moving and not fault and (reached or not enabled),
-            homed=self._homed or self._bit_says("homed", values),
+            homed=self._bit_says("homed", values) if "homed" not in self.tracked
+            else self._homed,  # a flag the drive keeps says it, not our record, once it has one
             alarm=fault,
             alarm_code=int(code) if fault and code is not None else (0 if fault else None),
             alarm_text=self.alarm_text(int(code)) if fault and code else "",

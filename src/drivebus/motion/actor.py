@@ -267,7 +267,7 @@ class AxisActor:
                 prev, st, tolerance=self.config.in_position_tolerance,
                 back_from_offline=self.state is AxisState.OFFLINE,
                 disabled_by_command=self.state is AxisState.DISABLED,
-                enable_tracked=self.profile.enable_tracked):
+                tracked=self.profile.tracked):
             st = self._restarted(prev, st)
         if self.state is AxisState.OFFLINE:
             log.info("axis %s: drive answers again", self.name)
@@ -411,11 +411,12 @@ class AxisActor:
                         "the drive %s): the axis is no longer homed", self.name,
                         prev.position, st.position,
                         "did not answer a while" if self.state is AxisState.OFFLINE
-                        else "reports no enable of its own" if self.profile.enable_tracked
+                        else "reports no enable of its own"
+                        if "enabled" in self.profile.tracked
                         else "dropped its enable")
         self._homed_lost = self._setup_due = True
         self.profile.restarted()
-        return replace(st, enabled=False) if self.profile.enable_tracked else st
+        return replace(st, enabled=False) if "enabled" in self.profile.tracked else st
 
     async def _act(self) -> None:
         """What a poll asked for: a stop (limit, watchdog, alarm), a settings check."""

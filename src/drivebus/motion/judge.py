@@ -201,13 +201,18 @@ def position_lost(before: DriveStatus, now: DriveStatus, *, tolerance: int,
 
 def drive_restarted(before: DriveStatus, now: DriveStatus, *, tolerance: int,
                     back_from_offline: bool, disabled_by_command: bool,
-                    enable_tracked: bool) -> bool:
+                    tracked: frozenset[str] = frozenset()) -> bool:
     """Whether the drive may have restarted between two statuses with no motion of ours:
-    its position was lost (``position_lost``), or it is a drive whose enable the profile
-    only tracks (it cannot say it dropped it) and it did not answer a while or its
-    position moved at rest. What the profile tracked of it is then stale: the drive is
-    taken for not enabled, not homed, and is set up again."""
-    if enable_tracked and (back_from_offline or _moved_at_rest(before, now, tolerance)):
+    its position was lost (``position_lost``); or the profile only tracks its enable
+    (``tracked``: the drive cannot say it dropped it) and it did not answer a while or
+    its position moved at rest; or the profile only tracks its homed state and it
+    dropped its enable on its own with no alarm (a power cycle back at the same position
+    looks just so). What the profile tracked of it is then stale: the drive is taken for
+    not enabled, not homed, and is set up again."""
+    if "enabled" in tracked and (back_from_offline or _moved_at_rest(before, now, tolerance)):
+        return True
+    if "homed" in tracked and before.enabled and not now.enabled and not now.alarm and \
+            not disabled_by_command and not before.moving and not now.moving:
         return True
     return position_lost(before, now, tolerance=tolerance, back_from_offline=back_from_offline,
                          disabled_by_command=disabled_by_command)

@@ -85,18 +85,26 @@ class ProfileBase(DriveProfile):
         self._procedure(procedure, {})
 
     @property
-    def enable_tracked(self) -> bool:
-        """Whether the description's ``enabled`` reads nothing of the drive (``state``
-        only: what the profile last commanded)."""
-        e = self.description.status_exprs.get("enabled")
-        return e is not None and "state" in e.names and not e.names & {
-            *self.description.regs, "words", "input", "output"}
+    def tracked(self) -> frozenset[str]:
+        """``enabled`` where the description's reads only ``state`` (what the profile last
+        commanded); ``homed`` where it has none (a homing that set the position here) or
+        one that reads only ``state``."""
+        fields = self.description.status_exprs
+        drive = {*self.description.regs, "words", "input", "output"}
+        out = set()
+        for name in ("enabled", "homed"):
+            e = fields.get(name)
+            if (e is None and name == "homed") or (
+                    e is not None and "state" in e.names and not e.names & drive):
+                out.add(name)
+        return frozenset(out)
 
     def restarted(self) -> None:
         """The state variables start again from the description's ``[state]`` (what
-        ``learn`` set is read again by the next setup)."""
+        ``learn`` set is read again by the next setup); no homing was done here."""
         self.state.clear()
         self.state.update(self.description.state)
+        self.homed_here = False
 
     def _steps_of(self, name: str) -> Procedure | None:
         """The description's procedure ``name`` where it has steps (None: absent, or
