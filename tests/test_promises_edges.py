@@ -262,6 +262,45 @@ async def test_a_drive_that_goes_silent_right_after_its_start_is_stopped_on_leav
         assert not twin.is_moving()
 
 
+@pytest.mark.parametrize("priority", [None, Priority.CONFIG])
+async def test_a_stop_is_confirmed_while_clients_read_parameters(
+        priority: Priority | None) -> None:
+    """Three clients read every parameter of x's drive over and over (the service's GET
+    parameters) while x jogs, then x is halted. The reads went at CONFIG, above the
+    axes' polls: the actor's routine poll never left the queue, no status after the
+    halt was read, and halt_now() failed after 30 s with a MotionTimeout (an outside
+    audit: the e-stop reply took 30 s from two readers on). Reads of one's own at CONFIG
+    too: the routine poll queued behind them is taken back, the stop's goes first, and a
+    routine poll held back for a second goes again in turn with them."""
+    from drivebus.app.params import read_parameters
+
+    async with open_machine(DEMO) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        await x.enable()
+        await x.jog(20.0, watchdog=None)
+
+        async def reader() -> None:
+            while True:
+                if priority is None:
+                    await read_parameters(x.profile)
+                else:
+                    await read_parameters(x.profile, priority=priority)
+
+        async with anyio.create_task_group() as tg:
+            for _ in range(3):
+                tg.start_soon(reader)
+            await anyio.sleep(0.3)  # the queue full of reads
+            with anyio.fail_after(10):  # (30 s before: the stop's status never came)
+                await x.halt_now()
+            assert not twin.is_moving()
+            polled = x.status
+            with anyio.fail_after(10):  # the routine polls go on beside the reads
+                async for st in x.watch():
+                    if st is not polled:
+                        break
+            tg.cancel_scope.cancel()
+
+
 # -- a write cancelled while it waits for the line's silence ---------------------------------
 
 

@@ -202,10 +202,13 @@ def _toml(v: object) -> str:
 
 
 async def read_parameters(
-    profile: DriveProfile, *, priority: Priority = Priority.CONFIG,
+    profile: DriveProfile, *, priority: Priority = Priority.POLL,
     about: Mapping[str, Any] | None = None,
 ) -> ParameterSet:
-    """Every documented readable parameter of the drive behind ``profile`` (reads only)."""
+    """Every documented readable parameter of the drive behind ``profile`` (reads only).
+    A viewing operation: by default in turn with the axes' status polls, never ahead of
+    them (several clients reading parameters at a higher priority starved the polls, and
+    a stop waited 30 s for the status that tells it the drive is at rest)."""
     params = profile.parameters()
     if not params:
         raise NotSupported(f"the {profile.family} profile documents no parameters")
@@ -355,7 +358,7 @@ async def load_parameters(
     if save and not profile.saves_by_write_through and (why := profile.save_problem()):
         raise NotSupported(f"--save: {why}")
     check_values(profile, wanted)  # a bad file: refused before the drive is read
-    current = await read_parameters(profile)
+    current = await read_parameters(profile, priority=Priority.CONFIG)
     plan = plan_load(profile, current, wanted, include_comms=include_comms)
     if report is None:
         report = plan

@@ -16,7 +16,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import replace
 
 import anyio
@@ -36,9 +36,10 @@ from drivebus.errors import (
     TransactionError,
 )
 from drivebus.motion.envelope import Envelope
-from drivebus.motion.events import AxisListener, MotionEvent, MotionEventKind
+from drivebus.motion.events import MotionEventKind
 from drivebus.motion.judge import drive_restarted, judge
-from drivebus.motion.motions import Latest, Motion, RestWait
+from drivebus.motion.motions import Motion, RestWait
+from drivebus.motion.observers import AxisObservers
 from drivebus.motion.state import MOVING_STATES, AxisState
 from drivebus.motion.units import Units
 from drivebus.tasks import where_tasks_wait
@@ -62,7 +63,7 @@ _RESET_GAP = 0.5
 _WRITE_REPLY_BYTES = 8
 """An RTU reply to a register write (function 06 or 16): address, function, 4 bytes, CRC."""
 
-class AxisActor:
+class AxisActor(AxisObservers):
     """The state and the actor of one axis: its name, configuration, drive profile, units and
     envelope; the status and state it polls and decides; the motion under way and the
     queue; the poll loop (``run``)."""
@@ -111,8 +112,8 @@ class AxisActor:
         self._commanded = False
         self._jog_deadline: float | None = None
         self._watchdog_period: float | None = None
-        self._watchers: list[Latest] = []
-        self._listeners: list[AxisListener] = []
+        self._watchers = []
+        self._listeners = []
         self._queue: list[Motion] = []
         self._queue_wake = anyio.Event()
         self._unconfirmed: list[Motion] = []  # ended by a short read, no full status since
@@ -121,6 +122,8 @@ class AxisActor:
         """The machine's speed override (set by the machine that owns the axis)."""
         self._override_due = False  # the sequencer applies a new override to the motion
         self._actor_running = False  # the actor polls: a stop waits on its polls
+        self._routine_poll: anyio.CancelScope | None = None  # a poll at POLL priority
+        self._poll_starved = False  # the last routine poll waited too long in the queue
         self.stops = 0
         """How many times ``stop()`` or ``halt_now()`` was called: a command that plans
         before it takes the axis (a group move) is aborted by a stop meanwhile."""
@@ -209,8 +212,25 @@ class AxisActor:
                     if issued >= self._poll_at:
                         self._poll_at = math.inf
                     # A stop waits on this poll to tell it the drive is at rest: it goes
-                    # ahead of the other axes' routine polls.
-                    st = await self.profile.read_status(priority=priority)
+                    # ahead of the other axes' routine polls. A routine poll queued when a
+                    # stop begins to wait is taken back (``_wait_rest``); one held back
+                    # for long goes again at CONFIG, in turn with what held it.
+                    routine = anyio.CancelScope()
+                    if priority is Priority.POLL:
+                        self._routine_poll = routine
+                        if self._poll_starved:
+                            priority = Priority.CONFIG
+                        else:
+                            routine.deadline = anyio.current_time() + max(4 * period, 1.0)
+                    try:
+                        with routine:
+                            st = await self.profile.read_status(priority=priority)
+                    finally:
+                        self._routine_poll = None
+                    if routine.cancelled_caught:
+                        self._poll_starved = not self._rest_waits
+                        continue
+                    self._poll_starved = False
                     issued = st.requested_at or issued  # when its request was queued
             except TransactionError as exc:
                 fails += 1
@@ -562,35 +582,6 @@ class AxisActor:
         if failure is not None:
             raise failure
 
-    def listen(self, listener: AxisListener) -> Callable[[], None]:
-        """Call ``listener`` with every status polled and every ``MotionEvent`` from now
-        on (quick, never raising: it runs in the actor); returns the function that ends it.
-        It adds no bus traffic."""
-        self._listeners.append(listener)
-
-        def end() -> None:
-            if listener in self._listeners:
-                self._listeners.remove(listener)
-
-        return end
-
-    def _note(self, kind: MotionEventKind, what: str, *, m: Motion | None = None,
-              detail: str = "", at: float | None = None, planned_end: float | None = None
-              ) -> None:
-        """Tell the listeners a motion event (nothing is built when nobody listens)."""
-        if not self._listeners:
-            return
-        target = None if m is None or m.target is None else self.units.from_pulses(m.target)
-        event = MotionEvent(self.name, kind, monotonic() if at is None else at, what,
-                            target, planned_end, detail)
-        for listener in self._listeners:
-            listener(event)
-
-    def _publish(self) -> None:
-        if self.status is not None:
-            for w in self._watchers:
-                w.put(self.status)
-
     def _poke_now(self) -> None:
         self._poke.set()
 
@@ -603,14 +594,16 @@ class AxisActor:
         self._rest_waits.append(w)
         self._waiters += 1
         self._poke_now()
+        if self._routine_poll is not None:
+            self._routine_poll.cancel()
         try:
             with anyio.fail_after(_STOP_TIMEOUT):
                 await w.event.wait()
         except TimeoutError:
+            seen = "the drive still reports motion" if self._status_issued > after else \
+                "no status requested since could be read"
             raise MotionTimeout(
-                f"axis {self.name}: {what}: the drive still reports motion after "
-                f"{_STOP_TIMEOUT:.0f} s"
-            ) from None
+                f"axis {self.name}: {what}: {seen} after {_STOP_TIMEOUT:.0f} s") from None
         finally:
             self._waiters -= 1
             if w in self._rest_waits:
@@ -652,16 +645,6 @@ class AxisActor:
             reply = timing(settings).frame_time(_WRITE_REPLY_BYTES) if settings else 0.0
             self._poll_at = stopped - reply + speed / decel
             self._poke_now()
-
-    async def watch(self) -> AsyncIterator[DriveStatus]:
-        """Statuses as they are polled; a slow reader gets the latest, never blocks the actor."""
-        slot = Latest()
-        self._watchers.append(slot)
-        try:
-            while True:
-                yield await slot.get()
-        finally:
-            self._watchers.remove(slot)
 
     def _wake_queue(self) -> None:
         self._queue_wake.set()
