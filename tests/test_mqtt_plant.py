@@ -12,6 +12,8 @@ from pathlib import Path
 
 import anyio
 import pytest
+from paho.mqtt.packettypes import PacketTypes
+from paho.mqtt.properties import Properties
 
 from drivebus import AxisState
 from drivebus.app import MachineSession
@@ -161,3 +163,35 @@ async def test_the_plant_example_runs_a_sequence_on_two_nodes_then_stops_the_pla
     finally:
         for n in nodes:
             n.stop()
+
+
+async def test_an_estop_drops_the_commands_that_came_before_it(broker: Broker,
+                                                               tmp_path: Path) -> None:
+    """150 buffered moves of z (0.2 mm each), then an e-stop, on one connection. The e-stop is read
+    ahead of every other message, and the moves still waiting in the incoming queue ran
+    after it: z went on 27 mm after the e-stop said done (an outside audit). A command
+    that arrived before an e-stop taken ahead of it is dropped, as a queued one is."""
+    async with bridged(node_config(tmp_path, "cellE"), broker.url) as (s, _), \
+            probe(broker.url, "drivebus/cellE/replies") as p:
+        twin = s.machine.sim_drives["z"]
+        await s.axis("z").enable()
+        start = s.axis("z").position or 0.0
+        sent = []
+        for i in range(150):  # at QoS 0, in one burst: they wait in the node's queue
+            props = Properties(PacketTypes.PUBLISH)
+            props.ResponseTopic, props.CorrelationData = p.reply_topic, f"m{i}".encode()
+            sent.append(props.CorrelationData)
+            await p.client.publish("drivebus/cellE/axes/z/cmd/move", json.dumps(
+                {"target": start + 0.2 * (i + 1), "buffer": "buffered"}), qos=0,
+                properties=props)
+        await p.client.publish("drivebus/cellE/estop", json.dumps({"id": "halt"}), qos=0)
+        await p.wait(lambda: [m for t, m, _ in p.messages if t == "drivebus/cellE/replies"
+                              and json.loads(m)["id"] == "halt"
+                              and json.loads(m)["status"] in ("done", "failed")])
+        at_estop = twin.position()
+        assert not twin.is_moving()
+        finals = [await p.final(c) for c in sent]  # every move answered, none left running
+        await anyio.sleep(0.3)
+        assert twin.position() == at_estop and not twin.is_moving()
+        failed = [r[-1] for r in finals if r[-1]["status"] == "failed"]
+        assert not failed, [f["error"] for f in failed[:3]]

@@ -94,3 +94,36 @@ def test_options_come_from_the_mqtt_section_and_the_command_line() -> None:
     with pytest.raises(ConfigError, match=r"mqtt\.url.*scheme must be mqtt://"):
         parse_config({**data, "mqtt": {"url": "tcp://h:1"}})
     assert parse_broker_url("mqtt://u:p%40ss@h:1884").password == "p@ss"
+
+
+def test_an_estop_taken_ahead_marks_the_commands_that_came_before_it() -> None:
+    """The incoming queue serves an e-stop ahead of everything: the commands that arrived
+    before it are marked overtaken when they are taken after it (the bridge drops them,
+    as it drops those queued on the axes); one that arrived after it is not (an e-stop
+    does not latch). They had run after the e-stop (an outside audit)."""
+    import aiomqtt
+
+    from drivebus.mqtt.bridge import _UrgentFirst
+
+    def msg(topic: str) -> aiomqtt.Message:
+        return aiomqtt.Message(topic, b"{}", 0, False, 0, None)
+
+    async def main() -> list[tuple[str, bool]]:
+        q = _UrgentFirst()
+        for i in range(3):
+            q.put_nowait(msg(f"drivebus/n/axes/z/cmd/move{i}"))
+        q.put_nowait(msg("drivebus/n/estop"))
+        taken = []
+        for _ in range(2):
+            m = await q.get()
+            taken.append((m.topic.value, q.overtaken))
+        q.put_nowait(msg("drivebus/n/axes/z/cmd/after"))
+        while not q.empty():
+            m = await q.get()
+            taken.append((m.topic.value, q.overtaken))
+        return taken
+
+    assert anyio.run(main) == [
+        ("drivebus/n/estop", False), ("drivebus/n/axes/z/cmd/move0", True),
+        ("drivebus/n/axes/z/cmd/move1", True), ("drivebus/n/axes/z/cmd/move2", True),
+        ("drivebus/n/axes/z/cmd/after", False)]

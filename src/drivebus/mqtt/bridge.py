@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import itertools
 import json
 import logging
 import random
@@ -189,20 +190,32 @@ def _is_abort(exc: BaseException) -> bool:
 
 class _UrgentFirst(asyncio.Queue):  # type: ignore[type-arg]
     """aiomqtt's incoming queue with e-stops ahead of everything else; an e-stop is taken
-    even when the queue is full."""
+    even when the queue is full. ``overtaken``: the message just taken arrived before an
+    e-stop already taken (the e-stop drops it, as it drops the commands queued)."""
 
     def _init(self, maxsize: int) -> None:
-        self._queue: collections.deque[aiomqtt.Message] = collections.deque()
-        self._urgent: collections.deque[aiomqtt.Message] = collections.deque()
+        self._queue: collections.deque[tuple[int, aiomqtt.Message]] = collections.deque()
+        self._urgent: collections.deque[tuple[int, aiomqtt.Message]] = collections.deque()
+        self._arrivals = itertools.count()
+        self._estop_arrived = -1
+        self.overtaken = False
 
     def _put(self, item: aiomqtt.Message) -> None:
+        entry = (next(self._arrivals), item)
         if _is_estop_topic(item.topic.value):
-            self._urgent.append(item)
+            self._urgent.append(entry)
         else:
-            self._queue.append(item)
+            self._queue.append(entry)
 
     def _get(self) -> aiomqtt.Message:
-        return self._urgent.popleft() if self._urgent else self._queue.popleft()
+        if self._urgent:
+            arrived, item = self._urgent.popleft()
+            self._estop_arrived = max(self._estop_arrived, arrived)
+            self.overtaken = False
+        else:
+            arrived, item = self._queue.popleft()
+            self.overtaken = arrived < self._estop_arrived
+        return item
 
     def qsize(self) -> int:
         return len(self._queue) + len(self._urgent)
@@ -423,8 +436,10 @@ class Bridge:
         self.outbox.forget_rates()
 
     async def _receive(self, client: aiomqtt.Client) -> None:
+        incoming = getattr(client, "_queue", None)  # (aiomqtt makes it: our _UrgentFirst)
         async for msg in client.messages:
-            self._dispatch(msg)
+            overtaken = isinstance(incoming, _UrgentFirst) and incoming.overtaken
+            self._dispatch(msg, overtaken=overtaken)
 
     async def _publish(self, client: aiomqtt.Client, tg: anyio.abc.TaskGroup) -> None:
         slots = anyio.Semaphore(_IN_FLIGHT)
@@ -517,8 +532,9 @@ class Bridge:
         self._send_reply(rt, {**self._body(rt, axis, verb, status),
                               "error": error_record(error), **extra})
 
-    def _dispatch(self, msg: aiomqtt.Message) -> None:
-        """Take one incoming message; never waits, never raises."""
+    def _dispatch(self, msg: aiomqtt.Message, *, overtaken: bool = False) -> None:
+        """Take one incoming message; never waits, never raises. ``overtaken``: it came
+        before an e-stop that was taken ahead of it: a command is dropped, as if queued."""
         topic = msg.topic.value
         try:
             if self.topics.is_estop(topic):
@@ -543,6 +559,10 @@ class Bridge:
             if verb in ("stop", "halt"):
                 self._drop_queued(axis, f"a {verb} of axis {axis} arrived before it ran")
                 self._spawn(self._direct, cmd, rt)
+                return
+            if overtaken:
+                self._final(rt, axis, verb, MotionAborted(
+                    f"axis {axis}: the {verb} was dropped: an e-stop arrived before it ran"))
                 return
             q = self._queues[axis]
             if len(q.items) >= _QUEUE:
