@@ -777,6 +777,7 @@ def test_one_shot_commands_talk_to_the_serve_that_owns_the_machine() -> None:
         assert r.returncode == 2, r.stderr  # a refusal, as when the machine is opened here
         assert r.stderr.splitlines()[-1].startswith("error: axis x: target 1000 is outside "
                                                     "the soft limits")
+        assert "stopped after" not in r.stdout, r.stdout  # nothing was started to stop
         with spawn("move", SINGLE, "x", "150", "--speed", "20") as move:
             # the move runs in the service; Ctrl-C here cancels it there
             move.expect(r"x: position=\S+ .*state=DiscreteMotion")

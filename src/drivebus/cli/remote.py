@@ -156,11 +156,15 @@ async def remote_status(out: Out, client: ServiceClient, axes: Sequence[str], as
 async def follow_motion(
     client: ServiceClient, path: str, body: object = None,
     tick: Callable[[dict[str, Any]], Awaitable[None]] | None = None,
+    started: Callable[[], None] | None = None,
 ) -> dict[str, Any]:
     """Start a motion on the service (``POST path``) and follow it to its end: its last
-    record (``tick`` gets each running one, the first included). Cancelled (Ctrl-C), the
-    motion is cancelled, its axes stopped, before this re-raises."""
+    record (``tick`` gets each running one, the first included; ``started`` is called
+    once the service took it). Cancelled (Ctrl-C), the motion is cancelled, its axes
+    stopped, before this re-raises."""
     record: dict[str, Any] = await _refusal_as_argument(call(client.start, path, body))
+    if started is not None:
+        started()
     try:
         while record.get("state") == "running":
             if tick is not None:
@@ -201,6 +205,7 @@ async def remote_motion(out: Out, client: ServiceClient, axis: str, what: str, p
     ``axis`` is the axis shown while it runs ("": the motion's own axes, not shown)."""
     started = shown = time.monotonic()
     names = [axis] if axis else []
+    accepted: list[bool] = []  # the service took the motion (a refusal started nothing)
 
     async def tick(record: dict[str, Any]) -> None:
         nonlocal shown
@@ -213,10 +218,11 @@ async def remote_motion(out: Out, client: ServiceClient, axis: str, what: str, p
                      f"velocity={fmt_number(a.get('velocity'))} state={a['state']}")
 
     try:
-        record = await follow_motion(client, path, body, tick)
+        record = await follow_motion(client, path, body, tick,
+                                     started=lambda: accepted.append(True))
     except BaseException:
         with anyio.CancelScope(shield=True):
-            for name in names:
+            for name in names if accepted else []:
                 a = await call(client.axis, name)
                 out.line(f"{name}: {what} stopped after {time.monotonic() - started:.2f} s, "
                          f"position={fmt_number(a.get('position'))} state={a['state']}")
