@@ -651,6 +651,25 @@ def test_drive_try_runs_green_and_catches_a_wrong_description(tmp_path: Path) ->
     assert "FAIL" in line and "the twin is at" in line
 
 
+def test_drive_try_passes_the_index_homing_methods(tmp_path: Path) -> None:
+    """CiA 402 methods 1, 2, 33 and 34 end on the index pulse after their reference, up to
+    a revolution on: ``try`` took the twin's correct homing for a failure ("homed +10062
+    pulses away from the negative limit switch"; an outside audit)."""
+    index = textwrap.dedent(f"""\
+        extends = "{ROOT / 'configs' / 'drives' / 'kinco_fd.toml'}"
+
+        [homing.methods]
+        negative_limit_index = {{ code = 1, cia402 = 1, source = "inferred: a test" }}
+        positive_limit_index = {{ code = 2, cia402 = 2, source = "inferred: a test" }}
+        index_negative = {{ code = 33, cia402 = 33, source = "inferred: a test" }}
+        index_positive = {{ code = 34, cia402 = 34, source = "inferred: a test" }}
+        """)
+    done = cli("drive", "try", write(tmp_path, index, "kinco_index.toml"))
+    assert done.returncode == 0, done.stdout + done.stderr
+    line = next(x for x in done.stdout.splitlines() if x.strip().startswith("home "))
+    assert "pass" in line and line.count("homed") == 4, line
+
+
 @pytest.mark.parametrize(("family", "skipped"), [
     ("CL86R", 0), ("BHSS", 0), ("EPR60", 3), ("NT86", 2),
 ])

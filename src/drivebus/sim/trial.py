@@ -286,7 +286,7 @@ async def try_description(d: Description, *, address: int | None = None) -> list
                     done.append(f"{name}: homed; position {st.position}")
                     continue
                 off = twin.physical_position() - origin
-                if abs(off) > 0.5 * ppr:
+                if abs(off) > (1.5 if _uses_index(method) else 0.5) * ppr:
                     raise _Failed(f"{name}: homed {off:+.0f} pulses away from {where}")
                 done.append(f"{name}: homed {off:+.0f} pulses from {where}; position "
                             f"{st.position}")
@@ -403,6 +403,13 @@ def _origin(m: HomingMethod, ppr: int, start: float) -> tuple[str, float | None]
     if method in (33, 34, 35, 37):
         return "where it stood", start
     return "", None
+
+
+def _uses_index(m: HomingMethod) -> bool:
+    """Whether ``m`` ends on the encoder's index pulse (CiA 402 methods 1-14, 33, 34):
+    the next one after its reference, up to a revolution on."""
+    return m.behaviour != "reference_edge" and m.cia402 is not None and (
+        1 <= m.cia402 <= 14 or m.cia402 in (33, 34))
 
 
 def _alarm_code(d: Description) -> int:
