@@ -19,6 +19,7 @@ import pytest
 from drivebus import AxisState, open_machine
 from drivebus.drives.status import DriveStatus
 from drivebus.errors import ConfigError, LimitViolation
+from drivebus.motion import Axis
 from drivebus.motion.judge import drive_restarted, position_lost
 from waits import until
 
@@ -59,6 +60,19 @@ SWITCHES = {"position": -10.0, "home_switch": 5.0, "limit_negative": -20.0,
             "limit_positive": 20.0}
 
 
+async def cycle_power(ax: Axis, twin: Any, how: str) -> None:
+    """Switch the twin off and on: at once (between two polls), or for long enough that
+    the axis goes Offline first."""
+    if how == "answered at once":
+        twin.power_cycle()
+        return
+    twin.power_loss()
+    async for _ in ax.watch():
+        if ax.state is AxisState.OFFLINE:
+            break
+    twin.power_restore()
+
+
 @pytest.mark.parametrize("how", ["answered at once", "offline a while"])
 @pytest.mark.parametrize("family", list(FAMILIES))
 async def test_a_power_cycle_leaves_the_axis_not_homed(family: str, how: str) -> None:
@@ -71,14 +85,7 @@ async def test_a_power_cycle_leaves_the_axis_not_homed(family: str, how: str) ->
             await ax.move_by(3.0)
             before = twin.position()
             assert before != 0
-            if how == "answered at once":
-                twin.power_cycle()
-            else:
-                twin.power_loss()
-                async for _ in ax.watch():
-                    if ax.state is AxisState.OFFLINE:
-                        break
-                twin.power_restore()
+            await cycle_power(ax, twin, how)
             async for st in ax.watch():  # a status polled after the power came back
                 if ax.state is not AxisState.OFFLINE and st.position == twin.position():
                     break
@@ -105,14 +112,7 @@ async def test_a_power_cycle_at_the_homed_position_leaves_the_axis_not_homed(
             await ax.home()
             await ax.move_to(ax.units.from_pulses(0))
             assert ax.homed and twin.position() == 0
-            if how == "answered at once":
-                twin.power_cycle()
-            else:
-                twin.power_loss()
-                async for _ in ax.watch():
-                    if ax.state is AxisState.OFFLINE:
-                        break
-                twin.power_restore()
+            await cycle_power(ax, twin, how)
             async for st in ax.watch():  # a status polled after the power came back
                 if ax.state is not AxisState.OFFLINE and (
                         not st.enabled or not st.homed or not twin.enabled):
