@@ -67,6 +67,7 @@ def _settings(v: Any) -> Any:
 
 
 POSITION_NAME = r"^[A-Za-z_][A-Za-z0-9_-]{0,63}$"
+"""A position's name: a TOML bare key (and one MQTT topic level)."""
 POSITION_NAME_RULE = "a letter or _, then letters, digits, _ or - (64 at most)"
 """What ``POSITION_NAME`` asks of a position's name, in words."""
 
@@ -74,7 +75,6 @@ POSITION_NAME_RULE = "a letter or _, then letters, digits, _ or - (64 at most)"
 def is_position_name(name: object) -> bool:
     """Whether ``name`` may name a position (``POSITION_NAME``)."""
     return isinstance(name, str) and re.fullmatch(POSITION_NAME, name) is not None
-"""A position's name: a TOML bare key (and one MQTT topic level)."""
 
 
 def position_problems(config: MachineConfig, positions: Mapping[str, Any],

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
+from functools import cached_property
 from typing import Any, ClassVar
 
 import anyio
@@ -71,7 +72,7 @@ class Cia402Profile(DescribedProfile):
         self._velocity_set = False
         """A speed run of this session left a target velocity (60FFh) other than 0."""
 
-    @property
+    @cached_property
     def tracked(self) -> frozenset[str]:
         """``homed``, unless a polled bit the drive keeps says it (the Lexium 32's ref_ok):
         the statusword tells a homing's end only in homing mode, so the engine records it."""

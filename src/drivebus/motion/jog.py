@@ -21,12 +21,14 @@ from drivebus.clock import monotonic
 from drivebus.errors import (
     ArgumentError,
 )
+from drivebus.motion.actor import _WRITE_REPLY_BYTES
 from drivebus.motion.envelope import MotionPlan
 from drivebus.motion.handle import (
     BufferMode,
     MotionHandle,
     check_buffer,
 )
+from drivebus.motion.lane import _TURNAROUND
 from drivebus.motion.motions import Motion
 from drivebus.motion.program import ProgramRunner
 from drivebus.motion.state import AxisState
@@ -203,11 +205,11 @@ class Jogging(ProgramRunner):
 
     def _retarget_lead(self) -> float:
         """How long a new ramp given on the fly takes to reach the drive: its block write
-        and its start, each a request and a reply (on Modbus TCP: 10 ms)."""
+        and its start, each a transaction (on Modbus TCP: 10 ms)."""
         wire = self._wire()
         if wire is None:
             return 0.01
-        return 2 * (wire.frame_time(29) + wire.frame_time(8)) + 0.005
+        return 2 * wire.transaction_time(29, _WRITE_REPLY_BYTES, _TURNAROUND)
 
     def _arm_watchdog(self, watchdog: float | None) -> None:
         self._watchdog_period = watchdog

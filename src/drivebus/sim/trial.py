@@ -406,10 +406,10 @@ def _origin(m: HomingMethod, ppr: int, start: float) -> tuple[str, float | None]
 
 
 def _uses_index(m: HomingMethod) -> bool:
-    """Whether ``m`` ends on the encoder's index pulse (CiA 402 methods 1-14, 33, 34):
-    the next one after its reference, up to a revolution on."""
-    return m.behaviour != "reference_edge" and m.cia402 is not None and (
-        1 <= m.cia402 <= 14 or m.cia402 in (33, 34))
+    """Whether ``m`` ends on the encoder's index pulse (its CiA 402 method's): the next
+    one after its reference, up to a revolution on."""
+    return m.behaviour != "reference_edge" and m.cia402 is not None and \
+        homing_method(m.cia402).index_pulse
 
 
 def _alarm_code(d: Description) -> int:

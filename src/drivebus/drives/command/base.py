@@ -6,6 +6,7 @@ sees (``_scope``).
 from __future__ import annotations
 
 from collections.abc import Mapping
+from functools import cached_property
 from typing import Any, ClassVar
 
 from drivebus.bus import SlaveHandle
@@ -84,7 +85,7 @@ class ProfileBase(DriveProfile):
         the options does not hold)."""
         self._procedure(procedure, {})
 
-    @property
+    @cached_property
     def tracked(self) -> frozenset[str]:
         """``enabled`` where the description's reads only ``state`` (what the profile last
         commanded); ``homed`` where it has none (a homing that set the position here) or
