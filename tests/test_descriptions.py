@@ -195,6 +195,32 @@ BAD: list[tuple[str, str, tuple[str, ...]]] = [
      "factory = '57600 8N1'\n", ("link", "57600 baud, which is not among")),
     ("factory format", MINIMAL + "\n[link]\nbaud_rates = [9600, 19200]\nformats = ['8N1']\n"
      "factory = '9600 8O1'\n", ("link", "8O1, which is not among the drive's formats")),
+    # an outside audit of a new drive's description: drive check passed each of these, and
+    # only drive try (or the drive) showed the damage
+    ("two bits on one", MINIMAL.replace("bits.MOVING = { bit = 1,", "bits.INPOS = { bit = 1, "
+                                        "means = 'in_position' }\nbits.MOVING = { bit = 1,"),
+     ("registers.status.bits.MOVING", "shares bit(s) 1 with bits.INPOS")),
+    ("field over bits", MINIMAL.replace("bits.MOVING", "bits.STATE = { bit = 0, width = 3 }\n"
+                                        "bits.MOVING"),
+     ("registers.status.bits.STATE", "shares bit(s) 0 with bits.ENABLED")),
+    ("named value too big", MINIMAL.replace("address = 1", "address = 1\nvalues = { on = 1, "
+                                            "fast = 70000 }"),
+     ("registers.enable.values.fast", "70000 is outside the register's range 0..65535")),
+    ("value name read as a parameter", MINIMAL + "\n[registers.mode]\naddress = 2\n"
+     "values = { speed = 1 }\n[procedures.speed_run]\nsteps = [{ write = { mode = 'speed' } "
+     "}]\n", ("procedures.speed_run.steps[0].write.mode", "'speed' is read as the parameter",
+              "write \"'speed'\" for the value")),
+    ("position in amperes", MINIMAL.replace('moving = "status.MOVING"', 'moving = '
+                                            '"status.MOVING"\nposition = "current"') +
+     "\n[registers.current]\naddress = 2\nunit = 'A'\naccess = 'R'\n",
+     ("status.position", "register current holds a value in A, not a position")),
+    ("velocity in pulses", MINIMAL + "\n[registers.pos]\naddress = 2\nunit = 'pulses'\n"
+     "access = 'R'\nmeans = 'velocity'\n",
+     ("registers.pos.means", "register pos holds a position (pulses), not a velocity")),
+    ("same name twice", MINIMAL + "\n[registers.other]\naddress = 2\nname = 'enable'\n",
+     ("registers.other.name", "the name 'enable' is also register enable's")),
+    ("a bool for a number", MINIMAL.replace("address = 1", "address = true"),
+     ("registers.enable.address", "valid integer")),
 ]
 
 

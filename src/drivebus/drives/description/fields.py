@@ -104,5 +104,6 @@ _KEY = r"^[A-Za-z_][A-Za-z0-9_]*$"
 class _Model(BaseModel):
     model_config = ConfigDict(
         extra="forbid", frozen=True, allow_inf_nan=False, arbitrary_types_allowed=True,
+        strict=True,
         populate_by_name=True,
     )

@@ -209,7 +209,7 @@ class Link(_Model):
                 raise ValueError(f"{v!r}: expected 'LO..HI' like '1..31'") from None
         if isinstance(v, list | tuple) and info.field_name == "addresses":
             return list(v)  # a list: the addresses themselves, not a range
-        return v
+        return tuple(v) if isinstance(v, list) else v  # (TOML has no tuples)
 
     @model_validator(mode="after")
     def _check(self) -> Link:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from drivebus.drives.description.fields import E, T, _Model
 from drivebus.drives.programs import ProgramSupport
@@ -50,6 +50,11 @@ class PulsesPerRev(_Model):
     allowed: list[int] = Field([], description="the values allowed (else any, or the "
                                                "register's)")
     range: tuple[int, int] | None = None
+
+    @field_validator("range", mode="before")
+    @classmethod
+    def _pair(cls, v: object) -> object:
+        return tuple(v) if isinstance(v, list) else v  # (TOML has no tuples)
 
 
 class Units(_Model):

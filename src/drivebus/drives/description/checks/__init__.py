@@ -24,6 +24,7 @@ class Checker(RegisterChecks, StatusChecks, ProcedureChecks, TwinChecks, Example
     def problems(self) -> Iterator[str]:
         d = self.d
         self._registers()
+        self._names_apart()
         self._units()
         self._identify()
         self._status()

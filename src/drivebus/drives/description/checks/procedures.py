@@ -52,6 +52,7 @@ class ProcedureChecks(CheckCore):
             for key, item in step.write.items():
                 self._target(f"{where}.write", key, params, writes=True)
                 self._names(f"{where}.write.{key}", item.value, params)
+                self._value_name(f"{where}.write.{key}", key, item.value, params)
             if step.block is not None and step.each is None:
                 self._block(where, list(step.write))
         if step.read is not None:
@@ -76,6 +77,22 @@ class ProcedureChecks(CheckCore):
                     self.out.append(f"{where}.set.{k}: no state variable {k!r} (declare it "
                                     f"in [state])")
                 self._names(f"{where}.set.{k}", e, params)
+
+    def _value_name(self, where: str, key: str, value: Expr, params: set[str]) -> None:
+        """A bare name written to a register with named ``values`` is read as the
+        parameter, constant or register of that name, not as the named value: where it is
+        both, say so (the named value is written as a text, ``"'name'"``)."""
+        reg = self.regs.get(key.split("[", 1)[0].strip())
+        name = value.source.strip() if isinstance(value.source, str) else None
+        if reg is None or name is None or name not in reg.d.values:
+            return
+        meaning = ("parameter" if name in params else "constant" if name in self.d.constants
+                   else "register" if name in self.regs else None)
+        if meaning is not None:
+            self.out.append(f"{where}: {name!r} is read as the {meaning} {name}, not as "
+                            f"the register's value {name} = "
+                            f"{reg.d.values[name]}: write \"'{name}'\" for the value (or "
+                            f"the parameter's name differently)")
 
     def _block(self, where: str, keys: list[str]) -> None:
         """A step's ``block``: its registers must follow on from each other in the order

@@ -74,6 +74,11 @@ class RegisterChecks(CheckCore):
                 if b.bit + b.width > 16 * d.words:
                     self.out.append(f"{where}: bit {bit} ({b.bit}, width {b.width}) is "
                                     f"beyond the register's {16 * d.words} bits")
+            self._bits_apart(where, d)
+            for name, raw in d.values.items():
+                if not lo <= raw <= hi:
+                    self.out.append(f"{where}.values.{name}: {raw} is outside the register's "
+                                    f"range {lo}..{hi}")
             if d.offset and not reg.objects:
                 self.out.append(f"{where}.offset: an offset is for a sub-index of an "
                                 f"object-addressed map ([link] map = \"objects\")")
@@ -89,6 +94,30 @@ class RegisterChecks(CheckCore):
                                     f"is also register {owner[space + a]}")
                     break
                 owner[space + a] = key
+
+    def _bits_apart(self, where: str, d: RegisterDef) -> None:
+        """Two bits (fields) of a register may not share a bit: the manual gives each bit
+        one meaning, and a status read through both would contradict itself."""
+        seen: list[tuple[str, int]] = []
+        for name, b in d.bits.items():
+            for other, mask in seen:
+                if mask & b.mask:
+                    self.out.append(f"{where}.bits.{name}: it shares bit(s) "
+                                    f"{_bit_list(mask & b.mask)} with bits.{other}")
+                    break
+            seen.append((name, b.mask))
+
+    def _names_apart(self) -> None:
+        """Errors and logs name a register by its display name: two registers may not
+        share one."""
+        owner: dict[str, str] = {}
+        for key, reg in self.regs.items():
+            shown = reg.name.casefold()
+            other = owner.setdefault(shown, key)
+            if other != key:
+                where = f"registers.{key}.name" if reg.d.name else f"registers.{key}"
+                self.out.append(f"{where}: the name {reg.name!r} is also register {other}'s "
+                                f"(errors name a register by it: give each its own)")
 
     def _cia402(self) -> None:
         d = self.d
@@ -168,6 +197,10 @@ class RegisterChecks(CheckCore):
                                     f"register {a} (the rule must space the objects by the "
                                     f"registers each takes)")
                     return
+
+
+def _bit_list(mask: int) -> str:
+    return ", ".join(str(i) for i in range(32) if mask >> i & 1)
 
 
 def _width_lo(d: RegisterDef) -> int:

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 from drivebus.drives.base import describe_values
 from drivebus.drives.description.checks.core import CheckCore
+from drivebus.drives.description.registers import Reg
 from drivebus.drives.description.status import IoDef
+from drivebus.drives.units import Kind
 
 
 class StatusChecks(CheckCore):
@@ -49,6 +51,7 @@ class StatusChecks(CheckCore):
             self._names(f"status.{field}", getattr(s, field))
         for k, e in s.raw.items():
             self._names(f"status.raw.{k}", e)
+        self._status_units()
         if s.completion is not None:
             for j, item in enumerate(s.completion.read):
                 self._span(f"status.completion.read[{j}]", item)
@@ -59,6 +62,23 @@ class StatusChecks(CheckCore):
             if k not in self.d.state:
                 self.out.append(f"status.track.{k}: no state variable {k!r} (declare it in "
                                 f"[state])")
+
+    def _status_units(self) -> None:
+        """The position comes from a register in pulses, the velocity from one in a speed
+        unit (or a register without a unit, taken as those): a register of another
+        quantity (a current, a position for a speed) would be shown as what it is not."""
+        for field, kind, units in (("position", Kind.POSITION, "pulses"),
+                                   ("velocity", Kind.SPEED, "rpm, rps or pulses/s")):
+            expr = self.d.status_exprs.get(field)
+            reg = self.regs.get(expr.source.strip()) if expr is not None else None
+            if reg is None or reg.codec.kind is kind or reg.array:
+                continue
+            if reg.codec.kind is Kind.PLAIN and not reg.d.unit:
+                continue  # a raw count: the manual's unit is the field's
+            given = getattr(self.d.status, field) is not None
+            where = f"status.{field}" if given else f"registers.{reg.key}.means"
+            self.out.append(f"{where}: register {reg.key} holds {_quantity(reg)}, not a "
+                            f"{field} (give the {field} a register in {units})")
 
     def _io(self, where: str, io: IoDef | None) -> None:
         if io is None:
@@ -84,3 +104,11 @@ class StatusChecks(CheckCore):
                             f"{io.functions} assigns {funcs.d.count} functions")
         if len(set(n.upper() for n in io.names)) != len(io.names):
             self.out.append(f"{where}.names: a terminal is named twice")
+
+
+def _quantity(reg: Reg) -> str:
+    """What a register holds, in an error: its kind and unit."""
+    if reg.codec.kind is Kind.PLAIN:
+        return f"a value in {reg.d.unit}"
+    unit = f" ({reg.d.unit})" if reg.d.unit else ""
+    return f"a {reg.codec.kind.value}{unit}"
