@@ -29,7 +29,7 @@ from drivebus import AxisState, Priority, open_machine
 from drivebus.bus.sent import sent_requests
 from drivebus.clock import monotonic
 from drivebus.drives.status import DriveStatus
-from drivebus.errors import MotionAborted, MotionTimeout
+from drivebus.errors import GroupMotionError, MotionAborted, MotionTimeout
 from drivebus.settings import LineSettings
 from drivebus.sim.harness import sim_bus
 from drivebus.sim.slave import Fault
@@ -39,6 +39,7 @@ from wirelog import (
     command_frames,
     commands,
     frames_text,
+    log_size,
     reads_of,
     requests_between,
     settle,
@@ -63,6 +64,54 @@ async def test_planning_a_group_move_and_a_long_path_holds_no_loop_step() -> Non
         corners = [{"x": 70.0 - 10 * (i % 2), "y": 45.0 - 5 * (i % 3)} for i in range(24)]
         path = await xy.path(corners, speed=300.0)
         assert len(path.segments) == len(corners)
+
+
+LONG_PATH = [{"x": 20.0 + (i * 37) % 360, "y": 5.0 + (i * 53) % 180, "z": float((i * 29) % 95)}
+             for i in range(1, 301)]
+"""300 waypoints of x, y and z: minutes of motion, 900 queued parts."""
+
+
+@pytest.mark.parametrize("how", ["stop one axis", "cancel the path"])
+async def test_ending_a_long_path_sends_one_stop_an_axis_at_once(how: str) -> None:
+    """Ending a path of hundreds of segments (a stop of one of its axes, or cancelling
+    its caller) stops each axis with a stop or two, as soon as one transaction allows: the
+    loop-step guard (conftest) fails a step over its limit. An outside audit found the
+    stop held the loop for 100-260 ms (ending every queued part at once), and each of the
+    other axes' queued parts sent a stop of its own: a stop per waypoint, for seconds."""
+    async with open_machine(DEMO) as m:
+        names = ("x", "y", "z")
+        for n in names:
+            await settle(m.axes[n])
+        marks = {n: log_size(m, n) for n in names}
+        failed: list[BaseException] = []
+        with anyio.fail_after(60):
+            async with anyio.create_task_group() as tg:
+
+                async def run() -> None:
+                    try:
+                        await m.group(*names).path(LONG_PATH, speed=50.0)
+                    except GroupMotionError as exc:
+                        failed.append(exc)
+
+                tg.start_soon(run)
+                seen = 0  # the path is under way: two polls of y show it moving
+                async for st in m.axes["y"].watch():
+                    seen += st.moving
+                    if seen == 2:
+                        break
+                if how == "stop one axis":
+                    await m.axes["x"].stop()  # the path ends by itself, failed
+                else:
+                    tg.cancel_scope.cancel()
+        assert bool(failed) == (how == "stop one axis"), (how, failed)
+        for n in names:
+            await settle(m.axes[n])
+        assert not [n for n in names if m.sim_drives[n].is_moving()], how
+        for n in names:
+            frames = command_frames(m, n, marks[n])
+            stops = [t for k, t in frames if k == "stop"]
+            assert 1 <= len(stops) <= 2, (how, n, frames[-6:])
+            assert not [t for k, t in frames if k != "stop" and t > stops[0]], (how, n)
 
 
 # -- a force-quit embedded app ---------------------------------------------------------------

@@ -150,12 +150,17 @@ class _PathRun:
     handles: list[dict[str, MotionHandle]]
 
     async def finish(self) -> PathReport:
-        """Await every part; on the first failure stop every axis, raise it named."""
+        """Await every part; on the first failure (or a cancellation) stop every axis once,
+        raise it named."""
         failure: list[tuple[str, BaseException]] = []
 
         async def one(name: str, handle: MotionHandle, scope: anyio.CancelScope) -> None:
+            # Cancelled while it waits, a handle's own wait stops its axis: hundreds of
+            # parts cancelled together sent a stop each. Here a cancellation waits for
+            # nothing: the group's one stop below ends them all.
+            await handle.ended()
             try:
-                await handle
+                await handle  # its outcome, and the status after a part that completed
             except DrivebusError as exc:
                 if not failure:
                     failure.append((name, exc))
