@@ -204,6 +204,28 @@ async def test_cancelling_the_task_that_awaits_a_handle_stops_the_axis() -> None
             await second
 
 
+async def test_handles_cancelled_together_stop_their_axis_once() -> None:
+    """Sixty queued moves awaited in tasks of one group, cancelled together: the first
+    cancelled wait stops the axis and ends the queue; the others had each sent a stop
+    of their own (58 stops, found by an outside audit of a long group path)."""
+    async with open_machine(DEMO) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        await x.move_to(20.0)
+        handles = [await x.move_to(20.0 + 50 * (i % 2 == 0), buffer="buffered")
+                   for i in range(60)]
+        mark = log_size(m, "x")
+        async with anyio.create_task_group() as tg:
+            for h in handles:
+                tg.start_soon(h.wait)
+            async for st in x.watch():  # under way
+                if st.moving:
+                    break
+            tg.cancel_scope.cancel()
+        assert not twin.is_moving()
+        assert all(isinstance(h.error, MotionAborted) for h in handles)
+        assert commands(m, "x", mark).count("stop") == 1, commands(m, "x", mark)
+
+
 async def test_aborting_takes_over_on_the_fly_where_the_drive_can_else_refuses() -> None:
     async with open_machine(DEMO) as m:
         z, twin = m.axes["z"], m.sim_drives["z"]

@@ -160,10 +160,17 @@ class MotionHandle:
                 await fresh.wait()  # a full status after the arrival: positions are current
         except BaseException:
             if not self.done:
-                await shielded(self._stop)  # (a second cancel does not cut it short)
+                await shielded(self._stop_unless_done)  # (a second cancel cannot cut it)
             raise
         if self._ticket.outcome is not None:
             raise self._ticket.outcome
+
+    async def _stop_unless_done(self) -> None:
+        """Stop the axis unless the motion is over by the time this runs (a task of its
+        own): of many handles of an axis cancelled together, the first one's stop ends
+        the others, which then send none of their own."""
+        if not self.done:
+            await self._stop()
 
     def __await__(self) -> Generator[Any, None, None]:
         return self.wait().__await__()
