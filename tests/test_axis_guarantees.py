@@ -284,6 +284,26 @@ async def test_a_limit_switch_hit_is_error_stop_until_reset_then_only_away(tmp_p
         assert twin.position() == x.units.to_pulses(300.0)
 
 
+async def test_a_jogging_block_a_limit_switch_ended_raises_its_error(tmp_path: Path) -> None:
+    """``jogging()`` into a limit switch: the axis is in ErrorStop inside the block, and
+    leaving it raises the switch's ``LimitViolation``, as a move that meets one does (it
+    ended without a word, an outside audit found; only the next command said why)."""
+    async with open_machine(_no_soft_limits(tmp_path)) as m:
+        x, twin = m.axes["x"], m.sim_drives["x"]
+        with pytest.raises(LimitViolation, match="positive limit switch"):
+            async with x.jogging(200.0):  # the switch is at 410, x at 12
+                with anyio.fail_after(10):
+                    async for _ in x.watch():
+                        if x.state is AxisState.ERROR_STOP:
+                            break
+        await settle_any(x)
+        assert not twin.is_moving() and x.state is AxisState.ERROR_STOP
+        await x.reset()
+        async with x.jogging(-20.0):  # away from the switch: a jog the block ends
+            await until(twin.is_moving, "the jog away from the switch to run")
+        assert not twin.is_moving() and x.state is AxisState.STANDSTILL
+
+
 async def settle_any(ax: Axis) -> None:
     with anyio.fail_after(10):
         async for st in ax.watch():

@@ -20,6 +20,7 @@ from drivebus import checks
 from drivebus.clock import monotonic
 from drivebus.errors import (
     ArgumentError,
+    MotionAborted,
 )
 from drivebus.motion.actor import _WRITE_REPLY_BYTES
 from drivebus.motion.envelope import MotionPlan
@@ -224,9 +225,17 @@ class Jogging(ProgramRunner):
     async def jogging(
         self, speed: float, *, accel: float | None = None, decel: float | None = None
     ) -> AsyncIterator[Jogging]:
-        """Jog while inside the block; stops on exit, on error and on cancellation."""
+        """Jog while inside the block; stops on exit, on error and on cancellation. A jog
+        that a fault ended inside the block (a limit switch, an alarm, the drive lost)
+        raises its error as the block is left, as a move that meets one does."""
         await self.jog(speed, accel=accel, decel=decel, watchdog=None)
+        m = self._motion
         try:
             yield self
-        finally:
+        except BaseException:
             await shielded(self.stop)  # (a second cancel does not cut it short)
+            raise
+        fault = m.outcome if m is not None and m.over else None
+        await shielded(self.stop)
+        if fault is not None and not isinstance(fault, MotionAborted):
+            raise fault
