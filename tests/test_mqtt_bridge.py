@@ -229,6 +229,23 @@ async def test_malformed_commands_get_one_failed_reply_naming_the_problem(
         assert ok[-1]["status"] == "done"
 
 
+async def test_a_halt_is_taken_whatever_its_payload(broker: Broker) -> None:
+    """A halt with a payload that is not JSON, or has keys it does not take, halts the
+    axis (its id echoed where it can be read), as the e-stop topics and the service's
+    halt do: it was refused, and the motor ran on (an outside audit)."""
+    async with bridged(DEMO, broker.url) as (s, _), probe(broker.url) as p:
+        twin = s.machine.sim_drives["r"]
+        for payload, target in ((b"{not json", 700.0), (b'{"id": 5, "bogus": 2}', 10.0)):
+            corr = await p.send("demo", "r", "move", {"target": target, "speed": 90.0})
+            await p.wait(lambda corr=corr: any(r["status"] == "accepted"
+                                               for r in p.replies.get(corr, [])))
+            replies = await p.final(await p.send("demo", "r", "halt", raw=payload))
+            assert [r["status"] for r in replies] == ["accepted", "done"], (payload, replies)
+            assert replies[-1]["id"] == (5 if b"id" in payload else None)
+            assert (await p.final(corr))[-1]["status"] == "aborted"
+            assert not twin.is_moving(), payload
+
+
 async def test_killing_the_broker_stops_a_jog_a_move_finishes_and_state_comes_back(
     broker: Broker, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -547,7 +547,7 @@ class Bridge:
             axis, verb = parsed
             rt, problem = self._reply_to(msg)
             rt.id = peek_id(msg.payload)
-            if problem is not None:
+            if problem is not None and verb != "halt":  # (a halt's replies go to replies)
                 self._final(rt, axis, verb, ArgumentError(problem))
                 return
             try:

@@ -4,7 +4,9 @@ A command's body is a JSON object (an empty payload is ``{}``) whose keys depend
 verb; ``id`` (a string or a number) is echoed in every reply. Anything that cannot be
 taken as asked (not UTF-8, not JSON, NaN or infinity, not an object, an unknown verb or
 key, a value of the wrong type) is an ``ArgumentError`` naming the problem: the bridge
-answers it with a ``failed`` reply, never with silence.
+answers it with a ``failed`` reply, never with silence. A ``halt`` is the exception: an
+emergency stop of the axis, it is taken whatever its payload (its ``id`` where one can be
+read), as the e-stop topics are and as the service's halt is.
 """
 
 from __future__ import annotations
@@ -105,6 +107,8 @@ def parse_command(axis: str, verb: str, payload: bytes) -> Command:
     is wrong."""
     if verb not in _NUMBERS:
         raise ArgumentError(f"unknown verb {verb!r} (verbs: {', '.join(VERBS)})")
+    if verb == "halt":  # an emergency stop of the axis: never refused for its payload
+        return Command(verb, axis, peek_id(payload))
     data = _load(payload)
     if not isinstance(data, dict):
         raise ArgumentError(f"payload: expected a JSON object, got {type(data).__name__} "
