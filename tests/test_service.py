@@ -221,6 +221,10 @@ async def test_each_error_is_a_typed_problem() -> None:
         problem(await client.delete("/api/motions/m999"), 404, "NotFound")
         problem(await client.get("/api/lines/can"), 404, "NotFound")
         problem(await client.get("/api/nothing-here"), 404, "NotFound")
+        # an axis named in a body is looked up as in a path (they were 422 ConfigError)
+        problem(await client.post("/api/recordings", json={"axes": ["w"]}), 404, "NotFound")
+        problem(await client.post("/api/positions/p1/teach", json={"axes": ["x", "w"]}),
+                404, "NotFound")
         problem(await client.put("/api/estop"), 405, "MethodNotAllowed")
 
         body = problem(await client.post("/api/axes/x/move", json={"target": 1000.0}),

@@ -66,7 +66,12 @@ class Recordings:
     def start(self, axes: Iterable[str] | None = None, *, client: str | None = None
               ) -> RecordingRecord:
         """Start recording ``axes`` (all if None) and their lines; ``StateError`` if
-        ``MAX_RUNNING`` already run, ``ConfigError`` for an unknown axis."""
+        ``MAX_RUNNING`` already run, ``NotFound`` for an unknown axis."""
+        axes = None if axes is None else list(axes)
+        for name in axes or ():
+            if name not in self.machine.axes:
+                raise NotFound(f"no axis {name!r} in machine {self.machine.config.name} "
+                               f"(axes: {', '.join(self.machine.axes)})")
         running = [r for r in self._all.values() if r.recording.recording]
         if len(running) >= MAX_RUNNING:
             raise StateError(f"{len(running)} recordings are running "

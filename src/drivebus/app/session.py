@@ -588,8 +588,11 @@ class MachineSession:
 
     async def teach(self, name: str, axes: list[str] | None = None, *,
                     client: str | None = None) -> dict[str, float]:
-        """Store the axes' present positions as ``name`` (``Machine.teach``)."""
+        """Store the axes' present positions as ``name`` (``Machine.teach``); ``NotFound``
+        for an unknown axis."""
         self.authorize(client)
+        for axis in axes or ():
+            self.axis(axis)
         stored = await self.machine.teach(name, axes)
         self.events.publish(Event("motions", None, {
             "type": "position", "name": name, "axes": stored}))
