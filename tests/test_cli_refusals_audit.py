@@ -193,3 +193,19 @@ def test_a_move_by_step_beyond_the_soft_limits_is_refused_as_move_by_is(
     _one_error(after, "--during move-by x", "target 1010 is outside the soft limits")
     assert _writes(sent) == []
     assert not out.exists()
+
+
+def test_a_machine_files_speed_its_drive_cannot_run_is_the_files_error(tmp_path: Path) -> None:
+    """An axis whose machine-file accel its drive cannot run: ``check`` names the axis and
+    exits 1, and a ``move`` without ``--speed`` is refused (exit status 2, nothing opened)
+    naming the machine file's axis, not a ``--speed`` that was never given (an outside
+    audit)."""
+    cfg, _ = _demo(tmp_path, "fileaccel")
+    cfg.write_text(re.sub(r"^accel = 400\.0$", "accel = 1e12", cfg.read_text(), count=1,
+                          flags=re.M))
+    r = drivebus("check", cfg)
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    assert "axis z: its speed, accel and decel" in r.stderr and "acceleration" in r.stderr
+    line = _one_error(drivebus("move", cfg, "z", "10"), "axes.z: its speed, accel and decel",
+                      "acceleration time")
+    assert "--speed" not in line

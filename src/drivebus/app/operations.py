@@ -18,7 +18,7 @@ import anyio
 from drivebus.app.doctor import Adapter, check_serial_port, poll_efficiency
 from drivebus.config import MachineConfig, load_config, machine_config_in_thread
 from drivebus.drives.registry import drive_label
-from drivebus.errors import ConfigError, DriveOffline
+from drivebus.errors import ConfigError, DriveOffline, LimitViolation, NotSupported
 from drivebus.motion import Axis, AxisState, Machine, open_machine
 from drivebus.settings import LineSettings
 
@@ -207,11 +207,14 @@ class ConfigReport:
     name: str
     axes: int
     lines: list[LineReport]
+    axis_problems: list[str] = field(default_factory=list)
+    """Axes whose own speed and ramps their drive cannot run (each named)."""
 
     @property
     def problems(self) -> list[str]:
-        """Every line's problems, named by line."""
-        return [f"line {ln.name}: {p}" for ln in self.lines for p in ln.problems]
+        """Every line's problems, named by line, then the axes'."""
+        return [f"line {ln.name}: {p}" for ln in self.lines for p in ln.problems] + \
+            self.axis_problems
 
 
 def check_config(config: str | Path, sysfs: Path = Path("/sys")) -> ConfigReport:
@@ -235,7 +238,23 @@ def check_config(config: str | Path, sysfs: Path = Path("/sys")) -> ConfigReport
                 report.adapter = _adapter_record(port.adapter, ln.settings, ln.rs485,
                                                  ln.local_echo)
         lines.append(report)
-    return ConfigReport(cfg.name, len(cfg.axes), lines)
+    return ConfigReport(cfg.name, len(cfg.axes), lines, _plan_problems(cfg))
+
+
+def _plan_problems(cfg: MachineConfig) -> list[str]:
+    """The axes whose speed, accel and decel (the file's, or the defaults) their drive
+    cannot run: every move without its own would be refused."""
+    out = []
+    for name in cfg.axes:
+        try:
+            refuse_before_opening(cfg, name, "move")
+        except LimitViolation as exc:
+            why = str(exc).removeprefix(f"axis {name}: ")
+            out.append(f"axis {name}: its speed, accel and decel (the file's, or the "
+                       f"defaults): {why}")
+        except NotSupported:
+            continue  # an axis that does not move (monitoring): nothing to run
+    return out
 
 
 def _adapter_record(adapter: Adapter, settings: LineSettings, rs485: bool, echo: bool

@@ -73,8 +73,13 @@ def refuse_early(config: Path | MachineConfig, axis: str, procedure: str, *,
     try:
         refuse_before_opening(cfg, axis, procedure, target=target, speed=speed)
     except errors.LimitViolation as exc:
-        name = "TARGET" if target is not None and "target" in str(exc) else speed_name
-        raise ArgumentError(f"{name}: {exc}") from None
+        if target is not None and "target" in str(exc):
+            raise ArgumentError(f"TARGET: {exc}") from None
+        if speed is None:  # the machine file's speed and ramps, not an argument
+            why = str(exc).removeprefix(f"axis {axis}: ")
+            raise errors.ConfigError(f"axes.{axis}: its speed, accel and decel (the "
+                                     f"machine file's, or the defaults): {why}") from None
+        raise ArgumentError(f"{speed_name}: {exc}") from None
     except errors.NotSupported as exc:
         if isinstance(exc, errors.ConfigError):
             raise
