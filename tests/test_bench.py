@@ -23,7 +23,7 @@ MOTION = "motion"
 asserting no figure) runs beside other tests; the rest of the bench runs alone."""
 
 
-@pytest.mark.serial  # it measures, and load thins the flooded line's noise in its 0.3 s
+@pytest.mark.serial  # it measures
 async def test_quick_bench_runs_every_scenario_without_gap_violations() -> None:
     found = [s.name for s in scenarios()]
     assert set(found) >= BUILT_IN | {MOTION}
