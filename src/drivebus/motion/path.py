@@ -154,23 +154,32 @@ class _PathRun:
         raise it named."""
         failure: list[tuple[str, BaseException]] = []
 
-        async def one(name: str, handle: MotionHandle, scope: anyio.CancelScope) -> None:
-            # Cancelled while it waits, a handle's own wait stops its axis: hundreds of
-            # parts cancelled together sent a stop each. Here a cancellation waits for
+        async def one(name: str, handles: list[MotionHandle], scope: anyio.CancelScope
+                      ) -> None:
+            # An axis's parts are queued on it in order, and a failure of any of them (or
+            # a stop) drops its queue: its last part ends then, failed. So one wait per
+            # axis sees a failure at once. (A task per part was some 60 objects a
+            # waypoint and axis for the collector to scan, and cancelled, each part's own
+            # wait stopped its axis: a stop a waypoint.) A cancellation here waits for
             # nothing: the group's one stop below ends them all.
-            await handle.ended()
+            last = handles[-1]
+            await last.ended()
+            failed = next((h for h in handles if h.error is not None), None)
             try:
-                await handle  # its outcome, and the status after a part that completed
+                await (failed or last)  # the first failure; or the status after the end
             except DrivebusError as exc:
                 if not failure:
                     failure.append((name, exc))
                 scope.cancel()
 
+        by_axis: dict[str, list[MotionHandle]] = {}
+        for parts in self.handles:
+            for name, handle in parts.items():
+                by_axis.setdefault(name, []).append(handle)
         try:
             async with anyio.create_task_group() as tg:
-                for parts in self.handles:
-                    for name, handle in parts.items():
-                        tg.start_soon(one, name, handle, tg.cancel_scope)
+                for name, handles in by_axis.items():
+                    tg.start_soon(one, name, handles, tg.cancel_scope)
         finally:
             if failure or not all(h.done for p in self.handles for h in p.values()):
                 await shielded(self.group.stop)
