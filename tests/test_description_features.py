@@ -222,6 +222,36 @@ def test_extends_replaces_entries_whole_and_removes_what_the_drive_lacks(
         load_description(loop)
 
 
+def test_extends_takes_a_packaged_description_by_its_family(tmp_path: Path) -> None:
+    """The reference's example: a user's file over the packaged NT86, named by its
+    family (a file name was taken relative to the user's file, and failed)."""
+    ext = write(tmp_path, """
+        extends = "NT86"
+
+        [drive]
+        family = "NT86-X"
+        description = "an NT86 without its position table"
+
+        [remove]
+        procedures = ["start_table"]
+
+        [registers.jog_speed]
+        address = 77
+        name = "jog speed"
+        unit = "rpm"
+        min = 0
+        max = 2000
+        default = 500
+        """, "nt86x.toml")
+    d = load_description(ext)
+    assert d.family == "NT86-X" and "start_table" not in d.procedures
+    assert d.regs["jog_speed"].register.hi == 2000 and "microstep" in d.regs
+    bad = write(tmp_path, 'extends = "NT99"\n', "bad.toml")
+    with pytest.raises(ConfigError, match=r"bad\.toml: extends: 'NT99' is no packaged "
+                                          r"description \(BHSS, CL86R, EPR60, NT86;"):
+        load_description(bad)
+
+
 def test_list_options_and_option_checks(base: Description) -> None:
     cls = profile_class(base)
     cls.check_options({"outputs": [1, 2]})

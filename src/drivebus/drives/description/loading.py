@@ -99,7 +99,8 @@ def read_toml(p: Path, noun: str) -> dict[str, Any]:
 
 
 def _extended(data: dict[str, Any], p: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
-    """``data`` over the description it ``extends`` (a file relative to ``p``): each
+    """``data`` over the description it ``extends`` (a file relative to ``p``, or a
+    packaged description by its family, ``extends = "NT86"``): each
     section's keys replace the base's whole (a register, an option, a procedure,
     ``homing.methods``, a ``[link]`` key), and ``remove = { registers = [...] }`` drops
     entries of the base."""
@@ -111,7 +112,7 @@ def _extended(data: dict[str, Any], p: Path, seen: tuple[Path, ...] = ()) -> dic
         return data
     if not isinstance(ref, str):
         raise ConfigError(f"{p}: extends: expected a file name, got {ref!r}")
-    base_path = (p.parent / ref).resolve()
+    base_path = (p.parent / ref).resolve() if ref.endswith(".toml") else _packaged(p, ref)
     if base_path in seen:
         raise ConfigError(f"{p}: extends: {ref} extends it in turn")
     base = _extended(read_toml(base_path, "drive description"), base_path, (*seen, p.resolve()))
@@ -132,6 +133,21 @@ def _extended(data: dict[str, Any], p: Path, seen: tuple[Path, ...] = ()) -> dic
             del entries[key]
         out[section] = entries
     return out
+
+
+PACKAGED = Path(__file__).resolve().parents[1] / "descriptions"
+"""The descriptions drivebus ships (``extends = "NT86"`` names one by its family)."""
+
+
+def _packaged(p: Path, family: str) -> Path:
+    """The packaged description of ``family`` (its file is the family's name, in lower
+    case); ``ConfigError`` naming those there are."""
+    found = PACKAGED / f"{family.lower()}.toml"
+    if not found.is_file():
+        there = ", ".join(sorted(f.stem.upper() for f in PACKAGED.glob("*.toml")))
+        raise ConfigError(f"{p}: extends: {family!r} is no packaged description ({there}; "
+                          f"a file of your own ends in .toml, relative to this one)")
+    return found
 
 
 def load_description(path: str | Path) -> Description:
