@@ -20,6 +20,7 @@ import anyio
 import pytest
 
 from drivebus import LineSettings
+from drivebus.clock import monotonic
 from drivebus.drives.base import DriveProfile
 from drivebus.drives.bhss import BHSSProfile
 from drivebus.drives.cl86r import CL86RProfile
@@ -140,11 +141,16 @@ class Run:
     trace: list[float]
     status: DriveStatus
     braking: float
+    moves: list[float] = field(default_factory=list)
+    """How far from the start the twin's own motion history took it, at each of its
+    segments' ends: a busy machine that held the test up for a whole search left the
+    polls (``trace``) none of it to see."""
 
     @property
     def first_direction(self) -> int:
         start = self.trace[0]
-        return next(int(math.copysign(1, p - start)) for p in self.trace if abs(p - start) > 1)
+        seen = self.moves or [p - start for p in self.trace]
+        return next(int(math.copysign(1, d)) for d in seen if abs(d) > 1)
 
     @property
     def end(self) -> float:
@@ -176,7 +182,9 @@ async def home(
     **kw: Any,
 ) -> Run:
     """Home with ``method`` and sample the twin until the drive rests, homing over."""
-    trace = [float(sim.physical_position())]
+    began = monotonic()
+    trace = [float(sim.physical_position(began))]
+    origin = sim.kin.position(began)
     await profile.home(method, **{**HOMING, **kw})
     if method in family.methods:
         assert family.method_register(sim) == family.methods[method]  # the manual's number
@@ -189,7 +197,9 @@ async def home(
             await anyio.sleep(0.002)
     assert not sim.is_moving()
     speed, decel = family.search(sim)
-    return Run(trace, st, speed * speed / (2 * decel))
+    ended = monotonic()
+    moves = [seg.at(min(seg.t1, ended))[0] - origin for seg in sim.kin.trace(began, ended)]
+    return Run(trace, st, speed * speed / (2 * decel), moves)
 
 
 def assert_homed_at(run: Run, sim: Any, family: Family, edge: float) -> None:
