@@ -249,12 +249,17 @@ def _plan_problems(cfg: MachineConfig) -> list[str]:
         try:
             refuse_before_opening(cfg, name, "move")
         except LimitViolation as exc:
-            why = str(exc).removeprefix(f"axis {name}: ")
-            out.append(f"axis {name}: its speed, accel and decel (the file's, or the "
-                       f"defaults): {why}")
+            out.append(f"axis {name}: {own_plan_refused(name, exc)}")
         except NotSupported:
             continue  # an axis that does not move (monitoring): nothing to run
     return out
+
+
+def own_plan_refused(axis: str, exc: LimitViolation) -> str:
+    """What is wrong when ``axis``'s own speed and ramps (the machine file's, or the
+    defaults) are what its drive refuses: no argument of a command, the file's."""
+    why = str(exc).removeprefix(f"axis {axis}: ")
+    return f"its speed, accel and decel (the machine file's, or the defaults): {why}"
 
 
 def _adapter_record(adapter: Adapter, settings: LineSettings, rs485: bool, echo: bool

@@ -31,6 +31,7 @@ from drivebus.app.operations import (
     Operation,
     jog_ended_by_axis,
     opened,
+    own_plan_refused,
     refuse_before_opening,
     run_operation,
 )
@@ -76,9 +77,8 @@ def refuse_early(config: Path | MachineConfig, axis: str, procedure: str, *,
         if target is not None and "target" in str(exc):
             raise ArgumentError(f"TARGET: {exc}") from None
         if speed is None:  # the machine file's speed and ramps, not an argument
-            why = str(exc).removeprefix(f"axis {axis}: ")
-            raise errors.ConfigError(f"axes.{axis}: its speed, accel and decel (the "
-                                     f"machine file's, or the defaults): {why}") from None
+            raise errors.ConfigError(f"axes.{axis}: {own_plan_refused(axis, exc)}"
+                                     ) from None
         raise ArgumentError(f"{speed_name}: {exc}") from None
     except errors.NotSupported as exc:
         if isinstance(exc, errors.ConfigError):

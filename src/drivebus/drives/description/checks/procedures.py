@@ -83,8 +83,8 @@ class ProcedureChecks(CheckCore):
         parameter, constant or register of that name, not as the named value: where it is
         both, say so (the named value is written as a text, ``"'name'"``)."""
         reg = self.regs.get(key.split("[", 1)[0].strip())
-        name = value.source.strip() if isinstance(value.source, str) else None
-        if reg is None or name is None or name not in reg.d.values:
+        name = value.source.strip()
+        if reg is None or name not in reg.d.values:
             return
         meaning = ("parameter" if name in params else "constant" if name in self.d.constants
                    else "register" if name in self.regs else None)
